@@ -1,0 +1,35 @@
+"""Measurement types, wire codec and SE(3) maths; no zenoh, no networkx, no processes."""
+
+from .codec import decode, encode
+from .errors import ExtrapolationError, MeasurementError
+from .measurements import (
+    MEASUREMENT_TYPES,
+    CameraIntrinsics,
+    ErrorPose,
+    Measurement,
+    Pose,
+    Position2D,
+    Position3D,
+    PositionList2D,
+    PositionList3D,
+    Projection,
+    Rotation3D,
+)
+
+__all__ = [
+    "MEASUREMENT_TYPES",
+    "CameraIntrinsics",
+    "ErrorPose",
+    "ExtrapolationError",
+    "Measurement",
+    "MeasurementError",
+    "Pose",
+    "Position2D",
+    "Position3D",
+    "PositionList2D",
+    "PositionList3D",
+    "Projection",
+    "Rotation3D",
+    "decode",
+    "encode",
+]

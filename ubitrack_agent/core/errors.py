@@ -1,0 +1,14 @@
+"""The one exception raised for an invalid measurement, built or decoded."""
+
+
+class MeasurementError(ValueError):
+    """A measurement failed validation.
+
+    The message always names the offending field and what was wrong with it, e.g.
+    ``"Pose.rotation: not a unit quaternion (norm 1.2)"``. Decoders raise nothing else, whatever
+    the bytes they are given, so a caller can count and log rejects with one ``except``.
+    """
+
+
+class ExtrapolationError(ValueError):
+    """A value was asked for at a time outside the samples available to interpolate it."""

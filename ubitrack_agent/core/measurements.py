@@ -1,0 +1,343 @@
+"""Measurement types: the values that flow along the edges of a spatial relationship graph.
+
+Conventions (also in ``docs/architecture.md``):
+
+* **Direction.** A measurement on the SRG edge ``A -> B`` is the pose (or position, ...) of
+  ``B`` expressed in ``A``: a point with coordinates ``x_B`` in frame B has coordinates
+  ``x_A = R x_B + t`` in frame A. This is the paper's and Ubitrack's convention (section 2).
+* **Units.** Metres and radians. Adapters convert from millimetres (A.R.T. DTrack) on entry.
+* **Quaternions** are ``(x, y, z, w)``, scalar last, as in scipy's ``Rotation.from_quat``.
+  They are validated to be of unit norm within :data:`UNIT_QUATERNION_TOLERANCE` and are kept
+  exactly as given (not renormalised), so that encode/decode round-trips are exact.
+* **Pose covariance** is 6x6 over the left ("global") perturbation ``T = Exp(xi) T_mean`` with
+  ``xi = (phi, rho)``, rotation first, expressed in the coordinates of the edge's source frame A;
+  this is the ordering of scipy's ``RigidTransform.as_exp_coords`` and of pytransform3d. See
+  :mod:`ubitrack_agent.core.uncertainty` for propagation and
+  ``../shared/reference/field-notes.md`` section 9 for the derivation.
+* **Position covariance** is the plain covariance of the coordinates (3x3 or 2x2).
+* **Timestamps** are integer nanoseconds (``0 <= t < 2**63``), in the clock of the sensor's
+  host (normally ``time.time_ns()``).
+* **Camera model** follows OpenCV: the camera looks along +z, image y points down, the
+  intrinsic matrix is ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` and distortion coefficients
+  are OpenCV's ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tx, ty]]]])``.
+
+Every type validates its fields on construction and raises
+:class:`~ubitrack_agent.core.errors.MeasurementError` naming the field; values are stored as
+read-only float64 arrays, so a measurement that exists is a valid one.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .errors import MeasurementError
+
+UNIT_QUATERNION_TOLERANCE = 1e-6
+"""Largest accepted deviation of a quaternion's norm from 1."""
+
+MAX_TIMESTAMP_NS = 2**63 - 1
+"""Timestamps are non-negative signed 64-bit nanoseconds (until the year 2262)."""
+
+MAX_LIST_LENGTH = 1_000_000
+"""Largest accepted number of points in a position list."""
+
+OPENCV_DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
+"""Numbers of distortion coefficients OpenCV's camera model accepts."""
+
+_SYMMETRY_TOLERANCE = 1e-9
+_PSD_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class ArrayField:
+    """Describes one float64 array field of a measurement type.
+
+    ``shape`` uses ``None`` for a free dimension (the number of points of a list).
+    """
+
+    name: str
+    shape: tuple[int | None, ...]
+    optional: bool = False
+    allowed_lengths: tuple[int, ...] | None = None
+    check: Callable[[str, np.ndarray], None] | None = None
+
+
+def _fail(where: str, what: str) -> MeasurementError:
+    return MeasurementError(f"{where}: {what}")
+
+
+def check_timestamp(where: str, value: Any) -> int:
+    """Return ``value`` as an int nanosecond timestamp, or raise naming ``where``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise _fail(where, f"must be an integer number of nanoseconds, got {type(value).__name__}")
+    value = int(value)
+    if not 0 <= value <= MAX_TIMESTAMP_NS:
+        raise _fail(where, f"out of range [0, 2**63): {value}")
+    return value
+
+
+def _as_array(where: str, value: Any, spec: ArrayField) -> np.ndarray:
+    try:
+        array = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise _fail(where, f"not an array of numbers ({exc})") from None
+    if array.ndim != len(spec.shape) or not all(
+        want is None or got == want for got, want in zip(array.shape, spec.shape, strict=True)
+    ):
+        shape = "x".join("N" if d is None else str(d) for d in spec.shape)
+        raise _fail(where, f"shape must be {shape}, got {'x'.join(map(str, array.shape))}")
+    if spec.allowed_lengths is not None and array.shape[0] not in spec.allowed_lengths:
+        raise _fail(where, f"length must be one of {spec.allowed_lengths}, got {array.shape[0]}")
+    if array.ndim and array.shape[0] > MAX_LIST_LENGTH:
+        raise _fail(where, f"more than {MAX_LIST_LENGTH} entries")
+    if not np.isfinite(array).all():
+        raise _fail(where, "contains NaN or infinity")
+    if spec.check is not None:
+        spec.check(where, array)
+    array.flags.writeable = False
+    return array
+
+
+def check_unit_quaternion(where: str, q: np.ndarray) -> None:
+    """Reject a quaternion whose norm is not 1 within :data:`UNIT_QUATERNION_TOLERANCE`."""
+    norm = math.sqrt(float(q @ q))
+    if abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE:
+        raise _fail(where, f"not a unit quaternion (norm {norm:.9g})")
+
+
+def check_covariance(where: str, cov: np.ndarray) -> None:
+    """Reject a matrix that is not symmetric positive semi-definite (within round-off)."""
+    scale = max(1.0, float(np.max(np.abs(cov))))
+    if np.max(np.abs(cov - cov.T)) > _SYMMETRY_TOLERANCE * scale:
+        raise _fail(where, "covariance is not symmetric")
+    smallest = float(np.linalg.eigvalsh(cov)[0])
+    if smallest < -_PSD_TOLERANCE * scale:
+        raise _fail(where, f"covariance is not positive semi-definite (eigenvalue {smallest:.3g})")
+
+
+def check_intrinsic_matrix(where: str, k: np.ndarray) -> None:
+    """Reject a matrix that is not ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` with fx, fy > 0."""
+    if k[1, 0] != 0.0 or k[2, 0] != 0.0 or k[2, 1] != 0.0 or k[2, 2] != 1.0:
+        raise _fail(where, "must have the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    if k[0, 0] <= 0.0 or k[1, 1] <= 0.0:
+        raise _fail(where, f"focal lengths must be positive, got fx={k[0, 0]}, fy={k[1, 1]}")
+
+
+def check_projection(where: str, p: np.ndarray) -> None:
+    """Reject a 3x4 projection whose left 3x3 block is singular (no camera centre)."""
+    scale = float(np.max(np.abs(p)))
+    if scale == 0.0 or abs(np.linalg.det(p[:, :3] / scale)) < 1e-12:
+        raise _fail(where, "left 3x3 block is singular")
+
+
+@dataclass(frozen=True, eq=False)
+class Measurement:
+    """Base class: a timestamped value of one SRG edge type.
+
+    Subclasses declare ``TYPE_TAG`` (the wire tag), ``SRG_TYPE`` (the edge type it measures:
+    ``6D``, ``3D``, ``2D``, ``3R``, ``3x4`` or ``intrinsics``) and ``ARRAY_FIELDS``.
+    """
+
+    TYPE_TAG: ClassVar[str]
+    SRG_TYPE: ClassVar[str]
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]]
+
+    timestamp_ns: int
+
+    def __post_init__(self) -> None:
+        name = type(self).__name__
+        object.__setattr__(
+            self, "timestamp_ns", check_timestamp(f"{name}.timestamp_ns", self.timestamp_ns)
+        )
+        for spec in self.ARRAY_FIELDS:
+            value = getattr(self, spec.name)
+            where = f"{name}.{spec.name}"
+            if value is None:
+                if not spec.optional:
+                    raise _fail(where, "is required")
+                continue
+            object.__setattr__(self, spec.name, _as_array(where, value, spec))
+        self._check_extra()
+
+    def _check_extra(self) -> None:
+        """Validate fields that are not float arrays (overridden where there are any)."""
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        for f in fields(self):
+            a, b = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                if a is None or b is None or not np.array_equal(a, b):
+                    return False
+            elif a != b:
+                return False
+        return True
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+_ROTATION = ArrayField("rotation", (4,), check=check_unit_quaternion)
+_TRANSLATION = ArrayField("translation", (3,))
+
+
+@dataclass(frozen=True, eq=False)
+class Pose(Measurement):
+    """6D pose of B in A: unit quaternion ``rotation`` (x, y, z, w) and ``translation`` (m)."""
+
+    TYPE_TAG: ClassVar[str] = "Pose"
+    SRG_TYPE: ClassVar[str] = "6D"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (_ROTATION, _TRANSLATION)
+
+    rotation: np.ndarray
+    translation: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ErrorPose(Measurement):
+    """6D pose with a 6x6 covariance over the left perturbation ``xi = (phi, rho)``."""
+
+    TYPE_TAG: ClassVar[str] = "ErrorPose"
+    SRG_TYPE: ClassVar[str] = "6D"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (
+        _ROTATION,
+        _TRANSLATION,
+        ArrayField("covariance", (6, 6), check=check_covariance),
+    )
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    covariance: np.ndarray
+
+    def mean(self) -> Pose:
+        """The pose without its covariance."""
+        return Pose(self.timestamp_ns, self.rotation, self.translation)
+
+
+@dataclass(frozen=True, eq=False)
+class Position3D(Measurement):
+    """3D position of B in A (m), with an optional 3x3 covariance (m^2)."""
+
+    TYPE_TAG: ClassVar[str] = "Position3D"
+    SRG_TYPE: ClassVar[str] = "3D"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (
+        ArrayField("position", (3,)),
+        ArrayField("covariance", (3, 3), optional=True, check=check_covariance),
+    )
+
+    position: np.ndarray
+    covariance: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Position2D(Measurement):
+    """2D image position (px) of a point B in image plane A, optional 2x2 covariance (px^2)."""
+
+    TYPE_TAG: ClassVar[str] = "Position2D"
+    SRG_TYPE: ClassVar[str] = "2D"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (
+        ArrayField("position", (2,)),
+        ArrayField("covariance", (2, 2), optional=True, check=check_covariance),
+    )
+
+    position: np.ndarray
+    covariance: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Rotation3D(Measurement):
+    """Orientation of B in A as a unit quaternion (x, y, z, w): the ``3R`` edge type."""
+
+    TYPE_TAG: ClassVar[str] = "Rotation3D"
+    SRG_TYPE: ClassVar[str] = "3R"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (_ROTATION,)
+
+    rotation: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class PositionList3D(Measurement):
+    """N simultaneous 3D positions (N x 3, m): one sample of a space-expanded 3D edge set."""
+
+    TYPE_TAG: ClassVar[str] = "PositionList3D"
+    SRG_TYPE: ClassVar[str] = "3D"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (ArrayField("positions", (None, 3)),)
+
+    positions: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class PositionList2D(Measurement):
+    """N simultaneous image positions (N x 2, px): one sample of a space-expanded 2D edge set."""
+
+    TYPE_TAG: ClassVar[str] = "PositionList2D"
+    SRG_TYPE: ClassVar[str] = "2D"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (ArrayField("positions", (None, 2)),)
+
+    positions: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Projection(Measurement):
+    """3x4 projection matrix ``P = K [R | t]`` mapping homogeneous points of B to image A."""
+
+    TYPE_TAG: ClassVar[str] = "Projection"
+    SRG_TYPE: ClassVar[str] = "3x4"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (
+        ArrayField("matrix", (3, 4), check=check_projection),
+    )
+
+    matrix: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class CameraIntrinsics(Measurement):
+    """Intrinsic matrix, OpenCV distortion coefficients and optional image size (w, h) in px."""
+
+    TYPE_TAG: ClassVar[str] = "CameraIntrinsics"
+    SRG_TYPE: ClassVar[str] = "intrinsics"
+    ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (
+        ArrayField("matrix", (3, 3), check=check_intrinsic_matrix),
+        ArrayField("distortion", (None,), allowed_lengths=OPENCV_DISTORTION_LENGTHS),
+    )
+
+    matrix: np.ndarray
+    distortion: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    image_size: tuple[int, int] | None = None
+
+    def _check_extra(self) -> None:
+        if self.image_size is None:
+            return
+        where = "CameraIntrinsics.image_size"
+        size = self.image_size
+        if not isinstance(size, tuple | list) or len(size) != 2:
+            raise _fail(where, "must be a pair (width, height)")
+        for value in size:
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                raise _fail(where, "width and height must be integers")
+            if not 0 < int(value) <= 1 << 20:
+                raise _fail(where, f"width and height must be in [1, 2**20], got {value}")
+        object.__setattr__(self, "image_size", (int(size[0]), int(size[1])))
+
+
+MEASUREMENT_TYPES: dict[str, type[Measurement]] = {
+    cls.TYPE_TAG: cls
+    for cls in (
+        Pose,
+        ErrorPose,
+        Position3D,
+        Position2D,
+        Rotation3D,
+        PositionList3D,
+        PositionList2D,
+        Projection,
+        CameraIntrinsics,
+    )
+}
+"""Every measurement type by its wire tag."""

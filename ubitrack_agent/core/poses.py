@@ -1,0 +1,97 @@
+"""Operations on pose measurements that carry their covariance along.
+
+These combine :mod:`~ubitrack_agent.core.se3` (the means) with
+:mod:`~ubitrack_agent.core.uncertainty` (the covariances). A :class:`Pose` without covariance
+counts as exact: combining it with an :class:`ErrorPose` gives an :class:`ErrorPose`, combining
+two plain poses gives a plain pose. The result's timestamp is the later of the inputs' (a
+worker that synchronised its inputs passes equal timestamps).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import se3, uncertainty
+from .errors import ExtrapolationError
+from .measurements import ErrorPose, Pose, Position3D
+
+AnyPose = Pose | ErrorPose
+
+_ZERO6 = np.zeros((6, 6))
+
+
+def _covariance(pose: AnyPose) -> np.ndarray | None:
+    return pose.covariance if isinstance(pose, ErrorPose) else None
+
+
+def _make(timestamp_ns: int, q: np.ndarray, t: np.ndarray, cov: np.ndarray | None) -> AnyPose:
+    if cov is None:
+        return Pose(timestamp_ns, q, t)
+    return ErrorPose(timestamp_ns, q, t, 0.5 * (cov + cov.T))
+
+
+def invert_pose(pose: AnyPose) -> AnyPose:
+    """The inverse edge (B->A from A->B), covariance transported exactly."""
+    q, t = se3.invert(pose.rotation, pose.translation)
+    cov = _covariance(pose)
+    if cov is not None:
+        cov = uncertainty.invert_covariance(pose.rotation, pose.translation, cov)
+    return _make(pose.timestamp_ns, q, t, cov)
+
+
+def compose_poses(first: AnyPose, second: AnyPose) -> AnyPose:
+    """Concatenation A->C of ``first`` = A->B and ``second`` = B->C (independent errors)."""
+    q, t = se3.compose(first.rotation, first.translation, second.rotation, second.translation)
+    cov1, cov2 = _covariance(first), _covariance(second)
+    cov = None
+    if cov1 is not None or cov2 is not None:
+        cov = uncertainty.compose_covariance(
+            first.rotation,
+            first.translation,
+            _ZERO6 if cov1 is None else cov1,
+            _ZERO6 if cov2 is None else cov2,
+        )
+    return _make(max(first.timestamp_ns, second.timestamp_ns), q, t, cov)
+
+
+def transform_position(pose: AnyPose, point: Position3D) -> Position3D:
+    """Concatenation of A->B (pose) with B->P (position): the position of P in A.
+
+    Covariance: ``R Sigma_p R^T + J Sigma_T J^T`` with ``J = [-[x']x, I]``, the Jacobian of
+    ``Exp(xi) x'`` at ``xi = 0`` for the left perturbation of the pose.
+    """
+    x = se3.transform_points(pose.rotation, pose.translation, point.position)
+    cov_pose, cov_point = _covariance(pose), point.covariance
+    cov = None
+    if cov_pose is not None or cov_point is not None:
+        cov = np.zeros((3, 3))
+        if cov_point is not None:
+            rotation = se3.quaternions.to_matrix(pose.rotation)
+            cov += rotation @ cov_point @ rotation.T
+        if cov_pose is not None:
+            jacobian = np.hstack((-uncertainty.skew(x), np.eye(3)))
+            cov += jacobian @ cov_pose @ jacobian.T
+        cov = 0.5 * (cov + cov.T)
+    return Position3D(max(pose.timestamp_ns, point.timestamp_ns), x, cov)
+
+
+def interpolate_pose(before: AnyPose, after: AnyPose, timestamp_ns: int) -> AnyPose:
+    """The pose at ``timestamp_ns`` between two samples: SLERP and linear translation.
+
+    Covariance by :func:`~ubitrack_agent.core.uncertainty.interpolate_covariance` (the linear
+    blend). Raises :class:`ExtrapolationError` outside ``[before, after]``.
+    """
+    t0, t1 = before.timestamp_ns, after.timestamp_ns
+    if not t0 <= timestamp_ns <= t1:
+        raise ExtrapolationError(f"timestamp {timestamp_ns} outside [{t0}, {t1}]")
+    s = 0.0 if t1 == t0 else (timestamp_ns - t0) / (t1 - t0)
+    q, t = se3.interpolate(
+        before.rotation, before.translation, after.rotation, after.translation, s
+    )
+    cov0, cov1 = _covariance(before), _covariance(after)
+    cov = None
+    if cov0 is not None or cov1 is not None:
+        cov = uncertainty.interpolate_covariance(
+            _ZERO6 if cov0 is None else cov0, _ZERO6 if cov1 is None else cov1, s
+        )
+    return _make(timestamp_ns, q, t, cov)

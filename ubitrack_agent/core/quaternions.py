@@ -1,0 +1,109 @@
+"""Unit quaternions ``(x, y, z, w)``, vectorised over leading batch dimensions.
+
+Why by hand: scipy's ``Rotation`` implements all of this, but each call on a single rotation
+costs tens of microseconds of object overhead (measured 50 us for a compose, scipy 1.17.1),
+and workers handle one pose at a time at kilohertz rates. Here the Hamilton product and the
+rotation matrix are written as constant bilinear forms in the quaternion components, so one
+``outer product @ table`` evaluates them for one quaternion or a batch alike (about 3 us for a
+single product). The tests check every function against scipy.
+
+References: Sola, "Quaternion kinematics for the error-state Kalman filter", arXiv:1711.02508
+(product, rotation matrix); Shoemake, "Animating rotation with quaternion curves",
+SIGGRAPH 1985 (SLERP).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+
+X, Y, Z, W = range(4)
+
+
+def _product_table() -> np.ndarray:
+    """``P[i, j]`` = component vector of ``e_i * e_j`` for the basis quaternions (x, y, z, w)."""
+    table = np.zeros((4, 4, 4))
+    # Hamilton: i*j = k, j*k = i, k*i = j, i*i = j*j = k*k = -1, w is the unit.
+    for a in range(4):
+        table[W, a, a] = table[a, W, a] = 1.0
+    for a, b, c in ((X, Y, Z), (Y, Z, X), (Z, X, Y)):
+        table[a, b, c] = 1.0
+        table[b, a, c] = -1.0
+        table[a, a, W] = -1.0
+    return table.reshape(16, 4)
+
+
+def _matrix_table() -> np.ndarray:
+    """``M[i, j]`` with ``R(q) = sum_ij q_i q_j M[i, j]``, from
+    ``R = (w^2 - |u|^2) I + 2 u u^T + 2 w [u]x`` for ``q = (u, w)``."""
+    eye = np.eye(3)
+    table = np.zeros((4, 4, 3, 3))
+    table[W, W] = eye
+    for a in range(3):
+        table[a, a] = -eye + 2.0 * np.outer(eye[a], eye[a])
+        cross_matrix = np.cross(eye[a], eye).T  # column c is e_a x e_c
+        table[a, W] = table[W, a] = cross_matrix
+        for b in range(3):
+            if b != a:
+                table[a, b] = 2.0 * np.outer(eye[a], eye[b])
+    return table.reshape(16, 9)
+
+
+_PRODUCT = _product_table()
+_MATRIX = _matrix_table()
+
+
+def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a, b = np.broadcast_arrays(a, b)
+    return (a[..., :, None] * b[..., None, :]).reshape((*a.shape[:-1], 16))
+
+
+def multiply(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Hamilton product ``q1 * q2`` (apply ``q2`` first, then ``q1``)."""
+    return _outer(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float)) @ _PRODUCT
+
+
+def conjugate(q: np.ndarray) -> np.ndarray:
+    """Conjugate, which is the inverse of a unit quaternion."""
+    return np.asarray(q, dtype=float) * (-1.0, -1.0, -1.0, 1.0)
+
+
+def to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
+    q = np.asarray(q, dtype=float)
+    return (_outer(q, q) @ _MATRIX).reshape((*q.shape[:-1], 3, 3))
+
+
+def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4), broadcasting."""
+    return (to_matrix(q) @ np.asarray(v, dtype=float)[..., None])[..., 0]
+
+
+def from_matrix(matrix: np.ndarray) -> np.ndarray:
+    """Unit quaternions of rotation matrices (scipy; projects to the nearest rotation)."""
+    return Rotation.from_matrix(matrix).as_quat()
+
+
+def angle(q: np.ndarray) -> np.ndarray:
+    """Rotation angle in radians, in ``[0, pi]``, accurate for tiny angles (atan2 form)."""
+    q = np.asarray(q, dtype=float)
+    return 2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3]))
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, s: np.ndarray | float) -> np.ndarray:
+    """Spherical linear interpolation from ``q0`` (s=0) to ``q1`` (s=1) along the short arc."""
+    q0 = np.asarray(q0, dtype=float)
+    q1 = np.asarray(q1, dtype=float)
+    s = np.asarray(s, dtype=float)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0.0, -q1, q1)
+    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    sin_theta = np.sin(theta)
+    near = sin_theta < 1e-9
+    safe = np.where(near, 1.0, sin_theta)
+    w0 = np.where(near, 1.0 - s, np.sin((1.0 - s) * theta) / safe)
+    w1 = np.where(near, s, np.sin(s * theta) / safe)
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
