@@ -1,0 +1,1 @@
+"""Subcommands of the ``ubitrack`` command line, one module each (see :mod:`ubitrack_agent.cli`)."""
