@@ -130,9 +130,9 @@ def check_intrinsic_matrix(where: str, k: np.ndarray) -> None:
 
 
 def check_projection(where: str, p: np.ndarray) -> None:
-    """Reject a 3x4 projection whose left 3x3 block is singular (no camera centre)."""
-    scale = float(np.max(np.abs(p)))
-    if scale == 0.0 or abs(np.linalg.det(p[:, :3] / scale)) < 1e-12:
+    """Reject a 3x4 projection whose left 3x3 block is singular (no finite camera centre)."""
+    singular_values = np.linalg.svd(p[:, :3], compute_uv=False)
+    if singular_values[0] == 0.0 or singular_values[2] < 1e-12 * singular_values[0]:
         raise _fail(where, "left 3x3 block is singular")
 
 

@@ -1,0 +1,1 @@
+"""Simulated trackers and the ground-truth world they observe."""

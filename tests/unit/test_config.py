@@ -1,0 +1,120 @@
+"""Settings resolution: defaults < file < environment < flags, with errors naming the source."""
+
+import json
+
+import pytest
+
+from ubitrack_agent import cli, config
+from ubitrack_agent.keys import KeySpace, validate_key_chunks
+
+
+def test_embedded_defaults_are_loopback_peers_without_multicast():
+    hub, member = config.resolve("hub", env={}), config.resolve("member", env={})
+    for settings in (hub, member):
+        assert settings.mode == "peer" and settings.multicast is False
+        assert all("127.0.0.1" in e for e in settings.listen + settings.connect)
+    assert hub.listen == (f"tcp/127.0.0.1:{config.DEFAULT_HUB_PORT}",) and hub.connect == ()
+    assert member.connect == hub.listen
+    assert member.key_prefix == "ubitrack/default"
+
+
+def test_precedence_file_environment_flags(tmp_path):
+    path = tmp_path / "ubitrack.yaml"
+    path.write_text("mode: client\ndomain: lab\nconnect: [tcp/10.0.0.1:7447]\n")
+    from_file = config.resolve("member", config_file=path, env={})
+    assert (from_file.mode, from_file.domain) == ("client", "lab")
+    assert from_file.connect == ("tcp/10.0.0.1:7447",)
+    env = {"UBITRACK_DOMAIN": "hall", "UBITRACK_MULTICAST": "yes"}
+    from_env = config.resolve("member", config_file=path, env=env)
+    assert (from_env.mode, from_env.domain, from_env.multicast) == ("client", "hall", True)
+    flags = {"domain": "room", "mode": None, "connect": ["tcp/127.0.0.1:9", "udp/1.2.3.4:5"]}
+    final = config.resolve("member", config_file=path, env=env, flags=flags)
+    assert (final.mode, final.domain) == ("client", "room")
+    assert final.connect == ("tcp/127.0.0.1:9", "udp/1.2.3.4:5")
+
+
+def test_config_file_from_environment_variable(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("prefix: tracking\n")
+    settings = config.resolve("hub", env={"UBITRACK_CONFIG": str(path)})
+    assert settings.key_prefix == "tracking/default"
+
+
+def test_comma_separated_endpoints_in_environment():
+    settings = config.resolve("member", env={"UBITRACK_CONNECT": "tcp/a:1, tcp/b:2"})
+    assert settings.connect == ("tcp/a:1", "tcp/b:2")
+
+
+@pytest.mark.parametrize(
+    "content, fragment",
+    [
+        ("mode: mesh\n", "mode: must be one of"),
+        ("colour: red\n", "unknown settings ['colour']"),
+        ("connect: 7447\n", "connect: expected a list of endpoints"),
+        ("listen: [localhost]\n", "is not a zenoh endpoint"),
+        ("multicast: maybe\n", "multicast: expected true or false"),
+        ("domain: a/b\n", "domain: 'a/b' must not contain '/'"),
+        ("prefix: 'ubi/**'\n", "prefix:"),
+        ("[1, 2]\n", "expected a mapping"),
+        ("mode: [\n", "not valid YAML"),
+    ],
+)
+def test_bad_files_are_reported_with_their_name(tmp_path, content, fragment):
+    path = tmp_path / "bad.yaml"
+    path.write_text(content)
+    with pytest.raises(config.ConfigError) as info:
+        config.resolve("member", config_file=path, env={})
+    assert str(info.value).startswith(str(path))
+    assert fragment in str(info.value)
+
+
+def test_bad_environment_and_flags_name_their_source(tmp_path):
+    with pytest.raises(config.ConfigError, match=r"^environment: mode"):
+        config.resolve("member", env={"UBITRACK_MODE": "bogus"})
+    with pytest.raises(config.ConfigError, match=r"^command line: domain"):
+        config.resolve("member", env={}, flags={"domain": "x y"})
+    with pytest.raises(config.ConfigError, match="cannot read"):
+        config.resolve("member", config_file=tmp_path / "missing.yaml", env={})
+
+
+def test_zenoh_options_carry_the_settings():
+    options = config.resolve("hub", env={}).zenoh_options()
+    assert options["mode"] == "peer"
+    assert options["scouting/multicast/enabled"] is False
+    assert options["listen/endpoints"] == [f"tcp/127.0.0.1:{config.DEFAULT_HUB_PORT}"]
+
+
+@pytest.mark.parametrize(
+    "name", ["", "a//b", "/a", "a/", "*", "a/**", "x$*", "a#b", "a?x=1", "@/admin", "a b", "é"]
+)
+def test_hostile_key_names_are_rejected(name):
+    with pytest.raises(ValueError):
+        validate_key_chunks(name)
+    with pytest.raises(ValueError):
+        KeySpace("ubitrack/default").data(name)
+
+
+def test_data_keys():
+    assert KeySpace("ubitrack/lab").data("ART/HT") == "ubitrack/lab/data/ART/HT"
+
+
+def test_config_command_prints_resolved_settings(capsys, monkeypatch):
+    monkeypatch.setenv("UBITRACK_DOMAIN", "lab")
+    assert cli.main(["config", "--role", "hub", "--listen", "tcp/127.0.0.1:9000"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["key_prefix"] == "ubitrack/lab"
+    assert printed["settings"]["listen"] == ["tcp/127.0.0.1:9000"]
+
+
+def test_config_command_reports_errors(capsys, monkeypatch):
+    monkeypatch.setenv("UBITRACK_MODE", "bogus")
+    assert cli.main(["config"]) == 2
+    assert "environment: mode" in capsys.readouterr().err
+
+
+def test_every_command_has_help(capsys):
+    for name in cli.COMMAND_MODULES:
+        with pytest.raises(SystemExit) as info:
+            cli.main([name, "--help"])
+        assert info.value.code == 0
+        assert name in capsys.readouterr().out
