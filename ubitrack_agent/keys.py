@@ -2,7 +2,10 @@
 
 Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
 
-    <root>/data/<edge-id>        measurements of one SRG edge (msgpack, see core.codec)
+    <root>/data/<edge-id>            measurements of one SRG edge (msgpack, see core.codec)
+    <root>/worker/<instance>         liveliness token of a running pattern worker
+    <root>/control/<instance>        rewire / reconfigure a running worker (JSON, put)
+    <root>/status/<instance>         a worker's counters (JSON, queryable)
 
 Names that end up inside keys (frames, edge ids, domains) are checked chunk by chunk: no empty
 chunks, no wildcards (``*``, ``$``), no ``#``/``?`` (selector syntax), no ``@`` (zenoh's
@@ -43,3 +46,15 @@ class KeySpace:
     def data(self, edge_id: str) -> str:
         """Key on which the measurements of edge ``edge_id`` flow."""
         return f"{self.root}/data/{validate_key_chunks(edge_id)}"
+
+    def worker(self, instance: str) -> str:
+        """Liveliness token of the worker running component ``instance``."""
+        return f"{self.root}/worker/{validate_key_chunks(instance, single_chunk=True)}"
+
+    def control(self, instance: str) -> str:
+        """Key on which the agent sends reconfiguration commands to ``instance``."""
+        return f"{self.root}/control/{validate_key_chunks(instance, single_chunk=True)}"
+
+    def status(self, instance: str) -> str:
+        """Queryable that answers ``instance``'s counters."""
+        return f"{self.root}/status/{validate_key_chunks(instance, single_chunk=True)}"

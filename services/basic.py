@@ -1,0 +1,76 @@
+"""The basic patterns, section 3.1: inversion and concatenation, with covariance propagation."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ubitrack_agent.core import (
+    ErrorPose,
+    Measurement,
+    Pose,
+    Position2D,
+    Position3D,
+    Projection,
+    Rotation3D,
+    quaternions,
+    se3,
+)
+from ubitrack_agent.core.poses import compose_poses, invert_pose, transform_position
+
+from .registry import Inputs, Port, Service, register
+
+POSES = (Pose, ErrorPose)
+
+
+@register
+class Inversion(Service):
+    """B->A from A->B, for 6D poses (covariance transported exactly) and 3D rotations."""
+
+    NAME = "inversion"
+    INPUTS = {"in": Port((Pose, ErrorPose, Rotation3D))}
+    OUTPUTS = ("out",)
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        value = values["in"]
+        if isinstance(value, Rotation3D):
+            return {"out": Rotation3D(timestamp_ns, quaternions.conjugate(value.rotation))}
+        return {"out": invert_pose(value)}
+
+
+@register
+class Concatenation(Service):
+    """A->C from A->B (``first``) and B->C (``second``).
+
+    Supported pairs: pose x pose -> pose, pose x position -> position, rotation x rotation ->
+    rotation, projection x pose -> projection, projection x position -> image position.
+    Covariances propagate to first order where the inputs carry them (6D, 3D).
+    """
+
+    NAME = "concatenation"
+    INPUTS = {
+        "first": Port((Pose, ErrorPose, Rotation3D, Projection)),
+        "second": Port((Pose, ErrorPose, Position3D, Rotation3D)),
+    }
+    OUTPUTS = ("out",)
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        first, second = values["first"], values["second"]
+        if isinstance(first, POSES) and isinstance(second, POSES):
+            result: Measurement = compose_poses(first, second)
+        elif isinstance(first, POSES) and isinstance(second, Position3D):
+            result = transform_position(first, second)
+        elif isinstance(first, Rotation3D) and isinstance(second, Rotation3D):
+            result = Rotation3D(timestamp_ns, quaternions.multiply(first.rotation, second.rotation))
+        elif isinstance(first, Projection) and isinstance(second, POSES):
+            pose = se3.to_matrix(second.rotation, second.translation)
+            result = Projection(timestamp_ns, first.matrix @ pose)
+        elif isinstance(first, Projection) and isinstance(second, Position3D):
+            x = first.matrix @ np.append(second.position, 1.0)
+            if abs(x[2]) < 1e-12:
+                raise ValueError("point projects to infinity")
+            result = Position2D(timestamp_ns, x[:2] / x[2])
+        else:
+            raise ValueError(
+                f"cannot concatenate {type(first).__name__} with {type(second).__name__}"
+            )
+        return {"out": result}

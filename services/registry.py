@@ -1,0 +1,82 @@
+"""The registry of pattern services: the only things a worker (and so the agent) will run.
+
+A template names a service by its registered name; nothing received from the network is ever
+imported or executed. Each service declares its input ports (with the measurement types each
+accepts and whether the port takes a list of corresponding edges, i.e. a space-expanded
+correspondence, paper section 3.3) and its output ports, and computes outputs from inputs that
+the worker runtime has already synchronised to one timestamp.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from ubitrack_agent.core import Measurement
+
+
+@dataclass(frozen=True)
+class Port:
+    """An input port: accepted measurement types; ``multiple`` for a correspondence list."""
+
+    types: tuple[type[Measurement], ...]
+    multiple: bool = False
+
+
+Inputs = Mapping[str, Measurement | list[Measurement]]
+
+
+class Service(ABC):
+    """Base class of a registered pattern service.
+
+    ``compute`` gets one value per single port and a list (in binding order) per multiple port,
+    all evaluated at ``timestamp_ns``, and returns the measurements to publish by output port
+    (possibly none). It raises ``ValueError`` for input it cannot use (degenerate geometry);
+    the worker counts and logs that and carries on.
+    """
+
+    NAME: ClassVar[str]
+    INPUTS: ClassVar[dict[str, Port]]
+    OUTPUTS: ClassVar[tuple[str, ...]]
+    SYNCHRONISED: ClassVar[bool] = True
+    """True: a trigger sample evaluates all other inputs at its timestamp. False: every sample
+    is passed on its own (event-driven filters such as a Kalman filter)."""
+
+    def __init__(self, parameters: Mapping[str, Any]) -> None:
+        unknown = sorted(set(parameters) - set(self.PARAMETERS))
+        if unknown:
+            raise ValueError(f"{self.NAME}: unknown parameters {unknown}")
+        self.parameters = {**self.PARAMETERS, **parameters}
+
+    PARAMETERS: ClassVar[dict[str, Any]] = {}
+    """Accepted parameters with their defaults."""
+
+    @abstractmethod
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        """Outputs by port for inputs synchronised to ``timestamp_ns``."""
+
+
+SERVICES: dict[str, type[Service]] = {}
+
+
+def register(cls: type[Service]) -> type[Service]:
+    """Class decorator adding a service to :data:`SERVICES` under its ``NAME``."""
+    if cls.NAME in SERVICES:
+        raise ValueError(f"service {cls.NAME!r} registered twice")
+    SERVICES[cls.NAME] = cls
+    return cls
+
+
+def lookup(name: str) -> type[Service]:
+    """The registered service called ``name``; ``KeyError`` with the known names otherwise."""
+    _load_builtin_services()
+    try:
+        return SERVICES[name]
+    except KeyError:
+        raise KeyError(f"no registered service {name!r}; known: {sorted(SERVICES)}") from None
+
+
+def _load_builtin_services() -> None:
+    from . import basic  # noqa: F401  (modules register their services on import)

@@ -1,0 +1,167 @@
+"""The component specification a worker process is started with, and rewired by.
+
+JSON form (what the agent passes on the worker's command line)::
+
+    {"instance": "concat-1", "service": "concatenation", "parameters": {},
+     "inputs": [{"port": "first", "key": "ubitrack/default/data/ART/WT", "static": true},
+                {"port": "second", "key": "ubitrack/default/data/ART/HT", "trigger": true}],
+     "outputs": {"out": "ubitrack/default/data/concat-1/out"},
+     "tolerance_ms": 20}
+
+``trigger`` marks the push inputs whose samples cause a computation; ``static`` inputs answer
+their latest value. A port declared ``multiple`` by the service takes several bindings, in
+correspondence order. Validation checks every field against the registered service and
+raises :class:`SpecError` naming the field.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from ubitrack_agent.keys import validate_key_chunks
+
+from .registry import Service, lookup
+
+DEFAULT_TOLERANCE_MS = 20.0
+
+
+class SpecError(ValueError):
+    """A component specification is invalid."""
+
+
+@dataclass(frozen=True)
+class InputBinding:
+    """One input edge bound to a port: the data key it arrives on and how to sample it."""
+
+    port: str
+    key: str
+    trigger: bool = False
+    static: bool = False
+
+
+@dataclass(frozen=True)
+class ComponentSpec:
+    """Everything a worker needs to run one pattern instance."""
+
+    instance: str
+    service: str
+    inputs: tuple[InputBinding, ...]
+    outputs: dict[str, str]
+    parameters: dict[str, Any] = field(default_factory=dict)
+    tolerance_ms: float = DEFAULT_TOLERANCE_MS
+
+    @property
+    def tolerance_ns(self) -> int:
+        return int(self.tolerance_ms * 1e6)
+
+    def to_json(self) -> str:
+        return json.dumps(
+            {
+                "instance": self.instance,
+                "service": self.service,
+                "parameters": self.parameters,
+                "inputs": [vars(binding) for binding in self.inputs],
+                "outputs": self.outputs,
+                "tolerance_ms": self.tolerance_ms,
+            }
+        )
+
+
+def _require(data: Mapping[str, Any], name: str, kind: type, where: str) -> Any:
+    if name not in data:
+        raise SpecError(f"{where}.{name}: missing")
+    value = data[name]
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise SpecError(f"{where}.{name}: expected {kind.__name__}")
+    return value
+
+
+def _key(value: Any, where: str) -> str:
+    try:
+        return validate_key_chunks(value)
+    except ValueError as exc:
+        raise SpecError(f"{where}: {exc}") from None
+
+
+def parse_bindings(
+    raw: Any, service: type[Service], where: str = "spec.inputs"
+) -> tuple[InputBinding, ...]:
+    """Validate input bindings against ``service``'s ports."""
+    if not isinstance(raw, list):
+        raise SpecError(f"{where}: expected a list of bindings")
+    bindings = []
+    for index, item in enumerate(raw):
+        at = f"{where}[{index}]"
+        if not isinstance(item, dict):
+            raise SpecError(f"{at}: expected an object")
+        unknown = sorted(set(item) - {"port", "key", "trigger", "static"})
+        if unknown:
+            raise SpecError(f"{at}: unknown fields {unknown}")
+        port = _require(item, "port", str, at)
+        if port not in service.INPUTS:
+            raise SpecError(f"{at}.port: {service.NAME} has no input {port!r}")
+        trigger, static = item.get("trigger", False), item.get("static", False)
+        if not isinstance(trigger, bool) or not isinstance(static, bool):
+            raise SpecError(f"{at}: trigger and static must be true or false")
+        bindings.append(InputBinding(port, _key(item.get("key"), f"{at}.key"), trigger, static))
+    for port, declared in service.INPUTS.items():
+        count = sum(binding.port == port for binding in bindings)
+        if count == 0 or (count > 1 and not declared.multiple):
+            needed = "one or more bindings" if declared.multiple else "exactly one binding"
+            raise SpecError(f"{where}: port {port!r} needs {needed}, got {count}")
+    if service.SYNCHRONISED and not any(binding.trigger for binding in bindings):
+        raise SpecError(f"{where}: no binding is marked trigger")
+    return tuple(bindings)
+
+
+def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
+    """Parse and validate a specification (JSON text or an already decoded mapping)."""
+    if isinstance(text, str):
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SpecError(f"spec: not valid JSON ({exc})") from None
+    else:
+        data = text
+    if not isinstance(data, dict):
+        raise SpecError("spec: expected a JSON object")
+    known = {"instance", "service", "parameters", "inputs", "outputs", "tolerance_ms"}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise SpecError(f"spec: unknown fields {unknown}")
+    instance = _require(data, "instance", str, "spec")
+    try:
+        validate_key_chunks(instance, single_chunk=True)
+    except ValueError as exc:
+        raise SpecError(f"spec.instance: {exc}") from None
+    name = _require(data, "service", str, "spec")
+    try:
+        service = lookup(name)
+    except KeyError as exc:
+        raise SpecError(f"spec.service: {exc.args[0]}") from None
+    parameters = data.get("parameters", {})
+    if not isinstance(parameters, dict):
+        raise SpecError("spec.parameters: expected an object")
+    outputs = _require(data, "outputs", dict, "spec")
+    for port, key in outputs.items():
+        if port not in service.OUTPUTS:
+            raise SpecError(f"spec.outputs: {name} has no output {port!r}")
+        _key(key, f"spec.outputs.{port}")
+    tolerance = data.get("tolerance_ms", DEFAULT_TOLERANCE_MS)
+    if (
+        isinstance(tolerance, bool)
+        or not isinstance(tolerance, int | float)
+        or not 0 <= tolerance <= 10_000
+    ):
+        raise SpecError("spec.tolerance_ms: expected a number of milliseconds in [0, 10000]")
+    return ComponentSpec(
+        instance=instance,
+        service=name,
+        inputs=parse_bindings(data.get("inputs"), service),
+        outputs=dict(outputs),
+        parameters=dict(parameters),
+        tolerance_ms=float(tolerance),
+    )

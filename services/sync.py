@@ -1,0 +1,105 @@
+"""Input buffers that evaluate an input at a trigger's timestamp (DESIGN.md, Synchronisation).
+
+A worker keeps one :class:`InputBuffer` per input binding. When a trigger sample arrives at
+time ``t``, every other input is asked for its value at ``t``:
+
+* a **static** input answers its latest value, whatever its age;
+* a **dynamic** input interpolates between the two samples around ``t`` (SLERP and linear for
+  poses and rotations, linear for 3D positions, with the covariance rule of
+  :func:`ubitrack_agent.core.uncertainty.interpolate_covariance`); other types, or ``t``
+  beyond the newest or before the oldest sample, take the nearest sample if it lies within the
+  tolerance window, re-stamped to ``t``;
+* otherwise the input has no value at ``t`` and the trigger is dropped and counted.
+
+This replaces Ubitrack's hand-inserted buffer and interpolation components: the application
+never places them. Buffers keep a bounded history, so memory stays bounded.
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+from collections import deque
+
+from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D, quaternions
+from ubitrack_agent.core.poses import interpolate_pose
+from ubitrack_agent.core.uncertainty import interpolate_covariance
+
+DEFAULT_HISTORY = 64
+"""Samples a dynamic input keeps: a second of a 60 Hz tracker."""
+
+
+def interpolate(before: Measurement, after: Measurement, timestamp_ns: int) -> Measurement | None:
+    """The value at ``timestamp_ns`` between two samples of one edge, or None if the type
+    cannot be interpolated."""
+    if isinstance(before, Pose | ErrorPose) and isinstance(after, Pose | ErrorPose):
+        return interpolate_pose(before, after, timestamp_ns)
+    t0, t1 = before.timestamp_ns, after.timestamp_ns
+    s = 0.0 if t1 == t0 else (timestamp_ns - t0) / (t1 - t0)
+    if isinstance(before, Rotation3D) and isinstance(after, Rotation3D):
+        return Rotation3D(timestamp_ns, quaternions.slerp(before.rotation, after.rotation, s))
+    if isinstance(before, Position3D) and isinstance(after, Position3D):
+        position = (1.0 - s) * before.position + s * after.position
+        covariance = None
+        if before.covariance is not None and after.covariance is not None:
+            covariance = interpolate_covariance(before.covariance, after.covariance, s)
+        return Position3D(timestamp_ns, position, covariance)
+    return None
+
+
+def restamp(value: Measurement, timestamp_ns: int) -> Measurement:
+    """``value`` carried over to ``timestamp_ns``."""
+    if value.timestamp_ns == timestamp_ns:
+        return value
+    return dataclasses.replace(value, timestamp_ns=timestamp_ns)
+
+
+class InputBuffer:
+    """Recent samples of one input edge, answering its value at a given time."""
+
+    def __init__(self, static: bool, history: int = DEFAULT_HISTORY) -> None:
+        self.static = static
+        self._samples: deque[Measurement] = deque(maxlen=1 if static else history)
+        self._times: deque[int] = deque(maxlen=self._samples.maxlen)
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+    def add(self, sample: Measurement) -> None:
+        """Store a sample; out-of-order samples are inserted in time order."""
+        t = sample.timestamp_ns
+        if not self._times or t >= self._times[-1]:
+            self._samples.append(sample)
+            self._times.append(t)
+            return
+        index = bisect.bisect_right(self._times, t)
+        if len(self._samples) == self._samples.maxlen:
+            if index == 0:
+                return  # older than everything kept
+            self._samples.popleft()
+            self._times.popleft()
+            index -= 1
+        self._samples.insert(index, sample)
+        self._times.insert(index, t)
+
+    def latest(self) -> Measurement | None:
+        return self._samples[-1] if self._samples else None
+
+    def value_at(self, timestamp_ns: int, tolerance_ns: int) -> Measurement | None:
+        """The input's value at ``timestamp_ns`` (see the module docstring), or None."""
+        if not self._samples:
+            return None
+        if self.static:
+            return restamp(self._samples[-1], timestamp_ns)
+        index = bisect.bisect_left(self._times, timestamp_ns)
+        if index < len(self._times) and self._times[index] == timestamp_ns:
+            return self._samples[index]
+        if 0 < index < len(self._times):
+            value = interpolate(self._samples[index - 1], self._samples[index], timestamp_ns)
+            if value is not None:
+                return value
+        candidates = [i for i in (index - 1, index) if 0 <= i < len(self._times)]
+        nearest = min(candidates, key=lambda i: abs(self._times[i] - timestamp_ns))
+        if abs(self._times[nearest] - timestamp_ns) <= tolerance_ns:
+            return restamp(self._samples[nearest], timestamp_ns)
+        return None

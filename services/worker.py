@@ -1,0 +1,287 @@
+"""The worker runtime: one OS process runs one pattern instance, wired over zenoh.
+
+Start: ``python -m services.worker --spec '<json>' [zenoh flags]`` (see :mod:`services.spec`).
+The worker opens its own zenoh session (explicit endpoints, multicast off: it starts in
+milliseconds), declares the liveliness token ``<root>/worker/<instance>``, subscribes to its
+input keys, publishes its outputs, answers its counters on ``<root>/status/<instance>`` and
+takes commands on ``<root>/control/<instance>``:
+
+* ``{"inputs": [<bindings>]}`` rewires: bindings whose key is unchanged keep their history;
+* ``{"parameters": {...}}`` rebuilds the service with new parameters.
+
+Zenoh callbacks only append to a bounded inbox (never calling zenoh, never blocking the
+receive path); one thread decodes, synchronises (:mod:`services.sync`), computes and
+publishes. Bad input is rejected with a logged reason and counted; it never stops the worker.
+SIGTERM or SIGINT ends it cleanly, closing the session.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+from collections import Counter, deque
+from dataclasses import dataclass, replace
+from typing import Any
+
+from ubitrack_agent import config
+from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
+from ubitrack_agent.keys import KeySpace
+
+from .registry import Service, lookup
+from .spec import ComponentSpec, InputBinding, SpecError, parse_bindings, parse_spec
+from .sync import InputBuffer
+
+log = logging.getLogger("ubitrack.worker")
+
+INBOX_CAPACITY = 4096
+"""Samples waiting for the worker thread; beyond this the oldest are dropped and counted."""
+
+COUNTERS = ("received", "published", "dropped", "rejected", "failed", "overflow", "rewired")
+"""Counter names: received samples, published outputs, triggers dropped for a missing or
+out-of-tolerance input, rejected samples and commands, failed computations, inbox overflows,
+and rewires applied."""
+
+
+class Inbox:
+    """A bounded, thread-safe queue that drops its oldest item when full."""
+
+    def __init__(self, capacity: int, counters: Counter[str]) -> None:
+        self._items: deque[tuple[Any, ...]] = deque(maxlen=capacity)
+        self._ready = threading.Condition()
+        self._counters = counters
+
+    def put(self, item: tuple[Any, ...]) -> None:
+        with self._ready:
+            if len(self._items) == self._items.maxlen:
+                self._counters["overflow"] += 1
+            self._items.append(item)
+            self._ready.notify()
+
+    def get(self, timeout: float) -> tuple[Any, ...] | None:
+        with self._ready:
+            if not self._items:
+                self._ready.wait(timeout)
+            return self._items.popleft() if self._items else None
+
+
+@dataclass
+class _Input:
+    binding: InputBinding
+    buffer: InputBuffer
+    subscriber: Any
+
+
+class Worker:
+    """Runs ``spec`` on an open zenoh ``session`` until :meth:`stop`."""
+
+    def __init__(self, spec: ComponentSpec, session: Any, keys: KeySpace) -> None:
+        self.spec = spec
+        self.keys = keys
+        self.counters: Counter[str] = Counter({name: 0 for name in COUNTERS})
+        self._session = session
+        self._service_class = lookup(spec.service)
+        self._service: Service = self._service_class(spec.parameters)
+        self._inbox = Inbox(INBOX_CAPACITY, self.counters)
+        self._stop = threading.Event()
+        self._inputs: list[_Input] = []
+        self._generation = 0
+        self._publishers = {
+            port: session.declare_publisher(key) for port, key in spec.outputs.items()
+        }
+        self._control = session.declare_subscriber(
+            keys.control(spec.instance),
+            lambda s: self._inbox.put(("control", s.payload.to_bytes())),
+        )
+        self._status = session.declare_queryable(keys.status(spec.instance))
+        self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
+        self._bind(spec.inputs)
+        self._token = session.liveliness().declare_token(keys.worker(spec.instance))
+
+    # -- wiring ---------------------------------------------------------------------------
+
+    def _bind(self, bindings: tuple[InputBinding, ...]) -> None:
+        """Subscribe to ``bindings``, keeping the buffers of keys already subscribed."""
+        self._generation += 1
+        generation = self._generation
+        old = {(item.binding.key, item.binding.static): item for item in self._inputs}
+        inputs = []
+        for index, binding in enumerate(bindings):
+            kept = old.pop((binding.key, binding.static), None)
+            buffer = kept.buffer if kept else InputBuffer(binding.static)
+            if kept:
+                kept.subscriber.undeclare()
+            subscriber = self._session.declare_subscriber(
+                binding.key,
+                lambda s, i=index: self._inbox.put(("data", generation, i, s.payload.to_bytes())),
+            )
+            inputs.append(_Input(binding, buffer, subscriber))
+        for item in old.values():
+            item.subscriber.undeclare()
+        self._inputs = inputs
+
+    def _apply_control(self, payload: bytes) -> None:
+        try:
+            command = json.loads(payload)
+            if (
+                not isinstance(command, dict)
+                or not command
+                or set(command) - {"inputs", "parameters"}
+            ):
+                raise SpecError('control: expected {"inputs": [...]} and/or {"parameters": {...}}')
+            if "parameters" in command:
+                if not isinstance(command["parameters"], dict):
+                    raise SpecError("control.parameters: expected an object")
+                service = self._service_class(command["parameters"])
+                self.spec = replace(self.spec, parameters=command["parameters"])
+                self._service = service
+            if "inputs" in command:
+                bindings = parse_bindings(command["inputs"], self._service_class, "control.inputs")
+                self.spec = replace(self.spec, inputs=bindings)
+                self._bind(bindings)
+        except (ValueError, TypeError) as exc:
+            self.counters["rejected"] += 1
+            log.error("%s: rejected control command: %s", self.spec.instance, exc)
+            return
+        self.counters["rewired"] += 1
+        log.info("%s: reconfigured: %s", self.spec.instance, sorted(command))
+
+    # -- data path --------------------------------------------------------------------------
+
+    def _on_sample(self, generation: int, index: int, payload: bytes) -> None:
+        if generation != self._generation:
+            return  # arrived from a subscription a rewire replaced
+        item = self._inputs[index]
+        self.counters["received"] += 1
+        try:
+            sample = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
+        except MeasurementError as exc:
+            self.counters["rejected"] += 1
+            if self.counters["rejected"] <= 10 or self.counters["rejected"] % 1000 == 0:
+                log.warning(
+                    "%s: rejected sample on %s: %s", self.spec.instance, item.binding.key, exc
+                )
+            return
+        item.buffer.add(sample)
+        if not self._service_class.SYNCHRONISED:
+            self._compute({item.binding.port: sample}, sample.timestamp_ns)
+        elif item.binding.trigger:
+            self._trigger(index, sample)
+
+    def _trigger(self, trigger_index: int, sample: Measurement) -> None:
+        t = sample.timestamp_ns
+        values: dict[str, Any] = {}
+        for index, item in enumerate(self._inputs):
+            port = item.binding.port
+            value = (
+                sample
+                if index == trigger_index
+                else item.buffer.value_at(t, self.spec.tolerance_ns)
+            )
+            if self._service_class.INPUTS[port].multiple:
+                values.setdefault(port, []).append(value)
+            elif value is None:
+                self.counters["dropped"] += 1
+                return
+            else:
+                values[port] = value
+        self._compute(values, t)
+
+    def _compute(self, values: dict[str, Any], timestamp_ns: int) -> None:
+        try:
+            outputs = self._service.compute(values, timestamp_ns)
+        except (ValueError, MeasurementError, ArithmeticError) as exc:
+            self.counters["failed"] += 1
+            if self.counters["failed"] <= 10 or self.counters["failed"] % 1000 == 0:
+                log.warning("%s: computation failed: %s", self.spec.instance, exc)
+            return
+        for port, value in outputs.items():
+            publisher = self._publishers.get(port)
+            if publisher is not None:
+                publisher.put(encode(value))
+                self.counters["published"] += 1
+
+    # -- status and life cycle ----------------------------------------------------------------
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "instance": self.spec.instance,
+            "service": self.spec.service,
+            "counters": dict(self.counters),
+            "spec": json.loads(self.spec.to_json()),
+        }
+
+    def _serve_status(self) -> None:
+        for query in self._status:
+            with query:
+                query.reply(query.key_expr, json.dumps(self.status()))
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def run(self) -> None:
+        """Process the inbox until :meth:`stop`; then undeclare everything."""
+        self._status_thread.start()
+        try:
+            while not self._stop.is_set():
+                item = self._inbox.get(timeout=0.1)
+                if item is None:
+                    continue
+                if item[0] == "data":
+                    self._on_sample(*item[1:])
+                else:
+                    self._apply_control(item[1])
+        finally:
+            self._token.undeclare()
+            for item in self._inputs:
+                item.subscriber.undeclare()
+            self._control.undeclare()
+            self._status.undeclare()
+            self._status_thread.join(timeout=1.0)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m services.worker",
+        description="Run one pattern instance from a component specification (JSON).",
+    )
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--spec", help="the specification as JSON text")
+    source.add_argument("--spec-file", help="a file holding the specification")
+    parser.add_argument(
+        "--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR")
+    )
+    config.add_arguments(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    try:
+        if args.spec is None:
+            with open(args.spec_file, encoding="utf-8") as file:
+                args.spec = file.read()
+        spec = parse_spec(args.spec)
+        settings = config.from_arguments(args, role="member")
+    except (OSError, SpecError, config.ConfigError) as exc:
+        print(f"worker: {exc}", file=sys.stderr)
+        return 2
+    from ubitrack_agent.session import open_session
+
+    with open_session(settings) as session:
+        worker = Worker(spec, session, KeySpace(settings.key_prefix))
+        signal.signal(signal.SIGTERM, lambda *_: worker.stop())
+        signal.signal(signal.SIGINT, lambda *_: worker.stop())
+        log.info("%s: running %s", spec.instance, spec.service)
+        worker.run()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,113 @@
+"""Registry, component specifications, and the inversion and concatenation services."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from services.registry import lookup
+from services.spec import SpecError, parse_spec
+from ubitrack_agent.core import (
+    ErrorPose,
+    Pose,
+    Position2D,
+    Position3D,
+    Projection,
+    Rotation3D,
+    se3,
+)
+
+RNG = np.random.default_rng(5)
+Q = Rotation.random(rng=RNG).as_quat()
+T = RNG.normal(size=3)
+K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+
+
+def test_lookup_lists_known_services_when_unknown():
+    assert lookup("concatenation").NAME == "concatenation"
+    with pytest.raises(KeyError, match=r"known:.*inversion"):
+        lookup("os.system")
+
+
+def test_inversion_of_pose_and_rotation():
+    service = lookup("inversion")({})
+    out = service.compute({"in": ErrorPose(1, Q, T, np.eye(6) * 1e-6)}, 1)["out"]
+    back = se3.compose(Q, T, out.rotation, out.translation)
+    np.testing.assert_allclose(se3.to_matrix(*back), np.eye(4), atol=1e-12)
+    rotation = service.compute({"in": Rotation3D(1, Q)}, 1)["out"]
+    np.testing.assert_allclose(rotation.rotation, Q * [-1, -1, -1, 1])
+
+
+def test_concatenation_of_every_supported_pair():
+    service = lookup("concatenation")({})
+    pose = Pose(7, Q, T)
+    point = Position3D(7, [0.1, 0.2, 3.0])
+    out = service.compute({"first": pose, "second": point}, 7)["out"]
+    np.testing.assert_allclose(out.position, se3.transform_points(Q, T, point.position))
+    rot = service.compute({"first": Rotation3D(7, Q), "second": Rotation3D(7, Q)}, 7)["out"]
+    assert isinstance(rot, Rotation3D)
+    projection = Projection(7, K @ np.hstack((np.eye(3), np.zeros((3, 1)))))
+    composed = service.compute({"first": projection, "second": pose}, 7)["out"]
+    np.testing.assert_allclose(composed.matrix, projection.matrix @ se3.to_matrix(Q, T))
+    pixel = service.compute({"first": projection, "second": point}, 7)["out"]
+    assert isinstance(pixel, Position2D)
+    np.testing.assert_allclose(pixel.position, [320 + 800 * 0.1 / 3, 240 + 800 * 0.2 / 3])
+    with pytest.raises(ValueError, match="cannot concatenate"):
+        service.compute({"first": Rotation3D(7, Q), "second": pose}, 7)
+    behind = Position3D(7, [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="infinity"):
+        service.compute({"first": projection, "second": behind}, 7)
+
+
+def test_unknown_parameters_are_refused():
+    with pytest.raises(ValueError, match="unknown parameters"):
+        lookup("inversion")({"gain": 2})
+
+
+VALID = {
+    "instance": "c1",
+    "service": "concatenation",
+    "inputs": [
+        {"port": "first", "key": "u/d/data/A/B", "static": True},
+        {"port": "second", "key": "u/d/data/B/C", "trigger": True},
+    ],
+    "outputs": {"out": "u/d/data/c1/out"},
+}
+
+
+def test_valid_spec_round_trips_through_json():
+    spec = parse_spec(json.dumps(VALID))
+    assert spec.tolerance_ns == 20_000_000
+    assert parse_spec(spec.to_json()) == spec
+
+
+@pytest.mark.parametrize(
+    "change, fragment",
+    [
+        ({"service": "subprocess"}, "spec.service: no registered service"),
+        ({"instance": "a/b"}, "spec.instance"),
+        ({"instance": 5}, "spec.instance: expected str"),
+        ({"outputs": {"nope": "k"}}, "has no output 'nope'"),
+        ({"outputs": {"out": "u/*/x"}}, "spec.outputs.out"),
+        ({"inputs": [VALID["inputs"][0]]}, "port 'second' needs exactly one binding"),
+        ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "trigger": False}]}, "trigger"),
+        ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "key": "a/**"}]}, "inputs[1].key"),
+        ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "extra": 1}]}, "unknown fields"),
+        ({"inputs": "x"}, "expected a list"),
+        ({"tolerance_ms": -1}, "tolerance_ms"),
+        ({"tolerance_ms": True}, "tolerance_ms"),
+        ({"colour": "red"}, "unknown fields ['colour']"),
+    ],
+)
+def test_invalid_specs_name_the_field(change, fragment):
+    with pytest.raises(SpecError) as info:
+        parse_spec({**VALID, **change})
+    assert fragment in str(info.value)
+
+
+def test_spec_text_must_be_a_json_object():
+    with pytest.raises(SpecError, match="not valid JSON"):
+        parse_spec("{")
+    with pytest.raises(SpecError, match="expected a JSON object"):
+        parse_spec("[1]")
