@@ -27,7 +27,7 @@ from collections import Counter, deque
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ubitrack_agent import config
+from ubitrack_agent import config, logs
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
 from ubitrack_agent.keys import KeySpace
 
@@ -251,18 +251,14 @@ def build_parser() -> argparse.ArgumentParser:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--spec", help="the specification as JSON text")
     source.add_argument("--spec-file", help="a file holding the specification")
-    parser.add_argument(
-        "--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR")
-    )
+    logs.add_log_level_argument(parser, default="INFO")
     config.add_arguments(parser)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
+    logs.configure(args.log_level)
     try:
         if args.spec is None:
             with open(args.spec_file, encoding="utf-8") as file:

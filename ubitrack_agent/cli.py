@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import logging
 import sys
 
-from . import __version__
+from . import __version__, logs
 
 COMMAND_MODULES: tuple[str, ...] = ("config", "demo")
 """Modules of :mod:`ubitrack_agent.commands`, in the order ``--help`` lists them."""
@@ -24,12 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Spatial relationship pattern middleware for tracking and calibration.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    parser.add_argument(
-        "--log-level",
-        default="WARNING",
-        choices=("DEBUG", "INFO", "WARNING", "ERROR"),
-        help="logging threshold on stderr (default: %(default)s)",
-    )
+    logs.add_log_level_argument(parser)
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(f"{__package__}.commands.{name}").register(subparsers)
@@ -38,9 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
+    logs.configure(args.log_level)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
