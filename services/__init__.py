@@ -2,7 +2,6 @@
 
 * :mod:`services.algorithms` - pure maths, arrays in and out, no dataflow dependency.
 * :mod:`services.registry` - the services the agent may launch, by registered name.
-* :mod:`services.sync` - input buffers that evaluate inputs at a trigger's timestamp.
 * :mod:`services.spec` - the component specification a worker is started with.
 * :mod:`services.worker` - one OS process per pattern instance, wired over zenoh.
 """

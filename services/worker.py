@@ -10,7 +10,7 @@ takes commands on ``<root>/control/<instance>``:
 * ``{"parameters": {...}}`` rebuilds the service with new parameters.
 
 Zenoh callbacks only append to a bounded inbox (never calling zenoh, never blocking the
-receive path); one thread decodes, synchronises (:mod:`services.sync`), computes and
+receive path); one thread decodes, synchronises (:mod:`ubitrack_agent.core.timeline`), computes and
 publishes. Bad input is rejected with a logged reason and counted; it never stops the worker.
 SIGTERM or SIGINT ends it cleanly, closing the session.
 """
@@ -29,11 +29,11 @@ from typing import Any
 
 from ubitrack_agent import config, logs
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
+from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.keys import KeySpace
 
 from .registry import Service, lookup
 from .spec import ComponentSpec, InputBinding, SpecError, parse_bindings, parse_spec
-from .sync import InputBuffer
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -71,7 +71,7 @@ class Inbox:
 @dataclass
 class _Input:
     binding: InputBinding
-    buffer: InputBuffer
+    buffer: SampleBuffer
     subscriber: Any
 
 
@@ -111,7 +111,7 @@ class Worker:
         inputs = []
         for index, binding in enumerate(bindings):
             kept = old.pop((binding.key, binding.static), None)
-            buffer = kept.buffer if kept else InputBuffer(binding.static)
+            buffer = kept.buffer if kept else SampleBuffer(binding.static)
             if kept:
                 kept.subscriber.undeclare()
             subscriber = self._session.declare_subscriber(

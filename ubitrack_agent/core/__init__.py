@@ -1,7 +1,7 @@
 """Measurement types, wire codec and SE(3) maths; no zenoh, no networkx, no processes."""
 
 from .codec import decode, encode
-from .errors import ExtrapolationError, MeasurementError
+from .errors import ExtrapolationError, MeasurementError, NoDataError
 from .measurements import (
     MEASUREMENT_TYPES,
     CameraIntrinsics,
@@ -23,6 +23,7 @@ __all__ = [
     "ExtrapolationError",
     "Measurement",
     "MeasurementError",
+    "NoDataError",
     "Pose",
     "Position2D",
     "Position3D",

@@ -12,3 +12,7 @@ class MeasurementError(ValueError):
 
 class ExtrapolationError(ValueError):
     """A value was asked for at a time outside the samples available to interpolate it."""
+
+
+class NoDataError(LookupError):
+    """A value was asked for before any sample arrived."""

@@ -1,7 +1,8 @@
-"""Input buffers that evaluate an input at a trigger's timestamp (DESIGN.md, Synchronisation).
+"""Sample buffers that evaluate an edge at any timestamp (DESIGN.md, Synchronisation).
 
-A worker keeps one :class:`InputBuffer` per input binding. When a trigger sample arrives at
-time ``t``, every other input is asked for its value at ``t``:
+A worker keeps one :class:`SampleBuffer` per input binding; when a trigger sample arrives at
+time ``t``, every other input is asked for its value at ``t``. An application's relation keeps
+one to answer ``lookup(t)``. The rules:
 
 * a **static** input answers its latest value, whatever its age;
 * a **dynamic** input interpolates between the two samples around ``t`` (SLERP and linear for
@@ -13,6 +14,9 @@ time ``t``, every other input is asked for its value at ``t``:
 
 This replaces Ubitrack's hand-inserted buffer and interpolation components: the application
 never places them. Buffers keep a bounded history, so memory stays bounded.
+
+Applications use the strict form (no value outside the span of the samples, typed errors, in
+the manner of tf2's ``lookupTransform``): see :meth:`SampleBuffer.lookup`.
 """
 
 from __future__ import annotations
@@ -21,9 +25,11 @@ import bisect
 import dataclasses
 from collections import deque
 
-from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D, quaternions
-from ubitrack_agent.core.poses import interpolate_pose
-from ubitrack_agent.core.uncertainty import interpolate_covariance
+from . import quaternions
+from .errors import ExtrapolationError, NoDataError
+from .measurements import ErrorPose, Measurement, Pose, Position3D, Rotation3D
+from .poses import interpolate_pose
+from .uncertainty import interpolate_covariance
 
 DEFAULT_HISTORY = 64
 """Samples a dynamic input keeps: a second of a 60 Hz tracker."""
@@ -54,7 +60,7 @@ def restamp(value: Measurement, timestamp_ns: int) -> Measurement:
     return dataclasses.replace(value, timestamp_ns=timestamp_ns)
 
 
-class InputBuffer:
+class SampleBuffer:
     """Recent samples of one input edge, answering its value at a given time."""
 
     def __init__(self, static: bool, history: int = DEFAULT_HISTORY) -> None:
@@ -84,6 +90,21 @@ class InputBuffer:
 
     def latest(self) -> Measurement | None:
         return self._samples[-1] if self._samples else None
+
+    def lookup(self, timestamp_ns: int) -> Measurement:
+        """The value at ``timestamp_ns``, strictly: a static edge answers its latest value, a
+        dynamic one only within the span of its samples (interpolated where the type allows,
+        else the nearest sample). Raises :class:`NoDataError` or :class:`ExtrapolationError`."""
+        if not self._samples:
+            raise NoDataError("no sample received yet")
+        oldest, newest = self._times[0], self._times[-1]
+        if not self.static and not oldest <= timestamp_ns <= newest:
+            raise ExtrapolationError(
+                f"timestamp {timestamp_ns} outside the samples held [{oldest}, {newest}]"
+            )
+        value = self.value_at(timestamp_ns, tolerance_ns=newest - oldest)
+        assert value is not None  # inside the span, the nearest sample always qualifies
+        return value
 
     def value_at(self, timestamp_ns: int, tolerance_ns: int) -> Measurement | None:
         """The input's value at ``timestamp_ns`` (see the module docstring), or None."""

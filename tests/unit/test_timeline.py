@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from services.sync import InputBuffer, interpolate
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, Rotation3D, quaternions
+from ubitrack_agent.core.timeline import SampleBuffer, interpolate
 
 MS = 1_000_000
 
@@ -15,7 +15,7 @@ def pose(t_ms: int, x: float, yaw_deg: float = 0.0) -> Pose:
 
 
 def test_dynamic_input_interpolates_pose_between_samples():
-    buffer = InputBuffer(static=False)
+    buffer = SampleBuffer(static=False)
     buffer.add(pose(0, 0.0, 0.0))
     buffer.add(pose(10, 1.0, 20.0))
     value = buffer.value_at(5 * MS, tolerance_ns=0)
@@ -25,27 +25,27 @@ def test_dynamic_input_interpolates_pose_between_samples():
 
 
 def test_exact_timestamp_returns_the_sample_itself():
-    buffer = InputBuffer(static=False)
+    buffer = SampleBuffer(static=False)
     sample = pose(3, 1.0)
     buffer.add(sample)
     assert buffer.value_at(3 * MS, 0) is sample
 
 
 def test_outside_samples_uses_nearest_only_within_tolerance():
-    buffer = InputBuffer(static=False)
+    buffer = SampleBuffer(static=False)
     buffer.add(pose(0, 0.0))
     buffer.add(pose(10, 1.0))
     late = buffer.value_at(15 * MS, tolerance_ns=6 * MS)
     assert late.timestamp_ns == 15 * MS
     np.testing.assert_allclose(late.translation, [1.0, 0, 0])
     assert buffer.value_at(17 * MS, tolerance_ns=6 * MS) is None
-    early = InputBuffer(static=False)
+    early = SampleBuffer(static=False)
     early.add(pose(100, 0.0))
     assert early.value_at(90 * MS, tolerance_ns=5 * MS) is None
 
 
 def test_static_input_answers_latest_value_at_any_time():
-    buffer = InputBuffer(static=True)
+    buffer = SampleBuffer(static=True)
     buffer.add(pose(0, 0.0))
     buffer.add(pose(5, 2.0))
     value = buffer.value_at(10_000 * MS, tolerance_ns=0)
@@ -55,11 +55,11 @@ def test_static_input_answers_latest_value_at_any_time():
 
 
 def test_empty_buffer_has_no_value():
-    assert InputBuffer(static=False).value_at(0, 10**9) is None
+    assert SampleBuffer(static=False).value_at(0, 10**9) is None
 
 
 def test_history_is_bounded_and_out_of_order_samples_are_sorted():
-    buffer = InputBuffer(static=False, history=4)
+    buffer = SampleBuffer(static=False, history=4)
     for t in (0, 30, 10, 20, 40, 50):
         buffer.add(pose(t, t / 10))
     assert len(buffer) == 4
@@ -83,10 +83,34 @@ def test_position_rotation_and_covariance_interpolation():
 
 
 def test_types_without_interpolation_fall_back_to_nearest_within_tolerance():
-    buffer = InputBuffer(static=False)
+    buffer = SampleBuffer(static=False)
     buffer.add(Position2D(0, [0, 0]))
     buffer.add(Position2D(10 * MS, [10, 0]))
     assert interpolate(buffer.latest(), buffer.latest(), 10 * MS) is None
     value = buffer.value_at(8 * MS, tolerance_ns=3 * MS)
     np.testing.assert_allclose(value.position, [10, 0])
     assert buffer.value_at(5 * MS, tolerance_ns=3 * MS) is None
+
+
+def test_strict_lookup_raises_typed_errors():
+    from ubitrack_agent.core import ExtrapolationError, NoDataError
+
+    buffer = SampleBuffer(static=False)
+    with pytest.raises(NoDataError):
+        buffer.lookup(0)
+    buffer.add(pose(0, 0.0))
+    buffer.add(pose(10, 1.0))
+    np.testing.assert_allclose(buffer.lookup(4 * MS).translation, [0.4, 0, 0])
+    with pytest.raises(ExtrapolationError):
+        buffer.lookup(11 * MS)
+    late = SampleBuffer(static=False)
+    late.add(pose(5, 0.0))
+    with pytest.raises(ExtrapolationError):
+        late.lookup(4 * MS)
+    static = SampleBuffer(static=True)
+    static.add(pose(0, 3.0))
+    assert static.lookup(10**12).timestamp_ns == 10**12
+    images = SampleBuffer(static=False)
+    images.add(Position2D(0, [0, 0]))
+    images.add(Position2D(10, [10, 0]))
+    np.testing.assert_allclose(images.lookup(7).position, [10, 0])
