@@ -2,7 +2,16 @@
 
 Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
 
-    <root>/data/<edge-id>            measurements of one SRG edge (msgpack, see core.codec)
+    <root>/provider/<provider>       liveliness token of a provider (sensor, database)
+    <root>/fragment/<provider>       queryable: the provider's SRG fragment (JSON)
+    <root>/data/<edge-id>            measurements of one SRG edge (msgpack, see core.codec);
+                                     measured edges are <provider>/<edge-name>; the key is also
+                                     a queryable answering the latest value
+    <root>/query/<from>/<to>/<type>/<static|dynamic>/<app>
+                                     liveliness token of an application's query: the key is
+                                     the whole description, so liveliness alone rebuilds state
+    <root>/relation/<from>/<to>/<type>/<static|dynamic>
+                                     the stable key on which a queried relation is delivered
     <root>/worker/<instance>         liveliness token of a running pattern worker
     <root>/control/<instance>        rewire / reconfigure a running worker (JSON, put)
     <root>/status/<instance>         a worker's counters (JSON, queryable)
@@ -15,6 +24,7 @@ admin space) and no whitespace, so a hostile name can never widen a subscription
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-+:=%~^!]+$")
 """Characters allowed in one key chunk: a safe subset of what zenoh accepts."""
@@ -35,6 +45,29 @@ def validate_key_chunks(text: str, single_chunk: bool = False) -> str:
                 f"{text!r}: chunk {chunk!r} may only contain letters, digits and _.-+:=%~^!"
             )
     return text
+
+
+@dataclass(frozen=True)
+class RelationId:
+    """A relationship an application asks for: ``source -> target`` of ``type``."""
+
+    source: str
+    target: str
+    type: str
+    static: bool = False
+
+    def __post_init__(self) -> None:
+        for name in (self.source, self.target, self.type):
+            validate_key_chunks(name, single_chunk=True)
+        if self.source == self.target:
+            raise ValueError(f"a relation joins two different frames, got {self.source!r} twice")
+
+    @property
+    def chunks(self) -> str:
+        return f"{self.source}/{self.target}/{self.type}/{'static' if self.static else 'dynamic'}"
+
+    def __str__(self) -> str:
+        return f"{self.source}->{self.target}:{self.type}{' static' if self.static else ''}"
 
 
 class KeySpace:
@@ -58,3 +91,44 @@ class KeySpace:
     def status(self, instance: str) -> str:
         """Queryable that answers ``instance``'s counters."""
         return f"{self.root}/status/{validate_key_chunks(instance, single_chunk=True)}"
+
+    def provider(self, provider: str) -> str:
+        """Liveliness token announcing ``provider``."""
+        return f"{self.root}/provider/{validate_key_chunks(provider, single_chunk=True)}"
+
+    def fragment(self, provider: str) -> str:
+        """Queryable serving ``provider``'s SRG fragment."""
+        return f"{self.root}/fragment/{validate_key_chunks(provider, single_chunk=True)}"
+
+    def measured(self, provider: str, edge_name: str) -> str:
+        """Data key of the measured edge ``edge_name`` of ``provider``."""
+        validate_key_chunks(provider, single_chunk=True)
+        return self.data(f"{provider}/{validate_key_chunks(edge_name, single_chunk=True)}")
+
+    def query(self, relation: RelationId, application: str) -> str:
+        """Liveliness token of ``application``'s query for ``relation``."""
+        app = validate_key_chunks(application, single_chunk=True)
+        return f"{self.root}/query/{relation.chunks}/{app}"
+
+    def relation(self, relation: RelationId) -> str:
+        """The stable key on which ``relation`` is delivered, whatever flow computes it."""
+        return f"{self.root}/relation/{relation.chunks}"
+
+    def parse_query(self, key: str) -> tuple[RelationId, str]:
+        """``(relation, application)`` from a query token key; ``ValueError`` if malformed."""
+        prefix = f"{self.root}/query/"
+        if not key.startswith(prefix):
+            raise ValueError(f"{key!r} is not a query key under {prefix!r}")
+        parts = key[len(prefix) :].split("/")
+        if len(parts) != 5 or parts[3] not in ("static", "dynamic"):
+            raise ValueError(f"{key!r}: expected query/<from>/<to>/<type>/<static|dynamic>/<app>")
+        source, target, edge_type, staticness, app = parts
+        relation = RelationId(source, target, edge_type, staticness == "static")
+        return relation, validate_key_chunks(app, single_chunk=True)
+
+    def parse_provider(self, key: str) -> str:
+        """The provider id of a provider token key; ``ValueError`` if malformed."""
+        prefix = f"{self.root}/provider/"
+        if not key.startswith(prefix):
+            raise ValueError(f"{key!r} is not a provider key under {prefix!r}")
+        return validate_key_chunks(key[len(prefix) :], single_chunk=True)

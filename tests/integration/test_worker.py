@@ -103,9 +103,8 @@ def test_concatenation_worker_computes_rejects_rewires_and_stops(processes):
         np.testing.assert_allclose(
             se3.to_matrix(result.rotation, result.translation), expected(static, moving), atol=1e-12
         )
-        status = query_status(session, keys, "concat1")
-        assert status["counters"]["rejected"] == 4
-        assert status["counters"]["published"] == 6
+        counters = wait_until(lambda: settled(session, keys, "concat1", published=6))
+        assert counters["rejected"] == 4
 
         # 3. rewire "second" to another key while running
         ht2 = session.declare_publisher(keys.data("ART/HT2"))
@@ -138,6 +137,12 @@ def test_concatenation_worker_computes_rejects_rewires_and_stops(processes):
         assert worker.wait(timeout=10) == 0
         wait_until(lambda: any("DELETE" in kind for kind, _ in tokens))
         liveliness.undeclare()
+
+
+def settled(session, keys: KeySpace, instance: str, **expected: int) -> dict | None:
+    """The worker's counters once they show ``expected`` (the output can overtake them)."""
+    counters = query_status(session, keys, instance)["counters"]
+    return counters if all(counters[k] == v for k, v in expected.items()) else None
 
 
 def query_status(session, keys: KeySpace, instance: str) -> dict:

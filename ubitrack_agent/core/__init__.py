@@ -1,6 +1,6 @@
 """Measurement types, wire codec and SE(3) maths; no zenoh, no networkx, no processes."""
 
-from .codec import decode, encode
+from .codec import decode, encode, to_json
 from .errors import ExtrapolationError, MeasurementError, NoDataError
 from .measurements import (
     MEASUREMENT_TYPES,
@@ -33,4 +33,5 @@ __all__ = [
     "Rotation3D",
     "decode",
     "encode",
+    "to_json",
 ]

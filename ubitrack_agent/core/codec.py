@@ -113,3 +113,15 @@ def decode(data: Any, expected: type[M] | tuple[type[M], ...] | None = None) -> 
     if unknown:
         raise MeasurementError(f"{tag}: unknown keys {unknown}")
     return cls(**kwargs)  # type: ignore[return-value]
+
+
+def to_json(measurement: Measurement) -> dict[str, Any]:
+    """A JSON-ready dict of ``measurement`` (arrays as nested lists), for printing and logs."""
+    data: dict[str, Any] = {"type": measurement.TYPE_TAG, "timestamp_ns": measurement.timestamp_ns}
+    for spec in measurement.ARRAY_FIELDS:
+        value = getattr(measurement, spec.name)
+        if value is not None:
+            data[spec.name] = value.tolist()
+    if isinstance(measurement, CameraIntrinsics) and measurement.image_size is not None:
+        data["image_size"] = list(measurement.image_size)
+    return data

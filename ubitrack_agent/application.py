@@ -1,0 +1,158 @@
+"""Application API: ask for a spatial relationship and keep receiving it.
+
+::
+
+    with open_session(settings) as session:
+        relation = Relation(session, KeySpace(settings.key_prefix), RelationId("C", "A", "6D"))
+        first = relation.wait_for(timeout=5.0)          # next sample, event-driven
+        for pose in relation:                           # iterator form, blocks per sample
+            ...
+        relation.lookup(t_ns)                           # interpolated; NoDataError,
+                                                        # ExtrapolationError otherwise
+        relation.close()
+
+Declaring the query token ``<root>/query/...`` tells the agent what to compute; samples arrive
+on the stable key ``<root>/relation/...``, which stays the same whenever the agent rewires the
+data flow behind it. Every payload is validated; bad ones are counted in ``rejected``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import queue
+import threading
+import uuid
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from .core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
+from .core.timeline import SampleBuffer
+from .keys import KeySpace, RelationId, validate_key_chunks
+from .transport import fetch_latest
+
+log = logging.getLogger("ubitrack.application")
+
+_TYPES_BY_SRG: dict[str, tuple[type[Measurement], ...]] = {}
+for _cls in MEASUREMENT_TYPES.values():
+    _TYPES_BY_SRG[_cls.SRG_TYPE] = (*_TYPES_BY_SRG.get(_cls.SRG_TYPE, ()), _cls)
+
+
+FETCH_RETRY_DELAYS = (0.0, 0.05, 0.2, 0.5, 1.0, 2.0)
+"""Seconds between attempts to fetch a relation's current value after subscribing."""
+
+
+def default_application_id() -> str:
+    return f"app-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+class Relation:
+    """A subscription to one queried relationship (see the module docstring)."""
+
+    def __init__(
+        self,
+        session: Any,
+        keys: KeySpace,
+        relation: RelationId,
+        application: str | None = None,
+        callback: Callable[[Measurement], None] | None = None,
+        history: int = 256,
+        queue_size: int = 1024,
+    ) -> None:
+        self.relation = relation
+        self.key = keys.relation(relation)
+        self.application = validate_key_chunks(
+            application or default_application_id(), single_chunk=True
+        )
+        self.rejected = 0
+        self._expected = _TYPES_BY_SRG.get(relation.type, ())
+        self._buffer = SampleBuffer(static=relation.static, history=history)
+        self._lock = threading.Condition()
+        self._count = 0
+        self._callback = callback
+        self._queue: queue.Queue[Measurement] = queue.Queue(maxsize=queue_size)
+        self._subscriber = session.declare_subscriber(
+            self.key, lambda sample: self._receive(sample.payload.to_bytes())
+        )
+        self._token = session.liveliness().declare_token(keys.query(relation, self.application))
+        self._closed = threading.Event()
+        self._fetcher = threading.Thread(target=self._fetch_latest, args=(session,), daemon=True)
+        self._fetcher.start()
+
+    def _fetch_latest(self, session: Any) -> None:
+        """Ask the relation key's queryable for its current value (a static result published
+        before this application started), retrying while links come up, until a sample
+        arrives by either path."""
+        for delay in FETCH_RETRY_DELAYS:
+            if self._closed.wait(delay) or self._count:
+                return
+            for payload in fetch_latest(session, self.key, timeout=0.5):
+                self._receive(payload)
+
+    def _receive(self, payload: bytes) -> None:
+        """Runs on zenoh's thread: validate, store, notify; no zenoh calls, no blocking."""
+        try:
+            sample = decode(payload, expected=self._expected or None)
+        except MeasurementError as exc:
+            self.rejected += 1
+            log.warning("%s: rejected sample: %s", self.relation, exc)
+            return
+        with self._lock:
+            self._buffer.add(sample)
+            self._count += 1
+            self._lock.notify_all()
+        while True:
+            try:
+                self._queue.put_nowait(sample)
+                break
+            except queue.Full:  # the reader lags: keep the newest samples
+                with contextlib.suppress(queue.Empty):
+                    self._queue.get_nowait()
+        if self._callback is not None:
+            try:
+                self._callback(sample)
+            except Exception:  # a broken callback must not break zenoh's receive thread
+                log.exception("%s: application callback failed", self.relation)
+
+    @property
+    def received(self) -> int:
+        return self._count
+
+    def latest(self) -> Measurement | None:
+        """The newest sample, or None before the first."""
+        with self._lock:
+            return self._buffer.latest()
+
+    def lookup(self, timestamp_ns: int) -> Measurement:
+        """The relation at ``timestamp_ns`` (interpolated between samples; a static relation
+        answers its latest value). Raises ``NoDataError`` or ``ExtrapolationError``."""
+        with self._lock:
+            return self._buffer.lookup(timestamp_ns)
+
+    def wait_for(self, timeout: float | None = None) -> Measurement:
+        """Block until the next sample arrives (the first one if none yet); ``TimeoutError``."""
+        with self._lock:
+            seen = self._count
+            if not self._lock.wait_for(lambda: self._count > seen, timeout=timeout):
+                raise TimeoutError(f"no sample of {self.relation} within {timeout} s")
+            return self._buffer.latest()
+
+    def __iter__(self) -> Iterator[Measurement]:
+        """Samples in arrival order, blocking for each (oldest dropped if the reader lags)."""
+        while True:
+            yield self._queue.get()
+
+    def get(self, timeout: float | None = None) -> Measurement:
+        """The next queued sample; ``TimeoutError`` if none arrives in time."""
+        try:
+            return self._queue.get(timeout=timeout)
+        except queue.Empty:
+            raise TimeoutError(f"no sample of {self.relation} within {timeout} s") from None
+
+    def close(self) -> None:
+        """Withdraw the query; the agent stops what only this application needed."""
+        self._closed.set()
+        self._fetcher.join(timeout=1.0)
+        self._token.undeclare()
+        self._subscriber.undeclare()

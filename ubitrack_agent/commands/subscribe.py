@@ -1,0 +1,64 @@
+"""``ubitrack subscribe``: ask for a relationship and print each sample as one JSON line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from .. import config
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "subscribe",
+        help="ask the agent for a relationship and print its samples as JSON lines",
+        description="Announce a query for FROM->TO and print every sample delivered on its "
+        "relation key as one JSON object (type, timestamp_ns, value fields, covariance if any) "
+        "until interrupted, --count samples, or --timeout seconds without a sample.",
+    )
+    parser.add_argument("source", metavar="FROM", help="source frame, e.g. C")
+    parser.add_argument("target", metavar="TO", help="target frame, e.g. A")
+    parser.add_argument("--type", default="6D", help="relation type (default: %(default)s)")
+    parser.add_argument("--static", action="store_true", help="ask for a static relation")
+    parser.add_argument("--count", type=int, help="stop after this many samples")
+    parser.add_argument(
+        "--timeout", type=float, help="give up (exit 1) after this many seconds without a sample"
+    )
+    parser.add_argument("--app-id", help="application id in the query key (default: generated)")
+    config.add_arguments(parser)
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..application import Relation
+    from ..core import to_json
+    from ..keys import KeySpace, RelationId
+    from ..session import open_session
+
+    try:
+        settings = config.from_arguments(args, role="member")
+        relation_id = RelationId(args.source, args.target, args.type, args.static)
+    except ValueError as exc:
+        print(f"ubitrack subscribe: {exc}", file=sys.stderr)
+        return 2
+    if args.count is not None and args.count < 1:
+        print("ubitrack subscribe: --count must be at least 1", file=sys.stderr)
+        return 2
+    with open_session(settings) as session:
+        relation = Relation(session, KeySpace(settings.key_prefix), relation_id, args.app_id)
+        printed = 0
+        try:
+            while args.count is None or printed < args.count:
+                sample = relation.get(timeout=args.timeout)
+                latency_ms = (time.time_ns() - sample.timestamp_ns) / 1e6
+                line = {**to_json(sample), "latency_ms": round(latency_ms, 3)}
+                print(json.dumps(line), flush=True)
+                printed += 1
+        except TimeoutError as exc:
+            print(f"ubitrack subscribe: {exc}", file=sys.stderr)
+            return 1
+        finally:
+            relation.close()
+    return 0

@@ -1,0 +1,56 @@
+"""Zenoh building blocks shared by providers, workers and applications.
+
+:class:`LatestValuePublisher` publishes samples on a key and answers queries on the same key
+with the latest one, so a subscriber that starts late (a worker started after a calibration
+database announced its static edges) gets the current value at once with a ``get``. This is
+the role of a latched topic; zenoh's own ``AdvancedPublisher`` cache does the same but is
+still marked unstable in zenoh-python.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+
+class LatestValuePublisher:
+    """A publisher whose latest payload is also served on its key's queryable."""
+
+    def __init__(self, session: Any, key: str) -> None:
+        self.key = key
+        self._latest: bytes | None = None
+        self._publisher = session.declare_publisher(key)
+        self._queryable = session.declare_queryable(key)
+        self._thread = threading.Thread(target=self._serve, daemon=True, name=f"latest:{key}")
+        self._thread.start()
+
+    def put(self, payload: bytes) -> None:
+        self._latest = payload
+        self._publisher.put(payload)
+
+    @property
+    def matching(self) -> bool:
+        """Whether a subscriber currently listens to this key."""
+        return bool(self._publisher.matching_status.matching)
+
+    def _serve(self) -> None:
+        # Replies from this thread, never from a zenoh callback.
+        for query in self._queryable:
+            with query:
+                latest = self._latest
+                if latest is not None:
+                    query.reply(self.key, latest)
+
+    def undeclare(self) -> None:
+        self._queryable.undeclare()
+        self._publisher.undeclare()
+        self._thread.join(timeout=1.0)
+
+
+def fetch_latest(session: Any, key: str, timeout: float = 1.0) -> list[bytes]:
+    """Payloads the queryables on ``key`` hold now (empty if none answers)."""
+    payloads = []
+    for reply in session.get(key, timeout=timeout):
+        if reply.ok is not None:
+            payloads.append(reply.ok.payload.to_bytes())
+    return payloads
