@@ -1,0 +1,59 @@
+"""Synthetic ground truth and error metrics shared by the accuracy benchmark and the unit tests.
+
+Protocol of ``field-notes.md`` section 2: fixed seeds
+``numpy.random.default_rng([20240601, crc32(name)])``, camera f = 800 px, c = (320, 240),
+640 x 480, no distortion; rotation error is the geodesic angle of ``R_est R_gt^T``.
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from services.algorithms.estimate import PoseEstimate, left_residuals, rigid
+from ubitrack_agent.core import quaternions
+
+SEED = 20240601
+CAMERA_MATRIX = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
+IMAGE_SIZE = (640, 480)
+
+
+def rng_for(name: str) -> np.random.Generator:
+    """The experiment's fixed random generator."""
+    return np.random.default_rng([SEED, zlib.crc32(name.encode())])
+
+
+def random_quaternion(rng: np.random.Generator, size: int | None = None) -> np.ndarray:
+    """Uniformly distributed unit quaternions (x, y, z, w)."""
+    return Rotation.random(size, rng=rng).as_quat(canonical=True)
+
+
+def rotation_error(q_est: np.ndarray, q_true: np.ndarray) -> np.ndarray:
+    """Geodesic angle (radians) between rotations, ``angle(R_est R_true^T)``."""
+    return quaternions.angle(quaternions.multiply(q_est, quaternions.conjugate(q_true)))
+
+
+def left_error(estimate: PoseEstimate, truth: PoseEstimate) -> np.ndarray:
+    """``xi`` (6,) with ``T_est = Exp(xi) T_true``: the error in the covariance's coordinates."""
+    return left_residuals(
+        rigid(estimate.rotation, estimate.translation), rigid(truth.rotation, truth.translation)
+    )[0]
+
+
+def project(points_camera: np.ndarray, camera_matrix: np.ndarray = CAMERA_MATRIX) -> np.ndarray:
+    """Pinhole projection of points given in the camera frame (N x 3) to pixels (N x 2)."""
+    homogeneous = points_camera @ camera_matrix.T
+    return homogeneous[:, :2] / homogeneous[:, 2:]
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pose (q, t) of the world in a camera at ``eye`` looking at ``target`` (OpenCV axes)."""
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    rotation = np.stack((x, y, z))  # rows: camera axes in world; maps world to camera
+    return Rotation.from_matrix(rotation).as_quat(), -rotation @ eye

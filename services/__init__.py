@@ -1,0 +1,1 @@
+"""Pattern services: the algorithms behind the pattern templates (and, later, their workers)."""
