@@ -12,6 +12,8 @@ import zlib
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from services.algorithms.auxiliary import compose_projection
+from services.algorithms.dlt import homogeneous
 from services.algorithms.estimate import PoseEstimate, left_residuals, rigid
 from ubitrack_agent.core import quaternions
 
@@ -57,3 +59,20 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.nda
     y = np.cross(z, x)
     rotation = np.stack((x, y, z))  # rows: camera axes in world; maps world to camera
     return Rotation.from_matrix(rotation).as_quat(), -rotation @ eye
+
+
+def camera_ring(n_views: int, radius: float = 2.0, height: float = 1.0) -> np.ndarray:
+    """Projections (V x 3 x 4) of V cameras evenly spaced on a horizontal ring of ``radius`` at
+    ``height``, all looking at the origin (z up)."""
+    angles = np.arange(n_views) * 2 * np.pi / n_views
+    eyes = np.column_stack(
+        (radius * np.cos(angles), radius * np.sin(angles), np.full(n_views, height))
+    )
+    poses = [PoseEstimate(*look_at(eye, np.zeros(3), np.array([0, 0, 1.0]))) for eye in eyes]
+    return np.array([compose_projection(CAMERA_MATRIX, pose) for pose in poses])
+
+
+def observe_points(projections: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Pixels (V x N x 2) of points (N x 3) through projections (V x 3 x 4)."""
+    image = np.einsum("vij,nj->vni", projections, homogeneous(points))
+    return image[..., :2] / image[..., 2:]
