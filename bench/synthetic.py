@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from services.algorithms.auxiliary import compose_projection
 from services.algorithms.dlt import homogeneous
 from services.algorithms.estimate import PoseEstimate, left_residuals, rigid
-from ubitrack_agent.core import quaternions
+from ubitrack_agent.core import quaternions, se3
 
 SEED = 20240601
 CAMERA_MATRIX = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
@@ -76,3 +76,39 @@ def observe_points(projections: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Pixels (V x N x 2) of points (N x 3) through projections (V x 3 x 4)."""
     image = np.einsum("vij,nj->vni", projections, homogeneous(points))
     return image[..., :2] / image[..., 2:]
+
+
+def hand_eye_scene(
+    rng: np.random.Generator, n_poses: int
+) -> tuple[PoseEstimate, tuple[np.ndarray, ...]]:
+    """Ground truth ``X`` (eye in hand) and N noise-free (q_hand, t_hand, q_eye, t_eye).
+
+    Hand poses: uniformly random rotations, positions in a 1 m cube; the target is static in
+    the base; ``C_i = X^-1 G_i^-1 W`` (target in eye).
+    """
+    truth = PoseEstimate(random_quaternion(rng), rng.uniform(-0.1, 0.1, 3))
+    target_q, target_t = random_quaternion(rng), rng.uniform(-0.5, 0.5, 3)
+    hand_q, hand_t = random_quaternion(rng, n_poses), rng.uniform(-0.5, 0.5, (n_poses, 3))
+    return truth, (hand_q, hand_t, *eye_poses(truth, (target_q, target_t), hand_q, hand_t))
+
+
+def eye_poses(
+    truth: PoseEstimate,
+    target: tuple[np.ndarray, np.ndarray],
+    hand_q: np.ndarray,
+    hand_t: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses of a static ``target`` (in the base) in the eye, ``C_i = X^-1 G_i^-1 W``."""
+    return se3.compose(
+        *se3.invert(truth.rotation, truth.translation),
+        *se3.compose(*se3.invert(hand_q, hand_t), *target),
+    )
+
+
+def perturb_poses(
+    rng: np.random.Generator, q: np.ndarray, t: np.ndarray, sigma_rot: float, sigma_t: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses with Gaussian rotation-vector noise ``sigma_rot`` (rad) and translation noise
+    ``sigma_t`` per axis."""
+    noise = Rotation.from_rotvec(rng.normal(0, sigma_rot, (len(q), 3)))
+    return (noise * Rotation.from_quat(q)).as_quat(), t + rng.normal(0, sigma_t, t.shape)
