@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from services.algorithms.auxiliary import compose_projection
 from services.algorithms.dlt import homogeneous
-from services.algorithms.estimate import PoseEstimate, left_residuals, rigid
+from services.algorithms.estimate import PoseEstimate, left_residuals, perturb_left, rigid
 from ubitrack_agent.core import quaternions, se3
 
 SEED = 20240601
@@ -42,6 +42,17 @@ def left_error(estimate: PoseEstimate, truth: PoseEstimate) -> np.ndarray:
     return left_residuals(
         rigid(estimate.rotation, estimate.translation), rigid(truth.rotation, truth.translation)
     )[0]
+
+
+def sample_poses(
+    rng: np.random.Generator, truth: PoseEstimate, covariances: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """One pose ``Exp(xi_i) T_true`` per covariance (M x 6 x 6): quaternions M x 4, t M x 3."""
+    xi = np.array([rng.multivariate_normal(np.zeros(6), cov) for cov in covariances])
+    translations, rotations = perturb_left(
+        xi, rigid(truth.rotation, truth.translation)
+    ).as_components()
+    return rotations.as_quat(), translations
 
 
 def project(points_camera: np.ndarray, camera_matrix: np.ndarray = CAMERA_MATRIX) -> np.ndarray:

@@ -21,7 +21,30 @@ Modules: :mod:`.absolute_orientation` (3D-3D), :mod:`.pnp` (2D-3D pose), :mod:`.
 """
 
 from .absolute_orientation import absolute_orientation
+from .auxiliary import compose_projection, decompose_projection, split_pose
+from .averaging import average_poses, average_positions
+from .dlt import projection_dlt
 from .estimate import PoseEstimate
+from .fusion import PoseKalmanFilter, fuse_poses
+from .hand_eye import hand_eye_daniilidis, hand_eye_park_martin
 from .pnp import solve_pnp, solve_pnp_ransac
+from .triangulation import Triangulation, triangulate_points
 
-__all__ = ["PoseEstimate", "absolute_orientation", "solve_pnp", "solve_pnp_ransac"]
+__all__ = [
+    "PoseEstimate",
+    "PoseKalmanFilter",
+    "Triangulation",
+    "absolute_orientation",
+    "average_poses",
+    "average_positions",
+    "compose_projection",
+    "decompose_projection",
+    "fuse_poses",
+    "hand_eye_daniilidis",
+    "hand_eye_park_martin",
+    "projection_dlt",
+    "solve_pnp",
+    "solve_pnp_ransac",
+    "split_pose",
+    "triangulate_points",
+]

@@ -1,19 +1,11 @@
 import numpy as np
 import pytest
 
-from bench.synthetic import left_error, random_quaternion, rng_for, rotation_error
+from bench.synthetic import left_error, random_quaternion, rng_for, rotation_error, sample_poses
 from services.algorithms.estimate import PoseEstimate, perturb_left, rigid, to_estimate
 from services.algorithms.fusion import PoseKalmanFilter, fuse_poses
 
 COV = np.diag([1e-4, 2e-4, 1e-4, 1e-6, 1e-6, 4e-6])
-
-
-def _samples(rng, truth, covs):
-    xi = np.array([rng.multivariate_normal(np.zeros(6), c) for c in covs])
-    translations, rotations = perturb_left(
-        xi, rigid(truth.rotation, truth.translation)
-    ).as_components()
-    return rotations.as_quat(), translations
 
 
 def test_identical_estimates_fuse_to_themselves_with_halved_covariance():
@@ -29,7 +21,7 @@ def test_fused_mean_is_stationary_point_of_weighted_residuals():
     rng = rng_for("fusion-stationary")
     truth = PoseEstimate(random_quaternion(rng), np.array([0.5, 1.0, 2.0]))
     covs = np.stack((COV, 3 * COV, np.diag([1e-3] * 3 + [1e-7] * 3)))
-    q, t = _samples(rng, truth, covs)
+    q, t = sample_poses(rng, truth, covs)
     fused = fuse_poses(q, t, covs)
     xi = np.array([left_error(PoseEstimate(qi, ti), fused) for qi, ti in zip(q, t, strict=True)])
     gradient = np.einsum("mij,mj->i", np.linalg.inv(covs), xi)
@@ -41,7 +33,7 @@ def test_two_equal_trackers_improve_by_about_sqrt_two_and_covariance_is_consiste
     truth = PoseEstimate(random_quaternion(rng), np.array([0.5, 1.0, 2.0]))
     single, fused_errors = [], []
     for _ in range(300):
-        q, t = _samples(rng, truth, [COV, COV])
+        q, t = sample_poses(rng, truth, [COV, COV])
         fused = fuse_poses(q, t, [COV, COV])
         single.append(left_error(PoseEstimate(q[0], t[0]), truth))
         fused_errors.append(left_error(fused, truth))
@@ -92,7 +84,7 @@ def test_kalman_tracks_constant_velocity_motion_from_two_asynchronous_trackers()
     for k in range(240):
         time_s = k / 120  # two 60 Hz trackers, half a period apart
         pose = truth(time_s)
-        q, t = _samples(rng, pose, [cov])
+        q, t = sample_poses(rng, pose, [cov])
         kalman.update(int(time_s * SECOND), q[0], t[0], cov)
         if k > 60:
             raw.append(np.linalg.norm(t[0] - pose.translation))
