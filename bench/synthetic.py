@@ -72,10 +72,12 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.nda
     return Rotation.from_matrix(rotation).as_quat(), -rotation @ eye
 
 
-def camera_ring(n_views: int, radius: float = 2.0, height: float = 1.0) -> np.ndarray:
-    """Projections (V x 3 x 4) of V cameras evenly spaced on a horizontal ring of ``radius`` at
-    ``height``, all looking at the origin (z up)."""
-    angles = np.arange(n_views) * 2 * np.pi / n_views
+def camera_ring(
+    n_views: int, radius: float = 2.0, height: float = 1.0, arc: float = 2 * np.pi
+) -> np.ndarray:
+    """Projections (V x 3 x 4) of V cameras on a horizontal ring of ``radius`` at ``height``,
+    ``arc / V`` apart, all looking at the origin (z up)."""
+    angles = np.arange(n_views) * arc / n_views
     eyes = np.column_stack(
         (radius * np.cos(angles), radius * np.sin(angles), np.full(n_views, height))
     )

@@ -41,11 +41,16 @@ def homogeneous(points: np.ndarray) -> np.ndarray:
 
 
 def projection_dlt(
-    object_points: np.ndarray, image_points: np.ndarray, refine: bool = True
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    refine: bool = True,
+    zero_skew: bool = False,
 ) -> np.ndarray:
     """The 3x4 projection ``P`` mapping object points (N x 3) to pixels (N x 2), N >= 6.
 
     The result is scaled so that ``P = K [R | t]`` with ``K[2, 2] = 1`` and ``det(R) = +1``.
+    ``zero_skew`` makes the refinement keep ``K[0, 1] = 0`` (10 parameters, OpenCV's camera
+    model) instead of the general 11-parameter projection.
     Raises ``ValueError`` for bad shapes, NaN, fewer than 6 or coplanar object points.
     """
     obj = as_points("object_points", object_points, 3, 6)
@@ -68,32 +73,45 @@ def projection_dlt(
     normalised = np.linalg.svd(system)[2][-1].reshape(3, 4)
     camera_matrix, pose = decompose_projection(np.linalg.solve(t_img, normalised) @ t_obj)
     if refine:
-        camera_matrix, pose = _minimise_reprojection(obj, img, camera_matrix, pose)
+        camera_matrix, pose = _minimise_reprojection(obj, img, camera_matrix, pose, zero_skew)
     return compose_projection(camera_matrix, pose)
 
 
-def _unpack(params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    fx, skew, cx, fy, cy = params[:5]
-    camera_matrix = np.array([[fx, skew, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    return camera_matrix, Rotation.from_rotvec(params[5:8]).as_matrix(), params[8:]
+_INTRINSICS = ([0, 0, 0, 1, 1], [0, 1, 2, 1, 2])
+"""Indices of (fx, s, cx, fy, cy) in K."""
 
 
 def _minimise_reprojection(
-    obj: np.ndarray, img: np.ndarray, camera_matrix: np.ndarray, pose: PoseEstimate
+    obj: np.ndarray,
+    img: np.ndarray,
+    camera_matrix: np.ndarray,
+    pose: PoseEstimate,
+    zero_skew: bool,
 ) -> tuple[np.ndarray, PoseEstimate]:
+    rows, columns = _INTRINSICS
+    if zero_skew:
+        rows, columns = [0, 0, 1, 1], [0, 2, 1, 2]
+    n_intrinsics = len(rows)
+
+    def unpack(params: np.ndarray) -> tuple[np.ndarray, Rotation, np.ndarray]:
+        k = np.eye(3)
+        k[rows, columns] = params[:n_intrinsics]
+        rotation = Rotation.from_rotvec(params[n_intrinsics : n_intrinsics + 3])
+        return k, rotation, params[n_intrinsics + 3 :]
+
     def residuals(params: np.ndarray) -> np.ndarray:
-        k, rotation, translation = _unpack(params)
-        projected = (obj @ rotation.T + translation) @ k.T
+        k, rotation, translation = unpack(params)
+        projected = (rotation.apply(obj) + translation) @ k.T
         return (projected[:, :2] / projected[:, 2:] - img).ravel()
 
     start = np.concatenate(
         (
-            camera_matrix[[0, 0, 0, 1, 1], [0, 1, 2, 1, 2]],
+            camera_matrix[rows, columns],
             Rotation.from_quat(pose.rotation).as_rotvec(),
             pose.translation,
         )
     )
     method = "lm" if 2 * len(obj) >= len(start) else "trf"
     result = least_squares(residuals, start, method=method, x_scale="jac")
-    k, rotation, translation = _unpack(result.x)
-    return k, PoseEstimate(Rotation.from_matrix(rotation).as_quat(), translation)
+    k, rotation, translation = unpack(result.x)
+    return k, PoseEstimate(rotation.as_quat(), translation)

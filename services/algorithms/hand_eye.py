@@ -111,8 +111,14 @@ def hand_eye_daniilidis(
     (q_a, t_a), (q_b, t_b) = relative_motions(
         hand_rotations, hand_translations, eye_rotations, eye_translations, all_pairs
     )
-    _require_two_axes(Rotation.from_quat(q_a).as_rotvec())
-    q_b = q_b * np.where(np.sum(q_a[:, 3:] * q_b[:, 3:], axis=1) < 0, -1.0, 1.0)[:, None]
+    alpha = Rotation.from_quat(q_a).as_rotvec()
+    _require_two_axes(alpha)
+    # Daniilidis assumes the signs of a and b agree (equal scalar parts); for rotations near
+    # 180 degrees noise makes the scalar parts ambiguous, so the signs are chosen against the
+    # sign-free Park-Martin rotation instead: a = q_X b q_X^* up to noise.
+    rough, _ = Rotation.align_vectors(alpha, Rotation.from_quat(q_b).as_rotvec())
+    mapped = (rough * Rotation.from_quat(q_b) * rough.inv()).as_quat()
+    q_b = q_b * np.where(np.sum(q_a * mapped, axis=1) < 0, -1.0, 1.0)[:, None]
     d_a, d_b = _dual_part(q_a, t_a), _dual_part(q_b, t_b)
     rotation_block = _left_matrices(q_a) - _right_matrices(q_b)
     dual_block = _left_matrices(d_a) - _right_matrices(d_b)

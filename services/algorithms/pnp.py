@@ -21,7 +21,7 @@ Methods are referred to by OpenCV's named constants only (``cv2.SOLVEPNP_SQPNP``
 integer values changed between OpenCV 4 and 5.
 
 Covariance: ``sigma^2 (J^T J)^-1`` with ``J`` the Jacobian of the projected points (through
-OpenCV's full camera model, by central differences) with respect to the left perturbation
+OpenCV's full camera model, ``projectPoints``' own Jacobian) with respect to the left perturbation
 ``xi = (phi, rho)`` of the pose, and ``sigma`` the pixel noise (given, or estimated from the
 residuals as ``|r|^2 / (2N - 6)``; with N = 3 and no ``pixel_sigma`` there is no covariance).
 """
@@ -34,6 +34,8 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ubitrack_agent.core.uncertainty import skew
+
 from ._checks import (
     as_camera_matrix,
     as_distortion,
@@ -43,14 +45,7 @@ from ._checks import (
     require_spread,
     same_count,
 )
-from .estimate import (
-    PoseEstimate,
-    from_rotation_matrix,
-    perturb_left,
-    rigid,
-    symmetric,
-    to_estimate,
-)
+from .estimate import PoseEstimate, from_rotation_matrix, symmetric
 
 PnpMethod = Literal["auto", "sqpnp", "ippe", "ippe_square", "epnp", "iterative"]
 
@@ -66,7 +61,6 @@ OPENCV_METHODS: dict[str, int] = {
 MINIMUM_POINTS = {"sqpnp": 3, "ippe": 4, "ippe_square": 4, "epnp": 4, "iterative": 4}
 
 _SQUARE_CORNERS = np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
-_JACOBIAN_STEP = 1e-6
 
 
 def is_marker_square(object_points: np.ndarray) -> bool:
@@ -103,6 +97,36 @@ def _validated(
     return obj, img, as_camera_matrix(camera_matrix), as_distortion(dist_coeffs)
 
 
+def _projected(
+    object_points: np.ndarray, pose: PoseEstimate, camera_matrix: np.ndarray, dist: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Image points (N x 2) and their Jacobian (2N x 6) w.r.t. the left perturbation ``xi``.
+
+    OpenCV returns the Jacobian w.r.t. (rvec, tvec); under ``T <- Exp(xi) T`` these change by
+    ``d rvec = J_l^-1(rvec) phi`` and ``d tvec = -[t]x phi + rho`` (Sola et al. 2018, eq. 146).
+    """
+    rvec = Rotation.from_quat(pose.rotation).as_rotvec()
+    translation = np.asarray(pose.translation, dtype=float)
+    projected, jacobian = cv2.projectPoints(
+        np.asarray(object_points, dtype=float), rvec, translation, camera_matrix, dist
+    )
+    chain = np.zeros((6, 6))
+    chain[:3, :3] = _inverse_left_jacobian(rvec)
+    chain[3:, :3] = -skew(translation)
+    chain[3:, 3:] = np.eye(3)
+    return projected.reshape(-1, 2), jacobian[:, :6] @ chain
+
+
+def _inverse_left_jacobian(rotation_vector: np.ndarray) -> np.ndarray:
+    """``J_l^-1`` of SO(3) at ``rotation_vector``."""
+    angle = float(np.linalg.norm(rotation_vector))
+    cross = skew(rotation_vector)
+    if angle < 1e-6:
+        return np.eye(3) - 0.5 * cross + cross @ cross / 12.0
+    factor = 1.0 / angle**2 - (1.0 + np.cos(angle)) / (2.0 * angle * np.sin(angle))
+    return np.eye(3) - 0.5 * cross + factor * cross @ cross
+
+
 def project(
     object_points: np.ndarray,
     pose: PoseEstimate,
@@ -110,15 +134,7 @@ def project(
     dist_coeffs: np.ndarray | None = None,
 ) -> np.ndarray:
     """Image points (N x 2) of object points seen by a camera at ``pose`` (object in camera)."""
-    rvec = Rotation.from_quat(pose.rotation).as_rotvec()
-    projected, _ = cv2.projectPoints(
-        np.asarray(object_points, dtype=float),
-        rvec,
-        np.asarray(pose.translation, dtype=float),
-        camera_matrix,
-        as_distortion(dist_coeffs),
-    )
-    return projected.reshape(-1, 2)
+    return _projected(object_points, pose, camera_matrix, as_distortion(dist_coeffs))[0]
 
 
 def reprojection_covariance(
@@ -131,20 +147,13 @@ def reprojection_covariance(
 ) -> np.ndarray | None:
     """6x6 left-perturbation covariance of a PnP pose for i.i.d. Gaussian pixel noise."""
     n = len(object_points)
+    projected, jacobian = _projected(object_points, pose, camera_matrix, as_distortion(dist_coeffs))
     if pixel_sigma is None:
         if n <= 3:
             return None
-        residual = image_points - project(object_points, pose, camera_matrix, dist_coeffs)
-        variance = float(np.sum(residual**2)) / (2 * n - 6)
+        variance = float(np.sum((image_points - projected) ** 2)) / (2 * n - 6)
     else:
         variance = positive("pixel_sigma", pixel_sigma) ** 2
-    mean = rigid(pose.rotation, pose.translation)
-    columns = []
-    for axis in np.eye(6) * _JACOBIAN_STEP:
-        shifted = [to_estimate(perturb_left(sign * axis, mean), None) for sign in (1.0, -1.0)]
-        plus, minus = (project(object_points, p, camera_matrix, dist_coeffs) for p in shifted)
-        columns.append((plus - minus).ravel() / (2 * _JACOBIAN_STEP))
-    jacobian = np.stack(columns, axis=1)
     information = jacobian.T @ jacobian
     if np.linalg.cond(information) > 1e14:
         return None
