@@ -130,7 +130,7 @@ def hand_eye_daniilidis(
         ),
         axis=1,
     ).reshape(-1, 8)
-    singular, null_space = np.linalg.svd(system)[1:]
+    singular, null_space = np.linalg.svd(system, full_matrices=False)[1:]
     if singular[5] <= _PARALLEL_AXES * singular[0]:
         raise ValueError("degenerate motions: the dual-quaternion system has no unique solution")
     (u1, v1), (u2, v2) = null_space[-2].reshape(2, 4), null_space[-1].reshape(2, 4)
