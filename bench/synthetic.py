@@ -1,0 +1,127 @@
+"""Synthetic ground truth and error metrics shared by the accuracy benchmark and the unit tests.
+
+Protocol of ``field-notes.md`` section 2: fixed seeds
+``numpy.random.default_rng([20240601, crc32(name)])``, camera f = 800 px, c = (320, 240),
+640 x 480, no distortion; rotation error is the geodesic angle of ``R_est R_gt^T``.
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from services.algorithms.auxiliary import compose_projection
+from services.algorithms.dlt import homogeneous
+from services.algorithms.estimate import PoseEstimate, left_residuals, perturb_left, rigid
+from ubitrack_agent.core import quaternions, se3
+
+SEED = 20240601
+CAMERA_MATRIX = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
+IMAGE_SIZE = (640, 480)
+
+
+def rng_for(name: str) -> np.random.Generator:
+    """The experiment's fixed random generator."""
+    return np.random.default_rng([SEED, zlib.crc32(name.encode())])
+
+
+def random_quaternion(rng: np.random.Generator, size: int | None = None) -> np.ndarray:
+    """Uniformly distributed unit quaternions (x, y, z, w)."""
+    return Rotation.random(size, rng=rng).as_quat(canonical=True)
+
+
+def rotation_error(q_est: np.ndarray, q_true: np.ndarray) -> np.ndarray:
+    """Geodesic angle (radians) between rotations, ``angle(R_est R_true^T)``."""
+    return quaternions.angle(quaternions.multiply(q_est, quaternions.conjugate(q_true)))
+
+
+def left_error(estimate: PoseEstimate, truth: PoseEstimate) -> np.ndarray:
+    """``xi`` (6,) with ``T_est = Exp(xi) T_true``: the error in the covariance's coordinates."""
+    return left_residuals(
+        rigid(estimate.rotation, estimate.translation), rigid(truth.rotation, truth.translation)
+    )[0]
+
+
+def sample_poses(
+    rng: np.random.Generator, truth: PoseEstimate, covariances: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """One pose ``Exp(xi_i) T_true`` per covariance (M x 6 x 6): quaternions M x 4, t M x 3."""
+    xi = np.array([rng.multivariate_normal(np.zeros(6), cov) for cov in covariances])
+    translations, rotations = perturb_left(
+        xi, rigid(truth.rotation, truth.translation)
+    ).as_components()
+    return rotations.as_quat(), translations
+
+
+def project(points_camera: np.ndarray, camera_matrix: np.ndarray = CAMERA_MATRIX) -> np.ndarray:
+    """Pinhole projection of points given in the camera frame (N x 3) to pixels (N x 2)."""
+    homogeneous = points_camera @ camera_matrix.T
+    return homogeneous[:, :2] / homogeneous[:, 2:]
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pose (q, t) of the world in a camera at ``eye`` looking at ``target`` (OpenCV axes)."""
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    rotation = np.stack((x, y, z))  # rows: camera axes in world; maps world to camera
+    return Rotation.from_matrix(rotation).as_quat(), -rotation @ eye
+
+
+def camera_ring(
+    n_views: int, radius: float = 2.0, height: float = 1.0, arc: float = 2 * np.pi
+) -> np.ndarray:
+    """Projections (V x 3 x 4) of V cameras on a horizontal ring of ``radius`` at ``height``,
+    ``arc / V`` apart, all looking at the origin (z up)."""
+    angles = np.arange(n_views) * arc / n_views
+    eyes = np.column_stack(
+        (radius * np.cos(angles), radius * np.sin(angles), np.full(n_views, height))
+    )
+    poses = [PoseEstimate(*look_at(eye, np.zeros(3), np.array([0, 0, 1.0]))) for eye in eyes]
+    return np.array([compose_projection(CAMERA_MATRIX, pose) for pose in poses])
+
+
+def observe_points(projections: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Pixels (V x N x 2) of points (N x 3) through projections (V x 3 x 4)."""
+    image = np.einsum("vij,nj->vni", projections, homogeneous(points))
+    return image[..., :2] / image[..., 2:]
+
+
+def hand_eye_scene(
+    rng: np.random.Generator, n_poses: int
+) -> tuple[PoseEstimate, tuple[np.ndarray, ...]]:
+    """Ground truth ``X`` (eye in hand) and N noise-free (q_hand, t_hand, q_eye, t_eye).
+
+    Hand poses: uniformly random rotations, positions in a 1 m cube; the target is static in
+    the base; ``C_i = X^-1 G_i^-1 W`` (target in eye).
+    """
+    truth = PoseEstimate(random_quaternion(rng), rng.uniform(-0.1, 0.1, 3))
+    target_q, target_t = random_quaternion(rng), rng.uniform(-0.5, 0.5, 3)
+    hand_q, hand_t = random_quaternion(rng, n_poses), rng.uniform(-0.5, 0.5, (n_poses, 3))
+    return truth, (hand_q, hand_t, *eye_poses(truth, (target_q, target_t), hand_q, hand_t))
+
+
+def eye_poses(
+    truth: PoseEstimate,
+    target: tuple[np.ndarray, np.ndarray],
+    hand_q: np.ndarray,
+    hand_t: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses of a static ``target`` (in the base) in the eye, ``C_i = X^-1 G_i^-1 W``."""
+    return se3.compose(
+        *se3.invert(truth.rotation, truth.translation),
+        *se3.compose(*se3.invert(hand_q, hand_t), *target),
+    )
+
+
+def perturb_poses(
+    rng: np.random.Generator, q: np.ndarray, t: np.ndarray, sigma_rot: float, sigma_t: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses with Gaussian rotation-vector noise ``sigma_rot`` (rad) and translation noise
+    ``sigma_t`` per axis."""
+    noise = Rotation.from_rotvec(rng.normal(0, sigma_rot, (len(q), 3)))
+    return (noise * Rotation.from_quat(q)).as_quat(), t + rng.normal(0, sigma_t, t.shape)

@@ -1,0 +1,50 @@
+"""Pure pattern algorithms: arrays in, arrays out (no zenoh, no processes, no state but objects').
+
+Conventions, common to every function here:
+
+* A **pose** is the pose of B in A, mapping ``x_B`` to ``x_A = R x_B + t``, returned as a
+  :class:`~services.algorithms.estimate.PoseEstimate` ``(rotation, translation, covariance)``:
+  a unit quaternion (x, y, z, w), a translation (the unit of the input points, normally
+  metres) and an optional 6x6 covariance over the left perturbation ``T = Exp(xi) T_mean``,
+  ``xi = (phi, rho)``, rotation first (the core's convention,
+  :mod:`ubitrack_agent.core.measurements`). ``PoseEstimate.to_measurement(timestamp_ns)``
+  gives the core ``Pose``/``ErrorPose``.
+* Pose inputs are arrays of quaternions (N x 4, x, y, z, w) and translations (N x 3).
+* Points are N x 3 (3D) or N x 2 (pixels); cameras are a 3x3 intrinsic matrix plus OpenCV
+  distortion coefficients; a projection is a 3x4 matrix ``P = K [R | t]``.
+* Every bad input (wrong shape, too few points, NaN, degenerate geometry such as collinear
+  points) raises ``ValueError`` with a message naming the argument.
+
+Modules: :mod:`.absolute_orientation` (3D-3D), :mod:`.pnp` (2D-3D pose), :mod:`.dlt`
+(projective calibration), :mod:`.triangulation`, :mod:`.hand_eye`, :mod:`.fusion`
+(inverse-covariance fusion and a Kalman filter), :mod:`.averaging`, :mod:`.auxiliary`.
+"""
+
+from .absolute_orientation import absolute_orientation
+from .auxiliary import compose_projection, decompose_projection, split_pose
+from .averaging import average_poses, average_positions
+from .dlt import projection_dlt
+from .estimate import PoseEstimate
+from .fusion import PoseKalmanFilter, fuse_poses
+from .hand_eye import hand_eye_daniilidis, hand_eye_park_martin
+from .pnp import solve_pnp, solve_pnp_ransac
+from .triangulation import Triangulation, triangulate_points
+
+__all__ = [
+    "PoseEstimate",
+    "PoseKalmanFilter",
+    "Triangulation",
+    "absolute_orientation",
+    "average_poses",
+    "average_positions",
+    "compose_projection",
+    "decompose_projection",
+    "fuse_poses",
+    "hand_eye_daniilidis",
+    "hand_eye_park_martin",
+    "projection_dlt",
+    "solve_pnp",
+    "solve_pnp_ransac",
+    "split_pose",
+    "triangulate_points",
+]
