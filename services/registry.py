@@ -19,10 +19,9 @@ from ubitrack_agent.core import Measurement
 
 @dataclass(frozen=True)
 class Port:
-    """An input port: accepted measurement types; ``multiple`` for a correspondence list."""
+    """An input port and the measurement types it accepts."""
 
     types: tuple[type[Measurement], ...]
-    multiple: bool = False
 
 
 Inputs = Mapping[str, Measurement | list[Measurement]]
@@ -31,7 +30,7 @@ Inputs = Mapping[str, Measurement | list[Measurement]]
 class Service(ABC):
     """Base class of a registered pattern service.
 
-    ``compute`` gets one value per single port and a list (in binding order) per multiple port,
+    ``compute`` gets one value per port, or an aligned list per correspondence port (below),
     all evaluated at ``timestamp_ns``, and returns the measurements to publish by output port
     (possibly none). It raises ``ValueError`` for input it cannot use (degenerate geometry);
     the worker counts and logs that and carries on.
@@ -43,6 +42,16 @@ class Service(ABC):
     SYNCHRONISED: ClassVar[bool] = True
     """True: a trigger sample evaluates all other inputs at its timestamp. False: every sample
     is passed on its own (event-driven filters such as a Kalman filter)."""
+    CORRESPONDENCE: ClassVar[tuple[str, ...]] = ()
+    """Ports forming the correspondence set (section 3.3). Under space expansion each takes
+    several bindings (in correspondence order) and ``compute`` gets aligned lists, with
+    ``None`` where an input had no value at the trigger's time; under time expansion each takes
+    one binding and :mod:`services.expansion` builds the lists from accumulated samples."""
+    MIN_CORRESPONDENCES: ClassVar[int] = 1
+    """The lower bound of the correspondence's multiplicity (``3..*`` -> 3)."""
+    TIME_MIN_MOTION: ClassVar[float] = 0.0
+    TIME_MIN_ROTATION_DEG: ClassVar[float] = 0.0
+    """Default distinctness thresholds under time expansion (:mod:`services.expansion`)."""
 
     def __init__(self, parameters: Mapping[str, Any]) -> None:
         unknown = sorted(set(parameters) - set(self.PARAMETERS))
@@ -56,6 +65,16 @@ class Service(ABC):
     @abstractmethod
     def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
         """Outputs by port for inputs synchronised to ``timestamp_ns``."""
+
+    def min_correspondences(self) -> int:
+        """Correspondences needed before computing (a parameter may raise the bound)."""
+        return self.MIN_CORRESPONDENCES
+
+
+def complete_correspondences(values: Inputs, ports: tuple[str, ...]) -> list[tuple]:
+    """Rows of the aligned correspondence lists in which every port has a value."""
+    rows = zip(*(values[port] for port in ports), strict=True)
+    return [row for row in rows if all(value is not None for value in row)]
 
 
 SERVICES: dict[str, type[Service]] = {}
@@ -79,4 +98,4 @@ def lookup(name: str) -> type[Service]:
 
 
 def _load_builtin_services() -> None:
-    from . import basic  # noqa: F401  (modules register their services on import)
+    from . import components  # noqa: F401  (modules register their services on import)

@@ -3,15 +3,18 @@
 JSON form (what the agent passes on the worker's command line)::
 
     {"instance": "concat-1", "service": "concatenation", "parameters": {},
-     "inputs": [{"port": "first", "key": "ubitrack/default/data/ART/WT", "static": true},
-                {"port": "second", "key": "ubitrack/default/data/ART/HT", "trigger": true}],
-     "outputs": {"out": "ubitrack/default/data/concat-1/out"},
-     "tolerance_ms": 20}
+      "inputs": [{"port": "AB", "key": "ubitrack/default/data/art/ART_WT", "static": true},
+                {"port": "BC", "key": "ubitrack/default/data/art/ART_HT", "trigger": true}],
+     "outputs": {"AC": "ubitrack/default/data/concat-1/AC"},
+     "expansion": "none", "tolerance_ms": 20}
 
 ``trigger`` marks the push inputs whose samples cause a computation; ``static`` inputs answer
-their latest value. A port declared ``multiple`` by the service takes several bindings, in
-correspondence order. Validation checks every field against the registered service and
-raises :class:`SpecError` naming the field.
+their latest value. ``expansion`` (``none``, ``space`` or ``time``, default ``none``) says how
+the pattern's correspondence is expanded (paper section 3.3): under ``space`` each
+correspondence port takes several bindings, in correspondence order; under ``time`` one, and the
+worker accumulates samples (options in ``time_expansion``, see :mod:`services.expansion`).
+Validation checks every field against the registered service and raises :class:`SpecError`
+naming the field.
 """
 
 from __future__ import annotations
@@ -23,9 +26,11 @@ from typing import Any
 
 from ubitrack_agent.keys import validate_key_chunks
 
+from .expansion import parse_time_expansion
 from .registry import Service, lookup
 
 DEFAULT_TOLERANCE_MS = 20.0
+EXPANSIONS = ("none", "space", "time")
 
 
 class SpecError(ValueError):
@@ -51,6 +56,8 @@ class ComponentSpec:
     inputs: tuple[InputBinding, ...]
     outputs: dict[str, str]
     parameters: dict[str, Any] = field(default_factory=dict)
+    expansion: str = "none"
+    time_expansion: dict[str, float] = field(default_factory=dict)
     tolerance_ms: float = DEFAULT_TOLERANCE_MS
 
     @property
@@ -65,6 +72,8 @@ class ComponentSpec:
                 "parameters": self.parameters,
                 "inputs": [vars(binding) for binding in self.inputs],
                 "outputs": self.outputs,
+                "expansion": self.expansion,
+                "time_expansion": self.time_expansion,
                 "tolerance_ms": self.tolerance_ms,
             }
         )
@@ -87,9 +96,9 @@ def _key(value: Any, where: str) -> str:
 
 
 def parse_bindings(
-    raw: Any, service: type[Service], where: str = "spec.inputs"
+    raw: Any, service: type[Service], expansion: str, where: str = "spec.inputs"
 ) -> tuple[InputBinding, ...]:
-    """Validate input bindings against ``service``'s ports."""
+    """Validate input bindings against ``service``'s ports under ``expansion``."""
     if not isinstance(raw, list):
         raise SpecError(f"{where}: expected a list of bindings")
     bindings = []
@@ -107,10 +116,11 @@ def parse_bindings(
         if not isinstance(trigger, bool) or not isinstance(static, bool):
             raise SpecError(f"{at}: trigger and static must be true or false")
         bindings.append(InputBinding(port, _key(item.get("key"), f"{at}.key"), trigger, static))
-    for port, declared in service.INPUTS.items():
+    for port in service.INPUTS:
         count = sum(binding.port == port for binding in bindings)
-        if count == 0 or (count > 1 and not declared.multiple):
-            needed = "one or more bindings" if declared.multiple else "exactly one binding"
+        listed = expansion == "space" and port in service.CORRESPONDENCE
+        if count == 0 or (count > 1 and not listed):
+            needed = "one or more bindings" if listed else "exactly one binding"
             raise SpecError(f"{where}: port {port!r} needs {needed}, got {count}")
     if service.SYNCHRONISED and not any(binding.trigger for binding in bindings):
         raise SpecError(f"{where}: no binding is marked trigger")
@@ -128,7 +138,16 @@ def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
         data = text
     if not isinstance(data, dict):
         raise SpecError("spec: expected a JSON object")
-    known = {"instance", "service", "parameters", "inputs", "outputs", "tolerance_ms"}
+    known = {
+        "instance",
+        "service",
+        "parameters",
+        "inputs",
+        "outputs",
+        "expansion",
+        "time_expansion",
+        "tolerance_ms",
+    }
     unknown = sorted(set(data) - known)
     if unknown:
         raise SpecError(f"spec: unknown fields {unknown}")
@@ -150,6 +169,18 @@ def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
         if port not in service.OUTPUTS:
             raise SpecError(f"spec.outputs: {name} has no output {port!r}")
         _key(key, f"spec.outputs.{port}")
+    expansion = data.get("expansion", "none")
+    if expansion not in EXPANSIONS:
+        raise SpecError(f"spec.expansion: must be one of {EXPANSIONS}, got {expansion!r}")
+    if expansion != "none" and not service.CORRESPONDENCE:
+        raise SpecError(f"spec.expansion: {name} has no correspondence to expand")
+    time_expansion = data.get("time_expansion", {})
+    if expansion != "time" and time_expansion:
+        raise SpecError("spec.time_expansion: only for expansion 'time'")
+    try:
+        time_expansion = parse_time_expansion(time_expansion)
+    except ValueError as exc:
+        raise SpecError(f"spec.time_expansion: {exc}") from None
     tolerance = data.get("tolerance_ms", DEFAULT_TOLERANCE_MS)
     if (
         isinstance(tolerance, bool)
@@ -160,8 +191,10 @@ def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
     return ComponentSpec(
         instance=instance,
         service=name,
-        inputs=parse_bindings(data.get("inputs"), service),
+        inputs=parse_bindings(data.get("inputs"), service, expansion),
         outputs=dict(outputs),
         parameters=dict(parameters),
+        expansion=expansion,
+        time_expansion=time_expansion,
         tolerance_ms=float(tolerance),
     )

@@ -31,7 +31,9 @@ from ubitrack_agent import config, logs
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
 from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.keys import KeySpace
+from ubitrack_agent.transport import LatestValuePublisher, fetch_until_satisfied
 
+from .expansion import TimeAccumulator
 from .registry import Service, lookup
 from .spec import ComponentSpec, InputBinding, SpecError, parse_bindings, parse_spec
 
@@ -85,12 +87,13 @@ class Worker:
         self._session = session
         self._service_class = lookup(spec.service)
         self._service: Service = self._service_class(spec.parameters)
+        self._accumulator = self._new_accumulator()
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
         self._stop = threading.Event()
         self._inputs: list[_Input] = []
         self._generation = 0
         self._publishers = {
-            port: session.declare_publisher(key) for port, key in spec.outputs.items()
+            port: LatestValuePublisher(session, key) for port, key in spec.outputs.items()
         }
         self._control = session.declare_subscriber(
             keys.control(spec.instance),
@@ -100,6 +103,11 @@ class Worker:
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
         self._bind(spec.inputs)
         self._token = session.liveliness().declare_token(keys.worker(spec.instance))
+
+    def _new_accumulator(self) -> TimeAccumulator | None:
+        if self.spec.expansion != "time":
+            return None
+        return TimeAccumulator(self._service, self.spec.time_expansion)
 
     # -- wiring ---------------------------------------------------------------------------
 
@@ -122,6 +130,19 @@ class Worker:
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
+        wanted = [
+            (
+                item.binding.key,
+                lambda payload, i=index: self._inbox.put(("data", generation, i, payload)),
+                lambda buffer=item.buffer: len(buffer) > 0,
+            )
+            for index, item in enumerate(inputs)
+            if item.binding.static
+        ]
+        # A static edge's value may have been published long ago: ask for it, off this thread.
+        threading.Thread(
+            target=fetch_until_satisfied, args=(self._session, wanted, self._stop), daemon=True
+        ).start()
 
     def _apply_control(self, payload: bytes) -> None:
         try:
@@ -138,8 +159,11 @@ class Worker:
                 service = self._service_class(command["parameters"])
                 self.spec = replace(self.spec, parameters=command["parameters"])
                 self._service = service
+                self._accumulator = self._new_accumulator()
             if "inputs" in command:
-                bindings = parse_bindings(command["inputs"], self._service_class, "control.inputs")
+                bindings = parse_bindings(
+                    command["inputs"], self._service_class, self.spec.expansion, "control.inputs"
+                )
                 self.spec = replace(self.spec, inputs=bindings)
                 self._bind(bindings)
         except (ValueError, TypeError) as exc:
@@ -174,6 +198,7 @@ class Worker:
     def _trigger(self, trigger_index: int, sample: Measurement) -> None:
         t = sample.timestamp_ns
         values: dict[str, Any] = {}
+        space = self.spec.expansion == "space"
         for index, item in enumerate(self._inputs):
             port = item.binding.port
             value = (
@@ -181,14 +206,17 @@ class Worker:
                 if index == trigger_index
                 else item.buffer.value_at(t, self.spec.tolerance_ns)
             )
-            if self._service_class.INPUTS[port].multiple:
+            if space and port in self._service_class.CORRESPONDENCE:
                 values.setdefault(port, []).append(value)
             elif value is None:
                 self.counters["dropped"] += 1
                 return
             else:
                 values[port] = value
-        self._compute(values, t)
+        if self._accumulator is None:
+            self._compute(values, t)
+        elif self._accumulator.add(values) and self._accumulator.ready():
+            self._compute(self._accumulator.expanded(values), t)
 
     def _compute(self, values: dict[str, Any], timestamp_ns: int) -> None:
         try:
@@ -240,6 +268,8 @@ class Worker:
                 item.subscriber.undeclare()
             self._control.undeclare()
             self._status.undeclare()
+            for publisher in self._publishers.values():
+                publisher.undeclare()
             self._status_thread.join(timeout=1.0)
 
 

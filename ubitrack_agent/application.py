@@ -30,17 +30,13 @@ from typing import Any
 from .core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
 from .core.timeline import SampleBuffer
 from .keys import KeySpace, RelationId, validate_key_chunks
-from .transport import fetch_latest
+from .transport import fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.application")
 
 _TYPES_BY_SRG: dict[str, tuple[type[Measurement], ...]] = {}
 for _cls in MEASUREMENT_TYPES.values():
     _TYPES_BY_SRG[_cls.SRG_TYPE] = (*_TYPES_BY_SRG.get(_cls.SRG_TYPE, ()), _cls)
-
-
-FETCH_RETRY_DELAYS = (0.0, 0.05, 0.2, 0.5, 1.0, 2.0)
-"""Seconds between attempts to fetch a relation's current value after subscribing."""
 
 
 def default_application_id() -> str:
@@ -77,18 +73,13 @@ class Relation:
         )
         self._token = session.liveliness().declare_token(keys.query(relation, self.application))
         self._closed = threading.Event()
-        self._fetcher = threading.Thread(target=self._fetch_latest, args=(session,), daemon=True)
+        # A static result published before this application started: ask for it.
+        self._fetcher = threading.Thread(
+            target=fetch_until_satisfied,
+            args=(session, [(self.key, self._receive, lambda: self._count > 0)], self._closed),
+            daemon=True,
+        )
         self._fetcher.start()
-
-    def _fetch_latest(self, session: Any) -> None:
-        """Ask the relation key's queryable for its current value (a static result published
-        before this application started), retrying while links come up, until a sample
-        arrives by either path."""
-        for delay in FETCH_RETRY_DELAYS:
-            if self._closed.wait(delay) or self._count:
-                return
-            for payload in fetch_latest(session, self.key, timeout=0.5):
-                self._receive(payload)
 
     def _receive(self, payload: bytes) -> None:
         """Runs on zenoh's thread: validate, store, notify; no zenoh calls, no blocking."""

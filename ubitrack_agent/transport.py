@@ -10,7 +10,12 @@ still marked unstable in zenoh-python.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable, Sequence
 from typing import Any
+
+FETCH_RETRY_DELAYS = (0.0, 0.05, 0.2, 0.5, 1.0, 2.0)
+"""Seconds between attempts to fetch current values after subscribing (links come up in the
+background after ``zenoh.open``, so the first attempt may reach nobody)."""
 
 
 class LatestValuePublisher:
@@ -54,3 +59,25 @@ def fetch_latest(session: Any, key: str, timeout: float = 1.0) -> list[bytes]:
         if reply.ok is not None:
             payloads.append(reply.ok.payload.to_bytes())
     return payloads
+
+
+def fetch_until_satisfied(
+    session: Any,
+    wanted: Sequence[tuple[str, Callable[[bytes], None], Callable[[], bool]]],
+    stop: threading.Event,
+    delays: Sequence[float] = FETCH_RETRY_DELAYS,
+) -> None:
+    """For each ``(key, deliver, satisfied)``, fetch the key's latest value and ``deliver`` it,
+    retrying after each of ``delays`` until ``satisfied()`` or ``stop`` is set.
+
+    Run it on a thread of its own: never from a zenoh callback.
+    """
+    for delay in delays:
+        if stop.wait(delay):
+            return
+        pending = [(key, deliver) for key, deliver, satisfied in wanted if not satisfied()]
+        if not pending:
+            return
+        for key, deliver in pending:
+            for payload in fetch_latest(session, key, timeout=0.5):
+                deliver(payload)

@@ -14,7 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from services.spec import ComponentSpec, InputBinding
-from ubitrack_agent.core import ErrorPose, Pose, Position2D, decode, encode, se3
+from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, decode, encode, se3
 from ubitrack_agent.keys import KeySpace
 
 from .conftest import free_port
@@ -46,32 +46,18 @@ def test_concatenation_worker_computes_rejects_rewires_and_stops(processes):
         instance="concat1",
         service="concatenation",
         inputs=(
-            InputBinding("first", keys.data("ART/WT"), static=True),
-            InputBinding("second", keys.data("ART/HT"), trigger=True),
+            InputBinding("AB", keys.data("ART/WT"), static=True),
+            InputBinding("BC", keys.data("ART/HT"), trigger=True),
         ),
-        outputs={"out": keys.data("concat1/out")},
+        outputs={"AC": keys.data("concat1/AC")},
     )
     with hub_session(port) as session:
         tokens = []
         liveliness = session.liveliness().declare_subscriber(
-            f"ubitrack/{domain}/worker/**",
-            lambda s: tokens.append((str(s.kind), str(s.key_expr))),
-            history=True,
+            keys.worker("concat1"), lambda s: tokens.append(str(s.kind))
         )
-        output = Collector(session, keys.data("concat1/out"))
-        worker = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "services.worker",
-                "--spec",
-                spec.to_json(),
-                *member_flags(port, domain),
-            ],
-            start_new_session=True,
-        )
-        processes.append(worker)
-        wait_until(lambda: any("PUT" in kind for kind, _ in tokens))
+        output = Collector(session, keys.data("concat1/AC"))
+        worker = start_worker(processes, spec, port, domain, session, keys)
         wt = session.declare_publisher(keys.data("ART/WT"))
         ht = session.declare_publisher(keys.data("ART/HT"))
         wait_until(lambda: wt.matching_status.matching and ht.matching_status.matching)
@@ -109,8 +95,8 @@ def test_concatenation_worker_computes_rejects_rewires_and_stops(processes):
         # 3. rewire "second" to another key while running
         ht2 = session.declare_publisher(keys.data("ART/HT2"))
         rewired = [
-            {"port": "first", "key": keys.data("ART/WT"), "static": True},
-            {"port": "second", "key": keys.data("ART/HT2"), "trigger": True},
+            {"port": "AB", "key": keys.data("ART/WT"), "static": True},
+            {"port": "BC", "key": keys.data("ART/HT2"), "trigger": True},
         ]
         session.put(keys.control("concat1"), json.dumps({"inputs": rewired}))
         wait_until(lambda: ht2.matching_status.matching)
@@ -135,7 +121,7 @@ def test_concatenation_worker_computes_rejects_rewires_and_stops(processes):
         # 5. SIGTERM: clean exit, token gone
         worker.send_signal(signal.SIGTERM)
         assert worker.wait(timeout=10) == 0
-        wait_until(lambda: any("DELETE" in kind for kind, _ in tokens))
+        wait_until(lambda: "SampleKind.DELETE" in tokens)
         liveliness.undeclare()
 
 
@@ -149,3 +135,78 @@ def query_status(session, keys: KeySpace, instance: str) -> dict:
     replies = list(session.get(keys.status(instance), timeout=5.0))
     assert replies and replies[0].ok is not None
     return json.loads(replies[0].ok.payload.to_bytes())
+
+
+def start_worker(processes, spec: ComponentSpec, port: int, domain: str, session, keys):
+    tokens = []
+    watcher = session.liveliness().declare_subscriber(
+        keys.worker(spec.instance), lambda s: tokens.append(str(s.kind)), history=True
+    )
+    worker = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.worker",
+            "--spec",
+            spec.to_json(),
+            *member_flags(port, domain),
+        ],
+        start_new_session=True,
+    )
+    processes.append(worker)
+    wait_until(lambda: "SampleKind.PUT" in tokens)
+    watcher.undeclare()
+    return worker
+
+
+def test_time_expanded_tracker_alignment_and_space_expanded_fusion(processes):
+    """3D-3D pose estimation accumulating one point over time; fusion over parallel edges."""
+    port = free_port()
+    domain = f"x{port}"
+    keys = KeySpace(f"ubitrack/{domain}")
+    alignment = ComponentSpec(
+        instance="align",
+        service="pose_estimation_3d3d",
+        inputs=(
+            InputBinding("AF", keys.data("A/F"), trigger=True),
+            InputBinding("BF", keys.data("B/F")),
+        ),
+        outputs={"AB": keys.data("align/AB")},
+        expansion="time",
+        time_expansion={"min_motion": 0.01},
+    )
+    fusion = ComponentSpec(
+        instance="fuse",
+        service="fusion",
+        inputs=tuple(InputBinding("AB", keys.data(f"T{i}/AB"), trigger=i == 0) for i in range(2)),
+        outputs={"fused": keys.data("fuse/fused")},
+        expansion="space",
+    )
+    q, t = Rotation.random(rng=RNG).as_quat(), RNG.normal(size=3)
+    with hub_session(port) as session:
+        aligned = Collector(session, keys.data("align/AB"))
+        fused = Collector(session, keys.data("fuse/fused"))
+        start_worker(processes, alignment, port, domain, session, keys)
+        start_worker(processes, fusion, port, domain, session, keys)
+        a_pub, b_pub = (session.declare_publisher(keys.data(e)) for e in ("A/F", "B/F"))
+        trackers = [session.declare_publisher(keys.data(f"T{i}/AB")) for i in range(2)]
+        wait_until(lambda: all(p.matching_status.matching for p in (a_pub, b_pub, *trackers)))
+        points = RNG.uniform(-0.5, 0.5, (5, 3))
+        for i, p in enumerate(points):
+            stamp = 10_000 + i * 1_000_000
+            b_pub.put(encode(Position3D(stamp, p)))
+            time.sleep(0.02)  # B's sample is in the worker's buffer before A triggers
+            a_pub.put(encode(Position3D(stamp, se3.transform_points(q, t, p))))
+        results = [decode(aligned.next(), expected=(Pose, ErrorPose)) for _ in range(3)]
+        np.testing.assert_allclose(
+            se3.to_matrix(results[-1].rotation, results[-1].translation),
+            se3.to_matrix(q, t),
+            atol=1e-9,
+        )
+        stamp = 50_000_000
+        trackers[1].put(encode(ErrorPose(stamp, q, [1.0, 0, 0], np.eye(6) * 1e-6)))
+        time.sleep(0.02)
+        trackers[0].put(encode(ErrorPose(stamp, q, [1.2, 0, 0], np.eye(6) * 1e-6)))
+        result = decode(fused.next(), expected=ErrorPose)
+        np.testing.assert_allclose(result.translation, [1.1, 0, 0], atol=1e-9)
+        np.testing.assert_allclose(np.diag(result.covariance), 0.5e-6, rtol=1e-6)

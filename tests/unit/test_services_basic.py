@@ -32,10 +32,10 @@ def test_lookup_lists_known_services_when_unknown():
 
 def test_inversion_of_pose_and_rotation():
     service = lookup("inversion")({})
-    out = service.compute({"in": ErrorPose(1, Q, T, np.eye(6) * 1e-6)}, 1)["out"]
+    out = service.compute({"AB": ErrorPose(1, Q, T, np.eye(6) * 1e-6)}, 1)["BA"]
     back = se3.compose(Q, T, out.rotation, out.translation)
     np.testing.assert_allclose(se3.to_matrix(*back), np.eye(4), atol=1e-12)
-    rotation = service.compute({"in": Rotation3D(1, Q)}, 1)["out"]
+    rotation = service.compute({"AB": Rotation3D(1, Q)}, 1)["BA"]
     np.testing.assert_allclose(rotation.rotation, Q * [-1, -1, -1, 1])
 
 
@@ -43,21 +43,21 @@ def test_concatenation_of_every_supported_pair():
     service = lookup("concatenation")({})
     pose = Pose(7, Q, T)
     point = Position3D(7, [0.1, 0.2, 3.0])
-    out = service.compute({"first": pose, "second": point}, 7)["out"]
+    out = service.compute({"AB": pose, "BC": point}, 7)["AC"]
     np.testing.assert_allclose(out.position, se3.transform_points(Q, T, point.position))
-    rot = service.compute({"first": Rotation3D(7, Q), "second": Rotation3D(7, Q)}, 7)["out"]
+    rot = service.compute({"AB": Rotation3D(7, Q), "BC": Rotation3D(7, Q)}, 7)["AC"]
     assert isinstance(rot, Rotation3D)
     projection = Projection(7, K @ np.hstack((np.eye(3), np.zeros((3, 1)))))
-    composed = service.compute({"first": projection, "second": pose}, 7)["out"]
+    composed = service.compute({"AB": projection, "BC": pose}, 7)["AC"]
     np.testing.assert_allclose(composed.matrix, projection.matrix @ se3.to_matrix(Q, T))
-    pixel = service.compute({"first": projection, "second": point}, 7)["out"]
+    pixel = service.compute({"AB": projection, "BC": point}, 7)["AC"]
     assert isinstance(pixel, Position2D)
     np.testing.assert_allclose(pixel.position, [320 + 800 * 0.1 / 3, 240 + 800 * 0.2 / 3])
     with pytest.raises(ValueError, match="cannot concatenate"):
-        service.compute({"first": Rotation3D(7, Q), "second": pose}, 7)
+        service.compute({"AB": Rotation3D(7, Q), "BC": pose}, 7)
     behind = Position3D(7, [0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="infinity"):
-        service.compute({"first": projection, "second": behind}, 7)
+        service.compute({"AB": projection, "BC": behind}, 7)
 
 
 def test_unknown_parameters_are_refused():
@@ -69,10 +69,10 @@ VALID = {
     "instance": "c1",
     "service": "concatenation",
     "inputs": [
-        {"port": "first", "key": "u/d/data/A/B", "static": True},
-        {"port": "second", "key": "u/d/data/B/C", "trigger": True},
+        {"port": "AB", "key": "u/d/data/A/B", "static": True},
+        {"port": "BC", "key": "u/d/data/B/C", "trigger": True},
     ],
-    "outputs": {"out": "u/d/data/c1/out"},
+    "outputs": {"AC": "u/d/data/c1/AC"},
 }
 
 
@@ -89,8 +89,8 @@ def test_valid_spec_round_trips_through_json():
         ({"instance": "a/b"}, "spec.instance"),
         ({"instance": 5}, "spec.instance: expected str"),
         ({"outputs": {"nope": "k"}}, "has no output 'nope'"),
-        ({"outputs": {"out": "u/*/x"}}, "spec.outputs.out"),
-        ({"inputs": [VALID["inputs"][0]]}, "port 'second' needs exactly one binding"),
+        ({"outputs": {"AC": "u/*/x"}}, "spec.outputs.AC"),
+        ({"inputs": [VALID["inputs"][0]]}, "port 'BC' needs exactly one binding"),
         ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "trigger": False}]}, "trigger"),
         ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "key": "a/**"}]}, "inputs[1].key"),
         ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "extra": 1}]}, "unknown fields"),
@@ -98,6 +98,9 @@ def test_valid_spec_round_trips_through_json():
         ({"tolerance_ms": -1}, "tolerance_ms"),
         ({"tolerance_ms": True}, "tolerance_ms"),
         ({"colour": "red"}, "unknown fields ['colour']"),
+        ({"expansion": "sideways"}, "spec.expansion: must be one of"),
+        ({"expansion": "space"}, "concatenation has no correspondence"),
+        ({"time_expansion": {"min_motion": 1}}, "only for expansion 'time'"),
     ],
 )
 def test_invalid_specs_name_the_field(change, fragment):

@@ -17,7 +17,7 @@ from ubitrack_agent.core import (
 )
 from ubitrack_agent.core.poses import compose_poses, invert_pose, transform_position
 
-from .registry import Inputs, Port, Service, register
+from ..registry import Inputs, Port, Service, register
 
 POSES = (Pose, ErrorPose)
 
@@ -27,19 +27,19 @@ class Inversion(Service):
     """B->A from A->B, for 6D poses (covariance transported exactly) and 3D rotations."""
 
     NAME = "inversion"
-    INPUTS = {"in": Port((Pose, ErrorPose, Rotation3D))}
-    OUTPUTS = ("out",)
+    INPUTS = {"AB": Port((Pose, ErrorPose, Rotation3D))}
+    OUTPUTS = ("BA",)
 
     def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
-        value = values["in"]
+        value = values["AB"]
         if isinstance(value, Rotation3D):
-            return {"out": Rotation3D(timestamp_ns, quaternions.conjugate(value.rotation))}
-        return {"out": invert_pose(value)}
+            return {"BA": Rotation3D(timestamp_ns, quaternions.conjugate(value.rotation))}
+        return {"BA": invert_pose(value)}
 
 
 @register
 class Concatenation(Service):
-    """A->C from A->B (``first``) and B->C (``second``).
+    """A->C from A->B (port ``AB``) and B->C (port ``BC``).
 
     Supported pairs: pose x pose -> pose, pose x position -> position, rotation x rotation ->
     rotation, projection x pose -> projection, projection x position -> image position.
@@ -48,13 +48,13 @@ class Concatenation(Service):
 
     NAME = "concatenation"
     INPUTS = {
-        "first": Port((Pose, ErrorPose, Rotation3D, Projection)),
-        "second": Port((Pose, ErrorPose, Position3D, Rotation3D)),
+        "AB": Port((Pose, ErrorPose, Rotation3D, Projection)),
+        "BC": Port((Pose, ErrorPose, Position3D, Rotation3D)),
     }
-    OUTPUTS = ("out",)
+    OUTPUTS = ("AC",)
 
     def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
-        first, second = values["first"], values["second"]
+        first, second = values["AB"], values["BC"]
         if isinstance(first, POSES) and isinstance(second, POSES):
             result: Measurement = compose_poses(first, second)
         elif isinstance(first, POSES) and isinstance(second, Position3D):
@@ -73,4 +73,4 @@ class Concatenation(Service):
             raise ValueError(
                 f"cannot concatenate {type(first).__name__} with {type(second).__name__}"
             )
-        return {"out": result}
+        return {"AC": result}

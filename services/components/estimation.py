@@ -1,0 +1,180 @@
+"""Correspondence-based estimation patterns (sections 3.3-3.4): 3D-3D and 2D-3D pose
+estimation, projective calibration, triangulation and hand-eye calibration.
+
+Each takes aligned correspondence lists (space expansion: one binding per copy; time
+expansion: samples accumulated by :mod:`services.expansion`) and uses only the rows where every
+correspondence edge has a value.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from services.algorithms import (
+    absolute_orientation,
+    average_poses,
+    decompose_projection,
+    hand_eye_park_martin,
+    projection_dlt,
+    solve_pnp,
+    solve_pnp_ransac,
+    triangulate_points,
+)
+from services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.core import (
+    ErrorPose,
+    Measurement,
+    Pose,
+    Position2D,
+    Position3D,
+    Projection,
+    se3,
+)
+from ubitrack_agent.core.uncertainty import compose_covariance
+
+from ..registry import Inputs, Port, Service, complete_correspondences, register
+
+POSES = (Pose, ErrorPose)
+
+
+def _rows(values: Inputs, ports: tuple[str, ...], minimum: int) -> list[tuple]:
+    rows = complete_correspondences(values, ports)
+    if len(rows) < minimum:
+        raise ValueError(f"{len(rows)} complete correspondences, need {minimum}")
+    return rows
+
+
+def _points(values: list[Measurement]) -> np.ndarray:
+    return np.array([v.position for v in values])
+
+
+@register
+class PoseEstimation3D3D(Service):
+    """Pose of B in A from points F known in both frames (absolute orientation)."""
+
+    NAME = "pose_estimation_3d3d"
+    INPUTS = {"AF": Port((Position3D,)), "BF": Port((Position3D,))}
+    OUTPUTS = ("AB",)
+    CORRESPONDENCE = ("AF", "BF")
+    MIN_CORRESPONDENCES = 3
+    TIME_MIN_MOTION = 0.005
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        rows = _rows(values, self.CORRESPONDENCE, self.MIN_CORRESPONDENCES)
+        a, b = zip(*rows, strict=True)
+        estimate = absolute_orientation(_points(list(a)), _points(list(b)))
+        return {"AB": estimate.to_measurement(timestamp_ns)}
+
+
+@register
+class PoseEstimation2D3D(Service):
+    """Pose of object O in camera frame C from features F seen in image I (OpenCV PnP).
+
+    ``CI`` is the camera's projection (3x4) from C to the image. The PnP solution is the pose of
+    O in the optical frame; the result is re-expressed in C. Parameters: ``method`` (``auto``
+    chooses by geometry; or an OpenCV method name), ``ransac`` for outlier-robust estimation,
+    ``pixel_sigma`` for the covariance (estimated from residuals if 0).
+    """
+
+    NAME = "pose_estimation_2d3d"
+    INPUTS = {"CI": Port((Projection,)), "IF": Port((Position2D,)), "OF": Port((Position3D,))}
+    OUTPUTS = ("CO",)
+    CORRESPONDENCE = ("IF", "OF")
+    MIN_CORRESPONDENCES = 4
+    TIME_MIN_MOTION = 2.0  # pixels
+    PARAMETERS = {"method": "auto", "ransac": False, "pixel_sigma": 0.0}
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        rows = _rows(values, self.CORRESPONDENCE, self.MIN_CORRESPONDENCES)
+        image, model = zip(*rows, strict=True)
+        k, camera = decompose_projection(values["CI"].matrix)  # camera: C in the optical frame
+        sigma = float(self.parameters["pixel_sigma"]) or None
+        if self.parameters["ransac"]:
+            pnp, _ = solve_pnp_ransac(
+                _points(list(model)), _points(list(image)), k, pixel_sigma=sigma
+            )
+        else:
+            pnp = solve_pnp(
+                _points(list(model)),
+                _points(list(image)),
+                k,
+                method=self.parameters["method"],
+                pixel_sigma=sigma,
+            )
+        optical_to_c = se3.invert(camera.rotation, camera.translation)
+        q, t = se3.compose(*optical_to_c, pnp.rotation, pnp.translation)
+        covariance = None
+        if pnp.covariance is not None:
+            covariance = compose_covariance(*optical_to_c, np.zeros((6, 6)), pnp.covariance)
+        return {"CO": PoseEstimate(q, t, covariance).to_measurement(timestamp_ns)}
+
+
+@register
+class ProjectiveCalibration(Service):
+    """Projection C -> I (3x4) from features with known positions in C (normalised DLT plus
+    gold-standard refinement). ``zero_skew`` uses OpenCV's 10-parameter camera model."""
+
+    NAME = "projective_calibration"
+    INPUTS = {"IF": Port((Position2D,)), "CF": Port((Position3D,))}
+    OUTPUTS = ("CI",)
+    CORRESPONDENCE = ("IF", "CF")
+    MIN_CORRESPONDENCES = 6
+    TIME_MIN_MOTION = 2.0  # pixels
+    PARAMETERS = {"zero_skew": False}
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        rows = _rows(values, self.CORRESPONDENCE, self.MIN_CORRESPONDENCES)
+        image, model = zip(*rows, strict=True)
+        p = projection_dlt(
+            _points(list(model)), _points(list(image)), zero_skew=bool(self.parameters["zero_skew"])
+        )
+        return {"CI": Projection(timestamp_ns, p)}
+
+
+@register
+class Triangulation(Service):
+    """Position of F in C from its images in two or more views with projections C -> I_k."""
+
+    NAME = "triangulation"
+    INPUTS = {"CI": Port((Projection,)), "IF": Port((Position2D,))}
+    OUTPUTS = ("CF",)
+    CORRESPONDENCE = ("CI", "IF")
+    MIN_CORRESPONDENCES = 2
+    PARAMETERS = {"pixel_sigma": 0.0}
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        rows = _rows(values, self.CORRESPONDENCE, self.MIN_CORRESPONDENCES)
+        projections = np.array([p.matrix for p, _ in rows])
+        pixels = np.array([[x.position] for _, x in rows])
+        sigma = float(self.parameters["pixel_sigma"]) or None
+        result = triangulate_points(projections, pixels, pixel_sigma=sigma)
+        return {"CF": Position3D(timestamp_ns, result.points[0], result.covariances[0])}
+
+
+@register
+class HandEyeCalibration(Service):
+    """``AX = XB`` (Park & Martin) from simultaneous poses of a hand H in R and of an object O
+    in the eye C: outputs the eye in the hand (``HC``) and the object in R (``RO``, the mean of
+    ``RH_i HC CO_i``). Time expansion; motions must rotate about two or more axes."""
+
+    NAME = "hand_eye_calibration"
+    INPUTS = {"RH": Port(POSES), "CO": Port(POSES)}
+    OUTPUTS = ("HC", "RO")
+    CORRESPONDENCE = ("RH", "CO")
+    MIN_CORRESPONDENCES = 3
+    TIME_MIN_ROTATION_DEG = 5.0
+    PARAMETERS = {"min_motion_pairs": 2}
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        rows = _rows(values, self.CORRESPONDENCE, self.MIN_CORRESPONDENCES)
+        hands, eyes = zip(*rows, strict=True)
+        hand_q = np.array([h.rotation for h in hands])
+        hand_t = np.array([h.translation for h in hands])
+        eye_q = np.array([e.rotation for e in eyes])
+        eye_t = np.array([e.translation for e in eyes])
+        x = hand_eye_park_martin(hand_q, hand_t, eye_q, eye_t, all_pairs=len(rows) <= 50)
+        q_ro, t_ro = se3.compose(
+            *se3.compose(hand_q, hand_t, x.rotation, x.translation), eye_q, eye_t
+        )
+        ro = average_poses(q_ro, t_ro)
+        return {"HC": x.to_measurement(timestamp_ns), "RO": ro.to_measurement(timestamp_ns)}

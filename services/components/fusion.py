@@ -1,0 +1,81 @@
+"""Multi-tracker fusion (section 3.1.3) and averaging of a static edge over time (section 3.3)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from services.algorithms import average_poses, average_positions, fuse_poses
+from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D
+
+from ..registry import Inputs, Port, Service, complete_correspondences, register
+
+
+@register
+class Fusion(Service):
+    """Information-weighted fusion of simultaneous estimates of one edge (space expansion).
+
+    6D estimates are fused on SE(3) (:func:`services.algorithms.fuse_poses`); 3D positions by
+    inverse-covariance weighting. An estimate without covariance gets ``default_sigma``
+    (metres and radians) on every axis, so plain estimates are averaged with equal weights.
+    """
+
+    NAME = "fusion"
+    INPUTS = {"AB": Port((Pose, ErrorPose, Position3D))}
+    OUTPUTS = ("fused",)
+    CORRESPONDENCE = ("AB",)
+    MIN_CORRESPONDENCES = 1
+    PARAMETERS = {"default_sigma": 1e-3}
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        estimates = [row[0] for row in complete_correspondences(values, self.CORRESPONDENCE)]
+        if not estimates:
+            raise ValueError("no estimate available at this time")
+        default = float(self.parameters["default_sigma"]) ** 2
+        if all(isinstance(e, Position3D) for e in estimates):
+            infos = [
+                np.linalg.inv(e.covariance if e.covariance is not None else default * np.eye(3))
+                for e in estimates
+            ]
+            covariance = np.linalg.inv(sum(infos))
+            mean = covariance @ sum(i @ e.position for i, e in zip(infos, estimates, strict=True))
+            return {"fused": Position3D(timestamp_ns, mean, 0.5 * (covariance + covariance.T))}
+        if not all(isinstance(e, Pose | ErrorPose) for e in estimates):
+            raise ValueError("cannot fuse poses with positions")
+        covariances = [
+            e.covariance if isinstance(e, ErrorPose) else default * np.eye(6) for e in estimates
+        ]
+        fused = fuse_poses(
+            np.array([e.rotation for e in estimates]),
+            np.array([e.translation for e in estimates]),
+            np.array(covariances),
+        )
+        return {"fused": fused.to_measurement(timestamp_ns)}
+
+
+@register
+class Averaging(Service):
+    """The mean of many samples of a rigid (static) relationship, with the covariance of the
+    mean: the time expansion of a static edge (poses, positions or rotations)."""
+
+    NAME = "averaging"
+    INPUTS = {"AB": Port((Pose, ErrorPose, Position3D, Rotation3D))}
+    OUTPUTS = ("mean",)
+    CORRESPONDENCE = ("AB",)
+    MIN_CORRESPONDENCES = 2
+    PARAMETERS = {"min_samples": 30}
+
+    def min_correspondences(self) -> int:
+        return max(self.MIN_CORRESPONDENCES, int(self.parameters["min_samples"]))
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        samples = [row[0] for row in complete_correspondences(values, self.CORRESPONDENCE)]
+        if isinstance(samples[0], Position3D):
+            mean, covariance = average_positions(np.array([s.position for s in samples]))
+            return {"mean": Position3D(timestamp_ns, mean, covariance)}
+        mean = average_poses(
+            np.array([s.rotation for s in samples]),
+            np.array([getattr(s, "translation", np.zeros(3)) for s in samples]),
+        )
+        if isinstance(samples[0], Rotation3D):
+            return {"mean": Rotation3D(timestamp_ns, mean.rotation)}
+        return {"mean": mean.to_measurement(timestamp_ns)}

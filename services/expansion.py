@@ -1,0 +1,114 @@
+"""Time expansion of a pattern's correspondence (paper section 3.3, "Expansion in Time").
+
+Under time expansion each edge of the correspondence set is a single edge "measured at
+different points in time": the worker synchronises the pattern's inputs at each trigger as
+usual, and a :class:`TimeAccumulator` keeps the correspondence values of those instants that
+differ enough from the last kept one (a minimum motion, so a resting target does not fill the
+history with copies of one measurement). Once the multiplicity's lower bound is reached the
+service computes on the accumulated lists; every further distinct sample refines the result.
+The history is bounded (``max_samples``, oldest dropped first).
+
+Options (``time_expansion`` in the component specification), defaults from the service:
+
+* ``min_motion`` - least change of a position or translation (its unit: m, or px for 2D);
+* ``min_rotation_deg`` - least change of a rotation, degrees;
+* ``max_samples`` - the history's bound.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ubitrack_agent.core import (
+    ErrorPose,
+    Measurement,
+    Pose,
+    Position2D,
+    Position3D,
+    Rotation3D,
+    quaternions,
+)
+
+from .registry import Inputs, Service
+
+OPTIONS = ("min_motion", "min_rotation_deg", "max_samples")
+DEFAULT_MAX_SAMPLES = 200
+
+
+def parse_time_expansion(options: Any) -> dict[str, float]:
+    """Validate time-expansion options (see the module docstring)."""
+    if not isinstance(options, Mapping):
+        raise ValueError("expected an object")
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown options {unknown}; known: {list(OPTIONS)}")
+    for name, value in options.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+            raise ValueError(f"{name} must be a number >= 0")
+    if "max_samples" in options and not 1 <= options["max_samples"] <= 100_000:
+        raise ValueError("max_samples must be in [1, 100000]")
+    return {name: float(value) for name, value in options.items()}
+
+
+def motion(before: Measurement, after: Measurement) -> tuple[float, float]:
+    """(translation change, rotation change in degrees) between two values of one edge."""
+    translation, rotation = 0.0, 0.0
+    if isinstance(before, Pose | ErrorPose) and isinstance(after, Pose | ErrorPose):
+        translation = float(np.linalg.norm(after.translation - before.translation))
+    if isinstance(before, Position3D | Position2D) and isinstance(after, type(before)):
+        translation = float(np.linalg.norm(after.position - before.position))
+    if isinstance(before, Pose | ErrorPose | Rotation3D):
+        relative = quaternions.multiply(quaternions.conjugate(before.rotation), after.rotation)
+        rotation = float(np.degrees(quaternions.angle(relative)))
+    return translation, rotation
+
+
+class TimeAccumulator:
+    """Collects distinct correspondence samples of one time-expanded pattern instance."""
+
+    def __init__(self, service: Service, options: Mapping[str, float]) -> None:
+        self.service = service
+        self.min_motion = options.get("min_motion", service.TIME_MIN_MOTION)
+        self.min_rotation_deg = options.get("min_rotation_deg", service.TIME_MIN_ROTATION_DEG)
+        size = int(options.get("max_samples", DEFAULT_MAX_SAMPLES))
+        self.samples: deque[dict[str, Measurement]] = deque(maxlen=size)
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def _distinct(self, sample: dict[str, Measurement]) -> bool:
+        """Not the instant last kept, and (if thresholds are set) moved enough since it."""
+        if not self.samples:
+            return True
+        last = self.samples[-1]
+        if all(value.timestamp_ns == last[port].timestamp_ns for port, value in sample.items()):
+            return False
+        if not (self.min_motion or self.min_rotation_deg):
+            return True
+        for port, value in sample.items():
+            translation, rotation = motion(last[port], value)
+            if (self.min_motion and translation >= self.min_motion) or (
+                self.min_rotation_deg and rotation >= self.min_rotation_deg
+            ):
+                return True
+        return False
+
+    def add(self, values: Inputs) -> bool:
+        """Keep the correspondence values of one instant if they are distinct; True if kept."""
+        sample = {port: values[port] for port in self.service.CORRESPONDENCE}
+        if not self._distinct(sample):
+            return False
+        self.samples.append(sample)
+        return True
+
+    def ready(self) -> bool:
+        return len(self.samples) >= self.service.min_correspondences()
+
+    def expanded(self, values: Inputs) -> dict[str, Any]:
+        """``values`` with each correspondence port replaced by its accumulated list."""
+        ports = self.service.CORRESPONDENCE
+        return {**values, **{port: [sample[port] for sample in self.samples] for port in ports}}

@@ -1,0 +1,175 @@
+"""The registered pattern services on noise-free synthetic scenes, and time expansion."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bench.synthetic import CAMERA_MATRIX, hand_eye_scene, rng_for
+from services.expansion import TimeAccumulator, parse_time_expansion
+from services.registry import lookup
+from ubitrack_agent.core import (
+    ErrorPose,
+    Pose,
+    Position2D,
+    Position3D,
+    Projection,
+    Rotation3D,
+    quaternions,
+    se3,
+)
+
+T = 1_000
+
+
+def make(name: str, **parameters):
+    return lookup(name)(parameters)
+
+
+def assert_pose(measurement, q, t, atol=1e-8):
+    np.testing.assert_allclose(
+        se3.to_matrix(measurement.rotation, measurement.translation), se3.to_matrix(q, t), atol=atol
+    )
+
+
+def scene(name: str, n: int = 8):
+    rng = rng_for(name)
+    q, t = Rotation.random(rng=rng).as_quat(), rng.uniform(-0.5, 0.5, 3)
+    points_b = rng.uniform(-0.2, 0.2, (n, 3))
+    return rng, q, t, points_b
+
+
+def test_pose_estimation_3d3d_space_expanded_with_missing_rows():
+    _, q, t, points_b = scene("3d3d")
+    points_a = se3.transform_points(q, t, points_b)
+    af = [Position3D(T, p) for p in points_a] + [None]
+    bf = [Position3D(T, p) for p in points_b] + [Position3D(T, [9.0, 9.0, 9.0])]
+    out = make("pose_estimation_3d3d").compute({"AF": af, "BF": bf}, T)["AB"]
+    assert out.timestamp_ns == T
+    assert_pose(out, q, t)
+    with pytest.raises(ValueError, match="need 3"):
+        make("pose_estimation_3d3d").compute({"AF": af[:2], "BF": bf[:2]}, T)
+
+
+def camera_scene(name: str):
+    """Camera frame C = optical frame rotated; projection C->I; object O with features."""
+    _rng, q_co, _, features = scene(name, 10)
+    t_co = np.array([0.05, -0.02, 1.5])
+    q_opt, t_opt = Rotation.from_euler("z", 10, degrees=True).as_quat(), np.array([0.01, 0, 0])
+    projection = CAMERA_MATRIX @ se3.to_matrix(q_opt, t_opt)[:3]
+    in_c = se3.transform_points(q_co, t_co, features)
+    homogeneous = (projection @ np.c_[in_c, np.ones(len(in_c))].T).T
+    pixels = homogeneous[:, :2] / homogeneous[:, 2:]
+    return projection, (q_co, t_co), features, in_c, pixels
+
+
+def test_pose_estimation_2d3d_reexpresses_pnp_in_the_camera_frame():
+    projection, (q_co, t_co), features, _, pixels = camera_scene("2d3d")
+    values = {
+        "CI": Projection(T, projection),
+        "IF": [Position2D(T, x) for x in pixels],
+        "OF": [Position3D(T, f) for f in features],
+    }
+    out = make("pose_estimation_2d3d").compute(values, T)["CO"]
+    assert_pose(out, q_co, t_co, atol=1e-6)
+    robust = make("pose_estimation_2d3d", ransac=True).compute(values, T)["CO"]
+    assert_pose(robust, q_co, t_co, atol=1e-6)
+
+
+def test_projective_calibration_recovers_the_projection():
+    projection, _, _, in_c, pixels = camera_scene("dlt")
+    values = {"IF": [Position2D(T, x) for x in pixels], "CF": [Position3D(T, p) for p in in_c]}
+    out = make("projective_calibration").compute(values, T)["CI"]
+    scale = projection[2, 2] / out.matrix[2, 2]
+    np.testing.assert_allclose(out.matrix * scale, projection, rtol=1e-6, atol=1e-6)
+
+
+def test_triangulation_from_two_views():
+    rng = rng_for("triangulation")
+    point = rng.uniform(-0.2, 0.2, 3)
+    views = []
+    for yaw in (-20.0, 25.0):
+        q = Rotation.from_euler("y", yaw, degrees=True).as_quat()
+        p = CAMERA_MATRIX @ se3.to_matrix(q, [0.0, 0.0, 2.0])[:3]
+        x = p @ np.append(point, 1.0)
+        views.append((Projection(T, p), Position2D(T, x[:2] / x[2])))
+    values = {"CI": [v[0] for v in views], "IF": [v[1] for v in views]}
+    out = make("triangulation").compute(values, T)["CF"]
+    np.testing.assert_allclose(out.position, point, atol=1e-8)
+    assert out.covariance.shape == (3, 3)
+
+
+def test_hand_eye_calibration_gives_eye_in_hand_and_object_in_base():
+    truth, (hand_q, hand_t, eye_q, eye_t) = hand_eye_scene(rng_for("hand-eye service"), 6)
+    values = {
+        "RH": [Pose(T, q, t) for q, t in zip(hand_q, hand_t, strict=True)],
+        "CO": [Pose(T, q, t) for q, t in zip(eye_q, eye_t, strict=True)],
+    }
+    out = make("hand_eye_calibration").compute(values, T)
+    assert_pose(out["HC"], truth.rotation, truth.translation, atol=1e-6)
+    q_ro, t_ro = se3.compose(
+        *se3.compose(hand_q[0], hand_t[0], truth.rotation, truth.translation), eye_q[0], eye_t[0]
+    )
+    assert_pose(out["RO"], q_ro, t_ro, atol=1e-6)
+
+
+def test_fusion_of_equal_and_weighted_estimates():
+    q = Rotation.random(rng=1).as_quat()
+    a = ErrorPose(T, q, [1.0, 0.0, 0.0], np.eye(6) * 1e-6)
+    b = ErrorPose(T, q, [1.2, 0.0, 0.0], np.eye(6) * 3e-6)
+    fused = make("fusion").compute({"AB": [a, b, None]}, T)["fused"]
+    np.testing.assert_allclose(fused.translation, [1.05, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(np.diag(fused.covariance), 0.75e-6, rtol=1e-6)
+    positions = [Position3D(T, [0, 0, 0]), Position3D(T, [2, 0, 0])]
+    mean = make("fusion").compute({"AB": positions}, T)["fused"]
+    np.testing.assert_allclose(mean.position, [1, 0, 0])
+    with pytest.raises(ValueError, match="no estimate"):
+        make("fusion").compute({"AB": [None, None]}, T)
+
+
+def test_averaging_and_pose_split():
+    samples = [Pose(i, [0, 0, 0, 1], [1.0 + 0.01 * (-1) ** i, 0, 0]) for i in range(10)]
+    mean = make("averaging", min_samples=10).compute({"AB": samples}, T)["mean"]
+    assert isinstance(mean, ErrorPose)
+    np.testing.assert_allclose(mean.translation, [1.0, 0, 0], atol=1e-12)
+    rotations = [
+        Rotation3D(i, Rotation.from_euler("z", d, degrees=True).as_quat())
+        for i, d in enumerate((9, 11))
+    ]
+    mean_rotation = make("averaging").compute({"AB": rotations}, T)["mean"]
+    assert np.degrees(quaternions.angle(mean_rotation.rotation)) == pytest.approx(10.0)
+    parts = make("pose_split").compute({"AB": ErrorPose(T, [0, 0, 0, 1], [1, 2, 3], np.eye(6))}, T)
+    np.testing.assert_allclose(parts["position"].position, [1, 2, 3])
+    assert isinstance(parts["rotation"], Rotation3D)
+
+
+def test_time_accumulator_keeps_distinct_samples_until_the_multiplicity():
+    service = make("pose_estimation_3d3d")
+    accumulator = TimeAccumulator(service, parse_time_expansion({"min_motion": 0.01}))
+    _, q, t, points_b = scene("tracker alignment", 5)
+    kept = []
+    for i, p in enumerate([points_b[0], points_b[0] + 0.001, *points_b[1:]]):
+        values = {"AF": Position3D(i, se3.transform_points(q, t, p)), "BF": Position3D(i, p)}
+        kept.append(accumulator.add(values))
+        if accumulator.ready():
+            out = service.compute(accumulator.expanded(values), i)["AB"]
+    assert kept == [True, False, True, True, True, True]
+    assert len(accumulator) == 5
+    assert_pose(out, q, t)
+    no_threshold = TimeAccumulator(make("averaging"), {})
+    assert no_threshold.add({"AB": Pose(1, [0, 0, 0, 1], [0, 0, 0])})
+    assert not no_threshold.add({"AB": Pose(1, [0, 0, 0, 1], [0, 0, 0])})  # the same instant
+    assert no_threshold.add({"AB": Pose(2, [0, 0, 0, 1], [0, 0, 0])})
+
+
+def test_time_accumulator_history_is_bounded_and_options_validated():
+    accumulator = TimeAccumulator(make("averaging"), parse_time_expansion({"max_samples": 3}))
+    for i in range(10):
+        accumulator.add({"AB": Pose(i, [0, 0, 0, 1], [i, 0, 0])})
+    assert len(accumulator) == 3
+    for bad, fragment in (
+        ({"min_motion": -1}, ">= 0"),
+        ({"speed": 1}, "unknown options"),
+        ({"max_samples": 0}, "max_samples"),
+    ):
+        with pytest.raises(ValueError, match=fragment):
+            parse_time_expansion(bad)
