@@ -39,9 +39,6 @@ class Service(ABC):
     NAME: ClassVar[str]
     INPUTS: ClassVar[dict[str, Port]]
     OUTPUTS: ClassVar[tuple[str, ...]]
-    SYNCHRONISED: ClassVar[bool] = True
-    """True: a trigger sample evaluates all other inputs at its timestamp. False: every sample
-    is passed on its own (event-driven filters such as a Kalman filter)."""
     CORRESPONDENCE: ClassVar[tuple[str, ...]] = ()
     """Ports forming the correspondence set (section 3.3). Under space expansion each takes
     several bindings (in correspondence order) and ``compute`` gets aligned lists, with

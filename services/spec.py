@@ -30,6 +30,7 @@ from .expansion import parse_time_expansion
 from .registry import Service, lookup
 
 DEFAULT_TOLERANCE_MS = 20.0
+DEFAULT_WAIT_MS = 5.0
 EXPANSIONS = ("none", "space", "time")
 
 
@@ -59,6 +60,7 @@ class ComponentSpec:
     expansion: str = "none"
     time_expansion: dict[str, float] = field(default_factory=dict)
     tolerance_ms: float = DEFAULT_TOLERANCE_MS
+    wait_ms: float = DEFAULT_WAIT_MS
 
     @property
     def tolerance_ns(self) -> int:
@@ -75,6 +77,7 @@ class ComponentSpec:
                 "expansion": self.expansion,
                 "time_expansion": self.time_expansion,
                 "tolerance_ms": self.tolerance_ms,
+                "wait_ms": self.wait_ms,
             }
         )
 
@@ -122,9 +125,16 @@ def parse_bindings(
         if count == 0 or (count > 1 and not listed):
             needed = "one or more bindings" if listed else "exactly one binding"
             raise SpecError(f"{where}: port {port!r} needs {needed}, got {count}")
-    if service.SYNCHRONISED and not any(binding.trigger for binding in bindings):
+    if not any(binding.trigger for binding in bindings):
         raise SpecError(f"{where}: no binding is marked trigger")
     return tuple(bindings)
+
+
+def _milliseconds(data: Mapping[str, Any], name: str, default: float) -> float:
+    value = data.get(name, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value <= 10_000:
+        raise SpecError(f"spec.{name}: expected a number of milliseconds in [0, 10000]")
+    return float(value)
 
 
 def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
@@ -147,6 +157,7 @@ def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
         "expansion",
         "time_expansion",
         "tolerance_ms",
+        "wait_ms",
     }
     unknown = sorted(set(data) - known)
     if unknown:
@@ -181,13 +192,8 @@ def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
         time_expansion = parse_time_expansion(time_expansion)
     except ValueError as exc:
         raise SpecError(f"spec.time_expansion: {exc}") from None
-    tolerance = data.get("tolerance_ms", DEFAULT_TOLERANCE_MS)
-    if (
-        isinstance(tolerance, bool)
-        or not isinstance(tolerance, int | float)
-        or not 0 <= tolerance <= 10_000
-    ):
-        raise SpecError("spec.tolerance_ms: expected a number of milliseconds in [0, 10000]")
+    tolerance = _milliseconds(data, "tolerance_ms", DEFAULT_TOLERANCE_MS)
+    wait = _milliseconds(data, "wait_ms", DEFAULT_WAIT_MS)
     return ComponentSpec(
         instance=instance,
         service=name,
@@ -196,5 +202,6 @@ def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
         parameters=dict(parameters),
         expansion=expansion,
         time_expansion=time_expansion,
-        tolerance_ms=float(tolerance),
+        tolerance_ms=tolerance,
+        wait_ms=wait,
     )

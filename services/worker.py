@@ -23,12 +23,13 @@ import logging
 import signal
 import sys
 import threading
+import time
 from collections import Counter, deque
 from dataclasses import dataclass, replace
 from typing import Any
 
 from ubitrack_agent import config, logs
-from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
+from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.keys import KeySpace
 from ubitrack_agent.transport import LatestValuePublisher, fetch_until_satisfied
@@ -36,6 +37,7 @@ from ubitrack_agent.transport import LatestValuePublisher, fetch_until_satisfied
 from .expansion import TimeAccumulator
 from .registry import Service, lookup
 from .spec import ComponentSpec, InputBinding, SpecError, parse_bindings, parse_spec
+from .triggers import PendingTriggers
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -88,6 +90,7 @@ class Worker:
         self._service_class = lookup(spec.service)
         self._service: Service = self._service_class(spec.parameters)
         self._accumulator = self._new_accumulator()
+        self._pending = PendingTriggers(spec.wait_ms / 1000.0)
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
         self._stop = threading.Event()
         self._inputs: list[_Input] = []
@@ -190,22 +193,33 @@ class Worker:
                 )
             return
         item.buffer.add(sample)
-        if not self._service_class.SYNCHRONISED:
-            self._compute({item.binding.port: sample}, sample.timestamp_ns)
-        elif item.binding.trigger:
-            self._trigger(index, sample)
+        if not item.binding.trigger:
+            return
+        if item.binding.static:
+            self._evaluate(sample.timestamp_ns)  # a new static value: recompute at once
+        else:
+            # Held until the other inputs catch up; an instant already computed is ignored.
+            self._pending.add(sample.timestamp_ns, time.monotonic())
 
-    def _trigger(self, trigger_index: int, sample: Measurement) -> None:
-        t = sample.timestamp_ns
+    def _caught_up(self, timestamp_ns: int) -> bool:
+        """Every dynamic input holds a sample at or after ``timestamp_ns``."""
+        return all(
+            (newest := item.buffer.newest_time()) is not None and newest >= timestamp_ns
+            for item in self._inputs
+            if not item.binding.static
+        )
+
+    def _process_due_triggers(self) -> None:
+        for timestamp_ns in self._pending.due(time.monotonic(), self._caught_up):
+            self._evaluate(timestamp_ns)
+
+    def _evaluate(self, t: int) -> None:
+        """Evaluate every input at ``t`` and compute (see :mod:`services.triggers`)."""
         values: dict[str, Any] = {}
         space = self.spec.expansion == "space"
-        for index, item in enumerate(self._inputs):
+        for item in self._inputs:
             port = item.binding.port
-            value = (
-                sample
-                if index == trigger_index
-                else item.buffer.value_at(t, self.spec.tolerance_ns)
-            )
+            value = item.buffer.value_at(t, self.spec.tolerance_ns)
             if space and port in self._service_class.CORRESPONDENCE:
                 values.setdefault(port, []).append(value)
             elif value is None:
@@ -255,13 +269,14 @@ class Worker:
         self._status_thread.start()
         try:
             while not self._stop.is_set():
-                item = self._inbox.get(timeout=0.1)
-                if item is None:
-                    continue
-                if item[0] == "data":
+                deadline = self._pending.next_deadline()
+                timeout = 0.1 if deadline is None else max(0.0, deadline - time.monotonic())
+                item = self._inbox.get(timeout=min(0.1, timeout))
+                if item is not None and item[0] == "data":
                     self._on_sample(*item[1:])
-                else:
+                elif item is not None:
                     self._apply_control(item[1])
+                self._process_due_triggers()
         finally:
             self._token.undeclare()
             for item in self._inputs:

@@ -91,6 +91,10 @@ class SampleBuffer:
     def latest(self) -> Measurement | None:
         return self._samples[-1] if self._samples else None
 
+    def newest_time(self) -> int | None:
+        """Timestamp of the newest sample held, None when empty."""
+        return self._times[-1] if self._times else None
+
     def lookup(self, timestamp_ns: int) -> Measurement:
         """The value at ``timestamp_ns``, strictly: a static edge answers its latest value, a
         dynamic one only within the span of its samples (interpolated where the type allows,
