@@ -14,7 +14,7 @@ algorithms and matchers can read them directly.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -110,7 +110,9 @@ def add_measured_edge(
     if source == target:
         raise SetupError(f"{where}: an edge must join two different frames")
     if edge_type not in EDGE_TYPES:
-        raise SetupError(f"{where}: unknown type {edge_type!r}, expected one of {sorted(EDGE_TYPES)}")
+        raise SetupError(
+            f"{where}: unknown type {edge_type!r}, expected one of {sorted(EDGE_TYPES)}"
+        )
     if mode not in MODES:
         raise SetupError(f"{where}: unknown mode {mode!r}, expected push or pull")
     if edge_id is None:
@@ -169,7 +171,7 @@ _TOP_KEYS = {"name", "description", "edges"}
 
 
 def _check_value(where: str, key: str, value: Any, want: type | tuple[type, ...]) -> None:
-    ok = isinstance(value, want) and not (isinstance(value, bool) and want != bool)
+    ok = isinstance(value, want) and not (isinstance(value, bool) and want is not bool)
     if not ok:
         names = want.__name__ if isinstance(want, type) else " or ".join(t.__name__ for t in want)
         raise SetupError(f"{where}, field {key!r}: expected {names}, got {value!r}")
@@ -238,15 +240,3 @@ def load_setup(path: str | Path) -> nx.MultiDiGraph:
     except yaml.YAMLError as exc:
         raise SetupError(f"{path}: not valid YAML ({exc})") from None
     return parse_setup(data, str(path))
-
-
-def rigid_pairs(srg: nx.MultiDiGraph, extra: Iterable[tuple[str, str]] = ()) -> set[frozenset[str]]:
-    """Unordered frame pairs known to be rigidly connected: those joined by a static edge.
-
-    ``extra`` adds pairs the caller knows to be rigid (the endpoints of a static query, whose
-    relation is to be calibrated, section 4.2).
-    """
-    pairs = {frozenset((u, v)) for u, v, s in srg.edges(data="static") if s}
-    pairs.update(frozenset(p) for p in extra)
-    return pairs
-

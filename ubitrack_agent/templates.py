@@ -54,7 +54,7 @@ class TemplateError(ValueError):
 
 @dataclass(frozen=True)
 class Multiplicity:
-    """The acceptable numbers ``M_P`` of corresponding measurements: ``lo..hi`` (``hi`` None = *)."""
+    """The acceptable numbers ``M_P`` of corresponding measurements, ``lo..hi`` (None: no limit)."""
 
     lo: int
     hi: int | None
@@ -68,10 +68,9 @@ class Multiplicity:
 
 @dataclass(frozen=True)
 class InputSpec:
-    """An input edge of the pattern: roles, type (literal or ``$VAR``), static and mode predicates.
-
-    ``static`` / ``mode`` of ``None`` accept anything.
-    """
+    """An input edge of the pattern: roles, type (literal or ``$VAR``) and predicates on static,
+    mode and measured (``None`` accepts anything); ``not_from`` lists patterns whose outputs the
+    input must not be (e.g. no inversion of an inversion, section 5.1)."""
 
     name: str
     source: str
@@ -79,12 +78,14 @@ class InputSpec:
     type: str
     static: bool | None = None
     mode: str | None = None
+    measured: bool | None = None
+    not_from: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True)
 class OutputSpec:
-    """An output edge: ``static`` is ``"inherit"`` (static iff all inputs are), ``True`` or ``False``;
-    ``mode`` is ``"inherit"`` (push iff some input pushes), ``"push"`` or ``"pull"``."""
+    """An output edge. ``static``: ``"inherit"`` (static iff all inputs are), True or False;
+    ``mode``: ``"inherit"`` (push iff some input pushes), ``"push"`` or ``"pull"``."""
 
     name: str
     source: str
@@ -167,7 +168,7 @@ _TOP = {
     "parameters",
 }
 _REQUIRED_TOP = ("pattern", "service", "roles", "inputs", "outputs")
-_INPUT_KEYS = {"name", "from", "to", "type", "static", "mode"}
+_INPUT_KEYS = {"name", "from", "to", "type", "static", "mode", "measured", "not_from"}
 _OUTPUT_KEYS = {"name", "from", "to", "type", "static", "mode"}
 _CORR_KEYS = {"edges", "multiplicity", "expansions", "expand_roles", "independent"}
 _COST_KEYS = {"rule", "gain", "time_gain", "latency"}
@@ -274,20 +275,25 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
     for i, entry in enumerate(data["inputs"]):
         where = f"inputs[{i}]"
         c.mapping(where, entry, _INPUT_KEYS, ("name", "from", "to", "type"))
-        static = entry.get("static")
-        if static is not None and not isinstance(static, bool):
-            raise c.fail(f"{where}.static", f"must be true or false, got {static!r}")
+        for key in ("static", "measured"):
+            if entry.get(key) is not None and not isinstance(entry[key], bool):
+                raise c.fail(f"{where}.{key}", f"must be true or false, got {entry[key]!r}")
         mode = entry.get("mode")
         if mode is not None:
             c.choice(f"{where}.mode", mode, MODES)
+        not_from = c.string_list(f"{where}.not_from", entry.get("not_from", []), _ROLE_NAME)
+        for name in not_from:
+            c.choice(f"{where}.not_from", name, PATTERN_NAMES)
         inputs.append(
             InputSpec(
                 edge_name(f"{where}.name", entry["name"]),
                 role(f"{where}.from", entry["from"]),
                 role(f"{where}.to", entry["to"]),
                 _edge_type(c, f"{where}.type", entry["type"], type_vars),
-                static,
+                entry.get("static"),
                 mode,
+                entry.get("measured"),
+                frozenset(not_from),
             )
         )
     bound_vars = {spec.type[1:] for spec in inputs if spec.type.startswith("$")}
@@ -306,7 +312,9 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
                 role(f"{where}.from", entry["from"]),
                 role(f"{where}.to", entry["to"]),
                 edge_type,
-                c.choice(f"{where}.static", entry.get("static", "inherit"), ("inherit", True, False)),
+                c.choice(
+                    f"{where}.static", entry.get("static", "inherit"), ("inherit", True, False)
+                ),
                 c.choice(f"{where}.mode", entry.get("mode", "inherit"), ("inherit", *MODES)),
             )
         )
@@ -331,6 +339,9 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
         independent = raw.get("independent", False)
         if not isinstance(independent, bool):
             raise c.fail(f"{where}.independent", f"must be true or false, got {independent!r}")
+        for i, spec in enumerate(outputs):
+            if {spec.source, spec.target} & set(expand_roles):
+                raise c.fail(f"outputs[{i}]", "an output must not use a role of expand_roles")
         correspondence = Correspondence(
             edges,
             _multiplicity(c, f"{where}.multiplicity", raw["multiplicity"]),

@@ -1,0 +1,410 @@
+"""The controller (paper section 5): plan the best derivation of a queried spatial relationship.
+
+For a query ``(from, to, type, static)`` the planner
+
+1. restricts the SRG to the frames that can take part in a derivation (:func:`relevant_frames`:
+   the biconnected block joining the two frames, minus detours longer than ``slack`` hops, the
+   reduction section 5.1 suggests for large graphs),
+2. applies every template repeatedly (forward chaining with the matcher of
+   :mod:`ubitrack_agent.matcher`) until no new, non-redundant edge can be inferred, keeping the
+   bookkeeping of section 5.1 (sources, canonical computation, dominance),
+3. returns every distinct derivation of the queried edge, best first by the cost model below.
+
+Cost model (``docs/planner.md``): each edge carries an expected error variance (m^2), a latency
+and the sensors and steps it uses. Variances propagate per template rule (``sum`` for inversion,
+concatenation and calibrations, inverse-variance ``fusion``, ``pooled`` for point-correspondence
+algorithms), and the scalar cost of an edge is::
+
+    cost = variance / SIGMA_REF**2 + latency / LATENCY_REF
+           + SENSOR_WEIGHT * sensors + STEP_WEIGHT * steps
+
+so fusion of independent paths is chosen when it lowers the expected error by more than the
+price of the extra sensors and steps.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from itertools import product
+
+import networkx as nx
+
+from .matcher import EdgeIndex, EdgeRecord, Instance, Match, expand_group, find_matches, group_key
+from .srg import EDGE_TYPES, Quality, check_node_name
+from .templates import Template
+
+SIGMA_REF = 1e-3
+"""Reference error (m): a variance of SIGMA_REF**2 costs 1."""
+LATENCY_REF = 0.01
+"""Reference latency (s): LATENCY_REF of latency costs 1."""
+SENSOR_WEIGHT = 0.1
+"""Cost of each distinct provider (sensor, database) a derivation depends on."""
+STEP_WEIGHT = 0.01
+"""Cost of each pattern step (a running component) of a derivation."""
+DEFAULT_SLACK = 2
+"""Longest detour (hops beyond a shortest path) a derivation may take through the SRG."""
+DEFAULT_PER_RELATION = 8
+"""Most alternatives kept per (from, to, type, static) relation during planning."""
+_TIE = 1e-9
+
+
+class PlanningError(ValueError):
+    """A query cannot be planned; the message says why (unknown or unconnected frames...)."""
+
+
+class NoSolutionError(PlanningError):
+    """The queried relationship cannot be derived from the SRG with the templates."""
+
+
+@dataclass(frozen=True)
+class Query:
+    """A queried relationship: ``source -> target`` of ``type``; ``static`` asks for a static
+    edge (and declares the two frames rigidly connected, which enables calibration patterns)."""
+
+    source: str
+    target: str
+    type: str
+    static: bool = False
+
+    def __post_init__(self) -> None:
+        check_node_name(self.source, "query --from")
+        check_node_name(self.target, "query --to")
+        if self.source == self.target:
+            raise PlanningError("query: --from and --to must be different frames")
+        if self.type not in EDGE_TYPES:
+            raise PlanningError(f"query: unknown type {self.type!r}, expected {sorted(EDGE_TYPES)}")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One applied pattern instance. ``outputs`` are ``(name, from, to, type, edge id)``; the id
+    is ``None`` for an output not added to the SRG (already measured, e.g. R->O of hand-eye)."""
+
+    id: str
+    template: Template
+    expansion: str
+    inputs: tuple[tuple[str, tuple[str, ...]], ...]
+    outputs: tuple[tuple[str, str, str, str, str | None], ...]
+
+
+@dataclass(frozen=True)
+class Solution:
+    """A derivation of the queried edge: the edge and its steps in data-flow order."""
+
+    edge: EdgeRecord
+    steps: tuple[Step, ...]
+
+    @property
+    def cost(self) -> float:
+        return self.edge.cost
+
+    @property
+    def static(self) -> bool:
+        return self.edge.static
+
+
+def edge_cost(quality: Quality, providers: int, steps: int) -> float:
+    """The scalar cost of an edge (module docstring)."""
+    return (
+        quality.variance / SIGMA_REF**2
+        + quality.latency / LATENCY_REF
+        + SENSOR_WEIGHT * providers
+        + STEP_WEIGHT * steps
+    )
+
+
+def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
+    """Quality of the outputs of ``instance`` from the quality of its inputs (cost model)."""
+    spec = instance.template.cost
+    corr = instance.template.correspondence
+    variances = {name: [records[e].quality.variance for e in ids] for name, ids in instance.inputs}
+    every = [v for vs in variances.values() for v in vs]
+    if spec.rule == "fusion":
+        variance = 1.0 / sum(1.0 / max(v, 1e-30) for v in every)
+    elif spec.rule == "pooled" and corr is not None:
+        fixed = sum(v for n, vs in variances.items() if n not in corr.edges for v in vs)
+        copies = len(variances[corr.edges[0]])
+        per_copy = sum(sum(variances[n]) for n in corr.edges) / copies
+        scale = corr.multiplicity.lo / copies if instance.expansion == "space" else 1.0
+        variance = fixed + per_copy * scale
+    else:
+        variance = sum(every)
+    variance *= spec.gain * (spec.time_gain if instance.expansion == "time" else 1.0)
+    inputs = [records[e] for e in instance.input_edges()]
+    rates = [e.quality.rate for e in inputs if e.mode == "push" and e.quality.rate > 0]
+    latency = max(e.quality.latency for e in inputs) + spec.latency
+    return Quality(variance, min(rates, default=0.0), latency)
+
+
+def useful_types(templates: Sequence[Template], wanted: str) -> frozenset[str]:
+    """Edge types that can contribute to an edge of type ``wanted`` (section 5.1, "when to add
+    new edges"): the closure of ``{wanted}`` under "some instantiation of a template has an
+    output of a useful type, so all its input types are useful". A 6D query never needs 3R."""
+    signatures = []
+    for template in templates:
+        names = list(template.type_vars)
+        for combo in product(*(template.type_vars[n] for n in names)):
+            binding = dict(zip(names, combo, strict=True))
+
+            def resolve(edge_type: str, binding: dict[str, str] = binding) -> str:
+                return binding[edge_type[1:]] if edge_type.startswith("$") else edge_type
+
+            ins = {resolve(spec.type) for spec in template.inputs}
+            outs = {resolve(spec.type) for spec in template.outputs}
+            signatures.append((frozenset(ins), frozenset(outs)))
+    useful = {wanted}
+    changed = True
+    while changed:
+        changed = False
+        for ins, outs in signatures:
+            if outs & useful and not ins <= useful:
+                useful |= ins
+                changed = True
+    return frozenset(useful)
+
+
+def relevant_frames(srg: nx.MultiDiGraph, source: str, target: str, slack: int) -> set[str]:
+    """Frames that can take part in a derivation of ``source -> target``.
+
+    A frame lies on a simple path between the two frames iff it is in the biconnected block of
+    ``G + {source-target}`` that holds the added edge; of those, frames on detours longer than
+    ``slack`` hops beyond the shortest path are dropped. Raises :class:`NoSolutionError` naming
+    the frames if they are absent or not connected.
+    """
+    missing = [n for n in (source, target) if n not in srg]
+    if missing:
+        raise NoSolutionError(f"frame(s) {', '.join(missing)} not in the SRG")
+    undirected = nx.Graph(srg.to_undirected(as_view=True))
+    if not nx.has_path(undirected, source, target):
+        part_a = sorted(nx.node_connected_component(undirected, source))
+        part_b = sorted(nx.node_connected_component(undirected, target))
+        raise NoSolutionError(
+            f"frames {source} and {target} are not connected in the SRG: "
+            f"{source} is connected to {{{', '.join(part_a)}}}, "
+            f"{target} to {{{', '.join(part_b)}}}"
+        )
+    from_source = nx.single_source_shortest_path_length(undirected, source)
+    from_target = nx.single_source_shortest_path_length(undirected, target)
+    bound = from_source[target] + slack
+    near = {n for n, d in from_source.items() if d + from_target.get(n, bound + 1) <= bound}
+    sub = nx.Graph(undirected.subgraph(near))
+    sub.add_edge(source, target)
+    for block in nx.biconnected_components(sub):
+        if source in block and target in block:
+            return set(block)
+    raise AssertionError("the added edge lies in exactly one block")
+
+
+@dataclass
+class Workspace:
+    """The working SRG of one planning run: measured and inferred edges, and the steps."""
+
+    index: EdgeIndex = field(default_factory=EdgeIndex)
+    steps: dict[str, Step] = field(default_factory=dict)
+    per_relation: int = DEFAULT_PER_RELATION
+    by_relation: dict[tuple[str, str, str, bool], list[str]] = field(
+        default_factory=lambda: defaultdict(list)
+    )
+    useful_types: frozenset[str] = EDGE_TYPES
+
+    def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
+        """Index one measured SRG edge."""
+        providers = frozenset({data["provider"]})
+        record = EdgeRecord(
+            id=edge_id,
+            source=source,
+            target=target,
+            type=data["type"],
+            static=data["static"],
+            mode=data["mode"],
+            measured=True,
+            provider=data["provider"],
+            quality=data["quality"],
+            sources=frozenset({edge_id}),
+            cost=edge_cost(data["quality"], len(providers), 0),
+            canon=f"m:{edge_id}",
+            leaves=(f"m:{edge_id}",),
+            providers=providers,
+        )
+        self.index.add(record)
+        self.by_relation[(source, target, record.type, record.static)].append(edge_id)
+
+    def _admit(self, record: EdgeRecord) -> bool:
+        """The "new or better edge" rule: reject a re-bracketing of a known computation, an edge
+        that uses more sources than an existing one without being cheaper, and surplus
+        alternatives beyond ``per_relation``."""
+        key = (record.source, record.target, record.type, record.static)
+        existing = [self.index.edges[e] for e in self.by_relation[key]]
+        limit = record.cost * (1 + _TIE)
+        for other in existing:
+            if other.cost <= limit and (
+                other.canon == record.canon or other.sources < record.sources
+            ):
+                return False
+        return len(existing) < self.per_relation or record.cost < max(e.cost for e in existing)
+
+    def apply(self, instance: Instance) -> list[str]:
+        """Apply ``instance``: add its admissible outputs, record the step, return new edge ids."""
+        records = self.index.edges
+        inputs = [records[e] for e in instance.input_edges()]
+        quality = propagate(instance, records)
+        step_id = f"s{len(self.steps) + 1}"
+        pattern = instance.template.pattern
+        sources = frozenset().union(*(e.sources for e in inputs))
+        providers = frozenset().union(*(e.providers for e in inputs))
+        steps = frozenset({step_id}).union(*(e.steps for e in inputs))
+        if pattern == "Inversion":
+            canon, leaves = inputs[0].canon, inputs[0].leaves
+        elif pattern == "Concatenation":
+            leaves = tuple(sorted(inputs[0].leaves + inputs[1].leaves))
+            canon = f"cat({','.join(leaves)})"
+        else:
+            canon = f"{pattern}/{instance.expansion}[{','.join(sorted(e.canon for e in inputs))}]"
+        outputs, added = [], []
+        for name, source, target, edge_type, static, mode in instance.outputs:
+            edge_id = None
+            calibrated = instance.expansion == "time" and self.index.is_measured_rigid(
+                source, target
+            )
+            if edge_type in self.useful_types and not calibrated:
+                pair = "-".join(sorted((source, target)))
+                out_canon = canon if pattern in ("Inversion", "Concatenation") else f"{canon}{pair}"
+                record = EdgeRecord(
+                    id=f"{source}->{target}:{edge_type}@{step_id}.{name}",
+                    source=source,
+                    target=target,
+                    type=edge_type,
+                    static=static,
+                    mode=mode,
+                    measured=False,
+                    provider=instance.template.service,
+                    quality=quality,
+                    sources=sources,
+                    cost=edge_cost(quality, len(providers), len(steps)),
+                    canon=out_canon,
+                    leaves=leaves if pattern in ("Inversion", "Concatenation") else (out_canon,),
+                    pattern=pattern,
+                    step=step_id,
+                    time_integrated=instance.expansion == "time",
+                    steps=steps,
+                    providers=providers,
+                )
+                if self._admit(record):
+                    self.index.add(record)
+                    self.by_relation[(source, target, edge_type, static)].append(record.id)
+                    edge_id = record.id
+                    added.append(record.id)
+            outputs.append((name, source, target, edge_type, edge_id))
+        if added:
+            self.steps[step_id] = Step(
+                step_id, instance.template, instance.expansion, instance.inputs, tuple(outputs)
+            )
+        return added
+
+
+def saturate(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    frames: Iterable[str],
+    wanted: str,
+    rigid: Iterable[tuple[str, str]] = (),
+    per_relation: int = DEFAULT_PER_RELATION,
+) -> Workspace:
+    """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
+
+    Only edges of types that can contribute to a ``wanted`` edge are inferred.
+    ``rigid`` adds frame pairs known to be rigid besides those joined by static edges. Each
+    round only looks for occurrences that use an edge inferred in the previous round.
+    """
+    frames = set(frames)
+    ws = Workspace(per_relation=per_relation, useful_types=useful_types(templates, wanted))
+    for source, target, key, data in srg.edges(keys=True, data=True):
+        if source in frames and target in frames:
+            ws.add_measured(source, target, key, data)
+    for a, b in rigid:
+        ws.index.add_rigid(a, b)
+    groups: dict[tuple, dict[tuple[str, ...], Match]] = {}
+    applied: set[tuple] = set()
+    new = list(ws.index.edges)
+    while new:
+        touched: dict[tuple, None] = {}
+        for template in templates:
+            for match in find_matches(template, ws.index, new):
+                key = (template.name, group_key(match))
+                members = groups.setdefault(key, {})
+                if match.edges not in members:
+                    members[match.edges] = match
+                    touched[key] = None
+        new = []
+        for key in touched:
+            for instance in expand_group(list(groups[key].values()), ws.index):
+                if instance.key not in applied:
+                    applied.add(instance.key)
+                    new.extend(ws.apply(instance))
+    return ws
+
+
+def _steps_of(ws: Workspace, edge: EdgeRecord) -> tuple[Step, ...]:
+    """The steps deriving ``edge``, inputs before the steps that use them."""
+    order: list[Step] = []
+    seen: set[str] = set()
+
+    def visit(record: EdgeRecord) -> None:
+        if record.step is None or record.step in seen:
+            return
+        seen.add(record.step)
+        step = ws.steps[record.step]
+        for _, ids in step.inputs:
+            for edge_id in ids:
+                visit(ws.index.edges[edge_id])
+        order.append(step)
+
+    visit(edge)
+    return tuple(order)
+
+
+def solutions(ws: Workspace, query: Query) -> list[Solution]:
+    """Every distinct derivation of ``query`` in ``ws``, cheapest first.
+
+    A dynamic query accepts static edges too (a static edge is valid at every time); derivations
+    that differ only in bracketing or inversion order are listed once.
+    """
+    found: dict[str, EdgeRecord] = {}
+    for static in (True, False) if not query.static else (True,):
+        key = (query.source, query.target, query.type, static)
+        for edge_id in ws.by_relation.get(key, ()):
+            record = ws.index.edges[edge_id]
+            best = found.get(record.canon)
+            if best is None or record.cost < best.cost:
+                found[record.canon] = record
+    ranked = sorted(found.values(), key=lambda e: (e.cost, len(e.steps), e.id))
+    return [Solution(edge, _steps_of(ws, edge)) for edge in ranked]
+
+
+def plan(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    query: Query,
+    *,
+    slack: int = DEFAULT_SLACK,
+    per_relation: int = DEFAULT_PER_RELATION,
+) -> list[Solution]:
+    """All distinct solutions of ``query`` on ``srg``, best first; raises :class:`NoSolutionError`.
+
+    The first solution is the best derivation by the cost model; the whole list is what the
+    design tool shows with ``--all``.
+    """
+    frames = relevant_frames(srg, query.source, query.target, slack)
+    rigid = [(query.source, query.target)] if query.static else []
+    ws = saturate(srg, templates, frames, query.type, rigid, per_relation)
+    found = solutions(ws, query)
+    if not found:
+        kind = "static " if query.static else ""
+        raise NoSolutionError(
+            f"no derivation of {kind}{query.type} {query.source}->{query.target}: the frames are "
+            f"connected, but no combination of patterns yields that edge "
+            f"(frames considered: {', '.join(sorted(frames))})"
+        )
+    return found
