@@ -14,7 +14,7 @@ import sys
 
 from . import __version__
 
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("plan",)
 """Modules of :mod:`ubitrack_agent.commands`, in the order ``--help`` lists them."""
 
 

@@ -25,9 +25,10 @@ price of the extra sensors and steps.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import product
+from typing import Any
 
 import networkx as nx
 
@@ -91,10 +92,33 @@ class Step:
 
 @dataclass(frozen=True)
 class Solution:
-    """A derivation of the queried edge: the edge and its steps in data-flow order."""
+    """A derivation of the queried edge: the edge, its steps in data-flow order and the records
+    of every edge the steps read or write (by id)."""
 
     edge: EdgeRecord
     steps: tuple[Step, ...]
+    records: Mapping[str, EdgeRecord]
+
+    def as_json(self) -> dict[str, Any]:
+        """The solution as the design tool prints it (``ubitrack plan --json``)."""
+
+        def triple(edge_id: str) -> list[str]:
+            record = self.records[edge_id]
+            return [record.source, record.target, record.type]
+
+        return {
+            "cost": round(self.cost, 6),
+            "static": self.static,
+            "steps": [
+                {
+                    "pattern": step.template.pattern,
+                    "expansion": step.expansion,
+                    "inputs": [triple(e) for _, ids in step.inputs for e in ids],
+                    "outputs": [[src, dst, typ] for _, src, dst, typ, _ in step.outputs],
+                }
+                for step in self.steps
+            ],
+        }
 
     @property
     def cost(self) -> float:
@@ -346,23 +370,26 @@ def saturate(
     return ws
 
 
-def _steps_of(ws: Workspace, edge: EdgeRecord) -> tuple[Step, ...]:
-    """The steps deriving ``edge``, inputs before the steps that use them."""
+def _solution(ws: Workspace, edge: EdgeRecord) -> Solution:
+    """The solution deriving ``edge``: its steps with inputs before the steps that use them."""
     order: list[Step] = []
-    seen: set[str] = set()
+    records: dict[str, EdgeRecord] = {edge.id: edge}
 
     def visit(record: EdgeRecord) -> None:
-        if record.step is None or record.step in seen:
+        records[record.id] = record
+        if record.step is None or any(s.id == record.step for s in order):
             return
-        seen.add(record.step)
         step = ws.steps[record.step]
         for _, ids in step.inputs:
             for edge_id in ids:
                 visit(ws.index.edges[edge_id])
+        for *_, edge_id in step.outputs:
+            if edge_id is not None:
+                records[edge_id] = ws.index.edges[edge_id]
         order.append(step)
 
     visit(edge)
-    return tuple(order)
+    return Solution(edge, tuple(order), records)
 
 
 def solutions(ws: Workspace, query: Query) -> list[Solution]:
@@ -380,7 +407,7 @@ def solutions(ws: Workspace, query: Query) -> list[Solution]:
             if best is None or record.cost < best.cost:
                 found[record.canon] = record
     ranked = sorted(found.values(), key=lambda e: (e.cost, len(e.steps), e.id))
-    return [Solution(edge, _steps_of(ws, edge)) for edge in ranked]
+    return [_solution(ws, edge) for edge in ranked]
 
 
 def plan(
