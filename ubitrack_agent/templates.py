@@ -12,7 +12,7 @@ code: ``service`` is a registry name, resolved by the services registry at run t
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -269,12 +269,23 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
         names.add(value)
         return value
 
-    if not isinstance(data["inputs"], list) or not data["inputs"]:
-        raise c.fail("field 'inputs'", "must be a non-empty list")
+    def entries(key: str, allowed: set[str]) -> Iterator[tuple[str, dict[str, Any]]]:
+        if not isinstance(data[key], list) or not data[key]:
+            raise c.fail(f"field {key!r}", "must be a non-empty list")
+        for i, entry in enumerate(data[key]):
+            where = f"{key}[{i}]"
+            yield where, c.mapping(where, entry, allowed, ("name", "from", "to", "type"))
+
+    def head(where: str, entry: dict[str, Any]) -> tuple[str, str, str, str]:
+        return (
+            edge_name(f"{where}.name", entry["name"]),
+            role(f"{where}.from", entry["from"]),
+            role(f"{where}.to", entry["to"]),
+            _edge_type(c, f"{where}.type", entry["type"], type_vars),
+        )
+
     inputs = []
-    for i, entry in enumerate(data["inputs"]):
-        where = f"inputs[{i}]"
-        c.mapping(where, entry, _INPUT_KEYS, ("name", "from", "to", "type"))
+    for where, entry in entries("inputs", _INPUT_KEYS):
         for key in ("static", "measured"):
             if entry.get(key) is not None and not isinstance(entry[key], bool):
                 raise c.fail(f"{where}.{key}", f"must be true or false, got {entry[key]!r}")
@@ -286,10 +297,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
             c.choice(f"{where}.not_from", name, PATTERN_NAMES)
         inputs.append(
             InputSpec(
-                edge_name(f"{where}.name", entry["name"]),
-                role(f"{where}.from", entry["from"]),
-                role(f"{where}.to", entry["to"]),
-                _edge_type(c, f"{where}.type", entry["type"], type_vars),
+                *head(where, entry),
                 entry.get("static"),
                 mode,
                 entry.get("measured"),
@@ -297,27 +305,16 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
             )
         )
     bound_vars = {spec.type[1:] for spec in inputs if spec.type.startswith("$")}
-    if not isinstance(data["outputs"], list) or not data["outputs"]:
-        raise c.fail("field 'outputs'", "must be a non-empty list")
     outputs = []
-    for i, entry in enumerate(data["outputs"]):
-        where = f"outputs[{i}]"
-        c.mapping(where, entry, _OUTPUT_KEYS, ("name", "from", "to", "type"))
-        edge_type = _edge_type(c, f"{where}.type", entry["type"], type_vars)
+    for where, entry in entries("outputs", _OUTPUT_KEYS):
+        name, source, target, edge_type = head(where, entry)
         if edge_type.startswith("$") and edge_type[1:] not in bound_vars:
             raise c.fail(f"{where}.type", f"type variable {edge_type} is bound by no input")
-        outputs.append(
-            OutputSpec(
-                edge_name(f"{where}.name", entry["name"]),
-                role(f"{where}.from", entry["from"]),
-                role(f"{where}.to", entry["to"]),
-                edge_type,
-                c.choice(
-                    f"{where}.static", entry.get("static", "inherit"), ("inherit", True, False)
-                ),
-                c.choice(f"{where}.mode", entry.get("mode", "inherit"), ("inherit", *MODES)),
-            )
+        static = c.choice(
+            f"{where}.static", entry.get("static", "inherit"), ("inherit", True, False)
         )
+        mode = c.choice(f"{where}.mode", entry.get("mode", "inherit"), ("inherit", *MODES))
+        outputs.append(OutputSpec(name, source, target, edge_type, static, mode))
     correspondence = None
     if data.get("correspondence") is not None:
         where = "correspondence"
