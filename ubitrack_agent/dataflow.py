@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .planner import Query, Solution
@@ -143,13 +143,33 @@ def from_solution(solution: Solution, query: Query) -> DataFlow:
     return DataFlow(components, {relation_name(query): final})
 
 
+def _rebind(binding: Binding, renamed: Mapping[str, str]) -> Binding:
+    if binding.component in renamed:
+        return Binding(renamed[binding.component], binding.edge)
+    return binding
+
+
 def merge(flows: Iterable[DataFlow]) -> DataFlow:
-    """One data flow serving every query of ``flows``; equal components are shared (run once)."""
+    """One data flow serving every query of ``flows``; equal components are shared (run once).
+
+    Two flows may compute the same relations from different producers (a component with the
+    same id but other input bindings); the later one is then kept under a derived id and its
+    consumers are rebound to it, so each flow's computation stays intact.
+    """
     components: dict[str, Component] = {}
     relations: dict[str, Binding] = {}
     for flow in flows:
-        components.update(flow.components)
-        relations.update(flow.relations)
+        renamed: dict[str, str] = {}
+        for component in flow.components.values():  # producers come before their consumers
+            inputs = tuple((port, _rebind(b, renamed)) for port, b in component.inputs)
+            component = replace(component, inputs=inputs)
+            existing = components.get(component.id)
+            if existing is not None and existing != component:
+                new_id = _component_id(component.id, component.expansion, [], [repr(inputs)])
+                renamed[component.id] = new_id
+                component = replace(component, id=new_id)
+            components[component.id] = component
+        relations.update({name: _rebind(b, renamed) for name, b in flow.relations.items()})
     return DataFlow(components, relations)
 
 

@@ -393,7 +393,10 @@ def expand_group(members: list[Match], index: EdgeIndex) -> list[Instance]:
                 graph.add_edge(i, j)
     instances = []
     for clique in nx.find_cliques(graph):
-        copies = [members[i] for i in sorted(clique, key=lambda i: members[i].edges)]
+        copies = [
+            members[i]
+            for i in sorted(clique, key=lambda i: [index.edges[e].canon for e in members[i].edges])
+        ]
         expansions = []
         if "space" in corr.expansions and len(copies) in corr.multiplicity:
             expansions.append("space")
