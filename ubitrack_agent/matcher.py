@@ -151,42 +151,50 @@ def independent(a: EdgeRecord, b: EdgeRecord, index: EdgeIndex, *, strict: bool)
 # --- step 1: occurrences of the unexpanded pattern ----------------------------------------------
 
 
-def _fits(
+def _bind(
     spec: InputSpec,
     edge: EdgeRecord,
     template: Template,
     roles: dict[str, str],
     types: dict[str, str],
-) -> bool:
-    """Check the predicates of ``spec`` on ``edge`` and extend ``roles``/``types`` in place."""
-    if spec.static is not None and edge.static != spec.static:
-        return False
-    if spec.mode is not None and edge.mode != spec.mode:
-        return False
-    if spec.measured is not None and edge.measured != spec.measured:
-        return False
-    if edge.pattern in spec.not_from:
-        return False
+) -> list[tuple[dict[str, str], str]] | None:
+    """Check the predicates of ``spec`` on ``edge`` and bind its roles and type variable in
+    place; return the bindings made (for :func:`_unbind`), or ``None`` if ``edge`` does not fit
+    (then nothing is bound)."""
+    if (
+        (spec.static is not None and edge.static != spec.static)
+        or (spec.mode is not None and edge.mode != spec.mode)
+        or (spec.measured is not None and edge.measured != spec.measured)
+        or edge.pattern in spec.not_from
+    ):
+        return None
+    made: list[tuple[dict[str, str], str]] = []
     if spec.type.startswith("$"):
         var = spec.type[1:]
         bound = types.get(var)
         if bound is None:
             if edge.type not in template.type_vars[var]:
-                return False
+                return None
             types[var] = edge.type
+            made.append((types, var))
         elif bound != edge.type:
-            return False
+            return None
     elif spec.type != edge.type:
-        return False
+        return None
     for role, node in ((spec.source, edge.source), (spec.target, edge.target)):
         bound = roles.get(role)
-        if bound is None:
-            if node in roles.values():
-                return False
+        if bound is None and node not in roles.values():
             roles[role] = node
+            made.append((roles, role))
         elif bound != node:
-            return False
-    return True
+            _unbind(made)
+            return None
+    return made
+
+
+def _unbind(made: list[tuple[dict[str, str], str]]) -> None:
+    for mapping, key in made:
+        del mapping[key]
 
 
 def _rigid_links(template: Template) -> list[tuple[str, str]]:
@@ -248,9 +256,13 @@ def _extend(
     for edge_id in _candidates(spec, roles, template, index):
         if edge_id in bound.values():
             continue
-        new_roles, new_types = dict(roles), dict(types)
-        if _fits(spec, index.edges[edge_id], template, new_roles, new_types):
-            yield from _extend(template, index, {**bound, i: edge_id}, new_roles, new_types)
+        made = _bind(spec, index.edges[edge_id], template, roles, types)
+        if made is None:
+            continue
+        bound[i] = edge_id
+        yield from _extend(template, index, bound, roles, types)
+        del bound[i]
+        _unbind(made)
 
 
 def _admissible(match: Match, index: EdgeIndex) -> bool:
@@ -282,7 +294,7 @@ def find_matches(
         for i, spec in enumerate(template.inputs):
             roles: dict[str, str] = {}
             types: dict[str, str] = {}
-            if _fits(spec, edge, template, roles, types):
+            if _bind(spec, edge, template, roles, types) is not None:
                 for match in _extend(template, index, {i: seed}, roles, types):
                     if _admissible(match, index):
                         yield match

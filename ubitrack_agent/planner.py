@@ -338,7 +338,8 @@ def saturate(
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
-    Only edges of types that can contribute to a ``wanted`` edge are inferred.
+    Only edges of types that can contribute to a ``wanted`` edge are inferred, and time-only
+    patterns (calibrations) only run when some rigid relation is not measured.
     ``rigid`` adds frame pairs known to be rigid besides those joined by static edges. Each
     round only looks for occurrences that use an edge inferred in the previous round.
     """
@@ -347,8 +348,11 @@ def saturate(
     for source, target, key, data in srg.edges(keys=True, data=True):
         if source in frames and target in frames:
             ws.add_measured(source, target, key, data)
+    rigid = [(a, b) for a, b in rigid if not ws.index.is_measured_rigid(a, b)]
     for a, b in rigid:
         ws.index.add_rigid(a, b)
+    # a time-only pattern yields static edges, wanted only for rigid relations not yet measured
+    templates = [t for t in templates if rigid or not t.time_only]
     groups: dict[tuple, dict[tuple[str, ...], Match]] = {}
     applied: set[tuple] = set()
     new = list(ws.index.edges)
