@@ -232,6 +232,7 @@ class Workspace:
         default_factory=lambda: defaultdict(list)
     )
     useful_types: frozenset[str] = EDGE_TYPES
+    point_frames: frozenset[str] | None = None
 
     def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
         """Index one measured SRG edge."""
@@ -269,6 +270,15 @@ class Workspace:
                 return False
         return len(existing) < self.per_relation or record.cost < max(e.cost for e in existing)
 
+    def _wanted(self, pattern: str, edge_type: str, frame: str) -> bool:
+        """Points (3D) are carried by concatenation only into ``point_frames`` (the query's
+        frames): a point-based pose estimation on points carried into another frame X equals
+        the one on the points' own frame followed by the same concatenation, so those would
+        only duplicate derivations (section 5.1, "when to add new edges")."""
+        if pattern != "Concatenation" or edge_type != "3D" or self.point_frames is None:
+            return True
+        return frame in self.point_frames
+
     def apply(self, instance: Instance) -> list[str]:
         """Apply ``instance``: add its admissible outputs, record the step, return new edge ids."""
         records = self.index.edges
@@ -292,7 +302,11 @@ class Workspace:
             calibrated = instance.expansion == "time" and self.index.is_measured_rigid(
                 source, target
             )
-            if edge_type in self.useful_types and not calibrated:
+            if (
+                edge_type in self.useful_types
+                and not calibrated
+                and self._wanted(pattern, edge_type, source)
+            ):
                 pair = "-".join(sorted((source, target)))
                 out_canon = canon if pattern in ("Inversion", "Concatenation") else f"{canon}{pair}"
                 record = EdgeRecord(
@@ -335,16 +349,22 @@ def saturate(
     wanted: str,
     rigid: Iterable[tuple[str, str]] = (),
     per_relation: int = DEFAULT_PER_RELATION,
+    point_frames: Iterable[str] | None = None,
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
-    Only edges of types that can contribute to a ``wanted`` edge are inferred, and time-only
-    patterns (calibrations) only run when some rigid relation is not measured.
+    Only edges of types that can contribute to a ``wanted`` edge are inferred, time-only
+    patterns (calibrations) only run when some rigid relation is not measured, and points are
+    only carried into ``point_frames`` (all frames if ``None``).
     ``rigid`` adds frame pairs known to be rigid besides those joined by static edges. Each
     round only looks for occurrences that use an edge inferred in the previous round.
     """
     frames = set(frames)
-    ws = Workspace(per_relation=per_relation, useful_types=useful_types(templates, wanted))
+    ws = Workspace(
+        per_relation=per_relation,
+        useful_types=useful_types(templates, wanted),
+        point_frames=None if point_frames is None else frozenset(point_frames),
+    )
     for source, target, key, data in srg.edges(keys=True, data=True):
         if source in frames and target in frames:
             ws.add_measured(source, target, key, data)
@@ -429,7 +449,8 @@ def plan(
     """
     frames = relevant_frames(srg, query.source, query.target, slack)
     rigid = [(query.source, query.target)] if query.static else []
-    ws = saturate(srg, templates, frames, query.type, rigid, per_relation)
+    endpoints = (query.source, query.target)
+    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, endpoints)
     found = solutions(ws, query)
     if not found:
         kind = "static " if query.static else ""
