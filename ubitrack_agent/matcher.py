@@ -140,9 +140,9 @@ def independent(a: EdgeRecord, b: EdgeRecord, index: EdgeIndex, *, strict: bool)
     integration over time may share *dynamic* sources with the other edge: the paper's exception
     for averaged static edges, which hold information the instantaneous samples do not.
     """
-    shared = a.sources & b.sources
-    if not shared:
+    if a.sources.isdisjoint(b.sources):
         return True
+    shared = a.sources & b.sources
     if strict or not (a.time_integrated or b.time_integrated):
         return False
     return shared <= index.dynamic_measured
@@ -253,10 +253,15 @@ def _extend(
         return
     i = _next_input(template, bound, roles)
     spec = template.inputs[i]
+    edges = index.edges
     for edge_id in _candidates(spec, roles, template, index):
         if edge_id in bound.values():
             continue
-        made = _bind(spec, index.edges[edge_id], template, roles, types)
+        edge = edges[edge_id]
+        # bookkeeping of section 5.1: inputs of one occurrence must not share a measured edge
+        if not all(independent(edge, edges[b], index, strict=False) for b in bound.values()):
+            continue
+        made = _bind(spec, edge, template, roles, types)
         if made is None:
             continue
         bound[i] = edge_id
@@ -266,12 +271,7 @@ def _extend(
 
 
 def _admissible(match: Match, index: EdgeIndex) -> bool:
-    """Bookkeeping rules of section 5.1 for one occurrence (see the module docstring)."""
-    records = [index.edges[e] for e in match.edges]
-    for i, a in enumerate(records):
-        for b in records[i + 1 :]:
-            if not independent(a, b, index, strict=False):
-                return False
+    """Rigid links of a time-only pattern (independence is checked while binding)."""
     roles = dict(match.roles)
     return all(index.is_rigid(roles[a], roles[b]) for a, b in _rigid_links(match.template))
 

@@ -189,31 +189,57 @@ def useful_types(templates: Sequence[Template], wanted: str) -> frozenset[str]:
     return frozenset(useful)
 
 
+def _hops(
+    srg: nx.MultiDiGraph, start: str, limit: float, goal: str | None = None, slack: int = 0
+) -> dict[str, int]:
+    """Hop distances from ``start`` ignoring edge direction, up to ``limit`` hops, or up to
+    ``slack`` hops beyond the distance of ``goal`` once it is reached."""
+    succ, pred = srg.succ, srg.pred
+    dist = {start: 0}
+    frontier = [start]
+    depth = 0
+    while frontier and depth < limit:
+        if goal in dist:
+            limit = min(limit, dist[goal] + slack)
+            if depth >= limit:
+                break
+        depth += 1
+        nxt = []
+        for node in frontier:
+            for other in (*succ[node], *pred[node]):
+                if other not in dist:
+                    dist[other] = depth
+                    nxt.append(other)
+        frontier = nxt
+    return dist
+
+
 def relevant_frames(srg: nx.MultiDiGraph, source: str, target: str, slack: int) -> set[str]:
     """Frames that can take part in a derivation of ``source -> target``.
 
     A frame lies on a simple path between the two frames iff it is in the biconnected block of
     ``G + {source-target}`` that holds the added edge; of those, frames on detours longer than
-    ``slack`` hops beyond the shortest path are dropped. Raises :class:`NoSolutionError` naming
-    the frames if they are absent or not connected.
+    ``slack`` hops beyond the shortest path are dropped. Only the neighbourhood of the two frames
+    is visited. Raises :class:`NoSolutionError` naming the frames if they are absent or not
+    connected.
     """
     missing = [n for n in (source, target) if n not in srg]
     if missing:
         raise NoSolutionError(f"frame(s) {', '.join(missing)} not in the SRG")
-    undirected = nx.Graph(srg.to_undirected(as_view=True))
-    if not nx.has_path(undirected, source, target):
-        part_a = sorted(nx.node_connected_component(undirected, source))
-        part_b = sorted(nx.node_connected_component(undirected, target))
+    from_source = _hops(srg, source, float("inf"), target, slack)
+    if target not in from_source:
+        part_a = sorted(from_source)
+        part_b = sorted(_hops(srg, target, float("inf")))
         raise NoSolutionError(
             f"frames {source} and {target} are not connected in the SRG: "
             f"{source} is connected to {{{', '.join(part_a)}}}, "
             f"{target} to {{{', '.join(part_b)}}}"
         )
-    from_source = nx.single_source_shortest_path_length(undirected, source)
-    from_target = nx.single_source_shortest_path_length(undirected, target)
     bound = from_source[target] + slack
-    near = {n for n, d in from_source.items() if d + from_target.get(n, bound + 1) <= bound}
-    sub = nx.Graph(undirected.subgraph(near))
+    from_target = _hops(srg, target, bound)
+    near = {n for n, d in from_target.items() if d + from_source.get(n, bound + 1) <= bound}
+    sub = nx.Graph()
+    sub.add_edges_from((u, v) for u in near for v in (*srg.succ[u], *srg.pred[u]) if v in near)
     sub.add_edge(source, target)
     for block in nx.biconnected_components(sub):
         if source in block and target in block:
@@ -232,7 +258,8 @@ class Workspace:
         default_factory=lambda: defaultdict(list)
     )
     useful_types: frozenset[str] = EDGE_TYPES
-    point_frames: frozenset[str] | None = None
+    goal: tuple[str, str] | None = None
+    distances: tuple[dict[str, int], dict[str, int]] = ({}, {})
 
     def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
         """Index one measured SRG edge."""
@@ -270,14 +297,25 @@ class Workspace:
                 return False
         return len(existing) < self.per_relation or record.cost < max(e.cost for e in existing)
 
-    def _wanted(self, pattern: str, edge_type: str, frame: str) -> bool:
-        """Points (3D) are carried by concatenation only into ``point_frames`` (the query's
-        frames): a point-based pose estimation on points carried into another frame X equals
-        the one on the points' own frame followed by the same concatenation, so those would
-        only duplicate derivations (section 5.1, "when to add new edges")."""
-        if pattern != "Concatenation" or edge_type != "3D" or self.point_frames is None:
+    def _wanted(self, pattern: str, edge_type: str, source: str, target: str) -> bool:
+        """Which concatenations serve the query ``goal`` (section 5.1, "when to add new edges").
+
+        Points (3D) are carried only into the query's frames: a point-based pose estimation on
+        points carried into another frame X equals the one on the points' own frame followed by
+        the same concatenation. Chains (6D) must start or end at a query frame or lead towards
+        the query target: from a frame nearer the query source to one farther from it, or from
+        one farther from the query target to one nearer to it (hop distances). A chain against
+        that direction can only feed a derivation that runs the other way round."""
+        if pattern != "Concatenation" or self.goal is None:
             return True
-        return frame in self.point_frames
+        if edge_type == "3D":
+            return source in self.goal
+        if source in self.goal or target in self.goal:
+            return True
+        near_source, near_target = self.distances
+        return (
+            near_source[source] < near_source[target] or near_target[source] > near_target[target]
+        )
 
     def apply(self, instance: Instance) -> list[str]:
         """Apply ``instance``: add its admissible outputs, record the step, return new edge ids."""
@@ -305,7 +343,7 @@ class Workspace:
             if (
                 edge_type in self.useful_types
                 and not calibrated
-                and self._wanted(pattern, edge_type, source)
+                and self._wanted(pattern, edge_type, source, target)
             ):
                 pair = "-".join(sorted((source, target)))
                 out_canon = canon if pattern in ("Inversion", "Concatenation") else f"{canon}{pair}"
@@ -349,13 +387,14 @@ def saturate(
     wanted: str,
     rigid: Iterable[tuple[str, str]] = (),
     per_relation: int = DEFAULT_PER_RELATION,
-    point_frames: Iterable[str] | None = None,
+    goal: tuple[str, str] | None = None,
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
     Only edges of types that can contribute to a ``wanted`` edge are inferred, time-only
     patterns (calibrations) only run when some rigid relation is not measured, and points are
-    only carried into ``point_frames`` (all frames if ``None``).
+    with a ``goal`` (the query's source and target), concatenations are restricted as
+    :meth:`Workspace._wanted` explains.
     ``rigid`` adds frame pairs known to be rigid besides those joined by static edges. Each
     round only looks for occurrences that use an edge inferred in the previous round.
     """
@@ -363,8 +402,11 @@ def saturate(
     ws = Workspace(
         per_relation=per_relation,
         useful_types=useful_types(templates, wanted),
-        point_frames=None if point_frames is None else frozenset(point_frames),
+        goal=goal,
     )
+    if goal is not None:
+        sub = srg.subgraph(frames)
+        ws.distances = tuple(_hops(sub, end, float("inf")) for end in goal)
     for source, target, key, data in srg.edges(keys=True, data=True):
         if source in frames and target in frames:
             ws.add_measured(source, target, key, data)
@@ -449,8 +491,8 @@ def plan(
     """
     frames = relevant_frames(srg, query.source, query.target, slack)
     rigid = [(query.source, query.target)] if query.static else []
-    endpoints = (query.source, query.target)
-    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, endpoints)
+    goal = (query.source, query.target)
+    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal)
     found = solutions(ws, query)
     if not found:
         kind = "static " if query.static else ""

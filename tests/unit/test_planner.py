@@ -209,3 +209,19 @@ def test_sensor_quality_drives_the_choice(templates):
     # a much worse second tracker: fusion gains little, the single good tracker wins
     best = plan(srg(0.01), templates, Query("A", "B", "6D"))[0]
     assert best.steps == () and best.edge.provider == "t1"
+
+
+def test_fusion_of_paths_of_different_lengths_is_found(templates):
+    # s-a-t and the longer s-b-c-t: the goal-directed concatenation rule keeps both chains
+    srg = setup(
+        ("s", "a", "6D", False),
+        ("a", "t", "6D", False),
+        ("b", "s", "6D", False),
+        ("b", "c", "6D", False),
+        ("t", "c", "6D", False),
+    )
+    found = plan(srg, templates, Query("s", "t", "6D"))
+    best = found[0].as_json()["steps"]
+    assert best[-1]["pattern"] == "MultiTrackerFusion"
+    assert len(found[0].edge.sources) == 5
+    assert sorted(len(s.edge.sources) for s in found) == [2, 3, 5]
