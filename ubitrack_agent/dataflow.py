@@ -101,7 +101,7 @@ def relation_name(query: Query) -> str:
     return f"{query.source}->{query.target}:{query.type}{suffix}"
 
 
-def _component_id(template: str, expansion: str, reads: list[str], writes: list[str]) -> str:
+def _component_id(template: str, expansion: str, reads: list[Any], writes: list[Any]) -> str:
     digest = hashlib.sha1(repr((template, expansion, reads, writes)).encode()).hexdigest()[:10]
     return f"{template}-{digest}"
 

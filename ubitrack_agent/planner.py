@@ -7,7 +7,9 @@ For a query ``(from, to, type, static)`` the planner
    reduction section 5.1 suggests for large graphs),
 2. applies every template repeatedly (forward chaining with the matcher of
    :mod:`ubitrack_agent.matcher`) until no new, non-redundant edge can be inferred, keeping the
-   bookkeeping of section 5.1 (sources, canonical computation, dominance),
+   bookkeeping of section 5.1 (sources, canonical computation, dominance) and adding only edges
+   that serve the query (useful types, calibration of unknown rigid relations only, chains
+   towards the query, :meth:`Workspace._wanted`),
 3. returns every distinct derivation of the queried edge, best first by the cost model below.
 
 Cost model (``docs/planner.md``): each edge carries an expected error variance (m^2), a latency
