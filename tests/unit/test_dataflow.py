@@ -1,0 +1,142 @@
+"""Data flow graphs: construction from a solution, sharing between queries, diffs (section 5.1)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+from ubitrack_agent.dataflow import Binding, DataFlow, diff, from_solution, merge, relation_name
+from ubitrack_agent.planner import Query, plan
+from ubitrack_agent.srg import parse_setup, remove_provider
+
+QUERY = Query("C", "A", "6D")
+
+
+def flow_for(srg, templates, query=QUERY):
+    return from_solution(plan(srg, templates, query)[0], query)
+
+
+def by_pattern(flow):
+    out = {}
+    for component in flow.components.values():
+        out.setdefault(component.pattern, []).append(component)
+    return out
+
+
+def test_figure_6_data_flow_components_and_bindings(tracking_setup, templates):
+    flow = flow_for(tracking_setup, templates)
+    parts = by_pattern(flow)
+    assert {k: len(v) for k, v in parts.items()} == {
+        "PoseEstimation2D3D": 1,
+        "Inversion": 1,
+        "Concatenation": 3,
+        "MultiTrackerFusion": 1,
+    }
+    (pose,) = parts["PoseEstimation2D3D"]
+    inputs = dict(pose.inputs)
+    assert inputs["CI"] == Binding(None, "C->IP:3x4")
+    assert {inputs[f"IF[{k}]"].edge for k in range(5)} == {f"IP->F{i}:2D" for i in range(1, 6)}
+    assert all(b.component is None for b in inputs.values())  # measured edges only
+    assert pose.service == "pose_estimation_2d3d"
+
+    (inversion,) = parts["Inversion"]
+    assert dict(inversion.inputs) == {"AB": Binding(None, "ART->HT:6D")}
+
+    (fusion,) = parts["MultiTrackerFusion"]
+    producers = {flow.components[b.component].pattern for _, b in fusion.inputs}
+    assert producers == {"PoseEstimation2D3D", "Concatenation"}
+
+    final = flow.relations[relation_name(QUERY)]
+    last = flow.components[final.component]
+    assert last.pattern == "Concatenation" and final.edge == "AC"
+    assert dict(last.inputs)["AB"].component == fusion.id
+    assert dict(last.inputs)["BC"] == Binding(None, "WT->A:6D")
+
+
+def test_component_ids_are_stable_across_plans(tracking_setup, templates):
+    assert set(flow_for(tracking_setup, templates).components) == set(
+        flow_for(tracking_setup, templates).components
+    )
+
+
+def test_queries_share_components(tracking_setup, templates):
+    to_a = flow_for(tracking_setup, templates)
+    to_wt = flow_for(tracking_setup, templates, Query("C", "WT", "6D"))
+    shared = set(to_a.components) & set(to_wt.components)
+    assert len(shared) >= 4  # pose estimation, inversion, two concatenations, fusion
+    both = merge([to_a, to_wt])
+    assert len(both.components) == len(to_a.components | to_wt.components)
+    assert len(both.components) < len(to_a.components) + len(to_wt.components)
+    assert set(both.relations) == {"C->A:6D", "C->WT:6D"}
+
+
+def test_diff_rewires_a_component_whose_producer_changed(templates):
+    two_trackers = parse_setup(
+        {
+            "edges": [
+                {"from": "A", "to": "B", "type": "6D", "provider": "t1"},
+                {"from": "A", "to": "B", "type": "6D", "provider": "t2"},
+                {"from": "B", "to": "C", "type": "6D", "static": True},
+            ]
+        }
+    )
+    query = Query("A", "C", "6D")
+    before = flow_for(two_trackers, templates, query)
+    after = flow_for(remove_provider(two_trackers, "t2"), templates, query)
+    change = diff(before, after)
+    assert [before.components[c].pattern for c in change.stop] == ["MultiTrackerFusion"]
+    assert change.start == ()
+    (rewired,) = change.rewire
+    assert rewired.pattern == "Concatenation"
+    assert dict(rewired.inputs)["AB"] == Binding(None, "A->B:6D")
+    assert change.relations == {}  # same producer id: the application's key is untouched
+    back = diff(after, before)
+    assert [c.pattern for c in back.start] == ["MultiTrackerFusion"]
+    assert back.stop == () and len(back.rewire) == 1
+
+
+def test_diff_when_the_tracker_disappears_from_the_paper_setup(tracking_setup, templates):
+    before = flow_for(tracking_setup, templates)
+    after = flow_for(remove_provider(tracking_setup, "ART"), templates)
+    change = diff(before, after)
+    reads_art = {
+        c.id for c in before.components.values() if any("ART" in b.edge for _, b in c.inputs)
+    }
+    assert reads_art and reads_art <= set(change.stop)
+    assert not any("ART" in b.edge for c in change.start for _, b in c.inputs)
+    assert change.relations["C->A:6D"] == after.relations["C->A:6D"]
+    assert diff(before, before).empty
+
+
+def test_diff_reports_removed_and_rebound_relations(tracking_setup, templates):
+    to_a = flow_for(tracking_setup, templates)
+    to_wt = flow_for(tracking_setup, templates, Query("C", "WT", "6D"))
+    change = diff(merge([to_a, to_wt]), to_a)
+    assert change.relations == {"C->WT:6D": None}
+    assert change.start == () and change.rewire == ()
+    assert set(change.stop) == set(to_wt.components) - set(to_a.components)
+
+
+def test_data_flow_serialises_to_json(tracking_setup, templates):
+    document = json.loads(json.dumps(flow_for(tracking_setup, templates).as_json()))
+    assert len(document["components"]) == 6
+    services = {c["service"] for c in document["components"]}
+    assert services == {"pose_estimation_2d3d", "inversion", "concatenation", "fusion"}
+    assert document["relations"]["C->A:6D"][1] == "AC"
+
+
+def test_merge_keeps_both_computations_when_producers_differ(tracking_setup, templates):
+    flow = flow_for(tracking_setup, templates)
+    (fusion,) = by_pattern(flow)["MultiTrackerFusion"]
+    # the same fusion fed by other producers in a second flow (e.g. another bracketing)
+    other_inputs = tuple((port, Binding(None, f"other-{port}")) for port, _ in fusion.inputs)
+    other = DataFlow(
+        {fusion.id: replace(fusion, inputs=other_inputs)},
+        {"C->WT:6D": Binding(fusion.id, "fused")},
+    )
+    merged = merge([flow, other])
+    assert merged.components[fusion.id] == fusion
+    renamed = merged.relations["C->WT:6D"].component
+    assert renamed != fusion.id
+    assert merged.components[renamed].inputs == other_inputs
+    assert merged.relations["C->A:6D"] == flow.relations["C->A:6D"]

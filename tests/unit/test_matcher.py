@@ -1,0 +1,163 @@
+"""Pattern detection (section 5.1): occurrences, space and time expansion, bookkeeping."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from ubitrack_agent.matcher import (
+    EdgeIndex,
+    expand_group,
+    find_matches,
+    group_key,
+    independent,
+)
+from ubitrack_agent.planner import Workspace
+from ubitrack_agent.srg import parse_setup
+
+
+def index_of(edges, rigid=()):
+    """An EdgeIndex of measured edges written as (from, to, type, static)."""
+    srg = parse_setup(
+        {"edges": [{"from": a, "to": b, "type": t, "static": s} for a, b, t, s in edges]}
+    )
+    ws = Workspace()
+    for u, v, key, data in srg.edges(keys=True, data=True):
+        ws.add_measured(u, v, key, data)
+    for a, b in rigid:
+        ws.index.add_rigid(a, b)
+    return ws.index
+
+
+def instances(template, index):
+    groups = {}
+    for match in find_matches(template, index):
+        groups.setdefault(group_key(match), {})[match.edges] = match
+    return [i for members in groups.values() for i in expand_group(list(members.values()), index)]
+
+
+@pytest.fixture(scope="module")
+def by_pattern(templates):
+    return {t.name: t for t in templates}
+
+
+def camera_setup(features, *, feature_static=True, image_dynamic=True):
+    edges = [("C", "IP", "3x4", True)]
+    for i in range(1, features + 1):
+        edges.append(("IP", f"F{i}", "2D", not image_dynamic))
+        edges.append(("WT", f"F{i}", "3D", feature_static))
+    return edges
+
+
+def test_inversion_matches_poses_and_rotations_only(by_pattern):
+    index = index_of([("A", "B", "6D", False), ("B", "C", "3R", False), ("C", "D", "2D", False)])
+    found = instances(by_pattern["inversion"], index)
+    assert sorted(i.outputs[0][1:4] for i in found) == [("B", "A", "6D"), ("C", "B", "3R")]
+    assert all(i.expansion == "none" for i in found)
+
+
+def test_concatenation_binds_the_type_variable(by_pattern):
+    index = index_of([("A", "B", "6D", True), ("B", "C", "3D", False), ("C", "D", "6D", False)])
+    found = instances(by_pattern["concatenation"], index)
+    # A->B (6D) with B->C (3D) gives A->C 3D; B->C 3D cannot be the first (pose) input.
+    assert [i.outputs[0][1:5] for i in found] == [("A", "C", "3D", False)]
+
+
+def test_space_expansion_of_2d3d_pose_estimation(by_pattern):
+    found = instances(by_pattern["pose_estimation_2d3d"], index_of(camera_setup(5)))
+    assert len(found) == 1
+    (instance,) = found
+    assert instance.expansion == "space"
+    inputs = dict(instance.inputs)
+    assert inputs["CI"] == ("C->IP:3x4",)
+    assert len(inputs["IF"]) == len(inputs["OF"]) == 5
+    assert instance.outputs[0][1:5] == ("C", "WT", "6D", False)
+
+
+def test_too_few_correspondences_are_rejected(by_pattern):
+    assert instances(by_pattern["pose_estimation_2d3d"], index_of(camera_setup(3))) == []
+
+
+def test_time_expansion_needs_dynamic_correspondences_static_rest_and_rigid_output(by_pattern):
+    template = by_pattern["pose_estimation_2d3d"]
+    one_moving_point = camera_setup(1, feature_static=False)
+    assert instances(template, index_of(one_moving_point)) == []  # C-WT not known rigid
+    (instance,) = instances(template, index_of(one_moving_point, rigid=[("C", "WT")]))
+    assert instance.expansion == "time"
+    assert instance.outputs[0][4] is True  # time expansions yield static edges
+    # a static correspondence edge forbids the time expansion
+    assert instances(template, index_of(camera_setup(1), rigid=[("C", "WT")])) == []
+
+
+def test_fusion_is_a_space_expansion_over_independent_parallel_edges(by_pattern):
+    index = index_of([("A", "B", "6D", False), ("A", "B", "6D", False), ("A", "B", "6D", True)])
+    (instance,) = instances(by_pattern["fusion"], index)
+    assert instance.expansion == "space"
+    assert len(dict(instance.inputs)["AB"]) == 3
+    assert instance.outputs[0][4] is False  # a dynamic input makes the fusion dynamic
+
+
+def test_fusion_rejects_estimates_sharing_a_measurement(by_pattern):
+    index = index_of([("A", "B", "6D", False)])
+    original = index.edges["A->B:6D"]
+    index.add(replace(original, id="copy", measured=False, canon="x"))
+    assert instances(by_pattern["fusion"], index) == []
+
+
+def test_inputs_sharing_a_measured_edge_are_redundant(by_pattern):
+    index = index_of([("A", "B", "6D", False), ("B", "C", "6D", False)])
+    bc = index.edges["B->C:6D"]
+    index.add(replace(bc, id="B->C derived from A->B", sources=frozenset({"A->B:6D"})))
+    found = instances(by_pattern["concatenation"], index)
+    assert [dict(i.inputs)["BC"] for i in found] == [("B->C:6D",)]
+
+
+def test_inversion_of_an_inversion_is_not_matched(by_pattern):
+    index = index_of([("A", "B", "6D", False)])
+    ab = index.edges["A->B:6D"]
+    index.add(replace(ab, id="B->A", source="B", target="A", pattern="Inversion"))
+    found = instances(by_pattern["inversion"], index)
+    assert [dict(i.inputs)["AB"] for i in found] == [("A->B:6D",)]
+
+
+def test_averaging_needs_a_rigid_relation(by_pattern):
+    dynamic = [("C", "HT", "6D", False)]
+    assert instances(by_pattern["averaging"], index_of(dynamic)) == []
+    (instance,) = instances(by_pattern["averaging"], index_of(dynamic, rigid=[("C", "HT")]))
+    assert instance.expansion == "time"
+    assert instance.outputs[0][4:] == (True, "pull")
+
+
+def test_hand_eye_uses_rigid_links_between_hand_eye_and_base_object(by_pattern):
+    edges = [("ART", "HT", "6D", False), ("C", "WT", "6D", False), ("ART", "WT", "6D", True)]
+    assert instances(by_pattern["hand_eye_calibration"], index_of(edges)) == []
+    found = instances(by_pattern["hand_eye_calibration"], index_of(edges, rigid=[("C", "HT")]))
+    outputs = {frozenset(o[1:3] for o in i.outputs) for i in found}
+    assert frozenset({("HT", "C"), ("ART", "WT")}) in outputs
+    assert all(i.expansion == "time" for i in found)
+
+
+def test_time_integrated_static_edges_may_share_dynamic_sources():
+    index = index_of([("A", "B", "6D", False), ("B", "C", "6D", True)])
+    ab, bc = index.edges["A->B:6D"], index.edges["B->C:6D"]
+    averaged = replace(ab, id="avg", static=True, time_integrated=True, sources=ab.sources)
+    assert independent(averaged, ab, index, strict=False)
+    assert not independent(averaged, ab, index, strict=True)
+    assert not independent(replace(averaged, time_integrated=False), ab, index, strict=False)
+    with_static = replace(averaged, sources=ab.sources | bc.sources)
+    assert not independent(with_static, bc, index, strict=False)
+
+
+def test_seeded_search_only_finds_occurrences_using_a_seed(by_pattern):
+    index = index_of([("A", "B", "6D", False), ("B", "C", "6D", False), ("C", "D", "6D", False)])
+    seeded = {m.edges for m in find_matches(by_pattern["concatenation"], index, ["C->D:6D"])}
+    assert seeded == {("B->C:6D", "C->D:6D")}
+    assert len({m.edges for m in find_matches(by_pattern["concatenation"], index)}) == 2
+
+
+def test_edge_index_tracks_measured_rigid_pairs():
+    index = index_of([("A", "B", "6D", True), ("B", "C", "6D", False)])
+    assert index.is_rigid("B", "A") and index.is_measured_rigid("A", "B")
+    assert not index.is_rigid("B", "C")
+    assert isinstance(index, EdgeIndex)

@@ -1,0 +1,99 @@
+"""``ubitrack plan``: the offline design tool (section 5.2.2)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from ubitrack_agent.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+TRACKING = str(ROOT / "examples" / "paper_tracking.yaml")
+CALIBRATION = str(ROOT / "examples" / "paper_calibration.yaml")
+
+
+def run_json(capsys, *args):
+    status = main(["plan", *args, "--json"])
+    out = capsys.readouterr().out
+    return status, json.loads(out)
+
+
+def test_json_output_follows_the_issue_schema(capsys):
+    status, document = run_json(capsys, TRACKING, "--from", "C", "--to", "A", "--type", "6D")
+    assert status == 0
+    assert document["query"] == {"from": "C", "to": "A", "type": "6D", "static": False}
+    (best,) = document["solutions"]  # without --all only the best
+    assert set(best) == {"cost", "static", "steps"}
+    assert isinstance(best["cost"], float) and best["static"] is False
+    patterns = [s["pattern"] for s in best["steps"]]
+    assert sorted(patterns) == sorted(
+        ["PoseEstimation2D3D", "Inversion"] + ["Concatenation"] * 3 + ["MultiTrackerFusion"]
+    )
+    for step in best["steps"]:
+        assert set(step) == {"pattern", "expansion", "inputs", "outputs"}
+        assert step["expansion"] in ("none", "space", "time")
+        assert all(len(edge) == 3 for edge in step["inputs"] + step["outputs"])
+    assert best["steps"][-1]["outputs"] == [["C", "A", "6D"]]
+
+
+def test_all_lists_the_calibration_alternatives_best_first(capsys):
+    args = (CALIBRATION, "--from", "C", "--to", "HT", "--type", "6D", "--static", "--all")
+    status, document = run_json(capsys, *args)
+    assert status == 0
+    solutions = document["solutions"]
+    assert len(solutions) >= 3
+    assert [s["cost"] for s in solutions] == sorted(s["cost"] for s in solutions)
+    assert all(s["static"] for s in solutions)
+    patterns = [{step["pattern"] for step in s["steps"]} for s in solutions]
+    assert any("HandEyeCalibration" in p for p in patterns)
+    assert sum("Averaging" in p for p in patterns) >= 2
+
+
+def test_text_output(capsys):
+    assert main(["plan", TRACKING, "--from", "C", "--to", "A", "--type", "6D"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("6D C->A: 4 solution(s)")
+    assert "MultiTrackerFusion (space)" in out
+
+
+def test_no_solution_exits_2_and_names_the_frames(capsys, tmp_path):
+    setup = tmp_path / "split.yaml"
+    setup.write_text("edges:\n  - {from: A, to: B, type: 6D}\n  - {from: C, to: D, type: 6D}\n")
+    status = main(["plan", str(setup), "--from", "A", "--to", "D", "--type", "6D", "--json"])
+    captured = capsys.readouterr()
+    assert status == 2
+    assert captured.out == ""
+    assert "A and D are not connected" in captured.err
+
+
+def test_bad_setup_file_exits_1_with_the_reason(capsys, tmp_path):
+    setup = tmp_path / "bad.yaml"
+    setup.write_text("edges:\n  - {from: A, to: B, type: 6D, colour: red}\n")
+    status = main(["plan", str(setup), "--from", "A", "--to", "B", "--type", "6D"])
+    err = capsys.readouterr().err
+    assert status == 1
+    assert "bad.yaml: edges[0]: unknown field(s) ['colour']" in err
+
+
+def test_dot_file_shows_the_chosen_data_flow(capsys, tmp_path, monkeypatch):
+    monkeypatch.setattr("shutil.which", lambda name: None)  # no graphviz: DOT only
+    dot = tmp_path / "plan.dot"
+    status = main(["plan", TRACKING, "--from", "C", "--to", "A", "--type", "6D", "--dot", str(dot)])
+    assert status == 0
+    text = dot.read_text()
+    assert text.startswith('digraph "C->A"')
+    assert text.count("style=dashed") == 6  # one inferred edge per step of figure 6
+    assert '"ART" -> "HT" [label="6D", style=bold' in text
+    assert "install graphviz" in capsys.readouterr().err
+
+
+def test_help_lists_the_options(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["plan", "--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    for option in ("--from", "--to", "--type", "--static", "--all", "--json", "--dot"):
+        assert option in out

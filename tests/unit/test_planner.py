@@ -1,0 +1,227 @@
+"""The controller: best and all derivations, cost model, no-solution errors (sections 4, 5)."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import pytest
+
+from ubitrack_agent.planner import (
+    NoSolutionError,
+    PlanningError,
+    Query,
+    plan,
+    relevant_frames,
+    saturate,
+    useful_types,
+)
+from ubitrack_agent.srg import parse_setup
+
+
+def signature(solution):
+    """Steps as (pattern, expansion, sorted input triples, sorted output triples)."""
+    return [
+        (
+            s["pattern"],
+            s["expansion"],
+            sorted(map(tuple, s["inputs"])),
+            sorted(map(tuple, s["outputs"])),
+        )
+        for s in solution.as_json()["steps"]
+    ]
+
+
+def setup(*edges):
+    return parse_setup(
+        {"edges": [{"from": a, "to": b, "type": t, "static": s} for a, b, t, s in edges]}
+    )
+
+
+def test_best_tracking_solution_is_the_data_flow_of_figure_6(tracking_setup, templates):
+    best = plan(tracking_setup, templates, Query("C", "A", "6D"))[0]
+    steps = signature(best)
+    assert Counter(p for p, *_ in steps) == {
+        "PoseEstimation2D3D": 1,
+        "Inversion": 1,
+        "Concatenation": 3,
+        "MultiTrackerFusion": 1,
+    }
+    pose = next(s for s in steps if s[0] == "PoseEstimation2D3D")
+    assert pose[1] == "space" and pose[3] == [("C", "WT", "6D")]
+    assert {("IP", f"F{i}", "2D") for i in range(1, 6)} <= set(pose[2])
+    assert {("WT", f"F{i}", "3D") for i in range(1, 6)} <= set(pose[2])
+    inversion = next(s for s in steps if s[0] == "Inversion")
+    assert inversion[2] == [("ART", "HT", "6D")]
+    concat_inputs = {t for p, _, ins, _ in steps if p == "Concatenation" for t in ins}
+    assert {("C", "HT", "6D"), ("ART", "WT", "6D"), ("WT", "A", "6D")} <= concat_inputs
+    fusion = next(s for s in steps if s[0] == "MultiTrackerFusion")
+    assert fusion[1] == "space" and fusion[2] == [("C", "WT", "6D")] * 2
+    assert steps[-1][0] == "Concatenation" and steps[-1][3] == [("C", "A", "6D")]
+    assert ("C", "WT", "6D") in steps[-1][2]
+    assert best.static is False
+
+
+def test_fusion_beats_each_single_path(tracking_setup, templates):
+    found = plan(tracking_setup, templates, Query("C", "A", "6D"))
+    fused, *others = found
+    assert others, "the single-path alternatives are listed too"
+    assert all(fused.edge.quality.variance < o.edge.quality.variance for o in others)
+    assert [s.cost for s in found] == sorted(s.cost for s in found)
+
+
+def _kind(solution):
+    patterns = [s["pattern"] for s in solution.as_json()["steps"]]
+    if "HandEyeCalibration" in patterns:
+        return "hand-eye"
+    pose = next(s for s in solution.as_json()["steps"] if s["pattern"] == "PoseEstimation2D3D")
+    frame = pose["outputs"][0][1]
+    return {"WT": "direct", "HT": "pose-through-HT"}.get(frame, f"pose-through-{frame}")
+
+
+def test_calibration_lists_the_three_solutions_of_section_4_2(calibration_setup, templates):
+    found = plan(calibration_setup, templates, Query("C", "HT", "6D", static=True))
+    assert all(s.static for s in found)
+    kinds = {_kind(s): s for s in found}
+    assert {"direct", "hand-eye", "pose-through-HT"} <= set(kinds)
+
+    direct = signature(kinds["direct"])
+    assert direct[0][:2] == ("PoseEstimation2D3D", "space")
+    assert ("Inversion", "none", [("ART", "WT", "6D")], [("WT", "ART", "6D")]) in direct
+    assert direct[-1][:2] == ("Averaging", "time")  # time-expanded fusion of C->HT estimates
+
+    hand_eye = signature(kinds["hand-eye"])
+    assert [p for p, *_ in hand_eye] == ["PoseEstimation2D3D", "HandEyeCalibration"]
+    he = hand_eye[1]
+    assert he[1] == "time"
+    assert he[2] == [("ART", "HT", "6D"), ("C", "WT", "6D")]
+    assert ("C", "HT", "6D") in he[3]  # and WT->ART, which is ignored
+
+    through_ht = signature(kinds["pose-through-HT"])
+    pose = next(s for s in through_ht if s[0] == "PoseEstimation2D3D")
+    assert pose[1] == "space" and pose[3] == [("C", "HT", "6D")]
+    assert {("HT", f"F{i}", "3D") for i in range(1, 6)} <= set(pose[2])
+    assert through_ht[-1][:2] == ("Averaging", "time")
+
+
+def test_dynamic_query_on_calibration_setup_has_no_calibration_steps(calibration_setup, templates):
+    # without --static nothing says C-HT is rigid: only live chains through camera and tracker
+    found = plan(calibration_setup, templates, Query("C", "HT", "6D"))
+    patterns = {s["pattern"] for f in found for s in f.as_json()["steps"]}
+    assert "PoseEstimation2D3D" in patterns
+    assert not patterns & {"HandEyeCalibration", "Averaging"}
+    assert not any(f.static for f in found)
+
+
+def test_measured_edge_is_a_solution_without_steps(tracking_setup, templates):
+    found = plan(tracking_setup, templates, Query("ART", "WT", "6D", static=True))
+    assert found[0].steps == () and found[0].edge.measured
+
+
+def test_no_redundant_derivations_on_a_triangle(templates):
+    srg = setup(("A", "B", "6D", False), ("B", "C", "6D", False), ("A", "C", "6D", False))
+    found = plan(srg, templates, Query("A", "C", "6D"))
+    # the measured edge, the chain, and their fusion: nothing through C->A or B->A and back
+    assert sorted(sorted(s.edge.sources) for s in found) == [
+        ["A->B:6D", "A->C:6D", "B->C:6D"],
+        ["A->B:6D", "B->C:6D"],
+        ["A->C:6D"],
+    ]
+
+
+def test_no_step_inverts_an_inversion_or_reuses_a_measurement(tracking_setup, templates):
+    frames = relevant_frames(tracking_setup, "C", "A", 2)
+    ws = saturate(tracking_setup, templates, frames, "6D")
+    edges = ws.index.edges
+    for step in ws.steps.values():
+        ids = [e for _, group in step.inputs for e in group]
+        if step.template.pattern == "Inversion":
+            assert edges[ids[0]].pattern not in ("Inversion", "Concatenation")
+        if step.expansion != "space":
+            for i, a in enumerate(ids):
+                for b in ids[i + 1 :]:
+                    assert not edges[a].sources & edges[b].sources
+
+
+def test_disconnected_frames_are_named(templates):
+    srg = setup(("A", "B", "6D", False), ("C", "D", "6D", False))
+    with pytest.raises(NoSolutionError) as info:
+        plan(srg, templates, Query("A", "D", "6D"))
+    message = str(info.value)
+    assert "A and D are not connected" in message
+    assert "{A, B}" in message and "{C, D}" in message
+
+
+def test_unknown_frame_is_named(templates):
+    with pytest.raises(NoSolutionError, match="frame\\(s\\) Z not in the SRG"):
+        plan(setup(("A", "B", "6D", False)), templates, Query("A", "Z", "6D"))
+
+
+def test_connected_but_underivable(templates):
+    srg = setup(("A", "B", "2D", False))
+    with pytest.raises(NoSolutionError, match="no derivation of 6D A->B"):
+        plan(srg, templates, Query("A", "B", "6D"))
+
+
+def test_static_query_rejects_dynamic_only_results(templates):
+    srg = setup(("A", "B", "6D", False), ("B", "C", "6D", True))
+    found = plan(srg, templates, Query("A", "C", "6D", static=True))
+    # only by averaging the dynamic chain over time (A-C declared rigid by the query)
+    assert all(s.static for s in found)
+    assert found[0].as_json()["steps"][-1]["pattern"] == "Averaging"
+
+
+def test_bad_queries():
+    with pytest.raises(PlanningError, match="unknown type"):
+        Query("A", "B", "5D")
+    with pytest.raises(PlanningError, match="different frames"):
+        Query("A", "A", "6D")
+    with pytest.raises(ValueError, match="frame name"):
+        Query("A b", "B", "6D")
+
+
+def test_useful_types_prune_rotations_for_pose_queries(templates):
+    assert "3R" not in useful_types(templates, "6D")
+    assert {"6D", "3D", "2D", "3x4"} <= useful_types(templates, "6D")
+    assert "6D" in useful_types(templates, "3R")
+
+
+def test_relevant_frames_drop_pendant_frames(calibration_setup):
+    frames = relevant_frames(calibration_setup, "C", "HT", 2)
+    assert "A" not in frames  # WT->A hangs off the world target: on no C-HT path
+    assert {"C", "IP", "WT", "ART", "HT", "F1", "F5"} <= frames
+
+
+def test_sensor_quality_drives_the_choice(templates):
+    def srg(sigma_b):
+        return parse_setup(
+            {
+                "edges": [
+                    {"from": "A", "to": "B", "type": "6D", "sigma": 0.001, "provider": "t1"},
+                    {"from": "A", "to": "B", "type": "6D", "sigma": sigma_b, "provider": "t2"},
+                ]
+            }
+        )
+
+    # two equal trackers: fusing them halves the variance and is worth the second sensor
+    best = plan(srg(0.001), templates, Query("A", "B", "6D"))[0]
+    assert best.as_json()["steps"][0]["pattern"] == "MultiTrackerFusion"
+    assert best.edge.quality.variance == pytest.approx(0.5e-6)
+    # a much worse second tracker: fusion gains little, the single good tracker wins
+    best = plan(srg(0.01), templates, Query("A", "B", "6D"))[0]
+    assert best.steps == () and best.edge.provider == "t1"
+
+
+def test_fusion_of_paths_of_different_lengths_is_found(templates):
+    # s-a-t and the longer s-b-c-t: the goal-directed concatenation rule keeps both chains
+    srg = setup(
+        ("s", "a", "6D", False),
+        ("a", "t", "6D", False),
+        ("b", "s", "6D", False),
+        ("b", "c", "6D", False),
+        ("t", "c", "6D", False),
+    )
+    found = plan(srg, templates, Query("s", "t", "6D"))
+    best = found[0].as_json()["steps"]
+    assert best[-1]["pattern"] == "MultiTrackerFusion"
+    assert len(found[0].edge.sources) == 5
+    assert sorted(len(s.edge.sources) for s in found) == [2, 3, 5]

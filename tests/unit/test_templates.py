@@ -1,0 +1,144 @@
+"""Template service descriptions: schema, validation and the shipped catalogue (section 3)."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+
+from ubitrack_agent.templates import (
+    PATTERN_NAMES,
+    Multiplicity,
+    TemplateError,
+    load_template,
+    load_templates,
+    parse_template,
+)
+
+POSE_2D3D = {
+    "pattern": "PoseEstimation2D3D",
+    "service": "pose_estimation_2d3d",
+    "roles": ["C", "I", "O", "F"],
+    "inputs": [
+        {"name": "CI", "from": "C", "to": "I", "type": "3x4"},
+        {"name": "IF", "from": "I", "to": "F", "type": "2D"},
+        {"name": "OF", "from": "O", "to": "F", "type": "3D"},
+    ],
+    "outputs": [{"name": "CO", "from": "C", "to": "O", "type": "6D"}],
+    "correspondence": {
+        "edges": ["IF", "OF"],
+        "multiplicity": "4..*",
+        "expansions": ["space", "time"],
+        "expand_roles": ["F"],
+    },
+}
+
+
+def test_shipped_catalogue_covers_every_pattern(templates):
+    assert {t.pattern for t in templates} == PATTERN_NAMES
+    assert len({t.service for t in templates}) == len(templates)
+
+
+def test_templates_are_generic_over_types(templates):
+    by_name = {t.name: t for t in templates}
+    concat = by_name["concatenation"]
+    assert concat.type_vars == {"T": ("6D", "3D")}
+    assert concat.outputs[0].type == "$T"
+    assert set(by_name["fusion"].type_vars["T"]) == {"6D", "3D", "3R"}
+
+
+def test_correspondence_of_2d3d_pose_estimation(templates):
+    pose = next(t for t in templates if t.pattern == "PoseEstimation2D3D")
+    corr = pose.correspondence
+    assert corr.edges == ("IF", "OF")
+    assert corr.expand_roles == ("F",)
+    assert corr.expansions == {"space", "time"}
+    assert 4 in corr.multiplicity and 3 not in corr.multiplicity and 1000 in corr.multiplicity
+
+
+def test_hand_eye_is_time_only_with_static_outputs(templates):
+    hand_eye = next(t for t in templates if t.pattern == "HandEyeCalibration")
+    assert hand_eye.time_only
+    assert all(o.static is True for o in hand_eye.outputs)
+
+
+def test_parse_and_load_round_trip(tmp_path):
+    import yaml
+
+    path = tmp_path / "pose.yaml"
+    path.write_text(yaml.safe_dump(POSE_2D3D))
+    template = load_template(path)
+    assert template.name == "pose"
+    assert template.service == "pose_estimation_2d3d"
+    assert template.inputs[0].static is None
+
+
+@pytest.mark.parametrize(
+    ("text", "lo", "hi"), [("4..*", 4, None), ("2..5", 2, 5), ("3", 3, 3), (6, 6, 6)]
+)
+def test_multiplicity_syntax(text, lo, hi):
+    data = copy.deepcopy(POSE_2D3D)
+    data["correspondence"]["multiplicity"] = text
+    assert parse_template(data).correspondence.multiplicity == Multiplicity(lo, hi)
+
+
+def _broken(path: str, value):
+    data = copy.deepcopy(POSE_2D3D)
+    *parents, last = path.split(".")
+    target = data
+    for key in parents:
+        target = target[int(key)] if key.isdigit() else target[key]
+    if value is KeyError:
+        del target[last]
+    else:
+        target[last] = value
+    return data
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        ("color", "red", "top level: unknown field(s) ['color']"),
+        ("pattern", "Magic", "field 'pattern': 'Magic' is not one of"),
+        ("service", "services.pose:Estimator", "field 'service'"),
+        ("service", KeyError, "missing field 'service'"),
+        ("inputs.0.type", "$T", "type variable $T is not declared"),
+        ("inputs.1.type", "4D", "inputs[1].type: '4D' is not one of"),
+        ("inputs.1.from", "X", "inputs[1].from: 'X' is not one of"),
+        ("inputs.0.static", "yes", "inputs[0].static: must be true or false"),
+        ("inputs.0.mode", "poll", "inputs[0].mode"),
+        ("inputs.0.extra", 1, "inputs[0]: unknown field(s) ['extra']"),
+        ("outputs.0.name", "CI", "duplicate edge name 'CI'"),
+        ("correspondence.edges", ["IF", "XX"], "correspondence.edges: 'XX' is not one of"),
+        ("correspondence.multiplicity", "4..2", "is empty"),
+        ("correspondence.multiplicity", "many", "is not a multiplicity"),
+        ("correspondence.expansions", ["space", "warp"], "'warp' is not one of"),
+        ("correspondence.expansions", [], "must list space and/or time"),
+        ("correspondence.expand_roles", ["C"], "must not use a role of expand_roles"),
+        ("cost", {"rule": "magic"}, "cost.rule"),
+        ("roles", ["C", "C"], "duplicate entries"),
+    ],
+)
+def test_invalid_templates_name_file_entry_and_field(path, value, message):
+    with pytest.raises(TemplateError) as info:
+        parse_template(_broken(path, value), "templates/pose.yaml")
+    assert str(info.value).startswith("templates/pose.yaml: ")
+    assert message in str(info.value)
+
+
+def test_output_type_variable_must_be_bound_by_an_input():
+    data = {
+        "pattern": "Inversion",
+        "service": "inversion",
+        "type_vars": {"T": ["6D"], "U": ["3D"]},
+        "roles": ["A", "B"],
+        "inputs": [{"name": "AB", "from": "A", "to": "B", "type": "$T"}],
+        "outputs": [{"name": "BA", "from": "B", "to": "A", "type": "$U"}],
+    }
+    with pytest.raises(TemplateError, match=r"outputs\[0\].type: type variable \$U is bound by no"):
+        parse_template(data)
+
+
+def test_empty_template_directory_is_an_error(tmp_path):
+    with pytest.raises(TemplateError, match=r"no \*\.yaml template files"):
+        load_templates(tmp_path)

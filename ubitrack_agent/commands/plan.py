@@ -1,0 +1,112 @@
+"""``ubitrack plan``: the offline tracking setup design tool (paper section 5.2.2).
+
+Reads a setup file, plans the queried relationship and prints the solutions; works with no
+network at all.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from ..srg import EDGE_TYPES
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``plan`` subcommand."""
+    parser = subparsers.add_parser(
+        "plan",
+        help="plan how to derive a spatial relationship from a setup file (offline)",
+        description=(
+            "Find the derivations of FROM->TO in the SRG of SETUP with the pattern templates, "
+            "best first by expected error, latency and number of sensors. Exit status 2 if "
+            "there is none."
+        ),
+    )
+    parser.add_argument("setup", metavar="SETUP.yaml", help="SRG setup file")
+    parser.add_argument("--from", dest="source", required=True, help="source frame")
+    parser.add_argument("--to", dest="target", required=True, help="target frame")
+    parser.add_argument(
+        "--type", required=True, choices=sorted(EDGE_TYPES), help="edge type of the relationship"
+    )
+    parser.add_argument(
+        "--static",
+        action="store_true",
+        help="the relationship is static (rigid): only static results, calibration allowed",
+    )
+    parser.add_argument("--all", action="store_true", help="list every distinct solution")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument(
+        "--dot",
+        metavar="FILE",
+        help="write the SRG with the best solution as Graphviz DOT to FILE "
+        "(and FILE.svg if the 'dot' program is installed)",
+    )
+    parser.add_argument(
+        "--templates",
+        metavar="DIR",
+        help="directory of template files (default: the templates/ folder of the source tree)",
+    )
+    parser.set_defaults(func=run)
+
+
+def _render(dot_path: Path) -> None:
+    """Render ``dot_path`` to SVG next to it when Graphviz is installed."""
+    dot = shutil.which("dot")
+    if dot is None:
+        print(f"wrote {dot_path} (install graphviz to render it: dot -Tsvg)", file=sys.stderr)
+        return
+    svg = dot_path.with_name(dot_path.name + ".svg")
+    subprocess.run([dot, "-Tsvg", str(dot_path), "-o", str(svg)], check=True)
+    print(f"wrote {dot_path} and {svg}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Plan the query of ``args``; print the solutions; 0 if found, 2 if none, 1 on bad input."""
+    from ..dot import to_dot
+    from ..planner import NoSolutionError, PlanningError, Query, plan
+    from ..srg import SetupError, load_setup
+    from ..templates import DEFAULT_TEMPLATE_DIR, TemplateError, load_templates
+
+    try:
+        srg = load_setup(args.setup)
+        templates = load_templates(args.templates or DEFAULT_TEMPLATE_DIR)
+        query = Query(args.source, args.target, args.type, args.static)
+        found = plan(srg, templates, query)
+    except NoSolutionError as exc:
+        print(f"ubitrack plan: no solution: {exc}", file=sys.stderr)
+        return 2
+    except (SetupError, TemplateError, PlanningError) as exc:
+        print(f"ubitrack plan: {exc}", file=sys.stderr)
+        return 1
+    shown = found if args.all else found[:1]
+    if args.json:
+        document = {
+            "query": {
+                "from": query.source,
+                "to": query.target,
+                "type": query.type,
+                "static": query.static,
+            },
+            "solutions": [s.as_json() for s in shown],
+        }
+        print(json.dumps(document))
+    else:
+        kind = "static " if query.static else ""
+        print(f"{kind}{query.type} {query.source}->{query.target}: {len(found)} solution(s)")
+        for n, solution in enumerate(shown, start=1):
+            state = "static" if solution.static else "dynamic"
+            print(f"\nsolution {n}: cost {solution.cost:.3f}, {state}")
+            for k, step in enumerate(solution.as_json()["steps"], start=1):
+                ins = ", ".join(f"{a}->{b}:{t}" for a, b, t in step["inputs"])
+                outs = ", ".join(f"{a}->{b}:{t}" for a, b, t in step["outputs"])
+                print(f"  {k}. {step['pattern']} ({step['expansion']}): {ins}  =>  {outs}")
+    if args.dot:
+        path = Path(args.dot)
+        path.write_text(to_dot(srg, found[0], f"{query.source}->{query.target}"), encoding="utf-8")
+        _render(path)
+    return 0

@@ -1,0 +1,189 @@
+"""Data flow graphs built from planned solutions, shared between queries and diffed (section 5.1).
+
+"When an expanded instance of pattern P_i is applied in the SR graph, this creates a new
+component in the data flow graph [...] The inputs of the component are connected to the
+components associated with the matched input edges." A :class:`DataFlow` is that graph: one
+:class:`Component` per applied pattern instance, each input port bound either to a measured SRG
+edge or to an output of another component, plus the *relations* the applications asked for.
+
+Component ids are content-derived (template, expansion, the relations read and written), not
+derived from the producers feeding them, so the same computation planned for two queries gets
+the same id (sharing, section 5.1 "Data flow construction"), and a component whose upstream
+changed keeps its id: :func:`diff` reports it as *rewired* rather than stopped and started.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from .planner import Query, Solution
+
+
+@dataclass(frozen=True)
+class Binding:
+    """Where an input reads from: ``component`` is ``None`` for a measured SRG edge (``edge`` is
+    its edge id), otherwise the producing component id and ``edge`` its output name."""
+
+    component: str | None
+    edge: str
+
+    def as_json(self) -> list[str | None]:
+        return [self.component, self.edge]
+
+
+@dataclass(frozen=True)
+class Component:
+    """One component instance: a registered ``service`` running ``pattern``.
+
+    ``inputs`` are ``(port, binding)`` pairs, ports named after the template's input edges
+    (``IF[0]``, ``IF[1]``... for the copies of a space expansion); ``outputs`` are
+    ``(name, from, to, type)``.
+    """
+
+    id: str
+    service: str
+    pattern: str
+    template: str
+    expansion: str
+    parameters: Mapping[str, Any]
+    inputs: tuple[tuple[str, Binding], ...]
+    outputs: tuple[tuple[str, str, str, str], ...]
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "id": self.id,
+            "service": self.service,
+            "pattern": self.pattern,
+            "template": self.template,
+            "expansion": self.expansion,
+            "parameters": dict(self.parameters),
+            "inputs": {port: b.as_json() for port, b in self.inputs},
+            "outputs": {name: [src, dst, typ] for name, src, dst, typ in self.outputs},
+        }
+
+
+@dataclass(frozen=True)
+class DataFlow:
+    """Components by id and the queried relations (``"C->A:6D"``) bound to their producers."""
+
+    components: Mapping[str, Component] = field(default_factory=dict)
+    relations: Mapping[str, Binding] = field(default_factory=dict)
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "components": [c.as_json() for c in self.components.values()],
+            "relations": {name: b.as_json() for name, b in self.relations.items()},
+        }
+
+
+@dataclass(frozen=True)
+class DataFlowDiff:
+    """What turns one data flow into another: components to start, ids to stop, components
+    whose input bindings changed (rewire), and relations whose producer changed or vanished
+    (``None``)."""
+
+    start: tuple[Component, ...]
+    stop: tuple[str, ...]
+    rewire: tuple[Component, ...]
+    relations: Mapping[str, Binding | None]
+
+    @property
+    def empty(self) -> bool:
+        return not (self.start or self.stop or self.rewire or self.relations)
+
+
+def relation_name(query: Query) -> str:
+    """The name of a queried relation, e.g. ``"C->A:6D"`` (``"C->HT:6D/static"`` if static)."""
+    suffix = "/static" if query.static else ""
+    return f"{query.source}->{query.target}:{query.type}{suffix}"
+
+
+def _component_id(template: str, expansion: str, reads: list[Any], writes: list[Any]) -> str:
+    digest = hashlib.sha1(repr((template, expansion, reads, writes)).encode()).hexdigest()[:10]
+    return f"{template}-{digest}"
+
+
+def from_solution(solution: Solution, query: Query) -> DataFlow:
+    """The data flow graph of one solution (section 5.1, "Data flow construction")."""
+    records = solution.records
+    producer: dict[str, Binding] = {}
+    components: dict[str, Component] = {}
+    for step in solution.steps:
+        reads = [
+            (name, [(records[e].source, records[e].target, records[e].type) for e in ids])
+            for name, ids in step.inputs
+        ]
+        writes = [(src, dst, typ) for _, src, dst, typ, _ in step.outputs]
+        cid = _component_id(step.template.name, step.expansion, reads, writes)
+        if cid in components:  # the same relations computed twice from different producers
+            upstream = [producer.get(e, Binding(None, e)) for _, ids in step.inputs for e in ids]
+            cid = _component_id(cid, step.expansion, reads, [repr(upstream)])
+        inputs = []
+        for name, ids in step.inputs:
+            for k, edge_id in enumerate(ids):
+                port = name if len(ids) == 1 else f"{name}[{k}]"
+                inputs.append((port, producer.get(edge_id, Binding(None, edge_id))))
+        for name, _, _, _, edge_id in step.outputs:
+            if edge_id is not None:
+                producer[edge_id] = Binding(cid, name)
+        components[cid] = Component(
+            id=cid,
+            service=step.template.service,
+            pattern=step.template.pattern,
+            template=step.template.name,
+            expansion=step.expansion,
+            parameters=dict(step.template.parameters),
+            inputs=tuple(inputs),
+            outputs=tuple((name, src, dst, typ) for name, src, dst, typ, _ in step.outputs),
+        )
+    final = producer.get(solution.edge.id, Binding(None, solution.edge.id))
+    return DataFlow(components, {relation_name(query): final})
+
+
+def _rebind(binding: Binding, renamed: Mapping[str, str]) -> Binding:
+    if binding.component in renamed:
+        return Binding(renamed[binding.component], binding.edge)
+    return binding
+
+
+def merge(flows: Iterable[DataFlow]) -> DataFlow:
+    """One data flow serving every query of ``flows``; equal components are shared (run once).
+
+    Two flows may compute the same relations from different producers (a component with the
+    same id but other input bindings); the later one is then kept under a derived id and its
+    consumers are rebound to it, so each flow's computation stays intact.
+    """
+    components: dict[str, Component] = {}
+    relations: dict[str, Binding] = {}
+    for flow in flows:
+        renamed: dict[str, str] = {}
+        for component in flow.components.values():  # producers come before their consumers
+            inputs = tuple((port, _rebind(b, renamed)) for port, b in component.inputs)
+            component = replace(component, inputs=inputs)
+            existing = components.get(component.id)
+            if existing is not None and existing != component:
+                new_id = _component_id(component.id, component.expansion, [], [repr(inputs)])
+                renamed[component.id] = new_id
+                component = replace(component, id=new_id)
+            components[component.id] = component
+        relations.update({name: _rebind(b, renamed) for name, b in flow.relations.items()})
+    return DataFlow(components, relations)
+
+
+def diff(old: DataFlow, new: DataFlow) -> DataFlowDiff:
+    """The start / stop / rewire operations that turn ``old`` into ``new``."""
+    start = tuple(c for cid, c in new.components.items() if cid not in old.components)
+    stop = tuple(cid for cid in old.components if cid not in new.components)
+    rewire = tuple(
+        c for cid, c in new.components.items() if cid in old.components and old.components[cid] != c
+    )
+    relations: dict[str, Binding | None] = {
+        name: binding
+        for name, binding in new.relations.items()
+        if old.relations.get(name) != binding
+    }
+    relations.update({name: None for name in old.relations if name not in new.relations})
+    return DataFlowDiff(start, stop, rewire, relations)

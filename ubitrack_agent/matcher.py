@@ -1,0 +1,429 @@
+"""Pattern detection (paper section 5.1): find pattern instances in an SRG and expand them.
+
+Detection has the three steps of section 5.1:
+
+1. :func:`find_matches` finds all occurrences ``G[alpha'(P)]`` of the *unexpanded* pattern: a
+   seeded backtracking search that binds the template's input edges one by one to typed,
+   attributed SRG edges (the candidates are the edges adjacent to an already bound frame, or the
+   edges of the right type partition), so the search never enumerates unrelated subgraphs.
+2. :func:`expand_group` unifies compatible occurrences into inclusion-maximal collections
+   (maximal cliques of a compatibility graph, :func:`networkx.find_cliques`).
+3. A collection is kept as a *space* expansion if each correspondence edge is represented
+   ``m`` times with ``m`` in ``M_P``, as a *time* expansion if it is represented once, its
+   correspondence edges are dynamic and every other edge is static, and rejected otherwise.
+
+Bookkeeping against redundant derivations lives here too: every edge carries the set of
+measured edges it depends on (``sources``); the inputs of one occurrence must not share a
+source (:func:`independent`), the copies of a space expansion must each add information, and
+an input may exclude the outputs of given patterns (``not_from``: no inverse of an inverse).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+
+import networkx as nx
+
+from .srg import Quality
+from .templates import InputSpec, Template
+
+
+@dataclass(frozen=True)
+class EdgeRecord:
+    """One edge of the working SRG as the matcher sees it (measured or inferred).
+
+    ``time_integrated`` marks a static edge produced by a time expansion (a calibration result);
+    ``canon`` identifies the computation up to concatenation order and inversion (used to drop
+    derivations that differ only in how a chain was bracketed or which way it was inverted).
+    """
+
+    id: str
+    source: str
+    target: str
+    type: str
+    static: bool
+    mode: str
+    measured: bool
+    provider: str
+    quality: Quality
+    sources: frozenset[str]
+    cost: float
+    canon: str
+    leaves: tuple[str, ...] = ()
+    pattern: str | None = None
+    step: str | None = None
+    time_integrated: bool = False
+    steps: frozenset[str] = frozenset()
+    providers: frozenset[str] = frozenset()
+
+
+@dataclass
+class EdgeIndex:
+    """Adjacency and type partitions of the working SRG, updated as edges are inferred."""
+
+    edges: dict[str, EdgeRecord] = field(default_factory=dict)
+    out: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
+    inn: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
+    by_type: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
+    rigid: dict[str, set[str]] = field(default_factory=lambda: defaultdict(set))
+    measured_rigid: set[frozenset[str]] = field(default_factory=set)
+    dynamic_measured: set[str] = field(default_factory=set)
+
+    def add(self, record: EdgeRecord) -> None:
+        """Insert ``record`` into every index."""
+        self.edges[record.id] = record
+        self.out[record.source].append(record.id)
+        self.inn[record.target].append(record.id)
+        self.by_type[record.type].append(record.id)
+        if record.measured and not record.static:
+            self.dynamic_measured.add(record.id)
+        if record.measured and record.static:
+            self.add_rigid(record.source, record.target)
+            self.measured_rigid.add(frozenset((record.source, record.target)))
+
+    def add_rigid(self, a: str, b: str) -> None:
+        """Declare frames ``a`` and ``b`` rigidly connected (a static relationship)."""
+        self.rigid[a].add(b)
+        self.rigid[b].add(a)
+
+    def is_rigid(self, a: str, b: str) -> bool:
+        """True if ``a`` and ``b`` are known to be rigidly connected."""
+        return b in self.rigid.get(a, ())
+
+    def is_measured_rigid(self, a: str, b: str) -> bool:
+        """True if a measured static edge joins ``a`` and ``b`` (their relation is known)."""
+        return frozenset((a, b)) in self.measured_rigid
+
+
+@dataclass(frozen=True)
+class Match:
+    """An occurrence of an unexpanded pattern: input edge ids in template order, role bindings
+    and type variable bindings (all as sorted tuples so that matches hash)."""
+
+    template: Template
+    edges: tuple[str, ...]
+    roles: tuple[tuple[str, str], ...]
+    types: tuple[tuple[str, str], ...]
+
+
+@dataclass(frozen=True)
+class Instance:
+    """An instance ``G[alpha(P-bar)]`` of an expanded pattern, ready to be applied.
+
+    ``inputs`` maps each input name to its edge ids (several for the correspondence edges of a
+    space expansion, one copy per duplicated node), ``outputs`` lists the output edges as
+    ``(name, source, target, type, static, mode)``.
+    """
+
+    template: Template
+    expansion: str
+    inputs: tuple[tuple[str, tuple[str, ...]], ...]
+    outputs: tuple[tuple[str, str, str, str, bool, str], ...]
+
+    @property
+    def key(self) -> tuple[str, str, tuple[tuple[str, tuple[str, ...]], ...]]:
+        """Identity of the instance: template, expansion and input bindings."""
+        return (self.template.name, self.expansion, self.inputs)
+
+    def input_edges(self) -> Iterator[str]:
+        """Every bound input edge id."""
+        for _, ids in self.inputs:
+            yield from ids
+
+
+def independent(a: EdgeRecord, b: EdgeRecord, index: EdgeIndex, *, strict: bool) -> bool:
+    """True if edges ``a`` and ``b`` may be inputs of one pattern occurrence (section 5.1).
+
+    They must not depend on a common measured edge. Unless ``strict``, a static edge obtained by
+    integration over time may share *dynamic* sources with the other edge: the paper's exception
+    for averaged static edges, which hold information the instantaneous samples do not.
+    """
+    if a.sources.isdisjoint(b.sources):
+        return True
+    shared = a.sources & b.sources
+    if strict or not (a.time_integrated or b.time_integrated):
+        return False
+    return shared <= index.dynamic_measured
+
+
+# --- step 1: occurrences of the unexpanded pattern ----------------------------------------------
+
+
+def _bind(
+    spec: InputSpec,
+    edge: EdgeRecord,
+    template: Template,
+    roles: dict[str, str],
+    types: dict[str, str],
+) -> list[tuple[dict[str, str], str]] | None:
+    """Check the predicates of ``spec`` on ``edge`` and bind its roles and type variable in
+    place; return the bindings made (for :func:`_unbind`), or ``None`` if ``edge`` does not fit
+    (then nothing is bound)."""
+    if (
+        (spec.static is not None and edge.static != spec.static)
+        or (spec.mode is not None and edge.mode != spec.mode)
+        or (spec.measured is not None and edge.measured != spec.measured)
+        or edge.pattern in spec.not_from
+    ):
+        return None
+    made: list[tuple[dict[str, str], str]] = []
+    if spec.type.startswith("$"):
+        var = spec.type[1:]
+        bound = types.get(var)
+        if bound is None:
+            if edge.type not in template.type_vars[var]:
+                return None
+            types[var] = edge.type
+            made.append((types, var))
+        elif bound != edge.type:
+            return None
+    elif spec.type != edge.type:
+        return None
+    for role, node in ((spec.source, edge.source), (spec.target, edge.target)):
+        bound = roles.get(role)
+        if bound is None and node not in roles.values():
+            roles[role] = node
+            made.append((roles, role))
+        elif bound != node:
+            _unbind(made)
+            return None
+    return made
+
+
+def _unbind(made: list[tuple[dict[str, str], str]]) -> None:
+    for mapping, key in made:
+        del mapping[key]
+
+
+def _rigid_links(template: Template) -> list[tuple[str, str]]:
+    """Role pairs a time-only template requires to be rigid (its static outputs)."""
+    if not template.time_only:
+        return []
+    return [(o.source, o.target) for o in template.outputs if o.static is True]
+
+
+def _candidates(
+    spec: InputSpec, roles: Mapping[str, str], template: Template, index: EdgeIndex
+) -> Iterable[str]:
+    """Edge ids that could bind ``spec`` given the roles bound so far (most selective first)."""
+    if spec.source in roles:
+        return index.out.get(roles[spec.source], ())
+    if spec.target in roles:
+        return index.inn.get(roles[spec.target], ())
+    for a, b in _rigid_links(template):
+        for near, far in ((a, b), (b, a)):
+            if far in roles and near in (spec.source, spec.target):
+                partners = index.rigid.get(roles[far], ())
+                adjacency = index.out if near == spec.source else index.inn
+                return [e for node in partners for e in adjacency.get(node, ())]
+    if spec.type.startswith("$"):
+        domain = template.type_vars[spec.type[1:]]
+        return [e for t in domain for e in index.by_type.get(t, ())]
+    return index.by_type.get(spec.type, ())
+
+
+def _next_input(template: Template, bound: Mapping[int, str], roles: Mapping[str, str]) -> int:
+    """Index of the unbound input to bind next: one touching a bound role if possible."""
+    best, best_score = -1, -1
+    for i, spec in enumerate(template.inputs):
+        if i in bound:
+            continue
+        score = (spec.source in roles) + (spec.target in roles)
+        if score > best_score:
+            best, best_score = i, score
+    return best
+
+
+def _extend(
+    template: Template,
+    index: EdgeIndex,
+    bound: dict[int, str],
+    roles: dict[str, str],
+    types: dict[str, str],
+) -> Iterator[Match]:
+    if len(bound) == len(template.inputs):
+        yield Match(
+            template,
+            tuple(bound[i] for i in range(len(template.inputs))),
+            tuple(sorted(roles.items())),
+            tuple(sorted(types.items())),
+        )
+        return
+    i = _next_input(template, bound, roles)
+    spec = template.inputs[i]
+    edges = index.edges
+    for edge_id in _candidates(spec, roles, template, index):
+        if edge_id in bound.values():
+            continue
+        edge = edges[edge_id]
+        # bookkeeping of section 5.1: inputs of one occurrence must not share a measured edge
+        if not all(independent(edge, edges[b], index, strict=False) for b in bound.values()):
+            continue
+        made = _bind(spec, edge, template, roles, types)
+        if made is None:
+            continue
+        bound[i] = edge_id
+        yield from _extend(template, index, bound, roles, types)
+        del bound[i]
+        _unbind(made)
+
+
+def _admissible(match: Match, index: EdgeIndex) -> bool:
+    """Rigid links of a time-only pattern (independence is checked while binding)."""
+    roles = dict(match.roles)
+    return all(index.is_rigid(roles[a], roles[b]) for a, b in _rigid_links(match.template))
+
+
+def find_matches(
+    template: Template, index: EdgeIndex, seeds: Iterable[str] | None = None
+) -> Iterator[Match]:
+    """Occurrences of the unexpanded ``template`` in ``index`` that pass the bookkeeping rules.
+
+    With ``seeds`` (edge ids, e.g. the edges inferred in the last round), only occurrences using
+    at least one seed are found (semi-naive evaluation); a match may be yielded more than once
+    if it uses several seeds.
+    """
+    if seeds is None:
+        start = _extend(template, index, {}, {}, {})
+        yield from (m for m in start if _admissible(m, index))
+        return
+    for seed in seeds:
+        edge = index.edges[seed]
+        for i, spec in enumerate(template.inputs):
+            roles: dict[str, str] = {}
+            types: dict[str, str] = {}
+            if _bind(spec, edge, template, roles, types) is not None:
+                for match in _extend(template, index, {i: seed}, roles, types):
+                    if _admissible(match, index):
+                        yield match
+
+
+# --- steps 2 and 3: unification into expansions --------------------------------------------------
+
+
+def group_key(match: Match) -> tuple:
+    """Occurrences that may be unified share everything but the correspondence copies: the
+    non-duplicated roles, the edges outside the correspondence and the type bindings."""
+    corr = match.template.correspondence
+    if corr is None:
+        return (match.edges,)
+    names = [spec.name for spec in match.template.inputs]
+    fixed_edges = tuple(e for n, e in zip(names, match.edges, strict=True) if n not in corr.edges)
+    fixed_roles = tuple((r, n) for r, n in match.roles if r not in corr.expand_roles)
+    return (fixed_roles, fixed_edges, match.types)
+
+
+def _corr_edges(match: Match) -> list[str]:
+    corr = match.template.correspondence
+    assert corr is not None
+    names = [spec.name for spec in match.template.inputs]
+    return [e for n, e in zip(names, match.edges, strict=True) if n in corr.edges]
+
+
+def _compatible(a: Match, b: Match, index: EdgeIndex) -> bool:
+    """Two occurrences can be copies in one space expansion (section 5.1)."""
+    corr = a.template.correspondence
+    assert corr is not None
+    roles_a, roles_b = dict(a.roles), dict(b.roles)
+    if any(roles_a[r] == roles_b[r] for r in corr.expand_roles):
+        return False
+    ea, eb = _corr_edges(a), _corr_edges(b)
+    if set(ea) & set(eb):
+        return False
+    if corr.independent:
+        return all(
+            independent(index.edges[x], index.edges[y], index, strict=True) for x in ea for y in eb
+        )
+    sources_a = frozenset().union(*(index.edges[x].sources for x in ea))
+    sources_b = frozenset().union(*(index.edges[y].sources for y in eb))
+    return not (sources_a <= sources_b or sources_b <= sources_a)
+
+
+def _outputs(
+    template: Template,
+    roles: Mapping[str, str],
+    types: Mapping[str, str],
+    inputs: list[EdgeRecord],
+    expansion: str,
+) -> tuple[tuple[str, str, str, str, bool, str], ...]:
+    all_static = all(e.static for e in inputs)
+    any_push = any(e.mode == "push" for e in inputs)
+    out = []
+    for spec in template.outputs:
+        edge_type = types[spec.type[1:]] if spec.type.startswith("$") else spec.type
+        static = (expansion == "time" or all_static) if spec.static == "inherit" else spec.static
+        mode = ("push" if any_push else "pull") if spec.mode == "inherit" else spec.mode
+        out.append((spec.name, roles[spec.source], roles[spec.target], edge_type, static, mode))
+    return tuple(out)
+
+
+def _time_ok(match: Match, index: EdgeIndex) -> bool:
+    """Conditions of a time expansion: correspondence edges dynamic, all other inputs static,
+    and every output joins frames known to be rigid (time expansions yield static edges)."""
+    corr = match.template.correspondence
+    assert corr is not None
+    for spec, edge_id in zip(match.template.inputs, match.edges, strict=True):
+        if index.edges[edge_id].static != (spec.name not in corr.edges):
+            return False
+    roles = dict(match.roles)
+    return all(index.is_rigid(roles[o.source], roles[o.target]) for o in match.template.outputs)
+
+
+def expand_group(members: list[Match], index: EdgeIndex) -> list[Instance]:
+    """Expanded instances from occurrences sharing one :func:`group_key` (steps 2 and 3).
+
+    A template without correspondence yields one unexpanded instance per occurrence. Otherwise
+    the inclusion-maximal sets of pairwise compatible occurrences are formed and each is kept
+    as a space expansion (``m`` copies, ``m`` in the multiplicity), as a time expansion (a single
+    occurrence meeting :func:`_time_ok`) or rejected.
+    """
+    template = members[0].template
+    corr = template.correspondence
+    if corr is None:
+        return [
+            Instance(
+                template,
+                "none",
+                tuple((s.name, (e,)) for s, e in zip(template.inputs, m.edges, strict=True)),
+                _outputs(
+                    template,
+                    dict(m.roles),
+                    dict(m.types),
+                    [index.edges[e] for e in m.edges],
+                    "none",
+                ),
+            )
+            for m in members
+        ]
+    graph = nx.Graph()
+    graph.add_nodes_from(range(len(members)))
+    for i, a in enumerate(members):
+        for j in range(i + 1, len(members)):
+            if _compatible(a, members[j], index):
+                graph.add_edge(i, j)
+    instances = []
+    for clique in nx.find_cliques(graph):
+        copies = [
+            members[i]
+            for i in sorted(clique, key=lambda i: [index.edges[e].canon for e in members[i].edges])
+        ]
+        expansions = []
+        if "space" in corr.expansions and len(copies) in corr.multiplicity:
+            expansions.append("space")
+        if "time" in corr.expansions and len(copies) == 1 and _time_ok(copies[0], index):
+            expansions.append("time")
+        for expansion in expansions:
+            inputs = tuple(
+                (spec.name, tuple(m.edges[k] for m in copies))
+                if spec.name in corr.edges
+                else (spec.name, (copies[0].edges[k],))
+                for k, spec in enumerate(template.inputs)
+            )
+            records = [index.edges[e] for _, ids in inputs for e in ids]
+            outputs = _outputs(
+                template, dict(copies[0].roles), dict(copies[0].types), records, expansion
+            )
+            instances.append(Instance(template, expansion, inputs, outputs))
+    return instances

@@ -1,0 +1,506 @@
+"""The controller (paper section 5): plan the best derivation of a queried spatial relationship.
+
+For a query ``(from, to, type, static)`` the planner
+
+1. restricts the SRG to the frames that can take part in a derivation (:func:`relevant_frames`:
+   the biconnected block joining the two frames, minus detours longer than ``slack`` hops, the
+   reduction section 5.1 suggests for large graphs),
+2. applies every template repeatedly (forward chaining with the matcher of
+   :mod:`ubitrack_agent.matcher`) until no new, non-redundant edge can be inferred, keeping the
+   bookkeeping of section 5.1 (sources, canonical computation, dominance) and adding only edges
+   that serve the query (useful types, calibration of unknown rigid relations only, chains
+   towards the query, :meth:`Workspace._wanted`),
+3. returns every distinct derivation of the queried edge, best first by the cost model below.
+
+Cost model (``docs/planner.md``): each edge carries an expected error variance (m^2), a latency
+and the sensors and steps it uses. Variances propagate per template rule (``sum`` for inversion,
+concatenation and calibrations, inverse-variance ``fusion``, ``pooled`` for point-correspondence
+algorithms), and the scalar cost of an edge is::
+
+    cost = variance / SIGMA_REF**2 + latency / LATENCY_REF
+           + SENSOR_WEIGHT * sensors + STEP_WEIGHT * steps
+
+so fusion of independent paths is chosen when it lowers the expected error by more than the
+price of the extra sensors and steps.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from itertools import product
+from typing import Any
+
+import networkx as nx
+
+from .matcher import EdgeIndex, EdgeRecord, Instance, Match, expand_group, find_matches, group_key
+from .srg import EDGE_TYPES, Quality, check_node_name
+from .templates import Template
+
+SIGMA_REF = 1e-3
+"""Reference error (m): a variance of SIGMA_REF**2 costs 1."""
+LATENCY_REF = 0.01
+"""Reference latency (s): LATENCY_REF of latency costs 1."""
+SENSOR_WEIGHT = 0.1
+"""Cost of each distinct provider (sensor, database) a derivation depends on."""
+STEP_WEIGHT = 0.01
+"""Cost of each pattern step (a running component) of a derivation."""
+DEFAULT_SLACK = 2
+"""Longest detour (hops beyond a shortest path) a derivation may take through the SRG."""
+DEFAULT_PER_RELATION = 8
+"""Most alternatives kept per (from, to, type, static) relation during planning."""
+_TIE = 1e-9
+
+
+class PlanningError(ValueError):
+    """A query cannot be planned; the message says why (unknown or unconnected frames...)."""
+
+
+class NoSolutionError(PlanningError):
+    """The queried relationship cannot be derived from the SRG with the templates."""
+
+
+@dataclass(frozen=True)
+class Query:
+    """A queried relationship: ``source -> target`` of ``type``; ``static`` asks for a static
+    edge (and declares the two frames rigidly connected, which enables calibration patterns)."""
+
+    source: str
+    target: str
+    type: str
+    static: bool = False
+
+    def __post_init__(self) -> None:
+        check_node_name(self.source, "query --from")
+        check_node_name(self.target, "query --to")
+        if self.source == self.target:
+            raise PlanningError("query: --from and --to must be different frames")
+        if self.type not in EDGE_TYPES:
+            raise PlanningError(f"query: unknown type {self.type!r}, expected {sorted(EDGE_TYPES)}")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One applied pattern instance. ``outputs`` are ``(name, from, to, type, edge id)``; the id
+    is ``None`` for an output not added to the SRG (already measured, e.g. R->O of hand-eye)."""
+
+    id: str
+    template: Template
+    expansion: str
+    inputs: tuple[tuple[str, tuple[str, ...]], ...]
+    outputs: tuple[tuple[str, str, str, str, str | None], ...]
+
+
+@dataclass(frozen=True)
+class Solution:
+    """A derivation of the queried edge: the edge, its steps in data-flow order and the records
+    of every edge the steps read or write (by id)."""
+
+    edge: EdgeRecord
+    steps: tuple[Step, ...]
+    records: Mapping[str, EdgeRecord]
+
+    def as_json(self) -> dict[str, Any]:
+        """The solution as the design tool prints it (``ubitrack plan --json``)."""
+
+        def triple(edge_id: str) -> list[str]:
+            record = self.records[edge_id]
+            return [record.source, record.target, record.type]
+
+        return {
+            "cost": round(self.cost, 6),
+            "static": self.static,
+            "steps": [
+                {
+                    "pattern": step.template.pattern,
+                    "expansion": step.expansion,
+                    "inputs": [triple(e) for _, ids in step.inputs for e in ids],
+                    "outputs": [[src, dst, typ] for _, src, dst, typ, _ in step.outputs],
+                }
+                for step in self.steps
+            ],
+        }
+
+    @property
+    def cost(self) -> float:
+        return self.edge.cost
+
+    @property
+    def static(self) -> bool:
+        return self.edge.static
+
+
+def edge_cost(quality: Quality, providers: int, steps: int) -> float:
+    """The scalar cost of an edge (module docstring)."""
+    return (
+        quality.variance / SIGMA_REF**2
+        + quality.latency / LATENCY_REF
+        + SENSOR_WEIGHT * providers
+        + STEP_WEIGHT * steps
+    )
+
+
+def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
+    """Quality of the outputs of ``instance`` from the quality of its inputs (cost model)."""
+    spec = instance.template.cost
+    corr = instance.template.correspondence
+    variances = {name: [records[e].quality.variance for e in ids] for name, ids in instance.inputs}
+    every = [v for vs in variances.values() for v in vs]
+    if spec.rule == "fusion":
+        variance = 1.0 / sum(1.0 / max(v, 1e-30) for v in every)
+    elif spec.rule == "pooled" and corr is not None:
+        fixed = sum(v for n, vs in variances.items() if n not in corr.edges for v in vs)
+        copies = len(variances[corr.edges[0]])
+        per_copy = sum(sum(variances[n]) for n in corr.edges) / copies
+        scale = corr.multiplicity.lo / copies if instance.expansion == "space" else 1.0
+        variance = fixed + per_copy * scale
+    else:
+        variance = sum(every)
+    variance *= spec.gain * (spec.time_gain if instance.expansion == "time" else 1.0)
+    inputs = [records[e] for e in instance.input_edges()]
+    rates = [e.quality.rate for e in inputs if e.mode == "push" and e.quality.rate > 0]
+    latency = max(e.quality.latency for e in inputs) + spec.latency
+    return Quality(variance, min(rates, default=0.0), latency)
+
+
+def useful_types(templates: Sequence[Template], wanted: str) -> frozenset[str]:
+    """Edge types that can contribute to an edge of type ``wanted`` (section 5.1, "when to add
+    new edges"): the closure of ``{wanted}`` under "some instantiation of a template has an
+    output of a useful type, so all its input types are useful". A 6D query never needs 3R."""
+    signatures = []
+    for template in templates:
+        names = list(template.type_vars)
+        for combo in product(*(template.type_vars[n] for n in names)):
+            binding = dict(zip(names, combo, strict=True))
+
+            def resolve(edge_type: str, binding: dict[str, str] = binding) -> str:
+                return binding[edge_type[1:]] if edge_type.startswith("$") else edge_type
+
+            ins = {resolve(spec.type) for spec in template.inputs}
+            outs = {resolve(spec.type) for spec in template.outputs}
+            signatures.append((frozenset(ins), frozenset(outs)))
+    useful = {wanted}
+    changed = True
+    while changed:
+        changed = False
+        for ins, outs in signatures:
+            if outs & useful and not ins <= useful:
+                useful |= ins
+                changed = True
+    return frozenset(useful)
+
+
+def _hops(
+    srg: nx.MultiDiGraph, start: str, limit: float, goal: str | None = None, slack: int = 0
+) -> dict[str, int]:
+    """Hop distances from ``start`` ignoring edge direction, up to ``limit`` hops, or up to
+    ``slack`` hops beyond the distance of ``goal`` once it is reached."""
+    succ, pred = srg.succ, srg.pred
+    dist = {start: 0}
+    frontier = [start]
+    depth = 0
+    while frontier and depth < limit:
+        if goal in dist:
+            limit = min(limit, dist[goal] + slack)
+            if depth >= limit:
+                break
+        depth += 1
+        nxt = []
+        for node in frontier:
+            for other in (*succ[node], *pred[node]):
+                if other not in dist:
+                    dist[other] = depth
+                    nxt.append(other)
+        frontier = nxt
+    return dist
+
+
+def relevant_frames(srg: nx.MultiDiGraph, source: str, target: str, slack: int) -> set[str]:
+    """Frames that can take part in a derivation of ``source -> target``.
+
+    A frame lies on a simple path between the two frames iff it is in the biconnected block of
+    ``G + {source-target}`` that holds the added edge; of those, frames on detours longer than
+    ``slack`` hops beyond the shortest path are dropped. Only the neighbourhood of the two frames
+    is visited. Raises :class:`NoSolutionError` naming the frames if they are absent or not
+    connected.
+    """
+    missing = [n for n in (source, target) if n not in srg]
+    if missing:
+        raise NoSolutionError(f"frame(s) {', '.join(missing)} not in the SRG")
+    from_source = _hops(srg, source, float("inf"), target, slack)
+    if target not in from_source:
+        part_a = sorted(from_source)
+        part_b = sorted(_hops(srg, target, float("inf")))
+        raise NoSolutionError(
+            f"frames {source} and {target} are not connected in the SRG: "
+            f"{source} is connected to {{{', '.join(part_a)}}}, "
+            f"{target} to {{{', '.join(part_b)}}}"
+        )
+    bound = from_source[target] + slack
+    from_target = _hops(srg, target, bound)
+    near = {n for n, d in from_target.items() if d + from_source.get(n, bound + 1) <= bound}
+    sub = nx.Graph()
+    sub.add_edges_from((u, v) for u in near for v in (*srg.succ[u], *srg.pred[u]) if v in near)
+    sub.add_edge(source, target)
+    for block in nx.biconnected_components(sub):
+        if source in block and target in block:
+            return set(block)
+    raise AssertionError("the added edge lies in exactly one block")
+
+
+@dataclass
+class Workspace:
+    """The working SRG of one planning run: measured and inferred edges, and the steps."""
+
+    index: EdgeIndex = field(default_factory=EdgeIndex)
+    steps: dict[str, Step] = field(default_factory=dict)
+    per_relation: int = DEFAULT_PER_RELATION
+    by_relation: dict[tuple[str, str, str, bool], list[str]] = field(
+        default_factory=lambda: defaultdict(list)
+    )
+    useful_types: frozenset[str] = EDGE_TYPES
+    goal: tuple[str, str] | None = None
+    distances: tuple[dict[str, int], dict[str, int]] = ({}, {})
+
+    def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
+        """Index one measured SRG edge."""
+        providers = frozenset({data["provider"]})
+        record = EdgeRecord(
+            id=edge_id,
+            source=source,
+            target=target,
+            type=data["type"],
+            static=data["static"],
+            mode=data["mode"],
+            measured=True,
+            provider=data["provider"],
+            quality=data["quality"],
+            sources=frozenset({edge_id}),
+            cost=edge_cost(data["quality"], len(providers), 0),
+            canon=f"m:{edge_id}",
+            leaves=(f"m:{edge_id}",),
+            providers=providers,
+        )
+        self.index.add(record)
+        self.by_relation[(source, target, record.type, record.static)].append(edge_id)
+
+    def _admit(self, record: EdgeRecord) -> bool:
+        """The "new or better edge" rule: reject a re-bracketing of a known computation, an edge
+        that uses more sources than an existing one without being cheaper, and surplus
+        alternatives beyond ``per_relation``."""
+        key = (record.source, record.target, record.type, record.static)
+        existing = [self.index.edges[e] for e in self.by_relation[key]]
+        limit = record.cost * (1 + _TIE)
+        for other in existing:
+            if other.cost <= limit and (
+                other.canon == record.canon or other.sources < record.sources
+            ):
+                return False
+        return len(existing) < self.per_relation or record.cost < max(e.cost for e in existing)
+
+    def _wanted(self, pattern: str, edge_type: str, source: str, target: str) -> bool:
+        """Which concatenations serve the query ``goal`` (section 5.1, "when to add new edges").
+
+        Points (3D) are carried only into the query's frames: a point-based pose estimation on
+        points carried into another frame X equals the one on the points' own frame followed by
+        the same concatenation. Chains (6D) must start or end at a query frame or lead towards
+        the query target: from a frame nearer the query source to one farther from it, or from
+        one farther from the query target to one nearer to it (hop distances). A chain against
+        that direction can only feed a derivation that runs the other way round."""
+        if pattern != "Concatenation" or self.goal is None:
+            return True
+        if edge_type == "3D":
+            return source in self.goal
+        if source in self.goal or target in self.goal:
+            return True
+        near_source, near_target = self.distances
+        return (
+            near_source[source] < near_source[target] or near_target[source] > near_target[target]
+        )
+
+    def apply(self, instance: Instance) -> list[str]:
+        """Apply ``instance``: add its admissible outputs, record the step, return new edge ids."""
+        records = self.index.edges
+        inputs = [records[e] for e in instance.input_edges()]
+        quality = propagate(instance, records)
+        step_id = f"s{len(self.steps) + 1}"
+        pattern = instance.template.pattern
+        sources = frozenset().union(*(e.sources for e in inputs))
+        providers = frozenset().union(*(e.providers for e in inputs))
+        steps = frozenset({step_id}).union(*(e.steps for e in inputs))
+        if pattern == "Inversion":
+            canon, leaves = inputs[0].canon, inputs[0].leaves
+        elif pattern == "Concatenation":
+            leaves = tuple(sorted(inputs[0].leaves + inputs[1].leaves))
+            canon = f"cat({','.join(leaves)})"
+        else:
+            canon = f"{pattern}/{instance.expansion}[{','.join(sorted(e.canon for e in inputs))}]"
+        outputs, added = [], []
+        for name, source, target, edge_type, static, mode in instance.outputs:
+            edge_id = None
+            calibrated = instance.expansion == "time" and self.index.is_measured_rigid(
+                source, target
+            )
+            if (
+                edge_type in self.useful_types
+                and not calibrated
+                and self._wanted(pattern, edge_type, source, target)
+            ):
+                pair = "-".join(sorted((source, target)))
+                out_canon = canon if pattern in ("Inversion", "Concatenation") else f"{canon}{pair}"
+                record = EdgeRecord(
+                    id=f"{source}->{target}:{edge_type}@{step_id}.{name}",
+                    source=source,
+                    target=target,
+                    type=edge_type,
+                    static=static,
+                    mode=mode,
+                    measured=False,
+                    provider=instance.template.service,
+                    quality=quality,
+                    sources=sources,
+                    cost=edge_cost(quality, len(providers), len(steps)),
+                    canon=out_canon,
+                    leaves=leaves if pattern in ("Inversion", "Concatenation") else (out_canon,),
+                    pattern=pattern,
+                    step=step_id,
+                    time_integrated=instance.expansion == "time",
+                    steps=steps,
+                    providers=providers,
+                )
+                if self._admit(record):
+                    self.index.add(record)
+                    self.by_relation[(source, target, edge_type, static)].append(record.id)
+                    edge_id = record.id
+                    added.append(record.id)
+            outputs.append((name, source, target, edge_type, edge_id))
+        if added:
+            self.steps[step_id] = Step(
+                step_id, instance.template, instance.expansion, instance.inputs, tuple(outputs)
+            )
+        return added
+
+
+def saturate(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    frames: Iterable[str],
+    wanted: str,
+    rigid: Iterable[tuple[str, str]] = (),
+    per_relation: int = DEFAULT_PER_RELATION,
+    goal: tuple[str, str] | None = None,
+) -> Workspace:
+    """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
+
+    Only edges of types that can contribute to a ``wanted`` edge are inferred, time-only
+    patterns (calibrations) only run when some rigid relation is not measured, and points are
+    with a ``goal`` (the query's source and target), concatenations are restricted as
+    :meth:`Workspace._wanted` explains.
+    ``rigid`` adds frame pairs known to be rigid besides those joined by static edges. Each
+    round only looks for occurrences that use an edge inferred in the previous round.
+    """
+    frames = set(frames)
+    ws = Workspace(
+        per_relation=per_relation,
+        useful_types=useful_types(templates, wanted),
+        goal=goal,
+    )
+    if goal is not None:
+        sub = srg.subgraph(frames)
+        ws.distances = tuple(_hops(sub, end, float("inf")) for end in goal)
+    for source, target, key, data in srg.edges(keys=True, data=True):
+        if source in frames and target in frames:
+            ws.add_measured(source, target, key, data)
+    rigid = [(a, b) for a, b in rigid if not ws.index.is_measured_rigid(a, b)]
+    for a, b in rigid:
+        ws.index.add_rigid(a, b)
+    # a time-only pattern yields static edges, wanted only for rigid relations not yet measured
+    templates = [t for t in templates if rigid or not t.time_only]
+    groups: dict[tuple, dict[tuple[str, ...], Match]] = {}
+    applied: set[tuple] = set()
+    new = list(ws.index.edges)
+    while new:
+        touched: dict[tuple, None] = {}
+        for template in templates:
+            for match in find_matches(template, ws.index, new):
+                key = (template.name, group_key(match))
+                members = groups.setdefault(key, {})
+                if match.edges not in members:
+                    members[match.edges] = match
+                    touched[key] = None
+        new = []
+        for key in touched:
+            for instance in expand_group(list(groups[key].values()), ws.index):
+                if instance.key not in applied:
+                    applied.add(instance.key)
+                    new.extend(ws.apply(instance))
+    return ws
+
+
+def _solution(ws: Workspace, edge: EdgeRecord) -> Solution:
+    """The solution deriving ``edge``: its steps with inputs before the steps that use them."""
+    order: list[Step] = []
+    records: dict[str, EdgeRecord] = {edge.id: edge}
+
+    def visit(record: EdgeRecord) -> None:
+        records[record.id] = record
+        if record.step is None or any(s.id == record.step for s in order):
+            return
+        step = ws.steps[record.step]
+        for _, ids in step.inputs:
+            for edge_id in ids:
+                visit(ws.index.edges[edge_id])
+        for *_, edge_id in step.outputs:
+            if edge_id is not None:
+                records[edge_id] = ws.index.edges[edge_id]
+        order.append(step)
+
+    visit(edge)
+    return Solution(edge, tuple(order), records)
+
+
+def solutions(ws: Workspace, query: Query) -> list[Solution]:
+    """Every distinct derivation of ``query`` in ``ws``, cheapest first.
+
+    A dynamic query accepts static edges too (a static edge is valid at every time); derivations
+    that differ only in bracketing or inversion order are listed once.
+    """
+    found: dict[str, EdgeRecord] = {}
+    for static in (True, False) if not query.static else (True,):
+        key = (query.source, query.target, query.type, static)
+        for edge_id in ws.by_relation.get(key, ()):
+            record = ws.index.edges[edge_id]
+            best = found.get(record.canon)
+            if best is None or record.cost < best.cost:
+                found[record.canon] = record
+    ranked = sorted(found.values(), key=lambda e: (e.cost, len(e.steps), e.id))
+    return [_solution(ws, edge) for edge in ranked]
+
+
+def plan(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    query: Query,
+    *,
+    slack: int = DEFAULT_SLACK,
+    per_relation: int = DEFAULT_PER_RELATION,
+) -> list[Solution]:
+    """All distinct solutions of ``query`` on ``srg``, best first; raises :class:`NoSolutionError`.
+
+    The first solution is the best derivation by the cost model; the whole list is what the
+    design tool shows with ``--all``.
+    """
+    frames = relevant_frames(srg, query.source, query.target, slack)
+    rigid = [(query.source, query.target)] if query.static else []
+    goal = (query.source, query.target)
+    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal)
+    found = solutions(ws, query)
+    if not found:
+        kind = "static " if query.static else ""
+        raise NoSolutionError(
+            f"no derivation of {kind}{query.type} {query.source}->{query.target}: the frames are "
+            f"connected, but no combination of patterns yields that edge "
+            f"(frames considered: {', '.join(sorted(frames))})"
+        )
+    return found
