@@ -6,13 +6,16 @@ JSON form (what the agent passes on the worker's command line)::
       "inputs": [{"port": "AB", "key": "ubitrack/default/data/art/ART_WT", "static": true},
                 {"port": "BC", "key": "ubitrack/default/data/art/ART_HT", "trigger": true}],
      "outputs": {"AC": "ubitrack/default/data/concat-1/AC"},
+     "relations": {"AC": ["ubitrack/default/relation/C/A/6D/dynamic"]},
      "expansion": "none", "tolerance_ms": 20}
 
-``trigger`` marks the push inputs whose samples cause a computation; ``static`` inputs answer
-their latest value. ``expansion`` (``none``, ``space`` or ``time``, default ``none``) says how
-the pattern's correspondence is expanded (paper section 3.3): under ``space`` each
-correspondence port takes several bindings, in correspondence order; under ``time`` one, and the
-worker accumulates samples (options in ``time_expansion``, see :mod:`services.expansion`).
+``relations`` lists, per output port, the stable relation keys (``docs/protocol.md``) the output
+is also published on, for the applications that asked for it. ``trigger`` marks the push inputs
+whose samples cause a computation; ``static`` inputs answer their latest value. ``expansion``
+(``none``, ``space`` or ``time``, default ``none``) says how the pattern's correspondence is
+expanded (paper section 3.3): under ``space`` each correspondence port takes several bindings,
+in correspondence order; under ``time`` one, and the worker accumulates samples (options in
+``time_expansion``, see :mod:`services.expansion`).
 Validation checks every field against the registered service and raises :class:`SpecError`
 naming the field.
 """
@@ -56,6 +59,7 @@ class ComponentSpec:
     service: str
     inputs: tuple[InputBinding, ...]
     outputs: dict[str, str]
+    relations: dict[str, tuple[str, ...]] = field(default_factory=dict)
     parameters: dict[str, Any] = field(default_factory=dict)
     expansion: str = "none"
     time_expansion: dict[str, float] = field(default_factory=dict)
@@ -74,6 +78,7 @@ class ComponentSpec:
                 "parameters": self.parameters,
                 "inputs": [vars(binding) for binding in self.inputs],
                 "outputs": self.outputs,
+                "relations": {port: list(keys) for port, keys in self.relations.items()},
                 "expansion": self.expansion,
                 "time_expansion": self.time_expansion,
                 "tolerance_ms": self.tolerance_ms,
@@ -130,6 +135,22 @@ def parse_bindings(
     return tuple(bindings)
 
 
+def parse_relations(
+    raw: Any, service: type[Service], where: str = "spec.relations"
+) -> dict[str, tuple[str, ...]]:
+    """Validate ``{output port: [relation key, ...]}``."""
+    if not isinstance(raw, dict):
+        raise SpecError(f"{where}: expected an object of output port -> list of keys")
+    relations = {}
+    for port, keys in raw.items():
+        if port not in service.OUTPUTS:
+            raise SpecError(f"{where}: {service.NAME} has no output {port!r}")
+        if not isinstance(keys, list):
+            raise SpecError(f"{where}.{port}: expected a list of keys")
+        relations[port] = tuple(_key(key, f"{where}.{port}") for key in keys)
+    return relations
+
+
 def _milliseconds(data: Mapping[str, Any], name: str, default: float) -> float:
     value = data.get(name, default)
     if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value <= 10_000:
@@ -154,6 +175,7 @@ def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
         "parameters",
         "inputs",
         "outputs",
+        "relations",
         "expansion",
         "time_expansion",
         "tolerance_ms",
@@ -199,6 +221,7 @@ def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
         service=name,
         inputs=parse_bindings(data.get("inputs"), service, expansion),
         outputs=dict(outputs),
+        relations=parse_relations(data.get("relations", {}), service),
         parameters=dict(parameters),
         expansion=expansion,
         time_expansion=time_expansion,

@@ -7,7 +7,10 @@ input keys, publishes its outputs, answers its counters on ``<root>/status/<inst
 takes commands on ``<root>/control/<instance>``:
 
 * ``{"inputs": [<bindings>]}`` rewires: bindings whose key is unchanged keep their history;
-* ``{"parameters": {...}}`` rebuilds the service with new parameters.
+* ``{"parameters": {...}}`` rebuilds the service with new parameters;
+* ``{"relations": {"<output port>": ["<relation key>", ...]}}`` also publishes an output on the
+  stable relation keys of the applications it serves (replacing the previous ones);
+* ``{"stop": true}`` ends the worker (the agent stops workers it did not start itself).
 
 Zenoh callbacks only append to a bounded inbox (never calling zenoh, never blocking the
 receive path); one thread decodes, synchronises (:mod:`ubitrack_agent.core.timeline`), computes and
@@ -36,13 +39,23 @@ from ubitrack_agent.transport import LatestValuePublisher, fetch_until_satisfied
 
 from .expansion import TimeAccumulator
 from .registry import Service, lookup
-from .spec import ComponentSpec, InputBinding, SpecError, parse_bindings, parse_spec
+from .spec import (
+    ComponentSpec,
+    InputBinding,
+    SpecError,
+    parse_bindings,
+    parse_relations,
+    parse_spec,
+)
 from .triggers import PendingTriggers
 
 log = logging.getLogger("ubitrack.worker")
 
 INBOX_CAPACITY = 4096
 """Samples waiting for the worker thread; beyond this the oldest are dropped and counted."""
+
+CONTROL_FIELDS = frozenset({"inputs", "parameters", "relations", "stop"})
+"""What a control command may change (see the module docstring)."""
 
 COUNTERS = ("received", "published", "dropped", "rejected", "failed", "overflow", "rewired")
 """Counter names: received samples, published outputs, triggers dropped for a missing or
@@ -95,9 +108,9 @@ class Worker:
         self._stop = threading.Event()
         self._inputs: list[_Input] = []
         self._generation = 0
-        self._publishers = {
-            port: LatestValuePublisher(session, key) for port, key in spec.outputs.items()
-        }
+        self._publishers: dict[str, LatestValuePublisher] = {}
+        self._routes: dict[str, list[str]] = {}
+        self._route_outputs(spec.relations)
         self._control = session.declare_subscriber(
             keys.control(spec.instance),
             lambda s: self._inbox.put(("control", s.payload.to_bytes())),
@@ -147,15 +160,27 @@ class Worker:
             target=fetch_until_satisfied, args=(self._session, wanted, self._stop), daemon=True
         ).start()
 
+    def _route_outputs(self, relations: dict[str, tuple[str, ...]]) -> None:
+        """Publish each output port on its key and on the relation keys it serves."""
+        routes = {port: [key, *relations.get(port, ())] for port, key in self.spec.outputs.items()}
+        wanted = {key for keys in routes.values() for key in keys}
+        for key in set(self._publishers) - wanted:
+            self._publishers.pop(key).undeclare()
+        for key in wanted - set(self._publishers):
+            self._publishers[key] = LatestValuePublisher(self._session, key)
+        self._routes = routes
+
     def _apply_control(self, payload: bytes) -> None:
         try:
             command = json.loads(payload)
-            if (
-                not isinstance(command, dict)
-                or not command
-                or set(command) - {"inputs", "parameters"}
-            ):
-                raise SpecError('control: expected {"inputs": [...]} and/or {"parameters": {...}}')
+            if not isinstance(command, dict) or not command or set(command) - CONTROL_FIELDS:
+                raise SpecError(
+                    f"control: expected an object with some of {sorted(CONTROL_FIELDS)}"
+                )
+            if command.get("stop") is True:
+                log.info("%s: stopped by control command", self.spec.instance)
+                self.stop()
+                return
             if "parameters" in command:
                 if not isinstance(command["parameters"], dict):
                     raise SpecError("control.parameters: expected an object")
@@ -169,6 +194,12 @@ class Worker:
                 )
                 self.spec = replace(self.spec, inputs=bindings)
                 self._bind(bindings)
+            if "relations" in command:
+                relations = parse_relations(
+                    command["relations"], self._service_class, "control.relations"
+                )
+                self.spec = replace(self.spec, relations=relations)
+                self._route_outputs(relations)
         except (ValueError, TypeError) as exc:
             self.counters["rejected"] += 1
             log.error("%s: rejected control command: %s", self.spec.instance, exc)
@@ -241,9 +272,9 @@ class Worker:
                 log.warning("%s: computation failed: %s", self.spec.instance, exc)
             return
         for port, value in outputs.items():
-            publisher = self._publishers.get(port)
-            if publisher is not None:
-                publisher.put(encode(value))
+            payload = encode(value)
+            for key in self._routes.get(port, ()):
+                self._publishers[key].put(payload)
                 self.counters["published"] += 1
 
     # -- status and life cycle ----------------------------------------------------------------

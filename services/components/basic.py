@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ubitrack_agent.core import (
+    MEASUREMENT_TYPES,
     ErrorPose,
     Measurement,
     Pose,
@@ -74,3 +75,16 @@ class Concatenation(Service):
                 f"cannot concatenate {type(first).__name__} with {type(second).__name__}"
             )
         return {"AC": result}
+
+
+@register
+class Relay(Service):
+    """Forwards a measured edge unchanged: serves a query whose answer is a measured edge on the
+    query's stable relation key (the agent's only component that no template describes)."""
+
+    NAME = "relay"
+    INPUTS = {"in": Port(tuple(MEASUREMENT_TYPES.values()))}
+    OUTPUTS = ("out",)
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        return {"out": values["in"]}
