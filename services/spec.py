@@ -70,21 +70,23 @@ class ComponentSpec:
     def tolerance_ns(self) -> int:
         return int(self.tolerance_ms * 1e6)
 
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON-ready form :func:`parse_spec` reads."""
+        return {
+            "instance": self.instance,
+            "service": self.service,
+            "parameters": self.parameters,
+            "inputs": [vars(binding) for binding in self.inputs],
+            "outputs": self.outputs,
+            "relations": {port: list(keys) for port, keys in self.relations.items()},
+            "expansion": self.expansion,
+            "time_expansion": self.time_expansion,
+            "tolerance_ms": self.tolerance_ms,
+            "wait_ms": self.wait_ms,
+        }
+
     def to_json(self) -> str:
-        return json.dumps(
-            {
-                "instance": self.instance,
-                "service": self.service,
-                "parameters": self.parameters,
-                "inputs": [vars(binding) for binding in self.inputs],
-                "outputs": self.outputs,
-                "relations": {port: list(keys) for port, keys in self.relations.items()},
-                "expansion": self.expansion,
-                "time_expansion": self.time_expansion,
-                "tolerance_ms": self.tolerance_ms,
-                "wait_ms": self.wait_ms,
-            }
-        )
+        return json.dumps(self.as_dict())
 
 
 def _require(data: Mapping[str, Any], name: str, kind: type, where: str) -> Any:

@@ -284,7 +284,7 @@ class Worker:
             "instance": self.spec.instance,
             "service": self.spec.service,
             "counters": dict(self.counters),
-            "spec": json.loads(self.spec.to_json()),
+            "spec": self.spec.as_dict(),
         }
 
     def _serve_status(self) -> None:

@@ -1,0 +1,172 @@
+"""The agent's pure parts: fragments, planning every relation, specifications, reconciling."""
+
+import json
+
+import pytest
+
+from services.spec import parse_spec
+from ubitrack_agent.agent.announcements import AnnouncementError, build_srg, fragment_entries
+from ubitrack_agent.agent.flows import plan_relations
+from ubitrack_agent.agent.materialise import component_specs
+from ubitrack_agent.agent.reconcile import reconcile
+from ubitrack_agent.keys import KeySpace, RelationId
+from ubitrack_agent.templates import load_templates
+
+KEYS = KeySpace("ubitrack/test")
+TEMPLATES = load_templates()
+BY_NAME = {t.name: t for t in TEMPLATES}
+
+
+def fragment(provider, *edges):
+    return json.dumps({"provider": provider, "edges": list(edges)}).encode()
+
+
+def edge(name, source, target, edge_type="6D", **extra):
+    return {"name": name, "from": source, "to": target, "type": edge_type, **extra}
+
+
+def paper_fragments():
+    """The paper's tracking setup (figure 1) as three providers."""
+    features = [f"F{i}" for i in range(1, 6)]
+    return {
+        "art": fragment_entries(
+            "art",
+            fragment("art", edge("HT", "ART", "HT", rate=60), edge("WT", "ART", "WT", static=True)),
+        ),
+        "camera": fragment_entries(
+            "camera", fragment("camera", *(edge(f, "IP", f, "2D", rate=30) for f in features))
+        ),
+        "database": fragment_entries(
+            "database",
+            fragment(
+                "database",
+                edge("C_HT", "C", "HT", static=True),
+                edge("C_IP", "C", "IP", "3x4", static=True),
+                edge("WT_A", "WT", "A", static=True),
+                *(edge(f"WT_{f}", "WT", f, "3D", static=True) for f in features),
+            ),
+        ),
+    }
+
+
+def test_fragment_entries_carry_ids_and_providers():
+    entries = fragment_entries("art", fragment("art", edge("HT", "ART", "HT", sigma=0.001)))
+    assert entries == [
+        {
+            "from": "ART",
+            "to": "HT",
+            "type": "6D",
+            "sigma": 0.001,
+            "id": "art/HT",
+            "provider": "art",
+        }
+    ]
+
+
+@pytest.mark.parametrize(
+    "payload, fragment_text",
+    [
+        (b"{", "not JSON"),
+        (b"[]", "must be"),
+        (fragment("other", edge("HT", "ART", "HT")), "names provider 'other'"),
+        (fragment("art"), "1 to"),
+        (fragment("art", edge("HT", "ART", "HT", colour=1)), "unknown fields ['colour']"),
+        (fragment("art", edge("H/T", "ART", "HT")), "name"),
+        (fragment("art", edge("HT", "A*", "HT")), "from"),
+        (fragment("art", edge("HT", "ART", "HT", "7D")), "unknown type"),
+        (fragment("art", edge("HT", "ART", "HT", rate=-1)), "negative"),
+        (fragment("art", edge("HT", "ART", "HT"), edge("HT", "ART", "WT")), "duplicate"),
+        (b"x" * (2 << 20), "larger than"),
+    ],
+)
+def test_malformed_fragments_are_rejected_with_the_reason(payload, fragment_text):
+    with pytest.raises(AnnouncementError) as info:
+        fragment_entries("art", payload)
+    assert "provider 'art'" in str(info.value)
+    assert fragment_text in str(info.value)
+
+
+def specs_for(fragments, *relations):
+    srg = build_srg(fragments)
+    plan = plan_relations(srg, TEMPLATES, relations)
+    return plan, component_specs(plan.flow, srg, BY_NAME, KEYS, plan.relations)
+
+
+def test_paper_setup_becomes_figure_6_workers():
+    wanted = RelationId("C", "A", "6D")
+    plan, specs = specs_for(paper_fragments(), wanted)
+    assert not plan.unsolved
+    services = sorted(spec.service for spec in specs.values())
+    assert services == sorted(
+        [
+            "pose_estimation_2d3d",
+            "inversion",
+            "concatenation",
+            "concatenation",
+            "fusion",
+            "concatenation",
+        ]
+    )
+    for spec in specs.values():
+        assert parse_spec(spec.to_json()) == spec  # every spec is one a worker accepts
+    pnp = next(s for s in specs.values() if s.service == "pose_estimation_2d3d")
+    assert pnp.expansion == "space"
+    assert [b.port for b in pnp.inputs].count("IF") == 5
+    assert {b.key for b in pnp.inputs if b.port == "CI"} == {KEYS.data("database/C_IP")}
+    assert all(b.trigger and not b.static for b in pnp.inputs if b.port == "IF")
+    assert all(b.static and not b.trigger for b in pnp.inputs if b.port in ("CI", "OF"))
+    final = [s for s in specs.values() if s.relations]
+    assert len(final) == 1 and final[0].service == "concatenation"
+    assert final[0].relations == {"AC": (KEYS.relation(wanted),)}
+
+
+def test_missing_frames_and_measured_relations():
+    fragments = paper_fragments()
+    plan, specs = specs_for(fragments, RelationId("C", "Z", "6D"), RelationId("ART", "HT", "6D"))
+    assert "no provider announces frame(s) Z" in plan.unsolved["C->Z:6D"]
+    (relay,) = specs.values()
+    assert relay.service == "relay"
+    assert relay.inputs[0].key == KEYS.data("art/HT")
+    assert relay.relations == {"out": (KEYS.relation(RelationId("ART", "HT", "6D")),)}
+
+
+def test_losing_the_tracker_replaces_the_fused_flow():
+    wanted = RelationId("C", "A", "6D")
+    fragments = paper_fragments()
+    _, before = specs_for(fragments, wanted)
+    del fragments["art"]
+    _, after = specs_for(fragments, wanted)
+    actions = reconcile(before, after)
+    assert {spec.instance for spec in actions.start} == set(after) - set(before)
+    assert set(actions.stop) == set(before) - set(after)
+    assert not any("art/" in b.key for spec in after.values() for b in spec.inputs)
+    (producer,) = [s for s in after.values() if s.relations]
+    assert list(producer.relations.values()) == [(KEYS.relation(wanted),)]
+    assert reconcile(before, before).empty
+
+
+def test_a_second_relation_reroutes_a_running_component_in_place():
+    _, one = specs_for(paper_fragments(), RelationId("C", "A", "6D"))
+    _, two = specs_for(paper_fragments(), RelationId("C", "A", "6D"), RelationId("C", "WT", "6D"))
+    actions = reconcile(one, two)
+    assert not actions.stop
+    updated = dict(actions.update)
+    assert any(set(command) == {"relations"} for command in updated.values())
+
+
+def test_shared_components_between_relations():
+    _, one = specs_for(paper_fragments(), RelationId("C", "A", "6D"))
+    _, both = specs_for(paper_fragments(), RelationId("C", "A", "6D"), RelationId("C", "WT", "6D"))
+    assert set(one) <= set(both)
+    routed = [s for s in both.values() if s.relations]
+    assert len(routed) == 2
+
+
+def test_restart_needed_when_more_than_wiring_changes():
+    _, specs = specs_for(paper_fragments(), RelationId("C", "A", "6D"))
+    instance, spec = next(iter(specs.items()))
+    from dataclasses import replace
+
+    changed = {instance: replace(spec, expansion="time" if spec.expansion != "time" else "none")}
+    actions = reconcile({instance: spec}, changed)
+    assert actions.stop == (instance,) and actions.start == (changed[instance],)

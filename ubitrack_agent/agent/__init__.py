@@ -1,0 +1,9 @@
+"""The live agent (paper section 5.2.1, the Ubitrack Middleware Agent) rebuilt on zenoh.
+
+* :mod:`.announcements` - providers' SRG fragments into validated SRG edges (pure);
+* :mod:`.flows` - plan every queried relation and merge the data flows (pure);
+* :mod:`.materialise` - data flow components into worker specifications (pure);
+* :mod:`.reconcile` - the start / stop / update actions between running and wanted (pure);
+* :mod:`.manager` - the local service manager starting and reaping worker processes;
+* :mod:`.runtime` - the agent itself: liveliness, fragments, replanning, reconciling.
+"""

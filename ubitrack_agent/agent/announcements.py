@@ -1,0 +1,83 @@
+"""Providers' SRG fragments (``docs/protocol.md``) turned into validated SRG edges.
+
+A fragment is JSON ``{"provider": "<id>", "edges": [{"name", "from", "to", "type", "static",
+"mode", "sigma", "rate", "latency"}, ...]}`` (see :class:`ubitrack_agent.provider.Provider`).
+Each edge becomes a measured SRG edge with id ``<provider>/<name>``, which is also the tail of
+its data key. Anything malformed raises :class:`AnnouncementError` naming the provider and the
+field; the agent logs it, counts it and ignores that provider, never crashing.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from typing import Any
+
+import networkx as nx
+
+from ..keys import validate_key_chunks
+from ..srg import SetupError, new_srg, parse_setup
+
+MAX_FRAGMENT_BYTES = 1 << 20
+MAX_EDGES = 10_000
+_EDGE_FIELDS = {"name", "from", "to", "type", "static", "mode", "sigma", "rate", "latency"}
+
+
+class AnnouncementError(ValueError):
+    """A provider's announcement is invalid."""
+
+
+def _check(condition: bool, where: str, what: str) -> None:
+    if not condition:
+        raise AnnouncementError(f"{where}: {what}")
+
+
+def fragment_entries(provider: str, payload: bytes) -> list[dict[str, Any]]:
+    """The setup-file entries (``srg.parse_setup`` form) of ``provider``'s fragment."""
+    where = f"provider {provider!r}"
+    _check(len(payload) <= MAX_FRAGMENT_BYTES, where, f"fragment larger than {MAX_FRAGMENT_BYTES}")
+    try:
+        data = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise AnnouncementError(f"{where}: fragment is not JSON ({exc})") from None
+    _check(
+        isinstance(data, dict) and set(data) == {"provider", "edges"},
+        where,
+        'fragment must be {"provider": ..., "edges": [...]}',
+    )
+    _check(data["provider"] == provider, where, f"fragment names provider {data['provider']!r}")
+    edges = data["edges"]
+    _check(
+        isinstance(edges, list) and 0 < len(edges) <= MAX_EDGES,
+        where,
+        f"edges must be a list of 1 to {MAX_EDGES} entries",
+    )
+    entries, names = [], set()
+    for index, edge in enumerate(edges):
+        at = f"{where}, edges[{index}]"
+        _check(isinstance(edge, dict), at, "must be an object")
+        unknown = sorted(set(edge) - _EDGE_FIELDS)
+        _check(not unknown, at, f"unknown fields {unknown}")
+        for field_name in ("name", "from", "to"):
+            value = edge.get(field_name)
+            try:
+                validate_key_chunks(value, single_chunk=True)
+            except ValueError as exc:
+                raise AnnouncementError(f"{at}.{field_name}: {exc}") from None
+        _check(edge["name"] not in names, at, f"duplicate edge name {edge['name']!r}")
+        names.add(edge["name"])
+        entry = {k: v for k, v in edge.items() if k != "name"}
+        entries.append({**entry, "id": f"{provider}/{edge['name']}", "provider": provider})
+    try:
+        parse_setup({"edges": entries}, origin=where)  # types, modes, numbers, frames
+    except SetupError as exc:
+        raise AnnouncementError(str(exc)) from None
+    return entries
+
+
+def build_srg(fragments: Mapping[str, list[dict[str, Any]]]) -> nx.MultiDiGraph:
+    """The live SRG of every accepted provider's edges."""
+    entries = [entry for provider in sorted(fragments) for entry in fragments[provider]]
+    if not entries:
+        return new_srg()
+    return parse_setup({"name": "live", "edges": entries}, origin="live SRG")

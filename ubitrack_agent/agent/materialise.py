@@ -1,0 +1,108 @@
+"""Data flow components into worker specifications (``services.spec.ComponentSpec``).
+
+* A port ``IF[2]`` of a space-expanded component is the third binding of port ``IF``.
+* An input bound to a measured edge ``<provider>/<name>`` reads that edge's data key; an input
+  bound to a component's output reads ``<root>/data/<component>/<output>``.
+* An input is ``static`` if its edge is: a measured edge by its announcement; a component's
+  output if the component is time-expanded (section 3.3: its result is static), if the
+  template declares the output static, or if it inherits and every input is static.
+* Every dynamic input triggers (each instant is computed once, ``services.triggers``); a
+  component whose inputs are all static recomputes whenever one of them changes.
+* The producer of a queried relation also publishes on the relation's stable key; a relation
+  answered by a measured edge as it is gets a ``relay`` component.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping
+from dataclasses import replace
+
+import networkx as nx
+
+from services.spec import ComponentSpec, InputBinding
+
+from ..dataflow import Binding, Component, DataFlow
+from ..keys import KeySpace, RelationId
+from ..srg import edge_ids
+from ..templates import Template
+
+
+def _port(name: str) -> str:
+    return name.split("[", 1)[0]
+
+
+def _measured_static(srg: nx.MultiDiGraph, edge_id: str) -> bool:
+    source, target = edge_ids(srg)[edge_id]
+    return bool(srg.edges[source, target, edge_id]["static"])
+
+
+def _outputs_static(
+    component: Component, template: Template, inputs_static: list[bool]
+) -> dict[str, bool]:
+    result = {}
+    for spec in template.outputs:
+        if component.expansion == "time":
+            result[spec.name] = True
+        elif isinstance(spec.static, bool):
+            result[spec.name] = spec.static
+        else:
+            result[spec.name] = all(inputs_static)
+    return result
+
+
+def component_specs(
+    flow: DataFlow,
+    srg: nx.MultiDiGraph,
+    templates: Mapping[str, Template],
+    keys: KeySpace,
+    relations: Mapping[str, RelationId],
+) -> dict[str, ComponentSpec]:
+    """The worker specification of every component of ``flow``, by instance id."""
+    static_outputs: dict[tuple[str, str], bool] = {}
+    specs: dict[str, ComponentSpec] = {}
+
+    def source(binding: Binding) -> tuple[str, bool]:
+        if binding.component is None:
+            return keys.data(binding.edge), _measured_static(srg, binding.edge)
+        return keys.data(f"{binding.component}/{binding.edge}"), static_outputs[
+            (binding.component, binding.edge)
+        ]
+
+    for component in flow.components.values():  # producers come before their consumers
+        sources = [(port, *source(binding)) for port, binding in component.inputs]
+        statics = [static for _, _, static in sources]
+        dynamic = not all(statics)
+        bindings = tuple(
+            InputBinding(_port(port), key, trigger=not static or not dynamic, static=static)
+            for port, key, static in sources
+        )
+        template = templates[component.template]
+        for name, static in _outputs_static(component, template, statics).items():
+            static_outputs[(component.id, name)] = static
+        specs[component.id] = ComponentSpec(
+            instance=component.id,
+            service=component.service,
+            inputs=bindings,
+            outputs={name: keys.data(f"{component.id}/{name}") for name, *_ in component.outputs},
+            parameters=dict(component.parameters),
+            expansion=component.expansion,
+        )
+    for name, binding in flow.relations.items():
+        relation_key = keys.relation(relations[name])
+        if binding.component is not None:
+            spec = specs[binding.component]
+            routes = dict(spec.relations)
+            routes[binding.edge] = (*routes.get(binding.edge, ()), relation_key)
+            specs[binding.component] = replace(spec, relations=routes)
+            continue
+        key, static = source(binding)
+        instance = "relay-" + hashlib.sha1(binding.edge.encode()).hexdigest()[:10]
+        specs[instance] = ComponentSpec(
+            instance=instance,
+            service="relay",
+            inputs=(InputBinding("in", key, trigger=True, static=static),),
+            outputs={"out": keys.data(f"{instance}/out")},
+            relations={"out": (relation_key,)},
+        )
+    return specs
