@@ -32,8 +32,11 @@ from ubitrack_agent.keys import validate_key_chunks
 from .expansion import parse_time_expansion
 from .registry import Service, lookup
 
-DEFAULT_TOLERANCE_MS = 20.0
-DEFAULT_WAIT_MS = 5.0
+DEFAULT_TOLERANCE_MS = 5.0
+"""How far from a trigger's time the nearest sample of an input may be when there is no
+sample on each side to interpolate between (a moving target at 1 m/s moves 5 mm in 5 ms)."""
+DEFAULT_WAIT_MS = 50.0
+"""The longest a trigger waits for the other inputs' next samples (see services.triggers)."""
 EXPANSIONS = ("none", "space", "time")
 
 

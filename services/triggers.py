@@ -2,35 +2,71 @@
 
 Interpolating an input at a trigger's time ``t`` needs a sample of that input at or after
 ``t``. Samples of one instant travel separately (a camera publishes each feature's 2D edge on
-its own key), so a trigger is held until every dynamic input has a sample at or after ``t``,
-or until ``wait`` seconds have passed; then it is evaluated (nearest sample within the
-tolerance window where there is nothing to interpolate). Every dynamic binding may trigger:
-an instant is computed once, and a trigger older than the last instant computed is stale.
+its own key, and unsynchronised trackers sample at different instants), so a trigger is held
+until every live dynamic input has a sample at or after ``t``, or until its wait is over
+(one and a half periods of the slowest live input, capped); then it is evaluated (nearest
+sample within the tolerance window where there is nothing to interpolate). Every dynamic
+binding may trigger: an instant is computed once, and a trigger older than the last instant
+computed is stale.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+
+from ubitrack_agent.core.timeline import SampleBuffer
+
+LIVE_PERIODS = 2.0
+"""An input whose newest sample is older than this many of its periods before a trigger is
+not waited for (an occluded feature, a tracker that lost its target)."""
+WAIT_PERIODS = 1.5
+"""A trigger waits up to this many periods of the slowest live input for its next sample."""
+
+
+def _live(buffer: SampleBuffer, timestamp_ns: int, default_period_ns: int) -> bool:
+    newest = buffer.newest_time()
+    period = buffer.typical_period_ns() or default_period_ns
+    return newest is not None and newest >= timestamp_ns - LIVE_PERIODS * period
+
+
+def lagging(buffers: Iterable[SampleBuffer], timestamp_ns: int, default_period_ns: int) -> bool:
+    """Whether some live input has no sample at or after ``timestamp_ns`` yet."""
+    return any(
+        _live(b, timestamp_ns, default_period_ns) and b.newest_time() < timestamp_ns
+        for b in buffers
+    )
+
+
+def wait_for(
+    buffers: Iterable[SampleBuffer], timestamp_ns: int, default_period_ns: int, cap_ns: int
+) -> float:
+    """Seconds a trigger at ``timestamp_ns`` may wait for the live inputs' next samples."""
+    periods = [
+        b.typical_period_ns() or default_period_ns
+        for b in buffers
+        if _live(b, timestamp_ns, default_period_ns)
+    ]
+    return min(WAIT_PERIODS * max(periods, default=0), cap_ns) * 1e-9
 
 
 class PendingTriggers:
     """Trigger timestamps (ns) with their deadlines (monotonic seconds), oldest first."""
 
-    def __init__(self, wait_s: float) -> None:
-        self.wait_s = wait_s
+    def __init__(self) -> None:
         self.last_done: int | None = None
         self._deadlines: dict[int, float] = {}
 
     def __len__(self) -> int:
         return len(self._deadlines)
 
-    def add(self, timestamp_ns: int, now: float) -> bool:
-        """Hold a trigger; False if that instant is pending, done, or older than the last done."""
+    def add(self, timestamp_ns: int, now: float, wait_s: float) -> bool:
+        """Hold a trigger for at most ``wait_s``; False if that instant is pending, done, or
+        older than the last done."""
         if (self.last_done is not None and timestamp_ns <= self.last_done) or (
             timestamp_ns in self._deadlines
         ):
             return False
-        self._deadlines[timestamp_ns] = now + self.wait_s
+        self._deadlines[timestamp_ns] = now + wait_s
         return True
 
     def due(self, now: float, caught_up: Callable[[int], bool]) -> list[int]:

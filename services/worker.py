@@ -23,6 +23,8 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
+import queue
 import signal
 import sys
 import threading
@@ -47,7 +49,7 @@ from .spec import (
     parse_relations,
     parse_spec,
 )
-from .triggers import PendingTriggers
+from .triggers import PendingTriggers, lagging, wait_for
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -103,7 +105,7 @@ class Worker:
         self._service_class = lookup(spec.service)
         self._service: Service = self._service_class(spec.parameters)
         self._accumulator = self._new_accumulator()
-        self._pending = PendingTriggers(spec.wait_ms / 1000.0)
+        self._pending = PendingTriggers()
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
         self._stop = threading.Event()
         self._inputs: list[_Input] = []
@@ -230,15 +232,21 @@ class Worker:
             self._evaluate(sample.timestamp_ns)  # a new static value: recompute at once
         else:
             # Held until the other inputs catch up; an instant already computed is ignored.
-            self._pending.add(sample.timestamp_ns, time.monotonic())
+            self._pending.add(
+                sample.timestamp_ns, time.monotonic(), self._wait_s(item, sample.timestamp_ns)
+            )
+
+    def _dynamic_buffers(self) -> list[SampleBuffer]:
+        return [item.buffer for item in self._inputs if not item.binding.static]
+
+    def _wait_s(self, trigger: _Input, timestamp_ns: int) -> float:
+        """How long a trigger may wait for the other live dynamic inputs (services.triggers)."""
+        others = [b for b in self._dynamic_buffers() if b is not trigger.buffer]
+        cap_ns = int(self.spec.wait_ms * 1e6)
+        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns)
 
     def _caught_up(self, timestamp_ns: int) -> bool:
-        """Every dynamic input holds a sample at or after ``timestamp_ns``."""
-        return all(
-            (newest := item.buffer.newest_time()) is not None and newest >= timestamp_ns
-            for item in self._inputs
-            if not item.binding.static
-        )
+        return not lagging(self._dynamic_buffers(), timestamp_ns, self.spec.tolerance_ns)
 
     def _process_due_triggers(self) -> None:
         for timestamp_ns in self._pending.due(time.monotonic(), self._caught_up):
@@ -275,7 +283,7 @@ class Worker:
             payload = encode(value)
             for key in self._routes.get(port, ()):
                 self._publishers[key].put(payload)
-                self.counters["published"] += 1
+            self.counters["published"] += 1
 
     # -- status and life cycle ----------------------------------------------------------------
 
@@ -283,6 +291,7 @@ class Worker:
         return {
             "instance": self.spec.instance,
             "service": self.spec.service,
+            "pid": os.getpid(),
             "counters": dict(self.counters),
             "spec": self.spec.as_dict(),
         }
@@ -290,7 +299,7 @@ class Worker:
     def _serve_status(self) -> None:
         for query in self._status:
             with query:
-                query.reply(query.key_expr, json.dumps(self.status()))
+                query.reply(self.keys.status(self.spec.instance), json.dumps(self.status()))
 
     def stop(self) -> None:
         self._stop.set()
@@ -327,27 +336,67 @@ def build_parser() -> argparse.ArgumentParser:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--spec", help="the specification as JSON text")
     source.add_argument("--spec-file", help="a file holding the specification")
+    source.add_argument(
+        "--pool-id",
+        help="start idle, fully imported, and run the specification sent to <root>/pool/<ID> "
+        "(the service manager's warm pool); exits when standard input closes",
+    )
     logs.add_log_level_argument(parser, default="INFO")
     config.add_arguments(parser)
     return parser
+
+
+def wait_for_assignment(session: Any, keys: KeySpace, pool_id: str) -> ComponentSpec | None:
+    """Idle as pool worker ``pool_id`` until a specification arrives on its pool key.
+
+    Everything is imported first, so an assigned worker computes within milliseconds. The
+    worker idles only while its parent (the service manager) lives: it exits when its standard
+    input closes, or on SIGTERM. Malformed specifications are logged and ignored.
+    """
+    lookup("relay")  # imports every registered service and its maths
+    inbox: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+    subscriber = session.declare_subscriber(
+        keys.pool(pool_id), lambda sample: inbox.put(sample.payload.to_bytes())
+    )
+    token = session.liveliness().declare_token(keys.pool(pool_id))
+    signal.signal(signal.SIGTERM, lambda *_: inbox.put(None))
+    signal.signal(signal.SIGINT, lambda *_: inbox.put(None))
+    threading.Thread(target=lambda: (sys.stdin.read(), inbox.put(None)), daemon=True).start()
+    try:
+        while (payload := inbox.get()) is not None:
+            try:
+                return parse_spec(payload.decode("utf-8"))
+            except (SpecError, UnicodeDecodeError) as exc:
+                log.error("pool worker %s: rejected specification: %s", pool_id, exc)
+        return None
+    finally:
+        token.undeclare()
+        subscriber.undeclare()
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logs.configure(args.log_level)
     try:
-        if args.spec is None:
+        spec = None
+        if args.spec_file is not None:
             with open(args.spec_file, encoding="utf-8") as file:
                 args.spec = file.read()
-        spec = parse_spec(args.spec)
+        if args.spec is not None:
+            spec = parse_spec(args.spec)
         settings = config.from_arguments(args, role="member")
     except (OSError, SpecError, config.ConfigError) as exc:
         print(f"worker: {exc}", file=sys.stderr)
         return 2
     from ubitrack_agent.session import open_session
 
+    keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
-        worker = Worker(spec, session, KeySpace(settings.key_prefix))
+        if spec is None:
+            spec = wait_for_assignment(session, keys, args.pool_id)
+            if spec is None:
+                return 0
+        worker = Worker(spec, session, keys)
         signal.signal(signal.SIGTERM, lambda *_: worker.stop())
         signal.signal(signal.SIGINT, lambda *_: worker.stop())
         log.info("%s: running %s", spec.instance, spec.service)

@@ -13,7 +13,7 @@ import sys
 
 from . import __version__, logs
 
-COMMAND_MODULES: tuple[str, ...] = ("plan", "config", "subscribe", "demo")
+COMMAND_MODULES: tuple[str, ...] = ("agent", "plan", "subscribe", "status", "config", "demo")
 """Modules of :mod:`ubitrack_agent.commands`, in the order ``--help`` lists them."""
 
 

@@ -71,7 +71,7 @@ class Settings:
             # Reconnect quickly when the hub appears late or restarts.
             "connect/retry": {
                 "period_init_ms": 100,
-                "period_max_ms": 1000,
+                "period_max_ms": 500,
                 "period_increase_factor": 2,
             },
         }

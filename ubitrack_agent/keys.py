@@ -12,6 +12,10 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
                                      the whole description, so liveliness alone rebuilds state
     <root>/relation/<from>/<to>/<type>/<static|dynamic>
                                      the stable key on which a queried relation is delivered
+    <root>/agent                     liveliness token of the agent
+    <root>/agent/status              queryable: the agent's state (JSON)
+    <root>/pool/<id>                 an idle pre-started worker: its token, and where its
+                                     component specification is sent
     <root>/worker/<instance>         liveliness token of a running pattern worker
     <root>/control/<instance>        rewire / reconfigure a running worker (JSON, put)
     <root>/status/<instance>         a worker's counters (JSON, queryable)
@@ -132,3 +136,15 @@ class KeySpace:
         if not key.startswith(prefix):
             raise ValueError(f"{key!r} is not a provider key under {prefix!r}")
         return validate_key_chunks(key[len(prefix) :], single_chunk=True)
+
+    def agent(self) -> str:
+        """Liveliness token of the agent."""
+        return f"{self.root}/agent"
+
+    def agent_status(self) -> str:
+        """Queryable answering the agent's state."""
+        return f"{self.root}/agent/status"
+
+    def pool(self, worker: str) -> str:
+        """Token of an idle pre-started worker, and the key its specification is sent on."""
+        return f"{self.root}/pool/{validate_key_chunks(worker, single_chunk=True)}"

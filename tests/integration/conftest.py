@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -30,3 +31,15 @@ def processes() -> Iterator[list[subprocess.Popen]]:
             except subprocess.TimeoutExpired:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
+
+
+def kill_tagged(tag: str) -> list[str]:
+    """Kill every process whose command line contains ``tag`` (a test's unique domain), such
+    as workers orphaned on purpose when a test kills the agent; return what was found."""
+    found = subprocess.run(["pgrep", "-f", tag], capture_output=True, text=True).stdout.split()
+    own = str(os.getpid())
+    for pid in found:
+        if pid != own:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(int(pid), signal.SIGKILL)
+    return [pid for pid in found if pid != own]

@@ -78,7 +78,7 @@ VALID = {
 
 def test_valid_spec_round_trips_through_json():
     spec = parse_spec(json.dumps(VALID))
-    assert spec.tolerance_ns == 20_000_000
+    assert spec.tolerance_ns == 5_000_000
     assert parse_spec(spec.to_json()) == spec
 
 

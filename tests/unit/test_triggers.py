@@ -4,22 +4,48 @@ from services.triggers import PendingTriggers
 
 
 def test_trigger_waits_for_inputs_then_releases_in_order():
-    pending = PendingTriggers(wait_s=0.005)
-    assert pending.add(100, now=0.0)
-    assert pending.add(200, now=0.001)
-    assert not pending.add(100, now=0.002)  # the same instant from another binding
+    pending = PendingTriggers()
+    assert pending.add(100, now=0.0, wait_s=0.005)
+    assert pending.add(200, now=0.001, wait_s=0.005)
+    assert not pending.add(100, now=0.002, wait_s=0.005)  # the same instant from another binding
     caught_up_to = 150
     assert pending.due(now=0.001, caught_up=lambda t: t <= caught_up_to) == [100]
     assert pending.due(now=0.002, caught_up=lambda t: t <= caught_up_to) == []
     assert pending.next_deadline() == 0.006
     assert pending.due(now=0.0061, caught_up=lambda t: False) == [200]  # waited long enough
-    assert not pending.add(150, now=0.01)  # older than an instant already computed
+    assert not pending.add(150, now=0.01, wait_s=0.005)  # older than an instant already computed
     assert len(pending) == 0
 
 
 def test_a_waiting_trigger_holds_back_later_ones():
-    pending = PendingTriggers(wait_s=1.0)
-    pending.add(1, now=0.0)
-    pending.add(2, now=0.0)
+    pending = PendingTriggers()
+    pending.add(1, now=0.0, wait_s=1.0)
+    pending.add(2, now=0.0, wait_s=1.0)
     assert pending.due(now=0.5, caught_up=lambda t: t == 2) == []
     assert pending.due(now=1.0, caught_up=lambda t: t == 2) == [1, 2]
+
+
+def _buffer(times):
+    from ubitrack_agent.core import Position3D
+    from ubitrack_agent.core.timeline import SampleBuffer
+
+    buffer = SampleBuffer(static=False)
+    for t in times:
+        buffer.add(Position3D(t, [0, 0, 0]))
+    return buffer
+
+
+def test_only_live_inputs_are_waited_for():
+    from services.triggers import lagging, wait_for
+
+    ms = 1_000_000
+    steady = _buffer([0, 10 * ms, 20 * ms])  # 10 ms period, newest 20 ms
+    occluded = _buffer([0, 33 * ms, 66 * ms])  # stopped long before the trigger
+    trigger_time = 25 * ms
+    assert lagging([steady], trigger_time, default_period_ns=5 * ms)
+    assert not lagging([_buffer([0, 10 * ms, 30 * ms])], trigger_time, 5 * ms)
+    late = 300 * ms
+    assert not lagging([occluded], late, 5 * ms)  # not live: never waited for
+    assert wait_for([steady], trigger_time, 5 * ms, cap_ns=50 * ms) == 0.015
+    assert wait_for([steady], trigger_time, 5 * ms, cap_ns=12 * ms) == 0.012
+    assert wait_for([occluded], late, 5 * ms, cap_ns=50 * ms) == 0.0

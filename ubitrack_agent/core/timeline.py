@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import itertools
 from collections import deque
 
 from . import quaternions
@@ -94,6 +95,14 @@ class SampleBuffer:
     def newest_time(self) -> int | None:
         """Timestamp of the newest sample held, None when empty."""
         return self._times[-1] if self._times else None
+
+    def typical_period_ns(self) -> int | None:
+        """Median gap between the recent samples (None with fewer than three)."""
+        if len(self._times) < 3:
+            return None
+        recent = list(self._times)[-9:]
+        gaps = sorted(b - a for a, b in itertools.pairwise(recent))
+        return gaps[len(gaps) // 2]
 
     def lookup(self, timestamp_ns: int) -> Measurement:
         """The value at ``timestamp_ns``, strictly: a static edge answers its latest value, a

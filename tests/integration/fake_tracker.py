@@ -1,0 +1,76 @@
+"""A test tracker process: announces ``T->WT`` (static) and ``T->HT`` (dynamic) through the
+sensor API and publishes them from ground truth, so tests know the true ``WT->HT`` at any time.
+
+Run: ``python -m tests.integration.fake_tracker --provider art --tracker ART --yaw 30 ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+import time
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sim_trackers.trajectories import LissajousPath
+from ubitrack_agent import config
+from ubitrack_agent.core import ErrorPose, se3
+from ubitrack_agent.keys import KeySpace
+from ubitrack_agent.provider import EdgeAnnouncement, Provider
+from ubitrack_agent.session import open_session
+
+PATH = LissajousPath(centre=(0.0, 0.0, 1.6), amplitude=(1.0, 0.5), frequency=(0.2, 0.4))
+SIGMA = 1e-4
+
+
+def tracker_pose(yaw_deg: float, x: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of WT in the tracker frame."""
+    return Rotation.from_euler("z", yaw_deg, degrees=True).as_quat(), np.array([x, 1.0, 0.5])
+
+
+def true_wt_ht(timestamp_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    return PATH.pose(timestamp_ns * 1e-9)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--provider", required=True)
+    parser.add_argument("--tracker", required=True)
+    parser.add_argument("--yaw", type=float, default=0.0)
+    parser.add_argument("--x", type=float, default=2.0)
+    parser.add_argument("--rate", type=float, default=100.0)
+    parser.add_argument("--sigma", type=float, default=1e-3, help="announced accuracy (m)")
+    config.add_arguments(parser)
+    args = parser.parse_args()
+    settings = config.from_arguments(args, role="member")
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    cov = np.diag([SIGMA**2] * 6)
+    q_wt, t_wt = tracker_pose(args.yaw, args.x)
+    with open_session(settings) as session:
+        provider = Provider(
+            session,
+            KeySpace(settings.key_prefix),
+            args.provider,
+            [
+                EdgeAnnouncement(
+                    args.tracker, "WT", "6D", static=True, name="WT", sigma=args.sigma
+                ),
+                EdgeAnnouncement(
+                    args.tracker, "HT", "6D", name="HT", rate=args.rate, sigma=args.sigma
+                ),
+            ],
+        )
+        provider.publish("WT", ErrorPose(time.time_ns(), q_wt, t_wt, cov))
+        while not stop.wait(1.0 / args.rate):
+            now = time.time_ns()
+            q, t = se3.compose(q_wt, t_wt, *true_wt_ht(now))
+            provider.publish("HT", ErrorPose(now, q, t, cov))
+        provider.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,205 @@
+"""The live agent with real zenoh on loopback and real processes: sensors come and go,
+applications share flows, workers are killed, the agent itself is killed and restarted."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from ubitrack_agent import config
+from ubitrack_agent.application import Relation
+from ubitrack_agent.core import se3
+from ubitrack_agent.keys import KeySpace, RelationId
+from ubitrack_agent.session import open_session
+from ubitrack_agent.transport import fetch_latest
+
+from .conftest import free_port, kill_tagged
+from .fake_tracker import true_wt_ht
+from .zenoh_helpers import member_flags, wait_until
+
+pytestmark = pytest.mark.integration
+
+WT_HT = RelationId("WT", "HT", "6D")
+
+
+@dataclass
+class Setup:
+    port: int
+    domain: str
+    keys: KeySpace
+    session: object
+    processes: list
+
+    def start(self, *command: str) -> subprocess.Popen:
+        process = subprocess.Popen(
+            [sys.executable, *command, *member_flags(self.port, self.domain)],
+            start_new_session=True,
+        )
+        self.processes.append(process)
+        return process
+
+    def start_agent(self) -> subprocess.Popen:
+        process = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "ubitrack_agent.cli",
+                "agent",
+                "--listen",
+                f"tcp/127.0.0.1:{self.port}",
+                "--domain",
+                self.domain,
+            ],
+            start_new_session=True,
+        )
+        self.processes.append(process)
+        wait_until(lambda: self.status() is not None, timeout=20)
+        return process
+
+    def tracker(self, provider: str, tracker: str, yaw: float, x: float) -> subprocess.Popen:
+        return self.start(
+            "-m",
+            "tests.integration.fake_tracker",
+            "--provider",
+            provider,
+            "--tracker",
+            tracker,
+            "--yaw",
+            str(yaw),
+            "--x",
+            str(x),
+        )
+
+    def status(self) -> dict | None:
+        replies = fetch_latest(self.session, self.keys.agent_status(), timeout=0.5)
+        return json.loads(replies[0]) if replies else None
+
+    def alive_services(self) -> dict[str, str]:
+        """Alive components by id: their service names."""
+        status = self.status() or {"components": {}}
+        return {i: c["service"] for i, c in status["components"].items() if c["alive"]}
+
+    def worker_pid(self, instance: str) -> int | None:
+        replies = fetch_latest(self.session, self.keys.status(instance), timeout=0.5)
+        return json.loads(replies[0])["pid"] if replies else None
+
+
+@pytest.fixture
+def setup(processes) -> Iterator[Setup]:
+    port = free_port()
+    domain = f"agent{port}"
+    settings = config.Settings(
+        connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",), domain=domain
+    )
+    with open_session(settings) as session:
+        yield Setup(port, domain, KeySpace(settings.key_prefix), session, processes)
+    kill_tagged(domain)  # workers the test orphaned on purpose by killing the agent
+
+
+def assert_true_pose(sample) -> None:
+    """Trackers publish exact poses; fusing two unsynchronised 100 Hz trackers interpolates
+    one of them (SLERP and linear over 10 ms of a curved path: errors near 0.1 mm), so 1 mm."""
+    q, t = true_wt_ht(sample.timestamp_ns)
+    np.testing.assert_allclose(
+        se3.to_matrix(sample.rotation, sample.translation), se3.to_matrix(q, t), atol=1e-3
+    )
+
+
+def fresh_samples(relation: Relation, count: int, timeout: float = 10.0) -> list:
+    """``count`` samples produced after this call (older ones are flushed first)."""
+    start = time.time_ns()
+    samples = []
+    deadline = time.monotonic() + timeout
+    while len(samples) < count:
+        sample = relation.get(timeout=max(0.01, deadline - time.monotonic()))
+        if sample.timestamp_ns > start:
+            samples.append(sample)
+    return samples
+
+
+def test_sensors_appear_vanish_and_return_while_the_application_keeps_its_key(setup):
+    setup.start_agent()
+    relation = Relation(setup.session, setup.keys, WT_HT, application="app1")
+    with pytest.raises(TimeoutError):
+        relation.wait_for(timeout=0.3)  # no sensor yet, nothing to plan
+    art = setup.tracker("art", "ART", 30.0, 2.0)
+    setup.tracker("ir", "IR", 100.0, -1.0)
+    wait_until(lambda: "fusion" in setup.alive_services().values(), timeout=20)
+    for sample in fresh_samples(relation, 20):
+        assert_true_pose(sample)
+
+    art.send_signal(signal.SIGTERM)  # one tracker leaves: the flow falls back to the other
+    wait_until(lambda: "fusion" not in setup.alive_services().values(), timeout=10)
+    for sample in fresh_samples(relation, 20):
+        assert_true_pose(sample)
+    status = setup.status()
+    assert not any("art/" in b["key"] for c in status["components"].values() for b in c["inputs"])
+
+    setup.tracker("art", "ART", 30.0, 2.0)  # it comes back: fusion again
+    wait_until(lambda: "fusion" in setup.alive_services().values(), timeout=20)
+    for sample in fresh_samples(relation, 20):
+        assert_true_pose(sample)
+    assert relation.rejected == 0
+    relation.close()
+    wait_until(lambda: not setup.alive_services(), timeout=10)  # nobody asks: all stopped
+
+
+def test_applications_share_flows_and_workers_are_restarted(setup):
+    setup.start_agent()
+    setup.tracker("art", "ART", 30.0, 2.0)
+    first = Relation(setup.session, setup.keys, WT_HT, application="first")
+    wait_until(lambda: first.latest() is not None, timeout=20)
+    alone = dict(setup.alive_services())
+    same = Relation(setup.session, setup.keys, WT_HT, application="second")
+    inverse = Relation(setup.session, setup.keys, RelationId("HT", "WT", "6D"), application="third")
+    wait_until(lambda: inverse.latest() is not None, timeout=20)
+    shared = setup.alive_services()
+    assert set(alone) <= set(shared)  # the first flow keeps running, shared
+    assert len(shared) < 2 * len(alone) + 1  # the inverse reuses it rather than duplicating
+    assert setup.status()["queries"][str(WT_HT)] == ["first", "second"]
+    fresh_samples(same, 5)
+
+    victim = next(i for i, s in shared.items() if s == "concatenation")
+    pid = setup.worker_pid(victim)
+    os.kill(pid, signal.SIGKILL)
+    wait_until(lambda: (p := setup.worker_pid(victim)) is not None and p != pid, timeout=20)
+    for sample in fresh_samples(first, 10):
+        assert_true_pose(sample)
+    assert setup.status()["counters"]["restarts"] >= 1
+
+    first.close()  # "second" still asks for the same relation: the flow stays
+    time.sleep(0.3)
+    assert set(alone) <= set(setup.alive_services())
+    fresh_samples(same, 5)
+    for relation in (same, inverse):
+        relation.close()
+    wait_until(lambda: not setup.alive_services(), timeout=10)
+
+
+def test_a_killed_agent_is_restarted_and_rebuilds_everything(setup):
+    agent = setup.start_agent()
+    setup.tracker("art", "ART", 30.0, 2.0)
+    relation = Relation(setup.session, setup.keys, WT_HT, application="app")
+    wait_until(lambda: relation.latest() is not None, timeout=20)
+    before = setup.alive_services()
+
+    os.kill(agent.pid, signal.SIGKILL)  # the agent dies; its workers keep the data flowing
+    agent.wait()
+    fresh_samples(relation, 10)
+
+    setup.start_agent()  # rebuilt from liveliness alone: adopts the running workers
+    wait_until(lambda: setup.alive_services() == before, timeout=20)
+    assert setup.status()["counters"].get("adopted", 0) == len(before)
+    for sample in fresh_samples(relation, 10):
+        assert_true_pose(sample)
+    relation.close()
+    wait_until(lambda: not setup.alive_services(), timeout=10)

@@ -1,0 +1,298 @@
+"""The agent: keeps the live SRG and the running data flow in step with what is announced.
+
+It watches three kinds of liveliness tokens, with history, so a restarted agent rebuilds its
+whole state from them alone (``docs/protocol.md``):
+
+* providers (``<root>/provider/<id>``): on appearance their SRG fragment is fetched from
+  ``<root>/fragment/<id>`` and validated; on disappearance their edges leave the SRG;
+* queries (``<root>/query/<from>/<to>/<type>/<static>/<app>``): the relations applications
+  want; applications asking for the same relation share it;
+* workers (``<root>/worker/<instance>``): which components are alive.
+
+After each batch of events it replans every relation (:mod:`.flows`), turns the merged data
+flow into worker specifications (:mod:`.materialise`) and reconciles the running workers with
+them (:mod:`.reconcile`): start (through the :class:`.manager.ServiceManager`), stop, or rewire
+in place with a control command. A worker that dies is started again; a worker alive but not
+known (left by an earlier agent) is adopted if wanted, stopped otherwise. Events are handled on
+the agent's own thread; zenoh callbacks only queue them. Malformed announcements and queries
+are logged and counted, and never stop the agent.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from collections import Counter, defaultdict
+from collections.abc import Sequence
+from typing import Any
+
+from services.spec import ComponentSpec
+
+from ..config import Settings
+from ..keys import KeySpace, RelationId
+from ..session import open_session
+from ..templates import Template
+from .announcements import AnnouncementError, build_srg, fragment_entries
+from .flows import Plan, plan_relations
+from .manager import ServiceManager
+from .materialise import component_specs
+from .reconcile import reconcile
+
+log = logging.getLogger("ubitrack.agent")
+
+BATCH_WINDOW_S = 0.002
+"""After an event, wait this long for more before replanning once for all of them."""
+FRAGMENT_TIMEOUT_S = 1.0
+SETTLE_S = 2.0
+"""After start-up, wait this long (for the liveliness history and the fragments) before
+stopping workers that no plan wants."""
+PUT = "SampleKind.PUT"
+
+
+class Agent:
+    """The live agent on an open zenoh session (see the module docstring)."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        templates: Sequence[Template],
+        worker_flags: Sequence[str],
+        pool_size: int = 2,
+    ) -> None:
+        self.keys = KeySpace(settings.key_prefix)
+        self.templates = tuple(templates)
+        self._by_name = {t.name: t for t in self.templates}
+        self.counters: Counter[str] = Counter()
+        self.fragments: dict[str, list[dict[str, Any]]] = {}
+        self.rejected: dict[str, str] = {}
+        self.queries: dict[RelationId, set[str]] = defaultdict(set)
+        self.alive: set[str] = set()
+        self.running: dict[str, ComponentSpec] = {}
+        self.wanted: dict[str, ComponentSpec] = {}
+        self.plan: Plan | None = None
+        self.srg = build_srg({})
+        self.last_change_ns: int | None = None
+        self._pending_fragments: set[str] = set()
+        self._stopped: set[str] = set()
+        self._started = time.monotonic()
+        self._events: queue.SimpleQueue[tuple[str, str, str]] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._status_json = "{}"
+        self.session = open_session(settings)
+        self.manager = ServiceManager(self.session, self.keys, worker_flags, pool_size)
+        liveliness = self.session.liveliness()
+        root = self.keys.root
+        self._watches = [
+            liveliness.declare_subscriber(
+                f"{root}/{kind}/{pattern}",
+                lambda sample, kind=kind: self._events.put(
+                    (kind, str(sample.kind), str(sample.key_expr))
+                ),
+                history=True,
+            )
+            for kind, pattern in (("provider", "*"), ("query", "**"), ("worker", "*"))
+        ]
+        self._status = self.session.declare_queryable(self.keys.agent_status())
+        self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
+        self._status_thread.start()
+        self._token = liveliness.declare_token(self.keys.agent())
+
+    # -- events -----------------------------------------------------------------------------
+
+    def _handle(self, kind: str, change: str, key: str) -> bool:
+        """Apply one liveliness event; True if the SRG or the queries changed."""
+        appeared = change == PUT
+        try:
+            if kind == "provider":
+                provider = self.keys.parse_provider(key)
+                if appeared:
+                    self._pending_fragments.add(provider)
+                    return False
+                self._pending_fragments.discard(provider)
+                self.rejected.pop(provider, None)
+                return self.fragments.pop(provider, None) is not None
+            if kind == "query":
+                relation, application = self.keys.parse_query(key)
+                apps = self.queries[relation]
+                before = bool(apps)
+                apps.add(application) if appeared else apps.discard(application)
+                if not apps:
+                    del self.queries[relation]
+                return before != bool(apps)
+            instance = key.rsplit("/", 1)[-1]
+            self._on_worker(instance, appeared)
+            return False
+        except ValueError as exc:
+            self.counters[f"rejected_{kind}_keys"] += 1
+            log.error("ignored malformed %s key %r: %s", kind, key, exc)
+            return False
+
+    def _on_worker(self, instance: str, appeared: bool) -> None:
+        if appeared:
+            self.alive.add(instance)
+            return
+        self.alive.discard(instance)
+        self._stopped.discard(instance)
+        if self.running.pop(instance, None) is not None:
+            self.counters["restarts"] += 1
+            log.warning("%s: worker vanished, starting it again", instance)
+
+    def _claim_unknown_workers(self) -> None:
+        """Workers alive but not started by this agent (an earlier agent's): adopt the wanted
+        ones, making sure of their wiring; stop the others once start-up history has settled."""
+        settled = time.monotonic() - self._started > SETTLE_S and not self._pending_fragments
+        for instance in sorted(self.alive - set(self.running) - self._stopped):
+            wanted = self.wanted.get(instance)
+            if wanted is not None:
+                self.counters["adopted"] += 1
+                wiring = {k: wanted.as_dict()[k] for k in ("inputs", "relations", "parameters")}
+                self._send_control(instance, wiring)
+                self.running[instance] = wanted
+            elif settled:
+                self.counters["orphans_stopped"] += 1
+                log.info("%s: unknown worker, stopping it", instance)
+                self.manager.stop(instance)
+                self._stopped.add(instance)
+
+    def _fetch_fragments(self) -> bool:
+        """Fetch the fragments of providers that appeared; True if the SRG changed."""
+        changed = False
+        for provider in sorted(self._pending_fragments):
+            replies = [
+                r.ok.payload.to_bytes()
+                for r in self.session.get(self.keys.fragment(provider), timeout=FRAGMENT_TIMEOUT_S)
+                if r.ok is not None
+            ]
+            if not replies:
+                continue  # not answering yet: retried on the next pass
+            self._pending_fragments.discard(provider)
+            try:
+                self.fragments[provider] = fragment_entries(provider, replies[0])
+                self.rejected.pop(provider, None)
+                changed = True
+            except AnnouncementError as exc:
+                self.counters["rejected_announcements"] += 1
+                self.rejected[provider] = str(exc)
+                changed = self.fragments.pop(provider, None) is not None or changed
+                log.error("rejected announcement: %s", exc)
+        return changed
+
+    # -- planning and reconciling -------------------------------------------------------------
+
+    def _replan(self) -> None:
+        self.srg = build_srg(self.fragments)
+        self.plan = plan_relations(self.srg, self.templates, self.queries)
+        self.wanted = component_specs(
+            self.plan.flow, self.srg, self._by_name, self.keys, self.plan.relations
+        )
+        self.counters["replans"] += 1
+        for name, reason in self.plan.unsolved.items():
+            log.warning("cannot serve %s: %s", name, reason)
+
+    def _reconcile(self) -> None:
+        self._claim_unknown_workers()
+        actions = reconcile(self.running, self.wanted)
+        for instance in actions.stop:
+            self.manager.stop(instance)
+            self.running.pop(instance, None)
+            self._stopped.add(instance)
+        for spec in actions.start:
+            self.manager.start(spec)
+            self.running[spec.instance] = spec
+        for instance, command in actions.update:
+            self._send_control(instance, command)
+            self.running[instance] = self.wanted[instance]
+        if not actions.empty:
+            self.last_change_ns = time.time_ns()
+            self.counters["reconfigurations"] += 1
+            log.info(
+                "reconfigured: %d started, %d stopped, %d rewired",
+                len(actions.start),
+                len(actions.stop),
+                len(actions.update),
+            )
+
+    def _send_control(self, instance: str, command: dict[str, Any]) -> None:
+        self.session.put(self.keys.control(instance), json.dumps(command))
+
+    # -- main loop and status -----------------------------------------------------------------
+
+    def run(self) -> None:
+        """Handle events until :meth:`stop`."""
+        try:
+            while not self._stop.is_set():
+                try:
+                    batch = [self._events.get(timeout=0.05)]
+                    time.sleep(BATCH_WINDOW_S)
+                    while not self._events.empty():
+                        batch.append(self._events.get_nowait())
+                except queue.Empty:
+                    batch = []
+                changed = any([self._handle(*event) for event in batch])
+                changed = self._fetch_fragments() or changed
+                for instance in self.manager.reap():
+                    if self.running.pop(instance, None) is not None:
+                        self.counters["restarts"] += 1
+                if changed:
+                    self._replan()
+                self._reconcile()
+                if batch or changed:
+                    self._status_json = json.dumps(self.status())
+        finally:
+            self._close()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def status(self) -> dict[str, Any]:
+        """The agent's state: SRG, providers, queries, components, counters (JSON-ready)."""
+        plan = self.plan
+        return {
+            "key_prefix": self.keys.root,
+            "providers": {p: [e["id"] for e in entries] for p, entries in self.fragments.items()},
+            "rejected_providers": dict(self.rejected),
+            "srg": [
+                {"id": key, "from": u, "to": v, "type": d["type"], "static": d["static"]}
+                for u, v, key, d in self.srg.edges(keys=True, data=True)
+            ],
+            "queries": {str(r): sorted(apps) for r, apps in self.queries.items()},
+            "unsolved": dict(plan.unsolved) if plan else {},
+            "relations": {
+                name: {"key": self.keys.relation(relation)}
+                for name, relation in (plan.relations.items() if plan else ())
+                if name not in plan.unsolved
+            },
+            "components": {
+                instance: {
+                    **spec.as_dict(),
+                    "alive": instance in self.alive,
+                    "derives": _derived_edges(plan, instance),
+                }
+                for instance, spec in self.wanted.items()
+            },
+            "counters": dict(self.counters),
+            "last_change_ns": self.last_change_ns,
+        }
+
+    def _serve_status(self) -> None:
+        for query in self._status:
+            with query:
+                query.reply(self.keys.agent_status(), self._status_json)
+
+    def _close(self) -> None:
+        self._token.undeclare()
+        for watch in self._watches:
+            watch.undeclare()
+        self._status.undeclare()
+        self._status_thread.join(timeout=1.0)
+        self.manager.shutdown()
+        self.session.close()
+
+
+def _derived_edges(plan: Plan | None, instance: str) -> list[list[str]]:
+    """The SRG edges ``[from, to, type]`` a component derives (none for a relay)."""
+    component = plan.flow.components.get(instance) if plan else None
+    return [[src, dst, typ] for _, src, dst, typ in component.outputs] if component else []
