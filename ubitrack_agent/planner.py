@@ -35,7 +35,7 @@ from typing import Any
 import networkx as nx
 
 from .matcher import EdgeIndex, EdgeRecord, Instance, Match, expand_group, find_matches, group_key
-from .srg import EDGE_TYPES, Quality, check_node_name
+from .srg import EDGE_TYPES, EdgeAttrs, Quality, check_node_name, edge_ids
 from .templates import Template
 
 SIGMA_REF = 1e-3
@@ -476,6 +476,29 @@ def solutions(ws: Workspace, query: Query) -> list[Solution]:
                 found[record.canon] = record
     ranked = sorted(found.values(), key=lambda e: (e.cost, len(e.steps), e.id))
     return [_solution(ws, edge) for edge in ranked]
+
+
+def with_solution(srg: nx.MultiDiGraph, solution: Solution) -> nx.MultiDiGraph:
+    """A copy of ``srg`` with the edges ``solution`` infers added as inferred SRG edges
+    (``measured`` false, ``provider`` the service, ``derivation`` the step id)."""
+    graph = srg.copy()
+    graph.graph["edge_index"] = dict(edge_ids(srg))
+    for record in solution.records.values():
+        if record.measured:
+            continue
+        attrs = EdgeAttrs(
+            type=record.type,
+            static=record.static,
+            mode=record.mode,
+            measured=False,
+            provider=record.provider,
+            quality=record.quality,
+            sources=record.sources,
+            derivation=record.step,
+        )
+        graph.add_edge(record.source, record.target, key=record.id, **attrs.as_data())
+        graph.graph["edge_index"][record.id] = (record.source, record.target)
+    return graph
 
 
 def plan(

@@ -143,10 +143,6 @@ class Template:
     cost: CostSpec
     parameters: Mapping[str, Any] = field(default_factory=dict)
 
-    def input(self, name: str) -> InputSpec:
-        """The input edge called ``name``."""
-        return next(spec for spec in self.inputs if spec.name == name)
-
     @property
     def time_only(self) -> bool:
         """True if the pattern is only ever applied expanded in time (its outputs are static)."""

@@ -14,6 +14,7 @@ from ubitrack_agent.planner import (
     relevant_frames,
     saturate,
     useful_types,
+    with_solution,
 )
 from ubitrack_agent.srg import parse_setup
 
@@ -225,3 +226,14 @@ def test_fusion_of_paths_of_different_lengths_is_found(templates):
     assert best[-1]["pattern"] == "MultiTrackerFusion"
     assert len(found[0].edge.sources) == 5
     assert sorted(len(s.edge.sources) for s in found) == [2, 3, 5]
+
+
+def test_with_solution_adds_the_inferred_edges_with_provenance(tracking_setup, templates):
+    best = plan(tracking_setup, templates, Query("C", "A", "6D"))[0]
+    graph = with_solution(tracking_setup, best)
+    inferred = [d for _, _, d in graph.edges(data=True) if not d["measured"]]
+    assert len(inferred) == len(best.steps) == 6
+    assert {d["derivation"] for d in inferred} == {s.id for s in best.steps}
+    fused = next(d for d in inferred if d["provider"] == "fusion")
+    assert fused["sources"] == best.edge.sources - {"WT->A:6D"}
+    assert tracking_setup.number_of_edges() + 6 == graph.number_of_edges()
