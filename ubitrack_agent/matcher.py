@@ -215,7 +215,7 @@ def _candidates(
     for a, b in _rigid_links(template):
         for near, far in ((a, b), (b, a)):
             if far in roles and near in (spec.source, spec.target):
-                partners = index.rigid.get(roles[far], ())
+                partners = sorted(index.rigid.get(roles[far], ()))
                 adjacency = index.out if near == spec.source else index.inn
                 return [e for node in partners for e in adjacency.get(node, ())]
     if spec.type.startswith("$"):

@@ -261,7 +261,7 @@ class Workspace:
     )
     useful_types: frozenset[str] = EDGE_TYPES
     goal: tuple[str, str] | None = None
-    distances: tuple[dict[str, int], dict[str, int]] = ({}, {})
+    distances: tuple[dict[str, int], dict[str, int]] = field(default_factory=lambda: ({}, {}))
 
     def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
         """Index one measured SRG edge."""
@@ -393,12 +393,12 @@ def saturate(
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
-    Only edges of types that can contribute to a ``wanted`` edge are inferred, time-only
-    patterns (calibrations) only run when some rigid relation is not measured, and points are
-    with a ``goal`` (the query's source and target), concatenations are restricted as
-    :meth:`Workspace._wanted` explains.
-    ``rigid`` adds frame pairs known to be rigid besides those joined by static edges. Each
-    round only looks for occurrences that use an edge inferred in the previous round.
+    Only edges of types that can contribute to a ``wanted`` edge are inferred, and time-only
+    patterns (calibrations) only run when some rigid relation is not measured. With a ``goal``
+    (the query's source and target), concatenations are restricted as
+    :meth:`Workspace._wanted` explains. ``rigid`` adds frame pairs known to be rigid besides
+    those joined by static edges. Each round only looks for occurrences that use an edge
+    inferred in the previous round.
     """
     frames = set(frames)
     ws = Workspace(
@@ -409,9 +409,10 @@ def saturate(
     if goal is not None:
         sub = srg.subgraph(frames)
         ws.distances = tuple(_hops(sub, end, float("inf")) for end in goal)
-    for source, target, key, data in srg.edges(keys=True, data=True):
-        if source in frames and target in frames:
-            ws.add_measured(source, target, key, data)
+    for source in sorted(frames):  # a canonical order: the plan must not depend on announcement
+        for target in sorted(frames.intersection(srg.succ[source])):
+            for key, data in sorted(srg.succ[source][target].items()):
+                ws.add_measured(source, target, key, data)
     rigid = [(a, b) for a, b in rigid if not ws.index.is_measured_rigid(a, b)]
     for a, b in rigid:
         ws.index.add_rigid(a, b)

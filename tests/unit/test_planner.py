@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import random
 from collections import Counter
+from pathlib import Path
 
 import pytest
+import yaml
 
 from ubitrack_agent.planner import (
     NoSolutionError,
@@ -17,6 +20,8 @@ from ubitrack_agent.planner import (
     with_solution,
 )
 from ubitrack_agent.srg import parse_setup
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def signature(solution):
@@ -237,3 +242,16 @@ def test_with_solution_adds_the_inferred_edges_with_provenance(tracking_setup, t
     fused = next(d for d in inferred if d["provider"] == "fusion")
     assert fused["sources"] == best.edge.sources - {"WT->A:6D"}
     assert tracking_setup.number_of_edges() + 6 == graph.number_of_edges()
+
+
+def test_plan_does_not_depend_on_the_order_of_the_setup_edges(templates):
+    data = yaml.safe_load((ROOT / "examples" / "paper_tracking.yaml").read_text())
+    for entry in data["edges"]:
+        entry["id"] = f"{entry['from']}->{entry['to']}"
+    reference = None
+    for seed in range(4):
+        random.Random(seed).shuffle(data["edges"])
+        found = plan(parse_setup(data), templates, Query("C", "A", "6D"))
+        document = [s.as_json() for s in found]
+        reference = reference or document
+        assert document == reference
