@@ -71,6 +71,7 @@ class EdgeIndex:
     rigid: dict[str, set[str]] = field(default_factory=lambda: defaultdict(set))
     measured_rigid: set[frozenset[str]] = field(default_factory=set)
     dynamic_measured: set[str] = field(default_factory=set)
+    retired: set[str] = field(default_factory=set)
 
     def add(self, record: EdgeRecord) -> None:
         """Insert ``record`` into every index."""
@@ -83,6 +84,14 @@ class EdgeIndex:
         if record.measured and record.static:
             self.add_rigid(record.source, record.target)
             self.measured_rigid.add(frozenset((record.source, record.target)))
+
+    def retire(self, edge_id: str) -> None:
+        """Stop offering ``edge_id`` to the matcher (its record stays, for provenance)."""
+        record = self.edges[edge_id]
+        self.retired.add(edge_id)
+        self.out[record.source].remove(edge_id)
+        self.inn[record.target].remove(edge_id)
+        self.partitions[(record.type, record.static)].remove(edge_id)
 
     def add_rigid(self, a: str, b: str) -> None:
         """Declare frames ``a`` and ``b`` rigidly connected (a static relationship)."""

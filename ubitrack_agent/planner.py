@@ -286,18 +286,26 @@ class Workspace:
         self.by_relation[(source, target, record.type, record.static)].append(edge_id)
 
     def _admit(self, record: EdgeRecord) -> bool:
-        """The "new or better edge" rule: reject a re-bracketing of a known computation, an edge
-        that uses more sources than an existing one without being cheaper, and surplus
-        alternatives beyond ``per_relation``."""
+        """The "new or better edge" rule: reject a re-bracketing of a known computation and an
+        edge that uses more sources than an existing one without being cheaper. Keep at most
+        ``per_relation`` alternatives per relation: a cheaper newcomer retires the most
+        expensive one (edges already derived from it stay)."""
         key = (record.source, record.target, record.type, record.static)
-        existing = [self.index.edges[e] for e in self.by_relation[key]]
+        alternatives = self.by_relation[key]
+        existing = [self.index.edges[e] for e in alternatives]
         limit = record.cost * (1 + _TIE)
         for other in existing:
             if other.cost <= limit and (
                 other.canon == record.canon or other.sources < record.sources
             ):
                 return False
-        return len(existing) < self.per_relation or record.cost < max(e.cost for e in existing)
+        if len(existing) >= self.per_relation:
+            worst = max(existing, key=lambda e: e.cost)
+            if record.cost >= worst.cost:
+                return False
+            alternatives.remove(worst.id)
+            self.index.retire(worst.id)
+        return True
 
     def _wanted(self, pattern: str, edge_type: str, source: str, target: str) -> bool:
         """Which concatenations serve the query ``goal`` (section 5.1, "when to add new edges").
@@ -432,7 +440,9 @@ def saturate(
                     touched[key] = None
         new = []
         for key in touched:
-            for instance in expand_group(list(groups[key].values()), ws.index):
+            retired = ws.index.retired
+            members = [m for m in groups[key].values() if retired.isdisjoint(m.edges)]
+            for instance in expand_group(members, ws.index) if members else ():
                 if instance.key not in applied:
                     applied.add(instance.key)
                     new.extend(ws.apply(instance))
