@@ -179,7 +179,9 @@ class _Checker:
     def fail(self, where: str, what: str) -> TemplateError:
         return TemplateError(f"{self.origin}: {where}: {what}")
 
-    def mapping(self, where: str, value: Any, allowed: set[str], required: tuple[str, ...] = ()):
+    def mapping(
+        self, where: str, value: Any, allowed: set[str], required: tuple[str, ...] = ()
+    ) -> dict[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(where, f"must be a mapping, got {value!r}")
         unknown = set(value) - allowed
