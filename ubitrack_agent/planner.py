@@ -216,6 +216,24 @@ def _hops(
     return dist
 
 
+def _chain_distances(
+    srg: nx.MultiDiGraph, frames: set[str], goal: tuple[str, str]
+) -> tuple[dict[str, int], dict[str, int]]:
+    """Hop distances of ``frames`` from each query frame along 6D edges (the links of chains);
+    frames without a 6D path come after all others, ordered by their distance along any edge."""
+    sub = srg.subgraph(frames)
+    poses = nx.MultiDiGraph(
+        (u, v, k) for u, v, k, t in sub.edges(keys=True, data="type") if t == "6D"
+    )
+    poses.add_nodes_from(frames)
+    out = []
+    for end in goal:
+        anywhere = _hops(sub, end, float("inf"))
+        along = _hops(poses, end, float("inf"))
+        out.append({n: along.get(n, len(frames) + anywhere[n]) for n in frames})
+    return out[0], out[1]
+
+
 def relevant_frames(srg: nx.MultiDiGraph, source: str, target: str, slack: int) -> set[str]:
     """Frames that can take part in a derivation of ``source -> target``.
 
@@ -314,8 +332,9 @@ class Workspace:
         points carried into another frame X equals the one on the points' own frame followed by
         the same concatenation. Chains (6D) must start or end at a query frame or lead towards
         the query target: from a frame nearer the query source to one farther from it, or from
-        one farther from the query target to one nearer to it (hop distances). A chain against
-        that direction can only feed a derivation that runs the other way round."""
+        one farther from the query target to one nearer to it (hop distances along 6D edges,
+        :func:`_chain_distances`). A chain against that direction can only feed a derivation
+        that runs the other way round."""
         if pattern != "Concatenation" or self.goal is None:
             return True
         if edge_type == "3D":
@@ -415,8 +434,7 @@ def saturate(
         goal=goal,
     )
     if goal is not None:
-        sub = srg.subgraph(frames)
-        ws.distances = tuple(_hops(sub, end, float("inf")) for end in goal)
+        ws.distances = _chain_distances(srg, frames, goal)
     for source in sorted(frames):  # a canonical order: the plan must not depend on announcement
         for target in sorted(frames.intersection(srg.succ[source])):
             for key, data in sorted(srg.succ[source][target].items()):
