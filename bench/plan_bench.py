@@ -26,7 +26,7 @@ import json
 import platform
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import networkx as nx
@@ -34,7 +34,7 @@ import numpy as np
 
 from ubitrack_agent.planner import Query, plan
 from ubitrack_agent.srg import add_measured_edge, load_setup, new_srg, remove_provider
-from ubitrack_agent.templates import DEFAULT_TEMPLATE_DIR, load_templates
+from ubitrack_agent.templates import DEFAULT_TEMPLATE_DIR, Template, load_templates
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "plan.json"
@@ -112,7 +112,9 @@ def transform_manager(srg: nx.MultiDiGraph, repeats: int) -> tuple[object, float
     return tm, statistics.median(times) * 1e3
 
 
-def plan_figures(srg: nx.MultiDiGraph, templates, query: Query, tracker: str, repeats: int) -> dict:
+def plan_figures(
+    srg: nx.MultiDiGraph, templates: Sequence[Template], query: Query, tracker: str, repeats: int
+) -> dict:
     """First plan, replan after ``tracker`` disappears and after it reappears."""
     without = remove_provider(srg, tracker)
     first = median_ms(lambda: plan(srg, templates, query), repeats)

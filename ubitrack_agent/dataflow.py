@@ -15,11 +15,14 @@ changed keeps its id: :func:`diff` reports it as *rewired* rather than stopped a
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from .planner import Query, Solution
+import networkx as nx
+
+from .planner import NoSolutionError, Query, Solution, plan
+from .templates import Template
 
 
 @dataclass(frozen=True)
@@ -187,3 +190,21 @@ def diff(old: DataFlow, new: DataFlow) -> DataFlowDiff:
     }
     relations.update({name: None for name in old.relations if name not in new.relations})
     return DataFlowDiff(start, stop, rewire, relations)
+
+
+def plan_flows(
+    srg: nx.MultiDiGraph, templates: Sequence[Template], queries: Iterable[Query]
+) -> tuple[DataFlow, dict[str, str]]:
+    """Plan every query on ``srg`` and merge the best data flows (shared components).
+
+    Returns the data flow and, for each query that has no solution now, its relation name and
+    the reason, so that the caller can keep serving the others (the live agent replans when
+    the SRG changes and diffs the result against the running flow with :func:`diff`).
+    """
+    flows, unresolved = [], {}
+    for query in queries:
+        try:
+            flows.append(from_solution(plan(srg, templates, query)[0], query))
+        except NoSolutionError as exc:
+            unresolved[relation_name(query)] = str(exc)
+    return merge(flows), unresolved

@@ -1,14 +1,14 @@
 """Graphviz DOT rendering of an SRG with a chosen solution (the design tool, section 5.2.2).
 
 Measured edges are solid (bold when the solution reads them), edges the solution infers are
-dashed and labelled with the pattern that derives them, like the paper's figures.
+dashed and labelled with the step and pattern that derive them, like the paper's figures.
 """
 
 from __future__ import annotations
 
 import networkx as nx
 
-from .planner import Solution
+from .planner import Solution, with_solution
 
 
 def _quote(text: str) -> str:
@@ -17,25 +17,20 @@ def _quote(text: str) -> str:
 
 def to_dot(srg: nx.MultiDiGraph, solution: Solution | None = None, title: str = "SRG") -> str:
     """DOT text of ``srg``, with the edges of ``solution`` highlighted when one is given."""
+    graph = srg if solution is None else with_solution(srg, solution)
     used = set(solution.records) if solution is not None else set()
+    steps = {} if solution is None else {s.id: (n, s) for n, s in enumerate(solution.steps, 1)}
     lines = [f"digraph {_quote(title)} {{", "  rankdir=LR;", "  node [shape=ellipse];"]
-    for node in sorted(srg.nodes):
+    for node in sorted(graph.nodes):
         lines.append(f"  {_quote(node)};")
-    for u, v, key, data in sorted(srg.edges(keys=True, data=True), key=lambda e: e[2]):
+    for u, v, key, data in sorted(graph.edges(keys=True, data=True), key=lambda e: e[2]):
         label = data["type"] + (" static" if data["static"] else "")
-        style = ', style=bold, color="blue"' if key in used else ""
+        if data["measured"]:
+            style = ', style=bold, color="blue"' if key in used else ""
+        else:
+            n, step = steps[data["derivation"]]
+            label = f"{n}. {step.template.pattern} ({step.expansion}) {label}"
+            style = ', style=dashed, color="red", fontcolor="red"'
         lines.append(f"  {_quote(u)} -> {_quote(v)} [label={_quote(label)}{style}];")
-    if solution is not None:
-        for n, step in enumerate(solution.steps, start=1):
-            for _, src, dst, typ, edge_id in step.outputs:
-                if edge_id is None:
-                    continue
-                label = f"{n}. {step.template.pattern} ({step.expansion}) {typ}"
-                if solution.records[edge_id].static:
-                    label += " static"
-                lines.append(
-                    f"  {_quote(src)} -> {_quote(dst)} "
-                    f'[label={_quote(label)}, style=dashed, color="red", fontcolor="red"];'
-                )
     lines.append("}")
     return "\n".join(lines) + "\n"

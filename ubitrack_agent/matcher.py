@@ -5,7 +5,7 @@ Detection has the three steps of section 5.1:
 1. :func:`find_matches` finds all occurrences ``G[alpha'(P)]`` of the *unexpanded* pattern: a
    seeded backtracking search that binds the template's input edges one by one to typed,
    attributed SRG edges (the candidates are the edges adjacent to an already bound frame, or the
-   edges of the right type partition), so the search never enumerates unrelated subgraphs.
+   edges of the (type, static) partition), so the search never enumerates unrelated subgraphs.
 2. :func:`expand_group` unifies compatible occurrences into inclusion-maximal collections
    (maximal cliques of a compatibility graph, :func:`networkx.find_cliques`).
 3. A collection is kept as a *space* expansion if each correspondence edge is represented
@@ -61,27 +61,37 @@ class EdgeRecord:
 
 @dataclass
 class EdgeIndex:
-    """Adjacency and type partitions of the working SRG, updated as edges are inferred."""
+    """Adjacency and (type, static) partitions of the working SRG, updated as edges are
+    inferred (the partitioning of section 5.1 that keeps the subgraph search small)."""
 
     edges: dict[str, EdgeRecord] = field(default_factory=dict)
     out: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
     inn: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
-    by_type: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
+    partitions: dict[tuple[str, bool], list[str]] = field(default_factory=lambda: defaultdict(list))
     rigid: dict[str, set[str]] = field(default_factory=lambda: defaultdict(set))
     measured_rigid: set[frozenset[str]] = field(default_factory=set)
     dynamic_measured: set[str] = field(default_factory=set)
+    retired: set[str] = field(default_factory=set)
 
     def add(self, record: EdgeRecord) -> None:
         """Insert ``record`` into every index."""
         self.edges[record.id] = record
         self.out[record.source].append(record.id)
         self.inn[record.target].append(record.id)
-        self.by_type[record.type].append(record.id)
+        self.partitions[(record.type, record.static)].append(record.id)
         if record.measured and not record.static:
             self.dynamic_measured.add(record.id)
         if record.measured and record.static:
             self.add_rigid(record.source, record.target)
             self.measured_rigid.add(frozenset((record.source, record.target)))
+
+    def retire(self, edge_id: str) -> None:
+        """Stop offering ``edge_id`` to the matcher (its record stays, for provenance)."""
+        record = self.edges[edge_id]
+        self.retired.add(edge_id)
+        self.out[record.source].remove(edge_id)
+        self.inn[record.target].remove(edge_id)
+        self.partitions[(record.type, record.static)].remove(edge_id)
 
     def add_rigid(self, a: str, b: str) -> None:
         """Declare frames ``a`` and ``b`` rigidly connected (a static relationship)."""
@@ -215,13 +225,12 @@ def _candidates(
     for a, b in _rigid_links(template):
         for near, far in ((a, b), (b, a)):
             if far in roles and near in (spec.source, spec.target):
-                partners = index.rigid.get(roles[far], ())
+                partners = sorted(index.rigid.get(roles[far], ()))
                 adjacency = index.out if near == spec.source else index.inn
                 return [e for node in partners for e in adjacency.get(node, ())]
-    if spec.type.startswith("$"):
-        domain = template.type_vars[spec.type[1:]]
-        return [e for t in domain for e in index.by_type.get(t, ())]
-    return index.by_type.get(spec.type, ())
+    types = template.type_vars[spec.type[1:]] if spec.type.startswith("$") else (spec.type,)
+    kinds = (False, True) if spec.static is None else (spec.static,)
+    return [e for t in types for s in kinds for e in index.partitions.get((t, s), ())]
 
 
 def _next_input(template: Template, bound: Mapping[int, str], roles: Mapping[str, str]) -> int:

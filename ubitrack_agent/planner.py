@@ -35,7 +35,7 @@ from typing import Any
 import networkx as nx
 
 from .matcher import EdgeIndex, EdgeRecord, Instance, Match, expand_group, find_matches, group_key
-from .srg import EDGE_TYPES, Quality, check_node_name
+from .srg import EDGE_TYPES, EdgeAttrs, Quality, check_node_name, edge_ids
 from .templates import Template
 
 SIGMA_REF = 1e-3
@@ -216,6 +216,24 @@ def _hops(
     return dist
 
 
+def _chain_distances(
+    srg: nx.MultiDiGraph, frames: set[str], goal: tuple[str, str]
+) -> tuple[dict[str, int], dict[str, int]]:
+    """Hop distances of ``frames`` from each query frame along 6D edges (the links of chains);
+    frames without a 6D path come after all others, ordered by their distance along any edge."""
+    sub = srg.subgraph(frames)
+    poses = nx.MultiDiGraph(
+        (u, v, k) for u, v, k, t in sub.edges(keys=True, data="type") if t == "6D"
+    )
+    poses.add_nodes_from(frames)
+    out = []
+    for end in goal:
+        anywhere = _hops(sub, end, float("inf"))
+        along = _hops(poses, end, float("inf"))
+        out.append({n: along.get(n, len(frames) + anywhere[n]) for n in frames})
+    return out[0], out[1]
+
+
 def relevant_frames(srg: nx.MultiDiGraph, source: str, target: str, slack: int) -> set[str]:
     """Frames that can take part in a derivation of ``source -> target``.
 
@@ -261,7 +279,7 @@ class Workspace:
     )
     useful_types: frozenset[str] = EDGE_TYPES
     goal: tuple[str, str] | None = None
-    distances: tuple[dict[str, int], dict[str, int]] = ({}, {})
+    distances: tuple[dict[str, int], dict[str, int]] = field(default_factory=lambda: ({}, {}))
 
     def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
         """Index one measured SRG edge."""
@@ -286,18 +304,26 @@ class Workspace:
         self.by_relation[(source, target, record.type, record.static)].append(edge_id)
 
     def _admit(self, record: EdgeRecord) -> bool:
-        """The "new or better edge" rule: reject a re-bracketing of a known computation, an edge
-        that uses more sources than an existing one without being cheaper, and surplus
-        alternatives beyond ``per_relation``."""
+        """The "new or better edge" rule: reject a re-bracketing of a known computation and an
+        edge that uses more sources than an existing one without being cheaper. Keep at most
+        ``per_relation`` alternatives per relation: a cheaper newcomer retires the most
+        expensive one (edges already derived from it stay)."""
         key = (record.source, record.target, record.type, record.static)
-        existing = [self.index.edges[e] for e in self.by_relation[key]]
+        alternatives = self.by_relation[key]
+        existing = [self.index.edges[e] for e in alternatives]
         limit = record.cost * (1 + _TIE)
         for other in existing:
             if other.cost <= limit and (
                 other.canon == record.canon or other.sources < record.sources
             ):
                 return False
-        return len(existing) < self.per_relation or record.cost < max(e.cost for e in existing)
+        if len(existing) >= self.per_relation:
+            worst = max(existing, key=lambda e: e.cost)
+            if record.cost >= worst.cost:
+                return False
+            alternatives.remove(worst.id)
+            self.index.retire(worst.id)
+        return True
 
     def _wanted(self, pattern: str, edge_type: str, source: str, target: str) -> bool:
         """Which concatenations serve the query ``goal`` (section 5.1, "when to add new edges").
@@ -306,8 +332,9 @@ class Workspace:
         points carried into another frame X equals the one on the points' own frame followed by
         the same concatenation. Chains (6D) must start or end at a query frame or lead towards
         the query target: from a frame nearer the query source to one farther from it, or from
-        one farther from the query target to one nearer to it (hop distances). A chain against
-        that direction can only feed a derivation that runs the other way round."""
+        one farther from the query target to one nearer to it (hop distances along 6D edges,
+        :func:`_chain_distances`). A chain against that direction can only feed a derivation
+        that runs the other way round."""
         if pattern != "Concatenation" or self.goal is None:
             return True
         if edge_type == "3D":
@@ -393,12 +420,12 @@ def saturate(
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
-    Only edges of types that can contribute to a ``wanted`` edge are inferred, time-only
-    patterns (calibrations) only run when some rigid relation is not measured, and points are
-    with a ``goal`` (the query's source and target), concatenations are restricted as
-    :meth:`Workspace._wanted` explains.
-    ``rigid`` adds frame pairs known to be rigid besides those joined by static edges. Each
-    round only looks for occurrences that use an edge inferred in the previous round.
+    Only edges of types that can contribute to a ``wanted`` edge are inferred, and time-only
+    patterns (calibrations) only run when some rigid relation is not measured. With a ``goal``
+    (the query's source and target), concatenations are restricted as
+    :meth:`Workspace._wanted` explains. ``rigid`` adds frame pairs known to be rigid besides
+    those joined by static edges. Each round only looks for occurrences that use an edge
+    inferred in the previous round.
     """
     frames = set(frames)
     ws = Workspace(
@@ -407,11 +434,11 @@ def saturate(
         goal=goal,
     )
     if goal is not None:
-        sub = srg.subgraph(frames)
-        ws.distances = tuple(_hops(sub, end, float("inf")) for end in goal)
-    for source, target, key, data in srg.edges(keys=True, data=True):
-        if source in frames and target in frames:
-            ws.add_measured(source, target, key, data)
+        ws.distances = _chain_distances(srg, frames, goal)
+    for source in sorted(frames):  # a canonical order: the plan must not depend on announcement
+        for target in sorted(frames.intersection(srg.succ[source])):
+            for key, data in sorted(srg.succ[source][target].items()):
+                ws.add_measured(source, target, key, data)
     rigid = [(a, b) for a, b in rigid if not ws.index.is_measured_rigid(a, b)]
     for a, b in rigid:
         ws.index.add_rigid(a, b)
@@ -431,7 +458,9 @@ def saturate(
                     touched[key] = None
         new = []
         for key in touched:
-            for instance in expand_group(list(groups[key].values()), ws.index):
+            retired = ws.index.retired
+            members = [m for m in groups[key].values() if retired.isdisjoint(m.edges)]
+            for instance in expand_group(members, ws.index) if members else ():
                 if instance.key not in applied:
                     applied.add(instance.key)
                     new.extend(ws.apply(instance))
@@ -476,6 +505,29 @@ def solutions(ws: Workspace, query: Query) -> list[Solution]:
                 found[record.canon] = record
     ranked = sorted(found.values(), key=lambda e: (e.cost, len(e.steps), e.id))
     return [_solution(ws, edge) for edge in ranked]
+
+
+def with_solution(srg: nx.MultiDiGraph, solution: Solution) -> nx.MultiDiGraph:
+    """A copy of ``srg`` with the edges ``solution`` infers added as inferred SRG edges
+    (``measured`` false, ``provider`` the service, ``derivation`` the step id)."""
+    graph = srg.copy()
+    graph.graph["edge_index"] = dict(edge_ids(srg))
+    for record in solution.records.values():
+        if record.measured:
+            continue
+        attrs = EdgeAttrs(
+            type=record.type,
+            static=record.static,
+            mode=record.mode,
+            measured=False,
+            provider=record.provider,
+            quality=record.quality,
+            sources=record.sources,
+            derivation=record.step,
+        )
+        graph.add_edge(record.source, record.target, key=record.id, **attrs.as_data())
+        graph.graph["edge_index"][record.id] = (record.source, record.target)
+    return graph
 
 
 def plan(

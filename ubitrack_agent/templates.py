@@ -143,10 +143,6 @@ class Template:
     cost: CostSpec
     parameters: Mapping[str, Any] = field(default_factory=dict)
 
-    def input(self, name: str) -> InputSpec:
-        """The input edge called ``name``."""
-        return next(spec for spec in self.inputs if spec.name == name)
-
     @property
     def time_only(self) -> bool:
         """True if the pattern is only ever applied expanded in time (its outputs are static)."""
@@ -183,7 +179,9 @@ class _Checker:
     def fail(self, where: str, what: str) -> TemplateError:
         return TemplateError(f"{self.origin}: {where}: {what}")
 
-    def mapping(self, where: str, value: Any, allowed: set[str], required: tuple[str, ...] = ()):
+    def mapping(
+        self, where: str, value: Any, allowed: set[str], required: tuple[str, ...] = ()
+    ) -> dict[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(where, f"must be a mapping, got {value!r}")
         unknown = set(value) - allowed

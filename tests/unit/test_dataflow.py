@@ -5,7 +5,15 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 
-from ubitrack_agent.dataflow import Binding, DataFlow, diff, from_solution, merge, relation_name
+from ubitrack_agent.dataflow import (
+    Binding,
+    DataFlow,
+    diff,
+    from_solution,
+    merge,
+    plan_flows,
+    relation_name,
+)
 from ubitrack_agent.planner import Query, plan
 from ubitrack_agent.srg import parse_setup, remove_provider
 
@@ -140,3 +148,17 @@ def test_merge_keeps_both_computations_when_producers_differ(tracking_setup, tem
     assert renamed != fusion.id
     assert merged.components[renamed].inputs == other_inputs
     assert merged.relations["C->A:6D"] == flow.relations["C->A:6D"]
+
+
+def test_plan_flows_serves_what_it_can_and_names_the_rest(tracking_setup, templates):
+    queries = [QUERY, Query("C", "WT", "6D"), Query("WT", "IP", "3x4")]
+    flow, unresolved = plan_flows(tracking_setup, templates, queries)
+    assert set(flow.relations) == {"C->A:6D", "C->WT:6D"}
+    assert list(unresolved) == ["WT->IP:3x4"]
+    assert "no derivation of 3x4 WT->IP" in unresolved["WT->IP:3x4"]
+    assert len(flow.components) == 6  # C->WT is shared with C->A
+    lost = remove_provider(remove_provider(tracking_setup, "ART"), "C")
+    _, unresolved = plan_flows(lost, templates, queries[:1])
+    # without the tracker and the camera's features, only database edges remain around C
+    assert unresolved["C->A:6D"].startswith("frames C and A are not connected")
+    assert "C is connected to {C, HT, IP}" in unresolved["C->A:6D"]

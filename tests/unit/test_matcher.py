@@ -161,3 +161,51 @@ def test_edge_index_tracks_measured_rigid_pairs():
     assert index.is_rigid("B", "A") and index.is_measured_rigid("A", "B")
     assert not index.is_rigid("B", "C")
     assert isinstance(index, EdgeIndex)
+
+
+def test_3d3d_pose_estimation_space_and_time(by_pattern):
+    template = by_pattern["pose_estimation_3d3d"]
+    three_points = [(a, f"P{i}", "3D", a == "B") for a in ("A", "B") for i in range(3)]
+    found = instances(template, index_of(three_points))
+    # the roles are symmetric: both directions are found (planning keeps one, see canon)
+    assert sorted(i.outputs[0][1:5] for i in found) == [
+        ("A", "B", "6D", False),
+        ("B", "A", "6D", False),
+    ]
+    assert all(i.expansion == "space" and len(dict(i.inputs)["AF"]) == 3 for i in found)
+    # tracker alignment: one point tracked by two trackers over time (section 3.3)
+    one_moving_point = [("A", "P", "3D", False), ("B", "P", "3D", False)]
+    assert instances(template, index_of(one_moving_point)) == []
+    found = instances(template, index_of(one_moving_point, rigid=[("A", "B")]))
+    assert {i.expansion for i in found} == {"time"} and len(found) == 2
+    assert all(i.outputs[0][4] is True for i in found)
+
+
+def test_triangulation_over_image_planes(by_pattern):
+    two_views = [("C", "I1", "3x4", True), ("C", "I2", "3x4", True)]
+    two_views += [("I1", "F", "2D", False), ("I2", "F", "2D", False)]
+    (instance,) = instances(by_pattern["triangulation_2d3d"], index_of(two_views))
+    assert instance.expansion == "space"
+    assert sorted(dict(instance.inputs)["CI"]) == ["C->I1:3x4", "C->I2:3x4"]
+    assert instance.outputs[0][1:5] == ("C", "F", "3D", False)
+    assert instances(by_pattern["triangulation_2d3d"], index_of(two_views[::2])) == []
+
+
+def test_projective_calibration_needs_six_points(by_pattern):
+    def points(n):
+        return [
+            e for i in range(n) for e in (("I", f"F{i}", "2D", False), ("C", f"F{i}", "3D", True))
+        ]
+
+    (instance,) = instances(by_pattern["projective_calibration"], index_of(points(6)))
+    assert instance.expansion == "space"
+    assert instance.outputs[0][1:4] == ("C", "I", "3x4")
+    assert instances(by_pattern["projective_calibration"], index_of(points(5))) == []
+
+
+def test_pose_split_has_two_outputs_and_only_splits_measured_poses(by_pattern):
+    index = index_of([("A", "B", "6D", False)])
+    (instance,) = instances(by_pattern["pose_split"], index)
+    assert [o[1:4] for o in instance.outputs] == [("A", "B", "3D"), ("A", "B", "3R")]
+    index.add(replace(index.edges["A->B:6D"], id="derived", measured=False, canon="d"))
+    assert len(instances(by_pattern["pose_split"], index)) == 1

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import random
 from collections import Counter
+from pathlib import Path
 
 import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ubitrack_agent.planner import (
     NoSolutionError,
@@ -14,8 +19,11 @@ from ubitrack_agent.planner import (
     relevant_frames,
     saturate,
     useful_types,
+    with_solution,
 )
 from ubitrack_agent.srg import parse_setup
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def signature(solution):
@@ -225,3 +233,83 @@ def test_fusion_of_paths_of_different_lengths_is_found(templates):
     assert best[-1]["pattern"] == "MultiTrackerFusion"
     assert len(found[0].edge.sources) == 5
     assert sorted(len(s.edge.sources) for s in found) == [2, 3, 5]
+
+
+def test_with_solution_adds_the_inferred_edges_with_provenance(tracking_setup, templates):
+    best = plan(tracking_setup, templates, Query("C", "A", "6D"))[0]
+    graph = with_solution(tracking_setup, best)
+    inferred = [d for _, _, d in graph.edges(data=True) if not d["measured"]]
+    assert len(inferred) == len(best.steps) == 6
+    assert {d["derivation"] for d in inferred} == {s.id for s in best.steps}
+    fused = next(d for d in inferred if d["provider"] == "fusion")
+    assert fused["sources"] == best.edge.sources - {"WT->A:6D"}
+    assert tracking_setup.number_of_edges() + 6 == graph.number_of_edges()
+
+
+def test_plan_does_not_depend_on_the_order_of_the_setup_edges(templates):
+    data = yaml.safe_load((ROOT / "examples" / "paper_tracking.yaml").read_text())
+    for entry in data["edges"]:
+        entry["id"] = f"{entry['from']}->{entry['to']}"
+    reference = None
+    for seed in range(4):
+        random.Random(seed).shuffle(data["edges"])
+        found = plan(parse_setup(data), templates, Query("C", "A", "6D"))
+        document = [s.as_json() for s in found]
+        reference = reference or document
+        assert document == reference
+
+
+def test_alternatives_per_relation_are_bounded(templates):
+    edges = [("A", "B", "6D", False)] * 10 + [("B", "C", "6D", True)]
+    srg = setup(*edges)
+    ws = saturate(srg, templates, {"A", "B", "C"}, "6D", per_relation=3, goal=("A", "C"))
+    derived = ws.by_relation[("A", "C", "6D", False)]
+    assert 1 <= len(derived) <= 3
+    assert ws.index.retired  # cheaper alternatives (fusions) replaced the first ones
+    best = plan(srg, templates, Query("A", "C", "6D"), per_relation=3)[0]
+    fusion = next(s for s in best.steps if s.template.pattern == "MultiTrackerFusion")
+    assert len(dict(fusion.inputs)["AB"]) == 10  # all ten trackers fused in one step
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    edges=st.lists(
+        st.tuples(
+            st.integers(0, 4),
+            st.integers(0, 4),
+            st.sampled_from(["6D", "6D", "3D", "2D", "3x4"]),
+            st.booleans(),
+        ).filter(lambda e: e[0] != e[1]),
+        min_size=1,
+        max_size=9,
+    ),
+    query=st.tuples(st.integers(0, 4), st.integers(0, 4), st.booleans()).filter(
+        lambda q: q[0] != q[1]
+    ),
+)
+def test_any_srg_gets_valid_solutions_or_a_clear_error(templates, edges, query):
+    srg = setup(*((f"N{a}", f"N{b}", t, s) for a, b, t, s in edges))
+    q = Query(f"N{query[0]}", f"N{query[1]}", "6D", query[2])
+    try:
+        found = plan(srg, templates, q)
+    except NoSolutionError as exc:
+        assert str(exc)
+        return
+    for solution in found:
+        assert (solution.edge.source, solution.edge.target, solution.edge.type) == (
+            q.source,
+            q.target,
+            "6D",
+        )
+        assert solution.static or not q.static
+        for step in solution.steps:
+            ids = [e for _, group in step.inputs for e in group]
+            records = [solution.records[e] for e in ids]
+            if step.template.pattern == "Inversion":
+                assert records[0].pattern != "Inversion"
+            if step.expansion != "space":
+                for i, a in enumerate(records):
+                    for b in records[i + 1 :]:
+                        assert a.sources.isdisjoint(b.sources) or (
+                            a.time_integrated or b.time_integrated
+                        )

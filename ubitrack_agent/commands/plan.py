@@ -23,13 +23,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="plan how to derive a spatial relationship from a setup file (offline)",
         description=(
             "Find the derivations of FROM->TO in the SRG of SETUP with the pattern templates, "
-            "best first by expected error, latency and number of sensors. Exit status 2 if "
-            "there is none."
+            "best first by expected error, latency and number of sensors (docs/planner.md). "
+            "Exit status: 0 if there is a solution, 2 if there is none, 1 if a setup or "
+            "template file is invalid."
         ),
     )
     parser.add_argument("setup", metavar="SETUP.yaml", help="SRG setup file")
-    parser.add_argument("--from", dest="source", required=True, help="source frame")
-    parser.add_argument("--to", dest="target", required=True, help="target frame")
+    parser.add_argument(
+        "--from", dest="source", required=True, metavar="FRAME", help="source frame"
+    )
+    parser.add_argument("--to", dest="target", required=True, metavar="FRAME", help="target frame")
     parser.add_argument(
         "--type", required=True, choices=sorted(EDGE_TYPES), help="edge type of the relationship"
     )
