@@ -21,7 +21,7 @@ from typing import Any
 
 import networkx as nx
 
-from .planner import NoSolutionError, Query, Solution, plan
+from .planner import PlanningError, Query, Solution, plan
 from .templates import Template
 
 
@@ -205,6 +205,6 @@ def plan_flows(
     for query in queries:
         try:
             flows.append(from_solution(plan(srg, templates, query)[0], query))
-        except NoSolutionError as exc:
+        except PlanningError as exc:
             unresolved[relation_name(query)] = str(exc)
     return merge(flows), unresolved

@@ -1,5 +1,7 @@
 """Held triggers: released when inputs catch up or the wait is over, in order, once each."""
 
+import pytest
+
 from services.triggers import PendingTriggers
 
 
@@ -46,6 +48,6 @@ def test_only_live_inputs_are_waited_for():
     assert not lagging([_buffer([0, 10 * ms, 30 * ms])], trigger_time, 5 * ms)
     late = 300 * ms
     assert not lagging([occluded], late, 5 * ms)  # not live: never waited for
-    assert wait_for([steady], trigger_time, 5 * ms, cap_ns=50 * ms) == 0.015
-    assert wait_for([steady], trigger_time, 5 * ms, cap_ns=12 * ms) == 0.012
+    assert wait_for([steady], trigger_time, 5 * ms, cap_ns=50 * ms) == pytest.approx(0.015)
+    assert wait_for([steady], trigger_time, 5 * ms, cap_ns=12 * ms) == pytest.approx(0.012)
     assert wait_for([occluded], late, 5 * ms, cap_ns=50 * ms) == 0.0

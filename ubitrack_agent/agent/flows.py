@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 
-from ..dataflow import DataFlow, from_solution, merge, relation_name
+from ..dataflow import DataFlow, plan_flows, relation_name
 from ..keys import RelationId
-from ..planner import PlanningError, Query, plan
+from ..planner import PlanningError, Query
 from ..templates import Template
 
 
@@ -26,8 +26,8 @@ class Plan:
 def plan_relations(
     srg: nx.MultiDiGraph, templates: Sequence[Template], relations: Iterable[RelationId]
 ) -> Plan:
-    """Best derivation of each relation (``planner.plan``), merged into one data flow."""
-    flows, names, unsolved = [], {}, {}
+    """Best derivation of each relation (``dataflow.plan_flows``), merged into one data flow."""
+    queries, names, unsolved = [], {}, {}
     for relation in sorted(set(relations), key=str):
         try:
             query = Query(relation.source, relation.target, relation.type, relation.static)
@@ -40,10 +40,6 @@ def plan_relations(
         if missing:
             unsolved[name] = f"no provider announces frame(s) {', '.join(missing)}"
             continue
-        try:
-            best = plan(srg, templates, query)[0]
-        except PlanningError as exc:
-            unsolved[name] = str(exc)
-            continue
-        flows.append(from_solution(best, query))
-    return Plan(merge(flows), names, unsolved)
+        queries.append(query)
+    flow, unresolved = plan_flows(srg, templates, queries)
+    return Plan(flow, names, {**unsolved, **unresolved})
