@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from sim_trackers.exact_tracker import true_wt_ht
 from ubitrack_agent import config
 from ubitrack_agent.application import Relation
 from ubitrack_agent.core import se3
@@ -23,7 +24,6 @@ from ubitrack_agent.session import open_session
 from ubitrack_agent.transport import fetch_latest
 
 from .conftest import free_port, kill_tagged
-from .fake_tracker import true_wt_ht
 from .zenoh_helpers import member_flags, wait_until
 
 pytestmark = pytest.mark.integration
@@ -68,7 +68,7 @@ class Setup:
     def tracker(self, provider: str, tracker: str, yaw: float, x: float) -> subprocess.Popen:
         return self.start(
             "-m",
-            "tests.integration.fake_tracker",
+            "sim_trackers.exact_tracker",
             "--provider",
             provider,
             "--tracker",

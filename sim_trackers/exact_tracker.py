@@ -1,7 +1,9 @@
-"""A test tracker process: announces ``T->WT`` (static) and ``T->HT`` (dynamic) through the
-sensor API and publishes them from ground truth, so tests know the true ``WT->HT`` at any time.
+"""A noise-free 6D tracker for tests and benchmarks: announces ``T->WT`` (static) and
+``T->HT`` (dynamic) through the sensor API and publishes them from ground truth, so a test
+knows the true ``WT->HT`` at any time (:func:`true_wt_ht`). The published covariance is the
+announced accuracy ``sigma`` on every axis, so two trackers are told apart by it.
 
-Run: ``python -m tests.integration.fake_tracker --provider art --tracker ART --yaw 30 ...``.
+Run: ``python -m sim_trackers.exact_tracker --provider art --tracker ART --yaw 30 ...``.
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from ubitrack_agent.provider import EdgeAnnouncement, Provider
 from ubitrack_agent.session import open_session
 
 PATH = LissajousPath(centre=(0.0, 0.0, 1.6), amplitude=(1.0, 0.5), frequency=(0.2, 0.4))
-SIGMA = 1e-4
 
 
 def tracker_pose(yaw_deg: float, x: float) -> tuple[np.ndarray, np.ndarray]:
@@ -35,11 +36,11 @@ def true_wt_ht(timestamp_ns: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--provider", required=True)
-    parser.add_argument("--tracker", required=True)
-    parser.add_argument("--yaw", type=float, default=0.0)
-    parser.add_argument("--x", type=float, default=2.0)
+    parser = argparse.ArgumentParser(prog="python -m sim_trackers.exact_tracker")
+    parser.add_argument("--provider", required=True, help="provider id")
+    parser.add_argument("--tracker", required=True, help="tracker frame name")
+    parser.add_argument("--yaw", type=float, default=0.0, help="tracker yaw about z, degrees")
+    parser.add_argument("--x", type=float, default=2.0, help="tracker x offset, metres")
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--sigma", type=float, default=1e-3, help="announced accuracy (m)")
     config.add_arguments(parser)
@@ -47,7 +48,7 @@ def main() -> int:
     settings = config.from_arguments(args, role="member")
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    cov = np.diag([SIGMA**2] * 6)
+    cov = np.diag([args.sigma**2] * 6)
     q_wt, t_wt = tracker_pose(args.yaw, args.x)
     with open_session(settings) as session:
         provider = Provider(
