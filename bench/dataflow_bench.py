@@ -1,0 +1,339 @@
+"""Data path and reconfiguration benchmark (issue [agent], ``docs/performance.md``).
+
+Run: ``python -m bench.dataflow_bench [--samples N] [--trials N]``. Everything runs on loopback
+in separate processes with real zenoh; figures are printed and written to
+``bench/results/dataflow.json``.
+
+(a) **Hop latency.** The bench publishes poses and receives them back through one other
+    process, either a raw zenoh relay (``bench.raw_relay``: receive, republish) or a
+    concatenation worker (decode, synchronise with a static input, compose with covariance,
+    encode, publish). Both run side by side, interleaved in rounds, at 200 Hz; latency is
+    receive time minus send time in the bench process (one clock). The difference is what a
+    pattern hop adds over a raw hop.
+(b) **Throughput.** Poses are published as fast as the bench can into the concatenation worker
+    for a few seconds; the worker's ``published`` counter over the elapsed time is its rate.
+(c) **Reconfiguration.** An agent serves ``WT->HT`` for an application. Sensor appears: from
+    the tracker's liveliness token appearing (seen by the bench) to the first sample on the
+    relation key. Sensor disappears: two trackers, the accurate one used; it is killed
+    (SIGKILL); from its token vanishing to the first sample from the other tracker's flow
+    (told apart by its covariance). Repeated ``--trials`` times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import queue
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.spec import ComponentSpec, InputBinding
+from ubitrack_agent import config
+from ubitrack_agent.application import Relation
+from ubitrack_agent.core import ErrorPose, Pose, encode
+from ubitrack_agent.keys import KeySpace, RelationId
+from ubitrack_agent.session import open_session
+from ubitrack_agent.transport import fetch_latest
+
+RESULTS = Path(__file__).with_name("results") / "dataflow.json"
+SIGMA_GOOD, SIGMA_POOR = 1e-3, 3e-2
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+class Network:
+    """A hub session in the bench process and child processes joined to it."""
+
+    def __init__(self) -> None:
+        self.port = free_port()
+        self.domain = f"bench{self.port}"
+        self.keys = KeySpace(f"ubitrack/{self.domain}")
+        self.session = open_session(
+            config.Settings(listen=(f"tcp/127.0.0.1:{self.port}",), domain=self.domain)
+        )
+        self.children: list[subprocess.Popen] = []
+
+    def flags(self) -> list[str]:
+        return [
+            "--connect",
+            f"tcp/127.0.0.1:{self.port}",
+            "--listen",
+            "tcp/127.0.0.1:0",
+            "--domain",
+            self.domain,
+        ]
+
+    def spawn(self, *command: str) -> subprocess.Popen:
+        process = subprocess.Popen([sys.executable, *command, *self.flags()])
+        self.children.append(process)
+        return process
+
+    def close(self) -> None:
+        for process in self.children:
+            if process.poll() is None:
+                process.terminate()
+        for process in self.children:
+            try:
+                process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        self.session.close()
+
+
+def wait_until(condition, timeout: float = 20.0) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if result := condition():
+            return result
+        time.sleep(0.01)
+    raise RuntimeError("benchmark set-up did not come up in time")
+
+
+def percentiles(values: list[float]) -> dict[str, float]:
+    array = np.asarray(values)
+    return {
+        "n": len(values),
+        "p50": round(float(np.percentile(array, 50)), 1),
+        "p90": round(float(np.percentile(array, 90)), 1),
+        "p99": round(float(np.percentile(array, 99)), 1),
+        "max": round(float(array.max()), 1),
+    }
+
+
+def _concatenation_spec(keys: KeySpace) -> ComponentSpec:
+    return ComponentSpec(
+        instance="bench-concat",
+        service="concatenation",
+        inputs=(
+            InputBinding("AB", keys.data("bench/static"), static=True),
+            InputBinding("BC", keys.data("bench/in"), trigger=True),
+        ),
+        outputs={"AC": keys.data("bench/out")},
+    )
+
+
+def hop_latency(samples: int) -> dict[str, Any]:
+    """(a): raw relay and concatenation worker, interleaved rounds, latencies in us."""
+    net = Network()
+    try:
+        spec = _concatenation_spec(net.keys)
+        net.spawn("-m", "bench.raw_relay", net.keys.data("raw/in"), net.keys.data("raw/out"))
+        net.spawn("-m", "services.worker", "--spec", spec.to_json(), "--log-level", "WARNING")
+        received: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
+        subscribers = [
+            net.session.declare_subscriber(
+                net.keys.data(f"{path}/out"),
+                lambda s, path=path: received.put((path, time.perf_counter_ns())),
+            )
+            for path in ("raw", "bench")
+        ]
+        publishers = {
+            p: net.session.declare_publisher(net.keys.data(f"{p}/in")) for p in ("raw", "bench")
+        }
+        static = net.session.declare_publisher(net.keys.data("bench/static"))
+        wait_until(lambda: all(p.matching_status.matching for p in publishers.values()))
+        static.put(encode(ErrorPose(1, [0, 0, 0, 1], [1.0, 0, 0], np.eye(6) * 1e-6)))
+        time.sleep(0.5)
+        latencies: dict[str, list[float]] = {"raw": [], "bench": []}
+        pose = ErrorPose(0, [0, 0, 0, 1], [0.0, 1.0, 0], np.eye(6) * 1e-6)
+        for i in range(samples):
+            for path in ("raw", "bench") if i % 2 else ("bench", "raw"):
+                payload = encode(
+                    ErrorPose(time.time_ns(), pose.rotation, pose.translation, pose.covariance)
+                )
+                sent = time.perf_counter_ns()
+                publishers[path].put(payload)
+                try:
+                    got_path, at = received.get(timeout=1.0)
+                except queue.Empty:
+                    continue
+                if got_path == path and i >= 20:  # the first rounds warm up
+                    latencies[path].append((at - sent) / 1000.0)
+                time.sleep(0.005)
+        for subscriber in subscribers:
+            subscriber.undeclare()
+    finally:
+        net.close()
+    raw, pattern = percentiles(latencies["raw"]), percentiles(latencies["bench"])
+    return {
+        "raw_hop_us": raw,
+        "pattern_hop_us": pattern,
+        "added_us_p50": round(pattern["p50"] - raw["p50"], 1),
+        "added_us_p99": round(pattern["p99"] - raw["p99"], 1),
+    }
+
+
+def throughput(seconds: float) -> dict[str, Any]:
+    """(b): poses per second through one concatenation worker."""
+    net = Network()
+    try:
+        spec = _concatenation_spec(net.keys)
+        net.spawn("-m", "services.worker", "--spec", spec.to_json(), "--log-level", "WARNING")
+        publisher = net.session.declare_publisher(net.keys.data("bench/in"))
+        static = net.session.declare_publisher(net.keys.data("bench/static"))
+        wait_until(lambda: publisher.matching_status.matching)
+        static.put(encode(Pose(1, [0, 0, 0, 1], [1.0, 0, 0])))
+        time.sleep(0.5)
+
+        def counters() -> dict[str, int]:
+            replies = fetch_latest(net.session, net.keys.status(spec.instance), timeout=2.0)
+            return json.loads(replies[0])["counters"]
+
+        before, start = counters(), time.perf_counter()
+        sent, t = 0, 10**9
+        rotation, translation = np.array([0, 0, 0, 1.0]), np.array([0.0, 1.0, 0.0])
+        while time.perf_counter() - start < seconds:
+            for _ in range(100):
+                t += 1000
+                publisher.put(encode(Pose(t, rotation, translation)))
+                sent += 100 // 100
+        time.sleep(1.0)  # let the worker drain its inbox
+        after, elapsed = counters(), time.perf_counter() - start
+    finally:
+        net.close()
+    published = after["published"] - before["published"]
+    return {
+        "sent_per_s": round(sent / seconds),
+        "published_per_s": round(published / elapsed),
+        "overflow": after["overflow"] - before["overflow"],
+        "seconds": round(elapsed, 2),
+    }
+
+
+def reconfiguration(trials: int) -> dict[str, Any]:
+    """(c): sensor appears / disappears -> first sample of the new flow, in ms."""
+    net = Network()
+    appear, disappear = [], []
+    agent = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ubitrack_agent.cli",
+            "agent",
+            "--listen",
+            f"tcp/127.0.0.1:{free_port()}",
+            "--connect",
+            f"tcp/127.0.0.1:{net.port}",
+            "--domain",
+            net.domain,
+        ]
+    )
+    net.children.append(agent)
+    events: queue.SimpleQueue[tuple[str, str, int]] = queue.SimpleQueue()
+    watch = net.session.liveliness().declare_subscriber(
+        f"{net.keys.root}/provider/*",
+        lambda s: events.put(
+            (str(s.kind), str(s.key_expr).rsplit("/", 1)[-1], time.perf_counter_ns())
+        ),
+    )
+    arrivals: queue.SimpleQueue[tuple[int, Any]] = queue.SimpleQueue()
+    relation = Relation(
+        net.session,
+        net.keys,
+        RelationId("WT", "HT", "6D"),
+        application="bench",
+        callback=lambda sample: arrivals.put((time.perf_counter_ns(), sample)),
+    )
+    wait_until(lambda: fetch_latest(net.session, net.keys.agent_status(), timeout=0.5))
+    poor = net.spawn(
+        "-m",
+        "sim_trackers.exact_tracker",
+        "--provider",
+        "ir",
+        "--tracker",
+        "IR",
+        "--yaw",
+        "100",
+        "--x",
+        "-1",
+        "--sigma",
+        str(SIGMA_POOR),
+    )
+
+    def event(kind: str, provider: str) -> int:
+        while True:
+            got_kind, got_provider, at = events.get(timeout=30)
+            if got_kind.endswith(kind) and got_provider == provider:
+                return at
+
+    def first_sample(after_ns: int, sigma: float) -> int:
+        while True:
+            at, sample = arrivals.get(timeout=30)
+            variance = float(np.mean(np.diag(sample.covariance)[:3]))
+            if at > after_ns and abs(np.log(variance / (2 * sigma**2))) < 1.5:
+                return at
+
+    try:
+        event("PUT", "ir")
+        first_sample(0, SIGMA_POOR)
+        for _ in range(trials):
+            good = net.spawn(
+                "-m",
+                "sim_trackers.exact_tracker",
+                "--provider",
+                "art",
+                "--tracker",
+                "ART",
+                "--yaw",
+                "30",
+                "--sigma",
+                str(SIGMA_GOOD),
+            )
+            appeared = event("PUT", "art")
+            appear.append((first_sample(appeared, SIGMA_GOOD) - appeared) / 1e6)
+            time.sleep(0.5)
+            os.kill(good.pid, signal.SIGKILL)
+            vanished = event("DELETE", "art")
+            disappear.append((first_sample(vanished, SIGMA_POOR) - vanished) / 1e6)
+            good.wait()
+            time.sleep(0.5)
+    finally:
+        relation.close()
+        watch.undeclare()
+        poor.terminate()
+        net.close()
+    return {
+        "sensor_appears_ms": percentiles(appear),
+        "sensor_disappears_ms": percentiles(disappear),
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.dataflow_bench", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("--samples", type=int, default=2000, help="latency rounds (default 2000)")
+    parser.add_argument("--seconds", type=float, default=3.0, help="throughput run (default 3 s)")
+    parser.add_argument(
+        "--trials", type=int, default=10, help="reconfiguration trials (default 10)"
+    )
+    args = parser.parse_args()
+    results = {
+        "date": time.strftime("%Y-%m-%d"),
+        "machine": f"{os.cpu_count()} CPU, {platform.python_implementation()} {platform.python_version()}",
+        "hop_latency": hop_latency(args.samples),
+        "throughput": throughput(args.seconds),
+        "reconfiguration": reconfiguration(args.trials),
+    }
+    RESULTS.parent.mkdir(exist_ok=True)
+    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
+    print(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
