@@ -37,6 +37,8 @@ from scipy.spatial.transform import Rotation
 MAX_ITEMS = 10_000
 """Largest accepted number of bodies or markers in one line (a guard against bogus counts)."""
 
+DAY_NS = 86_400 * 1_000_000_000
+
 _BLOCK = re.compile(r"\[([^\[\]]*)\]")
 
 
@@ -73,6 +75,23 @@ class DTrackFrame:
     calibrated_bodies: int | None = None
     bodies: tuple[Body6D, ...] = field(default_factory=tuple)
     markers: tuple[Marker3D, ...] = field(default_factory=tuple)
+
+
+def seconds_of_day(timestamp_ns: int) -> float:
+    """DTrack's ``ts`` of a Unix time: seconds since 00:00 UTC, truncated to microseconds."""
+    return (timestamp_ns % DAY_NS) // 1000 / 1e6
+
+
+def timestamp_from_ts(seconds: float, host_ns: int) -> int:
+    """Unix time (ns) of DTrack's ``ts`` ``seconds``, placed on the UTC day of ``host_ns`` and
+    moved by a day if that puts it more than 12 hours away (``ts`` wraps at midnight; VRPN's
+    ``vrpn_Tracker_DTrack.C`` does the same)."""
+    stamp = host_ns - host_ns % DAY_NS + round(seconds * 1e6) * 1000
+    if stamp - host_ns > DAY_NS // 2:
+        stamp -= DAY_NS
+    elif host_ns - stamp > DAY_NS // 2:
+        stamp += DAY_NS
+    return stamp
 
 
 def _euler_deg(rotation: np.ndarray) -> np.ndarray:
