@@ -1,11 +1,18 @@
-"""Process plumbing shared by the simulators: stop on signals, tick at a fixed rate."""
+"""Process plumbing shared by the simulators: stop on signals, tick at a fixed rate, run a
+provider on its own zenoh session."""
 
 from __future__ import annotations
 
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+from ubitrack_agent.config import Settings
+from ubitrack_agent.keys import KeySpace
+from ubitrack_agent.provider import EdgeAnnouncement, Provider
+from ubitrack_agent.session import open_session
 
 
 def stop_on_signals() -> threading.Event:
@@ -38,3 +45,17 @@ def run_periodic(
         next_tick = max(next_tick + period_ns, time.time_ns() - period_ns)
         stop.wait(max(0.0, (next_tick - time.time_ns()) * 1e-9))
     return steps
+
+
+@contextmanager
+def provider_session(
+    settings: Settings, provider_id: str, edges: list[EdgeAnnouncement]
+) -> Iterator[Provider]:
+    """A zenoh session with one :class:`~ubitrack_agent.provider.Provider` announced on it;
+    both are closed on exit (the provider first, so the agent replans at once)."""
+    with open_session(settings) as session:
+        provider = Provider(session, KeySpace(settings.key_prefix), provider_id, edges)
+        try:
+            yield provider
+        finally:
+            provider.close()

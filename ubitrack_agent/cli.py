@@ -13,7 +13,7 @@ import sys
 
 from . import __version__, logs
 
-COMMAND_MODULES: tuple[str, ...] = ("config", "demo", "subscribe")
+COMMAND_MODULES: tuple[str, ...] = ("config", "demo", "subscribe", "sim", "dtrack")
 """Modules of :mod:`ubitrack_agent.commands`, in the order ``--help`` lists them."""
 
 
