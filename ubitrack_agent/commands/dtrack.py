@@ -13,7 +13,7 @@ import argparse
 import logging
 import sys
 
-from .sim import add_common_arguments, load, member_settings
+from .sim import add_common_arguments, prepare
 
 log = logging.getLogger("ubitrack.dtrack")
 
@@ -79,9 +79,9 @@ def run(args: argparse.Namespace) -> int:
     from sim_trackers.runtime import provider_session, stop_on_signals
 
     prog = "ubitrack dtrack"
-    scenario, settings = load(args, prog), member_settings(args, prog)
-    if scenario is None or settings is None:
+    if (prepared := prepare(args, prog)) is None:
         return 2
+    scenario, settings = prepared
     art = scenario.art
     bodies = dict(args.body) if args.body else art.bodies
     markers = dict(args.marker) if args.marker else art.markers

@@ -41,13 +41,16 @@ def load(args: argparse.Namespace, prog: str) -> Any:
         return None
 
 
-def member_settings(args: argparse.Namespace, prog: str) -> config.Settings | None:
-    """Zenoh settings of a member process; ``None`` after printing why they are invalid."""
+def prepare(args: argparse.Namespace, prog: str) -> tuple[Any, config.Settings] | None:
+    """The scenario and the zenoh settings of a member process; ``None`` after printing why
+    either is invalid."""
+    scenario = load(args, prog)
     try:
-        return config.from_arguments(args, role="member")
+        settings = config.from_arguments(args, role="member")
     except config.ConfigError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return None
+    return None if scenario is None else (scenario, settings)
 
 
 def _rate(value: float | None, default: float, prog: str) -> float | None:
@@ -101,9 +104,9 @@ def _run_world(args: argparse.Namespace) -> int:
     from ..session import open_session
 
     prog = "ubitrack sim world"
-    scenario, settings = load(args, prog), member_settings(args, prog)
-    if scenario is None or settings is None:
+    if (prepared := prepare(args, prog)) is None:
         return 2
+    scenario, settings = prepared
     stop = stop_on_signals()
     with open_session(settings) as session:
         server = TruthServer(session, KeySpace(settings.key_prefix), scenario.world)
@@ -125,10 +128,9 @@ def _run_art(args: argparse.Namespace) -> int:
     scenario = load(args, prog)
     if scenario is None:
         return 2
-    rate = _rate(args.rate, scenario.art.rate, prog)
-    port = scenario.art.port if args.port is None else args.port
-    if rate is None:
+    if (rate := _rate(args.rate, scenario.art.rate, prog)) is None:
         return 2
+    port = scenario.art.port if args.port is None else args.port
     seed = scenario.seed if args.seed is None else args.seed
     simulator = sim_art.ArtSimulator(scenario.world, scenario.art, np.random.default_rng(seed))
     try:
@@ -146,9 +148,10 @@ def _run_camera(args: argparse.Namespace) -> int:
     from sim_trackers.sim_camera import CameraSimulator, announcements
 
     prog = "ubitrack sim camera"
-    scenario, settings = load(args, prog), member_settings(args, prog)
-    rate = None if scenario is None else _rate(args.rate, scenario.camera.rate, prog)
-    if scenario is None or settings is None or rate is None:
+    if (prepared := prepare(args, prog)) is None:
+        return 2
+    scenario, settings = prepared
+    if (rate := _rate(args.rate, scenario.camera.rate, prog)) is None:
         return 2
     seed = scenario.seed + 1 if args.seed is None else args.seed
     simulator = CameraSimulator(scenario.world, scenario.camera, np.random.default_rng(seed))
@@ -172,9 +175,9 @@ def _run_database(args: argparse.Namespace) -> int:
     from sim_trackers.runtime import provider_session, stop_on_signals
 
     prog = "ubitrack sim database"
-    scenario, settings = load(args, prog), member_settings(args, prog)
-    if scenario is None or settings is None:
+    if (prepared := prepare(args, prog)) is None:
         return 2
+    scenario, settings = prepared
     stop = stop_on_signals()
     edges = static_edges(scenario.world, scenario.database_edges, time.time_ns())
     announced = [edge.announcement for edge in edges]
