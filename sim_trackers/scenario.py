@@ -93,7 +93,7 @@ class Scenario:
     seed: int
 
 
-class _Reader:
+class FieldReader:
     """Checks values of one file; every error names the file and the dotted field path."""
 
     def __init__(self, path: str) -> None:
@@ -149,7 +149,7 @@ class _Reader:
         return self.number(where, value, 0.0, 1.0)
 
 
-def _placement(read: _Reader, where: str, spec: dict[str, Any]) -> Placement:
+def _placement(read: FieldReader, where: str, spec: dict[str, Any]) -> Placement:
     if "trajectory" in spec:
         if {"translation", "rotation", "euler_deg"} & set(spec):
             raise read.fail(where, "a trajectory excludes translation, rotation and euler_deg")
@@ -168,7 +168,7 @@ def _placement(read: _Reader, where: str, spec: dict[str, Any]) -> Placement:
     return FixedPlacement(rotation, translation)
 
 
-def _trajectory(read: _Reader, where: str, spec: Any) -> LissajousPath:
+def _trajectory(read: FieldReader, where: str, spec: Any) -> LissajousPath:
     spec = read.mapping(
         where, spec, ("type", "centre", "amplitude", "frequency"), ("phase", "look_at")
     )
@@ -184,7 +184,7 @@ def _trajectory(read: _Reader, where: str, spec: Any) -> LissajousPath:
     )
 
 
-def _frames(read: _Reader, spec: Any) -> list[Frame]:
+def _frames(read: FieldReader, spec: Any) -> list[Frame]:
     if not isinstance(spec, dict) or not spec:
         raise read.fail("frames", "must be a non-empty mapping of frame names")
     frames = []
@@ -204,7 +204,7 @@ def _frames(read: _Reader, spec: Any) -> list[Frame]:
     return frames
 
 
-def _image_planes(read: _Reader, spec: Any) -> list[ImagePlane]:
+def _image_planes(read: FieldReader, spec: Any) -> list[ImagePlane]:
     spec = {} if spec is None else spec
     if not isinstance(spec, dict):
         raise read.fail("image_planes", f"must be a mapping, got {type(spec).__name__}")
@@ -240,7 +240,9 @@ def _image_planes(read: _Reader, spec: Any) -> list[ImagePlane]:
     return planes
 
 
-def _id_map(read: _Reader, where: str, spec: Any, world: World, first_id: int) -> dict[int, str]:
+def _id_map(
+    read: FieldReader, where: str, spec: Any, world: World, first_id: int
+) -> dict[int, str]:
     if not isinstance(spec, dict):
         raise read.fail(where, "must be a mapping of DTrack ids to frame names")
     return {
@@ -251,7 +253,7 @@ def _id_map(read: _Reader, where: str, spec: Any, world: World, first_id: int) -
     }
 
 
-def _art(read: _Reader, spec: Any, world: World) -> ArtSettings:
+def _art(read: FieldReader, spec: Any, world: World) -> ArtSettings:
     spec = read.mapping(
         "art",
         spec,
@@ -282,7 +284,7 @@ def _art(read: _Reader, spec: Any, world: World) -> ArtSettings:
     )
 
 
-def _camera(read: _Reader, spec: Any, world: World) -> CameraSettings:
+def _camera(read: FieldReader, spec: Any, world: World) -> CameraSettings:
     spec = read.mapping(
         "camera",
         spec,
@@ -308,7 +310,7 @@ def _camera(read: _Reader, spec: Any, world: World) -> CameraSettings:
     )
 
 
-def _database(read: _Reader, spec: Any, world: World) -> tuple[str, tuple[DatabaseEdge, ...]]:
+def _database(read: FieldReader, spec: Any, world: World) -> tuple[str, tuple[DatabaseEdge, ...]]:
     spec = read.mapping("database", spec, ("provider", "edges"))
     if not isinstance(spec["edges"], list) or not spec["edges"]:
         raise read.fail("database.edges", "must be a non-empty list")
@@ -332,18 +334,25 @@ def _database(read: _Reader, spec: Any, world: World) -> tuple[str, tuple[Databa
     return read.name("database.provider", spec["provider"]), tuple(edges)
 
 
-def load_scenario(path: str | os.PathLike[str] | None = None) -> Scenario:
-    """Read and check a scenario file (default: the paper's figure-1 setup)."""
-    path = Path(path) if path is not None else DEFAULT_SCENARIO
-    read = _Reader(str(path))
+def read_yaml(path: str | os.PathLike[str]) -> Any:
+    """The YAML document in ``path``; :class:`ScenarioError` if unreadable or invalid."""
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read ({exc.strerror})") from None
     except yaml.YAMLError as exc:
         raise ScenarioError(f"{path}: not valid YAML ({exc})") from None
+
+
+def load_scenario(path: str | os.PathLike[str] | None = None) -> Scenario:
+    """Read and check a scenario file (default: the paper's figure-1 setup)."""
+    path = Path(path) if path is not None else DEFAULT_SCENARIO
+    read = FieldReader(str(path))
     data = read.mapping(
-        "scenario", data, ("frames", "art", "camera", "database"), ("image_planes", "seed")
+        "scenario",
+        read_yaml(path),
+        ("frames", "art", "camera", "database"),
+        ("image_planes", "seed"),
     )
     try:
         world = World(_frames(read, data["frames"]), _image_planes(read, data.get("image_planes")))

@@ -80,7 +80,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     camera = _add(commands, "camera", _run_camera, "publish 2D marker features (IP->Fi)")
     camera.add_argument("--rate", type=float, help="frames per second (default: scenario)")
     camera.add_argument("--seed", type=int, help="noise seed (default: scenario seed)")
-    _add(commands, "database", _run_database, "serve the static calibration edges")
+    database = _add(commands, "database", _run_database, "serve the static calibration edges")
+    database.add_argument(
+        "--edges", help="serve this static-edges file instead of the scenario's truth"
+    )
+    database.add_argument(
+        "--dump", action="store_true", help="print the edges as a static-edges file and exit"
+    )
 
 
 def _add(
@@ -171,17 +177,28 @@ def _run_camera(args: argparse.Namespace) -> int:
 def _run_database(args: argparse.Namespace) -> int:
     import time
 
-    from sim_trackers.database import static_edges
+    from sim_trackers.database import dump_edges, load_edges_file, static_edges
     from sim_trackers.runtime import provider_session, stop_on_signals
+    from sim_trackers.scenario import ScenarioError
 
     prog = "ubitrack sim database"
     if (prepared := prepare(args, prog)) is None:
         return 2
     scenario, settings = prepared
-    stop = stop_on_signals()
+    provider_id = scenario.database_provider
     edges = static_edges(scenario.world, scenario.database_edges, time.time_ns())
+    if args.edges is not None:
+        try:
+            provider_id, edges = load_edges_file(args.edges, time.time_ns())
+        except ScenarioError as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return 2
+    if args.dump:
+        print(dump_edges(provider_id, edges), end="")
+        return 0
+    stop = stop_on_signals()
     announced = [edge.announcement for edge in edges]
-    with provider_session(settings, scenario.database_provider, announced) as provider:
+    with provider_session(settings, provider_id, announced) as provider:
         for edge in edges:
             provider.publish(edge.announcement.name, edge.value)
         stop.wait(args.duration)
