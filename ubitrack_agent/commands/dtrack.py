@@ -94,9 +94,13 @@ def run(args: argparse.Namespace) -> int:
         edges = dtrack_adapter.announcements(
             tracker, bodies, static, markers, art.rate, sigma_mm / 1000.0
         )
-        sock = dtrack_adapter.open_socket(args.bind, port)
-    except (ValueError, OSError) as exc:
+    except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    try:
+        sock = dtrack_adapter.open_socket(args.bind, port)
+    except OSError as exc:
+        print(f"{prog}: cannot listen on UDP {args.bind}:{port}: {exc}", file=sys.stderr)
         return 2
     stop = stop_on_signals()
     with sock, provider_session(settings, args.provider or art.provider, edges) as provider:
