@@ -3,8 +3,8 @@
 It measures two edges, as an outside-in tracker such as an A.R.T. system does:
 ``<tracker>/<body>`` (dynamic, the moving body) and ``<tracker>/<reference>`` (static, a
 reference target fixed in the room, re-sent once a second). Each measurement is an
-:class:`~ubitrack_agent.core.ErrorPose` whose covariance is the noise actually added, drawn as
-a left perturbation ``Exp(xi) T_true`` with ``xi ~ N(0, Sigma)``.
+:class:`~ubitrack_agent.core.ErrorPose` whose covariance is the noise actually added
+(:mod:`sim_trackers.noise`).
 
 Run ``python -m sim_trackers.pose_publisher --help``.
 """
@@ -17,31 +17,18 @@ import threading
 import time
 
 import numpy as np
-from scipy.spatial.transform import RigidTransform, Rotation
+from scipy.spatial.transform import Rotation
 
 from ubitrack_agent import config
-from ubitrack_agent.core import ErrorPose, encode
+from ubitrack_agent.core import encode
 from ubitrack_agent.keys import KeySpace
 from ubitrack_agent.session import open_session
 
+from .noise import noise_covariance, noisy
 from .trajectories import LissajousPath
 
 REFERENCE_POSE = (Rotation.from_euler("z", 30, degrees=True).as_quat(), np.array([2.0, 1.0, 0.0]))
 """Ground truth of the static reference target in the tracker frame."""
-
-
-def noise_covariance(sigma_deg: float, sigma_mm: float) -> np.ndarray:
-    """Isotropic 6x6 covariance for rotation (degrees) and translation (mm) noise."""
-    return np.diag([np.radians(sigma_deg) ** 2] * 3 + [(sigma_mm / 1000.0) ** 2] * 3)
-
-
-def noisy(
-    rng: np.random.Generator, timestamp_ns: int, q: np.ndarray, t: np.ndarray, cov: np.ndarray
-) -> ErrorPose:
-    """An :class:`ErrorPose` of ``(q, t)`` perturbed on the left with covariance ``cov``."""
-    truth = RigidTransform.from_components(t, Rotation.from_quat(q))
-    sample = RigidTransform.from_exp_coords(rng.multivariate_normal(np.zeros(6), cov)) * truth
-    return ErrorPose(timestamp_ns, sample.rotation.as_quat(), sample.translation, cov)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -13,7 +13,16 @@ import sys
 
 from . import __version__, logs
 
-COMMAND_MODULES: tuple[str, ...] = ("agent", "plan", "subscribe", "status", "config", "demo")
+COMMAND_MODULES: tuple[str, ...] = (
+    "agent",
+    "plan",
+    "subscribe",
+    "status",
+    "sim",
+    "dtrack",
+    "config",
+    "demo",
+)
 """Modules of :mod:`ubitrack_agent.commands`, in the order ``--help`` lists them."""
 
 

@@ -19,6 +19,8 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/worker/<instance>         liveliness token of a running pattern worker
     <root>/control/<instance>        rewire / reconfigure a running worker (JSON, put)
     <root>/status/<instance>         a worker's counters (JSON, queryable)
+    <root>/truth/<from>/<to>         queryable of a simulated world: the ground truth of the
+                                     relation (msgpack), at ``?t=<ns>`` or now
 
 Names that end up inside keys (frames, edge ids, domains) are checked chunk by chunk: no empty
 chunks, no wildcards (``*``, ``$``), no ``#``/``?`` (selector syntax), no ``@`` (zenoh's
@@ -108,6 +110,11 @@ class KeySpace:
         """Data key of the measured edge ``edge_name`` of ``provider``."""
         validate_key_chunks(provider, single_chunk=True)
         return self.data(f"{provider}/{validate_key_chunks(edge_name, single_chunk=True)}")
+
+    def truth(self, source: str, target: str) -> str:
+        """Queryable answering the simulated ground truth of ``source -> target``."""
+        validate_key_chunks(source, single_chunk=True)
+        return f"{self.root}/truth/{source}/{validate_key_chunks(target, single_chunk=True)}"
 
     def query(self, relation: RelationId, application: str) -> str:
         """Liveliness token of ``application``'s query for ``relation``."""

@@ -1,0 +1,61 @@
+"""Process plumbing shared by the simulators: stop on signals, tick at a fixed rate, run a
+provider on its own zenoh session."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+from ubitrack_agent.config import Settings
+from ubitrack_agent.keys import KeySpace
+from ubitrack_agent.provider import EdgeAnnouncement, Provider
+from ubitrack_agent.session import open_session
+
+
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGTERM or SIGINT, so a long-running loop can end and clean up."""
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    return stop
+
+
+def run_periodic(
+    rate_hz: float,
+    step: Callable[[int], None],
+    stop: threading.Event,
+    duration_s: float | None = None,
+) -> int:
+    """Call ``step(time.time_ns())`` at ``rate_hz`` until ``stop`` is set or ``duration_s``
+    has passed; returns the number of steps. Ticks are scheduled on absolute times, so the rate
+    does not drift with the time each step takes (late ticks are not made up)."""
+    period_ns = int(1e9 / rate_hz)
+    start = next_tick = time.time_ns()
+    end = None if duration_s is None else start + int(duration_s * 1e9)
+    steps = 0
+    while not stop.is_set():
+        now = time.time_ns()
+        if end is not None and now >= end:
+            break
+        step(now)
+        steps += 1
+        next_tick = max(next_tick + period_ns, time.time_ns() - period_ns)
+        stop.wait(max(0.0, (next_tick - time.time_ns()) * 1e-9))
+    return steps
+
+
+@contextmanager
+def provider_session(
+    settings: Settings, provider_id: str, edges: list[EdgeAnnouncement]
+) -> Iterator[Provider]:
+    """A zenoh session with one :class:`~ubitrack_agent.provider.Provider` announced on it;
+    both are closed on exit (the provider first, so the agent replans at once)."""
+    with open_session(settings) as session:
+        provider = Provider(session, KeySpace(settings.key_prefix), provider_id, edges)
+        try:
+            yield provider
+        finally:
+            provider.close()

@@ -1,0 +1,56 @@
+"""Simulated camera: image positions of the marker points it sees, with pixel noise.
+
+Each frame the camera takes its pose from the world, projects the scenario's ``camera.features``
+through OpenCV's camera model of its image plane (:meth:`sim_trackers.world.ImagePlane.project`:
+field of view and points behind the camera), hides each visible feature with probability
+``camera.occlusion``, loses the whole frame with probability ``camera.dropout``, and adds
+Gaussian pixel noise ``camera.noise_px`` per axis. Each remaining feature ``F`` is one
+:class:`~ubitrack_agent.core.Position2D` on the 2D edge ``<image plane> -> F`` (the paper's
+``IP -> F1..F5``), all with the frame's timestamp and the covariance ``noise_px^2 I``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ubitrack_agent.core import Position2D
+from ubitrack_agent.provider import EdgeAnnouncement
+
+from .scenario import CameraSettings
+from .world import World
+
+
+def announcements(settings: CameraSettings) -> list[EdgeAnnouncement]:
+    """One dynamic 2D edge ``<image plane> -> <feature>`` per feature."""
+    return [
+        EdgeAnnouncement(
+            settings.image_plane, feature, "2D", rate=settings.rate, sigma=settings.noise_px
+        )
+        for feature in settings.features
+    ]
+
+
+class CameraSimulator:
+    """Makes the 2D measurements the scenario's camera would take."""
+
+    def __init__(self, world: World, settings: CameraSettings, rng: np.random.Generator) -> None:
+        self.world = world
+        self.settings = settings
+        self.rng = rng
+        self.covariance = np.eye(2) * settings.noise_px**2
+
+    def measure(self, timestamp_ns: int) -> dict[str, Position2D]:
+        """Edge name -> measurement of every feature seen at ``timestamp_ns``."""
+        settings = self.settings
+        if self.rng.random() < settings.dropout:
+            return {}
+        seen = self.world.project(settings.image_plane, settings.features, timestamp_ns)
+        return {
+            f"{settings.image_plane}_{feature}": Position2D(
+                timestamp_ns,
+                pixel + self.rng.normal(0.0, settings.noise_px, 2),
+                self.covariance,
+            )
+            for feature, pixel in seen.items()
+            if self.rng.random() >= settings.occlusion
+        }

@@ -1,0 +1,104 @@
+"""Simulated camera measurements and the calibration database's edges and files."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+import pytest
+import yaml
+
+from sim_trackers.database import dump_edges, load_edges_file, static_edges
+from sim_trackers.scenario import DatabaseEdge, ScenarioError, load_scenario
+from sim_trackers.sim_camera import CameraSimulator, announcements
+from ubitrack_agent.core import CameraIntrinsics, Pose, Position3D, Projection
+
+SCENARIO = load_scenario()
+WORLD = SCENARIO.world
+T0 = 1_763_700_000_000_000_000
+
+
+def test_camera_features_scatter_around_the_projected_truth_with_the_set_noise():
+    camera = dataclasses.replace(SCENARIO.camera, occlusion=0.0)
+    simulator = CameraSimulator(WORLD, camera, np.random.default_rng(4))
+    errors = []
+    for i in range(200):
+        t = T0 + i * 33_333_333
+        measured = simulator.measure(t)
+        assert set(measured) == {f"IP_{f}" for f in camera.features}
+        truth = WORLD.project("IP", camera.features, t)
+        for name, sample in measured.items():
+            assert sample.timestamp_ns == t
+            errors.append(sample.position - truth[name.removeprefix("IP_")])
+    assert np.std(errors, axis=0) == pytest.approx([0.5, 0.5], rel=0.1)
+    assert np.abs(np.mean(errors, axis=0)).max() < 0.05
+    assert [(e.name, e.type, e.static) for e in announcements(camera)] == [
+        (f"IP_{f}", "2D", False) for f in camera.features
+    ]
+
+
+def test_camera_occlusion_and_dropout():
+    hidden = dataclasses.replace(SCENARIO.camera, occlusion=0.5)
+    simulator = CameraSimulator(WORLD, hidden, np.random.default_rng(5))
+    counts = [len(simulator.measure(T0 + i * 33_333_333)) for i in range(400)]
+    assert np.mean(counts) == pytest.approx(2.5, rel=0.1)
+    lost = dataclasses.replace(SCENARIO.camera, dropout=1.0)
+    assert CameraSimulator(WORLD, lost, np.random.default_rng(5)).measure(T0) == {}
+
+
+def test_database_values_are_the_world_truth():
+    edges = {e.announcement.name: e for e in static_edges(WORLD, SCENARIO.database_edges, T0)}
+    assert all(e.announcement.static for e in edges.values())
+    assert isinstance(edges["C_IP"].value, Projection)
+    np.testing.assert_array_equal(
+        edges["C_IP"].value.matrix, [[700, 0, 320, 0], [0, 700, 240, 0], [0, 0, 1, 0]]
+    )
+    assert isinstance(edges["C_HT"].value, Pose)
+    np.testing.assert_allclose(edges["C_HT"].value.translation, WORLD.pose("C", "HT", 0)[1])
+    assert isinstance(edges["WT_F2"].value, Position3D)
+    np.testing.assert_allclose(edges["WT_F2"].value.position, [0.0, 0.22, -0.14])
+    (intrinsics,) = static_edges(WORLD, (DatabaseEdge("C", "IP", "intrinsics"),), T0)
+    assert intrinsics.announcement.name == "C_IP_intrinsics"
+    assert isinstance(intrinsics.value, CameraIntrinsics)
+    assert intrinsics.value.image_size == (640, 480)
+
+
+def test_edges_file_round_trip(tmp_path):
+    edges = static_edges(
+        WORLD, (*SCENARIO.database_edges, DatabaseEdge("C", "IP", "intrinsics")), T0
+    )
+    path = tmp_path / "edges.yaml"
+    path.write_text(dump_edges("calib", edges), encoding="utf-8")
+    provider, loaded = load_edges_file(path, T0)
+    assert provider == "calib"
+    assert [e.announcement for e in loaded] == [e.announcement for e in edges]
+    assert [e.value for e in loaded] == [e.value for e in edges]
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ({"from": "C", "to": "HT", "type": "9D"}, "edges[0].type: must be one of"),
+        ({"from": "C", "to": "HT", "type": "6D", "rotation": [0, 0, 0, 1]}, "missing field"),
+        (
+            {
+                "from": "C",
+                "to": "HT",
+                "type": "6D",
+                "rotation": [0, 0, 0, 2],
+                "translation": [0] * 3,
+            },
+            "Pose.rotation: not a unit quaternion",
+        ),
+        ({"from": "W", "to": "F", "type": "3D", "position": [1, 2], "x": 1}, "unknown field"),
+        ({"from": "W", "to": "F", "type": "3D", "position": [1, 2]}, "Position3D.position: shape"),
+        ({"from": "W/x", "to": "F", "type": "3D", "position": [1, 2, 3]}, "edges[0].from: not a"),
+        ("C->HT", "edges[0]: must be a mapping with a type"),
+    ],
+)
+def test_edges_file_mistakes_name_file_and_field(tmp_path, entry, message):
+    path = tmp_path / "edges.yaml"
+    path.write_text(yaml.safe_dump({"provider": "db", "edges": [entry]}), encoding="utf-8")
+    with pytest.raises(ScenarioError, match=re.escape(str(path)) + ".*" + re.escape(message)):
+        load_edges_file(path, T0)
