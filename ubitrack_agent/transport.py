@@ -13,7 +13,7 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
-FETCH_RETRY_DELAYS = (0.0, 0.05, 0.2, 0.5, 1.0, 2.0)
+FETCH_RETRY_DELAYS = (0.0, 0.01, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32, 0.64, 1.28, 2.56)
 """Seconds between attempts to fetch current values after subscribing (links come up in the
 background after ``zenoh.open``, so the first attempt may reach nobody)."""
 

@@ -28,10 +28,11 @@ read-only float64 arrays, so a measurement that exists is a valid one.
 
 from __future__ import annotations
 
+import copy
 import math
 import numbers
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar
 
 import numpy as np
@@ -82,11 +83,13 @@ def check_timestamp(where: str, value: Any) -> int:
     return value
 
 
-def _as_array(where: str, value: Any, spec: ArrayField) -> np.ndarray:
+def _as_array(where: str, value: Any, spec: ArrayField, full: bool = True) -> np.ndarray:
     try:
-        array = np.array(value, dtype=np.float64)
+        array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise _fail(where, f"not an array of numbers ({exc})") from None
+    if array is value and array.flags.writeable:
+        array = array.copy()  # never alias an array the caller may still change
     if array.ndim != len(spec.shape) or not all(
         want is None or got == want for got, want in zip(array.shape, spec.shape, strict=True)
     ):
@@ -98,9 +101,10 @@ def _as_array(where: str, value: Any, spec: ArrayField) -> np.ndarray:
         raise _fail(where, f"more than {MAX_LIST_LENGTH} entries")
     if not np.isfinite(array).all():
         raise _fail(where, "contains NaN or infinity")
-    if spec.check is not None:
+    if full and spec.check is not None:
         spec.check(where, array)
-    array.flags.writeable = False
+    if array.flags.writeable:
+        array.flags.writeable = False
     return array
 
 
@@ -151,6 +155,9 @@ class Measurement:
     timestamp_ns: int
 
     def __post_init__(self) -> None:
+        self._validate(full=True)
+
+    def _validate(self, full: bool) -> None:
         name = type(self).__name__
         object.__setattr__(
             self, "timestamp_ns", check_timestamp(f"{name}.timestamp_ns", self.timestamp_ns)
@@ -162,8 +169,37 @@ class Measurement:
                 if not spec.optional:
                     raise _fail(where, "is required")
                 continue
-            object.__setattr__(self, spec.name, _as_array(where, value, spec))
+            object.__setattr__(self, spec.name, _as_array(where, value, spec, full))
         self._check_extra()
+
+    @classmethod
+    def derived(cls, **values: Any) -> Measurement:
+        """A measurement computed by this package's maths from valid measurements.
+
+        Checks the timestamp, shapes and finiteness (degenerate maths must not pass NaN on), but
+        not the properties that hold by construction and cost most per sample (unit
+        quaternions, positive semi-definite covariances); the data path uses it for results.
+        Anything from outside goes through the validating constructor or the decoder.
+        """
+        value = object.__new__(cls)
+        for f in fields(cls):
+            if f.name in values:
+                item = values[f.name]
+            elif f.default is not MISSING:
+                item = f.default
+            elif f.default_factory is not MISSING:
+                item = f.default_factory()
+            else:
+                raise TypeError(f"{cls.__name__}.derived: missing {f.name}")
+            object.__setattr__(value, f.name, item)
+        value._validate(full=False)
+        return value
+
+    def restamped(self, timestamp_ns: int) -> Measurement:
+        """The same value at another time (no re-validation of the unchanged arrays)."""
+        value = copy.copy(self)
+        object.__setattr__(value, "timestamp_ns", check_timestamp("timestamp_ns", timestamp_ns))
+        return value
 
     def _check_extra(self) -> None:
         """Validate fields that are not float arrays (overridden where there are any)."""

@@ -26,8 +26,10 @@ def _covariance(pose: AnyPose) -> np.ndarray | None:
 
 def _make(timestamp_ns: int, q: np.ndarray, t: np.ndarray, cov: np.ndarray | None) -> AnyPose:
     if cov is None:
-        return Pose(timestamp_ns, q, t)
-    return ErrorPose(timestamp_ns, q, t, 0.5 * (cov + cov.T))
+        return Pose.derived(timestamp_ns=timestamp_ns, rotation=q, translation=t)
+    return ErrorPose.derived(
+        timestamp_ns=timestamp_ns, rotation=q, translation=t, covariance=0.5 * (cov + cov.T)
+    )
 
 
 def invert_pose(pose: AnyPose) -> AnyPose:
@@ -72,7 +74,9 @@ def transform_position(pose: AnyPose, point: Position3D) -> Position3D:
             jacobian = np.hstack((-uncertainty.skew(x), np.eye(3)))
             cov += jacobian @ cov_pose @ jacobian.T
         cov = 0.5 * (cov + cov.T)
-    return Position3D(max(pose.timestamp_ns, point.timestamp_ns), x, cov)
+    return Position3D.derived(
+        timestamp_ns=max(pose.timestamp_ns, point.timestamp_ns), position=x, covariance=cov
+    )
 
 
 def interpolate_pose(before: AnyPose, after: AnyPose, timestamp_ns: int) -> AnyPose:

@@ -56,7 +56,8 @@ _MATRIX = _matrix_table()
 
 
 def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    a, b = np.broadcast_arrays(a, b)
+    if a.shape != b.shape:
+        a, b = np.broadcast_arrays(a, b)
     return (a[..., :, None] * b[..., None, :]).reshape((*a.shape[:-1], 16))
 
 

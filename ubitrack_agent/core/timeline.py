@@ -22,7 +22,6 @@ the manner of tf2's ``lookupTransform``): see :meth:`SampleBuffer.lookup`.
 from __future__ import annotations
 
 import bisect
-import dataclasses
 import itertools
 from collections import deque
 
@@ -56,9 +55,7 @@ def interpolate(before: Measurement, after: Measurement, timestamp_ns: int) -> M
 
 def restamp(value: Measurement, timestamp_ns: int) -> Measurement:
     """``value`` carried over to ``timestamp_ns``."""
-    if value.timestamp_ns == timestamp_ns:
-        return value
-    return dataclasses.replace(value, timestamp_ns=timestamp_ns)
+    return value if value.timestamp_ns == timestamp_ns else value.restamped(timestamp_ns)
 
 
 class SampleBuffer:

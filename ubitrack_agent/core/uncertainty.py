@@ -23,14 +23,19 @@ import numpy as np
 from . import quaternions
 
 
+_SKEW_ROWS = np.array([2, 0, 1, 1, 2, 0])
+_SKEW_COLS = np.array([1, 2, 0, 2, 0, 1])
+_SKEW_COMPONENTS = np.array([0, 1, 2, 0, 1, 2])
+_SKEW_SIGNS = np.array([1.0, 1.0, 1.0, -1.0, -1.0, -1.0])
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices ``[v]x`` (..., 3, 3) with ``[v]x w = v x w``."""
-    x, y, z = np.moveaxis(np.asarray(v, dtype=float), -1, 0)
-    zero = np.zeros_like(x)
-    return np.stack(
-        (np.stack((zero, -z, y), -1), np.stack((z, zero, -x), -1), np.stack((-y, x, zero), -1)),
-        axis=-2,
-    )
+    v = np.asarray(v, dtype=float)
+    result = np.zeros((*v.shape[:-1], 3, 3))
+    # [v]x = [[0, -z, y], [z, 0, -x], [-y, x, 0]]: entry (r, c) = sign * v[component]
+    result[..., _SKEW_ROWS, _SKEW_COLS] = v[..., _SKEW_COMPONENTS] * _SKEW_SIGNS
+    return result
 
 
 def adjoint(q: np.ndarray, t: np.ndarray) -> np.ndarray:
