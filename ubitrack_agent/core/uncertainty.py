@@ -22,7 +22,6 @@ import numpy as np
 
 from . import quaternions
 
-
 _SKEW_ROWS = np.array([2, 0, 1, 1, 2, 0])
 _SKEW_COLS = np.array([1, 2, 0, 2, 0, 1])
 _SKEW_COMPONENTS = np.array([0, 1, 2, 0, 1, 2])
