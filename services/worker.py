@@ -341,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="start idle, fully imported, and run the specification sent to <root>/pool/<ID> "
         "(the service manager's warm pool); exits when standard input closes",
     )
-    logs.add_log_level_argument(parser, default="INFO")
+    logs.add_log_level_argument(parser)
     config.add_arguments(parser)
     return parser
 

@@ -23,7 +23,8 @@ from ubitrack_agent.keys import KeySpace
 from ubitrack_agent.provider import EdgeAnnouncement, Provider
 from ubitrack_agent.session import open_session
 
-PATH = LissajousPath(centre=(0.0, 0.0, 1.6), amplitude=(1.0, 0.5), frequency=(0.2, 0.4))
+PATH = LissajousPath(centre=(0.0, 0.0, 1.6), amplitude=(1.0, 0.5), frequency=(0.05, 0.1))
+"""At most 0.45 m/s: a sample held for the 5 ms synchronisation tolerance is off by 2.2 mm."""
 
 
 def tracker_pose(yaw_deg: float, x: float) -> tuple[np.ndarray, np.ndarray]:

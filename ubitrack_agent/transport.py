@@ -13,9 +13,10 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
-FETCH_RETRY_DELAYS = (0.0, 0.01, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32, 0.64, 1.28, 2.56)
-"""Seconds between attempts to fetch current values after subscribing (links come up in the
-background after ``zenoh.open``, so the first attempt may reach nobody)."""
+FETCH_RETRY_DELAYS = (0.0,) + (0.02,) * 50 + (0.1,) * 20 + (0.5,) * 10
+"""Seconds between attempts to fetch current values after subscribing: every 20 ms for a
+second, then less often, for 8 s in all. Links come up in the background after ``zenoh.open``,
+and an upstream worker started at the same moment computes its static result a little later."""
 
 
 class LatestValuePublisher:

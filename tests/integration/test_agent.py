@@ -106,11 +106,13 @@ def setup(processes) -> Iterator[Setup]:
 
 
 def assert_true_pose(sample) -> None:
-    """Trackers publish exact poses; fusing two unsynchronised 100 Hz trackers interpolates
-    one of them (SLERP and linear over 10 ms of a curved path: errors near 0.1 mm), so 1 mm."""
+    """Trackers publish exact poses, but fusing two unsynchronised trackers evaluates one of
+    them at the other's instants: interpolated (errors far below 1 mm), or, when its next
+    sample is late, its nearest sample within the 5 ms tolerance (up to 2.2 mm on this path,
+    ``sim_trackers.exact_tracker.PATH``). Hence 3 mm."""
     q, t = true_wt_ht(sample.timestamp_ns)
     np.testing.assert_allclose(
-        se3.to_matrix(sample.rotation, sample.translation), se3.to_matrix(q, t), atol=1e-3
+        se3.to_matrix(sample.rotation, sample.translation), se3.to_matrix(q, t), atol=3e-3
     )
 
 

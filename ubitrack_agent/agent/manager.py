@@ -43,7 +43,7 @@ class ServiceManager:
         session: Any,
         keys: KeySpace,
         worker_flags: Sequence[str],
-        pool_size: int = 2,
+        pool_size: int = 8,
         python: str = sys.executable,
     ) -> None:
         self._session = session

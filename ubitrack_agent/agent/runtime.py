@@ -46,6 +46,8 @@ log = logging.getLogger("ubitrack.agent")
 BATCH_WINDOW_S = 0.002
 """After an event, wait this long for more before replanning once for all of them."""
 FRAGMENT_TIMEOUT_S = 1.0
+RETIRE_S = 2.0
+"""Longest time a worker the plan dropped keeps running while its replacements start."""
 SETTLE_S = 2.0
 """After start-up, wait this long (for the liveliness history and the fragments) before
 stopping workers that no plan wants."""
@@ -60,7 +62,7 @@ class Agent:
         settings: Settings,
         templates: Sequence[Template],
         worker_flags: Sequence[str],
-        pool_size: int = 2,
+        pool_size: int = 8,
     ) -> None:
         self.keys = KeySpace(settings.key_prefix)
         self.templates = tuple(templates)
@@ -77,6 +79,7 @@ class Agent:
         self.last_change_ns: int | None = None
         self._pending_fragments: set[str] = set()
         self._stopped: set[str] = set()
+        self._retiring: dict[str, float] = {}
         self._started = time.monotonic()
         self._events: queue.SimpleQueue[tuple[str, str, str]] = queue.SimpleQueue()
         self._stop = threading.Event()
@@ -147,11 +150,12 @@ class Agent:
         for instance in sorted(self.alive - set(self.running) - self._stopped):
             wanted = self.wanted.get(instance)
             if wanted is not None:
-                self.counters["adopted"] += 1
+                if self._retiring.pop(instance, None) is None:
+                    self.counters["adopted"] += 1
                 wiring = {k: wanted.as_dict()[k] for k in ("inputs", "relations", "parameters")}
                 self._send_control(instance, wiring)
                 self.running[instance] = wanted
-            elif settled:
+            elif settled and instance not in self._retiring:
                 self.counters["orphans_stopped"] += 1
                 log.info("%s: unknown worker, stopping it", instance)
                 self.manager.stop(instance)
@@ -195,10 +199,13 @@ class Agent:
     def _reconcile(self) -> None:
         self._claim_unknown_workers()
         actions = reconcile(self.running, self.wanted)
+        restarted = {spec.instance for spec in actions.start}
         for instance in actions.stop:
-            self.manager.stop(instance)
-            self.running.pop(instance, None)
-            self._stopped.add(instance)
+            del self.running[instance]
+            if instance in restarted:
+                self._stop_worker(instance)  # replaced by another specification at once
+            else:
+                self._retiring[instance] = time.monotonic() + RETIRE_S
         for spec in actions.start:
             self.manager.start(spec)
             self.running[spec.instance] = spec
@@ -214,6 +221,21 @@ class Agent:
                 len(actions.stop),
                 len(actions.update),
             )
+
+    def _stop_worker(self, instance: str) -> None:
+        self.manager.stop(instance)
+        self._stopped.add(instance)
+
+    def _retire(self) -> None:
+        """Stop the workers the plan no longer wants once every wanted worker is alive (make
+        before break: the old flow keeps the relation flowing while the new one starts), or
+        after ``RETIRE_S`` at the latest."""
+        all_alive = set(self.running) <= self.alive
+        now = time.monotonic()
+        for instance, deadline in list(self._retiring.items()):
+            if all_alive or now > deadline:
+                del self._retiring[instance]
+                self._stop_worker(instance)
 
     def _send_control(self, instance: str, command: dict[str, Any]) -> None:
         self.session.put(self.keys.control(instance), json.dumps(command))
@@ -239,6 +261,7 @@ class Agent:
                 if changed:
                     self._replan()
                 self._reconcile()
+                self._retire()
                 if batch or changed:
                     self._status_json = json.dumps(self.status())
         finally:

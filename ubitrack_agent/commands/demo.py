@@ -1,12 +1,16 @@
-"""``ubitrack demo``: a tracker and an application on an embedded zenoh network.
+"""``ubitrack demo``: the paper's figure-1 setup, live, on an embedded zenoh network.
 
-This process is the zenoh hub (peer mode, loopback, no router). It starts a simulated
-outside-in tracker (:mod:`sim_trackers.pose_publisher`) as a separate process, which measures
-``ART->HT`` (a moving head target) and ``ART->WT`` (a static world target). The application
-side subscribes to both, validates every message, and derives ``WT->HT`` by the paper's two
-basic patterns, inversion and concatenation (section 3.1), propagating covariances. Once a
-second it prints the derived pose, its rate, its latency, its error against ground truth and
-the error the propagated covariance predicts. With ``--json`` each report is one JSON line.
+Starts the agent (the zenoh hub: peer mode on loopback, no router), the calibration database,
+the simulated HMD camera, the simulated A.R.T. tracker with its DTrack adapter, all as separate
+processes, then acts as an application asking for ``C -> A`` (camera to augmentation, 6D).
+Once a second it prints the pose it receives, its rate, its latency and its error against the
+scenario's ground truth. Three phases: both trackers (the agent builds the data flow of the
+paper's figure 6: 2D-3D pose estimation fused with the A.R.T. path); the A.R.T. tracker
+stopped (the flow is rewired to camera only, on the same relation key); the A.R.T. tracker
+back (fusion returns). It ends with a summary: errors per phase and reconfiguration times,
+measured from the tracker's liveliness token vanishing or appearing to the first sample of the
+rewired flow (once the agent's status shows the new flow alive). ``--json`` prints one JSON
+object per line instead.
 """
 
 from __future__ import annotations
@@ -18,188 +22,314 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from .. import config
-from ..core import ErrorPose, MeasurementError, Position3D, decode, se3
-from ..core.poses import compose_poses, invert_pose, transform_position
-from ..keys import KeySpace
+
+PHASES = ("fused", "camera only", "fused again")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "demo",
-        help="run a simulated tracker and an application deriving a relation from it",
+        help="the paper's setup live: agent, simulated A.R.T. and camera, an application",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
-        "--duration", type=float, default=6.0, help="seconds to run (default: %(default)s)"
+        "--phase-seconds",
+        type=float,
+        default=8.0,
+        help="length of each of the three phases (default: %(default)s)",
     )
-    parser.add_argument("--rate", type=float, default=60.0, help="tracker rate in Hz")
     parser.add_argument("--json", action="store_true", help="print JSON lines instead of text")
+    parser.add_argument("--scenario", help="scenario file (default: the paper's figure 1)")
+    parser.add_argument("--art-port", type=int, default=0, help="UDP port (default: a free one)")
     config.add_arguments(parser)
     parser.set_defaults(func=run)
 
 
 @dataclass
-class Report:
-    """Statistics of one reporting interval (or of the whole run)."""
+class Phase:
+    """What the application saw during one phase."""
 
-    samples: int = 0
-    rejected: int = 0
-    latencies_ms: list[float] = field(default_factory=list)
+    name: str
+    started: float
     errors_mm: list[float] = field(default_factory=list)
-    predicted_mm: list[float] = field(default_factory=list)
-    last: ErrorPose | None = None
+    errors_deg: list[float] = field(default_factory=list)
+    latencies_ms: list[float] = field(default_factory=list)
+    reconfiguration_ms: float | None = None
 
-    def summary(self, seconds: float) -> dict[str, float | int | None]:
-        def median(values: list[float]) -> float | None:
-            return round(float(np.median(values)), 3) if values else None
-
+    def summary(self, seconds: float) -> dict[str, Any]:
         def rms(values: list[float]) -> float | None:
             return round(float(np.sqrt(np.mean(np.square(values)))), 3) if values else None
 
         return {
-            "samples": self.samples,
-            "rejected": self.rejected,
-            "rate_hz": round(self.samples / seconds, 1) if seconds > 0 else None,
-            "latency_ms_median": median(self.latencies_ms),
+            "phase": self.name,
+            "samples": len(self.errors_mm),
+            "rate_hz": round(len(self.errors_mm) / seconds, 1) if seconds > 0 else None,
+            "latency_ms_median": (
+                round(float(np.median(self.latencies_ms)), 2) if self.latencies_ms else None
+            ),
             "error_mm_rms": rms(self.errors_mm),
-            "predicted_error_mm_rms": rms(self.predicted_mm),
+            "error_deg_rms": rms(self.errors_deg),
+            "reconfiguration_ms": self.reconfiguration_ms,
         }
 
 
-def _tracker_command(settings: config.Settings, rate: float) -> list[str]:
-    hub = settings.listen[0]
-    return [
-        sys.executable,
-        "-m",
-        "sim_trackers.pose_publisher",
-        "--rate",
-        str(rate),
-        "--connect",
-        hub,
-        "--listen",
-        "tcp/127.0.0.1:0",
-        "--prefix",
-        settings.prefix,
-        "--domain",
-        settings.domain,
-    ]
+class Processes:
+    """The demo's child processes, all stopped on exit."""
+
+    def __init__(self) -> None:
+        self.running: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, arguments: list[str]) -> None:
+        self.running[name] = subprocess.Popen(
+            [sys.executable, "-m", "ubitrack_agent.cli", *arguments], stdin=subprocess.DEVNULL
+        )
+
+    def stop(self, *names: str) -> None:
+        for name in names:
+            process = self.running.pop(name)
+            process.terminate()
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+    def stop_all(self) -> None:
+        self.stop(*reversed(list(self.running)))
 
 
-def _position_error_mm(derived: ErrorPose) -> tuple[float, float]:
-    """Error of the derived HT origin against ground truth, and its predicted RMS, in mm."""
-    from sim_trackers.pose_publisher import REFERENCE_POSE
-    from sim_trackers.trajectories import LissajousPath
+def _free_udp_port() -> int:
+    import socket
 
-    q_ref, t_ref = se3.invert(*REFERENCE_POSE)
-    truth = se3.compose(q_ref, t_ref, *LissajousPath().pose(derived.timestamp_ns * 1e-9))[1]
-    origin = transform_position(derived, Position3D(derived.timestamp_ns, np.zeros(3)))
-    error = float(np.linalg.norm(origin.position - truth)) * 1000.0
-    predicted = float(np.sqrt(np.trace(origin.covariance))) * 1000.0
-    return error, predicted
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
 
 
 def run(args: argparse.Namespace) -> int:
-    import zenoh
+    from sim_trackers.scenario import ScenarioError, load_scenario
 
+    from ..application import Relation
+    from ..core import quaternions
+    from ..keys import KeySpace, RelationId
     from ..session import open_session
 
-    settings = config.from_arguments(args, role="hub")
-    if not settings.listen:
-        print("ubitrack demo: the hub needs a --listen endpoint", file=sys.stderr)
-        return 2
-    keys = KeySpace(settings.key_prefix)
-    inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
     try:
-        session = open_session(settings)
-    except zenoh.ZError as exc:
-        print(f"ubitrack demo: cannot open zenoh on {settings.listen}: {exc}", file=sys.stderr)
+        hub = config.from_arguments(args, role="hub")
+        scenario = load_scenario(args.scenario)
+    except (config.ConfigError, ScenarioError) as exc:
+        print(f"ubitrack demo: {exc}", file=sys.stderr)
         return 2
-    tracker = None
+    if not hub.listen or args.phase_seconds <= 0:
+        print("ubitrack demo: needs a --listen endpoint and --phase-seconds > 0", file=sys.stderr)
+        return 2
+    endpoint = hub.listen[0]
+    member = [
+        "--connect",
+        endpoint,
+        "--listen",
+        "tcp/127.0.0.1:0",
+        "--prefix",
+        hub.prefix,
+        "--domain",
+        hub.domain,
+    ]
+    scenario_flag = ["--scenario", args.scenario] if args.scenario else []
+    art_port = str(args.art_port or _free_udp_port())
+    art = {
+        "dtrack": ["dtrack", "--port", art_port, *scenario_flag, *member],
+        "sim art": ["sim", "art", "--port", art_port, *scenario_flag],
+    }
+    keys = KeySpace(hub.key_prefix)
+    say = _printer(args.json)
+    children = Processes()
     try:
-        # The callback only queues (never call zenoh from a zenoh callback).
-        subscribers = [
-            session.declare_subscriber(
-                keys.data(edge),
-                lambda sample: inbox.put((str(sample.key_expr), sample.payload.to_bytes())),
+        children.start(
+            "agent", ["agent", "--listen", endpoint, "--prefix", hub.prefix, "--domain", hub.domain]
+        )
+        settings = config.Settings(
+            connect=(endpoint,), listen=("tcp/127.0.0.1:0",), prefix=hub.prefix, domain=hub.domain
+        )
+        with open_session(settings) as session:
+            events: queue.SimpleQueue[tuple[str, float]] = queue.SimpleQueue()
+            watch = session.liveliness().declare_subscriber(
+                keys.provider(scenario.art.provider),
+                lambda s: events.put((str(s.kind), time.monotonic())),
             )
-            for edge in ("ART/HT", "ART/WT")
-        ]
-        tracker = subprocess.Popen(_tracker_command(settings, args.rate))
-        total = _consume(args, keys, inbox, tracker)
-        for subscriber in subscribers:
-            subscriber.undeclare()
-    finally:
-        if tracker is not None:
-            tracker.terminate()
-            try:
-                tracker.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                tracker.kill()
-                tracker.wait()
-        session.close()
-    summary = total.summary(args.duration)
-    _print(args.json, {"event": "summary", **summary}, "summary")
-    if tracker.returncode not in (0, -15):
-        print(f"ubitrack demo: tracker exited with {tracker.returncode}", file=sys.stderr)
+            samples: queue.SimpleQueue[tuple[float, Any]] = queue.SimpleQueue()
+            relation = Relation(
+                session,
+                keys,
+                RelationId("C", "A", "6D"),
+                application="demo",
+                callback=lambda m: samples.put((time.monotonic(), m)),
+            )
+            for name in ("sim database", "sim camera"):
+                children.start(name, [*name.split(), *scenario_flag, *member])
+            for name, arguments in art.items():
+                children.start(name, arguments)
+            say(
+                {
+                    "event": "started",
+                    "relation": "C->A 6D",
+                    "key": relation.key,
+                    "processes": sorted(children.running),
+                },
+                "started C->A 6D on " + relation.key,
+            )
+            first = samples.get(timeout=60)  # the whole setup is up and flowing
+            samples.put(first)
+            phases = []
+            for index, name in enumerate(PHASES):
+                if index == 1:
+                    children.stop("sim art", "dtrack")
+                elif index == 2:
+                    for process, arguments in art.items():
+                        children.start(process, arguments)
+                phase = Phase(name, time.monotonic())
+                phases.append(phase)
+                rewired = None
+                if index > 0:
+                    uses_art = index == 2
+                    rewired = _flow_check(session, keys, scenario.art.provider, uses_art)
+                _run_phase(
+                    phase,
+                    args.phase_seconds,
+                    samples,
+                    events,
+                    scenario.world,
+                    quaternions,
+                    say,
+                    rewired,
+                    ("", "DELETE", "PUT")[index],
+                )
+            relation.close()
+            watch.undeclare()
+    except (TimeoutError, queue.Empty):
+        print(
+            "ubitrack demo: the relation did not flow (see the processes' logs above)",
+            file=sys.stderr,
+        )
         return 1
-    return 0 if total.samples else 1
+    finally:
+        children.stop_all()
+    summary = [phase.summary(args.phase_seconds) for phase in phases]
+    for line in summary:
+        say({"event": "summary", **line}, _summary_text(line))
+    fused, camera = summary[0]["error_mm_rms"], summary[1]["error_mm_rms"]
+    verdict = {
+        "event": "verdict",
+        "every_phase_delivered": all(s["samples"] for s in summary),
+        "fused_better_than_camera_only": bool(fused and camera and fused < camera),
+    }
+    say(
+        verdict,
+        f"every phase delivered: {verdict['every_phase_delivered']}; fused better than "
+        f"camera only: {verdict['fused_better_than_camera_only']}",
+    )
+    return 0 if verdict["every_phase_delivered"] else 1
 
 
-def _consume(args, keys: KeySpace, inbox, tracker) -> Report:
-    body_key, reference_key = keys.data("ART/HT"), keys.data("ART/WT")
-    reference: ErrorPose | None = None
-    total, interval = Report(), Report()
-    start = last_report = time.monotonic()
-    while (now := time.monotonic()) - start < args.duration:
-        if tracker.poll() is not None:
-            break
-        if now - last_report >= 1.0:
-            _report(args.json, interval, now - last_report, reference)
-            interval, last_report = Report(), now
+def _flow_check(session, keys, provider: str, uses_provider: bool):
+    """A check that the agent's running flow has been rewired: every component alive, and
+    reading the provider's edges (``uses_provider``) or none of them."""
+    from ..transport import fetch_latest
+
+    marker = f"{keys.root}/data/{provider}/"
+
+    def rewired() -> bool:
+        replies = fetch_latest(session, keys.agent_status(), timeout=0.5)
+        if not replies:
+            return False
+        components = json.loads(replies[0])["components"].values()
+        reads = any(marker in b["key"] for c in components for b in c["inputs"])
+        return bool(components) and all(c["alive"] for c in components) and (reads == uses_provider)
+
+    return rewired
+
+
+def _run_phase(
+    phase: Phase,
+    seconds: float,
+    samples,
+    events,
+    world,
+    quaternions,
+    say,
+    rewired,
+    expected_change: str,
+) -> None:
+    """Consume samples for one phase, reporting once a second. With ``rewired``, also time
+    the reconfiguration: from the provider's liveliness event to the first sample received
+    once the agent's flow is rewired."""
+    change_at = rewired_at = None
+    last_report, reported = phase.started, 0
+    while (now := time.monotonic()) - phase.started < seconds:
+        if rewired is not None and change_at is None:
+            try:
+                kind, at = events.get_nowait()
+            except queue.Empty:
+                kind = ""
+            if kind.endswith(expected_change):
+                change_at = at
+        elif rewired is not None and rewired_at is None and rewired():
+            rewired_at = time.monotonic()
         try:
-            key, payload = inbox.get(timeout=0.05)
+            arrived, sample = samples.get(timeout=0.05)
         except queue.Empty:
-            continue
-        try:
-            measurement = decode(payload, expected=ErrorPose)
-        except MeasurementError as exc:
-            print(f"rejected sample on {key}: {exc}", file=sys.stderr)
-            total.rejected += 1
-            interval.rejected += 1
-            continue
-        if key == reference_key:
-            reference = measurement
-        elif key == body_key and reference is not None:
-            derived = compose_poses(invert_pose(reference), measurement)
-            latency = (time.time_ns() - measurement.timestamp_ns) / 1e6
-            error, predicted = _position_error_mm(derived)
-            for report in (total, interval):
-                report.samples += 1
-                report.latencies_ms.append(latency)
-                report.errors_mm.append(error)
-                report.predicted_mm.append(predicted)
-            interval.last = derived
-    return total
+            arrived = None
+        if arrived is not None and arrived >= phase.started:
+            q, t = world.pose("C", "A", sample.timestamp_ns)
+            phase.errors_mm.append(float(np.linalg.norm(sample.translation - t)) * 1000)
+            relative = quaternions.multiply(quaternions.conjugate(q), sample.rotation)
+            phase.errors_deg.append(float(np.degrees(quaternions.angle(relative))))
+            phase.latencies_ms.append((time.time_ns() - sample.timestamp_ns) / 1e6)
+            if rewired_at is not None and phase.reconfiguration_ms is None:
+                phase.reconfiguration_ms = round((arrived - change_at) * 1000, 1)
+            last_sample = sample
+        if now - last_report >= 1.0 and phase.errors_mm:
+            recent = Phase(
+                phase.name,
+                last_report,
+                phase.errors_mm[reported:],
+                phase.errors_deg[reported:],
+                phase.latencies_ms[reported:],
+            )
+            line = {
+                "event": "report",
+                **recent.summary(now - last_report),
+                "translation_m": [round(float(v), 4) for v in last_sample.translation],
+            }
+            say(line, _report_text(line))
+            last_report, reported = now, len(phase.errors_mm)
 
 
-def _report(as_json: bool, report: Report, seconds: float, reference) -> None:
-    data = {"event": "report", "relation": "WT->HT", **report.summary(seconds)}
-    if report.last is not None:
-        data["translation_m"] = [round(float(v), 4) for v in report.last.translation]
-        data["rotation_xyzw"] = [round(float(v), 4) for v in report.last.rotation]
-    elif reference is None:
-        data["waiting_for"] = "ART->WT"
-    _print(as_json, data, "WT->HT")
+def _printer(as_json: bool):
+    def say(data: dict[str, Any], text: str) -> None:
+        print(json.dumps(data) if as_json else text, flush=True)
+
+    return say
 
 
-def _print(as_json: bool, data: dict, title: str) -> None:
-    if as_json:
-        print(json.dumps(data), flush=True)
-        return
-    parts = [f"{k}={v}" for k, v in data.items() if k != "event"]
-    print(f"{title:>8}: " + "  ".join(parts), flush=True)
+def _report_text(line: dict[str, Any]) -> str:
+    return (
+        f"[{line['phase']:>11}] C->A t={line['translation_m']} m  {line['rate_hz']} Hz  "
+        f"latency {line['latency_ms_median']} ms  error {line['error_mm_rms']} mm "
+        f"{line['error_deg_rms']} deg"
+    )
+
+
+def _summary_text(line: dict[str, Any]) -> str:
+    reconfiguration = line["reconfiguration_ms"]
+    after = f", flowing again {reconfiguration} ms after the change" if reconfiguration else ""
+    return (
+        f"summary {line['phase']}: {line['samples']} samples, {line['rate_hz']} Hz, error "
+        f"{line['error_mm_rms']} mm / {line['error_deg_rms']} deg RMS, latency "
+        f"{line['latency_ms_median']} ms{after}"
+    )
