@@ -205,3 +205,46 @@ def test_a_killed_agent_is_restarted_and_rebuilds_everything(setup):
         assert_true_pose(sample)
     relation.close()
     wait_until(lambda: not setup.alive_services(), timeout=10)
+
+
+def test_malformed_announcements_and_queries_are_rejected_and_counted(setup):
+    import threading
+
+    setup.start_agent()
+    # A provider whose fragment is garbage, and one whose fragment names frames with wildcards.
+    bad = {
+        "junk": b"{not json",
+        "hostile": json.dumps(
+            {
+                "provider": "hostile",
+                "edges": [{"name": "x", "from": "**", "to": "HT", "type": "6D"}],
+            }
+        ).encode(),
+    }
+    queryables = []
+    for provider, payload in bad.items():
+        queryable = setup.session.declare_queryable(setup.keys.fragment(provider))
+
+        def serve(queryable=queryable, payload=payload):
+            for query in queryable:
+                with query:
+                    query.reply(query.key_expr, payload)
+
+        threading.Thread(target=serve, daemon=True).start()
+        queryables.append(queryable)
+    tokens = [setup.session.liveliness().declare_token(setup.keys.provider(p)) for p in bad]
+    tokens.append(setup.session.liveliness().declare_token(f"{setup.keys.root}/query/a/b"))
+    setup.tracker("art", "ART", 30.0, 2.0)
+    relation = Relation(setup.session, setup.keys, WT_HT, application="good")
+    wait_until(lambda: relation.latest() is not None, timeout=20)  # still serving the others
+    status = wait_until(lambda: (s := setup.status()) and len(s["rejected_providers"]) == 2 and s)
+    assert "not JSON" in status["rejected_providers"]["junk"]
+    assert "from" in status["rejected_providers"]["hostile"]
+    assert status["counters"]["rejected_announcements"] == 2
+    assert status["counters"]["rejected_query_keys"] == 1
+    assert set(status["providers"]) == {"art"}
+    for token in tokens:
+        token.undeclare()
+    for queryable in queryables:
+        queryable.undeclare()
+    relation.close()
