@@ -53,6 +53,8 @@ class Setup:
                 sys.executable,
                 "-m",
                 "ubitrack_agent.cli",
+                "--log-level",
+                "INFO",
                 "agent",
                 "--listen",
                 f"tcp/127.0.0.1:{self.port}",

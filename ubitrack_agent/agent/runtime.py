@@ -48,9 +48,9 @@ BATCH_WINDOW_S = 0.002
 FRAGMENT_TIMEOUT_S = 1.0
 RETIRE_S = 2.0
 """Longest time a worker the plan dropped keeps running while its replacements start."""
-SETTLE_S = 2.0
-"""After start-up, wait this long (for the liveliness history and the fragments) before
-stopping workers that no plan wants."""
+SETTLE_S = 1.5
+"""After start-up, wait this long (for the liveliness history, which arrives as peers
+reconnect, and the fragments) before starting or stopping workers; adopting starts at once."""
 PUT = "SampleKind.PUT"
 
 
@@ -146,7 +146,7 @@ class Agent:
     def _claim_unknown_workers(self) -> None:
         """Workers alive but not started by this agent (an earlier agent's): adopt the wanted
         ones, making sure of their wiring; stop the others once start-up history has settled."""
-        settled = time.monotonic() - self._started > SETTLE_S and not self._pending_fragments
+        settled = self._settled()
         for instance in sorted(self.alive - set(self.running) - self._stopped):
             wanted = self.wanted.get(instance)
             if wanted is not None:
@@ -196,8 +196,15 @@ class Agent:
         for name, reason in self.plan.unsolved.items():
             log.warning("cannot serve %s: %s", name, reason)
 
+    def _settled(self) -> bool:
+        """Start-up history has arrived: peers reconnect to a restarted agent within their
+        retry period, and their tokens (workers to adopt) come with them."""
+        return time.monotonic() - self._started > SETTLE_S and not self._pending_fragments
+
     def _reconcile(self) -> None:
         self._claim_unknown_workers()
+        if not self._settled():
+            return  # start nothing a worker of an earlier agent may still be doing
         actions = reconcile(self.running, self.wanted)
         restarted = {spec.instance for spec in actions.start}
         for instance in actions.stop:
