@@ -234,15 +234,21 @@ def test_malformed_announcements_and_queries_are_rejected_and_counted(setup):
 
         threading.Thread(target=serve, daemon=True).start()
         queryables.append(queryable)
-    tokens = [setup.session.liveliness().declare_token(setup.keys.provider(p)) for p in bad]
+    silent = ["silent"]  # a token and no fragment: asked a few times, then rejected
+    tokens = [
+        setup.session.liveliness().declare_token(setup.keys.provider(p)) for p in [*bad, *silent]
+    ]
     tokens.append(setup.session.liveliness().declare_token(f"{setup.keys.root}/query/a/b"))
     setup.tracker("art", "ART", 30.0, 2.0)
     relation = Relation(setup.session, setup.keys, WT_HT, application="good")
     wait_until(lambda: relation.latest() is not None, timeout=20)  # still serving the others
-    status = wait_until(lambda: (s := setup.status()) and len(s["rejected_providers"]) == 2 and s)
+    status = wait_until(
+        lambda: (s := setup.status()) and len(s["rejected_providers"]) == 3 and s, timeout=20
+    )
     assert "not JSON" in status["rejected_providers"]["junk"]
     assert "from" in status["rejected_providers"]["hostile"]
-    assert status["counters"]["rejected_announcements"] == 2
+    assert "no fragment" in status["rejected_providers"]["silent"]
+    assert status["counters"]["rejected_announcements"] == 3
     assert status["counters"]["rejected_query_keys"] == 1
     assert set(status["providers"]) == {"art"}
     for token in tokens:

@@ -45,12 +45,14 @@ log = logging.getLogger("ubitrack.agent")
 
 BATCH_WINDOW_S = 0.002
 """After an event, wait this long for more before replanning once for all of them."""
-FRAGMENT_TIMEOUT_S = 1.0
+FRAGMENT_TIMEOUT_S = 0.3
+FRAGMENT_ATTEMPTS = 8
+"""A provider whose fragment query goes unanswered this often (over about 6 s) is rejected."""
 RETIRE_S = 2.0
 """Longest time a worker the plan dropped keeps running while its replacements start."""
 SETTLE_S = 1.5
 """After start-up, wait this long (for the liveliness history, which arrives as peers
-reconnect, and the fragments) before starting or stopping workers; adopting starts at once."""
+reconnect) before starting or stopping workers; adopting starts at once."""
 PUT = "SampleKind.PUT"
 
 
@@ -77,7 +79,8 @@ class Agent:
         self.plan: Plan | None = None
         self.srg = build_srg({})
         self.last_change_ns: int | None = None
-        self._pending_fragments: set[str] = set()
+        self._pending_fragments: dict[str, tuple[int, float]] = {}
+        """Providers whose fragment is still to fetch: (attempts so far, next attempt)."""
         self._stopped: set[str] = set()
         self._retiring: dict[str, float] = {}
         self._started = time.monotonic()
@@ -112,9 +115,9 @@ class Agent:
             if kind == "provider":
                 provider = self.keys.parse_provider(key)
                 if appeared:
-                    self._pending_fragments.add(provider)
+                    self._pending_fragments[provider] = (0, 0.0)
                     return False
-                self._pending_fragments.discard(provider)
+                self._pending_fragments.pop(provider, None)
                 self.rejected.pop(provider, None)
                 return self.fragments.pop(provider, None) is not None
             if kind == "query":
@@ -162,18 +165,30 @@ class Agent:
                 self._stopped.add(instance)
 
     def _fetch_fragments(self) -> bool:
-        """Fetch the fragments of providers that appeared; True if the SRG changed."""
+        """Fetch the fragments of providers that appeared; True if the SRG changed. A provider
+        that does not answer is asked again (at most ``FRAGMENT_ATTEMPTS`` times, a little
+        later each time), then rejected, so one broken provider never holds the agent up."""
         changed = False
-        for provider in sorted(self._pending_fragments):
+        now = time.monotonic()
+        for provider, (attempts, due) in sorted(self._pending_fragments.items()):
+            if now < due:
+                continue
             replies = [
                 r.ok.payload.to_bytes()
                 for r in self.session.get(self.keys.fragment(provider), timeout=FRAGMENT_TIMEOUT_S)
                 if r.ok is not None
             ]
             if not replies:
-                continue  # not answering yet: retried on the next pass
-            self._pending_fragments.discard(provider)
+                if attempts + 1 < FRAGMENT_ATTEMPTS:
+                    self._pending_fragments[provider] = (attempts + 1, now + 0.05 * 2**attempts)
+                    continue
+                replies = [b""]  # rejected below: no fragment
+            del self._pending_fragments[provider]
             try:
+                if not replies[0]:
+                    raise AnnouncementError(
+                        f"provider {provider!r}: no fragment on {self.keys.fragment(provider)}"
+                    )
                 self.fragments[provider] = fragment_entries(provider, replies[0])
                 self.rejected.pop(provider, None)
                 changed = True
@@ -199,7 +214,7 @@ class Agent:
     def _settled(self) -> bool:
         """Start-up history has arrived: peers reconnect to a restarted agent within their
         retry period, and their tokens (workers to adopt) come with them."""
-        return time.monotonic() - self._started > SETTLE_S and not self._pending_fragments
+        return time.monotonic() - self._started > SETTLE_S
 
     def _reconcile(self) -> None:
         self._claim_unknown_workers()
