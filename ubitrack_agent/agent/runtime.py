@@ -54,6 +54,9 @@ SETTLE_S = 1.5
 """After start-up, wait this long (for the liveliness history, which arrives as peers
 reconnect) before starting or stopping workers; adopting starts at once."""
 PUT = "SampleKind.PUT"
+STATUS_REFRESH_S = 0.25
+"""The status answer is rebuilt on every event, and at least this often (counters, rejections
+and worker liveness also change between events)."""
 
 
 class Agent:
@@ -266,6 +269,7 @@ class Agent:
 
     def run(self) -> None:
         """Handle events until :meth:`stop`."""
+        status_due = 0.0
         try:
             while not self._stop.is_set():
                 try:
@@ -284,8 +288,9 @@ class Agent:
                     self._replan()
                 self._reconcile()
                 self._retire()
-                if batch or changed:
+                if batch or changed or time.monotonic() > status_due:
                     self._status_json = json.dumps(self.status())
+                    status_due = time.monotonic() + STATUS_REFRESH_S
         finally:
             self._close()
 
