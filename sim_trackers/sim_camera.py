@@ -19,13 +19,29 @@ from ubitrack_agent.provider import EdgeAnnouncement
 from .scenario import CameraSettings
 from .world import World
 
+METRIC_SAMPLES = 20
+"""Instants (one every 3 s) at which :func:`metric_sigma` measures the features' depth."""
 
-def announcements(settings: CameraSettings) -> list[EdgeAnnouncement]:
-    """One dynamic 2D edge ``<image plane> -> <feature>`` per feature."""
+
+def metric_sigma(world: World, settings: CameraSettings) -> float:
+    """The metric error (m) the pixel noise induces at the features' median depth,
+    ``noise_px * depth / f``: what the planner's cost model expects as a 2D edge's ``sigma``
+    (``docs/planner.md``), rather than pixels."""
+    plane = world.image_planes[settings.image_plane]
+    depths = [
+        world.pose(plane.camera, feature, k * 3_000_000_000)[1][2]
+        for k in range(METRIC_SAMPLES)
+        for feature in settings.features
+    ]
+    focal = 0.5 * (plane.matrix[0, 0] + plane.matrix[1, 1])
+    return settings.noise_px * float(np.median(np.abs(depths))) / focal
+
+
+def announcements(settings: CameraSettings, world: World) -> list[EdgeAnnouncement]:
+    """One dynamic 2D edge ``<image plane> -> <feature>`` per feature, with the metric sigma."""
+    sigma = metric_sigma(world, settings)
     return [
-        EdgeAnnouncement(
-            settings.image_plane, feature, "2D", rate=settings.rate, sigma=settings.noise_px
-        )
+        EdgeAnnouncement(settings.image_plane, feature, "2D", rate=settings.rate, sigma=sigma)
         for feature in settings.features
     ]
 

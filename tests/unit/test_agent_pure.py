@@ -170,3 +170,20 @@ def test_restart_needed_when_more_than_wiring_changes():
     changed = {instance: replace(spec, expansion="time" if spec.expansion != "time" else "none")}
     actions = reconcile({instance: spec}, changed)
     assert actions.stop == (instance,) and actions.start == (changed[instance],)
+
+
+def test_replanning_prefers_running_components_within_the_margin():
+    wanted = RelationId("C", "A", "6D")
+    fragments = paper_fragments()
+    _, fused = specs_for(fragments, wanted)
+    del fragments["art"]
+    srg = build_srg(fragments)
+    fresh = plan_relations(srg, TEMPLATES, [wanted])  # nothing running: the cheapest plan
+    stable = plan_relations(srg, TEMPLATES, [wanted], running=set(fused))
+    new_fresh = set(fresh.flow.components) - set(fused)
+    new_stable = set(stable.flow.components) - set(fused)
+    assert len(new_stable) < len(new_fresh)
+    assert {c.service for c in stable.flow.components.values()} == {
+        "pose_estimation_2d3d",
+        "concatenation",
+    }

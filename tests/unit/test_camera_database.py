@@ -33,9 +33,12 @@ def test_camera_features_scatter_around_the_projected_truth_with_the_set_noise()
             errors.append(sample.position - truth[name.removeprefix("IP_")])
     assert np.std(errors, axis=0) == pytest.approx([0.5, 0.5], rel=0.1)
     assert np.abs(np.mean(errors, axis=0)).max() < 0.05
-    assert [(e.name, e.type, e.static) for e in announcements(camera)] == [
+    edges = announcements(camera, WORLD)
+    assert [(e.name, e.type, e.static) for e in edges] == [
         (f"IP_{f}", "2D", False) for f in camera.features
     ]
+    # 0.5 px at about 2 m with f = 700 px: a metric error of about 1.4 mm, not 0.5 m.
+    assert 0.0005 < edges[0].sigma < 0.005
 
 
 def test_camera_occlusion_and_dropout():

@@ -1,16 +1,26 @@
-"""Plan every queried relation on the live SRG and merge the flows (sharing, section 5.1)."""
+"""Plan every queried relation on the live SRG and merge the flows (sharing, section 5.1).
+
+Stability: among the solutions whose cost is within :data:`HYSTERESIS` of the best, the agent
+takes the one that needs the fewest components not already running. A marginally cheaper
+derivation is not worth stopping a working flow and starting another (on the paper's setup,
+losing the A.R.T. tracker leaves a camera-only derivation through the running pose estimation
+at 4 % above a fresh one that needs six new components).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Sequence, Set
 from dataclasses import dataclass, field
 
 import networkx as nx
 
-from ..dataflow import DataFlow, plan_flows, relation_name
+from ..dataflow import DataFlow, from_solution, merge, relation_name
 from ..keys import RelationId
-from ..planner import PlanningError, Query
+from ..planner import PlanningError, Query, plan
 from ..templates import Template
+
+HYSTERESIS = 0.10
+"""Relative cost margin within which running components are preferred."""
 
 
 @dataclass(frozen=True)
@@ -23,11 +33,24 @@ class Plan:
     unsolved: dict[str, str] = field(default_factory=dict)
 
 
+def _stable_choice(flows: list[tuple[float, DataFlow]], running: Set[str]) -> DataFlow:
+    """The flow to run: the cheapest, unless components are running; then the one with the
+    fewest new components within the cost margin, then the cheapest."""
+    if not running:
+        return flows[0][1]
+    best = flows[0][0]
+    eligible = [(cost, flow) for cost, flow in flows if cost <= best * (1 + HYSTERESIS) + 1e-12]
+    return min(eligible, key=lambda item: (len(set(item[1].components) - running), item[0]))[1]
+
+
 def plan_relations(
-    srg: nx.MultiDiGraph, templates: Sequence[Template], relations: Iterable[RelationId]
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    relations: Iterable[RelationId],
+    running: Set[str] = frozenset(),
 ) -> Plan:
-    """Best derivation of each relation (``dataflow.plan_flows``), merged into one data flow."""
-    queries, names, unsolved = [], {}, {}
+    """A derivation of each relation (``planner.plan``), merged into one data flow."""
+    chosen, names, unsolved = [], {}, {}
     for relation in sorted(set(relations), key=str):
         try:
             query = Query(relation.source, relation.target, relation.type, relation.static)
@@ -40,6 +63,11 @@ def plan_relations(
         if missing:
             unsolved[name] = f"no provider announces frame(s) {', '.join(missing)}"
             continue
-        queries.append(query)
-    flow, unresolved = plan_flows(srg, templates, queries)
-    return Plan(flow, names, {**unsolved, **unresolved})
+        try:
+            solutions = plan(srg, templates, query)
+        except PlanningError as exc:
+            unsolved[name] = str(exc)
+            continue
+        flows = [(solution.cost, from_solution(solution, query)) for solution in solutions]
+        chosen.append(_stable_choice(flows, running))
+    return Plan(merge(chosen), names, unsolved)

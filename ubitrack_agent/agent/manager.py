@@ -71,7 +71,12 @@ class ServiceManager:
                 self._ready.discard(pool_id)
 
     def _fill_pool(self) -> None:
-        while len(self._pool) < self._pool_size:
+        """Top the pool up one process at a time: a worker importing numpy, scipy and OpenCV
+        keeps a core busy for about a second, and several at once would starve the running
+        data flow just after a reconfiguration."""
+        with self._lock:
+            starting = set(self._pool) - self._ready
+        if len(self._pool) < self._pool_size and not starting:
             pool_id = f"{self._tag}-{uuid.uuid4().hex[:8]}"
             self._pool[pool_id] = subprocess.Popen(
                 [self._python, "-m", "services.worker", "--pool-id", pool_id, *self._flags],

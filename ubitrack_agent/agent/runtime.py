@@ -206,7 +206,7 @@ class Agent:
 
     def _replan(self) -> None:
         self.srg = build_srg(self.fragments)
-        self.plan = plan_relations(self.srg, self.templates, self.queries)
+        self.plan = plan_relations(self.srg, self.templates, self.queries, set(self.running))
         self.wanted = component_specs(
             self.plan.flow, self.srg, self._by_name, self.keys, self.plan.relations
         )

@@ -151,7 +151,18 @@ def run(args: argparse.Namespace) -> int:
     children = Processes()
     try:
         children.start(
-            "agent", ["agent", "--listen", endpoint, "--prefix", hub.prefix, "--domain", hub.domain]
+            "agent",
+            [
+                "--log-level",
+                args.log_level,
+                "agent",
+                "--listen",
+                endpoint,
+                "--prefix",
+                hub.prefix,
+                "--domain",
+                hub.domain,
+            ],
         )
         settings = config.Settings(
             connect=(endpoint,), listen=("tcp/127.0.0.1:0",), prefix=hub.prefix, domain=hub.domain
@@ -160,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
             events: queue.SimpleQueue[tuple[str, float]] = queue.SimpleQueue()
             watch = session.liveliness().declare_subscriber(
                 keys.provider(scenario.art.provider),
-                lambda s: events.put((str(s.kind), time.monotonic())),
+                lambda s: events.put((str(s.kind), time.time_ns())),
             )
             samples: queue.SimpleQueue[tuple[float, Any]] = queue.SimpleQueue()
             relation = Relation(
@@ -168,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
                 keys,
                 RelationId("C", "A", "6D"),
                 application="demo",
-                callback=lambda m: samples.put((time.monotonic(), m)),
+                callback=lambda m: samples.put((time.time_ns(), m)),
             )
             for name in ("sim database", "sim camera"):
                 children.start(name, [*name.split(), *scenario_flag, *member])
@@ -243,13 +254,15 @@ def _flow_check(session, keys, provider: str, uses_provider: bool):
 
     marker = f"{keys.root}/data/{provider}/"
 
-    def rewired() -> bool:
+    def rewired() -> int | None:
         replies = fetch_latest(session, keys.agent_status(), timeout=0.5)
         if not replies:
-            return False
-        components = json.loads(replies[0])["components"].values()
+            return None
+        status = json.loads(replies[0])
+        components = status["components"].values()
         reads = any(marker in b["key"] for c in components for b in c["inputs"])
-        return bool(components) and all(c["alive"] for c in components) and (reads == uses_provider)
+        done = components and all(c["alive"] for c in components) and reads == uses_provider
+        return status["last_change_ns"] if done else None
 
     return rewired
 
@@ -266,32 +279,35 @@ def _run_phase(
     expected_change: str,
 ) -> None:
     """Consume samples for one phase, reporting once a second. With ``rewired``, also time
-    the reconfiguration: from the provider's liveliness event to the first sample received
-    once the agent's flow is rewired."""
-    change_at = rewired_at = None
+    the reconfiguration: from the provider's liveliness event to the first sample that
+    arrives after the agent applied the rewired flow (wall-clock nanoseconds throughout)."""
+    change_ns = rewired_ns = None
+    started_ns = time.time_ns()
     last_report, reported = phase.started, 0
     while (now := time.monotonic()) - phase.started < seconds:
-        if rewired is not None and change_at is None:
+        if rewired is not None and change_ns is None:
             try:
                 kind, at = events.get_nowait()
             except queue.Empty:
                 kind = ""
             if kind.endswith(expected_change):
-                change_at = at
-        elif rewired is not None and rewired_at is None and rewired():
-            rewired_at = time.monotonic()
+                change_ns = at
+        elif rewired is not None and rewired_ns is None:
+            rewired_ns = rewired()
         try:
             arrived, sample = samples.get(timeout=0.05)
         except queue.Empty:
             arrived = None
-        if arrived is not None and arrived >= phase.started:
+        timed = arrived is not None and rewired_ns is not None and arrived > rewired_ns
+        if timed and phase.reconfiguration_ms is None:
+            # samples queued while the phase's sensors were being stopped count here too
+            phase.reconfiguration_ms = round((arrived - change_ns) / 1e6, 1)
+        if arrived is not None and arrived >= started_ns:
             q, t = world.pose("C", "A", sample.timestamp_ns)
             phase.errors_mm.append(float(np.linalg.norm(sample.translation - t)) * 1000)
             relative = quaternions.multiply(quaternions.conjugate(q), sample.rotation)
             phase.errors_deg.append(float(np.degrees(quaternions.angle(relative))))
             phase.latencies_ms.append((time.time_ns() - sample.timestamp_ns) / 1e6)
-            if rewired_at is not None and phase.reconfiguration_ms is None:
-                phase.reconfiguration_ms = round((arrived - change_at) * 1000, 1)
             last_sample = sample
         if now - last_report >= 1.0 and phase.errors_mm:
             recent = Phase(

@@ -162,7 +162,7 @@ def _run_camera(args: argparse.Namespace) -> int:
     seed = scenario.seed + 1 if args.seed is None else args.seed
     simulator = CameraSimulator(scenario.world, scenario.camera, np.random.default_rng(seed))
     stop = stop_on_signals()
-    edges = announcements(scenario.camera)
+    edges = announcements(scenario.camera, scenario.world)
     with provider_session(settings, scenario.camera.provider, edges) as provider:
 
         def publish(now_ns: int) -> None:
