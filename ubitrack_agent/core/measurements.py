@@ -110,7 +110,7 @@ def _as_array(where: str, value: Any, spec: ArrayField, full: bool = True) -> np
 
 def check_unit_quaternion(where: str, q: np.ndarray) -> None:
     """Reject a quaternion whose norm is not 1 within :data:`UNIT_QUATERNION_TOLERANCE`."""
-    norm = math.sqrt(float(q @ q))
+    norm = math.hypot(*q)  # no overflow for huge components
     if abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE:
         raise _fail(where, f"not a unit quaternion (norm {norm:.9g})")
 
