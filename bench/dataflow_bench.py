@@ -12,7 +12,8 @@ in separate processes with real zenoh; figures are printed and written to
     pattern hop adds over a raw hop.
 (b) **Throughput.** Poses are published as fast as the bench can into the concatenation worker
     for a few seconds; the worker's ``published`` counter over the elapsed time is its rate.
-(c) **Reconfiguration.** An agent serves ``WT->HT`` for an application. Sensor appears: from
+(c) **Reconfiguration.** An agent serves ``WT->HT`` for an application; trials start once its
+    warm pool is full (steady state). Sensor appears: from
     the tracker's liveliness token appearing (seen by the bench) to the first sample on the
     relation key. Sensor disappears: two trackers, the accurate one used; it is killed
     (SIGKILL); from its token vanishing to the first sample from the other tracker's flow
@@ -45,6 +46,7 @@ from ubitrack_agent.transport import fetch_latest
 
 RESULTS = Path(__file__).with_name("results") / "dataflow.json"
 SIGMA_GOOD, SIGMA_POOR = 1e-3, 3e-2
+POOL_SIZE = 8  # the agent's default --pool-size
 
 
 def free_port() -> int:
@@ -249,6 +251,17 @@ def reconfiguration(trials: int) -> dict[str, Any]:
         callback=lambda sample: arrivals.put((time.perf_counter_ns(), sample)),
     )
     wait_until(lambda: fetch_latest(net.session, net.keys.agent_status(), timeout=0.5))
+    # Measure the steady state: the agent's warm pool full (it fills one process at a time).
+    pool = net.session.liveliness().declare_subscriber(f"{net.keys.root}/pool/*", history=True)
+    warm: set[str] = set()
+
+    def pool_full() -> bool:
+        while (token := pool.try_recv()) is not None:
+            (warm.add if str(token.kind).endswith("PUT") else warm.discard)(str(token.key_expr))
+        return len(warm) >= POOL_SIZE
+
+    wait_until(pool_full, timeout=120)
+    pool.undeclare()
     poor = net.spawn(
         "-m",
         "sim_trackers.exact_tracker",

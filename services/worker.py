@@ -108,6 +108,8 @@ class Worker:
         self._pending = PendingTriggers()
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
         self._stop = threading.Event()
+        self.released = False
+        """True when a control command ended the run: the process may serve another component."""
         self._inputs: list[_Input] = []
         self._generation = 0
         self._publishers: dict[str, LatestValuePublisher] = {}
@@ -181,6 +183,7 @@ class Worker:
                 )
             if command.get("stop") is True:
                 log.info("%s: stopped by control command", self.spec.instance)
+                self.released = True
                 self.stop()
                 return
             if "parameters" in command:
@@ -333,50 +336,80 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m services.worker",
         description="Run one pattern instance from a component specification (JSON).",
     )
-    source = parser.add_mutually_exclusive_group(required=True)
+    source = parser.add_mutually_exclusive_group()
     source.add_argument("--spec", help="the specification as JSON text")
     source.add_argument("--spec-file", help="a file holding the specification")
-    source.add_argument(
+    parser.add_argument(
         "--pool-id",
-        help="start idle, fully imported, and run the specification sent to <root>/pool/<ID> "
-        "(the service manager's warm pool); exits when standard input closes",
+        help="member of the service manager's warm pool: idle, fully imported, it runs the "
+        "specification sent to <root>/pool/<ID> (or --spec first) and returns to the pool when "
+        "released; it stops idling when its standard input closes",
     )
     logs.add_log_level_argument(parser)
     config.add_arguments(parser)
     return parser
 
 
-def wait_for_assignment(session: Any, keys: KeySpace, pool_id: str) -> ComponentSpec | None:
-    """Idle as pool worker ``pool_id`` until a specification arrives on its pool key.
+class Pool:
+    """Pool membership of a worker process: idles fully imported until a specification comes
+    on ``<root>/pool/<id>``, runs it, and, when the agent releases it (a stop command),
+    returns to the pool instead of exiting, so the process's imports are paid once.
 
-    Everything is imported first, so an assigned worker computes within milliseconds. The
-    worker idles only while its parent (the service manager) lives: it exits when its standard
-    input closes, or on SIGTERM. Malformed specifications are logged and ignored.
+    The process idles only while its parent (the service manager) lives: when its standard
+    input closes it leaves the pool (an assigned worker keeps running: a restarted agent
+    adopts it). SIGTERM or SIGINT ends it. Malformed specifications are logged and ignored.
     """
-    lookup("relay")  # imports every registered service and its maths
-    inbox: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
-    subscriber = session.declare_subscriber(
-        keys.pool(pool_id), lambda sample: inbox.put(sample.payload.to_bytes())
-    )
-    token = session.liveliness().declare_token(keys.pool(pool_id))
-    signal.signal(signal.SIGTERM, lambda *_: inbox.put(None))
-    signal.signal(signal.SIGINT, lambda *_: inbox.put(None))
-    threading.Thread(target=lambda: (sys.stdin.read(), inbox.put(None)), daemon=True).start()
-    try:
-        while (payload := inbox.get()) is not None:
-            try:
-                return parse_spec(payload.decode("utf-8"))
-            except (SpecError, UnicodeDecodeError) as exc:
-                log.error("pool worker %s: rejected specification: %s", pool_id, exc)
-        return None
-    finally:
-        token.undeclare()
-        subscriber.undeclare()
+
+    def __init__(self, session: Any, keys: KeySpace, pool_id: str) -> None:
+        self.session, self.keys, self.pool_id = session, keys, pool_id
+        self.orphaned = threading.Event()
+        self._inbox: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        threading.Thread(target=self._watch_parent, daemon=True).start()
+        lookup("relay")  # imports every registered service and its maths
+
+    def _watch_parent(self) -> None:
+        sys.stdin.read()
+        self.orphaned.set()
+        self._inbox.put(None)
+
+    def wait(self) -> ComponentSpec | None:
+        """The next specification, or None when the process should end."""
+        if self.orphaned.is_set():
+            return None
+        subscriber = self.session.declare_subscriber(
+            self.keys.pool(self.pool_id), lambda sample: self._inbox.put(sample.payload.to_bytes())
+        )
+        token = self.session.liveliness().declare_token(self.keys.pool(self.pool_id))
+        signal.signal(signal.SIGTERM, lambda *_: self._inbox.put(None))
+        signal.signal(signal.SIGINT, lambda *_: self._inbox.put(None))
+        try:
+            while (payload := self._inbox.get()) is not None:
+                try:
+                    return parse_spec(payload.decode("utf-8"))
+                except (SpecError, UnicodeDecodeError) as exc:
+                    log.error("pool worker %s: rejected specification: %s", self.pool_id, exc)
+            return None
+        finally:
+            token.undeclare()
+            subscriber.undeclare()
+
+
+def run_worker(session: Any, keys: KeySpace, spec: ComponentSpec) -> bool:
+    """Run one component until stopped; True if the agent released it (it may be reused)."""
+    worker = Worker(spec, session, keys)
+    signal.signal(signal.SIGTERM, lambda *_: worker.stop())
+    signal.signal(signal.SIGINT, lambda *_: worker.stop())
+    log.info("%s: running %s", spec.instance, spec.service)
+    worker.run()
+    return worker.released
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logs.configure(args.log_level)
+    if args.spec is None and args.spec_file is None and args.pool_id is None:
+        print("worker: give --spec, --spec-file or --pool-id", file=sys.stderr)
+        return 2
     try:
         spec = None
         if args.spec_file is not None:
@@ -392,16 +425,16 @@ def main(argv: list[str] | None = None) -> int:
 
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
-        if spec is None:
-            spec = wait_for_assignment(session, keys, args.pool_id)
+        pool = Pool(session, keys, args.pool_id) if args.pool_id else None
+        while True:
             if spec is None:
+                spec = pool.wait() if pool is not None else None
+                if spec is None:
+                    return 0
+            released = run_worker(session, keys, spec)
+            if not (released and pool is not None):
                 return 0
-        worker = Worker(spec, session, keys)
-        signal.signal(signal.SIGTERM, lambda *_: worker.stop())
-        signal.signal(signal.SIGINT, lambda *_: worker.stop())
-        log.info("%s: running %s", spec.instance, spec.service)
-        worker.run()
-    return 0
+            spec = None  # back to the pool
 
 
 if __name__ == "__main__":

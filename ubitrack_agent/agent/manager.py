@@ -4,7 +4,9 @@ Starting a Python worker costs a few hundred milliseconds (interpreter, numpy, s
 too slow for reconfiguration. The manager therefore keeps a **warm pool** of idle workers
 (``python -m services.worker --pool-id ID``) that have imported everything and wait for a
 specification on ``<root>/pool/<ID>``; starting a component hands it to a ready pool worker and
-tops the pool up. With no ready pool worker, it starts a fresh process with ``--spec``.
+tops the pool up. With no ready pool worker, it starts a fresh process with ``--spec``. A
+stopped component's process returns to the pool (``services.worker.Pool``) while the pool is
+short, so sensors coming and going reuse processes instead of paying the imports again.
 
 Only registered services are ever started (checked here, and again by the worker); workers are
 started without a shell, with the specification as one argument. Idle pool workers exit when
@@ -33,6 +35,8 @@ log = logging.getLogger("ubitrack.manager")
 
 STOP_GRACE_S = 3.0
 """How long a stopped worker may take to exit before it is killed."""
+REFILL_QUIET_S = 3.0
+"""The pool is topped up only after this long without a component being started."""
 
 
 class ServiceManager:
@@ -56,7 +60,10 @@ class ServiceManager:
         self._ready: set[str] = set()
         self._lock = threading.Lock()
         self.processes: dict[str, subprocess.Popen] = {}
+        self._pool_ids: dict[str, str] = {}
+        """Instance -> the pool id of the process running it (released back to the pool)."""
         self._stopping: list[tuple[subprocess.Popen, float]] = []
+        self._last_start = -REFILL_QUIET_S
         self._watch = session.liveliness().declare_subscriber(
             f"{keys.root}/pool/*", self._on_pool_token, history=True
         )
@@ -70,18 +77,25 @@ class ServiceManager:
             else:
                 self._ready.discard(pool_id)
 
+    def _new_pool_id(self) -> str:
+        return f"{self._tag}-{uuid.uuid4().hex[:8]}"
+
+    def _spawn(self, *arguments: str) -> subprocess.Popen:
+        return subprocess.Popen(
+            [self._python, "-m", "services.worker", *arguments, *self._flags],
+            stdin=subprocess.PIPE,  # closes when this process dies: idle workers then exit
+        )
+
     def _fill_pool(self) -> None:
-        """Top the pool up one process at a time: a worker importing numpy, scipy and OpenCV
-        keeps a core busy for about a second, and several at once would starve the running
-        data flow just after a reconfiguration."""
+        """Top the pool up, one process at a time and only once reconfiguration has been quiet
+        for ``REFILL_QUIET_S``: a worker importing numpy, scipy and OpenCV keeps a core busy
+        for about a second, which would starve a data flow that has just been rewired."""
         with self._lock:
             starting = set(self._pool) - self._ready
-        if len(self._pool) < self._pool_size and not starting:
-            pool_id = f"{self._tag}-{uuid.uuid4().hex[:8]}"
-            self._pool[pool_id] = subprocess.Popen(
-                [self._python, "-m", "services.worker", "--pool-id", pool_id, *self._flags],
-                stdin=subprocess.PIPE,
-            )
+        quiet = time.monotonic() - self._last_start > REFILL_QUIET_S
+        if len(self._pool) < self._pool_size and quiet and not starting:
+            pool_id = self._new_pool_id()
+            self._pool[pool_id] = self._spawn("--pool-id", pool_id)
 
     def _take_ready(self) -> tuple[str, subprocess.Popen] | None:
         with self._lock:
@@ -99,18 +113,22 @@ class ServiceManager:
             self._session.put(self._keys.pool(pool_id), spec.to_json())
             log.info("%s: assigned to pool worker %s", spec.instance, pool_id)
         else:
-            process = subprocess.Popen(
-                [self._python, "-m", "services.worker", "--spec", spec.to_json(), *self._flags]
-            )
+            pool_id = self._new_pool_id()
+            process = self._spawn("--pool-id", pool_id, "--spec", spec.to_json())
             log.info("%s: started process %d", spec.instance, process.pid)
         self.processes[spec.instance] = process
-        self._fill_pool()
+        self._pool_ids[spec.instance] = pool_id
+        self._last_start = time.monotonic()
 
     def stop(self, instance: str) -> None:
         """Ask ``instance`` to stop (it may be a worker of an earlier agent: any host)."""
         self._session.put(self._keys.control(instance), json.dumps({"stop": True}))
         process = self.processes.pop(instance, None)
-        if process is not None:
+        pool_id = self._pool_ids.pop(instance, None)
+        if process is not None and pool_id is not None and len(self._pool) < self._pool_size:
+            self._pool[pool_id] = process  # released: back in the pool once its token is up
+        elif process is not None:
+            process.terminate()
             self._stopping.append((process, time.monotonic() + STOP_GRACE_S))
 
     def reap(self) -> list[str]:
@@ -119,6 +137,7 @@ class ServiceManager:
         for instance in died:
             log.warning("%s: worker exited with %s", instance, self.processes[instance].returncode)
             del self.processes[instance]
+            self._pool_ids.pop(instance, None)
         now = time.monotonic()
         still = []
         for process, deadline in self._stopping:
