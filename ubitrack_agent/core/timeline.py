@@ -65,12 +65,14 @@ class SampleBuffer:
         self.static = static
         self._samples: deque[Measurement] = deque(maxlen=1 if static else history)
         self._times: deque[int] = deque(maxlen=self._samples.maxlen)
+        self._period: int | None = None
 
     def __len__(self) -> int:
         return len(self._samples)
 
     def add(self, sample: Measurement) -> None:
         """Store a sample; out-of-order samples are inserted in time order."""
+        self._period = None
         t = sample.timestamp_ns
         if not self._times or t >= self._times[-1]:
             self._samples.append(sample)
@@ -94,12 +96,13 @@ class SampleBuffer:
         return self._times[-1] if self._times else None
 
     def typical_period_ns(self) -> int | None:
-        """Median gap between the recent samples (None with fewer than three)."""
-        if len(self._times) < 3:
-            return None
-        recent = list(self._times)[-9:]
-        gaps = sorted(b - a for a, b in itertools.pairwise(recent))
-        return gaps[len(gaps) // 2]
+        """Median gap between the recent samples (None with fewer than three); cached until
+        the next sample, as triggers ask for it on every pass."""
+        if self._period is None and len(self._times) >= 3:
+            recent = list(self._times)[-9:]
+            gaps = sorted(b - a for a, b in itertools.pairwise(recent))
+            self._period = gaps[len(gaps) // 2]
+        return self._period
 
     def lookup(self, timestamp_ns: int) -> Measurement:
         """The value at ``timestamp_ns``, strictly: a static edge answers its latest value, a
