@@ -15,7 +15,7 @@ changed keeps its id: :func:`diff` reports it as *rewired* rather than stopped a
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -192,19 +192,28 @@ def diff(old: DataFlow, new: DataFlow) -> DataFlowDiff:
     return DataFlowDiff(start, stop, rewire, relations)
 
 
-def plan_flows(
-    srg: nx.MultiDiGraph, templates: Sequence[Template], queries: Iterable[Query]
-) -> tuple[DataFlow, dict[str, str]]:
-    """Plan every query on ``srg`` and merge the best data flows (shared components).
+def best(query: Query, solutions: Sequence[Solution]) -> Solution:
+    """The planner's choice: the cheapest solution."""
+    return solutions[0]
 
+
+def plan_flows(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    queries: Iterable[Query],
+    choose: Callable[[Query, Sequence[Solution]], Solution] = best,
+) -> tuple[DataFlow, dict[str, str]]:
+    """Plan every query on ``srg`` and merge the chosen data flows (shared components).
+
+    ``choose`` picks one of a query's solutions (cheapest first); by default the cheapest.
     Returns the data flow and, for each query that has no solution now, its relation name and
     the reason, so that the caller can keep serving the others (the live agent replans when
-    the SRG changes and diffs the result against the running flow with :func:`diff`).
+    the SRG changes and reconciles its workers with the result).
     """
     flows, unresolved = [], {}
     for query in queries:
         try:
-            flows.append(from_solution(plan(srg, templates, query)[0], query))
+            flows.append(from_solution(choose(query, plan(srg, templates, query)), query))
         except PlanningError as exc:
             unresolved[relation_name(query)] = str(exc)
     return merge(flows), unresolved

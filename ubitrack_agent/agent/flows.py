@@ -9,14 +9,14 @@ at 4 % above a fresh one that needs six new components).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence, Set
+from collections.abc import Callable, Iterable, Sequence, Set
 from dataclasses import dataclass, field
 
 import networkx as nx
 
-from ..dataflow import DataFlow, from_solution, merge, relation_name
+from ..dataflow import DataFlow, from_solution, plan_flows, relation_name
 from ..keys import RelationId
-from ..planner import PlanningError, Query, plan
+from ..planner import PlanningError, Query, Solution
 from ..templates import Template
 
 HYSTERESIS = 0.10
@@ -33,14 +33,23 @@ class Plan:
     unsolved: dict[str, str] = field(default_factory=dict)
 
 
-def _stable_choice(flows: list[tuple[float, DataFlow]], running: Set[str]) -> DataFlow:
-    """The flow to run: the cheapest, unless components are running; then the one with the
-    fewest new components within the cost margin, then the cheapest."""
-    if not running:
-        return flows[0][1]
-    best = flows[0][0]
-    eligible = [(cost, flow) for cost, flow in flows if cost <= best * (1 + HYSTERESIS) + 1e-12]
-    return min(eligible, key=lambda item: (len(set(item[1].components) - running), item[0]))[1]
+def stable_choice(running: Set[str]) -> Callable[[Query, Sequence[Solution]], Solution]:
+    """A ``dataflow.plan_flows`` chooser: the cheapest solution, unless components are
+    running; then the one with the fewest new components within the cost margin, then the
+    cheapest."""
+
+    def choose(query: Query, solutions: Sequence[Solution]) -> Solution:
+        if not running:
+            return solutions[0]
+        limit = solutions[0].cost * (1 + HYSTERESIS) + 1e-12
+
+        def new_components(solution: Solution) -> int:
+            return len(set(from_solution(solution, query).components) - running)
+
+        eligible = [s for s in solutions if s.cost <= limit]
+        return min(eligible, key=lambda s: (new_components(s), s.cost))
+
+    return choose
 
 
 def plan_relations(
@@ -49,8 +58,8 @@ def plan_relations(
     relations: Iterable[RelationId],
     running: Set[str] = frozenset(),
 ) -> Plan:
-    """A derivation of each relation (``planner.plan``), merged into one data flow."""
-    chosen, names, unsolved = [], {}, {}
+    """A derivation of each relation (:func:`stable_choice`), merged into one data flow."""
+    queries, names, unsolved = [], {}, {}
     for relation in sorted(set(relations), key=str):
         try:
             query = Query(relation.source, relation.target, relation.type, relation.static)
@@ -63,11 +72,6 @@ def plan_relations(
         if missing:
             unsolved[name] = f"no provider announces frame(s) {', '.join(missing)}"
             continue
-        try:
-            solutions = plan(srg, templates, query)
-        except PlanningError as exc:
-            unsolved[name] = str(exc)
-            continue
-        flows = [(solution.cost, from_solution(solution, query)) for solution in solutions]
-        chosen.append(_stable_choice(flows, running))
-    return Plan(merge(chosen), names, unsolved)
+        queries.append(query)
+    flow, unresolved = plan_flows(srg, templates, queries, stable_choice(running))
+    return Plan(flow, names, {**unsolved, **unresolved})
