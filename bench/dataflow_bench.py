@@ -36,25 +36,18 @@ from typing import Any
 
 import numpy as np
 
-from services.spec import ComponentSpec, InputBinding
-from ubitrack_agent import config
-from ubitrack_agent.application import Relation
+from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.core import ErrorPose, Pose, encode
-from ubitrack_agent.keys import KeySpace, RelationId
-from ubitrack_agent.session import open_session
-from ubitrack_agent.transport import fetch_latest
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net import config
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.transport import fetch_latest
 
 RESULTS = Path(__file__).with_name("results") / "dataflow.json"
 SIGMA_GOOD, SIGMA_POOR = 1e-3, 3e-2
 POOL_SIZE = 8  # the agent's default --pool-size
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 class Network:
@@ -64,20 +57,12 @@ class Network:
         self.port = free_port()
         self.domain = f"bench{self.port}"
         self.keys = KeySpace(f"ubitrack/{self.domain}")
-        self.session = open_session(
-            config.Settings(listen=(f"tcp/127.0.0.1:{self.port}",), domain=self.domain)
-        )
+        self.hub = config.Settings(listen=(f"tcp/127.0.0.1:{self.port}",), domain=self.domain)
+        self.session = open_session(self.hub)
         self.children: list[subprocess.Popen] = []
 
     def flags(self) -> list[str]:
-        return [
-            "--connect",
-            f"tcp/127.0.0.1:{self.port}",
-            "--listen",
-            "tcp/127.0.0.1:0",
-            "--domain",
-            self.domain,
-        ]
+        return config.member_flags(self.hub)
 
     def spawn(self, *command: str) -> subprocess.Popen:
         process = subprocess.Popen([sys.executable, *command, *self.flags()])
@@ -94,15 +79,6 @@ class Network:
             except subprocess.TimeoutExpired:
                 process.kill()
         self.session.close()
-
-
-def wait_until(condition, timeout: float = 20.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if result := condition():
-            return result
-        time.sleep(0.01)
-    raise RuntimeError("benchmark set-up did not come up in time")
 
 
 def percentiles(values: list[float]) -> dict[str, float]:

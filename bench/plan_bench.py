@@ -32,9 +32,9 @@ from pathlib import Path
 import networkx as nx
 import numpy as np
 
-from ubitrack_agent.planner import Query, plan
-from ubitrack_agent.srg import add_measured_edge, load_setup, new_srg, remove_provider
-from ubitrack_agent.templates import DEFAULT_TEMPLATE_DIR, Template, load_templates
+from ubitrack_agent.graph.planner import Query, plan
+from ubitrack_agent.graph.srg import add_measured_edge, load_setup, new_srg, remove_provider
+from ubitrack_agent.graph.templates import Template, load_templates
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "plan.json"
@@ -130,7 +130,7 @@ def plan_figures(
 
 
 def main() -> None:
-    templates = load_templates(DEFAULT_TEMPLATE_DIR)
+    templates = load_templates()
     results: dict = {
         "date": time.strftime("%Y-%m-%d"),
         "python": platform.python_version(),

@@ -12,8 +12,8 @@ import threading
 
 import zenoh
 
-from ubitrack_agent import config
-from ubitrack_agent.session import open_session
+from ubitrack_agent.net import config
+from ubitrack_agent.net.session import open_session
 
 
 def main() -> int:

@@ -8,7 +8,8 @@ history with copies of one measurement). Once the multiplicity's lower bound is 
 service computes on the accumulated lists; every further distinct sample refines the result.
 The history is bounded (``max_samples``, oldest dropped first).
 
-Options (``time_expansion`` in the component specification), defaults from the service:
+Options (``time_expansion`` in the component specification, checked by
+:func:`ubitrack_agent.net.spec.parse_time_expansion`), defaults from the service:
 
 * ``min_motion`` - least change of a position or translation (its unit: m, or px for 2D);
 * ``min_rotation_deg`` - least change of a rotation, degrees;
@@ -23,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from services.registry import Inputs, Service
 from ubitrack_agent.core import (
     ErrorPose,
     Measurement,
@@ -33,25 +35,7 @@ from ubitrack_agent.core import (
     quaternions,
 )
 
-from .registry import Inputs, Service
-
-OPTIONS = ("min_motion", "min_rotation_deg", "max_samples")
 DEFAULT_MAX_SAMPLES = 200
-
-
-def parse_time_expansion(options: Any) -> dict[str, float]:
-    """Validate time-expansion options (see the module docstring)."""
-    if not isinstance(options, Mapping):
-        raise ValueError("expected an object")
-    unknown = sorted(set(options) - set(OPTIONS))
-    if unknown:
-        raise ValueError(f"unknown options {unknown}; known: {list(OPTIONS)}")
-    for name, value in options.items():
-        if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
-            raise ValueError(f"{name} must be a number >= 0")
-    if "max_samples" in options and not 1 <= options["max_samples"] <= 100_000:
-        raise ValueError("max_samples must be in [1, 100000]")
-    return {name: float(value) for name, value in options.items()}
 
 
 def motion(before: Measurement, after: Measurement) -> tuple[float, float]:

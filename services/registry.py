@@ -95,4 +95,4 @@ def lookup(name: str) -> type[Service]:
 
 
 def _load_builtin_services() -> None:
-    from . import components  # noqa: F401  (modules register their services on import)
+    from services import components  # noqa: F401  (modules register their services on import)

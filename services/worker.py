@@ -33,15 +33,15 @@ from collections import Counter, deque
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ubitrack_agent import config, logs
+from services.expansion import TimeAccumulator
+from services.registry import Service, lookup
+from services.spec import check_bindings, check_relations, check_spec
+from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.timeline import SampleBuffer
-from ubitrack_agent.keys import KeySpace
-from ubitrack_agent.transport import LatestValuePublisher, fetch_until_satisfied
-
-from .expansion import TimeAccumulator
-from .registry import Service, lookup
-from .spec import (
+from ubitrack_agent.net import config, logs
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import (
     ComponentSpec,
     InputBinding,
     SpecError,
@@ -49,7 +49,7 @@ from .spec import (
     parse_relations,
     parse_spec,
 )
-from .triggers import PendingTriggers, lagging, wait_for
+from ubitrack_agent.net.transport import LatestValuePublisher, fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -194,15 +194,13 @@ class Worker:
                 self._service = service
                 self._accumulator = self._new_accumulator()
             if "inputs" in command:
-                bindings = parse_bindings(
-                    command["inputs"], self._service_class, self.spec.expansion, "control.inputs"
-                )
+                bindings = parse_bindings(command["inputs"], "control.inputs")
+                check_bindings(bindings, self._service_class, self.spec.expansion, "control.inputs")
                 self.spec = replace(self.spec, inputs=bindings)
                 self._bind(bindings)
             if "relations" in command:
-                relations = parse_relations(
-                    command["relations"], self._service_class, "control.relations"
-                )
+                relations = parse_relations(command["relations"], "control.relations")
+                check_relations(relations, self._service_class, "control.relations")
                 self.spec = replace(self.spec, relations=relations)
                 self._route_outputs(relations)
         except (ValueError, TypeError) as exc:
@@ -385,7 +383,9 @@ class Pool:
         try:
             while (payload := self._inbox.get()) is not None:
                 try:
-                    return parse_spec(payload.decode("utf-8"))
+                    spec = parse_spec(payload.decode("utf-8"))
+                    check_spec(spec)
+                    return spec
                 except (SpecError, UnicodeDecodeError) as exc:
                     log.error("pool worker %s: rejected specification: %s", self.pool_id, exc)
             return None
@@ -417,11 +417,12 @@ def main(argv: list[str] | None = None) -> int:
                 args.spec = file.read()
         if args.spec is not None:
             spec = parse_spec(args.spec)
+            check_spec(spec)
         settings = config.from_arguments(args, role="member")
     except (OSError, SpecError, config.ConfigError) as exc:
         print(f"worker: {exc}", file=sys.stderr)
         return 2
-    from ubitrack_agent.session import open_session
+    from ubitrack_agent.net.session import open_session
 
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:

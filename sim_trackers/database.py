@@ -21,7 +21,7 @@ per edge with the measurement's fields (``docs/simulators.md``)::
 :func:`dump_edges` writes that file from any list of edges, e.g. the scenario's.
 
 The provider publishes each value once; its data keys keep answering queries with it
-(:class:`ubitrack_agent.transport.LatestValuePublisher`), so consumers started later fetch it.
+(:class:`ubitrack_agent.net.transport.LatestValuePublisher`), so consumers started later fetch it.
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import yaml
 
+from sim_trackers.scenario import EDGE_TYPES, DatabaseEdge, FieldReader, read_yaml
+from sim_trackers.world import World
 from ubitrack_agent.core import (
     CameraIntrinsics,
     Measurement,
@@ -41,10 +43,7 @@ from ubitrack_agent.core import (
     Projection,
     to_json,
 )
-from ubitrack_agent.provider import EdgeAnnouncement
-
-from .scenario import EDGE_TYPES, DatabaseEdge, FieldReader, read_yaml
-from .world import World
+from ubitrack_agent.io.provider import EdgeAnnouncement
 
 VALUE_TYPES: dict[str, type[Measurement]] = {
     "6D": Pose,

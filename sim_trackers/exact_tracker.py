@@ -17,11 +17,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sim_trackers.trajectories import LissajousPath
-from ubitrack_agent import config
 from ubitrack_agent.core import ErrorPose, se3
-from ubitrack_agent.keys import KeySpace
-from ubitrack_agent.provider import EdgeAnnouncement, Provider
-from ubitrack_agent.session import open_session
+from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
+from ubitrack_agent.net import config
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.session import open_session
 
 PATH = LissajousPath(centre=(0.0, 0.0, 1.6), amplitude=(1.0, 0.5), frequency=(0.05, 0.1))
 """At most 0.45 m/s: a sample held for the 5 ms synchronisation tolerance is off by 2.2 mm."""

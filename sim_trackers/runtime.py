@@ -9,10 +9,10 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from ubitrack_agent.config import Settings
-from ubitrack_agent.keys import KeySpace
-from ubitrack_agent.provider import EdgeAnnouncement, Provider
-from ubitrack_agent.session import open_session
+from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
+from ubitrack_agent.net.config import Settings
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.session import open_session
 
 
 def stop_on_signals() -> threading.Event:
@@ -51,7 +51,7 @@ def run_periodic(
 def provider_session(
     settings: Settings, provider_id: str, edges: list[EdgeAnnouncement]
 ) -> Iterator[Provider]:
-    """A zenoh session with one :class:`~ubitrack_agent.provider.Provider` announced on it;
+    """A zenoh session with one :class:`~ubitrack_agent.io.provider.Provider` announced on it;
     both are closed on exit (the provider first, so the agent replans at once)."""
     with open_session(settings) as session:
         provider = Provider(session, KeySpace(settings.key_prefix), provider_id, edges)

@@ -20,10 +20,9 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from ubitrack_agent.keys import validate_key_chunks
-
-from .trajectories import LissajousPath
-from .world import FixedPlacement, Frame, ImagePlane, Placement, World, WorldError
+from sim_trackers.trajectories import LissajousPath
+from sim_trackers.world import FixedPlacement, Frame, ImagePlane, Placement, World, WorldError
+from ubitrack_agent.net.keys import validate_key_chunks
 
 DEFAULT_SCENARIO = Path(__file__).with_name("scenarios") / "paper_figure1.yaml"
 

@@ -5,7 +5,7 @@ noise (rotation about each body's origin and position noise, as an outside-in tr
 behave: :func:`sim_trackers.noise.perturb_in_place`), drops each body with probability
 ``art.dropout`` (an untracked body is omitted from the ``6d`` line, as DTrack does, while
 ``6dcal`` still counts it) and sends ``fr``/``ts``/``6dcal``/``6d``/``3d`` lines
-(:mod:`sim_trackers.dtrack_format`). ``ts`` is the sample time in seconds since 00:00 UTC
+(:mod:`ubitrack_agent.io.dtrack_format`). ``ts`` is the sample time in seconds since 00:00 UTC
 with microseconds, so sample times are whole microseconds: the DTrack adapter maps ``ts`` back
 to exactly the nanosecond timestamp the ground truth was evaluated at.
 """
@@ -19,11 +19,17 @@ import threading
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .dtrack_format import Body6D, DTrackFrame, Marker3D, encode_frame, seconds_of_day
-from .noise import noise_covariance, perturb_in_place
-from .runtime import run_periodic
-from .scenario import ArtSettings
-from .world import World
+from sim_trackers.noise import noise_covariance, perturb_in_place
+from sim_trackers.runtime import run_periodic
+from sim_trackers.scenario import ArtSettings
+from sim_trackers.world import World
+from ubitrack_agent.io.dtrack_format import (
+    Body6D,
+    DTrackFrame,
+    Marker3D,
+    encode_frame,
+    seconds_of_day,
+)
 
 log = logging.getLogger("ubitrack.sim.art")
 

@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim_trackers.scenario import CameraSettings
+from sim_trackers.world import World
 from ubitrack_agent.core import Position2D
-from ubitrack_agent.provider import EdgeAnnouncement
-
-from .scenario import CameraSettings
-from .world import World
+from ubitrack_agent.io.provider import EdgeAnnouncement
 
 METRIC_SAMPLES = 20
 """Instants (one every 3 s) at which :func:`metric_sigma` measures the features' depth."""

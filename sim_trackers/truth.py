@@ -1,6 +1,6 @@
 """Ground truth on zenoh: the simulated world answers queries for any relation.
 
-Key ``<root>/truth/<from>/<to>`` (:meth:`ubitrack_agent.keys.KeySpace.truth`), optional
+Key ``<root>/truth/<from>/<to>`` (:meth:`ubitrack_agent.net.keys.KeySpace.truth`), optional
 parameter ``t=<ns>`` (default: the time of the query's arrival). The reply is one encoded
 measurement (``ubitrack_agent.core.codec``):
 
@@ -10,7 +10,7 @@ measurement (``ubitrack_agent.core.codec``):
   frame's origin (with distortion), or an error reply if it is out of view.
 
 Bad parameters get an error reply naming the problem. One queryable per pair of names is
-declared (so no wildcard key is built outside :mod:`ubitrack_agent.keys`); zenoh callbacks only
+declared (so no wildcard key is built outside :mod:`ubitrack_agent.net.keys`); zenoh callbacks only
 queue the queries and one thread answers them.
 """
 
@@ -22,11 +22,10 @@ import threading
 import time
 from typing import Any
 
+from sim_trackers.world import World
 from ubitrack_agent.core import Measurement, Pose, Position2D, Projection, encode
 from ubitrack_agent.core.measurements import MAX_TIMESTAMP_NS
-from ubitrack_agent.keys import KeySpace
-
-from .world import World
+from ubitrack_agent.net.keys import KeySpace
 
 log = logging.getLogger("ubitrack.sim.world")
 

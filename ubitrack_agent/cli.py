@@ -11,7 +11,8 @@ import argparse
 import importlib
 import sys
 
-from . import __version__, logs
+from ubitrack_agent import __version__
+from ubitrack_agent.net import logs
 
 COMMAND_MODULES: tuple[str, ...] = (
     "agent",

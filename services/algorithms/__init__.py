@@ -20,15 +20,15 @@ Modules: :mod:`.absolute_orientation` (3D-3D), :mod:`.pnp` (2D-3D pose), :mod:`.
 (inverse-covariance fusion and a Kalman filter), :mod:`.averaging`, :mod:`.auxiliary`.
 """
 
-from .absolute_orientation import absolute_orientation
-from .auxiliary import compose_projection, decompose_projection, split_pose
-from .averaging import average_poses, average_positions
-from .dlt import projection_dlt
-from .estimate import PoseEstimate
-from .fusion import PoseKalmanFilter, fuse_poses
-from .hand_eye import hand_eye_daniilidis, hand_eye_park_martin
-from .pnp import solve_pnp, solve_pnp_ransac
-from .triangulation import Triangulation, triangulate_points
+from services.algorithms.absolute_orientation import absolute_orientation
+from services.algorithms.auxiliary import compose_projection, decompose_projection, split_pose
+from services.algorithms.averaging import average_poses, average_positions
+from services.algorithms.dlt import projection_dlt
+from services.algorithms.estimate import PoseEstimate
+from services.algorithms.fusion import PoseKalmanFilter, fuse_poses
+from services.algorithms.hand_eye import hand_eye_daniilidis, hand_eye_park_martin
+from services.algorithms.pnp import solve_pnp, solve_pnp_ransac
+from services.algorithms.triangulation import Triangulation, triangulate_points
 
 __all__ = [
     "PoseEstimate",

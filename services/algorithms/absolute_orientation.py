@@ -23,8 +23,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ._checks import as_array, as_points, positive, require_spread, same_count
-from .estimate import PoseEstimate, point_jacobian, symmetric
+from services.algorithms._checks import as_array, as_points, positive, require_spread, same_count
+from services.algorithms.estimate import PoseEstimate, point_jacobian, symmetric
 
 
 def absolute_orientation(

@@ -16,8 +16,13 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from ._checks import as_array, as_camera_matrix, as_covariances, as_quaternions
-from .estimate import PoseEstimate, from_rotation_matrix, point_jacobian, symmetric
+from services.algorithms._checks import as_array, as_camera_matrix, as_covariances, as_quaternions
+from services.algorithms.estimate import (
+    PoseEstimate,
+    from_rotation_matrix,
+    point_jacobian,
+    symmetric,
+)
 
 _SINGULAR = 1e-12
 

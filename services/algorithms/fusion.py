@@ -24,11 +24,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ubitrack_agent.core.measurements import check_timestamp
-from ubitrack_agent.core.uncertainty import skew
-
-from ._checks import as_array, as_covariances, as_points, as_quaternions, positive, same_count
-from .estimate import (
+from services.algorithms._checks import (
+    as_array,
+    as_covariances,
+    as_points,
+    as_quaternions,
+    positive,
+    same_count,
+)
+from services.algorithms.estimate import (
     PoseEstimate,
     left_residuals,
     perturb_left,
@@ -36,6 +40,8 @@ from .estimate import (
     symmetric,
     to_estimate,
 )
+from ubitrack_agent.core.measurements import check_timestamp
+from ubitrack_agent.core.uncertainty import skew
 
 _CONVERGED = 1e-13
 

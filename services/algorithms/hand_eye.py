@@ -25,10 +25,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from services.algorithms._checks import as_points, as_quaternions, same_count
+from services.algorithms.estimate import PoseEstimate
 from ubitrack_agent.core import quaternions, se3
-
-from ._checks import as_points, as_quaternions, same_count
-from .estimate import PoseEstimate
 
 _PARALLEL_AXES = 1e-6
 

@@ -34,9 +34,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ubitrack_agent.core.uncertainty import skew
-
-from ._checks import (
+from services.algorithms._checks import (
     as_camera_matrix,
     as_distortion,
     as_points,
@@ -45,7 +43,8 @@ from ._checks import (
     require_spread,
     same_count,
 )
-from .estimate import PoseEstimate, from_rotation_matrix, symmetric
+from services.algorithms.estimate import PoseEstimate, from_rotation_matrix, symmetric
+from ubitrack_agent.core.uncertainty import skew
 
 PnpMethod = Literal["auto", "sqpnp", "ippe", "ippe_square", "epnp", "iterative"]
 

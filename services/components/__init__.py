@@ -4,4 +4,4 @@ Port names are the edge names of the pattern's template in ``templates/`` (``AB`
 a planned component's input bindings map onto ports directly.
 """
 
-from . import auxiliary, basic, estimation, fusion  # noqa: F401
+from services.components import auxiliary, basic, estimation, fusion  # noqa: F401

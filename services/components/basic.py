@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from services.registry import Inputs, Port, Service, register
 from ubitrack_agent.core import (
     MEASUREMENT_TYPES,
     ErrorPose,
@@ -17,8 +18,6 @@ from ubitrack_agent.core import (
     se3,
 )
 from ubitrack_agent.core.poses import compose_poses, invert_pose, transform_position
-
-from ..registry import Inputs, Port, Service, register
 
 POSES = (Pose, ErrorPose)
 

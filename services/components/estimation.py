@@ -21,6 +21,7 @@ from services.algorithms import (
     triangulate_points,
 )
 from services.algorithms.estimate import PoseEstimate
+from services.registry import Inputs, Port, Service, complete_correspondences, register
 from ubitrack_agent.core import (
     ErrorPose,
     Measurement,
@@ -31,8 +32,6 @@ from ubitrack_agent.core import (
     se3,
 )
 from ubitrack_agent.core.uncertainty import compose_covariance
-
-from ..registry import Inputs, Port, Service, complete_correspondences, register
 
 POSES = (Pose, ErrorPose)
 

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from services.algorithms import average_poses, average_positions, fuse_poses
+from services.registry import Inputs, Port, Service, complete_correspondences, register
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D
-
-from ..registry import Inputs, Port, Service, complete_correspondences, register
 
 
 @register

@@ -16,15 +16,14 @@ import numpy as np
 import pytest
 
 from sim_trackers.exact_tracker import true_wt_ht
-from ubitrack_agent import config
-from ubitrack_agent.application import Relation
+from tests.integration.conftest import kill_tagged
+from tests.integration.zenoh_helpers import free_port, member_flags, wait_until
 from ubitrack_agent.core import se3
-from ubitrack_agent.keys import KeySpace, RelationId
-from ubitrack_agent.session import open_session
-from ubitrack_agent.transport import fetch_latest
-
-from .conftest import free_port, kill_tagged
-from .zenoh_helpers import member_flags, wait_until
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net import config
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.transport import fetch_latest
 
 pytestmark = pytest.mark.integration
 

@@ -8,16 +8,14 @@ import threading
 import numpy as np
 import pytest
 
-from ubitrack_agent import config
-from ubitrack_agent.application import Relation
+from tests.integration.zenoh_helpers import free_port, hub_session, wait_until
 from ubitrack_agent.core import ExtrapolationError, NoDataError, Pose, Position3D, decode, encode
-from ubitrack_agent.keys import KeySpace, RelationId
-from ubitrack_agent.provider import EdgeAnnouncement, Provider
-from ubitrack_agent.session import open_session
-from ubitrack_agent.transport import fetch_latest
-
-from .conftest import free_port
-from .zenoh_helpers import hub_session, wait_until
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
+from ubitrack_agent.net import config
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.transport import fetch_latest
 
 pytestmark = pytest.mark.integration
 
@@ -130,7 +128,7 @@ def test_relation_announces_query_and_delivers_samples():
 
 
 def test_relation_gets_a_static_value_published_before_it_started():
-    from ubitrack_agent.transport import LatestValuePublisher
+    from ubitrack_agent.net.transport import LatestValuePublisher
 
     port = free_port()
     keys = KeySpace(f"ubitrack/s{port}")

@@ -9,7 +9,8 @@ import sys
 
 import pytest
 
-from .conftest import free_port, kill_tagged
+from tests.integration.conftest import kill_tagged
+from tests.integration.zenoh_helpers import free_port
 
 pytestmark = pytest.mark.integration
 

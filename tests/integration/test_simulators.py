@@ -18,12 +18,16 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sim_trackers.scenario import load_scenario
+from tests.integration.zenoh_helpers import (
+    Collector,
+    free_port,
+    hub_session,
+    member_flags,
+    wait_until,
+)
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, Projection, decode
-from ubitrack_agent.keys import KeySpace
-from ubitrack_agent.transport import fetch_latest
-
-from .conftest import free_port
-from .zenoh_helpers import Collector, hub_session, member_flags, wait_until
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.transport import fetch_latest
 
 pytestmark = pytest.mark.integration
 

@@ -13,12 +13,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from services.spec import ComponentSpec, InputBinding
+from tests.integration.zenoh_helpers import (
+    Collector,
+    free_port,
+    hub_session,
+    member_flags,
+    wait_until,
+)
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, decode, encode, se3
-from ubitrack_agent.keys import KeySpace
-
-from .conftest import free_port
-from .zenoh_helpers import Collector, hub_session, member_flags, wait_until
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
 pytestmark = pytest.mark.integration
 

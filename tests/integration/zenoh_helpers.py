@@ -3,12 +3,20 @@
 from __future__ import annotations
 
 import queue
+import socket
 import time
 from collections.abc import Callable
 from typing import Any
 
-from ubitrack_agent import config
-from ubitrack_agent.session import open_session
+from ubitrack_agent.net import config
+from ubitrack_agent.net.session import open_session
+
+
+def free_port() -> int:
+    """A TCP port on loopback that was free a moment ago."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
 
 
 def hub_session(port: int):
@@ -18,7 +26,7 @@ def hub_session(port: int):
 
 def member_flags(port: int, domain: str) -> list[str]:
     """Command-line flags making a child process join the test's hub."""
-    return ["--connect", f"tcp/127.0.0.1:{port}", "--listen", "tcp/127.0.0.1:0", "--domain", domain]
+    return config.member_flags(config.Settings(listen=(f"tcp/127.0.0.1:{port}",), domain=domain))
 
 
 def wait_until(condition: Callable[[], Any], timeout: float = 10.0, interval: float = 0.01) -> Any:

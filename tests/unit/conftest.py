@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from ubitrack_agent.srg import load_setup
-from ubitrack_agent.templates import load_templates
+from ubitrack_agent.graph.srg import load_setup
+from ubitrack_agent.graph.templates import load_templates
 
 ROOT = Path(__file__).resolve().parents[2]
 

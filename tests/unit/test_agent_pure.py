@@ -4,13 +4,13 @@ import json
 
 import pytest
 
-from services.spec import parse_spec
 from ubitrack_agent.agent.announcements import AnnouncementError, build_srg, fragment_entries
 from ubitrack_agent.agent.flows import plan_relations
 from ubitrack_agent.agent.materialise import component_specs
 from ubitrack_agent.agent.reconcile import reconcile
-from ubitrack_agent.keys import KeySpace, RelationId
-from ubitrack_agent.templates import load_templates
+from ubitrack_agent.graph.templates import load_templates
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.spec import parse_spec
 
 KEYS = KeySpace("ubitrack/test")
 TEMPLATES = load_templates()

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bench.synthetic import CAMERA_MATRIX, hand_eye_scene, rng_for
-from services.expansion import TimeAccumulator, parse_time_expansion
+from services.expansion import TimeAccumulator
 from services.registry import lookup
 from ubitrack_agent.core import (
     ErrorPose,
@@ -17,6 +17,7 @@ from ubitrack_agent.core import (
     quaternions,
     se3,
 )
+from ubitrack_agent.net.spec import parse_time_expansion
 
 T = 1_000
 

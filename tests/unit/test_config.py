@@ -4,8 +4,9 @@ import json
 
 import pytest
 
-from ubitrack_agent import cli, config
-from ubitrack_agent.keys import KeySpace, validate_key_chunks
+from ubitrack_agent import cli
+from ubitrack_agent.net import config
+from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 
 
 def test_embedded_defaults_are_loopback_peers_without_multicast():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 
-from ubitrack_agent.dataflow import (
+from ubitrack_agent.graph.dataflow import (
     Binding,
     DataFlow,
     diff,
@@ -14,8 +14,8 @@ from ubitrack_agent.dataflow import (
     plan_flows,
     relation_name,
 )
-from ubitrack_agent.planner import Query, plan
-from ubitrack_agent.srg import parse_setup, remove_provider
+from ubitrack_agent.graph.planner import Query, plan
+from ubitrack_agent.graph.srg import parse_setup, remove_provider
 
 QUERY = Query("C", "A", "6D")
 

@@ -6,15 +6,15 @@ from dataclasses import replace
 
 import pytest
 
-from ubitrack_agent.matcher import (
+from ubitrack_agent.graph.matcher import (
     EdgeIndex,
     expand_group,
     find_matches,
     group_key,
     independent,
 )
-from ubitrack_agent.planner import Workspace
-from ubitrack_agent.srg import parse_setup
+from ubitrack_agent.graph.planner import Workspace
+from ubitrack_agent.graph.srg import parse_setup
 
 
 def index_of(edges, rigid=()):

@@ -11,7 +11,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ubitrack_agent.planner import (
+from ubitrack_agent.graph.planner import (
     NoSolutionError,
     PlanningError,
     Query,
@@ -21,7 +21,7 @@ from ubitrack_agent.planner import (
     useful_types,
     with_solution,
 )
-from ubitrack_agent.srg import parse_setup
+from ubitrack_agent.graph.srg import parse_setup
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -7,16 +7,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from services.registry import lookup
-from services.spec import SpecError, parse_spec
-from ubitrack_agent.core import (
-    ErrorPose,
-    Pose,
-    Position2D,
-    Position3D,
-    Projection,
-    Rotation3D,
-    se3,
-)
+from services.spec import check_spec
+from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, Projection, Rotation3D, se3
+from ubitrack_agent.net.spec import SpecError, parse_spec
 
 RNG = np.random.default_rng(5)
 Q = Rotation.random(rng=RNG).as_quat()
@@ -90,7 +83,7 @@ def test_valid_spec_round_trips_through_json():
         ({"instance": 5}, "spec.instance: expected str"),
         ({"outputs": {"nope": "k"}}, "has no output 'nope'"),
         ({"outputs": {"AC": "u/*/x"}}, "spec.outputs.AC"),
-        ({"inputs": [VALID["inputs"][0]]}, "port 'BC' needs exactly one binding"),
+        ({"inputs": [{**VALID["inputs"][0], "trigger": True}]}, "port 'BC' needs exactly one"),
         ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "trigger": False}]}, "trigger"),
         ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "key": "a/**"}]}, "inputs[1].key"),
         ({"inputs": [VALID["inputs"][0], {**VALID["inputs"][1], "extra": 1}]}, "unknown fields"),
@@ -105,7 +98,7 @@ def test_valid_spec_round_trips_through_json():
 )
 def test_invalid_specs_name_the_field(change, fragment):
     with pytest.raises(SpecError) as info:
-        parse_spec({**VALID, **change})
+        check_spec(parse_spec({**VALID, **change}))
     assert fragment in str(info.value)
 
 

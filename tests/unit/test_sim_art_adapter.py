@@ -8,17 +8,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import RigidTransform, Rotation
 
-from sim_trackers.dtrack_adapter import DTrackAdapter, announcements
-from sim_trackers.dtrack_format import (
+from sim_trackers.scenario import load_scenario
+from sim_trackers.sim_art import ArtSimulator
+from ubitrack_agent.core import ErrorPose, Position3D
+from ubitrack_agent.io.dtrack_adapter import DTrackAdapter, announcements
+from ubitrack_agent.io.dtrack_format import (
     DAY_NS,
     encode_frame,
     parse_frame,
     seconds_of_day,
     timestamp_from_ts,
 )
-from sim_trackers.scenario import load_scenario
-from sim_trackers.sim_art import ArtSimulator
-from ubitrack_agent.core import ErrorPose, Position3D
 
 SCENARIO = load_scenario()
 T0 = 1_763_700_000_123_456_000  # a whole number of microseconds

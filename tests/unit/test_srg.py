@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from ubitrack_agent.srg import (
+from ubitrack_agent.graph.srg import (
     SetupError,
     add_measured_edge,
     check_node_name,

@@ -6,7 +6,7 @@ import copy
 
 import pytest
 
-from ubitrack_agent.templates import (
+from ubitrack_agent.graph.templates import (
     PATTERN_NAMES,
     Multiplicity,
     TemplateError,

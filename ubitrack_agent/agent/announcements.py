@@ -1,7 +1,7 @@
 """Providers' SRG fragments (``docs/protocol.md``) turned into validated SRG edges.
 
 A fragment is JSON ``{"provider": "<id>", "edges": [{"name", "from", "to", "type", "static",
-"mode", "sigma", "rate", "latency"}, ...]}`` (see :class:`ubitrack_agent.provider.Provider`).
+"mode", "sigma", "rate", "latency"}, ...]}`` (see :class:`ubitrack_agent.io.provider.Provider`).
 Each edge becomes a measured SRG edge with id ``<provider>/<name>``, which is also the tail of
 its data key. Anything malformed raises :class:`AnnouncementError` naming the provider and the
 field; the agent logs it, counts it and ignores that provider, never crashing.
@@ -15,8 +15,8 @@ from typing import Any
 
 import networkx as nx
 
-from ..keys import validate_key_chunks
-from ..srg import SetupError, new_srg, parse_setup
+from ubitrack_agent.graph.srg import SetupError, new_srg, parse_setup
+from ubitrack_agent.net.keys import validate_key_chunks
 
 MAX_FRAGMENT_BYTES = 1 << 20
 MAX_EDGES = 10_000

@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 
-from ..dataflow import DataFlow, from_solution, plan_flows, relation_name
-from ..keys import RelationId
-from ..planner import PlanningError, Query, Solution
-from ..templates import Template
+from ubitrack_agent.graph.dataflow import DataFlow, from_solution, plan_flows, relation_name
+from ubitrack_agent.graph.planner import PlanningError, Query, Solution
+from ubitrack_agent.graph.templates import Template
+from ubitrack_agent.net.keys import RelationId
 
 HYSTERESIS = 0.10
 """Relative cost margin within which running components are preferred."""

@@ -27,9 +27,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from services.registry import lookup
-from services.spec import ComponentSpec
-
-from ..keys import KeySpace
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec
 
 log = logging.getLogger("ubitrack.manager")
 

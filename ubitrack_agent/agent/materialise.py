@@ -20,12 +20,11 @@ from dataclasses import replace
 
 import networkx as nx
 
-from services.spec import ComponentSpec, InputBinding
-
-from ..dataflow import Binding, Component, DataFlow
-from ..keys import KeySpace, RelationId
-from ..srg import edge_ids
-from ..templates import Template
+from ubitrack_agent.graph.dataflow import Binding, Component, DataFlow
+from ubitrack_agent.graph.srg import edge_ids
+from ubitrack_agent.graph.templates import Template
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
 
 def _port(name: str) -> str:

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from services.spec import ComponentSpec
+from ubitrack_agent.net.spec import ComponentSpec
 
 IN_PLACE = ("inputs", "relations", "parameters")
 

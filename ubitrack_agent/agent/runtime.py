@@ -29,17 +29,16 @@ from collections import Counter, defaultdict
 from collections.abc import Sequence
 from typing import Any
 
-from services.spec import ComponentSpec
-
-from ..config import Settings
-from ..keys import KeySpace, RelationId
-from ..session import open_session
-from ..templates import Template
-from .announcements import AnnouncementError, build_srg, fragment_entries
-from .flows import Plan, plan_relations
-from .manager import ServiceManager
-from .materialise import component_specs
-from .reconcile import reconcile
+from ubitrack_agent.agent.announcements import AnnouncementError, build_srg, fragment_entries
+from ubitrack_agent.agent.flows import Plan, plan_relations
+from ubitrack_agent.agent.manager import ServiceManager
+from ubitrack_agent.agent.materialise import component_specs
+from ubitrack_agent.agent.reconcile import reconcile
+from ubitrack_agent.graph.templates import Template
+from ubitrack_agent.net.config import Settings
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.spec import ComponentSpec
 
 log = logging.getLogger("ubitrack.agent")
 

@@ -6,7 +6,7 @@ import argparse
 import signal
 import sys
 
-from .. import config
+from ubitrack_agent.net import config
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -32,35 +32,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def worker_flags(settings: config.Settings) -> list[str]:
-    """Flags making a worker join the agent's zenoh network and domain."""
-    flags = ["--mode", "peer" if settings.mode == "router" else settings.mode]
-    connect = list(settings.connect) or [
-        endpoint.replace("0.0.0.0", "127.0.0.1") for endpoint in settings.listen
-    ]
-    for endpoint in connect:
-        flags += ["--connect", endpoint]
-    flags += [
-        "--listen",
-        "tcp/127.0.0.1:0",
-        "--prefix",
-        settings.prefix,
-        "--domain",
-        settings.domain,
-    ]
-    flags += ["--multicast" if settings.multicast else "--no-multicast"]
-    return flags
-
-
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
-    from ..agent.runtime import Agent
-    from ..templates import TemplateError, load_templates
+    from ubitrack_agent.agent.runtime import Agent
+    from ubitrack_agent.graph.templates import TemplateError, load_templates
 
     try:
         settings = config.from_arguments(args, role="hub")
-        templates = load_templates(args.templates) if args.templates else load_templates()
+        templates = load_templates(args.templates)
     except (config.ConfigError, TemplateError) as exc:
         print(f"ubitrack agent: {exc}", file=sys.stderr)
         return 2
@@ -68,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         print("ubitrack agent: --pool-size must be >= 0", file=sys.stderr)
         return 2
     try:
-        agent = Agent(settings, templates, worker_flags(settings), args.pool_size)
+        agent = Agent(settings, templates, config.member_flags(settings), args.pool_size)
     except zenoh.ZError as exc:
         print(f"ubitrack agent: cannot open zenoh on {settings.listen}: {exc}", file=sys.stderr)
         return 2

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .. import config
+from ubitrack_agent.net import config
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

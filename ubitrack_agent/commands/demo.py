@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import config
+from ubitrack_agent.net import config
 
 PHASES = ("fused", "camera only", "fused again")
 
@@ -114,11 +114,10 @@ def _free_udp_port() -> int:
 
 def run(args: argparse.Namespace) -> int:
     from sim_trackers.scenario import ScenarioError, load_scenario
-
-    from ..application import Relation
-    from ..core import quaternions
-    from ..keys import KeySpace, RelationId
-    from ..session import open_session
+    from ubitrack_agent.core import quaternions
+    from ubitrack_agent.io.application import Relation
+    from ubitrack_agent.net.keys import KeySpace, RelationId
+    from ubitrack_agent.net.session import open_session
 
     try:
         hub = config.from_arguments(args, role="hub")
@@ -129,17 +128,7 @@ def run(args: argparse.Namespace) -> int:
     if not hub.listen or args.phase_seconds <= 0:
         print("ubitrack demo: needs a --listen endpoint and --phase-seconds > 0", file=sys.stderr)
         return 2
-    endpoint = hub.listen[0]
-    member = [
-        "--connect",
-        endpoint,
-        "--listen",
-        "tcp/127.0.0.1:0",
-        "--prefix",
-        hub.prefix,
-        "--domain",
-        hub.domain,
-    ]
+    member = config.member_flags(hub)
     scenario_flag = ["--scenario", args.scenario] if args.scenario else []
     art_port = str(args.art_port or _free_udp_port())
     art = {
@@ -156,18 +145,10 @@ def run(args: argparse.Namespace) -> int:
                 "--log-level",
                 args.log_level,
                 "agent",
-                "--listen",
-                endpoint,
-                "--prefix",
-                hub.prefix,
-                "--domain",
-                hub.domain,
+                *config.as_flags(hub),
             ],
         )
-        settings = config.Settings(
-            connect=(endpoint,), listen=("tcp/127.0.0.1:0",), prefix=hub.prefix, domain=hub.domain
-        )
-        with open_session(settings) as session:
+        with open_session(config.member_of(hub)) as session:
             events: queue.SimpleQueue[tuple[str, float]] = queue.SimpleQueue()
             watch = session.liveliness().declare_subscriber(
                 keys.provider(scenario.art.provider),
@@ -250,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
 def _flow_check(session, keys, provider: str, uses_provider: bool):
     """A check that the agent's running flow has been rewired: every component alive, and
     reading the provider's edges (``uses_provider``) or none of them."""
-    from ..transport import fetch_latest
+    from ubitrack_agent.net.transport import fetch_latest
 
     marker = f"{keys.root}/data/{provider}/"
 

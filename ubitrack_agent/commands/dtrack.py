@@ -13,7 +13,7 @@ import argparse
 import logging
 import sys
 
-from .sim import add_common_arguments, prepare
+from ubitrack_agent.commands.sim import add_common_arguments, prepare
 
 log = logging.getLogger("ubitrack.dtrack")
 
@@ -75,8 +75,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sim_trackers import dtrack_adapter
     from sim_trackers.runtime import provider_session, stop_on_signals
+    from ubitrack_agent.io import dtrack_adapter
 
     prog = "ubitrack dtrack"
     if (prepared := prepare(args, prog)) is None:

@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ..srg import EDGE_TYPES
+from ubitrack_agent.graph.srg import EDGE_TYPES
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -70,14 +70,14 @@ def _render(dot_path: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Plan the query of ``args``; print the solutions; 0 if found, 2 if none, 1 on bad input."""
-    from ..dot import to_dot
-    from ..planner import NoSolutionError, PlanningError, Query, plan
-    from ..srg import SetupError, load_setup
-    from ..templates import DEFAULT_TEMPLATE_DIR, TemplateError, load_templates
+    from ubitrack_agent.graph.dot import to_dot
+    from ubitrack_agent.graph.planner import NoSolutionError, PlanningError, Query, plan
+    from ubitrack_agent.graph.srg import SetupError, load_setup
+    from ubitrack_agent.graph.templates import TemplateError, load_templates
 
     try:
         srg = load_setup(args.setup)
-        templates = load_templates(args.templates or DEFAULT_TEMPLATE_DIR)
+        templates = load_templates(args.templates)
         query = Query(args.source, args.target, args.type, args.static)
         found = plan(srg, templates, query)
     except NoSolutionError as exc:

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from .. import config
+from ubitrack_agent.net import config
 
 log = logging.getLogger("ubitrack.sim")
 
@@ -105,9 +105,8 @@ def _add(
 def _run_world(args: argparse.Namespace) -> int:
     from sim_trackers.runtime import stop_on_signals
     from sim_trackers.truth import TruthServer
-
-    from ..keys import KeySpace
-    from ..session import open_session
+    from ubitrack_agent.net.keys import KeySpace
+    from ubitrack_agent.net.session import open_session
 
     prog = "ubitrack sim world"
     if (prepared := prepare(args, prog)) is None:

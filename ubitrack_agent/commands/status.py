@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .. import config
+from ubitrack_agent.net import config
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -50,9 +50,9 @@ def live_dot(status: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..keys import KeySpace
-    from ..session import open_session
-    from ..transport import fetch_latest
+    from ubitrack_agent.net.keys import KeySpace
+    from ubitrack_agent.net.session import open_session
+    from ubitrack_agent.net.transport import fetch_latest
 
     try:
         settings = config.from_arguments(args, role="member")

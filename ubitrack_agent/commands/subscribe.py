@@ -7,7 +7,7 @@ import json
 import sys
 import time
 
-from .. import config
+from ubitrack_agent.net import config
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -32,10 +32,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..application import Relation
-    from ..core import to_json
-    from ..keys import KeySpace, RelationId
-    from ..session import open_session
+    from ubitrack_agent.core import to_json
+    from ubitrack_agent.io.application import Relation
+    from ubitrack_agent.net.keys import KeySpace, RelationId
+    from ubitrack_agent.net.session import open_session
 
     try:
         settings = config.from_arguments(args, role="member")

@@ -1,8 +1,8 @@
 """Measurement types, wire codec and SE(3) maths; no zenoh, no networkx, no processes."""
 
-from .codec import decode, encode, to_json
-from .errors import ExtrapolationError, MeasurementError, NoDataError
-from .measurements import (
+from ubitrack_agent.core.codec import decode, encode, to_json
+from ubitrack_agent.core.errors import ExtrapolationError, MeasurementError, NoDataError
+from ubitrack_agent.core.measurements import (
     MEASUREMENT_TYPES,
     CameraIntrinsics,
     ErrorPose,

@@ -23,8 +23,13 @@ from typing import Any, TypeVar
 import msgpack
 import numpy as np
 
-from .errors import MeasurementError
-from .measurements import MEASUREMENT_TYPES, CameraIntrinsics, Measurement, check_timestamp
+from ubitrack_agent.core.errors import MeasurementError
+from ubitrack_agent.core.measurements import (
+    MEASUREMENT_TYPES,
+    CameraIntrinsics,
+    Measurement,
+    check_timestamp,
+)
 
 WIRE_VERSION = 1
 MAX_MESSAGE_BYTES = 32 * 1024 * 1024

@@ -37,7 +37,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .errors import MeasurementError
+from ubitrack_agent.core.errors import MeasurementError
 
 UNIT_QUATERNION_TOLERANCE = 1e-6
 """Largest accepted deviation of a quaternion's norm from 1."""

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import se3, uncertainty
-from .errors import ExtrapolationError
-from .measurements import ErrorPose, Pose, Position3D
+from ubitrack_agent.core import se3, uncertainty
+from ubitrack_agent.core.errors import ExtrapolationError
+from ubitrack_agent.core.measurements import ErrorPose, Pose, Position3D
 
 AnyPose = Pose | ErrorPose
 

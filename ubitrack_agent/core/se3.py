@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import quaternions
+from ubitrack_agent.core import quaternions
 
 Transform = tuple[np.ndarray, np.ndarray]
 

@@ -25,11 +25,11 @@ import bisect
 import itertools
 from collections import deque
 
-from . import quaternions
-from .errors import ExtrapolationError, NoDataError
-from .measurements import ErrorPose, Measurement, Pose, Position3D, Rotation3D
-from .poses import interpolate_pose
-from .uncertainty import interpolate_covariance
+from ubitrack_agent.core import quaternions
+from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
+from ubitrack_agent.core.measurements import ErrorPose, Measurement, Pose, Position3D, Rotation3D
+from ubitrack_agent.core.poses import interpolate_pose
+from ubitrack_agent.core.uncertainty import interpolate_covariance
 
 DEFAULT_HISTORY = 64
 """Samples a dynamic input keeps: a second of a 60 Hz tracker."""

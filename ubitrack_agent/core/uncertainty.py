@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import quaternions
+from ubitrack_agent.core import quaternions
 
 _SKEW_ROWS = np.array([2, 0, 1, 1, 2, 0])
 _SKEW_COLS = np.array([1, 2, 0, 2, 0, 1])

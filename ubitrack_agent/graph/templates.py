@@ -11,15 +11,17 @@ code: ``service`` is a registry name, resolved by the services registry at run t
 
 from __future__ import annotations
 
+import importlib.resources
 import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from .srg import EDGE_TYPES, MODES
+from ubitrack_agent.graph.srg import EDGE_TYPES, MODES
 
 PATTERN_NAMES: frozenset[str] = frozenset(
     {
@@ -40,8 +42,6 @@ PATTERN_NAMES: frozenset[str] = frozenset(
 EXPANSIONS: frozenset[str] = frozenset({"space", "time"})
 COST_RULES: frozenset[str] = frozenset({"sum", "fusion", "pooled"})
 
-DEFAULT_TEMPLATE_DIR = Path(__file__).resolve().parent.parent / "templates"
-"""``templates/`` of the source tree (the package is installed editable)."""
 
 _SERVICE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 _ROLE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
@@ -371,9 +371,9 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
     )
 
 
-def load_template(path: str | Path) -> Template:
+def load_template(path: str | Path | Traversable) -> Template:
     """Load and validate one template file."""
-    path = Path(path)
+    path = Path(path) if isinstance(path, str) else path
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except OSError as exc:
@@ -383,10 +383,26 @@ def load_template(path: str | Path) -> Template:
     return parse_template(data, str(path))
 
 
-def load_templates(directory: str | Path = DEFAULT_TEMPLATE_DIR) -> tuple[Template, ...]:
-    """Load every ``*.yaml`` template of ``directory`` (sorted by file name)."""
-    directory = Path(directory)
-    files = sorted(directory.glob("*.yaml"))
+def shipped_templates() -> Traversable:
+    """The template directory shipped with the package: the top-level ``templates`` package's
+    data files, found by :mod:`importlib.resources` in a wheel and in an editable install."""
+    return importlib.resources.files("templates")
+
+
+def load_templates(directory: str | Path | Traversable | None = None) -> tuple[Template, ...]:
+    """Load every ``*.yaml`` template of ``directory`` (default: :func:`shipped_templates`),
+    sorted by file name."""
+    directory = shipped_templates() if directory is None else directory
+    if isinstance(directory, str):
+        directory = Path(directory)
+    files = (
+        sorted(
+            (entry for entry in directory.iterdir() if entry.name.endswith(".yaml")),
+            key=lambda entry: entry.name,
+        )
+        if directory.is_dir()
+        else []
+    )
     if not files:
         raise TemplateError(f"{directory}: no *.yaml template files")
     return tuple(load_template(path) for path in files)

@@ -26,9 +26,9 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from .core import MEASUREMENT_TYPES, Measurement, encode
-from .keys import KeySpace, validate_key_chunks
-from .transport import LatestValuePublisher
+from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, encode
+from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+from ubitrack_agent.net.transport import LatestValuePublisher
 
 SRG_TYPES = frozenset(cls.SRG_TYPE for cls in MEASUREMENT_TYPES.values())
 MODES = ("push", "pull")

@@ -27,10 +27,10 @@ import uuid
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from .core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
-from .core.timeline import SampleBuffer
-from .keys import KeySpace, RelationId, validate_key_chunks
-from .transport import fetch_until_satisfied
+from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
+from ubitrack_agent.core.timeline import SampleBuffer
+from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
+from ubitrack_agent.net.transport import fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.application")
 

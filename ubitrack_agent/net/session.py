@@ -1,4 +1,4 @@
-"""Open a zenoh session from :class:`~ubitrack_agent.config.Settings`.
+"""Open a zenoh session from :class:`~ubitrack_agent.net.config.Settings`.
 
 The only place that turns settings into a ``zenoh.Config``. Callers own the session and must
 close it (``with open_session(s) as session:``), as zenoh-python's documentation asks.
@@ -10,7 +10,7 @@ import json
 
 import zenoh
 
-from .config import Settings
+from ubitrack_agent.net.config import Settings
 
 
 def zenoh_config(settings: Settings) -> zenoh.Config:

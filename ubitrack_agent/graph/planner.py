@@ -6,8 +6,8 @@ For a query ``(from, to, type, static)`` the planner
    the biconnected block joining the two frames, minus detours longer than ``slack`` hops, the
    reduction section 5.1 suggests for large graphs),
 2. applies every template repeatedly (forward chaining with the matcher of
-   :mod:`ubitrack_agent.matcher`) until no new, non-redundant edge can be inferred, keeping the
-   bookkeeping of section 5.1 (sources, canonical computation, dominance) and adding only edges
+   :mod:`ubitrack_agent.graph.matcher`) until no new, non-redundant edge can be inferred, keeping
+   the bookkeeping of section 5.1 (sources, canonical computation, dominance) and adding only edges
    that serve the query (useful types, calibration of unknown rigid relations only, chains
    towards the query, :meth:`Workspace._wanted`),
 3. returns every distinct derivation of the queried edge, best first by the cost model below.
@@ -34,9 +34,17 @@ from typing import Any
 
 import networkx as nx
 
-from .matcher import EdgeIndex, EdgeRecord, Instance, Match, expand_group, find_matches, group_key
-from .srg import EDGE_TYPES, EdgeAttrs, Quality, check_node_name, edge_ids
-from .templates import Template
+from ubitrack_agent.graph.matcher import (
+    EdgeIndex,
+    EdgeRecord,
+    Instance,
+    Match,
+    expand_group,
+    find_matches,
+    group_key,
+)
+from ubitrack_agent.graph.srg import EDGE_TYPES, EdgeAttrs, Quality, check_node_name, edge_ids
+from ubitrack_agent.graph.templates import Template
 
 SIGMA_REF = 1e-3
 """Reference error (m): a variance of SIGMA_REF**2 costs 1."""

@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 
-from .srg import Quality
-from .templates import InputSpec, Template
+from ubitrack_agent.graph.srg import Quality
+from ubitrack_agent.graph.templates import InputSpec, Template
 
 
 @dataclass(frozen=True)

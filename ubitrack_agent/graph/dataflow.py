@@ -21,8 +21,8 @@ from typing import Any
 
 import networkx as nx
 
-from .planner import PlanningError, Query, Solution, plan
-from .templates import Template
+from ubitrack_agent.graph.planner import PlanningError, Query, Solution, plan
+from ubitrack_agent.graph.templates import Template
 
 
 @dataclass(frozen=True)

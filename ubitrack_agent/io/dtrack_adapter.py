@@ -32,11 +32,10 @@ from typing import Literal, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from sim_trackers.noise import in_place_covariance, noise_covariance
 from ubitrack_agent.core import ErrorPose, Measurement, Position3D
-from ubitrack_agent.provider import EdgeAnnouncement
-
-from .dtrack_format import DTrackFormatError, parse_frame, timestamp_from_ts
-from .noise import in_place_covariance, noise_covariance
+from ubitrack_agent.io.dtrack_format import DTrackFormatError, parse_frame, timestamp_from_ts
+from ubitrack_agent.io.provider import EdgeAnnouncement
 
 log = logging.getLogger("ubitrack.dtrack")
 
@@ -45,7 +44,7 @@ MAX_DATAGRAM = 65_535
 
 
 class Publisher(Protocol):
-    """What the adapter needs of :class:`~ubitrack_agent.provider.Provider`."""
+    """What the adapter needs of :class:`~ubitrack_agent.io.provider.Provider`."""
 
     def publish(self, edge_name: str, measurement: Measurement) -> None: ...
 

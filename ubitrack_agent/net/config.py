@@ -11,7 +11,7 @@ processes can start in any order. Gossip scouting then lets members connect to e
 directly. A multi-host setup only changes ``connect``/``listen`` (or uses ``mode: client``
 towards a router).
 
-This module is pure; :mod:`ubitrack_agent.session` turns :class:`Settings` into a session.
+This module is pure; :mod:`ubitrack_agent.net.session` turns :class:`Settings` into a session.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import Any, Literal
 
 import yaml
 
-from .keys import validate_key_chunks
+from ubitrack_agent.net.keys import validate_key_chunks
 
 Role = Literal["hub", "member"]
 
@@ -83,6 +83,37 @@ def defaults(role: Role) -> Settings:
     if role == "hub":
         return Settings(listen=(hub,))
     return Settings(connect=(hub,), listen=("tcp/127.0.0.1:0",))
+
+
+def member_of(hub: Settings) -> Settings:
+    """Settings of a process joining ``hub``'s network and domain: it connects where the hub
+    connects (a router) or else where it listens (a wildcard address as loopback), listens on
+    a random loopback port, and is a peer even when the hub is a router."""
+    connect = hub.connect or tuple(
+        endpoint.replace("0.0.0.0", "127.0.0.1") for endpoint in hub.listen
+    )
+    return replace(
+        hub,
+        mode="peer" if hub.mode == "router" else hub.mode,
+        connect=connect,
+        listen=("tcp/127.0.0.1:0",),
+    )
+
+
+def as_flags(settings: Settings) -> list[str]:
+    """The command-line flags (:func:`add_arguments`) that resolve to ``settings``; how a
+    process hands its network to a child process."""
+    flags = ["--mode", settings.mode, "--prefix", settings.prefix, "--domain", settings.domain]
+    for endpoint in settings.connect:
+        flags += ["--connect", endpoint]
+    for endpoint in settings.listen:
+        flags += ["--listen", endpoint]
+    return [*flags, "--multicast" if settings.multicast else "--no-multicast"]
+
+
+def member_flags(hub: Settings) -> list[str]:
+    """Flags making a child process join ``hub``'s network (:func:`member_of`)."""
+    return as_flags(member_of(hub))
 
 
 def _endpoints(source: str, value: Any) -> tuple[str, ...]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import networkx as nx
 
-from .planner import Solution, with_solution
+from ubitrack_agent.graph.planner import Solution, with_solution
 
 
 def _quote(text: str) -> str:

@@ -1,0 +1,3 @@
+"""The network layer: zenoh key expressions, settings, sessions, transport helpers, the
+component specification handed to service managers, and the logging set-up every process
+shares."""

@@ -1,0 +1,236 @@
+"""The component specification: what the agent hands a service manager, a worker process is
+started with, and a running worker is rewired by.
+
+JSON form::
+
+    {"instance": "concat-1", "service": "concatenation", "parameters": {},
+      "inputs": [{"port": "AB", "key": "ubitrack/default/data/art/ART_WT", "static": true},
+                {"port": "BC", "key": "ubitrack/default/data/art/ART_HT", "trigger": true}],
+     "outputs": {"AC": "ubitrack/default/data/concat-1/AC"},
+     "relations": {"AC": ["ubitrack/default/relation/C/A/6D/dynamic"]},
+     "expansion": "none", "tolerance_ms": 20}
+
+``relations`` lists, per output port, the stable relation keys (``docs/protocol.md``) the output
+is also published on, for the applications that asked for it. ``trigger`` marks the push inputs
+whose samples cause a computation; ``static`` inputs answer their latest value. ``expansion``
+(``none``, ``space`` or ``time``, default ``none``) says how the pattern's correspondence is
+expanded (paper section 3.3): under ``space`` each correspondence port takes several bindings,
+in correspondence order; under ``time`` one, and the worker accumulates samples (options in
+``time_expansion``, see :func:`parse_time_expansion`).
+
+:func:`parse_spec` checks the form of every field and raises :class:`SpecError` naming the
+field; whether the service is registered and its ports match is checked where services are
+known, by ``services.spec.check_spec`` (the agent never imports a service).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from ubitrack_agent.net.keys import validate_key_chunks
+
+DEFAULT_TOLERANCE_MS = 5.0
+"""How far from a trigger's time the nearest sample of an input may be when there is no
+sample on each side to interpolate between (a moving target at 1 m/s moves 5 mm in 5 ms)."""
+DEFAULT_WAIT_MS = 50.0
+"""The longest a trigger waits for the other inputs' next samples (see services.triggers)."""
+EXPANSIONS = ("none", "space", "time")
+TIME_EXPANSION_OPTIONS = ("min_motion", "min_rotation_deg", "max_samples")
+"""Options of a time expansion (``services.expansion``): least change of a position or
+translation (m, or px for 2D), least change of a rotation (degrees), the history's bound."""
+
+
+class SpecError(ValueError):
+    """A component specification is invalid."""
+
+
+@dataclass(frozen=True)
+class InputBinding:
+    """One input edge bound to a port: the data key it arrives on and how to sample it."""
+
+    port: str
+    key: str
+    trigger: bool = False
+    static: bool = False
+
+
+@dataclass(frozen=True)
+class ComponentSpec:
+    """Everything a worker needs to run one pattern instance."""
+
+    instance: str
+    service: str
+    inputs: tuple[InputBinding, ...]
+    outputs: dict[str, str]
+    relations: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    parameters: dict[str, Any] = field(default_factory=dict)
+    expansion: str = "none"
+    time_expansion: dict[str, float] = field(default_factory=dict)
+    tolerance_ms: float = DEFAULT_TOLERANCE_MS
+    wait_ms: float = DEFAULT_WAIT_MS
+
+    @property
+    def tolerance_ns(self) -> int:
+        return int(self.tolerance_ms * 1e6)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON-ready form :func:`parse_spec` reads."""
+        return {
+            "instance": self.instance,
+            "service": self.service,
+            "parameters": self.parameters,
+            "inputs": [vars(binding) for binding in self.inputs],
+            "outputs": self.outputs,
+            "relations": {port: list(keys) for port, keys in self.relations.items()},
+            "expansion": self.expansion,
+            "time_expansion": self.time_expansion,
+            "tolerance_ms": self.tolerance_ms,
+            "wait_ms": self.wait_ms,
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.as_dict())
+
+
+def _require(data: Mapping[str, Any], name: str, kind: type, where: str) -> Any:
+    if name not in data:
+        raise SpecError(f"{where}.{name}: missing")
+    value = data[name]
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise SpecError(f"{where}.{name}: expected {kind.__name__}")
+    return value
+
+
+def _key(value: Any, where: str) -> str:
+    try:
+        return validate_key_chunks(value)
+    except ValueError as exc:
+        raise SpecError(f"{where}: {exc}") from None
+
+
+def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, ...]:
+    """The form of a list of input bindings (ports are checked against the service by
+    ``services.spec.check_bindings``)."""
+    if not isinstance(raw, list):
+        raise SpecError(f"{where}: expected a list of bindings")
+    bindings = []
+    for index, item in enumerate(raw):
+        at = f"{where}[{index}]"
+        if not isinstance(item, dict):
+            raise SpecError(f"{at}: expected an object")
+        unknown = sorted(set(item) - {"port", "key", "trigger", "static"})
+        if unknown:
+            raise SpecError(f"{at}: unknown fields {unknown}")
+        port = _require(item, "port", str, at)
+        trigger, static = item.get("trigger", False), item.get("static", False)
+        if not isinstance(trigger, bool) or not isinstance(static, bool):
+            raise SpecError(f"{at}: trigger and static must be true or false")
+        bindings.append(InputBinding(port, _key(item.get("key"), f"{at}.key"), trigger, static))
+    if not any(binding.trigger for binding in bindings):
+        raise SpecError(f"{where}: no binding is marked trigger")
+    return tuple(bindings)
+
+
+def parse_relations(raw: Any, where: str = "spec.relations") -> dict[str, tuple[str, ...]]:
+    """The form of ``{output port: [relation key, ...]}``."""
+    if not isinstance(raw, dict):
+        raise SpecError(f"{where}: expected an object of output port -> list of keys")
+    relations = {}
+    for port, keys in raw.items():
+        if not isinstance(keys, list):
+            raise SpecError(f"{where}.{port}: expected a list of keys")
+        relations[port] = tuple(_key(key, f"{where}.{port}") for key in keys)
+    return relations
+
+
+def parse_time_expansion(options: Any) -> dict[str, float]:
+    """Validate time-expansion options (:data:`TIME_EXPANSION_OPTIONS`)."""
+    if not isinstance(options, Mapping):
+        raise ValueError("expected an object")
+    unknown = sorted(set(options) - set(TIME_EXPANSION_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown options {unknown}; known: {list(TIME_EXPANSION_OPTIONS)}")
+    for name, value in options.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+            raise ValueError(f"{name} must be a number >= 0")
+    if "max_samples" in options and not 1 <= options["max_samples"] <= 100_000:
+        raise ValueError("max_samples must be in [1, 100000]")
+    return {name: float(value) for name, value in options.items()}
+
+
+def _milliseconds(data: Mapping[str, Any], name: str, default: float) -> float:
+    value = data.get(name, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value <= 10_000:
+        raise SpecError(f"spec.{name}: expected a number of milliseconds in [0, 10000]")
+    return float(value)
+
+
+def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
+    """Parse and validate a specification (JSON text or an already decoded mapping)."""
+    if isinstance(text, str):
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SpecError(f"spec: not valid JSON ({exc})") from None
+    else:
+        data = text
+    if not isinstance(data, dict):
+        raise SpecError("spec: expected a JSON object")
+    known = {
+        "instance",
+        "service",
+        "parameters",
+        "inputs",
+        "outputs",
+        "relations",
+        "expansion",
+        "time_expansion",
+        "tolerance_ms",
+        "wait_ms",
+    }
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise SpecError(f"spec: unknown fields {unknown}")
+    instance = _require(data, "instance", str, "spec")
+    try:
+        validate_key_chunks(instance, single_chunk=True)
+    except ValueError as exc:
+        raise SpecError(f"spec.instance: {exc}") from None
+    name = _require(data, "service", str, "spec")
+    try:
+        validate_key_chunks(name, single_chunk=True)
+    except ValueError as exc:
+        raise SpecError(f"spec.service: {exc}") from None
+    parameters = data.get("parameters", {})
+    if not isinstance(parameters, dict):
+        raise SpecError("spec.parameters: expected an object")
+    outputs = _require(data, "outputs", dict, "spec")
+    for port, key in outputs.items():
+        _key(key, f"spec.outputs.{port}")
+    expansion = data.get("expansion", "none")
+    if expansion not in EXPANSIONS:
+        raise SpecError(f"spec.expansion: must be one of {EXPANSIONS}, got {expansion!r}")
+    time_expansion = data.get("time_expansion", {})
+    if expansion != "time" and time_expansion:
+        raise SpecError("spec.time_expansion: only for expansion 'time'")
+    try:
+        time_expansion = parse_time_expansion(time_expansion)
+    except ValueError as exc:
+        raise SpecError(f"spec.time_expansion: {exc}") from None
+    tolerance = _milliseconds(data, "tolerance_ms", DEFAULT_TOLERANCE_MS)
+    wait = _milliseconds(data, "wait_ms", DEFAULT_WAIT_MS)
+    return ComponentSpec(
+        instance=instance,
+        service=name,
+        inputs=parse_bindings(data.get("inputs")),
+        outputs=dict(outputs),
+        relations=parse_relations(data.get("relations", {})),
+        parameters=dict(parameters),
+        expansion=expansion,
+        time_expansion=time_expansion,
+        tolerance_ms=tolerance,
+        wait_ms=wait,
+    )
