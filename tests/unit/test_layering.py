@@ -1,35 +1,213 @@
-"""The core layer stays free of zenoh and networkx (docs/architecture.md)."""
+"""Each folder is one layer and imports only the layers below it (docs/architecture.md).
+
+Every module of the product is read with ``ast`` (imports inside functions count too, so a
+lazy import cannot hide a back-reference). A module belongs to the layer of the longest
+package prefix in :data:`LAYERS`; it may import its own layer and those its entry lists, and
+none of the third-party modules its entry forbids. The checker is tested on deliberately
+broken trees, so it is known to fail when a layer reaches upwards.
+"""
+
+from __future__ import annotations
 
 import ast
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
-CORE = Path(__file__).resolve().parents[2] / "ubitrack_agent" / "core"
-FORBIDDEN = {"zenoh", "networkx", "subprocess", "multiprocessing"}
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PRODUCT = ("ubitrack_agent", "services", "sim_trackers", "templates")
+"""Top-level packages that ship; tests and benchmarks may import anything."""
 
 
-def imported_modules(path: Path) -> set[str]:
-    names = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+@dataclass(frozen=True)
+class Layer:
+    allowed: frozenset[str]
+    """Project layers this one may import (besides itself)."""
+    forbidden: frozenset[str] = frozenset()
+    """Third-party or standard modules it must not import."""
+
+
+def _layer(*allowed: str, forbidden: tuple[str, ...] = ()) -> Layer:
+    return Layer(frozenset(allowed), frozenset(forbidden))
+
+
+CORE, GRAPH, NET, IO = (f"ubitrack_agent.{name}" for name in ("core", "graph", "net", "io"))
+AGENT = "ubitrack_agent.agent"
+EVERYTHING = (CORE, GRAPH, NET, IO, AGENT, "services", "sim_trackers", "templates")
+NO_PROCESSES = ("subprocess", "multiprocessing")
+LAYERS: dict[str, Layer] = {
+    # Bottom to top.
+    "ubitrack_agent": _layer(),  # the package itself: its version only
+    "templates": _layer(forbidden=("ubitrack_agent", "services")),  # data
+    CORE: _layer(forbidden=("zenoh", "networkx", "cv2", *NO_PROCESSES)),
+    GRAPH: _layer(CORE, forbidden=("zenoh", "cv2", *NO_PROCESSES)),
+    NET: _layer(CORE, forbidden=("networkx", "cv2", *NO_PROCESSES)),
+    IO: _layer(CORE, NET, forbidden=("networkx", "cv2")),
+    AGENT: _layer(CORE, GRAPH, NET, forbidden=("cv2", "scipy")),
+    "services": _layer(CORE, NET, forbidden=("networkx",)),
+    "sim_trackers": _layer(CORE, NET, IO, forbidden=("networkx",)),
+    "ubitrack_agent.cli": _layer(*EVERYTHING, "ubitrack_agent.commands"),
+    "ubitrack_agent.commands": _layer(*EVERYTHING, "ubitrack_agent.cli"),
+}
+
+
+def module_name(root: Path, path: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def layer_of(module: str) -> str | None:
+    """The longest entry of :data:`LAYERS` that is ``module`` or a package containing it (the
+    root package's entry covers its ``__init__`` only, so a new module there has no layer)."""
+    candidates = [
+        name
+        for name in LAYERS
+        if module == name or (module.startswith(name + ".") and name != "ubitrack_agent")
+    ]
+    return max(candidates, key=len, default=None)
+
+
+def imported_layer(name: str) -> str | None:
+    """The layer of an imported name: a module's, or for ``from package import symbol`` the
+    package's."""
+    return layer_of(name) or layer_of(name.rpartition(".")[0])
+
+
+def imports(path: Path, module: str) -> list[tuple[int, str]]:
+    """(line, absolute module name) of every import in ``path``; relative ones resolved."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
-            names.update(alias.name.split(".")[0] for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names.add(node.module.split(".")[0])
-    return names
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            # ``from pkg import module`` imports pkg.module: check the deeper name.
+            found += [(node.lineno, f"{name}.{alias.name}") for alias in node.names]
+    return found
 
 
-def test_core_sources_import_no_forbidden_module():
-    files = sorted(CORE.glob("*.py"))
-    assert files
+def violations(root: Path) -> list[str]:
+    """Every import in the product under ``root`` that breaks :data:`LAYERS`."""
+    problems = []
+    files = [path for top in PRODUCT for path in sorted((root / top).rglob("*.py"))]
     for path in files:
-        assert not imported_modules(path) & FORBIDDEN, path.name
+        module = module_name(root, path)
+        own = layer_of(module)
+        if own is None:
+            problems.append(f"{module}: in no layer; add its package to LAYERS")
+            continue
+        rule = LAYERS[own]
+        for line, name in imports(path, module):
+            target = imported_layer(name)
+            top = name.split(".")[0]
+            where = f"{path.relative_to(root)}:{line}"
+            if target is None and top in {p.split(".")[0] for p in PRODUCT}:
+                problems.append(f"{where}: {module} imports {name}, which is in no layer")
+            elif target not in (None, own, "ubitrack_agent") and target not in rule.allowed:
+                problems.append(f"{where}: {own} may not import {target} ({name})")
+            elif target is None and top in rule.forbidden:
+                problems.append(f"{where}: {own} may not import {top}")
+    return problems
 
 
-def test_importing_core_loads_neither_zenoh_nor_networkx():
-    code = (
-        "import sys, ubitrack_agent.core, ubitrack_agent.core.poses;"
-        "print(sorted(m for m in ('zenoh', 'networkx') if m in sys.modules))"
+def test_the_product_keeps_its_layers():
+    assert not violations(ROOT), "\n".join(violations(ROOT))
+
+
+def test_every_package_of_the_product_has_a_layer():
+    packages = {module_name(ROOT, p) for top in PRODUCT for p in (ROOT / top).rglob("*.py")}
+    assert packages and all(layer_of(name) is not None for name in packages)
+
+
+def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
+    for name, text in files.items():
+        path = tmp_path / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    for top in PRODUCT:
+        (tmp_path / top).mkdir(exist_ok=True)
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    "files, expected",
+    [
+        # A lower layer reaching up, in each import form.
+        (
+            {"ubitrack_agent/core/bad.py": "from ubitrack_agent.net import keys\n"},
+            "ubitrack_agent.core may not import ubitrack_agent.net",
+        ),
+        (
+            {"ubitrack_agent/graph/bad.py": "import ubitrack_agent.agent.runtime\n"},
+            "ubitrack_agent.graph may not import ubitrack_agent.agent",
+        ),
+        (
+            {"ubitrack_agent/net/bad.py": "from ..graph import srg\n"},
+            "ubitrack_agent.net may not import ubitrack_agent.graph",
+        ),
+        (
+            {"ubitrack_agent/agent/bad.py": "def f():\n    from services.registry import lookup\n"},
+            "ubitrack_agent.agent may not import services",
+        ),
+        (
+            {"services/bad.py": "from ubitrack_agent import cli\n"},
+            "services may not import ubitrack_agent.cli",
+        ),
+        (
+            {"sim_trackers/bad.py": "from ubitrack_agent.agent import runtime\n"},
+            "sim_trackers may not import ubitrack_agent.agent",
+        ),
+        (
+            {"ubitrack_agent/io/bad.py": "import sim_trackers.world\n"},
+            "ubitrack_agent.io may not import sim_trackers",
+        ),
+        # Forbidden third-party modules.
+        (
+            {"ubitrack_agent/core/bad.py": "import zenoh\n"},
+            "ubitrack_agent.core may not import zenoh",
+        ),
+        (
+            {"ubitrack_agent/agent/bad.py": "import cv2\n"},
+            "ubitrack_agent.agent may not import cv2",
+        ),
+        # A module outside every layer.
+        ({"ubitrack_agent/stray.py": "x = 1\n"}, "ubitrack_agent.stray: in no layer"),
+    ],
+)
+def test_the_checker_catches_a_broken_tree(tmp_path, files, expected):
+    found = violations(_tree(tmp_path, files))
+    assert any(expected in problem for problem in found), found
+
+
+def test_the_checker_accepts_downward_imports(tmp_path):
+    tree = _tree(
+        tmp_path,
+        {
+            "ubitrack_agent/agent/ok.py": "from ubitrack_agent.graph import planner\n",
+            "sim_trackers/ok.py": "from ubitrack_agent.io.provider import Provider\n",
+            "ubitrack_agent/commands/ok.py": "def run():\n    import sim_trackers.world\n",
+        },
     )
+    assert violations(tree) == []
+
+
+@pytest.mark.parametrize(
+    "modules, absent",
+    [
+        ("ubitrack_agent.core, ubitrack_agent.core.poses", ("zenoh", "networkx", "cv2")),
+        ("ubitrack_agent.agent.runtime", ("cv2", "services", "sim_trackers")),
+    ],
+)
+def test_importing_a_layer_loads_nothing_above_it(modules, absent):
+    """The same rule at run time: what a layer's import pulls in, transitively."""
+    code = f"import sys, {modules}; print(sorted(m for m in {absent!r} if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
