@@ -1,4 +1,4 @@
-"""Data flow graphs: construction from a solution, sharing between queries, diffs (section 5.1)."""
+"""Data flow graphs: construction from a solution, sharing between queries (section 5.1)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,13 @@ from dataclasses import replace
 from ubitrack_agent.graph.dataflow import (
     Binding,
     DataFlow,
-    diff,
     from_solution,
     merge,
     plan_flows,
     relation_name,
 )
 from ubitrack_agent.graph.planner import Query, plan
-from ubitrack_agent.graph.srg import parse_setup, remove_provider
+from ubitrack_agent.graph.srg import remove_provider
 
 QUERY = Query("C", "A", "6D")
 
@@ -76,53 +75,6 @@ def test_queries_share_components(tracking_setup, templates):
     assert len(both.components) == len(to_a.components | to_wt.components)
     assert len(both.components) < len(to_a.components) + len(to_wt.components)
     assert set(both.relations) == {"C->A:6D", "C->WT:6D"}
-
-
-def test_diff_rewires_a_component_whose_producer_changed(templates):
-    two_trackers = parse_setup(
-        {
-            "edges": [
-                {"from": "A", "to": "B", "type": "6D", "provider": "t1"},
-                {"from": "A", "to": "B", "type": "6D", "provider": "t2"},
-                {"from": "B", "to": "C", "type": "6D", "static": True},
-            ]
-        }
-    )
-    query = Query("A", "C", "6D")
-    before = flow_for(two_trackers, templates, query)
-    after = flow_for(remove_provider(two_trackers, "t2"), templates, query)
-    change = diff(before, after)
-    assert [before.components[c].pattern for c in change.stop] == ["MultiTrackerFusion"]
-    assert change.start == ()
-    (rewired,) = change.rewire
-    assert rewired.pattern == "Concatenation"
-    assert dict(rewired.inputs)["AB"] == Binding(None, "A->B:6D")
-    assert change.relations == {}  # same producer id: the application's key is untouched
-    back = diff(after, before)
-    assert [c.pattern for c in back.start] == ["MultiTrackerFusion"]
-    assert back.stop == () and len(back.rewire) == 1
-
-
-def test_diff_when_the_tracker_disappears_from_the_paper_setup(tracking_setup, templates):
-    before = flow_for(tracking_setup, templates)
-    after = flow_for(remove_provider(tracking_setup, "ART"), templates)
-    change = diff(before, after)
-    reads_art = {
-        c.id for c in before.components.values() if any("ART" in b.edge for _, b in c.inputs)
-    }
-    assert reads_art and reads_art <= set(change.stop)
-    assert not any("ART" in b.edge for c in change.start for _, b in c.inputs)
-    assert change.relations["C->A:6D"] == after.relations["C->A:6D"]
-    assert diff(before, before).empty
-
-
-def test_diff_reports_removed_and_rebound_relations(tracking_setup, templates):
-    to_a = flow_for(tracking_setup, templates)
-    to_wt = flow_for(tracking_setup, templates, Query("C", "WT", "6D"))
-    change = diff(merge([to_a, to_wt]), to_a)
-    assert change.relations == {"C->WT:6D": None}
-    assert change.start == () and change.rewire == ()
-    assert set(change.stop) == set(to_wt.components) - set(to_a.components)
 
 
 def test_data_flow_serialises_to_json(tracking_setup, templates):

@@ -97,3 +97,14 @@ def test_help_lists_the_options(capsys):
     out = capsys.readouterr().out
     for option in ("--from", "--to", "--type", "--static", "--all", "--json", "--dot"):
         assert option in out
+
+
+def test_without_plans_as_if_a_sensor_had_failed(capsys):
+    query = (TRACKING, "--from", "C", "--to", "A", "--type", "6D")
+    status, document = run_json(capsys, *query, "--without", "ART")
+    assert status == 0
+    steps = document["solutions"][0]["steps"]
+    assert "ART" not in {frame for step in steps for edge in step["inputs"] for frame in edge[:2]}
+    assert "MultiTrackerFusion" not in {step["pattern"] for step in steps}
+    assert main(["plan", *query, "--without", "NOPE"]) == 1
+    assert "--without NOPE: no such provider" in capsys.readouterr().err

@@ -13,6 +13,7 @@ from ubitrack_agent.graph.srg import (
     parse_setup,
     remove_provider,
 )
+from ubitrack_agent.net.keys import validate_key_chunks
 
 
 def test_paper_setup_has_figure_1_frames_and_attributes(tracking_setup):
@@ -81,10 +82,28 @@ def test_bad_entries_name_file_entry_and_field(entry, message):
     assert message in str(info.value)
 
 
-@pytest.mark.parametrize("name", ["", "a/b", "a*", "a$", "a#", "a?", "a@b", "a b", "a\tb", 7])
+@pytest.mark.parametrize(
+    "name", ["", "a/b", "a*", "a$", "a#", "a?", "a@b", "a b", "a\tb", 7, "Ä", "a,b", "a'b"]
+)
 def test_unsafe_frame_names_are_rejected(name):
     with pytest.raises(SetupError):
         check_node_name(name, "here")
+
+
+@pytest.mark.parametrize("name", ["HT", "F1", "art.body-2", "a:b", "x=1", "Ä", "a,b", "a b", ""])
+def test_a_frame_name_plans_offline_iff_it_works_in_keys(name):
+    """One rule for planner and keys: a setup that plans offline also runs live."""
+    try:
+        check_node_name(name, "here")
+        planned = True
+    except SetupError:
+        planned = False
+    try:
+        validate_key_chunks(name, single_chunk=True)
+        keyed = True
+    except ValueError:
+        keyed = False
+    assert planned == keyed
 
 
 def test_top_level_errors(tmp_path):

@@ -50,9 +50,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(and FILE.svg if the 'dot' program is installed)",
     )
     parser.add_argument(
+        "--without",
+        action="append",
+        default=[],
+        metavar="PROVIDER",
+        help="plan as if this provider's edges were gone (a sensor failing), repeatable",
+    )
+    parser.add_argument(
         "--templates",
         metavar="DIR",
-        help="directory of template files (default: the templates/ folder of the source tree)",
+        help="directory of template files (default: the templates shipped with the package)",
     )
     parser.set_defaults(func=run)
 
@@ -72,11 +79,16 @@ def run(args: argparse.Namespace) -> int:
     """Plan the query of ``args``; print the solutions; 0 if found, 2 if none, 1 on bad input."""
     from ubitrack_agent.graph.dot import to_dot
     from ubitrack_agent.graph.planner import NoSolutionError, PlanningError, Query, plan
-    from ubitrack_agent.graph.srg import SetupError, load_setup
+    from ubitrack_agent.graph.srg import SetupError, load_setup, remove_provider
     from ubitrack_agent.graph.templates import TemplateError, load_templates
 
     try:
         srg = load_setup(args.setup)
+        providers = {data["provider"] for *_, data in srg.edges(data=True)}
+        for provider in args.without:
+            if provider not in providers:
+                raise SetupError(f"--without {provider}: no such provider; {sorted(providers)}")
+            srg = remove_provider(srg, provider)
         templates = load_templates(args.templates)
         query = Query(args.source, args.target, args.type, args.static)
         found = plan(srg, templates, query)

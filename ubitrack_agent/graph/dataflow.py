@@ -82,22 +82,6 @@ class DataFlow:
         }
 
 
-@dataclass(frozen=True)
-class DataFlowDiff:
-    """What turns one data flow into another: components to start, ids to stop, components
-    whose input bindings changed (rewire), and relations whose producer changed or vanished
-    (``None``)."""
-
-    start: tuple[Component, ...]
-    stop: tuple[str, ...]
-    rewire: tuple[Component, ...]
-    relations: Mapping[str, Binding | None]
-
-    @property
-    def empty(self) -> bool:
-        return not (self.start or self.stop or self.rewire or self.relations)
-
-
 def relation_name(query: Query) -> str:
     """The name of a queried relation, e.g. ``"C->A:6D"`` (``"C->HT:6D/static"`` if static)."""
     suffix = "/static" if query.static else ""
@@ -174,22 +158,6 @@ def merge(flows: Iterable[DataFlow]) -> DataFlow:
             components[component.id] = component
         relations.update({name: _rebind(b, renamed) for name, b in flow.relations.items()})
     return DataFlow(components, relations)
-
-
-def diff(old: DataFlow, new: DataFlow) -> DataFlowDiff:
-    """The start / stop / rewire operations that turn ``old`` into ``new``."""
-    start = tuple(c for cid, c in new.components.items() if cid not in old.components)
-    stop = tuple(cid for cid in old.components if cid not in new.components)
-    rewire = tuple(
-        c for cid, c in new.components.items() if cid in old.components and old.components[cid] != c
-    )
-    relations: dict[str, Binding | None] = {
-        name: binding
-        for name, binding in new.relations.items()
-        if old.relations.get(name) != binding
-    }
-    relations.update({name: None for name in old.relations if name not in new.relations})
-    return DataFlowDiff(start, stop, rewire, relations)
 
 
 def best(query: Query, solutions: Sequence[Solution]) -> Solution:

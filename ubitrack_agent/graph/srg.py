@@ -13,7 +13,6 @@ algorithms and matchers can read them directly.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +20,8 @@ from typing import Any
 
 import networkx as nx
 import yaml
+
+from ubitrack_agent.core.names import check_name
 
 EDGE_TYPES: frozenset[str] = frozenset({"6D", "3D", "2D", "3x4", "3R", "intrinsics"})
 """Edge types (section 2.2): the ``SRG_TYPE`` names of :mod:`ubitrack_agent.core.measurements`."""
@@ -31,23 +32,18 @@ MODES: frozenset[str] = frozenset({"push", "pull"})
 DEFAULT_SIGMA = 1e-3
 """Expected RMS error (metres, or the metric error a 2D error induces) when a setup gives none."""
 
-_UNSAFE_NAME = re.compile(r"[/*$#?@\s]")
-
 
 class SetupError(ValueError):
     """A setup file or SRG entry is invalid; the message names the file, the entry and the field."""
 
 
 def check_node_name(name: Any, where: str) -> str:
-    """Return ``name`` if it is a frame name usable inside a zenoh key expression, else raise.
-
-    Names must be non-empty strings without ``/ * $ # ? @`` or whitespace.
-    """
-    if not isinstance(name, str) or not name:
-        raise SetupError(f"{where}: frame name must be a non-empty string, got {name!r}")
-    if _UNSAFE_NAME.search(name):
-        raise SetupError(f"{where}: frame name {name!r} contains one of / * $ # ? @ or whitespace")
-    return name
+    """Return ``name`` if it is a frame name usable inside a zenoh key expression
+    (:func:`ubitrack_agent.core.names.check_name`), else raise :class:`SetupError`."""
+    try:
+        return check_name(name)
+    except ValueError as exc:
+        raise SetupError(f"{where}: frame name {exc}") from None
 
 
 @dataclass(frozen=True)

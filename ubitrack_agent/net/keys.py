@@ -29,11 +29,9 @@ admin space) and no whitespace, so a hostile name can never widen a subscription
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
-_CHUNK = re.compile(r"^[A-Za-z0-9_.\-+:=%~^!]+$")
-"""Characters allowed in one key chunk: a safe subset of what zenoh accepts."""
+from ubitrack_agent.core.names import check_name
 
 
 def validate_key_chunks(text: str, single_chunk: bool = False) -> str:
@@ -46,10 +44,7 @@ def validate_key_chunks(text: str, single_chunk: bool = False) -> str:
     for chunk in chunks:
         if not chunk:
             raise ValueError(f"{text!r} has an empty chunk (leading, trailing or double '/')")
-        if not _CHUNK.match(chunk):
-            raise ValueError(
-                f"{text!r}: chunk {chunk!r} may only contain letters, digits and _.-+:=%~^!"
-            )
+        check_name(chunk)
     return text
 
 
