@@ -14,7 +14,6 @@ from ubitrack_agent.net.spec import parse_spec
 
 KEYS = KeySpace("ubitrack/test")
 TEMPLATES = load_templates()
-BY_NAME = {t.name: t for t in TEMPLATES}
 
 
 def fragment(provider, *edges):
@@ -89,7 +88,7 @@ def test_malformed_fragments_are_rejected_with_the_reason(payload, fragment_text
 def specs_for(fragments, *relations):
     srg = build_srg(fragments)
     plan = plan_relations(srg, TEMPLATES, relations)
-    return plan, component_specs(plan.flow, srg, BY_NAME, KEYS, plan.relations)
+    return plan, component_specs(plan.flow, srg, KEYS, plan.relations)
 
 
 def test_paper_setup_becomes_figure_6_workers():

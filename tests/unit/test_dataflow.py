@@ -114,3 +114,15 @@ def test_plan_flows_serves_what_it_can_and_names_the_rest(tracking_setup, templa
     # without the tracker and the camera's features, only database edges remain around C
     assert unresolved["C->A:6D"].startswith("frames C and A are not connected")
     assert "C is connected to {C, HT, IP}" in unresolved["C->A:6D"]
+
+
+def test_components_carry_the_planners_static_decision(
+    tracking_setup, calibration_setup, templates
+):
+    """Static outputs are decided once, by the matcher, and travel with the component."""
+    tracking = flow_for(tracking_setup, templates)
+    assert all(not c.static_outputs for c in tracking.components.values())  # all dynamic
+    query = Query("C", "HT", "6D", static=True)
+    calibration = from_solution(plan(calibration_setup, templates, query)[0], query)
+    producer = calibration.relations[relation_name(query)]
+    assert producer.edge in calibration.components[producer.component].static_outputs

@@ -4,8 +4,7 @@
 * An input bound to a measured edge ``<provider>/<name>`` reads that edge's data key; an input
   bound to a component's output reads ``<root>/data/<component>/<output>``.
 * An input is ``static`` if its edge is: a measured edge by its announcement; a component's
-  output if the component is time-expanded (section 3.3: its result is static), if the
-  template declares the output static, or if it inherits and every input is static.
+  output as the planner decided (``Component.static_outputs``).
 * Every dynamic input triggers (each instant is computed once, ``services.triggers``); a
   component whose inputs are all static recomputes whenever one of them changes.
 * The producer of a queried relation also publishes on the relation's stable key; a relation
@@ -20,9 +19,8 @@ from dataclasses import replace
 
 import networkx as nx
 
-from ubitrack_agent.graph.dataflow import Binding, Component, DataFlow
+from ubitrack_agent.graph.dataflow import Binding, DataFlow
 from ubitrack_agent.graph.srg import edge_ids
-from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
@@ -36,37 +34,20 @@ def _measured_static(srg: nx.MultiDiGraph, edge_id: str) -> bool:
     return bool(srg.edges[source, target, edge_id]["static"])
 
 
-def _outputs_static(
-    component: Component, template: Template, inputs_static: list[bool]
-) -> dict[str, bool]:
-    result = {}
-    for spec in template.outputs:
-        if component.expansion == "time":
-            result[spec.name] = True
-        elif isinstance(spec.static, bool):
-            result[spec.name] = spec.static
-        else:
-            result[spec.name] = all(inputs_static)
-    return result
-
-
 def component_specs(
     flow: DataFlow,
     srg: nx.MultiDiGraph,
-    templates: Mapping[str, Template],
     keys: KeySpace,
     relations: Mapping[str, RelationId],
 ) -> dict[str, ComponentSpec]:
     """The worker specification of every component of ``flow``, by instance id."""
-    static_outputs: dict[tuple[str, str], bool] = {}
     specs: dict[str, ComponentSpec] = {}
 
     def source(binding: Binding) -> tuple[str, bool]:
         if binding.component is None:
             return keys.data(binding.edge), _measured_static(srg, binding.edge)
-        return keys.data(f"{binding.component}/{binding.edge}"), static_outputs[
-            (binding.component, binding.edge)
-        ]
+        producer = flow.components[binding.component]
+        return keys.data(f"{producer.id}/{binding.edge}"), binding.edge in producer.static_outputs
 
     for component in flow.components.values():  # producers come before their consumers
         sources = [(port, *source(binding)) for port, binding in component.inputs]
@@ -76,9 +57,6 @@ def component_specs(
             InputBinding(_port(port), key, trigger=not static or not dynamic, static=static)
             for port, key, static in sources
         )
-        template = templates[component.template]
-        for name, static in _outputs_static(component, template, statics).items():
-            static_outputs[(component.id, name)] = static
         specs[component.id] = ComponentSpec(
             instance=component.id,
             service=component.service,

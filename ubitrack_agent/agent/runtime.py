@@ -70,7 +70,6 @@ class Agent:
     ) -> None:
         self.keys = KeySpace(settings.key_prefix)
         self.templates = tuple(templates)
-        self._by_name = {t.name: t for t in self.templates}
         self.counters: Counter[str] = Counter()
         self.fragments: dict[str, list[dict[str, Any]]] = {}
         self.rejected: dict[str, str] = {}
@@ -206,9 +205,7 @@ class Agent:
     def _replan(self) -> None:
         self.srg = build_srg(self.fragments)
         self.plan = plan_relations(self.srg, self.templates, self.queries, set(self.running))
-        self.wanted = component_specs(
-            self.plan.flow, self.srg, self._by_name, self.keys, self.plan.relations
-        )
+        self.wanted = component_specs(self.plan.flow, self.srg, self.keys, self.plan.relations)
         self.counters["replans"] += 1
         for name, reason in self.plan.unsolved.items():
             log.warning("cannot serve %s: %s", name, reason)

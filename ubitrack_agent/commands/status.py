@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"ubitrack status: no agent answers on {keys.agent_status()}", file=sys.stderr)
             return 1
         workers = {}
-        for payload in fetch_latest(session, f"{keys.root}/status/*", timeout=args.timeout):
+        for payload in fetch_latest(session, keys.all_statuses(), timeout=args.timeout):
             answer = json.loads(payload)
             workers[answer["instance"]] = answer["counters"]
     for instance, component in status["components"].items():

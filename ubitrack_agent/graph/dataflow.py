@@ -1,4 +1,4 @@
-"""Data flow graphs built from planned solutions, shared between queries and diffed (section 5.1).
+"""Data flow graphs built from planned solutions and shared between queries (section 5.1).
 
 "When an expanded instance of pattern P_i is applied in the SR graph, this creates a new
 component in the data flow graph [...] The inputs of the component are connected to the
@@ -9,7 +9,7 @@ edge or to an output of another component, plus the *relations* the applications
 Component ids are content-derived (template, expansion, the relations read and written), not
 derived from the producers feeding them, so the same computation planned for two queries gets
 the same id (sharing, section 5.1 "Data flow construction"), and a component whose upstream
-changed keeps its id: :func:`diff` reports it as *rewired* rather than stopped and started.
+changed keeps its id: the agent rewires it rather than stopping and starting it.
 """
 
 from __future__ import annotations
@@ -43,7 +43,9 @@ class Component:
 
     ``inputs`` are ``(port, binding)`` pairs, ports named after the template's input edges
     (``IF[0]``, ``IF[1]``... for the copies of a space expansion); ``outputs`` are
-    ``(name, from, to, type)``.
+    ``(name, from, to, type)``; ``static_outputs`` names the outputs whose edges are static,
+    as the matcher decided when it applied the pattern (``matcher.instance_outputs``: declared
+    by the template, or inherited, and always for a time expansion, section 3.3).
     """
 
     id: str
@@ -54,6 +56,7 @@ class Component:
     parameters: Mapping[str, Any]
     inputs: tuple[tuple[str, Binding], ...]
     outputs: tuple[tuple[str, str, str, str], ...]
+    static_outputs: frozenset[str] = frozenset()
 
     def as_json(self) -> dict[str, Any]:
         return {
@@ -65,6 +68,7 @@ class Component:
             "parameters": dict(self.parameters),
             "inputs": {port: b.as_json() for port, b in self.inputs},
             "outputs": {name: [src, dst, typ] for name, src, dst, typ in self.outputs},
+            "static_outputs": sorted(self.static_outputs),
         }
 
 
@@ -125,6 +129,11 @@ def from_solution(solution: Solution, query: Query) -> DataFlow:
             parameters=dict(step.template.parameters),
             inputs=tuple(inputs),
             outputs=tuple((name, src, dst, typ) for name, src, dst, typ, _ in step.outputs),
+            static_outputs=frozenset(
+                name
+                for name, *_, edge_id in step.outputs
+                if edge_id is not None and records[edge_id].static
+            ),
         )
     final = producer.get(solution.edge.id, Binding(None, solution.edge.id))
     return DataFlow(components, {relation_name(query): final})

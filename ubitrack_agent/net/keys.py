@@ -93,6 +93,10 @@ class KeySpace:
         """Queryable that answers ``instance``'s counters."""
         return f"{self.root}/status/{validate_key_chunks(instance, single_chunk=True)}"
 
+    def all_statuses(self) -> str:
+        """Selector reaching every worker's status queryable."""
+        return f"{self.root}/status/*"
+
     def provider(self, provider: str) -> str:
         """Liveliness token announcing ``provider``."""
         return f"{self.root}/provider/{validate_key_chunks(provider, single_chunk=True)}"
