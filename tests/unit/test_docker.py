@@ -30,6 +30,15 @@ def test_every_service_runs_a_valid_ubitrack_command():
     assert entrypoint == ['ENTRYPOINT ["ubitrack"]']
 
 
+def test_the_image_installs_the_package_as_users_do():
+    """A normal install (the wheel's package data), not an editable one beside the sources."""
+    text = (DOCKER / "Dockerfile").read_text()
+    installs = [line for line in text.splitlines() if "pip install" in line]
+    assert installs and all(" -e " not in line and "editable" not in line for line in installs)
+    copied = {line.split()[1] for line in text.splitlines() if line.startswith("COPY")}
+    assert {"ubitrack_agent", "services", "sim_trackers", "templates"} <= copied
+
+
 @pytest.mark.skipif(shutil.which("docker-compose") is None, reason="docker-compose not installed")
 def test_docker_compose_accepts_the_file():
     result = subprocess.run(
