@@ -28,8 +28,6 @@ from bench import accuracy_experiments as ex
 
 RESULTS = Path(__file__).parent / "results" / "accuracy.json"
 TOLERANCE = 1.05
-NOT_LIBRARY = ("ours", "oracle", "CRLB", "one tracker", "average", "single")
-"""Method-name prefixes of rows that are not a library method to compare with."""
 
 
 @dataclass

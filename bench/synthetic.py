@@ -19,7 +19,6 @@ from ubitrack_agent.core import quaternions, se3
 
 SEED = 20240601
 CAMERA_MATRIX = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
-IMAGE_SIZE = (640, 480)
 
 
 def rng_for(name: str) -> np.random.Generator:

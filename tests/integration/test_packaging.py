@@ -15,6 +15,7 @@ import pytest
 pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[2]
+PIP = (sys.executable, "-m", "pip")
 SHIPPED = ("pyproject.toml", "README.md", "ubitrack_agent", "services", "sim_trackers", "templates")
 
 
@@ -30,8 +31,16 @@ def wheel(tmp_path_factory) -> Path:
             shutil.copy2(origin, source / name)
     out = tmp_path_factory.mktemp("wheel")
     subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation"]
-        + ["--wheel-dir", str(out), str(source)],
+        [
+            *PIP,
+            "wheel",
+            "--quiet",
+            "--no-deps",
+            "--no-build-isolation",
+            "-w",
+            str(out),
+            str(source),
+        ],
         check=True,
     )
     (built,) = out.glob("ubitrack_agent-*.whl")
@@ -50,8 +59,16 @@ def test_the_installed_package_plans_figure_6_from_another_directory(wheel, tmp_
     target, work = tmp_path / "site", tmp_path / "elsewhere"
     work.mkdir()
     subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index"]
-        + ["--target", str(target), str(wheel)],
+        [
+            *PIP,
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--no-index",
+            "--target",
+            str(target),
+            str(wheel),
+        ],
         check=True,
     )
     setup = shutil.copy(ROOT / "examples" / "paper_tracking.yaml", work / "setup.yaml")
@@ -67,9 +84,9 @@ def test_the_installed_package_plans_figure_6_from_another_directory(wheel, tmp_
         check=True,
     )
     assert where.stdout.startswith(str(target)), where.stdout
+    query = ("--from", "C", "--to", "A", "--type", "6D")
     plan = subprocess.run(
-        [sys.executable, "-m", "ubitrack_agent.cli", "plan", str(setup)]
-        + ["--from", "C", "--to", "A", "--type", "6D"],
+        [sys.executable, "-m", "ubitrack_agent.cli", "plan", str(setup), *query],
         cwd=work,
         env=env,
         capture_output=True,
