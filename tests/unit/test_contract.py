@@ -300,6 +300,21 @@ class _ReadRecorder(dict):
         return super().get(key, default)
 
 
+def _recording(service: type[Service]) -> type[Service]:
+    """``service`` whose parameters remember which of them were read, from ``__init__`` on."""
+
+    class Recording(service):  # type: ignore[misc, valid-type]
+        @property
+        def parameters(self) -> _ReadRecorder:
+            return self._recorder
+
+        @parameters.setter
+        def parameters(self, value: Mapping[str, Any]) -> None:
+            self._recorder = _ReadRecorder(value)
+
+    return Recording
+
+
 def _output_problems(
     template: Template,
     binding: Mapping[str, str],
@@ -352,8 +367,7 @@ def _probe_problems(template: Template, service: type[Service]) -> list[str]:
                 for spec, cls in zip(template.inputs, classes, strict=True)
             )
             label = f"probe ({expansion + ' expansion' if corr else 'unexpanded'}; {kinds})"
-            instance = service(dict(template.parameters))
-            instance.parameters = recorder = _ReadRecorder(instance.parameters)
+            instance = _recording(service)(dict(template.parameters))
             world, copies = _scenes(
                 template, binding, expansion, instance.min_correspondences(), rng
             )
@@ -369,7 +383,7 @@ def _probe_problems(template: Template, service: type[Service]) -> list[str]:
                 problems.append(f"{label}: compute raised {type(exc).__name__}: {exc}")
                 continue
             finally:
-                read |= recorder.read
+                read |= instance.parameters.read
             problems += _output_problems(template, binding, produced, world, label)
     problems += [
         f"parameter {name}: declared by the service, never read (by compute or "
