@@ -9,6 +9,9 @@ the worker runtime has already synchronised to one timestamp.
 
 from __future__ import annotations
 
+import functools
+import importlib
+import pkgutil
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -87,12 +90,18 @@ def register(cls: type[Service]) -> type[Service]:
 
 def lookup(name: str) -> type[Service]:
     """The registered service called ``name``; ``KeyError`` with the known names otherwise."""
-    _load_builtin_services()
+    load_components()
     try:
         return SERVICES[name]
     except KeyError:
         raise KeyError(f"no registered service {name!r}; known: {sorted(SERVICES)}") from None
 
 
-def _load_builtin_services() -> None:
-    from services import components  # noqa: F401  (modules register their services on import)
+@functools.cache
+def load_components() -> None:
+    """Import every module of :mod:`services.components` (found by :func:`pkgutil.iter_modules`,
+    no list to keep); each registers its services on import."""
+    from services import components
+
+    for module in pkgutil.iter_modules(components.__path__, f"{components.__name__}."):
+        importlib.import_module(module.name)

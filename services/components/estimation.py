@@ -162,7 +162,6 @@ class HandEyeCalibration(Service):
     CORRESPONDENCE = ("RH", "CO")
     MIN_CORRESPONDENCES = 3
     TIME_MIN_ROTATION_DEG = 5.0
-    PARAMETERS = {"min_motion_pairs": 2}
 
     def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
         rows = _rows(values, self.CORRESPONDENCE, self.MIN_CORRESPONDENCES)

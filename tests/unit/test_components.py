@@ -5,6 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bench.synthetic import CAMERA_MATRIX, hand_eye_scene, rng_for
+from services.algorithms import fuse_poses
 from services.expansion import TimeAccumulator
 from services.registry import lookup
 from ubitrack_agent.core import (
@@ -125,6 +126,23 @@ def test_fusion_of_equal_and_weighted_estimates():
     np.testing.assert_allclose(mean.position, [1, 0, 0])
     with pytest.raises(ValueError, match="no estimate"):
         make("fusion").compute({"AB": [None, None]}, T)
+
+
+def test_fusion_of_rotations_is_the_pose_fusion_without_translation():
+    rng = rng_for("fusion 3R")
+    quats = Rotation.random(3, rng=rng).as_quat()
+    rotations = [Rotation3D(T, q) for q in quats]
+    fused = make("fusion", default_sigma=0.01).compute({"AB": [*rotations, None]}, T)["fused"]
+    assert isinstance(fused, Rotation3D)
+    expected = fuse_poses(quats, np.zeros((3, 3)), np.array([1e-4 * np.eye(6)] * 3))
+    assert quaternions.angle(
+        quaternions.multiply(fused.rotation, quaternions.conjugate(expected.rotation))
+    ) == pytest.approx(0.0, abs=1e-12)
+    about_z = [Rotation3D(T, Rotation.from_euler("z", d, degrees=True).as_quat()) for d in (9, 11)]
+    middle = make("fusion").compute({"AB": about_z}, T)["fused"]
+    assert np.degrees(quaternions.angle(middle.rotation)) == pytest.approx(10.0)
+    with pytest.raises(ValueError, match="different types: Pose, Rotation3D"):
+        make("fusion").compute({"AB": [rotations[0], Pose(T, quats[1], [0, 0, 0])]}, T)
 
 
 def test_averaging_and_pose_split():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import random
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -67,6 +68,34 @@ def test_best_tracking_solution_is_the_data_flow_of_figure_6(tracking_setup, tem
     assert steps[-1][0] == "Concatenation" and steps[-1][3] == [("C", "A", "6D")]
     assert ("C", "WT", "6D") in steps[-1][2]
     assert best.static is False
+
+
+@pytest.mark.parametrize(
+    ("setup_name", "query"),
+    [
+        ("tracking_setup", Query("C", "A", "6D")),
+        ("calibration_setup", Query("C", "HT", "6D", static=True)),
+    ],
+)
+def test_plans_depend_on_template_properties_not_on_pattern_names(
+    request, templates, setup_name, query
+):
+    srg = request.getfixturevalue(setup_name)
+    names = {t.pattern: f"P{i}" for i, t in enumerate(templates)}
+
+    def renamed(template):
+        inputs = tuple(
+            replace(spec, not_from=frozenset(names[n] for n in spec.not_from))
+            for spec in template.inputs
+        )
+        return replace(template, pattern=names[template.pattern], inputs=inputs)
+
+    expected = [
+        (round(s.cost, 9), [(names[p], *rest) for p, *rest in signature(s)])
+        for s in plan(srg, templates, query)
+    ]
+    found = plan(srg, [renamed(t) for t in templates], query)
+    assert [(round(s.cost, 9), signature(s)) for s in found] == expected
 
 
 def test_fusion_beats_each_single_path(tracking_setup, templates):

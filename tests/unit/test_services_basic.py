@@ -1,11 +1,14 @@
 """Registry, component specifications, and the inversion and concatenation services."""
 
 import json
+import sys
+import textwrap
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from services import components, registry
 from services.registry import lookup
 from services.spec import check_spec
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, Projection, Rotation3D, se3
@@ -21,6 +24,37 @@ def test_lookup_lists_known_services_when_unknown():
     assert lookup("concatenation").NAME == "concatenation"
     with pytest.raises(KeyError, match=r"known:.*inversion"):
         lookup("os.system")
+
+
+EXTRA_MODULE = """
+from services.registry import Port, Service, register
+from ubitrack_agent.core import Pose
+
+
+@register
+class Extra(Service):
+    NAME = "extra_for_discovery_test"
+    INPUTS = {"AB": Port((Pose,))}
+    OUTPUTS = ("BA",)
+
+    def compute(self, values, timestamp_ns):
+        return {}
+"""
+
+
+def test_component_modules_are_discovered_without_a_list(tmp_path, monkeypatch):
+    registry.load_components()  # the shipped services, in the registry the test leaves as it was
+    (tmp_path / "extra_for_discovery_test.py").write_text(textwrap.dedent(EXTRA_MODULE))
+    monkeypatch.setattr(components, "__path__", [*components.__path__, str(tmp_path)])
+    monkeypatch.setattr(registry, "SERVICES", dict(registry.SERVICES))
+    registry.load_components.cache_clear()
+    try:
+        assert lookup("extra_for_discovery_test").__module__ == (
+            "services.components.extra_for_discovery_test"
+        )
+    finally:
+        sys.modules.pop("services.components.extra_for_discovery_test", None)
+        registry.load_components.cache_clear()
 
 
 def test_inversion_of_pose_and_rotation():

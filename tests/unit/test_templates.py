@@ -7,7 +7,6 @@ import copy
 import pytest
 
 from ubitrack_agent.graph.templates import (
-    PATTERN_NAMES,
     Multiplicity,
     TemplateError,
     load_template,
@@ -34,9 +33,28 @@ POSE_2D3D = {
 }
 
 
+PAPER_PATTERNS = {
+    "Inversion",
+    "Concatenation",
+    "MultiTrackerFusion",
+    "PoseEstimation3D3D",
+    "PoseEstimation2D3D",
+    "ProjectiveCalibration2D3D",
+    "Triangulation2D3D",
+    "HandEyeCalibration",
+    "Averaging",
+    "Auxiliary",
+}
+"""The patterns of the paper's catalogue (sections 3.1, 3.4, 4.3) that ship as templates."""
+
+
 def test_shipped_catalogue_covers_every_pattern(templates):
-    assert {t.pattern for t in templates} == PATTERN_NAMES
+    assert {t.pattern for t in templates} == PAPER_PATTERNS
     assert len({t.service for t in templates}) == len(templates)
+    signatures = {t.pattern: t.signature for t in templates}
+    assert signatures.pop("Inversion") == "inverse"
+    assert signatures.pop("Concatenation") == "chain"
+    assert set(signatures.values()) == {"step"}
 
 
 def test_templates_are_generic_over_types(templates):
@@ -99,7 +117,10 @@ def _broken(path: str, value):
     ("path", "value", "message"),
     [
         ("color", "red", "top level: unknown field(s) ['color']"),
-        ("pattern", "Magic", "field 'pattern': 'Magic' is not one of"),
+        ("pattern", "magic pattern", "field 'pattern': 'magic pattern' is not well-formed"),
+        ("signature", "twisted", "field 'signature': 'twisted' is not one of"),
+        ("signature", "inverse", "field 'signature': an inverse has exactly one input"),
+        ("inputs.0.not_from", ["no-pattern"], "inputs[0].not_from[0]: 'no-pattern' is not"),
         ("service", "services.pose:Estimator", "field 'service'"),
         ("service", KeyError, "missing field 'service'"),
         ("inputs.0.type", "$T", "type variable $T is not declared"),
@@ -137,6 +158,30 @@ def test_output_type_variable_must_be_bound_by_an_input():
     }
     with pytest.raises(TemplateError, match=r"outputs\[0\].type: type variable \$U is bound by no"):
         parse_template(data)
+
+
+def test_not_from_names_a_pattern_of_the_loaded_set(tmp_path):
+    import yaml
+
+    data = copy.deepcopy(POSE_2D3D)
+    data["inputs"][0]["not_from"] = ["PoseEstimation2D3D", "Inversion"]
+    (tmp_path / "pose.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(TemplateError) as info:
+        load_templates(tmp_path)
+    assert str(info.value) == (
+        f"{tmp_path / 'pose.yaml'}: inputs[0].not_from: Inversion is the pattern of no loaded "
+        "template (loaded: PoseEstimation2D3D)"
+    )
+    inversion = {
+        "pattern": "Inversion",
+        "service": "inversion",
+        "roles": ["A", "B"],
+        "inputs": [{"name": "AB", "from": "A", "to": "B", "type": "6D"}],
+        "outputs": [{"name": "BA", "from": "B", "to": "A", "type": "6D"}],
+    }
+    (tmp_path / "inversion.yaml").write_text(yaml.safe_dump(inversion))
+    pose = next(t for t in load_templates(tmp_path) if t.name == "pose")
+    assert pose.inputs[0].not_from == {"PoseEstimation2D3D", "Inversion"}
 
 
 def test_empty_template_directory_is_an_error(tmp_path):

@@ -333,8 +333,9 @@ class Workspace:
             self.index.retire(worst.id)
         return True
 
-    def _wanted(self, pattern: str, edge_type: str, source: str, target: str) -> bool:
-        """Which concatenations serve the query ``goal`` (section 5.1, "when to add new edges").
+    def _wanted(self, template: Template, edge_type: str, source: str, target: str) -> bool:
+        """Which chains (templates of ``signature: chain``, concatenation) serve the query
+        ``goal`` (section 5.1, "when to add new edges").
 
         Points (3D) are carried only into the query's frames: a point-based pose estimation on
         points carried into another frame X equals the one on the points' own frame followed by
@@ -343,7 +344,7 @@ class Workspace:
         one farther from the query target to one nearer to it (hop distances along 6D edges,
         :func:`_chain_distances`). A chain against that direction can only feed a derivation
         that runs the other way round."""
-        if pattern != "Concatenation" or self.goal is None:
+        if template.signature != "chain" or self.goal is None:
             return True
         if edge_type == "3D":
             return source in self.goal
@@ -360,14 +361,18 @@ class Workspace:
         inputs = [records[e] for e in instance.input_edges()]
         quality = propagate(instance, records)
         step_id = f"s{len(self.steps) + 1}"
-        pattern = instance.template.pattern
+        template = instance.template
+        pattern = template.pattern
         sources = frozenset().union(*(e.sources for e in inputs))
         providers = frozenset().union(*(e.providers for e in inputs))
         steps = frozenset({step_id}).union(*(e.steps for e in inputs))
-        if pattern == "Inversion":
+        # the computation's signature: an inverse is its input, a chain the sorted computations
+        # it chains (any bracketing), any other step its own on its inputs (Template.signature)
+        composed = template.signature != "step"
+        if template.signature == "inverse":
             canon, leaves = inputs[0].canon, inputs[0].leaves
-        elif pattern == "Concatenation":
-            leaves = tuple(sorted(inputs[0].leaves + inputs[1].leaves))
+        elif template.signature == "chain":
+            leaves = tuple(sorted(leaf for e in inputs for leaf in e.leaves))
             canon = f"cat({','.join(leaves)})"
         else:
             canon = f"{pattern}/{instance.expansion}[{','.join(sorted(e.canon for e in inputs))}]"
@@ -380,10 +385,10 @@ class Workspace:
             if (
                 edge_type in self.useful_types
                 and not calibrated
-                and self._wanted(pattern, edge_type, source, target)
+                and self._wanted(template, edge_type, source, target)
             ):
                 pair = "-".join(sorted((source, target)))
-                out_canon = canon if pattern in ("Inversion", "Concatenation") else f"{canon}{pair}"
+                out_canon = canon if composed else f"{canon}{pair}"
                 record = EdgeRecord(
                     id=f"{source}->{target}:{edge_type}@{step_id}.{name}",
                     source=source,
@@ -392,12 +397,12 @@ class Workspace:
                     static=static,
                     mode=mode,
                     measured=False,
-                    provider=instance.template.service,
+                    provider=template.service,
                     quality=quality,
                     sources=sources,
                     cost=edge_cost(quality, len(providers), len(steps)),
                     canon=out_canon,
-                    leaves=leaves if pattern in ("Inversion", "Concatenation") else (out_canon,),
+                    leaves=leaves if composed else (out_canon,),
                     pattern=pattern,
                     step=step_id,
                     time_integrated=instance.expansion == "time",
@@ -412,7 +417,7 @@ class Workspace:
             outputs.append((name, source, target, edge_type, edge_id))
         if added:
             self.steps[step_id] = Step(
-                step_id, instance.template, instance.expansion, instance.inputs, tuple(outputs)
+                step_id, template, instance.expansion, instance.inputs, tuple(outputs)
             )
         return added
 
@@ -430,7 +435,7 @@ def saturate(
 
     Only edges of types that can contribute to a ``wanted`` edge are inferred, and time-only
     patterns (calibrations) only run when some rigid relation is not measured. With a ``goal``
-    (the query's source and target), concatenations are restricted as
+    (the query's source and target), chains (concatenations) are restricted as
     :meth:`Workspace._wanted` explains. ``rigid`` adds frame pairs known to be rigid besides
     those joined by static edges. Each round only looks for occurrences that use an edge
     inferred in the previous round.

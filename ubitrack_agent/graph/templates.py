@@ -7,6 +7,10 @@ expansions (section 3.3), the registered service that runs it, its parameters an
 of the planner's cost model. Types may be a type variable (``$T``) ranging over a declared
 domain, so one template covers e.g. 6D and 3D concatenation. A template never names Python
 code: ``service`` is a registry name, resolved by the services registry at run time.
+
+The pattern names are those of the loaded templates: nothing here lists them. A template's
+``signature`` tells the planner how to recognise one computation derived in several ways
+(section 5.1), the only thing it needs to know about particular patterns.
 """
 
 from __future__ import annotations
@@ -23,27 +27,14 @@ import yaml
 
 from ubitrack_agent.graph.srg import EDGE_TYPES, MODES
 
-PATTERN_NAMES: frozenset[str] = frozenset(
-    {
-        "Inversion",
-        "Concatenation",
-        "MultiTrackerFusion",
-        "PoseEstimation3D3D",
-        "PoseEstimation2D3D",
-        "ProjectiveCalibration2D3D",
-        "Triangulation2D3D",
-        "HandEyeCalibration",
-        "Averaging",
-        "Auxiliary",
-    }
-)
-"""The patterns of the paper's catalogue (sections 3.1, 3.4, 4.3) a template may implement."""
-
 EXPANSIONS: frozenset[str] = frozenset({"space", "time"})
 COST_RULES: frozenset[str] = frozenset({"sum", "fusion", "pooled"})
+SIGNATURES: frozenset[str] = frozenset({"step", "inverse", "chain"})
+"""How the planner identifies a pattern's outputs (:attr:`Template.signature`)."""
 
 
 _SERVICE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+_PATTERN_NAME = re.compile(r"^[A-Z][A-Za-z0-9]*$")
 _ROLE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _MULTIPLICITY = re.compile(r"^\s*(\d+)\s*(?:\.\.\s*(\d+|\*)\s*)?$")
 
@@ -129,7 +120,14 @@ class CostSpec:
 
 @dataclass(frozen=True)
 class Template:
-    """One validated template service description."""
+    """One validated template service description.
+
+    ``signature`` says how the planner identifies the computation an output stands for, to drop
+    derivations that differ only in how they were put together (section 5.1): ``step`` (its own
+    step on its inputs), ``inverse`` (its single input read the other way round: the same
+    computation, e.g. inversion) or ``chain`` (the chain of its inputs' computations whatever the
+    bracketing, e.g. concatenation; the planner also builds chains only towards the query).
+    """
 
     name: str
     pattern: str
@@ -142,6 +140,7 @@ class Template:
     correspondence: Correspondence | None
     cost: CostSpec
     parameters: Mapping[str, Any] = field(default_factory=dict)
+    signature: str = "step"
 
     @property
     def time_only(self) -> bool:
@@ -162,6 +161,7 @@ _TOP = {
     "correspondence",
     "cost",
     "parameters",
+    "signature",
 }
 _REQUIRED_TOP = ("pattern", "service", "roles", "inputs", "outputs")
 _INPUT_KEYS = {"name", "from", "to", "type", "static", "mode", "measured", "not_from"}
@@ -243,7 +243,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
     """Validate the parsed YAML of one template file and return the :class:`Template`."""
     c = _Checker(origin)
     c.mapping("top level", data, _TOP, _REQUIRED_TOP)
-    pattern = c.choice("field 'pattern'", data["pattern"], PATTERN_NAMES)
+    pattern = c.string("field 'pattern'", data["pattern"], _PATTERN_NAME)
     service = c.string("field 'service'", data["service"], _SERVICE_NAME)
     roles = c.string_list("field 'roles'", data["roles"], _ROLE_NAME)
     raw_vars = data.get("type_vars", {})
@@ -290,9 +290,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
         mode = entry.get("mode")
         if mode is not None:
             c.choice(f"{where}.mode", mode, MODES)
-        not_from = c.string_list(f"{where}.not_from", entry.get("not_from", []), _ROLE_NAME)
-        for name in not_from:
-            c.choice(f"{where}.not_from", name, PATTERN_NAMES)
+        not_from = c.string_list(f"{where}.not_from", entry.get("not_from", []), _PATTERN_NAME)
         inputs.append(
             InputSpec(
                 *head(where, entry),
@@ -356,6 +354,9 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
     description = data.get("description", "")
     if not isinstance(description, str):
         raise c.fail("field 'description'", f"must be a string, got {description!r}")
+    signature = c.choice("field 'signature'", data.get("signature", "step"), SIGNATURES)
+    if signature == "inverse" and len(inputs) != 1:
+        raise c.fail("field 'signature'", "an inverse has exactly one input")
     return Template(
         name=Path(origin).stem,
         pattern=pattern,
@@ -368,6 +369,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
         correspondence=correspondence,
         cost=cost,
         parameters=dict(parameters),
+        signature=signature,
     )
 
 
@@ -391,7 +393,8 @@ def shipped_templates() -> Traversable:
 
 def load_templates(directory: str | Path | Traversable | None = None) -> tuple[Template, ...]:
     """Load every ``*.yaml`` template of ``directory`` (default: :func:`shipped_templates`),
-    sorted by file name."""
+    sorted by file name. The patterns are those of the loaded set: a ``not_from`` naming a
+    pattern no template of the set implements is an error."""
     directory = shipped_templates() if directory is None else directory
     if isinstance(directory, str):
         directory = Path(directory)
@@ -405,4 +408,14 @@ def load_templates(directory: str | Path | Traversable | None = None) -> tuple[T
     )
     if not files:
         raise TemplateError(f"{directory}: no *.yaml template files")
-    return tuple(load_template(path) for path in files)
+    templates = tuple(load_template(path) for path in files)
+    patterns = sorted({template.pattern for template in templates})
+    for path, template in zip(files, templates, strict=True):
+        for i, spec in enumerate(template.inputs):
+            unknown = sorted(spec.not_from - set(patterns))
+            if unknown:
+                raise TemplateError(
+                    f"{path}: inputs[{i}].not_from: {', '.join(unknown)} is the pattern of no "
+                    f"loaded template (loaded: {', '.join(patterns)})"
+                )
+    return templates
