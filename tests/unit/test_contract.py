@@ -13,7 +13,8 @@ binding of port ``IF``, ``agent.materialise``) and its parameters are the templa
 * its correspondence ports are the template's correspondence edges, and ``MIN_CORRESPONDENCES``
   is the multiplicity's lower bound (a service takes any number above it, so a template may not
   bound the multiplicity from above);
-* the parameters have the same names and the same defaults;
+* the parameters have the same names, and the template's values the kind (flag, number,
+  string) of the service's defaults;
 * a probe runs the service on noise-free synthetic scenes, for every type binding, every accepted
   measurement class and every allowed expansion, and checks that it yields every output edge
   with the template's type and the true value, and that it reads every parameter it declares.
@@ -149,8 +150,14 @@ def _correspondence_problems(template: Template, service: type[Service]) -> list
     return problems
 
 
-def _same(a: Any, b: Any) -> bool:
-    return isinstance(a, bool) == isinstance(b, bool) and a == b
+def _same_kind(value: Any, default: Any) -> bool:
+    """A template may set another value than the service's default (its instances run with
+    it), but of the default's kind: a flag, a number or a string."""
+    if isinstance(value, bool) or isinstance(default, bool):
+        return isinstance(value, bool) and isinstance(default, bool)
+    if isinstance(default, int | float):
+        return isinstance(value, int | float)
+    return type(value) is type(default)
 
 
 def _parameter_problems(template: Template, service: type[Service]) -> list[str]:
@@ -168,10 +175,10 @@ def _parameter_problems(template: Template, service: type[Service]) -> list[str]
         if name not in given
     ]
     problems += [
-        f"parameter {name}: the template's default is {given[name]!r}, "
-        f"the service's {declared[name]!r}"
+        f"parameter {name}: the template gives {given[name]!r}, not of the kind of the "
+        f"service's default {declared[name]!r}"
         for name in given
-        if name in declared and not _same(given[name], declared[name])
+        if name in declared and not _same_kind(given[name], declared[name])
     ]
     return problems
 
@@ -516,9 +523,12 @@ def test_parameters_that_differ():
         WHERE + "parameter gain: given by the template (2.0), unknown to the service "
         "(a worker refuses it)"
     ]
-    default = replace(FUSION, parameters={**FUSION.parameters, "default_sigma": 0.01})
-    assert contract_problems(default) == [
-        WHERE + "parameter default_sigma: the template's default is 0.01, the service's 0.001"
+    other_value = replace(FUSION, parameters={**FUSION.parameters, "default_sigma": 0.01})
+    assert contract_problems(other_value) == []  # a template may tune its instances
+    wrong_kind = replace(FUSION, parameters={**FUSION.parameters, "default_sigma": "0.01"})
+    assert contract_problems(wrong_kind) == [
+        WHERE + "parameter default_sigma: the template gives '0.01', not of the kind of the "
+        "service's default 0.001"
     ]
 
 
