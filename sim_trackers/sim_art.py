@@ -19,10 +19,11 @@ import threading
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.noise import noise_covariance, perturb_in_place
+from sim_trackers.noise import perturb_in_place
 from sim_trackers.runtime import run_periodic
 from sim_trackers.scenario import ArtSettings
 from sim_trackers.world import World
+from ubitrack_agent.core.uncertainty import isotropic_pose_covariance
 from ubitrack_agent.io.dtrack_format import (
     Body6D,
     DTrackFrame,
@@ -41,7 +42,9 @@ class ArtSimulator:
         self.world = world
         self.settings = settings
         self.rng = rng
-        self.covariance = noise_covariance(settings.noise.rotation_deg, settings.noise.position_mm)
+        self.covariance = isotropic_pose_covariance(
+            np.radians(settings.noise.rotation_deg), settings.noise.position_mm / 1000.0
+        )
         self.frame_counter = 0
 
     def _tracked(self) -> bool:

@@ -7,8 +7,9 @@ ART->WT), each configured single-marker id a 3D edge. Per datagram, every tracke
 configured id is published as an :class:`~ubitrack_agent.core.ErrorPose` (millimetres converted
 to metres, the column-wise matrix to a quaternion) whose covariance is the configured noise
 (``sigma_deg`` about the body's origin, ``sigma_mm`` per axis, independent), expressed in the
-middleware's left-perturbation convention (:func:`sim_trackers.noise.in_place_covariance`);
-a body the datagram does not list is simply not published.
+middleware's left-perturbation convention
+(:func:`ubitrack_agent.core.uncertainty.in_place_covariance`); a body the datagram does not
+list is simply not published.
 
 Timestamps: with ``timestamps="ts"`` (the default) the DTrack ``ts`` field (seconds since 00:00
 UTC, the time of the IR flash) is placed on the host's current UTC day, moved by a day when it
@@ -32,8 +33,8 @@ from typing import Literal, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.noise import in_place_covariance, noise_covariance
 from ubitrack_agent.core import ErrorPose, Measurement, Position3D
+from ubitrack_agent.core.uncertainty import in_place_covariance, isotropic_pose_covariance
 from ubitrack_agent.io.dtrack_format import DTrackFormatError, parse_frame, timestamp_from_ts
 from ubitrack_agent.io.provider import EdgeAnnouncement
 
@@ -94,7 +95,7 @@ class DTrackAdapter:
         self.marker_edges = {
             marker_id: f"{tracker}_{name}" for marker_id, name in (markers or {}).items()
         }
-        self.pose_covariance = noise_covariance(sigma_deg, sigma_mm)
+        self.pose_covariance = isotropic_pose_covariance(np.radians(sigma_deg), sigma_mm / 1000.0)
         self.position_covariance = np.eye(3) * (sigma_mm / 1000.0) ** 2
         self.timestamps = timestamps
         self.counters: Counter[str] = Counter()
