@@ -53,9 +53,8 @@ def provider_session(
 ) -> Iterator[Provider]:
     """A zenoh session with one :class:`~ubitrack_agent.io.provider.Provider` announced on it;
     both are closed on exit (the provider first, so the agent replans at once)."""
-    with open_session(settings) as session:
-        provider = Provider(session, KeySpace(settings.key_prefix), provider_id, edges)
-        try:
-            yield provider
-        finally:
-            provider.close()
+    with (
+        open_session(settings) as session,
+        Provider(session, KeySpace(settings.key_prefix), provider_id, edges) as provider,
+    ):
+        yield provider

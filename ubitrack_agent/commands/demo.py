@@ -148,19 +148,21 @@ def run(args: argparse.Namespace) -> int:
                 *config.as_flags(hub),
             ],
         )
-        with open_session(config.member_of(hub)) as session:
-            events: queue.SimpleQueue[tuple[str, float]] = queue.SimpleQueue()
-            watch = session.liveliness().declare_subscriber(
-                keys.provider(scenario.art.provider),
-                lambda s: events.put((str(s.kind), time.time_ns())),
-            )
-            samples: queue.SimpleQueue[tuple[float, Any]] = queue.SimpleQueue()
-            relation = Relation(
+        events: queue.SimpleQueue[tuple[str, float]] = queue.SimpleQueue()
+        samples: queue.SimpleQueue[tuple[float, Any]] = queue.SimpleQueue()
+        with (
+            open_session(config.member_of(hub)) as session,
+            Relation(
                 session,
                 keys,
                 RelationId("C", "A", "6D"),
                 application="demo",
                 callback=lambda m: samples.put((time.time_ns(), m)),
+            ) as relation,
+        ):
+            watch = session.liveliness().declare_subscriber(
+                keys.provider(scenario.art.provider),
+                lambda s: events.put((str(s.kind), time.time_ns())),
             )
             for name in ("sim database", "sim camera"):
                 children.start(name, [*name.split(), *scenario_flag, *member])
@@ -201,7 +203,6 @@ def run(args: argparse.Namespace) -> int:
                     rewired,
                     ("", "DELETE", "PUT")[index],
                 )
-            relation.close()
             watch.undeclare()
     except (TimeoutError, queue.Empty):
         print(
