@@ -103,8 +103,8 @@ def _add(
 
 
 def _run_world(args: argparse.Namespace) -> int:
-    from sim_trackers.runtime import stop_on_signals
     from sim_trackers.truth import TruthServer
+    from ubitrack_agent.commands.signals import stop_on_signals
     from ubitrack_agent.net.keys import KeySpace
     from ubitrack_agent.net.session import open_session
 
@@ -127,7 +127,7 @@ def _run_art(args: argparse.Namespace) -> int:
     import numpy as np
 
     from sim_trackers import sim_art
-    from sim_trackers.runtime import stop_on_signals
+    from ubitrack_agent.commands.signals import stop_on_signals
 
     prog = "ubitrack sim art"
     scenario = load(args, prog)
@@ -149,8 +149,9 @@ def _run_art(args: argparse.Namespace) -> int:
 def _run_camera(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from sim_trackers.runtime import provider_session, run_periodic, stop_on_signals
+    from sim_trackers.runtime import provider_session, run_periodic
     from sim_trackers.sim_camera import CameraSimulator, announcements
+    from ubitrack_agent.commands.signals import stop_on_signals
 
     prog = "ubitrack sim camera"
     if (prepared := prepare(args, prog)) is None:
@@ -177,8 +178,9 @@ def _run_database(args: argparse.Namespace) -> int:
     import time
 
     from sim_trackers.database import dump_edges, load_edges_file, static_edges
-    from sim_trackers.runtime import provider_session, stop_on_signals
+    from sim_trackers.runtime import provider_session
     from sim_trackers.scenario import ScenarioError
+    from ubitrack_agent.commands.signals import stop_on_signals
 
     prog = "ubitrack sim database"
     if (prepared := prepare(args, prog)) is None:
