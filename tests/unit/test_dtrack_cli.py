@@ -52,10 +52,11 @@ def test_mistakes_exit_2_with_the_reason(capsys, flags, message):
     assert message in capsys.readouterr().err
 
 
-def test_the_real_dtrack_path_loads_no_simulator():
+def test_the_real_dtrack_path_and_io_load_no_simulator():
     code = (
-        "import sys, ubitrack_agent.commands.dtrack, ubitrack_agent.io.dtrack.adapter,"
-        " ubitrack_agent.io.adapter;"
+        "import pkgutil, importlib, sys, ubitrack_agent.io, ubitrack_agent.commands.dtrack;"
+        "[importlib.import_module(m.name) for m in"
+        " pkgutil.walk_packages(ubitrack_agent.io.__path__, 'ubitrack_agent.io.')];"
         "print(sorted(m for m in sys.modules if m.startswith('sim_trackers')))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
