@@ -48,6 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--bind",
         default="0.0.0.0",
+        metavar="ADDRESS",
         help="address to listen on: all interfaces, for a controller on the network "
         "(127.0.0.1 for the simulator alone; default: %(default)s)",
     )
@@ -93,18 +94,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--rate",
         type=float,
+        metavar="HZ",
         default=dtrack.DEFAULT_RATE_HZ,
         help="announced frame rate in Hz, for the planner (default: %(default)s)",
     )
     parser.add_argument(
         "--sigma-mm",
         type=float,
+        metavar="MM",
         default=dtrack.DEFAULT_SIGMA_MM,
         help="position noise per axis, mm (default: %(default)s)",
     )
     parser.add_argument(
         "--sigma-deg",
         type=float,
+        metavar="DEG",
         default=dtrack.DEFAULT_SIGMA_DEG,
         help="rotation noise per axis about the body's origin, degrees (default: %(default)s)",
     )
@@ -116,7 +120,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "day, for a synchronised controller (default: %(default)s)",
     )
     parser.add_argument(
-        "--duration", type=float, help="stop after this many seconds (default: run until stopped)"
+        "--duration",
+        type=float,
+        metavar="SECONDS",
+        help="stop after this many seconds (default: run until stopped)",
     )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
