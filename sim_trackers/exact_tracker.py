@@ -51,26 +51,19 @@ def main() -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     cov = np.diag([args.sigma**2] * 6)
     q_wt, t_wt = tracker_pose(args.yaw, args.x)
-    with open_session(settings) as session:
-        provider = Provider(
-            session,
-            KeySpace(settings.key_prefix),
-            args.provider,
-            [
-                EdgeAnnouncement(
-                    args.tracker, "WT", "6D", static=True, name="WT", sigma=args.sigma
-                ),
-                EdgeAnnouncement(
-                    args.tracker, "HT", "6D", name="HT", rate=args.rate, sigma=args.sigma
-                ),
-            ],
-        )
+    edges = [
+        EdgeAnnouncement(args.tracker, "WT", "6D", static=True, name="WT", sigma=args.sigma),
+        EdgeAnnouncement(args.tracker, "HT", "6D", name="HT", rate=args.rate, sigma=args.sigma),
+    ]
+    with (
+        open_session(settings) as session,
+        Provider(session, KeySpace(settings.key_prefix), args.provider, edges) as provider,
+    ):
         provider.publish("WT", ErrorPose(time.time_ns(), q_wt, t_wt, cov))
         while not stop.wait(1.0 / args.rate):
             now = time.time_ns()
             q, t = se3.compose(q_wt, t_wt, *true_wt_ht(now))
             provider.publish("HT", ErrorPose(now, q, t, cov))
-        provider.close()
     return 0
 
 

@@ -1,9 +1,8 @@
-"""Process plumbing shared by the simulators: stop on signals, tick at a fixed rate, run a
-provider on its own zenoh session."""
+"""Process plumbing shared by the simulators: tick at a fixed rate, run a provider on its own
+zenoh session (stopping on signals: :mod:`ubitrack_agent.commands.signals`)."""
 
 from __future__ import annotations
 
-import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -13,14 +12,6 @@ from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
-
-
-def stop_on_signals() -> threading.Event:
-    """An event set by SIGTERM or SIGINT, so a long-running loop can end and clean up."""
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    return stop
 
 
 def run_periodic(
@@ -53,9 +44,8 @@ def provider_session(
 ) -> Iterator[Provider]:
     """A zenoh session with one :class:`~ubitrack_agent.io.provider.Provider` announced on it;
     both are closed on exit (the provider first, so the agent replans at once)."""
-    with open_session(settings) as session:
-        provider = Provider(session, KeySpace(settings.key_prefix), provider_id, edges)
-        try:
-            yield provider
-        finally:
-            provider.close()
+    with (
+        open_session(settings) as session,
+        Provider(session, KeySpace(settings.key_prefix), provider_id, edges) as provider,
+    ):
+        yield provider

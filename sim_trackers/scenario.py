@@ -22,12 +22,14 @@ from scipy.spatial.transform import Rotation
 
 from sim_trackers.trajectories import LissajousPath
 from sim_trackers.world import FixedPlacement, Frame, ImagePlane, Placement, World, WorldError
+from ubitrack_agent.io.static_edges import VALUE_TYPES
 from ubitrack_agent.net.keys import validate_key_chunks
 
 DEFAULT_SCENARIO = Path(__file__).with_name("scenarios") / "paper_figure1.yaml"
 
-EDGE_TYPES = ("6D", "3D", "3x4", "intrinsics")
-"""Edge types the calibration database can derive from the world."""
+EDGE_TYPES = tuple(VALUE_TYPES)
+"""Edge types the calibration database can derive from the world: those of a static-edges
+file."""
 
 
 class ScenarioError(ValueError):

@@ -5,7 +5,7 @@ noise (rotation about each body's origin and position noise, as an outside-in tr
 behave: :func:`sim_trackers.noise.perturb_in_place`), drops each body with probability
 ``art.dropout`` (an untracked body is omitted from the ``6d`` line, as DTrack does, while
 ``6dcal`` still counts it) and sends ``fr``/``ts``/``6dcal``/``6d``/``3d`` lines
-(:mod:`ubitrack_agent.io.dtrack_format`). ``ts`` is the sample time in seconds since 00:00 UTC
+(:mod:`ubitrack_agent.io.dtrack.format`). ``ts`` is the sample time in seconds since 00:00 UTC
 with microseconds, so sample times are whole microseconds: the DTrack adapter maps ``ts`` back
 to exactly the nanosecond timestamp the ground truth was evaluated at.
 """
@@ -19,11 +19,12 @@ import threading
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.noise import noise_covariance, perturb_in_place
+from sim_trackers.noise import perturb_in_place
 from sim_trackers.runtime import run_periodic
 from sim_trackers.scenario import ArtSettings
 from sim_trackers.world import World
-from ubitrack_agent.io.dtrack_format import (
+from ubitrack_agent.core.uncertainty import isotropic_pose_covariance
+from ubitrack_agent.io.dtrack.format import (
     Body6D,
     DTrackFrame,
     Marker3D,
@@ -41,7 +42,9 @@ class ArtSimulator:
         self.world = world
         self.settings = settings
         self.rng = rng
-        self.covariance = noise_covariance(settings.noise.rotation_deg, settings.noise.position_mm)
+        self.covariance = isotropic_pose_covariance(
+            np.radians(settings.noise.rotation_deg), settings.noise.position_mm / 1000.0
+        )
         self.frame_counter = 0
 
     def _tracked(self) -> bool:

@@ -40,40 +40,63 @@ def test_provider_announces_serves_fragment_and_latest_values():
         watcher = hub.liveliness().declare_subscriber(
             f"{keys.root}/provider/**", lambda s: events.append((str(s.kind), str(s.key_expr)))
         )
-        provider = Provider(
-            sensor,
-            keys,
-            "art1",
-            [
-                EdgeAnnouncement("ART", "HT", "6D", rate=60.0, sigma=0.0005),
-                EdgeAnnouncement("ART", "WT", "6D", static=True),
-            ],
-        )
-        wait_until(lambda: ("SampleKind.PUT", keys.provider("art1")) in events)
-        replies = fetch_latest(hub, keys.fragment("art1"))
-        fragment = json.loads(replies[0])
-        assert fragment["provider"] == "art1"
-        assert fragment["edges"][0] == {
-            "name": "ART_HT",
-            "from": "ART",
-            "to": "HT",
-            "type": "6D",
-            "static": False,
-            "mode": "push",
-            "sigma": 0.0005,
-            "rate": 60.0,
-        }
-        assert fetch_latest(hub, keys.measured("art1", "ART_WT")) == []
-        provider.publish("ART_WT", pose(1, 2.0))
-        latest = wait_until(lambda: fetch_latest(hub, keys.measured("art1", "ART_WT")))
-        assert decode(latest[0]) == pose(1, 2.0)
-        with pytest.raises(TypeError, match="is 6D"):
-            provider.publish("ART_HT", Position3D(1, [0, 0, 0]))
-        with pytest.raises(KeyError):
-            provider.publish("nope", pose(1, 0))
-        provider.close()
+        edges = [
+            EdgeAnnouncement("ART", "HT", "6D", rate=60.0, sigma=0.0005),
+            EdgeAnnouncement("ART", "WT", "6D", static=True),
+        ]
+        with Provider(sensor, keys, "art1", edges) as provider:
+            wait_until(lambda: ("SampleKind.PUT", keys.provider("art1")) in events)
+            replies = fetch_latest(hub, keys.fragment("art1"))
+            fragment = json.loads(replies[0])
+            assert fragment["provider"] == "art1"
+            assert fragment["edges"][0] == {
+                "name": "ART_HT",
+                "from": "ART",
+                "to": "HT",
+                "type": "6D",
+                "static": False,
+                "mode": "push",
+                "sigma": 0.0005,
+                "rate": 60.0,
+            }
+            assert fetch_latest(hub, keys.measured("art1", "ART_WT")) == []
+            provider.publish("ART_WT", pose(1, 2.0))
+            latest = wait_until(lambda: fetch_latest(hub, keys.measured("art1", "ART_WT")))
+            assert decode(latest[0]) == pose(1, 2.0)
+            with pytest.raises(TypeError, match="is 6D"):
+                provider.publish("ART_HT", Position3D(1, [0, 0, 0]))
+            with pytest.raises(KeyError):
+                provider.publish("nope", pose(1, 0))
         wait_until(lambda: ("SampleKind.DELETE", keys.provider("art1")) in events)
+        assert fetch_latest(hub, keys.fragment("art1"), timeout=0.2) == []
         watcher.undeclare()
+
+
+def test_leaving_the_with_block_undeclares_provider_and_relation_even_on_error():
+    port = free_port()
+    keys = KeySpace(f"ubitrack/w{port}")
+    wanted = RelationId("C", "A", "6D")
+    with hub_session(port) as agent_side, member(port) as client:
+
+        def alive() -> set[str]:
+            return {
+                str(reply.ok.key_expr)
+                for reply in agent_side.liveliness().get(f"{keys.root}/**", timeout=0.5)
+            }
+
+        with (
+            pytest.raises(RuntimeError, match="sensor failed"),
+            Provider(client, keys, "cam1", [EdgeAnnouncement("C", "F1", "3D")]) as provider,
+        ):
+            assert wait_until(alive) == {keys.provider("cam1")}
+            raise RuntimeError("sensor failed")
+        wait_until(lambda: keys.provider("cam1") not in alive())
+        provider.close()  # a second close does nothing
+
+        with Relation(client, keys, wanted, application="app2") as relation:
+            assert wait_until(alive) == {keys.query(wanted, "app2")}
+        wait_until(lambda: not alive())
+        relation.close()
 
 
 def test_bad_announcements_are_refused():
@@ -97,33 +120,36 @@ def test_relation_announces_query_and_delivers_samples():
             f"{keys.root}/query/**", lambda s: queries.append(str(s.key_expr))
         )
         seen = []
-        relation = Relation(app_side, keys, wanted, application="app1", callback=seen.append)
-        wait_until(lambda: queries)
-        assert keys.parse_query(queries[0]) == (wanted, "app1")
-        with pytest.raises(NoDataError):
-            relation.lookup(0)
-        with pytest.raises(TimeoutError):
-            relation.wait_for(timeout=0.05)
-        publisher = agent_side.declare_publisher(keys.relation(wanted))
-        wait_until(lambda: publisher.matching_status.matching)
-        waiter = threading.Thread(target=lambda: seen.append(("waited", relation.wait_for(5))))
-        waiter.start()
-        for t in (0, 10, 20):
-            publisher.put(encode(pose(t, t / 10)))
-        publisher.put(b"not a pose")
-        publisher.put(encode(Position3D(30 * MS, [0, 0, 0])))  # wrong type for a 6D relation
-        waiter.join(5)
-        assert relation.get(timeout=5) == pose(0, 0.0)
-        assert relation.get(timeout=5) == pose(10, 1.0)
-        wait_until(lambda: relation.rejected == 2)
-        assert relation.received == 3
-        assert relation.latest() == pose(20, 2.0)
-        np.testing.assert_allclose(relation.lookup(15 * MS).translation, [1.5, 0, 0])
-        with pytest.raises(ExtrapolationError):
-            relation.lookup(25 * MS)
-        assert [s for s in seen if isinstance(s, Pose)] == [pose(0, 0), pose(10, 1), pose(20, 2)]
-        assert any(isinstance(s, tuple) and s[0] == "waited" for s in seen)
-        relation.close()
+        with Relation(app_side, keys, wanted, application="app1", callback=seen.append) as relation:
+            wait_until(lambda: queries)
+            assert keys.parse_query(queries[0]) == (wanted, "app1")
+            with pytest.raises(NoDataError):
+                relation.lookup(0)
+            with pytest.raises(TimeoutError):
+                relation.wait_for(timeout=0.05)
+            publisher = agent_side.declare_publisher(keys.relation(wanted))
+            wait_until(lambda: publisher.matching_status.matching)
+            waiter = threading.Thread(target=lambda: seen.append(("waited", relation.wait_for(5))))
+            waiter.start()
+            for t in (0, 10, 20):
+                publisher.put(encode(pose(t, t / 10)))
+            publisher.put(b"not a pose")
+            publisher.put(encode(Position3D(30 * MS, [0, 0, 0])))  # wrong type for a 6D relation
+            waiter.join(5)
+            assert relation.get(timeout=5) == pose(0, 0.0)
+            assert relation.get(timeout=5) == pose(10, 1.0)
+            wait_until(lambda: relation.rejected == 2)
+            assert relation.received == 3
+            assert relation.latest() == pose(20, 2.0)
+            np.testing.assert_allclose(relation.lookup(15 * MS).translation, [1.5, 0, 0])
+            with pytest.raises(ExtrapolationError):
+                relation.lookup(25 * MS)
+            assert [s for s in seen if isinstance(s, Pose)] == [
+                pose(0, 0),
+                pose(10, 1),
+                pose(20, 2),
+            ]
+            assert any(isinstance(s, tuple) and s[0] == "waited" for s in seen)
         watcher.undeclare()
 
 
@@ -136,8 +162,7 @@ def test_relation_gets_a_static_value_published_before_it_started():
     with hub_session(port) as agent_side, member(port) as app_side:
         publisher = LatestValuePublisher(agent_side, keys.relation(calibration))
         publisher.put(encode(pose(5, 0.25)))
-        relation = Relation(app_side, keys, calibration)
-        assert wait_until(relation.latest) == pose(5, 0.25)
-        assert relation.lookup(10**15).timestamp_ns == 10**15  # static: valid at any time
-        relation.close()
+        with Relation(app_side, keys, calibration) as relation:
+            assert wait_until(relation.latest) == pose(5, 0.25)
+            assert relation.lookup(10**15).timestamp_ns == 10**15  # static: valid at any time
         publisher.undeclare()

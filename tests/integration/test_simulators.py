@@ -25,6 +25,7 @@ from tests.integration.zenoh_helpers import (
     member_flags,
     wait_until,
 )
+from ubitrack_agent.commands.demo import dtrack_flags
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, Projection, decode
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.transport import fetch_latest
@@ -71,7 +72,9 @@ def test_sim_art_through_the_dtrack_adapter_matches_ground_truth(processes):
     keys = KeySpace(f"ubitrack/{domain}")
     with hub_session(port) as hub:
         moving = Collector(hub, keys.measured("ART", "ART_HT"))
-        adapter = start(processes, "dtrack", "--port", str(udp), *member_flags(port, domain))
+        adapter = start(
+            processes, "dtrack", *dtrack_flags(SCENARIO.art, udp), *member_flags(port, domain)
+        )
         wait_until(lambda: fetch_latest(hub, keys.fragment("ART"), timeout=0.2))
         fragment = json.loads(fetch_latest(hub, keys.fragment("ART"))[0])
         assert {(e["name"], e["static"]) for e in fragment["edges"]} == {
@@ -97,7 +100,7 @@ def test_sim_art_through_the_dtrack_adapter_matches_ground_truth(processes):
         assert np.linalg.norm(static.translation - WORLD.pose("ART", "WT", 0)[1]) < 0.003
         stop_cleanly(tracker)
         log = stop_cleanly(adapter)
-        assert "'malformed': 1" in log
+        assert "'rejected': 1" in log
         moving.subscriber.undeclare()
 
 

@@ -1,16 +1,15 @@
-"""Simulated camera measurements and the calibration database's edges and files."""
+"""Simulated camera measurements and the calibration database's edges (its file format:
+``test_static_edges.py``)."""
 
 from __future__ import annotations
 
 import dataclasses
-import re
 
 import numpy as np
 import pytest
-import yaml
 
-from sim_trackers.database import dump_edges, load_edges_file, static_edges
-from sim_trackers.scenario import DatabaseEdge, ScenarioError, load_scenario
+from sim_trackers.database import static_edges
+from sim_trackers.scenario import DatabaseEdge, load_scenario
 from sim_trackers.sim_camera import CameraSimulator, announcements
 from ubitrack_agent.core import CameraIntrinsics, Pose, Position3D, Projection
 
@@ -65,43 +64,3 @@ def test_database_values_are_the_world_truth():
     assert intrinsics.announcement.name == "C_IP_intrinsics"
     assert isinstance(intrinsics.value, CameraIntrinsics)
     assert intrinsics.value.image_size == (640, 480)
-
-
-def test_edges_file_round_trip(tmp_path):
-    edges = static_edges(
-        WORLD, (*SCENARIO.database_edges, DatabaseEdge("C", "IP", "intrinsics")), T0
-    )
-    path = tmp_path / "edges.yaml"
-    path.write_text(dump_edges("calib", edges), encoding="utf-8")
-    provider, loaded = load_edges_file(path, T0)
-    assert provider == "calib"
-    assert [e.announcement for e in loaded] == [e.announcement for e in edges]
-    assert [e.value for e in loaded] == [e.value for e in edges]
-
-
-@pytest.mark.parametrize(
-    ("entry", "message"),
-    [
-        ({"from": "C", "to": "HT", "type": "9D"}, "edges[0].type: must be one of"),
-        ({"from": "C", "to": "HT", "type": "6D", "rotation": [0, 0, 0, 1]}, "missing field"),
-        (
-            {
-                "from": "C",
-                "to": "HT",
-                "type": "6D",
-                "rotation": [0, 0, 0, 2],
-                "translation": [0] * 3,
-            },
-            "Pose.rotation: not a unit quaternion",
-        ),
-        ({"from": "W", "to": "F", "type": "3D", "position": [1, 2], "x": 1}, "unknown field"),
-        ({"from": "W", "to": "F", "type": "3D", "position": [1, 2]}, "Position3D.position: shape"),
-        ({"from": "W/x", "to": "F", "type": "3D", "position": [1, 2, 3]}, "edges[0].from: not a"),
-        ("C->HT", "edges[0]: must be a mapping with a type"),
-    ],
-)
-def test_edges_file_mistakes_name_file_and_field(tmp_path, entry, message):
-    path = tmp_path / "edges.yaml"
-    path.write_text(yaml.safe_dump({"provider": "db", "edges": [entry]}), encoding="utf-8")
-    with pytest.raises(ScenarioError, match=re.escape(str(path)) + ".*" + re.escape(message)):
-        load_edges_file(path, T0)

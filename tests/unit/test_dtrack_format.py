@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ubitrack_agent.io.dtrack_format import (
+from ubitrack_agent.io.dtrack.format import (
     Body6D,
     DTrackFormatError,
     DTrackFrame,

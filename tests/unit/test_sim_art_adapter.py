@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
+import re
 
 import numpy as np
 import pytest
@@ -11,8 +13,8 @@ from scipy.spatial.transform import RigidTransform, Rotation
 from sim_trackers.scenario import load_scenario
 from sim_trackers.sim_art import ArtSimulator
 from ubitrack_agent.core import ErrorPose, Position3D
-from ubitrack_agent.io.dtrack_adapter import DTrackAdapter, announcements
-from ubitrack_agent.io.dtrack_format import (
+from ubitrack_agent.io.dtrack.adapter import DTrackAdapter
+from ubitrack_agent.io.dtrack.format import (
     DAY_NS,
     encode_frame,
     parse_frame,
@@ -32,18 +34,18 @@ class Recorder:
         self.published.append((edge_name, measurement))
 
 
-def _adapter(art, **kwargs) -> tuple[DTrackAdapter, Recorder]:
-    recorder = Recorder()
+def _adapter(art, timestamps="device") -> tuple[DTrackAdapter, Recorder]:
     adapter = DTrackAdapter(
-        recorder,
         art.frame,
         art.bodies,
+        art.static_bodies,
         art.markers,
         sigma_mm=art.noise.position_mm,
         sigma_deg=art.noise.rotation_deg,
-        **kwargs,
+        rate=art.rate,
+        timestamps=timestamps,
     )
-    return adapter, recorder
+    return adapter, Recorder()
 
 
 def test_round_trip_through_dtrack_matches_ground_truth_within_noise():
@@ -53,7 +55,7 @@ def test_round_trip_through_dtrack_matches_ground_truth_within_noise():
     errors_mm, errors_deg, mahalanobis = [], [], []
     for i in range(300):
         t = T0 + i * 16_667_000
-        adapter.handle(encode_frame(simulator.frame(t)), received_ns=t + 2_000_000)
+        adapter.handle(encode_frame(simulator.frame(t)), t + 2_000_000, recorder)
         assert [name for name, _ in recorder.published[-2:]] == ["ART_WT", "ART_HT"]
         for name, pose in recorder.published[-2:]:
             assert isinstance(pose, ErrorPose) and pose.timestamp_ns == t
@@ -75,7 +77,8 @@ def test_round_trip_through_dtrack_matches_ground_truth_within_noise():
     assert np.std(errors_deg, axis=0) == pytest.approx([0.05] * 3, rel=0.15)
     assert np.abs(np.mean(errors_mm, axis=0)).max() < 0.05
     assert np.mean(mahalanobis) == pytest.approx(6.0, rel=0.15)
-    assert adapter.counters["malformed"] == 0
+    assert adapter.counters["rejected"] == 0
+    assert adapter.counters["published"] == 600 == 2 * adapter.counters["received"]
 
 
 def test_dropped_bodies_are_omitted_but_still_calibrated():
@@ -85,7 +88,7 @@ def test_dropped_bodies_are_omitted_but_still_calibrated():
     )
     assert frame.bodies == () and frame.calibrated_bodies == 2
     adapter, recorder = _adapter(art)
-    adapter.handle(encode_frame(frame), T0)
+    adapter.handle(encode_frame(frame), T0, recorder)
     assert recorder.published == []
 
 
@@ -93,38 +96,63 @@ def test_markers_become_3d_edges():
     art = dataclasses.replace(SCENARIO.art, dropout=0.0, markers={3: "F1"})
     simulator = ArtSimulator(SCENARIO.world, art, np.random.default_rng(2))
     adapter, recorder = _adapter(art)
-    adapter.handle(encode_frame(simulator.frame(T0)), T0)
+    adapter.handle(encode_frame(simulator.frame(T0)), T0, recorder)
     name, position = recorder.published[-1]
     assert name == "ART_F1" and isinstance(position, Position3D)
     truth = SCENARIO.world.pose("ART", "F1", T0)[1]
     assert np.linalg.norm(position.position - truth) < 0.003
-    edges = announcements("ART", art.bodies, art.static_bodies, art.markers, 60.0, 0.0003)
-    assert [(e.name, e.type, e.static) for e in edges] == [
-        ("ART_WT", "6D", True),
-        ("ART_HT", "6D", False),
-        ("ART_F1", "3D", False),
+    assert [(e.name, e.type, e.static, e.rate, e.sigma) for e in adapter.edges] == [
+        ("ART_WT", "6D", True, None, 0.0003),
+        ("ART_HT", "6D", False, 60.0, 0.0003),
+        ("ART_F1", "3D", False, 60.0, 0.0003),
     ]
 
 
-def test_bad_datagrams_and_unknown_ids_are_counted_not_fatal():
+def test_bad_datagrams_and_unmapped_ids_are_counted_not_fatal(caplog):
+    caplog.set_level(logging.INFO, logger="ubitrack.adapter")
     adapter, recorder = _adapter(SCENARIO.art)
-    adapter.handle(b"garbage", T0)
-    adapter.handle(b"fr 1\n6d 1 [0 1.0][1 2 3 0 0 0][1 0 0 0 1 0 0 0]", T0)
-    adapter.handle(b"fr 2\n6d 1 [9 1.000][1 2 3 0 0 0][1 0 0 0 1 0 0 0 1]\n", T0)
-    adapter.handle(b"fr 3\n6d 1 [1 -1.000][0 0 0 0 0 0][1 0 0 0 1 0 0 0 1]\n", T0)
-    assert adapter.counters["malformed"] == 2
-    assert adapter.counters["unknown_body_9"] == 1
-    assert adapter.counters["datagrams"] == 4 and recorder.published == []
+    for datagram in (
+        b"garbage",
+        b"fr 1\n6d 1 [0 1.0][1 2 3 0 0 0][1 0 0 0 1 0 0 0]",
+        b"fr 2\n6d 1 [9 1.000][1 2 3 0 0 0][1 0 0 0 1 0 0 0 1]\n",
+        b"fr 3\n6d 1 [9 1.000][1 2 3 0 0 0][1 0 0 0 1 0 0 0 1]\n",
+        b"fr 4\n6d 1 [1 -1.000][0 0 0 0 0 0][1 0 0 0 1 0 0 0 1]\n",
+    ):
+        adapter.handle(datagram, T0, recorder)
+    assert adapter.counters == {"received": 5, "rejected": 2, "unmapped_body_9": 2}
+    assert recorder.published == []
+    assert "DTrack: rejected input (2 so far): malformed datagram: 6d body 0 matrix" in caplog.text
+    assert caplog.text.count("body id 9 is not mapped") == 1  # logged once, counted always
 
 
 def test_receive_time_policy_and_missing_ts():
     adapter, recorder = _adapter(SCENARIO.art, timestamps="receive")
-    adapter.handle(b"fr 1\nts 10.0\n6d 1 [1 1.000][1000 0 0 0 0 0][1 0 0 0 1 0 0 0 1]\n", T0)
+    adapter.handle(
+        b"fr 1\nts 10.0\n6d 1 [1 1.000][1000 0 0 0 0 0][1 0 0 0 1 0 0 0 1]\n", T0, recorder
+    )
     assert recorder.published[-1][1].timestamp_ns == T0
     np.testing.assert_array_equal(recorder.published[-1][1].translation, [1.0, 0.0, 0.0])
-    adapter, recorder = _adapter(SCENARIO.art)
-    adapter.handle(b"fr 1\n6d 1 [1 1.000][1000 0 0 0 0 0][1 0 0 0 1 0 0 0 1]\n", T0)
+    adapter, recorder = _adapter(SCENARIO.art, timestamps="device")
+    adapter.handle(b"fr 1\n6d 1 [1 1.000][1000 0 0 0 0 0][1 0 0 0 1 0 0 0 1]\n", T0, recorder)
     assert recorder.published[-1][1].timestamp_ns == T0
+
+
+@pytest.mark.parametrize(
+    ("mapping", "message"),
+    [
+        ({"bodies": {}}, "no DTrack body or marker is mapped"),
+        ({"bodies": {-1: "HT"}}, "body ids count from 0 and marker ids from 1"),
+        ({"bodies": {0: "HT"}, "markers": {0: "F1"}}, "body ids count from 0 and marker ids"),
+        ({"bodies": {0: "HT"}, "static_bodies": ("WT",)}, "static body 'WT' is not a mapped"),
+        ({"bodies": {0: "HT", 1: "HT"}}, "two edges would be named 'ART_HT'"),
+        ({"bodies": {0: "H/T"}}, "H/T"),
+        ({"bodies": {0: "HT"}, "sigma_mm": -1.0}, "noise sigmas must be >= 0"),
+        ({"bodies": {0: "HT"}, "timestamps": "ts"}, "timestamp policy 'ts' is not one of"),
+    ],
+)
+def test_inconsistent_mappings_are_refused(mapping, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        DTrackAdapter("ART", **mapping)
 
 
 @pytest.mark.parametrize(

@@ -151,3 +151,28 @@ def test_interpolate_pose_blends_and_refuses_to_extrapolate():
     )
     with pytest.raises(ExtrapolationError):
         interpolate_pose(a, b, 2_001)
+
+
+def test_isotropic_pose_covariance_puts_rotation_first():
+    covariance = uncertainty.isotropic_pose_covariance(np.radians(0.05), 0.0003)
+    np.testing.assert_allclose(
+        np.diag(covariance), [np.radians(0.05) ** 2] * 3 + [0.0003**2] * 3, rtol=1e-15
+    )
+    assert np.count_nonzero(covariance - np.diag(np.diag(covariance))) == 0
+
+
+@pytest.mark.parametrize("lever_arm", [0.0, 3.0])
+def test_in_place_covariance_matches_monte_carlo(lever_arm):
+    """Noise about the body's own origin (as an outside-in tracker's), seen on the left."""
+    rng = np.random.default_rng(18)
+    q, t = mean_transform(rng, lever_arm)
+    cov = uncertainty.isotropic_pose_covariance(np.radians(0.5), 0.0005)
+    phi, rho = np.split(rng.multivariate_normal(np.zeros(6), cov, size=N_SAMPLES), 2, axis=1)
+    samples = RigidTransform.from_components(
+        t + rho, Rotation.from_rotvec(phi) * Rotation.from_quat(q)
+    )
+    sampled = tangent_covariance(samples, to_scipy(q, t))
+    predicted = uncertainty.in_place_covariance(t, np.cov(np.hstack([phi, rho]), rowvar=False))
+    assert relative_error(predicted, sampled) < 0.01
+    if lever_arm:  # at a 3 m lever arm the left covariance is not the in-place one
+        assert relative_error(cov, sampled) > 0.5

@@ -1,8 +1,9 @@
 """``ubitrack demo``: the paper's figure-1 setup, live, on an embedded zenoh network.
 
 Starts the agent (the zenoh hub: peer mode on loopback, no router), the calibration database,
-the simulated HMD camera, the simulated A.R.T. tracker with its DTrack adapter, all as separate
-processes, then acts as an application asking for ``C -> A`` (camera to augmentation, 6D).
+the simulated HMD camera, the simulated A.R.T. tracker with its DTrack adapter (given the
+scenario's ``art`` section as flags: :func:`dtrack_flags`), all as separate processes, then
+acts as an application asking for ``C -> A`` (camera to augmentation, 6D).
 Once a second it prints the pose it receives, its rate, its latency and its error against the
 scenario's ground truth. Three phases: both trackers (the agent builds the data flow of the
 paper's figure 6: 2D-3D pose estimation fused with the A.R.T. path); the A.R.T. tracker
@@ -22,11 +23,14 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ubitrack_agent.net import config
+
+if TYPE_CHECKING:
+    from sim_trackers.scenario import ArtSettings
 
 PHASES = ("fused", "camera only", "fused again")
 
@@ -104,6 +108,26 @@ class Processes:
         self.stop(*reversed(list(self.running)))
 
 
+def dtrack_flags(art: ArtSettings, port: int) -> list[str]:
+    """The ``ubitrack dtrack`` flags that read ``ubitrack sim art`` of a scenario whose
+    ``art`` section is ``art``, sending to ``127.0.0.1:port``: its provider, tracker frame,
+    rate, body and marker mapping, static bodies and noise, and DTrack's ``ts`` timestamps
+    (the simulator's clock is this host's)."""
+    flags = [
+        *("--bind", "127.0.0.1", "--port", str(port)),
+        *("--provider", art.provider, "--tracker-frame", art.frame, "--rate", str(art.rate)),
+        *("--sigma-mm", str(art.noise.position_mm), "--sigma-deg", str(art.noise.rotation_deg)),
+        *("--timestamps", "device"),
+    ]
+    for body_id, frame in art.bodies.items():
+        flags += ["--body", f"{body_id}={frame}"]
+    for frame in art.static_bodies:
+        flags += ["--static", frame]
+    for marker_id, frame in art.markers.items():
+        flags += ["--marker", f"{marker_id}={frame}"]
+    return flags
+
+
 def _free_udp_port() -> int:
     import socket
 
@@ -130,10 +154,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     member = config.member_flags(hub)
     scenario_flag = ["--scenario", args.scenario] if args.scenario else []
-    art_port = str(args.art_port or _free_udp_port())
+    art_port = args.art_port or _free_udp_port()
     art = {
-        "dtrack": ["dtrack", "--port", art_port, *scenario_flag, *member],
-        "sim art": ["sim", "art", "--port", art_port, *scenario_flag],
+        "dtrack": ["dtrack", *dtrack_flags(scenario.art, art_port), *member],
+        "sim art": ["sim", "art", "--port", str(art_port), *scenario_flag],
     }
     keys = KeySpace(hub.key_prefix)
     say = _printer(args.json)
@@ -148,19 +172,21 @@ def run(args: argparse.Namespace) -> int:
                 *config.as_flags(hub),
             ],
         )
-        with open_session(config.member_of(hub)) as session:
-            events: queue.SimpleQueue[tuple[str, float]] = queue.SimpleQueue()
-            watch = session.liveliness().declare_subscriber(
-                keys.provider(scenario.art.provider),
-                lambda s: events.put((str(s.kind), time.time_ns())),
-            )
-            samples: queue.SimpleQueue[tuple[float, Any]] = queue.SimpleQueue()
-            relation = Relation(
+        events: queue.SimpleQueue[tuple[str, float]] = queue.SimpleQueue()
+        samples: queue.SimpleQueue[tuple[float, Any]] = queue.SimpleQueue()
+        with (
+            open_session(config.member_of(hub)) as session,
+            Relation(
                 session,
                 keys,
                 RelationId("C", "A", "6D"),
                 application="demo",
                 callback=lambda m: samples.put((time.time_ns(), m)),
+            ) as relation,
+        ):
+            watch = session.liveliness().declare_subscriber(
+                keys.provider(scenario.art.provider),
+                lambda s: events.put((str(s.kind), time.time_ns())),
             )
             for name in ("sim database", "sim camera"):
                 children.start(name, [*name.split(), *scenario_flag, *member])
@@ -201,7 +227,6 @@ def run(args: argparse.Namespace) -> int:
                     rewired,
                     ("", "DELETE", "PUT")[index],
                 )
-            relation.close()
             watch.undeclare()
     except (TimeoutError, queue.Empty):
         print(

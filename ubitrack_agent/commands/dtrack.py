@@ -1,10 +1,22 @@
 """``ubitrack dtrack``: A.R.T. DTrack2 ASCII UDP in, SRG edges on zenoh out.
 
-Listens for DTrack datagrams (from ``ubitrack sim art`` or a real A.R.T. controller whose
-output is sent to this host and port) and publishes each configured body as a 6D edge
-``<tracker> -> <frame>`` of provider ``--provider`` (see ``docs/simulators.md``). Body and
-marker ids map to frames through the scenario's ``art`` section unless ``--body``/``--marker``
-are given. Runs until SIGINT/SIGTERM or ``--duration`` seconds.
+Listens for the datagrams of a real A.R.T. controller (in DTrack, Settings -> Output: send
+fr, ts, 6dcal, 6d and, for single markers, 3d to this host and port) or of ``ubitrack sim
+art``, and publishes each mapped body as a 6D edge TRACKER -> FRAME and each mapped single
+marker as a 3D edge, under provider PROVIDER (docs/simulators.md). Map every body you need
+with --body ID=FRAME, using the ids of DTrack's 6d output (from 0), and every single marker
+with --marker ID=FRAME (ids from 1); at least one is required, and unmapped ids are ignored
+and counted. Mark bodies fixed in the room with --static FRAME.
+
+The covariance published with each pose is the noise given by --sigma-mm and --sigma-deg
+(per axis, rotation about the body's origin); the defaults are a conservative guess for a
+calibrated room-size system, not a manufacturer's figure: measure yours. Timestamps are the
+receive time unless --timestamps device, which uses DTrack's ts line and needs the
+controller's clock synchronised with this host's (NTP or PTP).
+
+Example, the paper's figure-1 setup: ubitrack dtrack --body 0=WT --body 1=HT --static WT.
+Runs until SIGINT/SIGTERM or --duration seconds, then logs its counters and exits 0; a bad
+option exits 2 with the reason.
 """
 
 from __future__ import annotations
@@ -13,7 +25,8 @@ import argparse
 import logging
 import sys
 
-from ubitrack_agent.commands.sim import add_common_arguments, prepare
+from ubitrack_agent.io.dtrack import adapter as dtrack
+from ubitrack_agent.net import config
 
 log = logging.getLogger("ubitrack.dtrack")
 
@@ -34,79 +47,141 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--bind",
-        default="127.0.0.1",
-        help="address to listen on (0.0.0.0 for "
-        "a real controller on the network; default: %(default)s)",
+        default="0.0.0.0",
+        metavar="ADDRESS",
+        help="address to listen on: all interfaces, for a controller on the network "
+        "(127.0.0.1 for the simulator alone; default: %(default)s)",
     )
-    parser.add_argument("--port", type=int, help="UDP port (default: scenario art.port)")
-    parser.add_argument("--provider", help="provider id (default: scenario art.provider)")
-    parser.add_argument("--tracker-frame", help="tracker frame (default: scenario art.frame)")
+    parser.add_argument(
+        "--port",
+        type=int,
+        default=dtrack.DEFAULT_PORT,
+        help="UDP port DTrack sends to (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--provider",
+        default="ART",
+        help="provider id, one per A.R.T. system (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--tracker-frame",
+        default=dtrack.DEFAULT_TRACKER_FRAME,
+        help="the tracker's frame, source of every edge (default: %(default)s)",
+    )
     parser.add_argument(
         "--body",
         type=_id_frame,
         action="append",
+        default=[],
         metavar="ID=FRAME",
-        help="map a body id to a frame (repeatable; replaces the scenario's)",
+        help="map a DTrack body id (from 0) to a frame (repeatable)",
     )
     parser.add_argument(
         "--static",
         action="append",
+        default=[],
         metavar="FRAME",
-        help="announce this body's edge as static (repeatable)",
+        help="announce this body's edge as static: fixed in the room (repeatable)",
     )
     parser.add_argument(
         "--marker",
         type=_id_frame,
         action="append",
+        default=[],
         metavar="ID=FRAME",
-        help="map a single-marker id to a frame (repeatable)",
+        help="map a DTrack single-marker id (from 1) to a frame (repeatable)",
     )
-    parser.add_argument("--sigma-mm", type=float, help="position noise per axis, mm")
-    parser.add_argument("--sigma-deg", type=float, help="rotation noise per axis, degrees")
+    parser.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        default=dtrack.DEFAULT_RATE_HZ,
+        help="announced frame rate in Hz, for the planner (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--sigma-mm",
+        type=float,
+        metavar="MM",
+        default=dtrack.DEFAULT_SIGMA_MM,
+        help="position noise per axis, mm (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--sigma-deg",
+        type=float,
+        metavar="DEG",
+        default=dtrack.DEFAULT_SIGMA_DEG,
+        help="rotation noise per axis about the body's origin, degrees (default: %(default)s)",
+    )
     parser.add_argument(
         "--timestamps",
-        choices=("ts", "receive"),
-        default="ts",
-        help="ts: DTrack's ts field on the host's UTC day; receive: the "
-        "receive time (default: %(default)s)",
+        choices=("receive", "device"),
+        default="receive",
+        help="receive: this host's receive time; device: DTrack's ts line on this host's UTC "
+        "day, for a synchronised controller (default: %(default)s)",
     )
-    add_common_arguments(parser)
+    parser.add_argument(
+        "--duration",
+        type=float,
+        metavar="SECONDS",
+        help="stop after this many seconds (default: run until stopped)",
+    )
+    config.add_arguments(parser)
     parser.set_defaults(func=run)
 
 
+def _id_map(pairs: list[tuple[int, str]], option: str) -> dict[int, str]:
+    """``pairs`` as a mapping; ``ValueError`` if an id is given twice."""
+    mapping: dict[int, str] = {}
+    for ident, frame in pairs:
+        if ident in mapping:
+            raise ValueError(f"{option} {ident} is given twice ({mapping[ident]}, {frame})")
+        mapping[ident] = frame
+    return mapping
+
+
 def run(args: argparse.Namespace) -> int:
-    from sim_trackers.runtime import provider_session, stop_on_signals
-    from ubitrack_agent.io import dtrack_adapter
+    from ubitrack_agent.commands.signals import stop_on_signals
+    from ubitrack_agent.io.adapter import open_udp_socket, serve_udp
+    from ubitrack_agent.io.provider import Provider
+    from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+    from ubitrack_agent.net.session import open_session
 
     prog = "ubitrack dtrack"
-    if (prepared := prepare(args, prog)) is None:
-        return 2
-    scenario, settings = prepared
-    art = scenario.art
-    bodies = dict(args.body) if args.body else art.bodies
-    markers = dict(args.marker) if args.marker else art.markers
-    static = tuple(args.static) if args.static is not None else art.static_bodies
-    sigma_mm = art.noise.position_mm if args.sigma_mm is None else args.sigma_mm
-    sigma_deg = art.noise.rotation_deg if args.sigma_deg is None else args.sigma_deg
-    tracker = args.tracker_frame or art.frame
-    port = art.port if args.port is None else args.port
-    try:
-        edges = dtrack_adapter.announcements(
-            tracker, bodies, static, markers, art.rate, sigma_mm / 1000.0
+    if not args.body and not args.marker:
+        print(
+            f"{prog}: no DTrack body mapped to a frame: give --body ID=FRAME for each body "
+            "(ids as in DTrack's 6d output, from 0), e.g. --body 0=WT --body 1=HT, "
+            "or --marker ID=FRAME for single markers",
+            file=sys.stderr,
         )
-    except ValueError as exc:
+        return 2
+    try:
+        settings = config.from_arguments(args, role="member")
+        validate_key_chunks(args.provider, single_chunk=True)
+        adapter = dtrack.DTrackAdapter(
+            args.tracker_frame,
+            _id_map(args.body, "--body"),
+            tuple(args.static),
+            _id_map(args.marker, "--marker"),
+            sigma_mm=args.sigma_mm,
+            sigma_deg=args.sigma_deg,
+            rate=args.rate,
+            timestamps=args.timestamps,
+        )
+    except ValueError as exc:  # config.ConfigError is one too
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
     try:
-        sock = dtrack_adapter.open_socket(args.bind, port)
+        sock = open_udp_socket(args.bind, args.port)
     except OSError as exc:
-        print(f"{prog}: cannot listen on UDP {args.bind}:{port}: {exc}", file=sys.stderr)
+        print(f"{prog}: cannot listen on UDP {args.bind}:{args.port}: {exc}", file=sys.stderr)
         return 2
     stop = stop_on_signals()
-    with sock, provider_session(settings, args.provider or art.provider, edges) as provider:
-        adapter = dtrack_adapter.DTrackAdapter(
-            provider, tracker, bodies, markers, sigma_mm, sigma_deg, args.timestamps
-        )
-        dtrack_adapter.serve(sock, adapter, stop, args.duration)
+    with (
+        sock,
+        open_session(settings) as session,
+        Provider(session, KeySpace(settings.key_prefix), args.provider, adapter.edges) as provider,
+    ):
+        serve_udp(sock, adapter, provider, stop, args.duration)
     log.info("dtrack counters: %s", dict(adapter.counters))
     return 0

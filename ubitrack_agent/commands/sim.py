@@ -82,10 +82,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     camera.add_argument("--seed", type=int, help="noise seed (default: scenario seed)")
     database = _add(commands, "database", _run_database, "serve the static calibration edges")
     database.add_argument(
-        "--edges", help="serve this static-edges file instead of the scenario's truth"
+        "--edges",
+        metavar="FILE",
+        help="serve this static-edges file (ubitrack_agent/io/static_edges.py) instead of the "
+        "scenario's truth",
     )
     database.add_argument(
-        "--dump", action="store_true", help="print the edges as a static-edges file and exit"
+        "--dump",
+        metavar="FILE",
+        help="write the edges it would serve to this static-edges file (atomically) and exit",
     )
 
 
@@ -103,8 +108,8 @@ def _add(
 
 
 def _run_world(args: argparse.Namespace) -> int:
-    from sim_trackers.runtime import stop_on_signals
     from sim_trackers.truth import TruthServer
+    from ubitrack_agent.commands.signals import stop_on_signals
     from ubitrack_agent.net.keys import KeySpace
     from ubitrack_agent.net.session import open_session
 
@@ -127,7 +132,7 @@ def _run_art(args: argparse.Namespace) -> int:
     import numpy as np
 
     from sim_trackers import sim_art
-    from sim_trackers.runtime import stop_on_signals
+    from ubitrack_agent.commands.signals import stop_on_signals
 
     prog = "ubitrack sim art"
     scenario = load(args, prog)
@@ -149,8 +154,9 @@ def _run_art(args: argparse.Namespace) -> int:
 def _run_camera(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from sim_trackers.runtime import provider_session, run_periodic, stop_on_signals
+    from sim_trackers.runtime import provider_session, run_periodic
     from sim_trackers.sim_camera import CameraSimulator, announcements
+    from ubitrack_agent.commands.signals import stop_on_signals
 
     prog = "ubitrack sim camera"
     if (prepared := prepare(args, prog)) is None:
@@ -176,24 +182,34 @@ def _run_camera(args: argparse.Namespace) -> int:
 def _run_database(args: argparse.Namespace) -> int:
     import time
 
-    from sim_trackers.database import dump_edges, load_edges_file, static_edges
-    from sim_trackers.runtime import provider_session, stop_on_signals
-    from sim_trackers.scenario import ScenarioError
+    from sim_trackers.database import static_edges
+    from sim_trackers.runtime import provider_session
+    from ubitrack_agent.commands.signals import stop_on_signals
+    from ubitrack_agent.io.static_edges import (
+        StaticEdgesError,
+        read_static_edges,
+        write_static_edges,
+    )
 
     prog = "ubitrack sim database"
     if (prepared := prepare(args, prog)) is None:
         return 2
     scenario, settings = prepared
-    provider_id = scenario.database_provider
-    edges = static_edges(scenario.world, scenario.database_edges, time.time_ns())
-    if args.edges is not None:
+    if args.edges is None:
+        provider_id = scenario.database_provider
+        edges = static_edges(scenario.world, scenario.database_edges, time.time_ns())
+    else:
         try:
-            provider_id, edges = load_edges_file(args.edges, time.time_ns())
-        except ScenarioError as exc:
+            provider_id, edges = read_static_edges(args.edges, time.time_ns())
+        except StaticEdgesError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return 2
-    if args.dump:
-        print(dump_edges(provider_id, edges), end="")
+    if args.dump is not None:
+        try:
+            write_static_edges(args.dump, provider_id, edges)
+        except OSError as exc:
+            print(f"{prog}: cannot write {args.dump}: {exc}", file=sys.stderr)
+            return 2
         return 0
     stop = stop_on_signals()
     announced = [edge.announcement for edge in edges]

@@ -46,8 +46,11 @@ def run(args: argparse.Namespace) -> int:
     if args.count is not None and args.count < 1:
         print("ubitrack subscribe: --count must be at least 1", file=sys.stderr)
         return 2
-    with open_session(settings) as session:
-        relation = Relation(session, KeySpace(settings.key_prefix), relation_id, args.app_id)
+    keys = KeySpace(settings.key_prefix)
+    with (
+        open_session(settings) as session,
+        Relation(session, keys, relation_id, args.app_id) as relation,
+    ):
         printed = 0
         try:
             while args.count is None or printed < args.count:
@@ -59,6 +62,4 @@ def run(args: argparse.Namespace) -> int:
         except TimeoutError as exc:
             print(f"ubitrack subscribe: {exc}", file=sys.stderr)
             return 1
-        finally:
-            relation.close()
     return 0

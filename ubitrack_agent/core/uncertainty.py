@@ -1,4 +1,5 @@
-"""First-order propagation of 6x6 pose covariances through inversion and concatenation.
+"""First-order propagation of 6x6 pose covariances through inversion and concatenation, and
+the covariance of noise stated per axis by a sensor.
 
 Parameterisation: left ("global") perturbation ``T = Exp(xi) T_mean`` with
 ``xi = (phi, rho)``, rotation first (scipy's ``as_exp_coords`` order). The adjoint of
@@ -9,6 +10,10 @@ Parameterisation: left ("global") perturbation ``T = Exp(xi) T_mean`` with
 
 * inversion:      Sigma_inv = Ad_{T^-1} Sigma Ad_{T^-1}^T                      (exact)
 * concatenation:  Sigma_12  = Sigma_1 + Ad_{T1} Sigma_2 Ad_{T1}^T      (first order, independent)
+
+Sensors state their noise per axis, and an outside-in tracker's about the measured body's own
+origin (its rotation error does not move the body's position): :func:`isotropic_pose_covariance`
+and :func:`in_place_covariance` turn such figures into the covariance above.
 
 References: Barfoot & Furgale, "Associating uncertainty with three-dimensional poses for use in
 estimation problems", IEEE T-RO 2014; Sola, Deray, Atchuthan, "A micro Lie theory for state
@@ -26,6 +31,7 @@ _SKEW_ROWS = np.array([2, 0, 1, 1, 2, 0])
 _SKEW_COLS = np.array([1, 2, 0, 2, 0, 1])
 _SKEW_COMPONENTS = np.array([0, 1, 2, 0, 1, 2])
 _SKEW_SIGNS = np.array([1.0, 1.0, 1.0, -1.0, -1.0, -1.0])
+_IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -45,6 +51,24 @@ def adjoint(q: np.ndarray, t: np.ndarray) -> np.ndarray:
     result[..., 3:, 3:] = rotation
     result[..., 3:, :3] = skew(t) @ rotation
     return result
+
+
+def isotropic_pose_covariance(sigma_rotation_rad: float, sigma_translation_m: float) -> np.ndarray:
+    """The 6x6 covariance of independent noise with the same standard deviation on each
+    rotation axis (radians) and on each translation axis (metres), rotation first."""
+    return np.diag([sigma_rotation_rad**2] * 3 + [sigma_translation_m**2] * 3)
+
+
+def in_place_covariance(translation: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """The left-perturbation covariance of a pose at ``translation`` whose noise
+    ``(phi, rho) ~ N(0, covariance)`` is given in place: rotation about the body's own origin
+    plus position noise, ``R = Exp(phi) R_mean`` and ``t = t_mean + rho``.
+
+    In the left convention the same noise is ``(phi, rho + [t]x phi)`` to first order, i.e.
+    ``covariance`` transported by the adjoint of the pure translation by ``t``.
+    """
+    transport = adjoint(_IDENTITY_QUATERNION, translation)
+    return _transport(transport, covariance)
 
 
 def _transport(adj: np.ndarray, covariance: np.ndarray) -> np.ndarray:

@@ -1,2 +1,4 @@
-"""The client layer: the sensor and application APIs (:class:`Provider`, :class:`Relation`)
-and real sources and sinks (the A.R.T. DTrack2 adapter, the static-edges file)."""
+"""The client layer: the sensor and application APIs (:class:`~.provider.Provider`,
+:class:`~.application.Relation`) and real sources and sinks, with no simulator code: the sensor
+adapter base (:mod:`.adapter`), the A.R.T. DTrack2 format and adapter (:mod:`.dtrack`) and the
+static-edges file of calibration results (:mod:`.static_edges`)."""

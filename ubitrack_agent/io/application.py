@@ -2,14 +2,17 @@
 
 ::
 
-    with open_session(settings) as session:
-        relation = Relation(session, KeySpace(settings.key_prefix), RelationId("C", "A", "6D"))
+    keys = KeySpace(settings.key_prefix)
+    with (
+        open_session(settings) as session,
+        Relation(session, keys, RelationId("C", "A", "6D")) as relation,
+    ):
         first = relation.wait_for(timeout=5.0)          # next sample, event-driven
         for pose in relation:                           # iterator form, blocks per sample
             ...
         relation.lookup(t_ns)                           # interpolated; NoDataError,
                                                         # ExtrapolationError otherwise
-        relation.close()
+    # leaving the block withdraws the query (as relation.close() does)
 
 Declaring the query token ``<root>/query/...`` tells the agent what to compute; samples arrive
 on the stable key ``<root>/relation/...``, which stays the same whenever the agent rewires the
@@ -25,7 +28,8 @@ import queue
 import threading
 import uuid
 from collections.abc import Callable, Iterator
-from typing import Any
+from types import TracebackType
+from typing import Any, Self
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
 from ubitrack_agent.core.timeline import SampleBuffer
@@ -44,7 +48,10 @@ def default_application_id() -> str:
 
 
 class Relation:
-    """A subscription to one queried relationship (see the module docstring)."""
+    """A subscription to one queried relationship (see the module docstring).
+
+    A context manager: ``with Relation(...) as relation:`` closes it on leaving the block.
+    """
 
     def __init__(
         self,
@@ -142,8 +149,22 @@ class Relation:
             raise TimeoutError(f"no sample of {self.relation} within {timeout} s") from None
 
     def close(self) -> None:
-        """Withdraw the query; the agent stops what only this application needed."""
+        """Withdraw the query; the agent stops what only this application needed. A second
+        call does nothing."""
+        if self._closed.is_set():
+            return
         self._closed.set()
         self._fetcher.join(timeout=1.0)
         self._token.undeclare()
         self._subscriber.undeclare()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()

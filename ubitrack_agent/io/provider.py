@@ -2,20 +2,23 @@
 
 A few lines make a tracker, camera or calibration database part of the middleware::
 
-    with open_session(settings) as session:
-        provider = Provider(session, KeySpace(settings.key_prefix), "art", [
-            EdgeAnnouncement("ART", "HT", "6D", rate=60.0, sigma=0.0005),
-            EdgeAnnouncement("ART", "WT", "6D", static=True),
-        ])
+    edges = [
+        EdgeAnnouncement("ART", "HT", "6D", rate=60.0, sigma=0.0005),
+        EdgeAnnouncement("ART", "WT", "6D", static=True),
+    ]
+    with (
+        open_session(settings) as session,
+        Provider(session, KeySpace(settings.key_prefix), "art", edges) as provider,
+    ):
         provider.publish("ART_HT", pose)      # edge names default to <from>_<to>
-        ...
-        provider.close()
+        ...                                   # leaving the block closes the provider
 
 The provider serves its SRG fragment (JSON, see ``docs/protocol.md``) on
 ``<root>/fragment/<id>``, then declares its liveliness token ``<root>/provider/<id>``; the agent
 sees the token, fetches the fragment and adds the edges to the live SRG. Each edge's data key
 also answers queries with the latest value, so a worker started later still gets a static
-edge's value. Closing (or the process dying) removes the token and the agent replans.
+edge's value. Closing (leaving the ``with`` block, calling :meth:`Provider.close`, or the
+process dying) removes the token and the agent replans.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ import json
 import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from types import TracebackType
+from typing import Any, Self
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, encode
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
@@ -83,7 +87,10 @@ class EdgeAnnouncement:
 
 
 class Provider:
-    """Announces a set of edges under ``provider_id`` and publishes their measurements."""
+    """Announces a set of edges under ``provider_id`` and publishes their measurements.
+
+    A context manager: ``with Provider(...) as provider:`` closes it on leaving the block.
+    """
 
     def __init__(
         self,
@@ -106,6 +113,7 @@ class Provider:
         self._thread = threading.Thread(target=self._serve_fragment, daemon=True)
         self._thread.start()
         self._token = session.liveliness().declare_token(keys.provider(self.id))
+        self._closed = False
 
     def data_key(self, edge_name: str) -> str:
         return self._publishers[edge_name].key
@@ -125,9 +133,24 @@ class Provider:
                 query.reply(query.key_expr, self._fragment)
 
     def close(self) -> None:
-        """Withdraw the announcement (token first, so the agent replans at once)."""
+        """Withdraw the announcement (token first, so the agent replans at once); a second
+        call does nothing."""
+        if self._closed:
+            return
+        self._closed = True
         self._token.undeclare()
         self._queryable.undeclare()
         self._thread.join(timeout=1.0)
         for publisher in self._publishers.values():
             publisher.undeclare()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()

@@ -1,0 +1,158 @@
+"""Sensor adapters: a device's own output in, measurements of announced SRG edges out.
+
+A sensor adapter connects one kind of device (an A.R.T. DTrack system, and next VRPN, NatNet
+or an OpenCV camera) to the middleware. It is a subclass of :class:`SensorAdapter` with four
+jobs, following the conventions of :mod:`ubitrack_agent.core.measurements`:
+
+1. **Announce.** Its ``__init__`` maps the device's items (body ids, marker ids, cameras) to
+   SRG edges and hands them to the base; :attr:`SensorAdapter.edges` is what a
+   :class:`~ubitrack_agent.io.provider.Provider` announces.
+2. **Convert on entry.** :meth:`SensorAdapter.convert` turns one unit of device output (a
+   datagram, a frame) into ``(edge name, measurement)`` pairs in the middleware's units and
+   conventions: metres, quaternions ``(x, y, z, w)``, pose covariance 6x6 over the left
+   perturbation with rotation first (:mod:`ubitrack_agent.core.uncertainty` turns per-axis
+   figures into it). Input that breaks the device's format raises :class:`RejectedInput`; a
+   valid item the adapter has no edge for is passed to :meth:`SensorAdapter.ignore`.
+3. **Timestamp** through :meth:`SensorAdapter.stamp`, by the adapter's policy:
+
+   * ``"receive"`` (the default): the host's clock when the input arrived
+     (``time.time_ns()``), which includes the transport's latency but needs no clock
+     synchronisation;
+   * ``"device"``: the device's own time of measurement, converted by the subclass to Unix
+     nanoseconds, for a device whose clock is synchronised with the host's (NTP, PTP); an
+     input without one gets the receive time.
+
+4. **Publish and count.** :meth:`SensorAdapter.handle` converts, publishes and counts into
+   :attr:`SensorAdapter.counters`: ``received`` inputs, ``rejected`` inputs (logged as
+   warnings), ``published`` measurements, and each ignored item under the subclass's name for
+   it (logged once). Nothing a device sends is fatal.
+
+Running one, for a device that sends UDP datagrams::
+
+    adapter = DTrackAdapter("ART", {0: "WT", 1: "HT"}, static_bodies=("WT",))
+    with (
+        open_udp_socket("0.0.0.0", 5000) as sock,
+        open_session(settings) as session,
+        Provider(session, KeySpace(settings.key_prefix), "ART", adapter.edges) as provider,
+    ):
+        serve_udp(sock, adapter, provider, stop)
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+from abc import ABC, abstractmethod
+from collections import Counter
+from collections.abc import Iterable
+from typing import ClassVar, Literal, Protocol, get_args
+
+from ubitrack_agent.core import Measurement
+from ubitrack_agent.io.provider import EdgeAnnouncement
+
+log = logging.getLogger("ubitrack.adapter")
+
+TimestampPolicy = Literal["receive", "device"]
+TIMESTAMP_POLICIES: tuple[str, ...] = get_args(TimestampPolicy)
+
+MAX_DATAGRAM = 65_535
+
+
+class RejectedInput(ValueError):
+    """One unit of device output does not follow the device's format; the message says how."""
+
+
+class Publisher(Protocol):
+    """What an adapter needs of :class:`~ubitrack_agent.io.provider.Provider`."""
+
+    def publish(self, edge_name: str, measurement: Measurement) -> None: ...
+
+
+class SensorAdapter(ABC):
+    """Base of the sensor adapters (see the module docstring): subclasses pass their edges to
+    ``__init__``, implement :meth:`convert`, and call :meth:`stamp` and :meth:`ignore`."""
+
+    device: ClassVar[str] = "sensor"
+    """The device's name in log messages."""
+
+    def __init__(
+        self, edges: Iterable[EdgeAnnouncement], timestamps: TimestampPolicy = "receive"
+    ) -> None:
+        if timestamps not in TIMESTAMP_POLICIES:
+            raise ValueError(f"timestamp policy {timestamps!r} is not one of {TIMESTAMP_POLICIES}")
+        self.edges = tuple(edges)
+        names = [edge.name for edge in self.edges]
+        if duplicates := sorted({name for name in names if names.count(name) > 1}):
+            raise ValueError(f"two edges would be named {duplicates[0]!r}")
+        self.timestamps = timestamps
+        self.counters: Counter[str] = Counter()
+
+    @abstractmethod
+    def convert(self, raw: bytes, received_ns: int) -> list[tuple[str, Measurement]]:
+        """The measurements in one unit of device output that arrived at ``received_ns``;
+        raises :class:`RejectedInput` if it does not follow the device's format."""
+
+    def stamp(self, device_ns: int | None, received_ns: int) -> int:
+        """The timestamp the policy gives a measurement the device dates ``device_ns`` (Unix
+        nanoseconds, ``None`` if the input carries no time) and the host received at
+        ``received_ns``."""
+        if self.timestamps == "device" and device_ns is not None:
+            return device_ns
+        return received_ns
+
+    def ignore(self, counter: str, reason: str) -> None:
+        """Count a valid item that has no edge under ``counter``; log ``reason`` the first
+        time."""
+        if not self.counters[counter]:
+            log.info("%s: %s; ignored", self.device, reason)
+        self.counters[counter] += 1
+
+    def handle(self, raw: bytes, received_ns: int, publisher: Publisher) -> int:
+        """Convert one unit of device output and publish its measurements; returns how many
+        were published (0 for rejected input, which is logged and counted)."""
+        self.counters["received"] += 1
+        try:
+            measurements = self.convert(raw, received_ns)
+        except RejectedInput as exc:
+            self.counters["rejected"] += 1
+            log.warning(
+                "%s: rejected input (%d so far): %s", self.device, self.counters["rejected"], exc
+            )
+            return 0
+        for edge_name, measurement in measurements:
+            publisher.publish(edge_name, measurement)
+            self.counters["published"] += 1
+        return len(measurements)
+
+
+def open_udp_socket(host: str, port: int) -> socket.socket:
+    """A UDP socket bound to ``host:port`` with a short timeout, so :func:`serve_udp` notices
+    ``stop``; ``OSError`` if the address cannot be bound."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind((host, port))
+    except OSError:
+        sock.close()
+        raise
+    sock.settimeout(0.1)
+    return sock
+
+
+def serve_udp(
+    sock: socket.socket,
+    adapter: SensorAdapter,
+    publisher: Publisher,
+    stop: threading.Event,
+    duration_s: float | None = None,
+) -> None:
+    """Hand each datagram arriving on ``sock`` to ``adapter`` (stamped with the receive time)
+    until ``stop`` is set or ``duration_s`` seconds have passed."""
+    end = None if duration_s is None else time.monotonic() + duration_s
+    while not stop.is_set() and (end is None or time.monotonic() < end):
+        try:
+            datagram = sock.recv(MAX_DATAGRAM)
+        except TimeoutError:
+            continue
+        adapter.handle(datagram, time.time_ns(), publisher)
