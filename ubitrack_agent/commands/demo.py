@@ -258,7 +258,7 @@ def _flow_check(session, keys, provider: str, uses_provider: bool):
     reading the provider's edges (``uses_provider``) or none of them."""
     from ubitrack_agent.net.transport import fetch_latest
 
-    marker = f"{keys.root}/data/{provider}/"
+    marker = keys.data(provider) + "/"  # every measured edge of the provider is below it
 
     def rewired() -> int | None:
         replies = fetch_latest(session, keys.agent_status(), timeout=0.5)
