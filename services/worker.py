@@ -221,7 +221,7 @@ class Worker:
             sample = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
         except MeasurementError as exc:
             self.counters["rejected"] += 1
-            if self.counters["rejected"] <= 10 or self.counters["rejected"] % 1000 == 0:
+            if logs.rate_limited(self.counters["rejected"]):
                 log.warning(
                     "%s: rejected sample on %s: %s", self.spec.instance, item.binding.key, exc
                 )
@@ -277,7 +277,7 @@ class Worker:
             outputs = self._service.compute(values, timestamp_ns)
         except (ValueError, MeasurementError, ArithmeticError) as exc:
             self.counters["failed"] += 1
-            if self.counters["failed"] <= 10 or self.counters["failed"] % 1000 == 0:
+            if logs.rate_limited(self.counters["failed"]):
                 log.warning("%s: computation failed: %s", self.spec.instance, exc)
             return
         for port, value in outputs.items():
