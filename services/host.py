@@ -5,10 +5,10 @@ Run ``python -m services.host [--name NAME] [--pool-size N] [zenoh flags]``, or 
 ``ubitrack agent`` starts one for its own machine unless given ``--no-host``. One per machine,
 named after the machine by default; names must be unique in a domain.
 
-A worker started cold takes about 2.5 s from spawn to its liveliness token on the development
-machine (2 vCPU, median of 10 under no other load, ``python -m bench.worker_start``): the
-interpreter and the imports of numpy, scipy and OpenCV. Handing a specification to a warm pool
-member (:mod:`services.supervisor`) takes about 10 ms instead.
+A worker started cold takes about 0.8 s from spawn to its liveliness token (median of 10 on
+the 2-vCPU development machine, ``python -m bench.worker_start``): the interpreter, the imports
+of numpy, scipy and OpenCV, the zenoh session. A start request served by a ready pool member
+(:mod:`services.supervisor`) takes about 8 ms to the token instead.
 
 The process ends on SIGTERM or SIGINT, terminating every worker it started. With
 ``--exit-when-stdin-closes`` (how the agent starts it, with a pipe) it also ends when its
