@@ -5,10 +5,10 @@ Run ``python -m services.host [--name NAME] [--pool-size N] [zenoh flags]``, or 
 ``ubitrack agent`` starts one for its own machine unless given ``--no-host``. One per machine,
 named after the machine by default; names must be unique in a domain.
 
-A worker started cold takes about 0.8 s from spawn to its liveliness token (median of 10 on
-the 2-vCPU development machine, ``python -m bench.worker_start``): the interpreter, the imports
-of numpy, scipy and OpenCV, the zenoh session. A start request served by a ready pool member
-(:mod:`services.supervisor`) takes about 8 ms to the token instead.
+A worker started cold is far slower to reach its liveliness token than one handed its
+specification from the warm pool (:mod:`services.supervisor`): it pays the interpreter, the
+imports of numpy, scipy and OpenCV and the zenoh session (``python -m bench.worker_start``
+measures both; figures in ``docs/performance.md``, "Worker start-up").
 
 The process ends on SIGTERM or SIGINT, terminating every worker it started. With
 ``--exit-when-stdin-closes`` (how the agent starts it, with a pipe) it also ends when its

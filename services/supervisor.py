@@ -2,8 +2,8 @@
 
 The host manager (:mod:`services.host_manager`) owns one :class:`Supervisor` and calls it from
 its own thread only. Starting a worker cold costs an interpreter and the imports of numpy,
-scipy and OpenCV (figure in :mod:`services.host`), too slow for reconfiguration, so the
-supervisor keeps a **warm pool** of idle members (``python -m services.worker --pool-id ID``,
+scipy and OpenCV (``docs/performance.md``, "Worker start-up"), too slow for reconfiguration,
+so the supervisor keeps a **warm pool** of idle members (``python -m services.worker --pool-id ID``,
 :class:`services.worker.Pool`) that have imported everything and wait for a specification on
 ``<root>/pool/<ID>``:
 
