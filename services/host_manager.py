@@ -32,6 +32,7 @@ from typing import Any
 
 import zenoh
 
+from services.registry import lookup
 from services.spec import check_spec
 from services.supervisor import Supervisor
 from ubitrack_agent.net import logs
@@ -50,6 +51,9 @@ log = logging.getLogger("ubitrack.host")
 
 LOOP_S = 0.05
 """Longest wait for an event before processes are reaped and the pool topped up."""
+MAX_PENDING_REQUESTS = 64
+"""Requests queued for the handling thread at most; beyond, the request thread stops taking
+them from zenoh (whose own queue then fills), so a flood cannot grow memory without bound."""
 PUT = "SampleKind.PUT"
 
 
@@ -64,6 +68,7 @@ class HostManager:
         worker_flags: Sequence[str],
         pool_size: int,
     ) -> None:
+        lookup("relay")  # import every registered service now, not on the first request
         self.name = name
         self.keys = keys
         self.counters: Counter[str] = Counter()
@@ -71,6 +76,7 @@ class HostManager:
         self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._abandon = False
+        self._request_slots = threading.Semaphore(MAX_PENDING_REQUESTS)
         liveliness = session.liveliness()
         self._pool_watch = liveliness.declare_subscriber(
             keys.all_pools(),
@@ -85,6 +91,9 @@ class HostManager:
 
     def _receive_requests(self) -> None:
         for query in self._requests:
+            while not self._request_slots.acquire(timeout=LOOP_S):
+                if self._stop.is_set():
+                    return
             self._events.put(("request", query))
 
     # -- events -------------------------------------------------------------------------------
@@ -132,6 +141,7 @@ class HostManager:
 
     def _answer(self, query: Any) -> None:
         """Reply to one request: never raises (a fault is an ``internal_error`` reply)."""
+        self._request_slots.release()
         with query:
             self.counters["requests"] += 1
             try:

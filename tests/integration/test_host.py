@@ -329,3 +329,50 @@ def test_workers_killed_before_and_after_their_token_are_started_again(net):
 
     wait_until(new_pid, timeout=30)
     relation.close()
+
+
+def test_the_agent_starts_its_host_manager_again_and_a_clean_stop_ends_every_worker(net):
+    agent = net.agent()  # with its own host manager
+    net.start(
+        "-m",
+        "sim_trackers.exact_tracker",
+        "--provider",
+        "art",
+        "--tracker",
+        "ART",
+        "--yaw",
+        "30",
+        "--x",
+        "2",
+    )
+    relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
+    wait_until(lambda: relation.latest() is not None, timeout=30)
+    (name,) = net.agent_status()["hosts"]
+    first = net.status(name)["pid"]
+
+    os.kill(first, signal.SIGKILL)  # its workers keep running, adopted as they are
+    wait_until(lambda: net.ask(name, encode_request(Status()))[1].get("pid") not in (None, first))
+    relation.wait_for(timeout=10)  # still flowing
+
+    status = net.agent_status()
+    adopted = [i for i, c in status["components"].items() if c["host"] is None]
+    assert adopted and status["counters"].get("restarts", 0) == 0  # none restarted
+    assert workers(net.domain)
+
+    agent.send_signal(signal.SIGTERM)
+    assert agent.wait(timeout=20) == 0
+    wait_until(lambda: not workers(net.domain), timeout=10)
+    relation.close()
+
+
+def workers(domain: str) -> list[str]:
+    """Host managers and workers of the test's domain still running."""
+    return [pid for pid in tagged(domain) if "-m services." in command_line(pid)]
+
+
+def command_line(pid: str) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as file:
+            return file.read().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
