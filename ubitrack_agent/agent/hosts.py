@@ -6,8 +6,9 @@ starting and stopping workers over zenoh only (``docs/protocol.md``).
   ``<root>/host/<name>/request`` with a timeout; the reply names the run, remembered with the
   host as the instance's :class:`Placement`. With no host manager alive, or no answer, or a
   refusal, the start does not happen and the runtime asks again on a later pass (a refused or
-  unanswered instance after ``START_RETRY_S``). A host manager starts nothing twice: it answers
-  a repeated start of a running instance with the same run.
+  unanswered instance after ``START_RETRY_S``; a host manager that did not answer is left
+  alone for as long). A host manager starts nothing twice: it answers a repeated start of a
+  running instance with the same run.
 * A stop goes to the instance's host manager; an instance without one (adopted from an earlier
   agent, or whose host manager vanished or does not answer) is stopped by putting the stop
   command on its control key.
@@ -51,7 +52,8 @@ log = logging.getLogger("ubitrack.agent")
 REQUEST_TIMEOUT_S = 2.0
 """Longest wait for a host manager's reply (it answers in milliseconds)."""
 START_RETRY_S = 1.0
-"""After a refused or unanswered start, wait this long before asking again for the instance."""
+"""After a refused or unanswered start, wait this long before asking again for the instance;
+a host manager that did not answer is not asked anything for as long."""
 PUT = "SampleKind.PUT"
 
 
@@ -73,6 +75,7 @@ class Hosts:
         self.live: set[str] = set()
         self.placements: dict[str, Placement] = {}
         self._retry_at: dict[str, float] = {}
+        self._silent_until: dict[str, float] = {}
         self._waiting = False
         self._events: queue.SimpleQueue[tuple[str, str, bytes]] = queue.SimpleQueue()
         self._watch = session.liveliness().declare_subscriber(
@@ -97,11 +100,11 @@ class Hosts:
         instance = spec.instance
         if time.monotonic() < self._retry_at.get(instance, 0.0):
             return False
-        host = min(self.live, default=None)
+        if not self.live and not self._waiting:
+            log.info("no host manager alive yet: starting waits for one")
+            self._waiting = True
+        host = next(iter(self._answering()), None)
         if host is None:
-            if not self._waiting:
-                log.info("no host manager alive yet: starting waits for one")
-                self._waiting = True
             return False
         try:
             started = Started.parse(self._request(host, Start(spec)))
@@ -118,7 +121,7 @@ class Hosts:
         """Stop ``instance`` through its host manager, else with the stop command."""
         self._retry_at.pop(instance, None)
         placement = self.placements.pop(instance, None)
-        if placement is not None and placement.host in self.live:
+        if placement is not None and placement.host in self._answering():
             try:
                 self._request(placement.host, Stop(instance))
                 return
@@ -126,9 +129,14 @@ class Hosts:
                 self._problem("failed_stops", "%s: host did not stop it: %s", instance, exc)
         self._session.put(self._keys.control(instance), STOP_COMMAND)
 
+    def _answering(self) -> list[str]:
+        """Live host managers by name, less those that did not answer lately."""
+        now = time.monotonic()
+        return sorted(h for h in self.live if self._silent_until.get(h, 0.0) <= now)
+
     def _request(self, host: str, request: Request) -> bytes:
         """The payload of ``host``'s successful reply; :class:`ProtocolError` for a refusal, no
-        answer or a zenoh error."""
+        answer or a zenoh error (then ``host`` is left alone for ``START_RETRY_S``)."""
         try:
             replies = list(
                 self._session.get(
@@ -138,9 +146,12 @@ class Hosts:
                 )
             )
         except zenoh.ZError as exc:
-            raise ProtocolError("internal_error", f"request failed: {exc}") from None
+            replies, reason = [], f"request failed: {exc}"
+        else:
+            reason = f"no answer within {REQUEST_TIMEOUT_S} s"
         if not replies:
-            raise ProtocolError("internal_error", f"no answer within {REQUEST_TIMEOUT_S} s")
+            self._silent_until[host] = time.monotonic() + START_RETRY_S
+            raise ProtocolError("internal_error", reason)
         if replies[0].ok is None:
             raise ProtocolError.parse(replies[0].err.payload.to_bytes())
         return replies[0].ok.payload.to_bytes()
