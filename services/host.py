@@ -19,6 +19,7 @@ so a restarted agent adopts them and the applications keep their data.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import socket
 import sys
@@ -104,7 +105,8 @@ def serve(
 def _abandon_when_stdin_closes(manager: HostManager) -> None:
     """Stop ``manager`` once standard input closes (the parent agent died), leaving the
     assigned workers running."""
-    sys.stdin.read()
+    while os.read(sys.stdin.fileno(), 4096):  # no buffered reader: its lock would hold up exit
+        pass
     manager.stop(abandon_workers=True)
 
 

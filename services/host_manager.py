@@ -201,6 +201,10 @@ class HostManager:
         self._requests.undeclare()
         self._request_thread.join(timeout=1.0)
         self._pool_watch.undeclare()
+        while not self._events.empty():  # unanswered requests end now, not at their timeout
+            kind, event = self._events.get_nowait()
+            if kind == "request":
+                event.drop()
         if self._abandon:
             log.warning(
                 "leaving %d workers running for a restarted agent to adopt",
