@@ -27,7 +27,6 @@ import queue
 import threading
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import asdict
 from typing import Any
 
 import zenoh
@@ -146,7 +145,7 @@ class HostManager:
             self.counters["requests"] += 1
             try:
                 payload = None if query.payload is None else query.payload.to_bytes()
-                reply = json.dumps(self._serve(parse_request(payload)))
+                reply = self._serve(parse_request(payload))
             except ProtocolError as refusal:
                 self._refuse(query, refusal)
                 return
@@ -171,7 +170,8 @@ class HostManager:
         if logs.rate_limited(self.counters[counter]):
             log.error(message, detail)
 
-    def _serve(self, request: Request) -> dict[str, Any]:
+    def _serve(self, request: Request) -> str:
+        """The JSON reply to a well-formed request; :class:`ProtocolError` if refused."""
         match request:
             case Start(spec=spec):
                 try:
@@ -179,11 +179,11 @@ class HostManager:
                     service(spec.parameters)  # rejects parameters the service does not take
                 except (SpecError, ValueError, TypeError) as exc:
                     raise ProtocolError("refused_spec", str(exc)) from None
-                return asdict(self.supervisor.start(spec))
+                return self.supervisor.start(spec).to_json()
             case Stop(instance=instance):
-                return {"instance": instance, "process": self.supervisor.stop(instance)}
+                return json.dumps({"instance": instance, "process": self.supervisor.stop(instance)})
             case Status():
-                return self.status()
+                return json.dumps(self.status())
 
     def status(self) -> dict[str, Any]:
         """Name, pid, pool, instances and counters (JSON-ready)."""
