@@ -150,25 +150,28 @@ class HostManager:
                 self._refuse(query, refusal)
                 return
             except Exception as exc:  # a fault of ours must not end the host manager
-                log.exception("request failed")
-                self._refuse(query, ProtocolError("internal_error", type(exc).__name__))
+                fault = ProtocolError("internal_error", type(exc).__name__)
+                self._refuse(query, fault, with_traceback=True)
                 return
             try:
                 query.reply(self.keys.host_request(self.name), reply)
             except zenoh.ZError as exc:
                 log.warning("could not reply: %s", exc)
 
-    def _refuse(self, query: Any, refusal: ProtocolError) -> None:
-        self._count_problem(f"{refusal.error}s", "refused request: %s", refusal)
+    def _refuse(self, query: Any, refusal: ProtocolError, with_traceback: bool = False) -> None:
+        self._count_problem(f"{refusal.error}s", "refused request: %s", refusal, with_traceback)
         try:
             query.reply_err(refusal.to_json())
         except zenoh.ZError as exc:
             log.warning("could not reply: %s", exc)
 
-    def _count_problem(self, counter: str, message: str, detail: Exception) -> None:
+    def _count_problem(
+        self, counter: str, message: str, detail: Exception, with_traceback: bool = False
+    ) -> None:
+        """Count a problem; log it (rate-limited), with the traceback being handled if asked."""
         self.counters[counter] += 1
         if logs.rate_limited(self.counters[counter]):
-            log.error(message, detail)
+            log.error(message, detail, exc_info=with_traceback)
 
     def _serve(self, request: Request) -> str:
         """The JSON reply to a well-formed request; :class:`ProtocolError` if refused."""
