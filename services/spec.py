@@ -3,7 +3,7 @@
 :func:`ubitrack_agent.net.spec.parse_spec` checks a specification's form; this module checks
 what only the services know: the service is registered, the bindings fit its input ports and
 the correspondence's expansion, the outputs and relation routes name its output ports. The
-worker and the service manager run both checks before anything starts, so nothing from the
+worker and the host manager run both checks before anything starts, so nothing from the
 network runs but a registered service wired as it declares.
 """
 

@@ -1,7 +1,7 @@
 """The worker runtime: one OS process runs one pattern instance, wired over zenoh.
 
 Start: ``python -m services.worker --spec '<json>' [zenoh flags]`` (see :mod:`services.spec`).
-The worker opens its own zenoh session (explicit endpoints, multicast off: it starts in
+The worker opens its own zenoh session (explicit endpoints, multicast off: it opens in
 milliseconds), declares the liveliness token ``<root>/worker/<instance>``, subscribes to its
 input keys, publishes its outputs, answers its counters on ``<root>/status/<instance>`` and
 takes commands on ``<root>/control/<instance>``:
@@ -10,7 +10,9 @@ takes commands on ``<root>/control/<instance>``:
 * ``{"parameters": {...}}`` rebuilds the service with new parameters;
 * ``{"relations": {"<output port>": ["<relation key>", ...]}}`` also publishes an output on the
   stable relation keys of the applications it serves (replacing the previous ones);
-* ``{"stop": true}`` ends the worker (the agent stops workers it did not start itself).
+* ``{"stop": true}`` ends the run: the agent (directly, or through the host manager that
+  started the worker) stops every worker with it; a pool member then rejoins its pool (or
+  exits, if its host manager is gone).
 
 Zenoh callbacks only append to a bounded inbox (never calling zenoh, never blocking the
 receive path); one thread decodes, synchronises (:mod:`ubitrack_agent.core.timeline`), computes and
@@ -221,7 +223,7 @@ class Worker:
             sample = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
         except MeasurementError as exc:
             self.counters["rejected"] += 1
-            if self.counters["rejected"] <= 10 or self.counters["rejected"] % 1000 == 0:
+            if logs.rate_limited(self.counters["rejected"]):
                 log.warning(
                     "%s: rejected sample on %s: %s", self.spec.instance, item.binding.key, exc
                 )
@@ -277,7 +279,7 @@ class Worker:
             outputs = self._service.compute(values, timestamp_ns)
         except (ValueError, MeasurementError, ArithmeticError) as exc:
             self.counters["failed"] += 1
-            if self.counters["failed"] <= 10 or self.counters["failed"] % 1000 == 0:
+            if logs.rate_limited(self.counters["failed"]):
                 log.warning("%s: computation failed: %s", self.spec.instance, exc)
             return
         for port, value in outputs.items():
@@ -339,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     source.add_argument("--spec-file", help="a file holding the specification")
     parser.add_argument(
         "--pool-id",
-        help="member of the service manager's warm pool: idle, fully imported, it runs the "
+        help="member of the host manager's warm pool: idle, fully imported, it runs the "
         "specification sent to <root>/pool/<ID> (or --spec first) and returns to the pool when "
         "released; it stops idling when its standard input closes",
     )
@@ -353,7 +355,7 @@ class Pool:
     on ``<root>/pool/<id>``, runs it, and, when the agent releases it (a stop command),
     returns to the pool instead of exiting, so the process's imports are paid once.
 
-    The process idles only while its parent (the service manager) lives: when its standard
+    The process idles only while its parent (the host manager) lives: when its standard
     input closes it leaves the pool (an assigned worker keeps running: a restarted agent
     adopts it). SIGTERM or SIGINT ends it. Malformed specifications are logged and ignored.
     """

@@ -16,6 +16,7 @@ from ubitrack_agent.net import logs
 
 COMMAND_MODULES: tuple[str, ...] = (
     "agent",
+    "host",
     "plan",
     "subscribe",
     "status",

@@ -4,6 +4,6 @@
 * :mod:`.flows` - plan every queried relation and merge the data flows (pure);
 * :mod:`.materialise` - data flow components into worker specifications (pure);
 * :mod:`.reconcile` - the start / stop / update actions between running and wanted (pure);
-* :mod:`.manager` - the local service manager starting and reaping worker processes;
+* :mod:`.hosts` - the host managers: starting and stopping workers over zenoh;
 * :mod:`.runtime` - the agent itself: liveliness, fragments, replanning, reconciling.
 """

@@ -11,11 +11,12 @@ whole state from them alone (``docs/protocol.md``):
 
 After each batch of events it replans every relation (:mod:`.flows`), turns the merged data
 flow into worker specifications (:mod:`.materialise`) and reconciles the running workers with
-them (:mod:`.reconcile`): start (through the :class:`.manager.ServiceManager`), stop, or rewire
-in place with a control command. A worker that dies is started again; a worker alive but not
-known (left by an earlier agent) is adopted if wanted, stopped otherwise. Events are handled on
-the agent's own thread; zenoh callbacks only queue them. Malformed announcements and queries
-are logged and counted, and never stop the agent.
+them (:mod:`.reconcile`): start or stop (through a host manager, over zenoh only: :mod:`.hosts`),
+or rewire in place with a control command. A start no host manager took is tried again on a
+later pass. A worker that ends on its own is started again; a worker alive but not known (left
+by an earlier agent) is adopted if wanted, stopped otherwise. Events are handled on the agent's
+own thread; zenoh callbacks only queue them. Malformed announcements, queries and host reports
+are logged and counted, and never stop the agent. A clean stop stops every worker it runs.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from typing import Any
 
 from ubitrack_agent.agent.announcements import AnnouncementError, build_srg, fragment_entries
 from ubitrack_agent.agent.flows import Plan, plan_relations
-from ubitrack_agent.agent.manager import ServiceManager
+from ubitrack_agent.agent.hosts import Hosts
 from ubitrack_agent.agent.materialise import component_specs
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
@@ -61,13 +62,7 @@ and worker liveness also change between events)."""
 class Agent:
     """The live agent on an open zenoh session (see the module docstring)."""
 
-    def __init__(
-        self,
-        settings: Settings,
-        templates: Sequence[Template],
-        worker_flags: Sequence[str],
-        pool_size: int = 8,
-    ) -> None:
+    def __init__(self, settings: Settings, templates: Sequence[Template]) -> None:
         self.keys = KeySpace(settings.key_prefix)
         self.templates = tuple(templates)
         self.counters: Counter[str] = Counter()
@@ -89,18 +84,21 @@ class Agent:
         self._stop = threading.Event()
         self._status_json = "{}"
         self.session = open_session(settings)
-        self.manager = ServiceManager(self.session, self.keys, worker_flags, pool_size)
+        self.hosts = Hosts(self.session, self.keys, self.counters)
         liveliness = self.session.liveliness()
-        root = self.keys.root
         self._watches = [
             liveliness.declare_subscriber(
-                f"{root}/{kind}/{pattern}",
+                selector,
                 lambda sample, kind=kind: self._events.put(
                     (kind, str(sample.kind), str(sample.key_expr))
                 ),
                 history=True,
             )
-            for kind, pattern in (("provider", "*"), ("query", "**"), ("worker", "*"))
+            for kind, selector in (
+                ("provider", self.keys.all_providers()),
+                ("query", self.keys.all_queries()),
+                ("worker", self.keys.all_workers()),
+            )
         ]
         self._status = self.session.declare_queryable(self.keys.agent_status())
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
@@ -129,8 +127,7 @@ class Agent:
                 if not apps:
                     del self.queries[relation]
                 return before != bool(apps)
-            instance = key.rsplit("/", 1)[-1]
-            self._on_worker(instance, appeared)
+            self._on_worker(self.keys.parse_worker(key), appeared)
             return False
         except ValueError as exc:
             self.counters[f"rejected_{kind}_keys"] += 1
@@ -143,6 +140,8 @@ class Agent:
             return
         self.alive.discard(instance)
         self._stopped.discard(instance)
+        if self.hosts.reports_exit_of(instance):
+            return  # its host manager reports when the process ends: that restarts it
         if self.running.pop(instance, None) is not None:
             self.counters["restarts"] += 1
             log.warning("%s: worker vanished, starting it again", instance)
@@ -162,8 +161,7 @@ class Agent:
             elif settled and instance not in self._retiring:
                 self.counters["orphans_stopped"] += 1
                 log.info("%s: unknown worker, stopping it", instance)
-                self.manager.stop(instance)
-                self._stopped.add(instance)
+                self._stop_worker(instance)
 
     def _fetch_fragments(self) -> bool:
         """Fetch the fragments of providers that appeared; True if the SRG changed. A provider
@@ -227,31 +225,32 @@ class Agent:
                 self._stop_worker(instance)  # replaced by another specification at once
             else:
                 self._retiring[instance] = time.monotonic() + RETIRE_S
-        for spec in actions.start:
-            self.manager.start(spec)
+        started = [spec for spec in actions.start if self.hosts.start(spec)]
+        for spec in started:
             self.running[spec.instance] = spec
         for instance, command in actions.update:
             self._send_control(instance, command)
             self.running[instance] = self.wanted[instance]
-        if not actions.empty:
+        if started or actions.stop or actions.update:
             self.last_change_ns = time.time_ns()
             self.counters["reconfigurations"] += 1
             log.info(
-                "reconfigured: %d started, %d stopped, %d rewired",
-                len(actions.start),
+                "reconfigured: %d started (%d waiting), %d stopped, %d rewired",
+                len(started),
+                len(actions.start) - len(started),
                 len(actions.stop),
                 len(actions.update),
             )
 
     def _stop_worker(self, instance: str) -> None:
-        self.manager.stop(instance)
+        self.hosts.stop(instance)
         self._stopped.add(instance)
 
     def _retire(self) -> None:
         """Stop the workers the plan no longer wants once every wanted worker is alive (make
         before break: the old flow keeps the relation flowing while the new one starts), or
         after ``RETIRE_S`` at the latest."""
-        all_alive = set(self.running) <= self.alive
+        all_alive = set(self.wanted) <= self.alive
         now = time.monotonic()
         for instance, deadline in list(self._retiring.items()):
             if all_alive or now > deadline:
@@ -277,7 +276,7 @@ class Agent:
                     batch = []
                 changed = any([self._handle(*event) for event in batch])
                 changed = self._fetch_fragments() or changed
-                for instance in self.manager.reap():
+                for instance in self.hosts.reap(self.alive):
                     if self.running.pop(instance, None) is not None:
                         self.counters["restarts"] += 1
                 if changed:
@@ -296,6 +295,7 @@ class Agent:
     def status(self) -> dict[str, Any]:
         """The agent's state: SRG, providers, queries, components, counters (JSON-ready)."""
         plan = self.plan
+        placements = self.hosts.placements
         return {
             "key_prefix": self.keys.root,
             "providers": {p: [e["id"] for e in entries] for p, entries in self.fragments.items()},
@@ -315,10 +315,12 @@ class Agent:
                 instance: {
                     **spec.as_dict(),
                     "alive": instance in self.alive,
+                    "host": placement.host if (placement := placements.get(instance)) else None,
                     "derives": _derived_edges(plan, instance),
                 }
                 for instance, spec in self.wanted.items()
             },
+            "hosts": sorted(self.hosts.live),
             "counters": dict(self.counters),
             "last_change_ns": self.last_change_ns,
         }
@@ -329,12 +331,15 @@ class Agent:
                 query.reply(self.keys.agent_status(), self._status_json)
 
     def _close(self) -> None:
+        """Stop every worker this agent runs (a clean stop), then leave the network."""
         self._token.undeclare()
         for watch in self._watches:
             watch.undeclare()
         self._status.undeclare()
         self._status_thread.join(timeout=1.0)
-        self.manager.shutdown()
+        for instance in sorted({*self.running, *self._retiring}):
+            self.hosts.stop(instance)
+        self.hosts.close()
         self.session.close()
 
 

@@ -1,12 +1,27 @@
-"""``ubitrack agent``: run the live agent (the zenoh hub of the embedded default)."""
+"""``ubitrack agent``: run the live agent (the zenoh hub of the embedded default), with a host
+manager for its own machine as a child process unless ``--no-host``."""
 
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
+import subprocess
 import sys
+import threading
 
+from services.host import DEFAULT_POOL_SIZE
 from ubitrack_agent.net import config
+
+log = logging.getLogger("ubitrack.agent")
+
+HOST_EXIT_S = 10.0
+"""How long the host manager may take to end its workers (it kills them after its own grace
+period) before it is killed itself."""
+HOST_RESTART_S = 1.0
+"""Pause before starting the host manager again when it ended on its own."""
+INVALID_OPTIONS = 2
+"""Exit status of a host manager given invalid options (it is not started again)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -14,9 +29,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "agent",
         help="run the agent: watch providers and queries, plan, start and rewire workers",
         description="Watch providers and application queries on zenoh, plan every queried "
-        "relation with the pattern templates, and start, stop and rewire pattern workers so "
-        "that each relation flows on its stable key. Ends cleanly on SIGTERM or Ctrl-C, "
-        "stopping the workers it started.",
+        "relation with the pattern templates, and have host managers start, stop and rewire "
+        "pattern workers so that each relation flows on its stable key. Starts a host manager "
+        "for this machine (python -m services.host) unless --no-host. Ends cleanly on SIGTERM "
+        "or Ctrl-C, stopping every worker it runs.",
     )
     parser.add_argument(
         "--templates", metavar="DIR", help="template directory (default: the shipped templates/)"
@@ -24,12 +40,75 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--pool-size",
         type=int,
-        default=8,
-        help="idle pre-started workers kept ready for fast reconfiguration; each holds about "
-        "100 MB (default: %(default)s)",
+        default=DEFAULT_POOL_SIZE,
+        help="idle pre-started workers the host manager keeps ready for fast reconfiguration; "
+        "each holds about 100 MB (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--no-host",
+        action="store_true",
+        help="start no host manager: workers run where `ubitrack host` runs",
     )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
+
+
+class EmbeddedHost:
+    """The host manager for this machine (``python -m services.host``), joined to the agent's
+    network, started again if it ends while the agent runs. Its standard input is a pipe from
+    this process, so it ends when the agent dies, leaving the assigned workers running for a
+    restarted agent to adopt (its idle pool workers end with it)."""
+
+    def __init__(self, settings: config.Settings, pool_size: int, log_level: str) -> None:
+        self._command = [
+            sys.executable,
+            "-m",
+            "services.host",
+            "--exit-when-stdin-closes",
+            "--pool-size",
+            str(pool_size),
+            "--log-level",
+            log_level,
+            *config.member_flags(settings),
+        ]
+        self._lock = threading.Lock()
+        self._stopping = threading.Event()
+        self.process = self._start()
+        threading.Thread(target=self._restart_when_ended, daemon=True).start()
+
+    def _start(self) -> subprocess.Popen:
+        return subprocess.Popen(self._command, stdin=subprocess.PIPE)
+
+    def _restart_when_ended(self) -> None:
+        while True:
+            returncode = self.process.wait()
+            if returncode == INVALID_OPTIONS:
+                log.error("host manager refused its options: no workers can start")
+                return
+            if self._stopping.wait(HOST_RESTART_S):
+                return
+            with self._lock:
+                if self._stopping.is_set():
+                    return
+                log.error("host manager ended with %s: starting it again", returncode)
+                self.process = self._start()
+
+    def stop_restarting(self) -> None:
+        """The agent is stopping: the host manager is not started again if it ends (safe in a
+        signal handler: takes no lock)."""
+        self._stopping.set()
+
+    def stop(self) -> None:
+        """End the host manager, which ends every worker it started."""
+        with self._lock:  # no start is under way, and none follows
+            self._stopping.set()
+            process = self.process
+        process.terminate()
+        try:
+            process.wait(timeout=HOST_EXIT_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,12 +127,23 @@ def run(args: argparse.Namespace) -> int:
         print("ubitrack agent: --pool-size must be >= 0", file=sys.stderr)
         return 2
     try:
-        agent = Agent(settings, templates, config.member_flags(settings), args.pool_size)
+        agent = Agent(settings, templates)
     except zenoh.ZError as exc:
         print(f"ubitrack agent: cannot open zenoh on {settings.listen}: {exc}", file=sys.stderr)
         return 2
-    signal.signal(signal.SIGTERM, lambda *_: agent.stop())
-    signal.signal(signal.SIGINT, lambda *_: agent.stop())
+    host = None if args.no_host else EmbeddedHost(settings, args.pool_size, args.log_level)
+
+    def stop(*_: object) -> None:
+        if host is not None:
+            host.stop_restarting()
+        agent.stop()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
     print(f"ubitrack agent: serving {agent.keys.root} on {', '.join(settings.listen)}", flush=True)
-    agent.run()
+    try:
+        agent.run()
+    finally:
+        if host is not None:
+            host.stop()
     return 0

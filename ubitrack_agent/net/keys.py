@@ -14,6 +14,9 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
                                      the stable key on which a queried relation is delivered
     <root>/agent                     liveliness token of the agent
     <root>/agent/status              queryable: the agent's state (JSON)
+    <root>/host/<name>               liveliness token of a host manager (services.host)
+    <root>/host/<name>/request       queryable: start, stop, status requests (JSON)
+    <root>/host/<name>/exited        a worker that ended without being asked (JSON, put)
     <root>/pool/<id>                 an idle pre-started worker: its token, and where its
                                      component specification is sent
     <root>/worker/<instance>         liveliness token of a running pattern worker
@@ -138,10 +141,7 @@ class KeySpace:
 
     def parse_provider(self, key: str) -> str:
         """The provider id of a provider token key; ``ValueError`` if malformed."""
-        prefix = f"{self.root}/provider/"
-        if not key.startswith(prefix):
-            raise ValueError(f"{key!r} is not a provider key under {prefix!r}")
-        return validate_key_chunks(key[len(prefix) :], single_chunk=True)
+        return self._parse_name(key, "provider")
 
     def agent(self) -> str:
         """Liveliness token of the agent."""
@@ -154,3 +154,65 @@ class KeySpace:
     def pool(self, worker: str) -> str:
         """Token of an idle pre-started worker, and the key its specification is sent on."""
         return f"{self.root}/pool/{validate_key_chunks(worker, single_chunk=True)}"
+
+    def all_pools(self) -> str:
+        """Selector of every idle pool worker's token."""
+        return f"{self.root}/pool/*"
+
+    def parse_pool(self, key: str) -> str:
+        """The pool id of a pool token key; ``ValueError`` if malformed."""
+        return self._parse_name(key, "pool")
+
+    def all_providers(self) -> str:
+        """Selector of every provider's token."""
+        return f"{self.root}/provider/*"
+
+    def all_queries(self) -> str:
+        """Selector of every application query's token."""
+        return f"{self.root}/query/**"
+
+    def all_workers(self) -> str:
+        """Selector of every running worker's token."""
+        return f"{self.root}/worker/*"
+
+    def parse_worker(self, key: str) -> str:
+        """The instance of a worker token key; ``ValueError`` if malformed."""
+        return self._parse_name(key, "worker")
+
+    def host(self, name: str) -> str:
+        """Liveliness token of the host manager ``name`` (one per machine)."""
+        return f"{self.root}/host/{validate_key_chunks(name, single_chunk=True)}"
+
+    def host_request(self, name: str) -> str:
+        """Queryable of host manager ``name`` taking start, stop and status requests."""
+        return f"{self.host(name)}/request"
+
+    def host_exited(self, name: str) -> str:
+        """Where host manager ``name`` reports workers that ended without being asked."""
+        return f"{self.host(name)}/exited"
+
+    def all_hosts(self) -> str:
+        """Selector of every host manager's token."""
+        return f"{self.root}/host/*"
+
+    def all_host_exits(self) -> str:
+        """Selector of every host manager's exit reports."""
+        return f"{self.root}/host/*/exited"
+
+    def parse_host(self, key: str) -> str:
+        """The name of a host manager's token key; ``ValueError`` if malformed."""
+        return self._parse_name(key, "host")
+
+    def parse_host_exited(self, key: str) -> str:
+        """The host manager's name in an exit report's key; ``ValueError`` if malformed."""
+        suffix = "/exited"
+        if not key.endswith(suffix):
+            raise ValueError(f"{key!r} is not a host exit key (<root>/host/<name>/exited)")
+        return self.parse_host(key[: -len(suffix)])
+
+    def _parse_name(self, key: str, kind: str) -> str:
+        """The single chunk after ``<root>/<kind>/`` in ``key``; ``ValueError`` otherwise."""
+        prefix = f"{self.root}/{kind}/"
+        if not key.startswith(prefix):
+            raise ValueError(f"{key!r} is not a {kind} key under {prefix!r}")
+        return validate_key_chunks(key[len(prefix) :], single_chunk=True)

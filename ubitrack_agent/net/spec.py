@@ -1,4 +1,4 @@
-"""The component specification: what the agent hands a service manager, a worker process is
+"""The component specification: what the agent hands a host manager, a worker process is
 started with, and a running worker is rewired by.
 
 JSON form::

@@ -1,0 +1,125 @@
+"""The host manager process: starts, stops and supervises the pattern workers of one machine
+for the agent, which talks to it only over zenoh (``docs/protocol.md``, ``docs/services.md``).
+
+Run ``python -m services.host [--name NAME] [--pool-size N] [zenoh flags]``, or ``ubitrack host``;
+``ubitrack agent`` starts one for its own machine unless given ``--no-host``. One per machine,
+named after the machine by default; names must be unique in a domain.
+
+A worker started cold is far slower to reach its liveliness token than one handed its
+specification from the warm pool (:mod:`services.supervisor`): it pays the interpreter, the
+imports of numpy, scipy and OpenCV and the zenoh session (``python -m bench.worker_start``
+measures both; figures in ``docs/performance.md``, "Worker start-up").
+
+The process ends on SIGTERM or SIGINT, terminating every worker it started. With
+``--exit-when-stdin-closes`` (how the agent starts it, with a pipe) it also ends when its
+standard input closes, i.e. when the agent dies; it then leaves the assigned workers running,
+so a restarted agent adopts them and the applications keep their data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import sys
+import threading
+from typing import TYPE_CHECKING
+
+from ubitrack_agent.net import config, logs
+from ubitrack_agent.net.config import Settings
+from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+
+if TYPE_CHECKING:
+    from services.host_manager import HostManager
+
+DEFAULT_POOL_SIZE = 8
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The host manager's own options (shared by ``python -m services.host`` and
+    ``ubitrack host``)."""
+    parser.add_argument(
+        "--name",
+        default=socket.gethostname(),
+        help="this host manager's name, unique in the domain (default: the machine's host "
+        "name, %(default)s)",
+    )
+    parser.add_argument(
+        "--pool-size",
+        type=int,
+        default=DEFAULT_POOL_SIZE,
+        help="idle pre-started workers kept ready for fast reconfiguration; each holds about "
+        "100 MB (default: %(default)s)",
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m services.host",
+        description="Start, stop and supervise this machine's pattern workers for the agent.",
+    )
+    add_arguments(parser)
+    parser.add_argument(
+        "--exit-when-stdin-closes",
+        action="store_true",
+        help="also end when standard input closes (the parent agent died), leaving assigned "
+        "workers running for a restarted agent to adopt",
+    )
+    logs.add_log_level_argument(parser)
+    config.add_arguments(parser)
+    return parser
+
+
+def serve(
+    settings: Settings, name: str, pool_size: int, exit_when_stdin_closes: bool = False
+) -> int:
+    """Run a host manager until SIGTERM or SIGINT (or, if asked, until standard input closes);
+    the exit status (2 for invalid options)."""
+    try:
+        validate_key_chunks(name, single_chunk=True)
+    except ValueError as exc:
+        print(f"host: --name: {exc}", file=sys.stderr)
+        return 2
+    if pool_size < 0:
+        print("host: --pool-size must be >= 0", file=sys.stderr)
+        return 2
+    # Imported here: the registry and zenoh are heavy, and ``ubitrack --help`` reads this module.
+    from services.host_manager import HostManager
+    from ubitrack_agent.net.session import open_session
+
+    keys = KeySpace(settings.key_prefix)
+    with open_session(settings) as session:
+        manager = HostManager(session, keys, name, config.member_flags(settings), pool_size)
+        signal.signal(signal.SIGTERM, lambda *_: manager.stop())
+        signal.signal(signal.SIGINT, lambda *_: manager.stop())
+        if exit_when_stdin_closes:
+            threading.Thread(
+                target=_abandon_when_stdin_closes, args=(manager,), daemon=True
+            ).start()
+        print(f"host {name}: serving {keys.host_request(name)}", flush=True)
+        manager.run()
+    return 0
+
+
+def _abandon_when_stdin_closes(manager: HostManager) -> None:
+    """Stop ``manager`` once standard input closes (the parent agent died), leaving the
+    assigned workers running."""
+    while os.read(sys.stdin.fileno(), 4096):  # no buffered reader: its lock would hold up exit
+        pass
+    manager.stop(abandon_workers=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logs.configure(args.log_level)
+    try:
+        settings = config.from_arguments(args, role="member")
+    except config.ConfigError as exc:
+        print(f"host: {exc}", file=sys.stderr)
+        return 2
+    return serve(settings, args.name, args.pool_size, args.exit_when_stdin_closes)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

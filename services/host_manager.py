@@ -1,0 +1,218 @@
+"""The host manager's zenoh side: its token, its request queryable and its exit reports.
+
+One host manager runs per machine (:mod:`services.host` starts it) and owns that machine's
+worker processes through a :class:`services.supervisor.Supervisor`. It declares
+
+* the liveliness token ``<root>/host/<name>`` once it serves requests;
+* the queryable ``<root>/host/<name>/request``: start, stop and status requests
+  (:mod:`ubitrack_agent.net.host_protocol`); a start's specification is checked for form and
+  against the registered service (``services.spec.check_spec``, and the service's parameters)
+  before anything runs, so only registered services run;
+* ``<root>/host/<name>/exited``: an :class:`~ubitrack_agent.net.host_protocol.Exited` for every
+  instance that ended without being asked (its process exited, even before declaring its
+  worker token, or a stop command from elsewhere released it), so the agent starts it again.
+
+Zenoh callbacks and the request thread only queue; one thread handles every event, request
+and process. Handling is total: a malformed request gets an error reply of its type, is
+counted and logged (rate-limited, :func:`ubitrack_agent.net.logs.rate_limited`), and never
+stops the host manager.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import threading
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any
+
+import zenoh
+
+from services.registry import lookup
+from services.spec import check_spec
+from services.supervisor import Supervisor
+from ubitrack_agent.net import logs
+from ubitrack_agent.net.host_protocol import (
+    ProtocolError,
+    Request,
+    Start,
+    Status,
+    Stop,
+    parse_request,
+)
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import SpecError
+
+log = logging.getLogger("ubitrack.host")
+
+LOOP_S = 0.05
+"""Longest wait for an event before processes are reaped and the pool topped up."""
+MAX_PENDING_REQUESTS = 64
+"""Requests queued for the handling thread at most; beyond, the request thread stops taking
+them from zenoh (whose own queue then fills), so a flood cannot grow memory without bound."""
+PUT = "SampleKind.PUT"
+
+
+class HostManager:
+    """Serves host requests on an open zenoh ``session`` until :meth:`stop`."""
+
+    def __init__(
+        self,
+        session: Any,
+        keys: KeySpace,
+        name: str,
+        worker_flags: Sequence[str],
+        pool_size: int,
+    ) -> None:
+        lookup("relay")  # import every registered service now, not on the first request
+        self.name = name
+        self.keys = keys
+        self.counters: Counter[str] = Counter()
+        self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
+        self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._abandon = False
+        self._request_slots = threading.Semaphore(MAX_PENDING_REQUESTS)
+        liveliness = session.liveliness()
+        self._pool_watch = liveliness.declare_subscriber(
+            keys.all_pools(),
+            lambda sample: self._events.put(("pool", (str(sample.kind), str(sample.key_expr)))),
+            history=True,
+        )
+        self._exits = session.declare_publisher(keys.host_exited(name))
+        self._requests = session.declare_queryable(keys.host_request(name))
+        self._request_thread = threading.Thread(target=self._receive_requests, daemon=True)
+        self._request_thread.start()
+        self._token = liveliness.declare_token(keys.host(name))
+
+    def _receive_requests(self) -> None:
+        for query in self._requests:
+            while not self._request_slots.acquire(timeout=LOOP_S):
+                if self._stop.is_set():
+                    return
+            self._events.put(("request", query))
+
+    # -- events -------------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Handle requests and pool tokens, reap and refill, until :meth:`stop`."""
+        try:
+            while not self._stop.is_set():
+                try:
+                    kind, event = self._events.get(timeout=LOOP_S)
+                    self._handle(kind, event)
+                    while not self._events.empty():
+                        self._handle(*self._events.get_nowait())
+                except queue.Empty:
+                    pass
+                for exited in self.supervisor.reap():
+                    self._exits.put(exited.to_json())
+                self.supervisor.fill_pool()
+        finally:
+            self._close()
+
+    def stop(self, abandon_workers: bool = False) -> None:
+        """End :meth:`run`: terminate every worker, or with ``abandon_workers`` (the agent that
+        started this host manager died) leave the assigned ones running for a restarted agent
+        to adopt. The first reason given wins."""
+        if not self._stop.is_set():
+            self._abandon = abandon_workers
+            self._stop.set()
+
+    def _handle(self, kind: str, event: Any) -> None:
+        if kind == "request":
+            self._answer(event)
+            return
+        change, key = event
+        try:
+            pool_id = self.keys.parse_pool(key)
+        except ValueError as exc:
+            self._count_problem("rejected_pool_keys", "ignored malformed pool key: %s", exc)
+            return
+        exited = self.supervisor.on_pool_token(pool_id, change == PUT)
+        if exited is not None:
+            self._exits.put(exited.to_json())
+
+    # -- requests -----------------------------------------------------------------------------
+
+    def _answer(self, query: Any) -> None:
+        """Reply to one request: never raises (a fault is an ``internal_error`` reply)."""
+        self._request_slots.release()
+        with query:
+            self.counters["requests"] += 1
+            try:
+                payload = None if query.payload is None else query.payload.to_bytes()
+                reply = self._serve(parse_request(payload))
+            except ProtocolError as refusal:
+                self._refuse(query, refusal)
+                return
+            except Exception as exc:  # a fault of ours must not end the host manager
+                fault = ProtocolError("internal_error", type(exc).__name__)
+                self._refuse(query, fault, with_traceback=True)
+                return
+            try:
+                query.reply(self.keys.host_request(self.name), reply)
+            except zenoh.ZError as exc:
+                log.warning("could not reply: %s", exc)
+
+    def _refuse(self, query: Any, refusal: ProtocolError, with_traceback: bool = False) -> None:
+        self._count_problem(f"{refusal.error}s", "refused request: %s", refusal, with_traceback)
+        try:
+            query.reply_err(refusal.to_json())
+        except zenoh.ZError as exc:
+            log.warning("could not reply: %s", exc)
+
+    def _count_problem(
+        self, counter: str, message: str, detail: Exception, with_traceback: bool = False
+    ) -> None:
+        """Count a problem; log it (rate-limited), with the traceback being handled if asked."""
+        self.counters[counter] += 1
+        if logs.rate_limited(self.counters[counter]):
+            log.error(message, detail, exc_info=with_traceback)
+
+    def _serve(self, request: Request) -> str:
+        """The JSON reply to a well-formed request; :class:`ProtocolError` if refused."""
+        match request:
+            case Start(spec=spec):
+                try:
+                    service = check_spec(spec)
+                    service(spec.parameters)  # rejects parameters the service does not take
+                except (SpecError, ValueError, TypeError) as exc:
+                    raise ProtocolError("refused_spec", str(exc)) from None
+                return self.supervisor.start(spec).to_json()
+            case Stop(instance=instance):
+                return json.dumps({"instance": instance, "process": self.supervisor.stop(instance)})
+            case Status():
+                return json.dumps(self.status())
+
+    def status(self) -> dict[str, Any]:
+        """Name, pid, pool, instances and counters (JSON-ready)."""
+        return {
+            "name": self.name,
+            "pid": os.getpid(),
+            **self.supervisor.status(),
+            "counters": dict(self.counters),
+        }
+
+    # -- end ----------------------------------------------------------------------------------
+
+    def _close(self) -> None:
+        self._token.undeclare()
+        self._requests.undeclare()
+        self._request_thread.join(timeout=1.0)
+        self._pool_watch.undeclare()
+        while not self._events.empty():  # unanswered requests end now, not at their timeout
+            kind, event = self._events.get_nowait()
+            if kind == "request":
+                event.drop()
+        if self._abandon:
+            log.warning(
+                "leaving %d workers running for a restarted agent to adopt",
+                len(self.supervisor.assigned),
+            )
+        else:
+            self.supervisor.terminate_all()
+        self._exits.undeclare()

@@ -1,0 +1,259 @@
+"""The worker processes of one machine: a warm pool, the instances running, those stopping.
+
+The host manager (:mod:`services.host_manager`) owns one :class:`Supervisor` and calls it from
+its own thread only. Starting a worker cold costs an interpreter and the imports of numpy,
+scipy and OpenCV (``docs/performance.md``, "Worker start-up"), too slow for reconfiguration,
+so the supervisor keeps a **warm pool** of idle members (``python -m services.worker --pool-id ID``,
+:class:`services.worker.Pool`) that have imported everything and wait for a specification on
+``<root>/pool/<ID>``:
+
+* start: hand the specification to a ready member (its pool token is up); with none ready,
+  start a fresh process with ``--spec`` (it joins the pool once released);
+* refill: one process at a time, and only after ``REFILL_QUIET_S`` without a start, so the
+  imports never compete with a data flow that has just been rewired;
+* stop: put the stop command on the instance's control key; the released process goes back to
+  the pool while the pool is short (it must show its pool token within ``STOP_GRACE_S``),
+  otherwise it is terminated, and killed after ``STOP_GRACE_S``;
+* a pool token appearing for a process that runs an instance means a stop command from
+  elsewhere released it: the instance ended (reported, like a process that exited).
+
+Only the worker module runs, without a shell, the specification as one argument; every member
+reads a pipe from this process as its standard input, so idle members exit with the host
+manager while assigned ones keep running (a restarted agent adopts them).
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+import time
+import uuid
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from ubitrack_agent.net.host_protocol import STOP_COMMAND, Exited, ProtocolError, Started
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec
+
+log = logging.getLogger("ubitrack.host")
+
+STOP_GRACE_S = 3.0
+"""How long a stopped worker may take to exit (or a released one to rejoin the pool) before it
+is terminated, and a terminated one before it is killed."""
+REFILL_QUIET_S = 3.0
+"""The pool is topped up only after this long without a component being started."""
+
+
+@dataclass
+class Assignment:
+    """A worker process running an instance: ``run`` names this start of it."""
+
+    spec: ComponentSpec
+    run: str
+    pool_id: str
+    process: subprocess.Popen
+
+
+class Supervisor:
+    """The worker processes this host manager started (see the module docstring)."""
+
+    def __init__(
+        self,
+        session: Any,
+        keys: KeySpace,
+        worker_flags: Sequence[str],
+        pool_size: int,
+        counters: Counter[str],
+        python: str = sys.executable,
+    ) -> None:
+        self._session = session
+        self._keys = keys
+        self._flags = list(worker_flags)
+        self._python = python
+        self.pool_size = pool_size
+        self.counters = counters
+        self._tag = uuid.uuid4().hex[:6]
+        self._members: dict[str, subprocess.Popen] = {}
+        """Idle pool members by pool id: ready, starting, or returning after a release."""
+        self._ready: set[str] = set()
+        self._returning: dict[str, float] = {}
+        """Released members by pool id: the time by which their pool token must be up."""
+        self.assigned: dict[str, Assignment] = {}
+        self._stopping: list[tuple[subprocess.Popen, float]] = []
+        self._last_start = -REFILL_QUIET_S
+
+    # -- pool ---------------------------------------------------------------------------------
+
+    def _spawn(self, pool_id: str, *arguments: str) -> subprocess.Popen:
+        return subprocess.Popen(
+            [self._python, "-m", "services.worker", "--pool-id", pool_id, *arguments, *self._flags],
+            stdin=subprocess.PIPE,  # closes when the host manager ends: idle members then exit
+        )
+
+    def fill_pool(self) -> None:
+        """Start one pool member if the pool is short, none is starting and starts have been
+        quiet for ``REFILL_QUIET_S``."""
+        starting = set(self._members) - self._ready
+        quiet = time.monotonic() - self._last_start > REFILL_QUIET_S
+        if len(self._members) < self.pool_size and quiet and not starting:
+            pool_id = f"{self._tag}-{uuid.uuid4().hex[:8]}"
+            try:
+                self._members[pool_id] = self._spawn(pool_id)
+            except OSError as exc:
+                self.counters["failed_pool_spawns"] += 1
+                self._last_start = time.monotonic()  # try again after a quiet period
+                log.error("cannot start a pool worker: %s", exc)
+
+    def on_pool_token(self, pool_id: str, appeared: bool) -> Exited | None:
+        """A pool token appeared or vanished; the instance it ended, if its process was
+        running one (released by a stop command this host manager did not send)."""
+        if not appeared:
+            self._ready.discard(pool_id)
+            return None
+        if pool_id in self._members:
+            self._ready.add(pool_id)
+            self._returning.pop(pool_id, None)
+            return None
+        owner = next((i for i, a in self.assigned.items() if a.pool_id == pool_id), None)
+        if owner is None:
+            return None  # another host manager's member
+        assignment = self.assigned.pop(owner)
+        self.counters["released"] += 1
+        log.info("%s: released by a stop command from elsewhere", owner)
+        if len(self._members) < self.pool_size:
+            self._members[pool_id] = assignment.process
+            self._ready.add(pool_id)
+        else:
+            self._terminate(assignment.process)
+        return Exited(owner, assignment.run, assignment.process.pid, None, "released")
+
+    def _take_ready(self) -> tuple[str, subprocess.Popen] | None:
+        while self._ready:
+            pool_id = self._ready.pop()
+            process = self._members.pop(pool_id)
+            if process.poll() is None:
+                return pool_id, process
+        return None
+
+    # -- instances ----------------------------------------------------------------------------
+
+    def start(self, spec: ComponentSpec) -> Started:
+        """Run ``spec`` (already checked against the registry). A repeated start of an instance
+        running with the same specification starts nothing; with another, the running one is
+        stopped first, so one instance never runs twice here."""
+        current = self.assigned.get(spec.instance)
+        if current is not None and current.process.poll() is None:
+            if current.spec == spec:
+                self.counters["reused"] += 1
+                return Started(spec.instance, current.run, current.process.pid, reused=True)
+            self.stop(spec.instance)
+        taken = self._take_ready()
+        if taken is not None:
+            pool_id, process = taken
+            self._session.put(self._keys.pool(pool_id), spec.to_json())
+            self.counters["started_from_pool"] += 1
+            log.info("%s: assigned to pool worker %s", spec.instance, pool_id)
+        else:
+            pool_id = f"{self._tag}-{uuid.uuid4().hex[:8]}"
+            try:
+                process = self._spawn(pool_id, "--spec", spec.to_json())
+            except OSError as exc:
+                raise ProtocolError("failed_spawn", str(exc)) from None
+            self.counters["started_cold"] += 1
+            log.info("%s: started process %d", spec.instance, process.pid)
+        run = uuid.uuid4().hex[:12]
+        self.assigned[spec.instance] = Assignment(spec, run, pool_id, process)
+        self._last_start = time.monotonic()
+        return Started(spec.instance, run, process.pid, reused=False)
+
+    def stop(self, instance: str) -> str:
+        """Put the stop command on ``instance``'s control key (wherever it runs) and release
+        or terminate its process here: ``"released"``, ``"terminated"`` or ``"none"``."""
+        self._session.put(self._keys.control(instance), STOP_COMMAND)
+        assignment = self.assigned.pop(instance, None)
+        if assignment is None:
+            return "none"
+        self.counters["stopped"] += 1
+        process = assignment.process
+        if process.poll() is None and len(self._members) < self.pool_size:
+            self._members[assignment.pool_id] = process
+            self._returning[assignment.pool_id] = time.monotonic() + STOP_GRACE_S
+            return "released"
+        self._terminate(process)
+        return "terminated"
+
+    def _terminate(self, process: subprocess.Popen) -> None:
+        if process.poll() is None:
+            process.terminate()
+            self._stopping.append((process, time.monotonic() + STOP_GRACE_S))
+
+    def reap(self) -> list[Exited]:
+        """Collect exited processes, kill overdue ones; the instances whose process exited."""
+        exits = []
+        for instance, assignment in list(self.assigned.items()):
+            returncode = assignment.process.poll()
+            if returncode is not None:
+                del self.assigned[instance]
+                self.counters["exited"] += 1
+                log.warning("%s: worker exited with %s", instance, returncode)
+                pid = assignment.process.pid
+                exits.append(Exited(instance, assignment.run, pid, returncode, "exited"))
+        now = time.monotonic()
+        for pool_id, deadline in list(self._returning.items()):
+            if now > deadline:
+                del self._returning[pool_id]
+                log.warning("pool worker %s did not rejoin the pool: terminating it", pool_id)
+                self._terminate(self._members.pop(pool_id))
+        still = []
+        for process, deadline in self._stopping:
+            if process.poll() is None:
+                if now > deadline:
+                    self.counters["killed"] += 1
+                    process.kill()
+                still.append((process, deadline))
+        self._stopping = still
+        for pool_id in [p for p, process in self._members.items() if process.poll() is not None]:
+            del self._members[pool_id]
+            self._ready.discard(pool_id)
+            self._returning.pop(pool_id, None)
+        return exits
+
+    def terminate_all(self) -> None:
+        """End every process this supervisor started (the host manager is stopping cleanly)."""
+        everything = [a.process for a in self.assigned.values()]
+        everything += [*self._members.values(), *(process for process, _ in self._stopping)]
+        for process in everything:
+            if process.poll() is None:
+                process.terminate()
+        for process in everything:
+            try:
+                process.wait(timeout=STOP_GRACE_S)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+        self.assigned.clear()
+        self._members.clear()
+        self._ready.clear()
+        self._returning.clear()
+        self._stopping.clear()
+
+    def status(self) -> dict[str, Any]:
+        """Pool and instances (JSON-ready)."""
+        return {
+            "pool_size": self.pool_size,
+            "pool_ready": len(self._ready),
+            "pool_starting": len(self._members) - len(self._ready),
+            "stopping": len(self._stopping),
+            "instances": {
+                instance: {
+                    "service": assignment.spec.service,
+                    "run": assignment.run,
+                    "pid": assignment.process.pid,
+                    "pool_id": assignment.pool_id,
+                }
+                for instance, assignment in self.assigned.items()
+            },
+        }

@@ -1,0 +1,378 @@
+"""The host manager (``services/host.py``) with real zenoh on loopback and real processes:
+start, stop and status requests, refusals, exit reports, and an agent using a host manager it
+did not start."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import pytest
+
+from tests.integration.conftest import kill_tagged
+from tests.integration.zenoh_helpers import Collector, free_port, member_flags, wait_until
+from ubitrack_agent.core import Pose, decode, encode
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net import config
+from ubitrack_agent.net.host_protocol import (
+    MAX_MESSAGE_BYTES,
+    STOP_COMMAND,
+    Exited,
+    Start,
+    Status,
+    Stop,
+    encode_request,
+)
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.transport import fetch_latest
+
+pytestmark = pytest.mark.integration
+
+PUT = "SampleKind.PUT"
+
+
+@dataclass
+class Network:
+    port: int
+    domain: str
+    keys: KeySpace
+    session: object
+    processes: list
+    watches: list = field(default_factory=list)
+
+    def start(self, *command: str) -> subprocess.Popen:
+        process = subprocess.Popen(
+            [sys.executable, *command, *member_flags(self.port, self.domain)],
+            start_new_session=True,
+        )
+        self.processes.append(process)
+        return process
+
+    def host(self, name: str, pool_size: int, *via: str) -> subprocess.Popen:
+        """A host manager (``python -m services.host``, or ``via`` another entry point)."""
+        entry = via or ("-m", "services.host")
+        process = self.start(*entry, "--name", name, "--pool-size", str(pool_size))
+        wait_until(lambda: self.ask(name, encode_request(Status()))[0], timeout=30)
+        return process
+
+    def ask(self, host: str, payload: bytes | str | None) -> tuple[bool, dict]:
+        """(success, reply) of one request; (False, {}) without an answer."""
+        extra = {} if payload is None else {"payload": payload}
+        replies = list(self.session.get(self.keys.host_request(host), timeout=5.0, **extra))
+        if not replies:
+            return False, {}
+        reply = replies[0]
+        answer = reply.ok if reply.ok is not None else reply.err
+        return reply.ok is not None, json.loads(answer.payload.to_bytes())
+
+    def status(self, host: str) -> dict:
+        ok, answer = self.ask(host, encode_request(Status()))
+        assert ok, answer
+        return answer
+
+    def tokens(self) -> list[tuple[str, str, float]]:
+        """Worker token events (kind, instance, time) from now on, appended as they come."""
+        events: list[tuple[str, str, float]] = []
+        watch = self.session.liveliness().declare_subscriber(
+            self.keys.all_workers(),
+            lambda s: events.append(
+                (str(s.kind), self.keys.parse_worker(str(s.key_expr)), time.monotonic())
+            ),
+        )
+        self.watches.append(watch)
+        return events
+
+    def agent(self, *extra: str) -> subprocess.Popen:
+        process = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "ubitrack_agent.cli",
+                "--log-level",
+                "INFO",
+                "agent",
+                "--listen",
+                f"tcp/127.0.0.1:{self.port}",
+                "--domain",
+                self.domain,
+                *extra,
+            ],
+            start_new_session=True,
+        )
+        self.processes.append(process)
+        wait_until(lambda: self.agent_status() is not None, timeout=20)
+        return process
+
+    def agent_status(self) -> dict | None:
+        replies = fetch_latest(self.session, self.keys.agent_status(), timeout=0.5)
+        return json.loads(replies[0]) if replies else None
+
+
+def network(processes: list, as_hub: bool) -> Iterator[Network]:
+    port = free_port()
+    domain = f"host{port}"
+    hub = config.Settings(listen=(f"tcp/127.0.0.1:{port}",), domain=domain)
+    settings = hub if as_hub else config.member_of(hub)
+    with open_session(settings) as session:
+        yield Network(port, domain, KeySpace(settings.key_prefix), session, processes)
+    kill_tagged(domain)  # workers left on purpose by a killed parent
+
+
+@pytest.fixture
+def net(processes) -> Iterator[Network]:
+    """A member session; the test starts an agent as the hub."""
+    yield from network(processes, as_hub=False)
+
+
+@pytest.fixture
+def hub(processes) -> Iterator[Network]:
+    """The test's own session as the hub (no agent)."""
+    yield from network(processes, as_hub=True)
+
+
+def relay(keys: KeySpace, instance: str, **changes) -> ComponentSpec:
+    return ComponentSpec(
+        instance=instance,
+        service=changes.pop("service", "relay"),
+        inputs=(InputBinding("in", keys.data("src/in"), trigger=True),),
+        outputs={"out": keys.data(f"{instance}/out")},
+        **changes,
+    )
+
+
+def tagged(domain: str) -> list[str]:
+    """Processes whose command line names the test's domain."""
+    found = subprocess.run(["pgrep", "-f", domain], capture_output=True, text=True).stdout
+    return [pid for pid in found.split() if pid != str(os.getpid())]
+
+
+def test_start_stop_status_and_exit_reports(hub):
+    keys = hub.keys
+    tokens = hub.tokens()
+    exits = Collector(hub.session, keys.host_exited("lab"))
+    host = hub.host("lab", pool_size=1)
+    wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=30)
+
+    # A start goes to the ready pool member; the worker runs.
+    ok, started = hub.ask("lab", encode_request(Start(relay(keys, "relay1"))))
+    assert ok and not started["reused"], started
+    wait_until(lambda: (PUT, "relay1") in [(k, i) for k, i, _ in tokens], timeout=20)
+    output = Collector(hub.session, keys.data("relay1/out"))
+    source = hub.session.declare_publisher(keys.data("src/in"))
+    wait_until(lambda: source.matching_status.matching)
+    source.put(encode(Pose(1_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    assert decode(output.next(), expected=Pose).timestamp_ns == 1_000
+    status = hub.status("lab")
+    assert status["instances"]["relay1"]["pid"] == started["pid"]
+    assert status["counters"]["started_from_pool"] == 1
+
+    # Asked again, it starts nothing.
+    ok, again = hub.ask("lab", encode_request(Start(relay(keys, "relay1"))))
+    assert ok and again["reused"] and again["run"] == started["run"], again
+
+    # Killed: reported with its run, whatever the reason.
+    os.kill(started["pid"], signal.SIGKILL)
+    report = Exited.parse(exits.next(timeout=10))
+    assert (report.instance, report.run, report.reason) == ("relay1", started["run"], "exited")
+
+    # Released by a stop command from elsewhere: reported too, the process rejoins the pool.
+    ok, second = hub.ask("lab", encode_request(Start(relay(keys, "relay2"))))
+    assert ok, second
+    wait_until(lambda: (PUT, "relay2") in [(k, i) for k, i, _ in tokens], timeout=20)
+    hub.session.put(keys.control("relay2"), STOP_COMMAND)
+    report = Exited.parse(exits.next(timeout=10))
+    assert (report.instance, report.run, report.reason) == ("relay2", second["run"], "released")
+    wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=10)
+
+    # Stopped through the host manager: no report, the process goes back to the pool.
+    ok, third = hub.ask("lab", encode_request(Start(relay(keys, "relay3"))))
+    assert ok, third
+    wait_until(lambda: (PUT, "relay3") in [(k, i) for k, i, _ in tokens], timeout=20)
+    ok, stopped = hub.ask("lab", encode_request(Stop("relay3")))
+    assert ok and stopped == {"instance": "relay3", "process": "released"}, stopped
+    wait_until(lambda: ("SampleKind.DELETE", "relay3") in [(k, i) for k, i, _ in tokens])
+    wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=10)
+    status = hub.status("lab")
+    assert status["instances"] == {}
+    assert status["counters"]["exited"] == status["counters"]["released"] == 1
+    with pytest.raises(queue.Empty):  # nothing more was reported
+        exits.next(timeout=0.5)
+
+    # SIGTERM: every worker it started ends with it, its pool member too.
+    ok, last = hub.ask("lab", encode_request(Start(relay(keys, "relay4"))))
+    assert ok, last
+    host.send_signal(signal.SIGTERM)
+    assert host.wait(timeout=15) == 0
+    wait_until(lambda: not tagged(hub.domain), timeout=10)
+
+
+def test_unregistered_services_and_malformed_requests_are_refused(hub):
+    keys = hub.keys
+    hub.host("lab", pool_size=0)
+    good = relay(keys, "good")
+    refused = {
+        "refused_spec": [
+            encode_request(Start(relay(keys, "evil", service="os.system"))),
+            encode_request(Start(relay(keys, "odd", parameters={"unknown": 1}))),
+            json.dumps({"op": "start", "spec": {**good.as_dict(), "outputs": {"out": "a/*"}}}),
+        ],
+        "malformed_request": [
+            None,
+            b"{not json",
+            b"\xff\xfe\xfd",
+            b"[" * 50_000 + b"]" * 50_000,
+            json.dumps({"op": ["start"]}),
+            json.dumps({"op": "stop", "instance": 7}),
+            json.dumps({"op": "stop", "instance": "../x"}),
+            json.dumps({"op": "start", "spec": [good.as_dict()]}),
+            json.dumps({"op": "status", "verbose": True}),
+        ],
+        "oversized_request": [b"{" + b" " * (2 * MAX_MESSAGE_BYTES) + b"}"],
+    }
+    for error, payloads in refused.items():
+        for payload in payloads:
+            ok, answer = hub.ask("lab", payload)
+            assert not ok and answer["error"] == error, (payload[:80] if payload else None, answer)
+    status = hub.status("lab")
+    assert status["counters"]["refused_specs"] == 3
+    assert status["counters"]["malformed_requests"] == 9
+    assert status["counters"]["oversized_requests"] == 1
+    assert status["instances"] == {}
+    assert "started_cold" not in status["counters"]  # nothing refused ever ran
+
+    # Still alive and serving.
+    ok, started = hub.ask("lab", encode_request(Start(good)))
+    assert ok, started
+    wait_until(lambda: fetch_latest(hub.session, keys.status("good"), timeout=0.5), timeout=20)
+
+
+def test_an_agent_without_a_host_manager_waits_for_one_then_serves(net):
+    agent = net.agent("--no-host")
+    net.start(
+        "-m",
+        "sim_trackers.exact_tracker",
+        "--provider",
+        "art",
+        "--tracker",
+        "ART",
+        "--yaw",
+        "30",
+        "--x",
+        "2",
+    )
+    relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
+    wait_until(lambda: (net.agent_status() or {}).get("components"), timeout=20)
+    time.sleep(2.0)  # settled: it would have started workers by now
+    status = net.agent_status()
+    assert status["hosts"] == []
+    assert not any(c["alive"] for c in status["components"].values())
+    assert relation.latest() is None
+
+    net.host("separate", 1, "-m", "ubitrack_agent.cli", "host")
+    wait_until(lambda: relation.latest() is not None, timeout=30)
+    status = net.agent_status()
+    assert status["hosts"] == ["separate"]
+    assert {c["host"] for c in status["components"].values()} == {"separate"}
+    assert set(net.status("separate")["instances"]) == set(status["components"])
+
+    # A clean stop of the agent stops its workers; the host manager stays, its pool too.
+    agent.send_signal(signal.SIGTERM)
+    assert agent.wait(timeout=15) == 0
+    wait_until(lambda: net.status("separate")["instances"] == {}, timeout=10)
+    relation.close()
+
+
+def test_workers_killed_before_and_after_their_token_are_started_again(net):
+    net.agent("--no-host")
+    net.host("lab", pool_size=0)  # cold starts: time to kill a worker before its token
+    tokens = net.tokens()
+    net.start(
+        "-m",
+        "sim_trackers.exact_tracker",
+        "--provider",
+        "art",
+        "--tracker",
+        "ART",
+        "--yaw",
+        "30",
+        "--x",
+        "2",
+    )
+    relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
+    instances = wait_until(lambda: net.status("lab")["instances"], timeout=20)
+    victim, process = next(iter(instances.items()))
+    os.kill(process["pid"], signal.SIGKILL)
+    killed_at = time.monotonic()
+    assert not [event for event in tokens if event[1] == victim]  # it never declared a token
+    wait_until(lambda: relation.latest() is not None, timeout=30)
+    assert next(e for e in tokens if e[1] == victim)[2] > killed_at
+    assert net.agent_status()["counters"]["restarts"] >= 1
+    assert net.status("lab")["counters"]["exited"] >= 1
+
+    # Killed while running: its host manager reports it, the agent starts it again.
+    pid = net.status("lab")["instances"][victim]["pid"]
+    os.kill(pid, signal.SIGKILL)
+
+    def new_pid() -> int | None:
+        replies = fetch_latest(net.session, net.keys.status(victim), timeout=0.5)
+        found = json.loads(replies[0])["pid"] if replies else None
+        return found if found not in (None, pid) else None
+
+    wait_until(new_pid, timeout=30)
+    relation.close()
+
+
+def test_the_agent_starts_its_host_manager_again_and_a_clean_stop_ends_every_worker(net):
+    agent = net.agent()  # with its own host manager
+    net.start(
+        "-m",
+        "sim_trackers.exact_tracker",
+        "--provider",
+        "art",
+        "--tracker",
+        "ART",
+        "--yaw",
+        "30",
+        "--x",
+        "2",
+    )
+    relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
+    wait_until(lambda: relation.latest() is not None, timeout=30)
+    (name,) = net.agent_status()["hosts"]
+    first = net.status(name)["pid"]
+
+    os.kill(first, signal.SIGKILL)  # its workers keep running, adopted as they are
+    wait_until(lambda: net.ask(name, encode_request(Status()))[1].get("pid") not in (None, first))
+    relation.wait_for(timeout=10)  # still flowing
+
+    status = net.agent_status()
+    adopted = [i for i, c in status["components"].items() if c["host"] is None]
+    assert adopted and status["counters"].get("restarts", 0) == 0  # none restarted
+    assert workers(net.domain)
+
+    agent.send_signal(signal.SIGTERM)
+    assert agent.wait(timeout=20) == 0
+    wait_until(lambda: not workers(net.domain), timeout=10)
+    relation.close()
+
+
+def workers(domain: str) -> list[str]:
+    """Host managers and workers of the test's domain still running."""
+    return [pid for pid in tagged(domain) if "-m services." in command_line(pid)]
+
+
+def command_line(pid: str) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as file:
+            return file.read().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""

@@ -1,0 +1,180 @@
+"""The agent's side of the host managers (``ubitrack_agent/agent/hosts.py``) on a stand-in
+session: where starts go, when they wait, which exit reports restart what, how stops go."""
+
+import json
+from collections import Counter
+from types import SimpleNamespace
+
+import pytest
+
+from ubitrack_agent.agent import hosts as hosts_module
+from ubitrack_agent.agent.hosts import Hosts, Placement
+from ubitrack_agent.net.host_protocol import (
+    STOP_COMMAND,
+    Exited,
+    ProtocolError,
+    Started,
+    parse_request,
+)
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+
+KEYS = KeySpace("ubitrack/test")
+PUT, DELETE = "SampleKind.PUT", "SampleKind.DELETE"
+
+
+def payload(data: bytes) -> SimpleNamespace:
+    return SimpleNamespace(to_bytes=lambda: data)
+
+
+class FakeSession:
+    """Records requests and puts; hosts answer with ``answers[host]`` (a callable, or None for
+    silence)."""
+
+    def __init__(self) -> None:
+        self.callbacks: dict[str, object] = {}
+        self.requests: list[tuple[str, object]] = []
+        self.puts: list[tuple[str, str]] = []
+        self.answers: dict[str, object] = {}
+
+    def liveliness(self):
+        return SimpleNamespace(declare_subscriber=self._subscribe)
+
+    def declare_subscriber(self, key, callback, history=False):
+        return self._subscribe(key, callback, history)
+
+    def _subscribe(self, key, callback, history=False):
+        self.callbacks[key] = callback
+        return SimpleNamespace(undeclare=lambda: None)
+
+    def event(self, selector: str, kind: str, key: str, data: bytes = b"") -> None:
+        self.callbacks[selector](SimpleNamespace(kind=kind, key_expr=key, payload=payload(data)))
+
+    def get(self, key, payload=None, timeout=None):
+        host = KEYS.parse_host(key.removesuffix("/request"))
+        request = parse_request(payload.encode())
+        self.requests.append((host, request))
+        answer = self.answers.get(host)
+        return [] if answer is None else [answer(request)]
+
+    def put(self, key, data):
+        self.puts.append((key, data))
+
+
+def started(request) -> SimpleNamespace:
+    run = f"run-{request.spec.instance}"
+    reply = Started(request.spec.instance, run, 7, reused=False).to_json().encode()
+    return SimpleNamespace(ok=SimpleNamespace(payload=payload(reply)), err=None)
+
+
+def refused(request) -> SimpleNamespace:
+    reply = ProtocolError("refused_spec", "no").to_json().encode()
+    return SimpleNamespace(ok=None, err=SimpleNamespace(payload=payload(reply)))
+
+
+def stopped(request) -> SimpleNamespace:
+    reply = json.dumps({"instance": request.instance, "process": "released"}).encode()
+    return SimpleNamespace(ok=SimpleNamespace(payload=payload(reply)), err=None)
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    now = [10.0]
+    monkeypatch.setattr(hosts_module.time, "monotonic", lambda: now[0])
+    return now
+
+
+@pytest.fixture
+def world(clock):
+    session, counters = FakeSession(), Counter()
+    return session, Hosts(session, KEYS, counters), counters
+
+
+def host_appears(session: FakeSession, hosts: Hosts, name: str) -> None:
+    session.event(KEYS.all_hosts(), PUT, KEYS.host(name))
+    assert hosts.reap(set()) == []
+
+
+def spec(instance: str) -> ComponentSpec:
+    return ComponentSpec(
+        instance=instance,
+        service="relay",
+        inputs=(InputBinding("in", KEYS.data("art/HT"), trigger=True),),
+        outputs={"out": KEYS.data(f"{instance}/out")},
+    )
+
+
+def test_a_start_waits_for_a_host_manager_then_goes_to_the_first_by_name(world):
+    session, hosts, _counters = world
+    assert not hosts.start(spec("a"))
+    assert session.requests == []
+    for name in ("zeta", "alpha"):
+        session.answers[name] = started
+        host_appears(session, hosts, name)
+    assert hosts.start(spec("a"))
+    assert [host for host, _ in session.requests] == ["alpha"]
+    assert hosts.placements["a"] == Placement("alpha", "run-a")
+    assert hosts.reports_exit_of("a")
+
+
+def test_refused_and_unanswered_starts_are_asked_again_later(world, clock):
+    session, hosts, counters = world
+    session.answers["lab"] = refused
+    host_appears(session, hosts, "lab")
+    assert not hosts.start(spec("a"))
+    assert not hosts.start(spec("a"))  # not again at once
+    assert len(session.requests) == 1
+    clock[0] += hosts_module.START_RETRY_S + 0.1
+    session.answers["lab"] = None  # silent
+    assert not hosts.start(spec("a"))
+    assert not hosts.start(spec("b"))  # a silent host manager is left alone for a while
+    assert len(session.requests) == 2
+    clock[0] += hosts_module.START_RETRY_S + 0.1
+    session.answers["lab"] = started
+    assert hosts.start(spec("a")) and hosts.start(spec("b"))
+    assert counters["refused_starts"] == 2
+
+
+def test_only_a_matching_exit_report_restarts(world):
+    session, hosts, counters = world
+    session.answers["lab"] = started
+    host_appears(session, hosts, "lab")
+    hosts.start(spec("a"))
+    exits = KEYS.all_host_exits()
+    for report in (
+        Exited("a", "an-earlier-run", 1, 0, "exited"),  # stale
+        Exited("b", "run-b", 1, 0, "exited"),  # not ours
+    ):
+        session.event(exits, PUT, KEYS.host_exited("lab"), report.to_json().encode())
+    session.event(exits, PUT, KEYS.host_exited("other"), b"{garbage")
+    session.event(exits, PUT, KEYS.host_exited("lab") + "/extra", b"{}")
+    assert hosts.reap(set()) == []
+    assert counters["rejected_host_reports"] == 2
+    report = Exited("a", "run-a", 1, -9, "exited")
+    session.event(exits, PUT, KEYS.host_exited("lab"), report.to_json().encode())
+    assert hosts.reap({"a"}) == ["a"]
+    assert "a" not in hosts.placements
+
+
+def test_a_vanished_host_manager_restarts_its_instances_that_are_not_alive(world):
+    session, hosts, _counters = world
+    session.answers["lab"] = started
+    host_appears(session, hosts, "lab")
+    hosts.start(spec("a"))
+    hosts.start(spec("b"))
+    session.event(KEYS.all_hosts(), DELETE, KEYS.host("lab"))
+    assert hosts.reap(alive={"a"}) == ["b"]
+    assert hosts.placements == {}
+    assert not hosts.reports_exit_of("a")  # now watched by its worker token
+
+
+def test_stops_go_through_the_host_manager_else_on_the_control_key(world):
+    session, hosts, _counters = world
+    session.answers["lab"] = started
+    host_appears(session, hosts, "lab")
+    hosts.start(spec("a"))
+    session.answers["lab"] = stopped
+    hosts.stop("a")
+    assert session.requests[-1][0] == "lab" and session.puts == []
+    hosts.stop("adopted")  # never placed: the stop command itself
+    assert session.puts == [(KEYS.control("adopted"), STOP_COMMAND)]

@@ -1,0 +1,88 @@
+"""The host manager's request handling (``services/host_manager.py``) on a stand-in session:
+every request gets a reply of its kind, and nothing raises out of the handler."""
+
+import json
+from types import SimpleNamespace
+
+import pytest
+import zenoh
+
+from services.host_manager import HostManager
+from ubitrack_agent.net.host_protocol import Status, encode_request
+from ubitrack_agent.net.keys import KeySpace
+
+KEYS = KeySpace("ubitrack/test")
+
+
+class FakeSession:
+    def __init__(self) -> None:
+        self.puts: list[tuple[str, str]] = []
+
+    def liveliness(self):
+        return SimpleNamespace(
+            declare_subscriber=lambda *args, **kwargs: SimpleNamespace(undeclare=lambda: None),
+            declare_token=lambda key: SimpleNamespace(undeclare=lambda: None),
+        )
+
+    def declare_publisher(self, key):
+        return SimpleNamespace(put=lambda data: self.puts.append((key, data)))
+
+    def declare_queryable(self, key):
+        return []  # no request arrives through zenoh here: the tests hand them over
+
+
+class FakeQuery:
+    def __init__(self, data: bytes | None, reply_fails: bool = False) -> None:
+        self.payload = None if data is None else SimpleNamespace(to_bytes=lambda: data)
+        self.replies: list[tuple[bool, dict]] = []
+        self._reply_fails = reply_fails
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def reply(self, key, data):
+        self._send(True, data)
+
+    def reply_err(self, data):
+        self._send(False, data)
+
+    def _send(self, ok: bool, data: str) -> None:
+        if self._reply_fails:
+            raise zenoh.ZError("the querier has gone")
+        self.replies.append((ok, json.loads(data)))
+
+
+@pytest.fixture
+def manager():
+    return HostManager(FakeSession(), KEYS, "lab", [], pool_size=0)
+
+
+def answer(manager: HostManager, data: bytes | None, **options) -> tuple[bool, dict]:
+    query = FakeQuery(data, **options)
+    manager._answer(query)
+    return query.replies[0] if query.replies else (None, {})
+
+
+def test_status_is_answered(manager):
+    ok, status = answer(manager, encode_request(Status()).encode())
+    assert ok and status["name"] == "lab" and status["pool_size"] == 0
+    assert status["counters"] == {"requests": 1}
+
+
+def test_a_fault_of_the_host_manager_is_an_internal_error_reply(manager, monkeypatch):
+    def broken():
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(manager.supervisor, "status", broken)
+    ok, refusal = answer(manager, encode_request(Status()).encode())
+    assert not ok and refusal == {"error": "internal_error", "reason": "RuntimeError"}
+    assert manager.counters["internal_errors"] == 1
+
+
+def test_a_reply_that_cannot_be_sent_is_logged_not_raised(manager):
+    assert answer(manager, b"{not json", reply_fails=True) == (None, {})
+    assert answer(manager, encode_request(Status()).encode(), reply_fails=True) == (None, {})
+    assert manager.counters["malformed_requests"] == 1

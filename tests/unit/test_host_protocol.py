@@ -1,0 +1,160 @@
+"""The host manager protocol and keys: round trips, and every malformed message refused with
+its type (``ubitrack_agent/net/host_protocol.py``)."""
+
+import json
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from ubitrack_agent.net.host_protocol import (
+    ERRORS,
+    MAX_MESSAGE_BYTES,
+    Exited,
+    ProtocolError,
+    Start,
+    Started,
+    Status,
+    Stop,
+    encode_request,
+    parse_request,
+)
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+
+KEYS = KeySpace("ubitrack/test")
+SPEC = ComponentSpec(
+    instance="relay-1",
+    service="relay",
+    inputs=(InputBinding("in", KEYS.data("art/HT"), trigger=True),),
+    outputs={"out": KEYS.data("relay-1/out")},
+)
+
+
+@pytest.mark.parametrize("request_", [Start(SPEC), Stop("relay-1"), Status()])
+def test_requests_round_trip(request_):
+    assert parse_request(encode_request(request_).encode()) == request_
+
+
+def test_replies_and_reports_round_trip():
+    started = Started("relay-1", "0123abcd", 42, reused=False)
+    assert Started.parse(started.to_json().encode()) == started
+    for exited in (
+        Exited("relay-1", "0123abcd", 42, -9, "exited"),
+        Exited("relay-1", "0123abcd", 42, None, "released"),
+    ):
+        assert Exited.parse(exited.to_json().encode()) == exited
+    refusal = ProtocolError("refused_spec", "spec.service: no registered service 'x'")
+    parsed = ProtocolError.parse(refusal.to_json().encode())
+    assert (parsed.error, parsed.reason) == (refusal.error, refusal.reason)
+
+
+@pytest.mark.parametrize(
+    ("payload", "error", "fragment"),
+    [
+        (None, "malformed_request", "empty"),
+        (b"", "malformed_request", "empty"),
+        (b"{not json", "malformed_request", "not JSON"),
+        (b"\xff\xfe", "malformed_request", "UTF-8"),
+        (b"[" * 100_000 + b"]" * 100_000, "malformed_request", "nested"),
+        (b"[]", "malformed_request", "object"),
+        (b" " * (MAX_MESSAGE_BYTES + 1), "oversized_request", "bytes"),
+        (b'{"op": 5}', "malformed_request", "op"),
+        (b'{"op": "reboot"}', "malformed_request", "op"),
+        (b'{"op": "status", "also": 1}', "malformed_request", "exactly"),
+        (b'{"op": "stop", "instance": ["a"]}', "malformed_request", "instance"),
+        (b'{"op": "stop", "instance": "a/b"}', "malformed_request", "instance"),
+        (b'{"op": "stop", "instance": "**"}', "malformed_request", "instance"),
+        (b'{"op": "start", "spec": "x"}', "malformed_request", "spec"),
+        (b'{"op": "start", "spec": {"instance": "a"}}', "refused_spec", "spec."),
+    ],
+)
+def test_malformed_requests_are_refused_with_their_type(payload, error, fragment):
+    with pytest.raises(ProtocolError) as refused:
+        parse_request(payload)
+    assert refused.value.error == error
+    assert fragment in refused.value.reason
+
+
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=10),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner),
+    max_leaves=30,
+)
+
+
+@given(
+    st.dictionaries(
+        st.sampled_from(["op", "spec", "instance", "x"]) | st.text(max_size=5), json_values
+    )
+    | json_values
+)
+def test_parse_request_raises_nothing_but_protocol_errors(data):
+    payload = json.dumps(data).encode()
+    try:
+        parse_request(payload)
+    except ProtocolError as refusal:
+        assert refusal.error in ERRORS
+
+
+@given(st.binary(max_size=200))
+def test_parse_request_is_total_over_bytes(payload):
+    try:
+        parse_request(payload)
+    except ProtocolError as refusal:
+        assert refusal.error in ERRORS
+
+
+@pytest.mark.parametrize(
+    "report",
+    [
+        {"instance": "a", "run": "r", "pid": 1, "returncode": "1", "reason": "exited"},
+        {"instance": "a", "run": "r", "pid": True, "returncode": 0, "reason": "exited"},
+        {"instance": "a", "run": "r", "pid": 1, "returncode": 0, "reason": "bored"},
+        {"instance": "a/*", "run": "r", "pid": 1, "returncode": 0, "reason": "exited"},
+    ],
+)
+def test_malformed_exit_reports_are_refused(report):
+    with pytest.raises(ProtocolError):
+        Exited.parse(json.dumps(report).encode())
+
+
+def test_host_keys_and_their_parsers():
+    assert KEYS.host("lab-pc") == "ubitrack/test/host/lab-pc"
+    assert KEYS.host_request("lab-pc") == "ubitrack/test/host/lab-pc/request"
+    assert KEYS.host_exited("lab-pc") == "ubitrack/test/host/lab-pc/exited"
+    assert KEYS.parse_host(KEYS.host("lab-pc")) == "lab-pc"
+    assert KEYS.parse_host_exited(KEYS.host_exited("lab-pc")) == "lab-pc"
+    assert KEYS.parse_pool(KEYS.pool("ab-12")) == "ab-12"
+    assert KEYS.parse_worker(KEYS.worker("concat-1")) == "concat-1"
+
+
+@pytest.mark.parametrize(
+    "key",
+    [
+        "ubitrack/test/host/a/b",
+        "ubitrack/test/host/",
+        "ubitrack/test/host/*",
+        "ubitrack/other/host/a",
+        "ubitrack/test/hosts/a",
+        "ubitrack/test/host/a b",
+    ],
+)
+def test_malformed_host_keys_are_rejected(key):
+    with pytest.raises(ValueError):
+        KEYS.parse_host(key)
+
+
+@pytest.mark.parametrize(
+    "key",
+    ["ubitrack/test/host/a/exit", "ubitrack/test/host/a/b/exited", "ubitrack/test/host/exited"],
+)
+def test_malformed_exit_keys_are_rejected(key):
+    with pytest.raises(ValueError):
+        KEYS.parse_host_exited(key)
+
+
+@pytest.mark.parametrize("name", ["a/b", "*", "a b", "", "h$"])
+def test_hostile_host_names_are_rejected(name):
+    with pytest.raises(ValueError):
+        KEYS.host(name)

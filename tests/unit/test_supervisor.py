@@ -1,0 +1,183 @@
+"""The host manager's process handling (``services/supervisor.py``) with stand-in processes:
+the warm pool, starting without duplicates, releases, exits and overdue stops."""
+
+from collections import Counter
+
+import pytest
+
+from services import supervisor as supervisor_module
+from services.supervisor import Supervisor
+from ubitrack_agent.net.host_protocol import STOP_COMMAND
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+
+KEYS = KeySpace("ubitrack/test")
+
+
+class FakeProcess:
+    """Enough of ``subprocess.Popen`` for the supervisor."""
+
+    next_pid = 1000
+
+    def __init__(self, arguments: tuple[str, ...]) -> None:
+        FakeProcess.next_pid += 1
+        self.pid = FakeProcess.next_pid
+        self.arguments = arguments
+        self.returncode: int | None = None
+        self.signals: list[str] = []
+
+    def poll(self) -> int | None:
+        return self.returncode
+
+    def terminate(self) -> None:
+        self.signals.append("TERM")
+
+    def kill(self) -> None:
+        self.signals.append("KILL")
+        self.returncode = -9
+
+    def wait(self, timeout: float | None = None) -> int:
+        self.returncode = -15 if self.returncode is None else self.returncode
+        return self.returncode
+
+
+class FakeSession:
+    def __init__(self) -> None:
+        self.puts: list[tuple[str, str]] = []
+
+    def put(self, key: str, payload: str) -> None:
+        self.puts.append((key, payload))
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    now = [100.0]
+    monkeypatch.setattr(supervisor_module.time, "monotonic", lambda: now[0])
+    return now
+
+
+@pytest.fixture
+def make(monkeypatch):
+    def build(pool_size: int) -> tuple[Supervisor, FakeSession, list[FakeProcess]]:
+        session, spawned = FakeSession(), []
+
+        def spawn(self, pool_id, *arguments):
+            spawned.append(FakeProcess((pool_id, *arguments)))
+            return spawned[-1]
+
+        monkeypatch.setattr(Supervisor, "_spawn", spawn)
+        return Supervisor(session, KEYS, [], pool_size, Counter()), session, spawned
+
+    return build
+
+
+def spec(instance: str, source: str = "art/HT") -> ComponentSpec:
+    return ComponentSpec(
+        instance=instance,
+        service="relay",
+        inputs=(InputBinding("in", KEYS.data(source), trigger=True),),
+        outputs={"out": KEYS.data(f"{instance}/out")},
+    )
+
+
+def ready_pool(supervisor: Supervisor, spawned: list[FakeProcess], clock) -> str:
+    """Fill one pool member and announce its token; its pool id."""
+    supervisor.fill_pool()
+    pool_id = spawned[-1].arguments[0]
+    supervisor.on_pool_token(pool_id, appeared=True)
+    return pool_id
+
+
+def test_pool_fills_one_at_a_time_after_a_quiet_period(make, clock):
+    supervisor, _, spawned = make(pool_size=2)
+    supervisor.fill_pool()
+    supervisor.fill_pool()
+    assert len(spawned) == 1  # the first is still starting
+    supervisor.on_pool_token(spawned[0].arguments[0], appeared=True)
+    supervisor.start(spec("a"))  # takes the ready member
+    supervisor.fill_pool()
+    assert len(spawned) == 1  # not quiet yet
+    clock[0] += supervisor_module.REFILL_QUIET_S + 0.1
+    supervisor.fill_pool()
+    assert len(spawned) == 2
+
+
+def test_start_uses_a_ready_member_else_a_fresh_process(make, clock):
+    supervisor, session, spawned = make(pool_size=1)
+    pool_id = ready_pool(supervisor, spawned, clock)
+    warm = supervisor.start(spec("a"))
+    assert session.puts == [(KEYS.pool(pool_id), spec("a").to_json())]
+    assert warm.pid == spawned[0].pid and not warm.reused
+    cold = supervisor.start(spec("b"))
+    assert spawned[1].arguments[1:] == ("--spec", spec("b").to_json())
+    assert cold.pid == spawned[1].pid
+    assert supervisor.counters["started_from_pool"] == supervisor.counters["started_cold"] == 1
+
+
+def test_a_repeated_start_starts_nothing_and_a_changed_one_replaces(make, clock):
+    supervisor, session, spawned = make(pool_size=0)
+    first = supervisor.start(spec("a"))
+    again = supervisor.start(spec("a"))
+    assert again.reused and (again.run, again.pid) == (first.run, first.pid)
+    assert len(spawned) == 1
+    replaced = supervisor.start(spec("a", source="ir/HT"))
+    assert len(spawned) == 2 and replaced.run != first.run
+    assert spawned[0].signals == ["TERM"]  # the old one is stopped (pool full at size 0)
+    assert (KEYS.control("a"), STOP_COMMAND) in session.puts
+
+
+def test_stop_releases_to_the_pool_or_terminates(make, clock):
+    supervisor, session, spawned = make(pool_size=1)
+    supervisor.start(spec("a"))
+    supervisor.start(spec("b"))
+    assert supervisor.stop("a") == "released"  # the pool is short: back to it
+    assert supervisor.stop("b") == "terminated"  # now full
+    assert supervisor.stop("c") == "none"
+    assert [key for key, _ in session.puts] == [KEYS.control(i) for i in "abc"]
+    assert spawned[1].signals == ["TERM"]
+    released = spawned[0].arguments[0]
+    supervisor.on_pool_token(released, appeared=True)
+    assert supervisor.status()["pool_ready"] == 1
+
+
+def test_a_released_member_that_does_not_rejoin_is_terminated_then_killed(make, clock):
+    supervisor, _, spawned = make(pool_size=1)
+    supervisor.start(spec("a"))
+    supervisor.stop("a")
+    clock[0] += supervisor_module.STOP_GRACE_S + 0.1
+    supervisor.reap()
+    assert spawned[0].signals == ["TERM"]
+    clock[0] += supervisor_module.STOP_GRACE_S + 0.1
+    supervisor.reap()
+    assert spawned[0].signals == ["TERM", "KILL"]
+    assert supervisor.counters["killed"] == 1
+
+
+def test_exits_and_releases_from_elsewhere_are_reported(make, clock):
+    supervisor, _, spawned = make(pool_size=1)
+    a = supervisor.start(spec("a"))
+    b = supervisor.start(spec("b"))
+    spawned[0].returncode = -9  # killed before it ever declared its token
+    (exited,) = supervisor.reap()
+    assert (exited.instance, exited.run, exited.returncode, exited.reason) == (
+        "a",
+        a.run,
+        -9,
+        "exited",
+    )
+    # Someone else's stop command released b: its pool token appears.
+    released = supervisor.on_pool_token(spawned[1].arguments[0], appeared=True)
+    assert (released.instance, released.run, released.reason) == ("b", b.run, "released")
+    assert supervisor.assigned == {}
+    assert supervisor.status()["pool_ready"] == 1
+    assert supervisor.on_pool_token("other-host-member", appeared=True) is None
+
+
+def test_terminate_all_ends_every_process(make, clock):
+    supervisor, _, spawned = make(pool_size=1)
+    ready_pool(supervisor, spawned, clock)
+    supervisor.start(spec("a"))
+    supervisor.start(spec("b"))
+    supervisor.terminate_all()
+    assert all(process.returncode is not None for process in spawned)
+    assert supervisor.status()["instances"] == {}

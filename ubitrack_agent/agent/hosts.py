@@ -1,0 +1,204 @@
+"""The agent's side of the host managers (``services.host``): where each instance runs, and
+starting and stopping workers over zenoh only (``docs/protocol.md``).
+
+* Host managers are known from their liveliness tokens ``<root>/host/<name>`` (with history).
+  A start goes to a live one (the first by name: placement is for later) as a ``get`` on
+  ``<root>/host/<name>/request`` with a timeout; the reply names the run, remembered with the
+  host as the instance's :class:`Placement`. With no host manager alive, or no answer, or a
+  refusal, the start does not happen and the runtime asks again on a later pass (a refused or
+  unanswered instance after ``START_RETRY_S``; a host manager that did not answer is left
+  alone for as long). A host manager starts nothing twice: it answers a repeated start of a
+  running instance with the same run.
+* A stop goes to the instance's host manager; an instance without one (adopted from an earlier
+  agent, or whose host manager vanished or does not answer) is stopped by putting the stop
+  command on its control key.
+* Host managers report instances that ended without being asked on
+  ``<root>/host/<name>/exited``; a report matching the instance's placement (same host, same
+  run) means it must be started again. Only those reports end a placed instance: its worker
+  token vanishing is not enough (the token of an instance started again may replace the old
+  one before the old one's removal arrives). When a host manager vanishes, its instances lose
+  their placement; those not alive must be started again.
+
+Zenoh callbacks only queue; everything else runs on the agent's thread (:meth:`Hosts.reap`).
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from ubitrack_agent.net import logs
+from ubitrack_agent.net.host_protocol import (
+    STOP_COMMAND,
+    Exited,
+    ProtocolError,
+    Request,
+    Start,
+    Started,
+    Stop,
+    encode_request,
+)
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec
+
+log = logging.getLogger("ubitrack.agent")
+
+REQUEST_TIMEOUT_S = 2.0
+"""Longest wait for a host manager's reply (it answers in milliseconds)."""
+START_RETRY_S = 1.0
+"""After a refused or unanswered start, wait this long before asking again for the instance;
+a host manager that did not answer is not asked anything for as long."""
+PUT = "SampleKind.PUT"
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where an instance runs: the host manager that started it and the run it named."""
+
+    host: str
+    run: str
+
+
+class Hosts:
+    """The host managers on ``session`` and the instances placed on them."""
+
+    def __init__(self, session: Any, keys: KeySpace, counters: Counter[str]) -> None:
+        self._session = session
+        self._keys = keys
+        self._counters = counters
+        self.live: set[str] = set()
+        self.placements: dict[str, Placement] = {}
+        self._retry_at: dict[str, float] = {}
+        self._silent_until: dict[str, float] = {}
+        self._waiting = False
+        self._events: queue.SimpleQueue[tuple[str, str, bytes]] = queue.SimpleQueue()
+        self._watch = session.liveliness().declare_subscriber(
+            keys.all_hosts(),
+            lambda s: self._events.put((str(s.kind), str(s.key_expr), b"")),
+            history=True,
+        )
+        self._exits = session.declare_subscriber(
+            keys.all_host_exits(),
+            lambda s: self._events.put(("exited", str(s.key_expr), s.payload.to_bytes())),
+        )
+
+    def reports_exit_of(self, instance: str) -> bool:
+        """Whether a live host manager runs ``instance`` (and reports when it ends)."""
+        placement = self.placements.get(instance)
+        return placement is not None and placement.host in self.live
+
+    # -- requests ---------------------------------------------------------------------------
+
+    def start(self, spec: ComponentSpec) -> bool:
+        """Have a live host manager run ``spec``; False if none did (ask again later)."""
+        instance = spec.instance
+        if time.monotonic() < self._retry_at.get(instance, 0.0):
+            return False
+        if not self.live and not self._waiting:
+            log.info("no host manager alive yet: starting waits for one")
+            self._waiting = True
+        host = next(iter(self._answering()), None)
+        if host is None:
+            return False
+        try:
+            started = Started.parse(self._request(host, Start(spec)))
+        except ProtocolError as exc:
+            self._retry_at[instance] = time.monotonic() + START_RETRY_S
+            self._problem("refused_starts", "%s: host %s did not start it: %s", instance, host, exc)
+            return False
+        self._retry_at.pop(instance, None)
+        self.placements[instance] = Placement(host, started.run)
+        log.info("%s: started on host %s (run %s)", instance, host, started.run)
+        return True
+
+    def stop(self, instance: str) -> None:
+        """Stop ``instance`` through its host manager, else with the stop command."""
+        self._retry_at.pop(instance, None)
+        placement = self.placements.pop(instance, None)
+        if placement is not None and placement.host in self._answering():
+            try:
+                self._request(placement.host, Stop(instance))
+                return
+            except ProtocolError as exc:
+                self._problem("failed_stops", "%s: host did not stop it: %s", instance, exc)
+        self._session.put(self._keys.control(instance), STOP_COMMAND)
+
+    def _answering(self) -> list[str]:
+        """Live host managers by name, less those that did not answer lately."""
+        now = time.monotonic()
+        return sorted(h for h in self.live if self._silent_until.get(h, 0.0) <= now)
+
+    def _request(self, host: str, request: Request) -> bytes:
+        """The payload of ``host``'s successful reply; :class:`ProtocolError` for a refusal, no
+        answer or a zenoh error (then ``host`` is left alone for ``START_RETRY_S``)."""
+        try:
+            replies = list(
+                self._session.get(
+                    self._keys.host_request(host),
+                    payload=encode_request(request),
+                    timeout=REQUEST_TIMEOUT_S,
+                )
+            )
+        except zenoh.ZError as exc:
+            replies, reason = [], f"request failed: {exc}"
+        else:
+            reason = f"no answer within {REQUEST_TIMEOUT_S} s"
+        if not replies:
+            self._silent_until[host] = time.monotonic() + START_RETRY_S
+            raise ProtocolError("internal_error", reason)
+        if replies[0].ok is None:
+            raise ProtocolError.parse(replies[0].err.payload.to_bytes())
+        return replies[0].ok.payload.to_bytes()
+
+    # -- events -----------------------------------------------------------------------------
+
+    def reap(self, alive: set[str]) -> list[str]:
+        """Apply host tokens and exit reports; the instances to start again (``alive``: the
+        instances whose worker token is up)."""
+        ended: list[str] = []
+        while not self._events.empty():
+            kind, key, payload = self._events.get_nowait()
+            try:
+                if kind == "exited":
+                    ended += self._on_exited(self._keys.parse_host_exited(key), payload)
+                else:
+                    ended += self._on_host(self._keys.parse_host(key), kind == PUT, alive)
+            except ValueError as exc:
+                self._problem("rejected_host_reports", "ignored host report %r: %s", key, exc)
+        return ended
+
+    def _on_host(self, host: str, appeared: bool, alive: set[str]) -> list[str]:
+        if appeared:
+            self.live.add(host)
+            self._waiting = False
+            log.info("host manager %s is alive", host)
+            return []
+        self.live.discard(host)
+        log.warning("host manager %s vanished", host)
+        lost = sorted(i for i, p in self.placements.items() if p.host == host)
+        for instance in lost:
+            del self.placements[instance]
+        return [instance for instance in lost if instance not in alive]
+
+    def _on_exited(self, host: str, payload: bytes) -> list[str]:
+        exited = Exited.parse(payload)
+        if self.placements.get(exited.instance) != Placement(host, exited.run):
+            return []  # an earlier run, or not ours
+        del self.placements[exited.instance]
+        log.warning("%s: worker ended on host %s (%s)", exited.instance, host, exited.reason)
+        return [exited.instance]
+
+    def _problem(self, counter: str, message: str, *arguments: Any) -> None:
+        self._counters[counter] += 1
+        if logs.rate_limited(self._counters[counter]):
+            log.warning(message, *arguments)
+
+    def close(self) -> None:
+        self._watch.undeclare()
+        self._exits.undeclare()

@@ -1,0 +1,32 @@
+"""``ubitrack host``: run this machine's host manager (``services.host``) on its own, for an
+agent started with ``--no-host`` or on another machine."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from services import host
+from ubitrack_agent.net import config
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "host",
+        help="run this machine's host manager: starts and stops workers for the agent",
+        description="Start, stop and supervise this machine's pattern workers for the agent, "
+        "over zenoh, keeping a warm pool of idle workers. One per machine. Ends on SIGTERM or "
+        "Ctrl-C, ending every worker it started.",
+    )
+    host.add_arguments(parser)
+    config.add_arguments(parser)
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        settings = config.from_arguments(args, role="member")
+    except config.ConfigError as exc:
+        print(f"ubitrack host: {exc}", file=sys.stderr)
+        return 2
+    return host.serve(settings, args.name, args.pool_size)

@@ -1,0 +1,216 @@
+"""The host manager protocol (``docs/protocol.md``): requests, replies and exit reports on the
+``<root>/host/<name>`` keys, defined once for both ends (the agent and ``services.host_manager``).
+
+A request is one JSON object, the payload of a ``get`` on ``<root>/host/<name>/request``::
+
+    {"op": "start", "spec": {<component specification, ubitrack_agent.net.spec>}}
+    {"op": "stop", "instance": "<instance>"}
+    {"op": "status"}
+
+Success is an ordinary reply holding a JSON object (:class:`Started` for a start; see the host
+manager for stop and status); a refusal is an error reply (zenoh ``reply_err``) holding
+``{"error": "<type>", "reason": "<text>"}``, the type one of :data:`ERRORS`. A host manager
+reports a worker that ended without being asked by putting an :class:`Exited` on
+``<root>/host/<name>/exited``.
+
+Everything here is pure and total over its input: malformed bytes raise :class:`ProtocolError`
+(a ``ValueError``) naming the field, whatever they hold.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from ubitrack_agent.net.keys import validate_key_chunks
+from ubitrack_agent.net.spec import ComponentSpec, SpecError, parse_spec
+
+MAX_MESSAGE_BYTES = 256 * 1024
+"""Largest request or report accepted; a specification takes a few kilobytes."""
+
+ERRORS = (
+    "malformed_request",
+    "oversized_request",
+    "refused_spec",
+    "failed_spawn",
+    "internal_error",
+)
+"""Error types of a refused request: not a well-formed request (bad UTF-8 or JSON, nesting too
+deep, wrong fields or types); larger than :data:`MAX_MESSAGE_BYTES`; a specification that is
+malformed or names no registered service; the worker process could not be started; a fault of
+the host manager itself (logged there)."""
+
+EXIT_REASONS = ("exited", "released")
+"""Why an instance ended without its host manager being asked: its process exited, or a stop
+command from elsewhere released the process (it went back to the pool)."""
+
+STOP_COMMAND = json.dumps({"stop": True})
+"""The control command that ends a worker (``services.worker``), put on its control key."""
+
+
+class ProtocolError(ValueError):
+    """A message that breaks the protocol; ``error`` is its type (one of :data:`ERRORS`)."""
+
+    def __init__(self, error: str, reason: str) -> None:
+        super().__init__(f"{error}: {reason}")
+        self.error = error
+        self.reason = reason
+
+    def to_json(self) -> str:
+        """The payload of the error reply."""
+        return json.dumps({"error": self.error, "reason": self.reason})
+
+    @classmethod
+    def parse(cls, payload: bytes) -> ProtocolError:
+        """The refusal carried by an error reply."""
+        data = _json_object(payload)
+        error = _field(data, "error", str)
+        if error not in ERRORS:
+            raise ProtocolError("malformed_request", f"error: unknown type {error!r}")
+        return cls(error, _field(data, "reason", str))
+
+
+@dataclass(frozen=True)
+class Start:
+    """Run ``spec`` on the host."""
+
+    spec: ComponentSpec
+
+
+@dataclass(frozen=True)
+class Stop:
+    """Stop ``instance``: its stop command is put on its control key, its process released."""
+
+    instance: str
+
+
+@dataclass(frozen=True)
+class Status:
+    """Answer the host manager's state."""
+
+
+Request = Start | Stop | Status
+
+
+def encode_request(request: Request) -> str:
+    """The JSON payload of ``request``."""
+    if isinstance(request, Start):
+        return json.dumps({"op": "start", "spec": request.spec.as_dict()})
+    if isinstance(request, Stop):
+        return json.dumps({"op": "stop", "instance": request.instance})
+    return json.dumps({"op": "status"})
+
+
+def parse_request(payload: bytes | None) -> Request:
+    """The request in ``payload``; :class:`ProtocolError` if it is not one. The specification
+    of a start is checked for form only (``services.spec.check_spec`` checks the service)."""
+    data = _json_object(payload)
+    op = data.get("op")
+    fields = {"start": {"op", "spec"}, "stop": {"op", "instance"}, "status": {"op"}}
+    if not isinstance(op, str) or op not in fields:
+        raise ProtocolError("malformed_request", f"op: expected one of {sorted(fields)}")
+    if set(data) != fields[op]:
+        raise ProtocolError("malformed_request", f"{op}: expected exactly {sorted(fields[op])}")
+    if op == "start":
+        spec = data["spec"]
+        if not isinstance(spec, dict):
+            raise ProtocolError("malformed_request", "spec: expected an object")
+        try:
+            return Start(parse_spec(spec))
+        except SpecError as exc:
+            raise ProtocolError("refused_spec", str(exc)) from None
+    if op == "stop":
+        return Stop(_name(data, "instance"))
+    return Status()
+
+
+@dataclass(frozen=True)
+class Started:
+    """The reply to a start: ``run`` names this start of ``instance`` on the host (exit reports
+    carry it); ``reused`` if the instance was already running there with the same
+    specification (a repeated request starts nothing)."""
+
+    instance: str
+    run: str
+    pid: int
+    reused: bool
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self))
+
+    @classmethod
+    def parse(cls, payload: bytes) -> Started:
+        data = _json_object(payload)
+        reused = data.get("reused")
+        if not isinstance(reused, bool):
+            raise ProtocolError("malformed_request", "reused: expected true or false")
+        return cls(_name(data, "instance"), _name(data, "run"), _field(data, "pid", int), reused)
+
+
+@dataclass(frozen=True)
+class Exited:
+    """An instance that ended on ``<root>/host/<name>/exited`` without its host manager being
+    asked: ``reason`` is one of :data:`EXIT_REASONS`; ``returncode`` is None when released."""
+
+    instance: str
+    run: str
+    pid: int
+    returncode: int | None
+    reason: str
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self))
+
+    @classmethod
+    def parse(cls, payload: bytes) -> Exited:
+        data = _json_object(payload)
+        returncode = data.get("returncode")
+        if returncode is not None and type(returncode) is not int:
+            raise ProtocolError("malformed_request", "returncode: expected an integer or null")
+        reason = data.get("reason")
+        if reason not in EXIT_REASONS:
+            raise ProtocolError("malformed_request", f"reason: expected one of {EXIT_REASONS}")
+        return cls(
+            _name(data, "instance"),
+            _name(data, "run"),
+            _field(data, "pid", int),
+            returncode,
+            reason,
+        )
+
+
+def _json_object(payload: bytes | None) -> dict[str, Any]:
+    if payload is None or not payload:
+        raise ProtocolError("malformed_request", "empty payload: expected a JSON object")
+    if len(payload) > MAX_MESSAGE_BYTES:
+        raise ProtocolError(
+            "oversized_request", f"{len(payload)} bytes, at most {MAX_MESSAGE_BYTES}"
+        )
+    try:
+        data = json.loads(payload.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ProtocolError("malformed_request", "not UTF-8") from None
+    except json.JSONDecodeError as exc:
+        raise ProtocolError("malformed_request", f"not JSON ({exc})") from None
+    except RecursionError:
+        raise ProtocolError("malformed_request", "nested too deeply") from None
+    if not isinstance(data, dict):
+        raise ProtocolError("malformed_request", "expected a JSON object")
+    return data
+
+
+def _field(data: Mapping[str, Any], name: str, kind: type) -> Any:
+    value = data.get(name)
+    if type(value) is not kind:
+        raise ProtocolError("malformed_request", f"{name}: expected {kind.__name__}")
+    return value
+
+
+def _name(data: Mapping[str, Any], name: str) -> str:
+    value = _field(data, name, str)
+    try:
+        return validate_key_chunks(value, single_chunk=True)
+    except ValueError as exc:
+        raise ProtocolError("malformed_request", f"{name}: {exc}") from None
