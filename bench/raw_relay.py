@@ -7,12 +7,12 @@ Run: ``python -m bench.raw_relay IN_KEY OUT_KEY [zenoh flags]``; ends on SIGTERM
 from __future__ import annotations
 
 import argparse
-import signal
 import threading
 
 import zenoh
 
 from ubitrack_agent.net import config
+from ubitrack_agent.net.lifecycle import stop_on_signals
 from ubitrack_agent.net.session import open_session
 
 
@@ -22,8 +22,7 @@ def main() -> int:
     parser.add_argument("target")
     config.add_arguments(parser)
     args = parser.parse_args()
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals()
     with open_session(config.from_arguments(args, role="member")) as session:
         publisher = session.declare_publisher(args.target)
         subscriber = session.declare_subscriber(args.source, zenoh.handlers.FifoChannel(4096))

@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import socket
 import sys
 import threading
 from typing import TYPE_CHECKING
+
+from ubitrack_agent.net.lifecycle import on_termination
 
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.config import Settings
@@ -91,8 +92,7 @@ def serve(
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
         manager = HostManager(session, keys, name, config.member_flags(settings), pool_size)
-        signal.signal(signal.SIGTERM, lambda *_: manager.stop())
-        signal.signal(signal.SIGINT, lambda *_: manager.stop())
+        on_termination(manager.stop)
         if exit_when_stdin_closes:
             threading.Thread(
                 target=_abandon_when_stdin_closes, args=(manager,), daemon=True

@@ -27,13 +27,14 @@ import json
 import logging
 import os
 import queue
-import signal
 import sys
 import threading
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, replace
 from typing import Any
+
+from ubitrack_agent.net.lifecycle import on_termination
 
 from services.expansion import TimeAccumulator
 from services.registry import Service, lookup
@@ -380,8 +381,7 @@ class Pool:
             self.keys.pool(self.pool_id), lambda sample: self._inbox.put(sample.payload.to_bytes())
         )
         token = self.session.liveliness().declare_token(self.keys.pool(self.pool_id))
-        signal.signal(signal.SIGTERM, lambda *_: self._inbox.put(None))
-        signal.signal(signal.SIGINT, lambda *_: self._inbox.put(None))
+        on_termination(lambda: self._inbox.put(None))
         try:
             while (payload := self._inbox.get()) is not None:
                 try:
@@ -399,8 +399,7 @@ class Pool:
 def run_worker(session: Any, keys: KeySpace, spec: ComponentSpec) -> bool:
     """Run one component until stopped; True if the agent released it (it may be reused)."""
     worker = Worker(spec, session, keys)
-    signal.signal(signal.SIGTERM, lambda *_: worker.stop())
-    signal.signal(signal.SIGINT, lambda *_: worker.stop())
+    on_termination(worker.stop)
     log.info("%s: running %s", spec.instance, spec.service)
     worker.run()
     return worker.released

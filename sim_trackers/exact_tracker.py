@@ -9,12 +9,11 @@ Run: ``python -m sim_trackers.exact_tracker --provider art --tracker ART --yaw 3
 from __future__ import annotations
 
 import argparse
-import signal
-import threading
 import time
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from ubitrack_agent.net.lifecycle import stop_on_signals
 
 from sim_trackers.trajectories import LissajousPath
 from ubitrack_agent.core import ErrorPose, se3
@@ -47,8 +46,7 @@ def main() -> int:
     config.add_arguments(parser)
     args = parser.parse_args()
     settings = config.from_arguments(args, role="member")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals()
     cov = np.diag([args.sigma**2] * 6)
     q_wt, t_wt = tracker_pose(args.yaw, args.x)
     edges = [

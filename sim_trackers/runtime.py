@@ -1,5 +1,5 @@
 """Process plumbing shared by the simulators: tick at a fixed rate, run a provider on its own
-zenoh session (stopping on signals: :mod:`ubitrack_agent.commands.signals`)."""
+zenoh session (stopping on signals: :mod:`ubitrack_agent.net.lifecycle`)."""
 
 from __future__ import annotations
 

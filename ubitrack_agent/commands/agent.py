@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import subprocess
 import sys
 import threading
 
 from services.host import DEFAULT_POOL_SIZE
 from ubitrack_agent.net import config
+from ubitrack_agent.net.lifecycle import on_termination
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -133,13 +133,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     host = None if args.no_host else EmbeddedHost(settings, args.pool_size, args.log_level)
 
-    def stop(*_: object) -> None:
+    def stop() -> None:
         if host is not None:
             host.stop_restarting()
         agent.stop()
 
-    signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
+    on_termination(stop)
     print(f"ubitrack agent: serving {agent.keys.root} on {', '.join(settings.listen)}", flush=True)
     try:
         agent.run()

@@ -140,10 +140,10 @@ def _id_map(pairs: list[tuple[int, str]], option: str) -> dict[int, str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ubitrack_agent.commands.signals import stop_on_signals
     from ubitrack_agent.io.adapter import open_udp_socket, serve_udp
     from ubitrack_agent.io.provider import Provider
     from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+    from ubitrack_agent.net.lifecycle import stop_on_signals
     from ubitrack_agent.net.session import open_session
 
     prog = "ubitrack dtrack"

@@ -109,8 +109,8 @@ def _add(
 
 def _run_world(args: argparse.Namespace) -> int:
     from sim_trackers.truth import TruthServer
-    from ubitrack_agent.commands.signals import stop_on_signals
     from ubitrack_agent.net.keys import KeySpace
+    from ubitrack_agent.net.lifecycle import stop_on_signals
     from ubitrack_agent.net.session import open_session
 
     prog = "ubitrack sim world"
@@ -132,7 +132,7 @@ def _run_art(args: argparse.Namespace) -> int:
     import numpy as np
 
     from sim_trackers import sim_art
-    from ubitrack_agent.commands.signals import stop_on_signals
+    from ubitrack_agent.net.lifecycle import stop_on_signals
 
     prog = "ubitrack sim art"
     scenario = load(args, prog)
@@ -156,7 +156,7 @@ def _run_camera(args: argparse.Namespace) -> int:
 
     from sim_trackers.runtime import provider_session, run_periodic
     from sim_trackers.sim_camera import CameraSimulator, announcements
-    from ubitrack_agent.commands.signals import stop_on_signals
+    from ubitrack_agent.net.lifecycle import stop_on_signals
 
     prog = "ubitrack sim camera"
     if (prepared := prepare(args, prog)) is None:
@@ -184,12 +184,12 @@ def _run_database(args: argparse.Namespace) -> int:
 
     from sim_trackers.database import static_edges
     from sim_trackers.runtime import provider_session
-    from ubitrack_agent.commands.signals import stop_on_signals
     from ubitrack_agent.io.static_edges import (
         StaticEdgesError,
         read_static_edges,
         write_static_edges,
     )
+    from ubitrack_agent.net.lifecycle import stop_on_signals
 
     prog = "ubitrack sim database"
     if (prepared := prepare(args, prog)) is None:
