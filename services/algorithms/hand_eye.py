@@ -141,18 +141,27 @@ def hand_eye_daniilidis(
 def _unit_orthogonal_combination(
     u1: np.ndarray, v1: np.ndarray, u2: np.ndarray, v2: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``l1 (u1, v1) + l2 (u2, v2)`` with ``|l1 u1 + l2 u2| = 1`` and ``real . dual = 0``."""
-    coefficients = np.array([u1 @ v1, u1 @ v2 + u2 @ v1, u2 @ v2])
-    swap = abs(coefficients[0]) < abs(coefficients[2])
-    if swap:  # solve for l2 / l1 instead, so the leading coefficient is the larger one
-        u1, v1, u2, v2 = u2, v2, u1, v1
-        coefficients = coefficients[::-1]
-    roots = np.roots(coefficients)
-    roots = roots[np.isreal(roots)].real
-    if roots.size == 0:
+    """``l1 (u1, v1) + l2 (u2, v2)`` with ``|l1 u1 + l2 u2| = 1`` and ``real . dual = 0``.
+
+    The constraint is the homogeneous quadratic form ``l^T Q l = 0`` (Daniilidis' eq. 35); its
+    two null directions come from the eigenvectors of ``Q`` (no division by a leading
+    coefficient that noise can make arbitrarily small). In exact arithmetic the null space is
+    spanned by ``(q, q')`` and ``(0, q)``, so the spurious direction has a vanishing real part;
+    of the two, the one whose real part carries the larger share of the 8-vector's norm is kept
+    (a scale-free form of Daniilidis' "largest value" rule, which fails when the SVD returns a
+    basis vector close to ``(0, q)``).
+    """
+    cross = 0.5 * (u1 @ v2 + u2 @ v1)
+    eigenvalues, eigenvectors = np.linalg.eigh(np.array([[u1 @ v1, cross], [cross, u2 @ v2]]))
+    if eigenvalues[0] > 0.0 or eigenvalues[1] < 0.0:
         raise ValueError("degenerate motions: no real dual-quaternion solution")
-    norms = roots**2 * (u1 @ u1) + 2 * roots * (u1 @ u2) + u2 @ u2
-    best = int(np.argmax(norms))
-    l2 = 1.0 / np.sqrt(norms[best])
-    l1 = roots[best] * l2
-    return l1 * u1 + l2 * u2, l1 * v1 + l2 * v2
+    low, high = np.sqrt(-eigenvalues[0]), np.sqrt(eigenvalues[1])
+    best_real, best_dual, best_share = u1, v1, -1.0
+    for sign in (1.0, -1.0):
+        l1, l2 = high * eigenvectors[:, 0] + sign * low * eigenvectors[:, 1]
+        real, dual = l1 * u1 + l2 * u2, l1 * v1 + l2 * v2
+        share = (real @ real) / (real @ real + dual @ dual)
+        if share > best_share:
+            best_real, best_dual, best_share = real, dual, share
+    norm = np.linalg.norm(best_real)
+    return best_real / norm, best_dual / norm

@@ -1,8 +1,21 @@
 import numpy as np
 import pytest
 
-from bench.synthetic import eye_poses, hand_eye_scene, perturb_poses, rng_for, rotation_error
-from services.algorithms.hand_eye import hand_eye_daniilidis, hand_eye_park_martin
+from bench.synthetic import (
+    eye_poses,
+    hand_eye_scene,
+    perturb_poses,
+    random_quaternion,
+    rng_for,
+    rotation_error,
+)
+from services.algorithms.estimate import PoseEstimate
+from services.algorithms.hand_eye import (
+    _unit_orthogonal_combination,
+    hand_eye_daniilidis,
+    hand_eye_park_martin,
+)
+from ubitrack_agent.core import quaternions
 
 SOLVERS = [hand_eye_park_martin, hand_eye_daniilidis]
 
@@ -65,3 +78,23 @@ IDENTITY4 = np.tile([0, 0, 0, 1.0], (4, 1))
 def test_bad_input_raises_value_error(args, message):
     with pytest.raises(ValueError, match=message):
         hand_eye_park_martin(*args)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_daniilidis_keeps_the_real_solution_when_a_null_vector_is_almost_purely_dual(seed):
+    # The exact null space is span{(q, q'), (0, q)}; with noise the SVD may return a basis
+    # vector close to (0, q), and Daniilidis' "largest value" rule then picked the spurious
+    # root (a translation of kilometres in one noisy trial of 30 camera poses).
+    rng = rng_for(f"he-dual-basis-{seed}")
+    truth = PoseEstimate(random_quaternion(rng), rng.uniform(-0.1, 0.1, 3))
+    q = truth.rotation
+    q_dual = 0.5 * quaternions.multiply(np.append(truth.translation, 0.0), q)
+    first = np.concatenate((1e-2 * rng.normal(size=4), q))
+    second = np.concatenate((q, q_dual)) + 1e-2 * rng.normal(size=8)
+    first /= np.linalg.norm(first)
+    second -= (second @ first) * first
+    second /= np.linalg.norm(second)
+    real, dual = _unit_orthogonal_combination(first[:4], first[4:], second[:4], second[4:])
+    translation = 2.0 * quaternions.multiply(dual, quaternions.conjugate(real))[:3]
+    assert rotation_error(real, q) < 0.1
+    np.testing.assert_allclose(translation, truth.translation, atol=0.1)
