@@ -26,11 +26,17 @@ from services.algorithms.averaging import average_poses, average_positions
 from services.algorithms.dlt import projection_dlt
 from services.algorithms.estimate import PoseEstimate
 from services.algorithms.fusion import PoseKalmanFilter, fuse_poses
-from services.algorithms.hand_eye import hand_eye_daniilidis, hand_eye_park_martin
+from services.algorithms.hand_eye import (
+    HandEyeSolution,
+    hand_eye_calibration,
+    hand_eye_daniilidis,
+    hand_eye_park_martin,
+)
 from services.algorithms.pnp import solve_pnp, solve_pnp_ransac
 from services.algorithms.triangulation import Triangulation, triangulate_points
 
 __all__ = [
+    "HandEyeSolution",
     "PoseEstimate",
     "PoseKalmanFilter",
     "Triangulation",
@@ -40,6 +46,7 @@ __all__ = [
     "compose_projection",
     "decompose_projection",
     "fuse_poses",
+    "hand_eye_calibration",
     "hand_eye_daniilidis",
     "hand_eye_park_martin",
     "projection_dlt",

@@ -15,6 +15,20 @@ in the eye (camera) frame. Output: ``X``, the pose of the eye in the hand. From 
   IJRR 18(3), 1999: rotation and translation together from the null space of the stacked
   dual-quaternion motion equations.
 
+* :func:`hand_eye_calibration` - the estimator to use: one of the two above (all pairs) as the
+  starting point, then a joint Gauss-Newton refinement of ``X`` and of the target's pose ``Y``
+  in the base over the absolute poses, ``G_i X C_i = Y`` (the ``AX = ZB`` formulation of
+  Dornaika & Horaud, "Simultaneous robot-world and hand-eye calibration", IEEE T-RA 14(4),
+  1998; Strobl & Hirzinger, "Optimal hand-eye calibration", IROS 2006), weighted by the pose
+  covariances. Its output is the joint 12 x 12 first-order covariance of ``(X, Y)``.
+
+Why the absolute poses: every motion pair ``i < j`` reuses poses ``i`` and ``j``, so the
+``N (N - 1) / 2`` equations ``A X = X B`` are correlated and their least-squares covariance
+would be wrong; the N residuals ``Log(G_i X C_i Y^-1)`` are independent, one per simultaneous
+measurement, and their joint solution carries the correct cross terms between ``X`` and
+``Y`` (the error of ``X`` is shared by every ``G_i X C_i``, which is why averaging them
+alone understates the covariance of ``Y``).
+
 Why by hand: ``cv2.calibrateHandEye`` is not exposed in the OpenCV 5.0.0 Python wheels
 (opencv/opencv#29565, fixed for 5.1). The motions need at least two rotations about
 non-parallel axes; otherwise ``ValueError``.
@@ -22,14 +36,22 @@ non-parallel axes; otherwise ``ValueError``.
 
 from __future__ import annotations
 
-import numpy as np
-from scipy.spatial.transform import Rotation
+from typing import Any, NamedTuple
 
-from services.algorithms._checks import as_points, as_quaternions, same_count
-from services.algorithms.estimate import PoseEstimate
+import numpy as np
+from scipy.spatial.transform import RigidTransform, Rotation
+
+from services.algorithms._checks import as_covariances, as_points, as_quaternions, same_count
+from services.algorithms.estimate import PoseEstimate, rigid, symmetric, to_estimate
 from ubitrack_agent.core import quaternions, se3
+from ubitrack_agent.core.uncertainty import adjoint
 
 _PARALLEL_AXES = 1e-6
+_MAX_ITERATIONS = 50
+_CONVERGED = 1e-12
+"""Largest step component (rad or m) at which the refinement stops."""
+_VARIANCE_FLOOR = 1e-30
+"""Smallest residual variance (rad^2 or m^2) estimated, so that exact data stay solvable."""
 
 
 def relative_motions(
@@ -165,3 +187,135 @@ def _unit_orthogonal_combination(
             best_real, best_dual, best_share = real, dual, share
     norm = np.linalg.norm(best_real)
     return best_real / norm, best_dual / norm
+
+
+class HandEyeSolution(NamedTuple):
+    """The result of :func:`hand_eye_calibration`."""
+
+    eye_in_hand: PoseEstimate
+    """``X``, the pose of the eye in the hand, with its 6x6 covariance (frame of the hand)."""
+    target_in_base: PoseEstimate
+    """``Y``, the pose of the target in the base, with its 6x6 covariance (frame of the base);
+    it includes the uncertainty of ``X``."""
+    cross_covariance: np.ndarray
+    """6x6 ``Cov(xi_X, xi_Y)``: the joint covariance is ``[[P_X, C], [C^T, P_Y]]``."""
+    rms_rotation: float
+    """RMS rotation residual (rad) of ``Y^-1 G_i X C_i``."""
+    rms_translation: float
+    """RMS translation residual (m, or the inputs' unit) of ``Y^-1 G_i X C_i``: the scatter of
+    the target's origin as each sample places it."""
+    noise_from_residuals: bool
+    """True if no input covariances were given and the noise was estimated from residuals."""
+
+
+_CLOSED_FORMS = {"park_martin": hand_eye_park_martin, "daniilidis": hand_eye_daniilidis}
+
+
+def _pose_covariances(name: str, value: Any, count: int) -> np.ndarray:
+    """N x 6 x 6 covariances; one 6x6 matrix stands for every sample."""
+    array = np.asarray(value, dtype=float)
+    if array.shape == (6, 6):
+        array = np.broadcast_to(array, (count, 6, 6))
+    return as_covariances(name, array, count, 6)
+
+
+def _residual_covariances(
+    camera: RigidTransform,
+    target: RigidTransform,
+    residuals: np.ndarray,
+    noise: tuple[np.ndarray, np.ndarray] | None,
+) -> np.ndarray:
+    """Covariances (N x 6 x 6) of the residuals ``Log(G_i X C_i Y^-1)`` (base frame).
+
+    From the inputs, first order: ``G_i X C_i = Exp(g_i) Exp(Ad_{G_i X} c_i) G_i X C_i`` gives
+    ``Sigma_G,i + Ad_{G_i X} Sigma_C,i Ad_{G_i X}^T``. Without them, the residuals moved to the
+    target, ``Ad_{Y^-1} r_i``, are taken as ``N(0, diag(s_r^2 I, s_t^2 I))`` with ``s_r^2`` and
+    ``s_t^2`` their mean squares over ``3 (N - 2)`` degrees of freedom each (6N residuals, 12
+    unknowns), moved back to the base with ``Ad_Y``.
+    """
+    if noise is not None:
+        hand_covariances, eye_covariances = noise
+        translation, rotation = camera.as_components()
+        transport = adjoint(rotation.as_quat(), translation)
+        return hand_covariances + transport @ eye_covariances @ np.swapaxes(transport, 1, 2)
+    translation, rotation = target.as_components()
+    to_base = adjoint(rotation.as_quat(), translation)
+    at_target = residuals @ np.linalg.inv(to_base).T
+    dof = 3.0 * (len(residuals) - 2)
+    variances = [
+        np.sum(np.square(at_target[:, block])) / dof for block in (slice(0, 3), slice(3, 6))
+    ]
+    local = np.diag(np.repeat(np.maximum(variances, _VARIANCE_FLOOR), 3))
+    return np.broadcast_to(to_base @ local @ to_base.T, (len(residuals), 6, 6))
+
+
+def hand_eye_calibration(
+    hand_rotations: np.ndarray,
+    hand_translations: np.ndarray,
+    eye_rotations: np.ndarray,
+    eye_translations: np.ndarray,
+    hand_covariances: np.ndarray | None = None,
+    eye_covariances: np.ndarray | None = None,
+    method: str = "park_martin",
+) -> HandEyeSolution:
+    """``X`` (eye in hand) and ``Y`` (target in base) with their joint covariance.
+
+    Inputs as for :func:`hand_eye_park_martin` (N >= 3 simultaneous poses ``G_i`` of the hand in
+    the base and ``C_i`` of the static target in the eye), plus optionally the poses' 6x6
+    left-perturbation covariances (N x 6 x 6, or one 6x6 for all samples): give both or
+    neither. ``method`` (``"park_martin"`` or ``"daniilidis"``) is the closed form over all
+    motion pairs that starts the refinement.
+
+    Refinement (module docstring): Gauss-Newton on ``X <- Exp(dx) X``, ``Y <- Exp(dy) Y`` over
+    the residuals ``r_i = Log(G_i X C_i Y^-1)``, Jacobian ``[Ad_{G_i}, -I]``, weights the
+    inverse residual covariances (see :func:`_residual_covariances`: from the inputs, or
+    estimated from the residuals when none are given), re-evaluated every iteration. The
+    covariance is the inverse of the Gauss-Newton information ``sum J_i^T S_i^-1 J_i`` at the
+    solution (first order; Barfoot & Furgale, IEEE T-RO 2014, for the SE(3) perturbations).
+
+    Cost: the closed form is O(N^2) (all ``N (N - 1) / 2`` motion pairs), the refinement O(N)
+    per iteration (see ``docs/performance.md`` for the measured times).
+    """
+    if method not in _CLOSED_FORMS:
+        raise ValueError(f"method: must be one of {sorted(_CLOSED_FORMS)}, got {method!r}")
+    if (hand_covariances is None) != (eye_covariances is None):
+        raise ValueError("hand_covariances, eye_covariances: give both or neither")
+    initial = _CLOSED_FORMS[method](
+        hand_rotations, hand_translations, eye_rotations, eye_translations
+    )
+    hand_q = as_quaternions("hand_rotations", hand_rotations)
+    hand = rigid(hand_q, np.asarray(hand_translations, dtype=float))
+    eye = rigid(np.asarray(eye_rotations, dtype=float), np.asarray(eye_translations, dtype=float))
+    n = len(hand_q)
+    noise = None
+    if hand_covariances is not None:
+        noise = (
+            _pose_covariances("hand_covariances", hand_covariances, n),
+            _pose_covariances("eye_covariances", eye_covariances, n),
+        )
+    x = rigid(initial.rotation, initial.translation)
+    samples = hand * x * eye
+    y = RigidTransform.from_components(samples.translation.mean(axis=0), samples.rotation.mean())
+    jacobian = np.concatenate(
+        (adjoint(hand_q, hand.translation), np.broadcast_to(-np.eye(6), (n, 6, 6))), axis=2
+    )
+    for _ in range(_MAX_ITERATIONS):
+        residuals = (hand * x * eye * y.inv()).as_exp_coords()
+        weights = np.linalg.inv(_residual_covariances(hand * x, y, residuals, noise))
+        weighted_jacobian = weights @ jacobian
+        information = np.einsum("nji,njk->ik", jacobian, weighted_jacobian)
+        step = -np.linalg.solve(information, np.einsum("nji,nj->i", weighted_jacobian, residuals))
+        x = RigidTransform.from_exp_coords(step[:6]) * x
+        y = RigidTransform.from_exp_coords(step[6:]) * y
+        if np.abs(step).max() < _CONVERGED:
+            break
+    covariance = symmetric(np.linalg.inv(information))
+    offsets, rotations = (y.inv() * hand * x * eye).as_components()
+    return HandEyeSolution(
+        to_estimate(x, covariance[:6, :6]),
+        to_estimate(y, covariance[6:, 6:]),
+        covariance[:6, 6:],
+        float(np.sqrt(np.mean(np.square(rotations.magnitude())))),
+        float(np.sqrt(np.mean(np.sum(np.square(offsets), axis=1)))),
+        noise is None,
+    )
