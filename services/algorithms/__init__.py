@@ -16,7 +16,8 @@ Conventions, common to every function here:
   points) raises ``ValueError`` with a message naming the argument.
 
 Modules: :mod:`.absolute_orientation` (3D-3D), :mod:`.pnp` (2D-3D pose), :mod:`.dlt`
-(projective calibration), :mod:`.triangulation`, :mod:`.hand_eye`, :mod:`.fusion`
+(projective calibration), :mod:`.triangulation`, :mod:`.hand_eye`, :mod:`.tip_calibration`
+(pivot calibration), :mod:`.fusion`
 (inverse-covariance fusion and a Kalman filter), :mod:`.averaging`, :mod:`.auxiliary`.
 """
 
@@ -33,12 +34,14 @@ from services.algorithms.hand_eye import (
     hand_eye_park_martin,
 )
 from services.algorithms.pnp import solve_pnp, solve_pnp_ransac
+from services.algorithms.tip_calibration import TipSolution, tip_calibration
 from services.algorithms.triangulation import Triangulation, triangulate_points
 
 __all__ = [
     "HandEyeSolution",
     "PoseEstimate",
     "PoseKalmanFilter",
+    "TipSolution",
     "Triangulation",
     "absolute_orientation",
     "average_poses",
@@ -53,5 +56,6 @@ __all__ = [
     "solve_pnp",
     "solve_pnp_ransac",
     "split_pose",
+    "tip_calibration",
     "triangulate_points",
 ]
