@@ -224,3 +224,26 @@ def pivot_scene(
         rotations.append((Rotation.from_rotvec(spin * direction) * align).as_quat())
     q = np.array(rotations)
     return tip, pivot, (q, pivot - quaternions.rotate(q, tip))
+
+
+HAND_EYE_POSE_NOISE = {
+    "low": ((np.radians(0.1), 1e-3), (np.radians(0.2), np.array([0.5e-3, 0.5e-3, 1e-3]))),
+    "high": ((np.radians(0.5), 1e-3), (np.radians(1.0), np.array([1e-3, 1e-3, 2e-3]))),
+}
+"""Realistic hand-eye noise per pose, ``(hand, eye)``, each ``(sigma_rot, sigma_t)`` for
+:func:`body_noise_covariances`: rotation (rad) about the body's origin and displacement (m) of
+the origin; the eye's depth (its z axis) is the least accurate."""
+
+
+def noisy_hand_eye_scene(
+    rng: np.random.Generator, n_poses: int, level: str
+) -> tuple[PoseEstimate, PoseEstimate, tuple[np.ndarray, ...], tuple[np.ndarray, np.ndarray]]:
+    """:func:`hand_eye_camera_scene` with noise ``HAND_EYE_POSE_NOISE[level]`` drawn from the
+    returned covariances: (X, target, (q_hand, t_hand, q_eye, t_eye), (hand_cov, eye_cov))."""
+    truth, target, (qg, tg, qc, tc) = hand_eye_camera_scene(rng, n_poses)
+    hand_noise, eye_noise = HAND_EYE_POSE_NOISE[level]
+    hand_cov = body_noise_covariances(tg, *hand_noise)
+    eye_cov = body_noise_covariances(tc, *eye_noise)
+    qg, tg = perturb_with_covariances(rng, qg, tg, hand_cov)
+    qc, tc = perturb_with_covariances(rng, qc, tc, eye_cov)
+    return truth, target, (qg, tg, qc, tc), (hand_cov, eye_cov)
