@@ -16,6 +16,7 @@ from services.algorithms.auxiliary import compose_projection
 from services.algorithms.dlt import homogeneous
 from services.algorithms.estimate import PoseEstimate, left_residuals, perturb_left, rigid
 from ubitrack_agent.core import quaternions, se3
+from ubitrack_agent.core.uncertainty import skew
 
 SEED = 20240601
 CAMERA_MATRIX = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
@@ -124,3 +125,125 @@ def perturb_poses(
     ``sigma_t`` per axis."""
     noise = Rotation.from_rotvec(rng.normal(0, sigma_rot, (len(q), 3)))
     return (noise * Rotation.from_quat(q)).as_quat(), t + rng.normal(0, sigma_t, t.shape)
+
+
+def body_noise_covariances(
+    translations: np.ndarray, sigma_rot: float, sigma_t: np.ndarray | float
+) -> np.ndarray:
+    """Left-perturbation covariances (N x 6 x 6) of poses whose noise is a rotation of
+    ``sigma_rot`` (rad, isotropic) about the body's own origin and a displacement of that
+    origin with standard deviations ``sigma_t`` (m, scalar or per axis of the parent frame).
+
+    ``Exp(xi) T`` moves the origin by ``phi x t + rho``, so ``rho = delta - phi x t`` and
+    ``Sigma_xi = M diag(sigma_rot^2 I, diag(sigma_t^2)) M^T`` with ``M = [[I, 0], [[t]x, I]]``.
+    """
+    translations = np.atleast_2d(translations)
+    mixing = np.broadcast_to(np.eye(6), (len(translations), 6, 6)).copy()
+    mixing[:, 3:, :3] = skew(translations)
+    body = np.diag(
+        np.concatenate((np.full(3, sigma_rot**2), np.square(np.broadcast_to(sigma_t, 3))))
+    )
+    return mixing @ body @ np.swapaxes(mixing, 1, 2)
+
+
+def perturb_with_covariances(
+    rng: np.random.Generator, q: np.ndarray, t: np.ndarray, covariances: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses ``Exp(xi_i) T_i`` with ``xi_i ~ N(0, covariances[i])``: the estimators' model."""
+    xi = np.einsum("nij,nj->ni", np.linalg.cholesky(covariances), rng.normal(size=(len(q), 6)))
+    translations, rotations = perturb_left(xi, rigid(q, t)).as_components()
+    return rotations.as_quat(), translations
+
+
+def _looking_along(direction: np.ndarray, roll: float) -> np.ndarray:
+    """Rotation (camera axes in the parent) whose z axis is ``direction``, rolled by ``roll``."""
+    z = direction / np.linalg.norm(direction)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    frame = np.column_stack((x, np.cross(z, x), z))
+    return Rotation.from_rotvec(roll * z).as_matrix() @ frame
+
+
+def hand_eye_camera_scene(
+    rng: np.random.Generator,
+    n_poses: int,
+    cone_deg: float = 40.0,
+    distance: tuple[float, float] = (0.4, 0.8),
+) -> tuple[PoseEstimate, PoseEstimate, tuple[np.ndarray, ...]]:
+    """A camera on a hand looking at a static target, as in a real hand-eye calibration.
+
+    Ground truth ``X`` (eye in hand: random rotation, offset within 0.1 m) and ``W`` (target in
+    the base: random rotation, within a 1 m cube), and N noise-free (q_hand, t_hand, q_eye,
+    t_eye). The camera sits ``distance`` m from the target, inside a cone of ``cone_deg``
+    around the target's z axis, looks at the target's origin and is rolled uniformly about its
+    optical axis; ``G_i = P_i X^-1`` for the camera pose ``P_i`` and ``C_i = P_i^-1 W``.
+    """
+    truth = PoseEstimate(random_quaternion(rng), rng.uniform(-0.1, 0.1, 3))
+    target = PoseEstimate(random_quaternion(rng), rng.uniform(-0.5, 0.5, 3))
+    polar = np.arccos(rng.uniform(np.cos(np.radians(cone_deg)), 1.0, n_poses))
+    azimuth = rng.uniform(0.0, 2 * np.pi, n_poses)
+    local = np.column_stack(
+        (np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar))
+    )
+    directions = quaternions.rotate(target.rotation, local)
+    camera_t = target.translation + rng.uniform(*distance, (n_poses, 1)) * directions
+    camera_q = np.array(
+        [
+            Rotation.from_matrix(_looking_along(-d, roll)).as_quat()
+            for d, roll in zip(directions, rng.uniform(-np.pi, np.pi, n_poses), strict=True)
+        ]
+    )
+    hand = se3.compose(camera_q, camera_t, *se3.invert(truth.rotation, truth.translation))
+    eye = se3.compose(*se3.invert(camera_q, camera_t), target.rotation, target.translation)
+    return truth, target, (*hand, *eye)
+
+
+def pivot_scene(
+    rng: np.random.Generator, n_poses: int, cone_deg: float = 30.0, tip_length: float = 0.15
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """A pointer pivoting on a fixed point: ground truth tip in the marker ``p_m`` (about
+    ``tip_length`` m from the marker's origin, random direction), pivot in the tracker ``p_w``
+    (within 0.5 m of the origin) and N noise-free marker poses (q, t) in the tracker.
+
+    The pointer axis (tip -> marker) stays inside a cone of ``cone_deg`` around the tracker's
+    z axis and the pointer is turned uniformly about its own axis, as a user pivots a pointer.
+    """
+    axis = rng.normal(size=3)
+    tip = tip_length * axis / np.linalg.norm(axis) + rng.uniform(-0.01, 0.01, 3)
+    pivot = rng.uniform(-0.5, 0.5, 3)
+    polar = np.arccos(rng.uniform(np.cos(np.radians(cone_deg)), 1.0, n_poses))
+    azimuth = rng.uniform(0.0, 2 * np.pi, n_poses)
+    up = np.column_stack(
+        (np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar))
+    )
+    rotations = []
+    for direction, spin in zip(up, rng.uniform(-np.pi, np.pi, n_poses), strict=True):
+        # marker rotation: the marker's -tip direction is mapped onto ``direction``, spun about it
+        align, _ = Rotation.align_vectors(direction[None], -tip[None] / np.linalg.norm(tip))
+        rotations.append((Rotation.from_rotvec(spin * direction) * align).as_quat())
+    q = np.array(rotations)
+    return tip, pivot, (q, pivot - quaternions.rotate(q, tip))
+
+
+HAND_EYE_POSE_NOISE = {
+    "low": ((np.radians(0.1), 1e-3), (np.radians(0.2), np.array([0.5e-3, 0.5e-3, 1e-3]))),
+    "high": ((np.radians(0.5), 1e-3), (np.radians(1.0), np.array([1e-3, 1e-3, 2e-3]))),
+}
+"""Realistic hand-eye noise per pose, ``(hand, eye)``, each ``(sigma_rot, sigma_t)`` for
+:func:`body_noise_covariances`: rotation (rad) about the body's origin and displacement (m) of
+the origin; the eye's depth (its z axis) is the least accurate."""
+
+
+def noisy_hand_eye_scene(
+    rng: np.random.Generator, n_poses: int, level: str
+) -> tuple[PoseEstimate, PoseEstimate, tuple[np.ndarray, ...], tuple[np.ndarray, np.ndarray]]:
+    """:func:`hand_eye_camera_scene` with noise ``HAND_EYE_POSE_NOISE[level]`` drawn from the
+    returned covariances: (X, target, (q_hand, t_hand, q_eye, t_eye), (hand_cov, eye_cov))."""
+    truth, target, (qg, tg, qc, tc) = hand_eye_camera_scene(rng, n_poses)
+    hand_noise, eye_noise = HAND_EYE_POSE_NOISE[level]
+    hand_cov = body_noise_covariances(tg, *hand_noise)
+    eye_cov = body_noise_covariances(tc, *eye_noise)
+    qg, tg = perturb_with_covariances(rng, qg, tg, hand_cov)
+    qc, tc = perturb_with_covariances(rng, qc, tc, eye_cov)
+    return truth, target, (qg, tg, qc, tc), (hand_cov, eye_cov)

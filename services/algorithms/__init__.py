@@ -16,7 +16,8 @@ Conventions, common to every function here:
   points) raises ``ValueError`` with a message naming the argument.
 
 Modules: :mod:`.absolute_orientation` (3D-3D), :mod:`.pnp` (2D-3D pose), :mod:`.dlt`
-(projective calibration), :mod:`.triangulation`, :mod:`.hand_eye`, :mod:`.fusion`
+(projective calibration), :mod:`.triangulation`, :mod:`.hand_eye`, :mod:`.tip_calibration`
+(pivot calibration), :mod:`.fusion`
 (inverse-covariance fusion and a Kalman filter), :mod:`.averaging`, :mod:`.auxiliary`.
 """
 
@@ -26,13 +27,21 @@ from services.algorithms.averaging import average_poses, average_positions
 from services.algorithms.dlt import projection_dlt
 from services.algorithms.estimate import PoseEstimate
 from services.algorithms.fusion import PoseKalmanFilter, fuse_poses
-from services.algorithms.hand_eye import hand_eye_daniilidis, hand_eye_park_martin
+from services.algorithms.hand_eye import (
+    HandEyeSolution,
+    hand_eye_calibration,
+    hand_eye_daniilidis,
+    hand_eye_park_martin,
+)
 from services.algorithms.pnp import solve_pnp, solve_pnp_ransac
+from services.algorithms.tip_calibration import TipSolution, tip_calibration
 from services.algorithms.triangulation import Triangulation, triangulate_points
 
 __all__ = [
+    "HandEyeSolution",
     "PoseEstimate",
     "PoseKalmanFilter",
+    "TipSolution",
     "Triangulation",
     "absolute_orientation",
     "average_poses",
@@ -40,11 +49,13 @@ __all__ = [
     "compose_projection",
     "decompose_projection",
     "fuse_poses",
+    "hand_eye_calibration",
     "hand_eye_daniilidis",
     "hand_eye_park_martin",
     "projection_dlt",
     "solve_pnp",
     "solve_pnp_ransac",
     "split_pose",
+    "tip_calibration",
     "triangulate_points",
 ]
