@@ -25,11 +25,10 @@ import sys
 import threading
 from typing import TYPE_CHECKING
 
-from ubitrack_agent.net.lifecycle import on_termination
-
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+from ubitrack_agent.net.lifecycle import on_termination
 
 if TYPE_CHECKING:
     from services.host_manager import HostManager

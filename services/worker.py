@@ -34,8 +34,6 @@ from collections import Counter, deque
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ubitrack_agent.net.lifecycle import on_termination
-
 from services.expansion import TimeAccumulator
 from services.registry import Service, lookup
 from services.spec import check_bindings, check_relations, check_spec
@@ -44,6 +42,7 @@ from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.spec import (
     ComponentSpec,
     InputBinding,

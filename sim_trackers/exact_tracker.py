@@ -13,13 +13,13 @@ import time
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from ubitrack_agent.net.lifecycle import stop_on_signals
 
 from sim_trackers.trajectories import LissajousPath
 from ubitrack_agent.core import ErrorPose, se3
 from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
 from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.lifecycle import stop_on_signals
 from ubitrack_agent.net.session import open_session
 
 PATH = LissajousPath(centre=(0.0, 0.0, 1.6), amplitude=(1.0, 0.5), frequency=(0.05, 0.1))
