@@ -21,7 +21,8 @@ test: $(STAMP)
 	$(VENV)/bin/python -m pytest
 
 bench: $(STAMP)
-	$(VENV)/bin/python -m bench.run_all
+	for name in plan_bench accuracy_bench calibration_bench dataflow_bench worker_start; do \
+		$(VENV)/bin/python -m bench.$$name || exit 1; done
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache .hypothesis
