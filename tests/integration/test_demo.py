@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from tests.integration.conftest import kill_tagged
-from tests.integration.zenoh_helpers import free_port
+from tests.integration.zenoh_helpers import free_port, hub_session
 
 pytestmark = pytest.mark.integration
 
@@ -53,3 +53,24 @@ def test_demo_runs_three_phases_with_sensible_errors(processes):
     verdict = lines[-1]
     assert verdict["event"] == "verdict" and verdict["every_phase_delivered"]
     assert kill_tagged(domain) == []  # the demo left no process behind
+
+
+def test_demo_names_the_process_that_failed(processes):
+    """A broken set-up ends the demo at once with the cause, not after a silent minute: here
+    another zenoh peer already holds the port the demo's agent is told to listen on."""
+    port = free_port()
+    domain = f"demo{port}"
+    with hub_session(port):
+        listen = ("--listen", f"tcp/127.0.0.1:{port}", "--domain", domain)
+        demo = subprocess.Popen(
+            [sys.executable, "-m", "ubitrack_agent.cli", "demo", "--phase-seconds", "1", *listen],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
+        processes.append(demo)
+        _, err = demo.communicate(timeout=60)
+    assert demo.returncode == 1
+    assert "ubitrack demo: agent (status 2) ended before C->A flowed" in err, err[-2000:]
+    assert kill_tagged(domain) == []

@@ -94,6 +94,14 @@ class Processes:
             [sys.executable, "-m", "ubitrack_agent.cli", *arguments], stdin=subprocess.DEVNULL
         )
 
+    def exited(self) -> list[str]:
+        """The children that have ended, with their exit status, e.g. ``agent (status 1)``."""
+        return [
+            f"{name} (status {process.returncode})"
+            for name, process in self.running.items()
+            if process.poll() is not None
+        ]
+
     def stop(self, *names: str) -> None:
         for name in names:
             process = self.running.pop(name)
@@ -201,8 +209,7 @@ def run(args: argparse.Namespace) -> int:
                 },
                 "started C->A 6D on " + relation.key,
             )
-            first = samples.get(timeout=60)  # the whole setup is up and flowing
-            samples.put(first)
+            _wait_for_first_sample(samples, children, session, keys)
             phases = []
             for index, name in enumerate(PHASES):
                 if index == 1:
@@ -228,11 +235,8 @@ def run(args: argparse.Namespace) -> int:
                     ("", "DELETE", "PUT")[index],
                 )
             watch.undeclare()
-    except (TimeoutError, queue.Empty):
-        print(
-            "ubitrack demo: the relation did not flow (see the processes' logs above)",
-            file=sys.stderr,
-        )
+    except DemoFailed as exc:
+        print(f"ubitrack demo: {exc}", file=sys.stderr)
         return 1
     finally:
         children.stop_all()
@@ -251,6 +255,40 @@ def run(args: argparse.Namespace) -> int:
         f"camera only: {verdict['fused_better_than_camera_only']}",
     )
     return 0 if verdict["every_phase_delivered"] else 1
+
+
+FIRST_SAMPLE_S = 60.0
+"""How long the whole setup may take to deliver its first C->A sample (cold worker starts)."""
+
+
+class DemoFailed(RuntimeError):
+    """The demo's relation did not flow; the message says why, as far as it can be known."""
+
+
+def _wait_for_first_sample(samples: queue.SimpleQueue, children: Processes, session, keys) -> None:
+    """Wait until C->A flows; fail at once, naming it, if a child process ends, and on time-out
+    with the agent's reason for not serving the relation."""
+    from ubitrack_agent.net.transport import fetch_latest
+
+    deadline = time.monotonic() + FIRST_SAMPLE_S
+    while time.monotonic() < deadline:
+        try:
+            samples.put(samples.get(timeout=0.2))
+            return
+        except queue.Empty:
+            if ended := children.exited():
+                raise DemoFailed(
+                    f"{', '.join(ended)} ended before C->A flowed (see its log above)"
+                ) from None
+    replies = fetch_latest(session, keys.agent_status(), timeout=1.0)
+    unsolved = json.loads(replies[0]).get("unsolved", {}) if replies else None
+    reason = (
+        "no agent answers on " + keys.agent_status()
+        if unsolved is None
+        else "; ".join(f"{name}: {why}" for name, why in unsolved.items())
+        or "the agent serves it, but no sample arrived"
+    )
+    raise DemoFailed(f"C->A did not flow within {FIRST_SAMPLE_S:.0f} s: {reason}")
 
 
 def _flow_check(session, keys, provider: str, uses_provider: bool):
