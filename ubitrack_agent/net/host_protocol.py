@@ -24,6 +24,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from ubitrack_agent.net.json_messages import MessageError, field, load_object
 from ubitrack_agent.net.keys import validate_key_chunks
 from ubitrack_agent.net.spec import ComponentSpec, SpecError, parse_spec
 
@@ -182,30 +183,17 @@ class Exited:
 
 
 def _json_object(payload: bytes | None) -> dict[str, Any]:
-    if payload is None or not payload:
-        raise ProtocolError("malformed_request", "empty payload: expected a JSON object")
-    if len(payload) > MAX_MESSAGE_BYTES:
-        raise ProtocolError(
-            "oversized_request", f"{len(payload)} bytes, at most {MAX_MESSAGE_BYTES}"
-        )
     try:
-        data = json.loads(payload.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise ProtocolError("malformed_request", "not UTF-8") from None
-    except json.JSONDecodeError as exc:
-        raise ProtocolError("malformed_request", f"not JSON ({exc})") from None
-    except RecursionError:
-        raise ProtocolError("malformed_request", "nested too deeply") from None
-    if not isinstance(data, dict):
-        raise ProtocolError("malformed_request", "expected a JSON object")
-    return data
+        return load_object(payload, MAX_MESSAGE_BYTES)
+    except MessageError as exc:
+        raise ProtocolError(exc.error, exc.reason) from None
 
 
 def _field(data: Mapping[str, Any], name: str, kind: type) -> Any:
-    value = data.get(name)
-    if type(value) is not kind:
-        raise ProtocolError("malformed_request", f"{name}: expected {kind.__name__}")
-    return value
+    try:
+        return field(data, name, kind)
+    except MessageError as exc:
+        raise ProtocolError(exc.error, exc.reason) from None
 
 
 def _name(data: Mapping[str, Any], name: str) -> str:

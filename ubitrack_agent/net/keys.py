@@ -127,6 +127,21 @@ class KeySpace:
         """The stable key on which ``relation`` is delivered, whatever flow computes it."""
         return f"{self.root}/relation/{relation.chunks}"
 
+    def parse_relation(self, key: str) -> RelationId:
+        """The relation of a relation key; ``ValueError`` if malformed."""
+        prefix = f"{self.root}/relation/"
+        if not key.startswith(prefix):
+            raise ValueError(f"{key!r} is not a relation key under {prefix!r}")
+        parts = key[len(prefix) :].split("/")
+        if len(parts) != 4 or parts[3] not in ("static", "dynamic"):
+            raise ValueError(f"{key!r}: expected relation/<from>/<to>/<type>/<static|dynamic>")
+        return RelationId(*parts[:3], parts[3] == "static")
+
+    def progress(self, relation: RelationId) -> str:
+        """Where the computation of a static ``relation`` from dynamic inputs (a calibration)
+        reports its progress (``ubitrack_agent.net.progress``)."""
+        return f"{self.root}/progress/{relation.chunks}"
+
     def parse_query(self, key: str) -> tuple[RelationId, str]:
         """``(relation, application)`` from a query token key; ``ValueError`` if malformed."""
         prefix = f"{self.root}/query/"

@@ -1,0 +1,58 @@
+"""JSON messages from the network, read totally: bounded size, bounded nesting, one object.
+
+Every JSON message the middleware receives (host requests and reports, calibration progress)
+is first read by :func:`load_object`, which returns a ``dict`` or raises
+:class:`MessageError` and nothing else, whatever the bytes hold: not UTF-8, not JSON, nested
+deeper than the parser's recursion limit, larger than the caller's bound, or not an object.
+Fields are then checked by the message's own parser with :func:`field`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from typing import Any
+
+
+class MessageError(ValueError):
+    """A message that cannot be read; ``error`` names the kind (``malformed_request``,
+    ``oversized_request``) and ``reason`` says why."""
+
+    def __init__(self, error: str, reason: str) -> None:
+        super().__init__(f"{error}: {reason}")
+        self.error = error
+        self.reason = reason
+
+
+def load_object(payload: bytes | None, max_bytes: int) -> dict[str, Any]:
+    """The JSON object in ``payload`` (see the module docstring)."""
+    if payload is None or not payload:
+        raise MessageError("malformed_request", "empty payload: expected a JSON object")
+    if len(payload) > max_bytes:
+        raise MessageError("oversized_request", f"{len(payload)} bytes, at most {max_bytes}")
+    try:
+        data = json.loads(payload.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise MessageError("malformed_request", "not UTF-8") from None
+    except json.JSONDecodeError as exc:
+        raise MessageError("malformed_request", f"not JSON ({exc})") from None
+    except RecursionError:
+        raise MessageError("malformed_request", "nested too deeply") from None
+    if not isinstance(data, dict):
+        raise MessageError("malformed_request", "expected a JSON object")
+    return data
+
+
+def field(data: Mapping[str, Any], name: str, kind: type, optional: bool = False) -> Any:
+    """``data[name]`` if it is exactly of ``kind`` (``bool`` is no ``int``; a ``float`` must be
+    finite, and an ``int`` is accepted for it), or ``None`` when ``optional`` and absent or
+    null; else :class:`MessageError`."""
+    value = data.get(name)
+    if value is None and optional:
+        return None
+    if kind is float and type(value) is int:
+        value = float(value)
+    if type(value) is not kind or (kind is float and not math.isfinite(value)):
+        raise MessageError("malformed_request", f"{name}: expected {kind.__name__}")
+    return value
