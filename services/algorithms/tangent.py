@@ -107,6 +107,12 @@ def _conjugate(q: Sequence[float]) -> Vector:
     return (-q[0], -q[1], -q[2], q[3])
 
 
+def _skew(v: Sequence[float]) -> np.ndarray:
+    """``[v]x`` with ``[v]x w = v x w``."""
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
 class Space:
     """A sample space: the flat value layout, the tangent dimension and the two maps."""
 
@@ -129,6 +135,13 @@ class Space:
     def translation_jacobian(self, reference: Sequence[float]) -> np.ndarray | None:
         """``d t / d xi`` (3 x dim) at ``reference``: the first-order change of the translation
         (pose) or position under ``xi``; ``None`` for rotations."""
+        raise NotImplementedError
+
+    def adjoint(self, xi: Sequence[float]) -> np.ndarray | None:
+        """``ad(xi)`` (dim x dim), the Lie bracket ``[xi, y] = ad(xi) y``, so that
+        ``Log(Exp(y) Exp(-xi)) = y - xi + ad(xi) y / 2 + O(|xi| |y| (|xi| + |y|))`` (the
+        Baker-Campbell-Hausdorff series; Barfoot 2017, section 7.1.5); ``None`` where the space
+        is flat (positions)."""
         raise NotImplementedError
 
     def logs(self, values: np.ndarray, reference: Sequence[float]) -> np.ndarray:
@@ -172,6 +185,13 @@ class PoseSpace(Space):
             ]
         )
 
+    def adjoint(self, xi: Sequence[float]) -> np.ndarray:
+        # [[phi]x, 0], [[rho]x, [phi]x]] for xi = (phi, rho).
+        result = np.zeros((6, 6))
+        result[:3, :3] = result[3:, 3:] = _skew(xi[:3])
+        result[3:, :3] = _skew(xi[3:])
+        return result
+
 
 class PositionSpace(Space):
     """R^3: ``p = p_ref + x``."""
@@ -190,6 +210,9 @@ class PositionSpace(Space):
     def translation_jacobian(self, reference: Sequence[float]) -> np.ndarray:
         return np.eye(3)
 
+    def adjoint(self, xi: Sequence[float]) -> None:
+        return None
+
 
 class RotationSpace(Space):
     """SO(3): ``q``, ``R = Exp(phi) R_ref``."""
@@ -207,6 +230,9 @@ class RotationSpace(Space):
 
     def translation_jacobian(self, reference: Sequence[float]) -> None:
         return None
+
+    def adjoint(self, xi: Sequence[float]) -> np.ndarray:
+        return _skew(xi)
 
 
 SPACES: dict[str, Space] = {
