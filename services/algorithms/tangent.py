@@ -19,8 +19,8 @@ Why by hand, on plain floats: the static estimator maps one sample at a time. A 
 are small (tens of summaries) and loop. The tests check every map against scipy's
 ``as_exp_coords`` / ``from_exp_coords`` / ``as_rotvec``. Closed forms: quaternion product and
 rotation, Sola, "Quaternion kinematics for the error-state Kalman filter", arXiv:1711.02508;
-left Jacobian ``J_l`` of SO(3) and ``rho = J_l(phi)^-1 t``: Barfoot, "State Estimation for
-Robotics", 2017, eqs. 7.37 and 7.45.
+left Jacobian ``J_l`` of SO(3), ``rho = J_l(phi)^-1 t`` and the adjoint: Barfoot, "State
+Estimation for Robotics", 2017, chapter 7.
 """
 
 from __future__ import annotations
@@ -140,7 +140,7 @@ class Space:
     def adjoint(self, xi: Sequence[float]) -> np.ndarray | None:
         """``ad(xi)`` (dim x dim), the Lie bracket ``[xi, y] = ad(xi) y``, so that
         ``Log(Exp(y) Exp(-xi)) = y - xi + ad(xi) y / 2 + O(|xi| |y| (|xi| + |y|))`` (the
-        Baker-Campbell-Hausdorff series; Barfoot 2017, section 7.1.5); ``None`` where the space
+        Baker-Campbell-Hausdorff series; Barfoot 2017, chapter 7); ``None`` where the space
         is flat (positions)."""
         raise NotImplementedError
 

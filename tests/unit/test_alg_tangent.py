@@ -77,3 +77,26 @@ def test_translation_jacobian_is_the_first_order_change_of_the_translation():
     np.testing.assert_allclose(
         moved, space.translation_jacobian(reference) @ xi, rtol=0, atol=1e-11
     )
+
+
+@pytest.mark.parametrize("kind", ["pose", "rotation"])
+def test_adjoint_gives_the_second_order_change_of_reference(kind):
+    # Log(Exp(y) Exp(-x)) = y - x + ad(x) y / 2 + third order: what the static estimator
+    # relies on when it moves its linearisation point.
+    rng = rng_for(f"tangent-adjoint-{kind}")
+    space = SPACES[kind]
+    reference = random_quaternion(rng)
+    if kind == "pose":
+        reference = np.concatenate((reference, rng.normal(size=3)))
+    x = rng.normal(0, 0.01, space.dim)
+    for y in rng.normal(0, 0.02, (20, space.dim)):
+        value = space.exp(y, reference)
+        exact = np.array(space.log(value, space.exp(x, reference)))
+        second = y - x + 0.5 * space.adjoint(x) @ y
+        assert np.abs(exact - second).max() < 0.05 * np.abs(exact - (y - x)).max()
+        assert np.abs(exact - second).max() < 1e-5
+    np.testing.assert_allclose(space.adjoint(x) @ x, 0.0, atol=1e-18)  # [x, x] = 0
+
+
+def test_positions_are_flat():
+    assert SPACES["position"].adjoint((1.0, 2.0, 3.0)) is None
