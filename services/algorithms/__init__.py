@@ -17,7 +17,10 @@ Conventions, common to every function here:
 
 Modules: :mod:`.absolute_orientation` (3D-3D), :mod:`.pnp` (2D-3D pose), :mod:`.dlt`
 (projective calibration), :mod:`.triangulation`, :mod:`.hand_eye`, :mod:`.fusion`
-(inverse-covariance fusion and a Kalman filter), :mod:`.averaging`, :mod:`.auxiliary`.
+(inverse-covariance fusion and a Kalman filter), :mod:`.averaging`, :mod:`.static_estimate`
+(incremental, robust estimate of a static relation from a stream, with convergence and motion
+checks; one object per stream, the only stateful algorithm besides the Kalman filter),
+:mod:`.tangent` (left-perturbation log/exp of poses, positions, rotations), :mod:`.auxiliary`.
 """
 
 from services.algorithms.absolute_orientation import absolute_orientation
@@ -28,11 +31,16 @@ from services.algorithms.estimate import PoseEstimate
 from services.algorithms.fusion import PoseKalmanFilter, fuse_poses
 from services.algorithms.hand_eye import hand_eye_daniilidis, hand_eye_park_martin
 from services.algorithms.pnp import solve_pnp, solve_pnp_ransac
+from services.algorithms.static_estimate import Motion, StaticEstimator, StaticState, Status
 from services.algorithms.triangulation import Triangulation, triangulate_points
 
 __all__ = [
+    "Motion",
     "PoseEstimate",
     "PoseKalmanFilter",
+    "StaticEstimator",
+    "StaticState",
+    "Status",
     "Triangulation",
     "absolute_orientation",
     "average_poses",
