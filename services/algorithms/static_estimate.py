@@ -158,12 +158,12 @@ class Motion(NamedTuple):
     rule: str
     """``"rejections"`` (most recent samples failed the gate) or ``"window_mean"``."""
     translation: float | None
-    """Displacement of the recent samples from the static estimate (m); ``None`` for rotations.
-    For ``"window_mean"``: of the window's mean from the mean of the older samples."""
+    """How far the latest ``motion_window / 2`` samples are from the kept estimate (median, m),
+    updated with every sample; ``None`` for rotations."""
     rotation: float | None
     """The same as an angle (rad); ``None`` for positions."""
     statistic: float
-    """The rejected fraction of the window, or the window-mean test statistic."""
+    """When it fired: the rejected fraction of the window, or the window-mean statistic."""
 
 
 class StaticState(NamedTuple):
@@ -181,7 +181,8 @@ class StaticState(NamedTuple):
     accepted: int
     """Samples in the estimate."""
     rejected: int
-    """Samples the robust start or the gate kept out."""
+    """Samples kept out of the estimate: by the robust start, the gate, or withdrawn with the
+    motion window when the motion check fired."""
     last_accepted: bool | None
     """Whether the last sample entered; ``None`` while initialising or when not static."""
     noise_scale: float | None
@@ -310,17 +311,18 @@ class _Quantile:
     matrix (Anderson, "An Introduction to Multivariate Statistical Analysis", 3rd ed., 2003,
     section 5.2). Recomputed when ``nu`` leaves [cached, 1.25 cached]: the quantile falls as
     ``nu`` grows, so the value used is at most 25 % of ``nu`` stale and the larger (by at most
-    4 % at ``nu`` = 100, 1 % at 300)."""
+    4 % at ``nu`` = 100, 1 % at 300). ``matrix`` is fixed for an estimator by its first
+    sample."""
 
-    def __init__(self, dim: int, matrix: bool, probability: float) -> None:
-        self._dim, self._matrix, self._probability = dim, matrix, probability
+    def __init__(self, dim: int, probability: float) -> None:
+        self._dim, self._probability = dim, probability
         self._nu = 0
         self._value = math.inf
 
-    def __call__(self, nu: int) -> float:
+    def __call__(self, nu: int, matrix: bool) -> float:
         if not self._nu <= nu <= 1.25 * self._nu:
             dim = self._dim
-            if self._matrix:
+            if matrix:
                 denominator = max(nu - dim + 1, 1)
                 value = nu * dim / denominator * stats.f.ppf(self._probability, dim, denominator)
             else:
@@ -392,9 +394,11 @@ class StaticEstimator:
         self._init_samples = _count("init_samples", init_samples, 2 * dim + 1)
         window = _count("stability_window", stability_window, 1)
         self._motion_window = _count("motion_window", motion_window, 10)
-        self._false_alarm = _probability("motion_false_alarm", motion_false_alarm)
-        self._gate_probability = _probability("gate_probability", gate_probability)
-        self._truncation = _trimmed_consistency(self._gate_probability, dim)
+        false_alarm = _probability("motion_false_alarm", motion_false_alarm)
+        self._motion_threshold = _Quantile(dim, 1.0 - false_alarm)
+        gate_probability = _probability("gate_probability", gate_probability)
+        self._gate = _Quantile(dim, gate_probability)
+        self._truncation = _trimmed_consistency(gate_probability, dim)
         self.common_covariance = common_covariance
 
         self._weighted: bool | None = None
@@ -410,7 +414,6 @@ class StaticEstimator:
         self._window: deque[_Entry] = deque(maxlen=self._motion_window)
         self._window_moments = _Sums(dim)
         self._history: deque[Vector] = deque(maxlen=window + 1)
-        self._gate = self._motion_threshold = _Quantile(dim, False, 0.5)
         self._status = Status.INITIALISING
         self._rejected = 0
         self._last_accepted: bool | None = None
@@ -514,9 +517,6 @@ class StaticEstimator:
         count = len(values)
         keep = (count + dim + 1) // 2
         consistency = _trimmed_consistency(keep / count, dim)
-        matrix = not self._weighted
-        self._gate = _Quantile(dim, matrix, self._gate_probability)
-        self._motion_threshold = _Quantile(dim, matrix, 1.0 - self._false_alarm)
 
         start = space.logs(values, tuple(values[0].tolist()))
         median = np.median(start, axis=0)
@@ -537,7 +537,7 @@ class StaticEstimator:
             subset = new_subset
 
         spread_of_mean = scale @ np.linalg.inv(weights[subset].sum(axis=0))
-        gate = self._gate(self._dof(keep))
+        gate = self._gate(self._dof(keep), not self._weighted)
         accepted = _mahalanobis(xi, scale @ sigmas + spread_of_mean) <= gate
         self._reference = self._mean(values[accepted], weights[accepted], center)
         xi = space.logs(values, self._reference)
@@ -606,7 +606,7 @@ class StaticEstimator:
         residual = xi - self._delta
         innovation = self._noise_model.scale @ sigma + self._averaging
         distance2 = float(residual @ np.linalg.solve(innovation, residual))
-        accepted = distance2 <= self._gate(self._dof(self._moments.n))
+        accepted = distance2 <= self._gate(self._dof(self._moments.n), not self._weighted)
         self._last_accepted = accepted
         if accepted:
             self._moments.add(xi, weight)
@@ -720,7 +720,7 @@ class StaticEstimator:
         # a multiple of I with covariances, and they are multiples of I without).
         precision = inside.information @ self._information_inverse @ before
         statistic = float(difference @ precision @ self._noise_model.scale_inverse @ difference)
-        if statistic > self._motion_threshold(self._dof(moments.n)):
+        if statistic > self._motion_threshold(self._dof(moments.n), not self._weighted):
             self._stop("window_mean", statistic)
 
     def _stop(self, rule: str, statistic: float) -> None:

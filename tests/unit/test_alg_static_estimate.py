@@ -147,8 +147,7 @@ def test_pose_matches_the_batch_weighted_mean_on_clean_data(varied, tolerance):
     batch = fuse_poses(q[entered], t[entered], covariances[entered])
     error = left_error(PoseEstimate(state.rotation, state.translation), batch)
     assert _mahalanobis(error, state.covariance) < tolerance
-    scale = max(1.0, state.noise_scale)
-    np.testing.assert_allclose(state.covariance, scale * batch.covariance, rtol=0.02, atol=1e-15)
+    np.testing.assert_allclose(state.covariance, batch.covariance, rtol=1e-6, atol=1e-15)
 
 
 def test_position_matches_the_batch_weighted_mean_exactly():
@@ -267,6 +266,41 @@ def test_nees_is_consistent(case):
     values = nees_experiment(str(sorted(case.items())), TRIALS, 40, **case)
     low, high = nees_interval(TRIALS, 6)
     assert low <= np.mean(values) <= high
+
+
+def test_stated_covariances_are_trusted_unless_the_chi_square_test_rejects_them():
+    rng = rng_for("static-trusted-1")
+    truth = random_truth(rng)
+    for noise_scale in (1.0, 1.5):
+        q, t, _ = pose_stream(rng, truth, 200, noise_scale=noise_scale)
+        samples = list(zip(q, t, [PNP_COVARIANCE] * 200, strict=True))
+        state, entered = _feed(StaticEstimator("pose"), samples)
+        batch = fuse_poses(q[entered], t[entered], [PNP_COVARIANCE] * int(entered.sum()))
+        nu = 6 * (state.accepted - 1)
+        bound = stats.chi2.ppf(0.95, nu) / nu
+        if noise_scale == 1.0:
+            # k^2 a little above 1 by chance, consistent: the information inverse as it is
+            # (max(1, k^2) would scale it, by 3 % on average at 60 samples).
+            assert 1.0 < state.noise_scale < bound
+            np.testing.assert_allclose(state.covariance, batch.covariance, rtol=1e-6)
+        else:
+            assert (
+                state.noise_scale == pytest.approx(1.5**2, rel=0.15) and state.noise_scale > bound
+            )
+            scaled = state.noise_scale * nu / (nu - 2) * batch.covariance
+            np.testing.assert_allclose(state.covariance, scaled, rtol=1e-6)
+
+
+def test_noise_scale_is_corrected_for_the_gates_truncation():
+    # A gate at 0.9 cuts the residuals' tail: their mean chi-square is 0.8 d, not d.
+    rng = rng_for("static-truncation")
+    truth = rng.normal(size=3)
+    points, _ = _position_samples(rng, truth, [POSITION_COVARIANCE] * 2000)
+    estimator = StaticEstimator("position", gate_probability=0.9, motion_false_alarm=1e-9)
+    for point in points:
+        state = estimator.add(None, point, POSITION_COVARIANCE)
+    assert 0.06 < state.rejected / 2000 < 0.14
+    assert state.noise_scale == pytest.approx(1.0, abs=0.08)
 
 
 def test_shared_error_is_in_the_covariance():
