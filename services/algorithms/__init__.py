@@ -17,8 +17,11 @@ Conventions, common to every function here:
 
 Modules: :mod:`.absolute_orientation` (3D-3D), :mod:`.pnp` (2D-3D pose), :mod:`.dlt`
 (projective calibration), :mod:`.triangulation`, :mod:`.hand_eye`, :mod:`.tip_calibration`
-(pivot calibration), :mod:`.fusion`
-(inverse-covariance fusion and a Kalman filter), :mod:`.averaging`, :mod:`.auxiliary`.
+(pivot calibration), :mod:`.fusion` (inverse-covariance fusion and a Kalman filter),
+:mod:`.averaging`, :mod:`.static_estimate` (incremental, robust estimate of a static relation
+from a stream, with convergence and motion checks; one object per stream, the only stateful
+algorithm besides the Kalman filter), :mod:`.tangent` (left-perturbation log/exp of poses,
+positions, rotations), :mod:`.auxiliary`.
 """
 
 from services.algorithms.absolute_orientation import absolute_orientation
@@ -34,13 +37,18 @@ from services.algorithms.hand_eye import (
     hand_eye_park_martin,
 )
 from services.algorithms.pnp import solve_pnp, solve_pnp_ransac
+from services.algorithms.static_estimate import Motion, StaticEstimator, StaticState, Status
 from services.algorithms.tip_calibration import TipSolution, tip_calibration
 from services.algorithms.triangulation import Triangulation, triangulate_points
 
 __all__ = [
     "HandEyeSolution",
+    "Motion",
     "PoseEstimate",
     "PoseKalmanFilter",
+    "StaticEstimator",
+    "StaticState",
+    "Status",
     "TipSolution",
     "Triangulation",
     "absolute_orientation",
