@@ -52,13 +52,17 @@ def motion(before: Measurement, after: Measurement) -> tuple[float, float]:
 
 
 class TimeAccumulator:
-    """Collects distinct correspondence samples of one time-expanded pattern instance."""
+    """Collects distinct correspondence samples of one time-expanded pattern instance.
+
+    For an incremental service (``Service.INCREMENTAL``, a running estimator over every sample
+    since the start) it keeps only the last distinct sample, to judge the next one's
+    distinctness, and hands each new one on alone."""
 
     def __init__(self, service: Service, options: Mapping[str, float]) -> None:
         self.service = service
         self.min_motion = options.get("min_motion", service.TIME_MIN_MOTION)
         self.min_rotation_deg = options.get("min_rotation_deg", service.TIME_MIN_ROTATION_DEG)
-        size = int(options.get("max_samples", DEFAULT_MAX_SAMPLES))
+        size = 1 if service.INCREMENTAL else int(options.get("max_samples", DEFAULT_MAX_SAMPLES))
         self.samples: deque[dict[str, Measurement]] = deque(maxlen=size)
 
     def __len__(self) -> int:
@@ -90,9 +94,12 @@ class TimeAccumulator:
         return True
 
     def ready(self) -> bool:
-        return len(self.samples) >= self.service.min_correspondences()
+        """Enough samples for the service (an incremental one counts its own)."""
+        needed = 1 if self.service.INCREMENTAL else self.service.min_correspondences()
+        return len(self.samples) >= needed
 
     def expanded(self, values: Inputs) -> dict[str, Any]:
-        """``values`` with each correspondence port replaced by its accumulated list."""
+        """``values`` with each correspondence port replaced by its accumulated list (for an
+        incremental service: the latest sample alone)."""
         ports = self.service.CORRESPONDENCE
         return {**values, **{port: [sample[port] for sample in self.samples] for port in ports}}

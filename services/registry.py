@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from ubitrack_agent.core import Measurement
+from ubitrack_agent.net.progress import Progress
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,10 @@ class Service(ABC):
     one binding and :mod:`services.expansion` builds the lists from accumulated samples."""
     MIN_CORRESPONDENCES: ClassVar[int] = 1
     """The lower bound of the correspondence's multiplicity (``3..*`` -> 3)."""
+    INCREMENTAL: ClassVar[bool] = False
+    """Under time expansion, ``compute`` gets only the correspondence values that are new since
+    its last call (lists of one) and keeps its own running summary of the earlier ones (an
+    information-form estimator), instead of the whole accumulated history."""
     TIME_MIN_MOTION: ClassVar[float] = 0.0
     TIME_MIN_ROTATION_DEG: ClassVar[float] = 0.0
     """Default distinctness thresholds under time expansion (:mod:`services.expansion`)."""
@@ -69,6 +74,11 @@ class Service(ABC):
     def min_correspondences(self) -> int:
         """Correspondences needed before computing (a parameter may raise the bound)."""
         return self.MIN_CORRESPONDENCES
+
+    def progress(self) -> dict[str, Progress]:
+        """For a static output estimated over time (a calibration): its progress by output port
+        (``instance`` left empty: the worker fills it in); none by default."""
+        return {}
 
 
 def complete_correspondences(values: Inputs, ports: tuple[str, ...]) -> list[tuple]:

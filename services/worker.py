@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 from collections import Counter, deque
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from services.expansion import TimeAccumulator
@@ -41,8 +41,9 @@ from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.net import config, logs
-from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.lifecycle import on_termination
+from ubitrack_agent.net.progress import Progress
 from ubitrack_agent.net.spec import (
     ComponentSpec,
     InputBinding,
@@ -116,6 +117,9 @@ class Worker:
         self._generation = 0
         self._publishers: dict[str, LatestValuePublisher] = {}
         self._routes: dict[str, list[str]] = {}
+        self._progress_routes: dict[str, list[str]] = {}
+        self.progress: dict[str, Progress] = {}
+        """The latest progress of each static estimate, by output port (shown in status)."""
         self._route_outputs(spec.relations)
         self._control = session.declare_subscriber(
             keys.control(spec.instance),
@@ -167,14 +171,25 @@ class Worker:
         ).start()
 
     def _route_outputs(self, relations: dict[str, tuple[str, ...]]) -> None:
-        """Publish each output port on its key and on the relation keys it serves."""
+        """Publish each output port on its key and on the relation keys it serves, and the
+        progress of a static estimate on the progress key of each static relation."""
         routes = {port: [key, *relations.get(port, ())] for port, key in self.spec.outputs.items()}
-        wanted = {key for keys in routes.values() for key in keys}
+        progress_routes = {
+            port: [self.keys.progress(relation) for relation in self._static_relations(keys)]
+            for port, keys in relations.items()
+        }
+        wanted = {key for keys in (*routes.values(), *progress_routes.values()) for key in keys}
         for key in set(self._publishers) - wanted:
             self._publishers.pop(key).undeclare()
         for key in wanted - set(self._publishers):
             self._publishers[key] = LatestValuePublisher(self._session, key)
         self._routes = routes
+        self._progress_routes = progress_routes
+
+    def _static_relations(self, relation_keys: tuple[str, ...]) -> list[RelationId]:
+        """The static relations among ``relation_keys`` (keys the agent built)."""
+        relations = [self.keys.parse_relation(key) for key in relation_keys]
+        return [relation for relation in relations if relation.static]
 
     def _apply_control(self, payload: bytes) -> None:
         try:
@@ -287,6 +302,17 @@ class Worker:
             for key in self._routes.get(port, ()):
                 self._publishers[key].put(payload)
             self.counters["published"] += 1
+        self._publish_progress()
+
+    def _publish_progress(self) -> None:
+        """The progress of each static estimate (``ubitrack_agent.net.progress``), also when
+        there is no estimate to publish (still initialising, or the relation moves)."""
+        for port, progress in self._service.progress().items():
+            progress = replace(progress, instance=self.spec.instance)
+            self.progress[port] = progress
+            payload = progress.to_json().encode()
+            for key in self._progress_routes.get(port, ()):
+                self._publishers[key].put(payload)
 
     # -- status and life cycle ----------------------------------------------------------------
 
@@ -296,6 +322,7 @@ class Worker:
             "service": self.spec.service,
             "pid": os.getpid(),
             "counters": dict(self.counters),
+            "progress": {port: asdict(progress) for port, progress in self.progress.items()},
             "spec": self.spec.as_dict(),
         }
 

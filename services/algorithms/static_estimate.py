@@ -345,6 +345,10 @@ def _trimmed_consistency(alpha: float, dim: int) -> float:
     return float(stats.chi2.cdf(stats.chi2.ppf(alpha, dim), dim + 2) / alpha)
 
 
+DEFAULT_INIT_SAMPLES = 20
+"""The robust start's batch by default: the samples before the first estimate."""
+
+
 class StaticEstimator:
     """Estimate a static pose, position or rotation from a stream of noisy samples.
 
@@ -378,7 +382,7 @@ class StaticEstimator:
         rotation_tolerance: float = math.radians(0.1),
         min_samples: int = 50,
         stability_window: int = 20,
-        init_samples: int = 20,
+        init_samples: int = DEFAULT_INIT_SAMPLES,
         gate_probability: float = 0.999,
         motion_window: int = 30,
         motion_false_alarm: float = 1e-6,

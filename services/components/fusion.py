@@ -1,10 +1,10 @@
-"""Multi-tracker fusion (section 3.1.3) and averaging of a static edge over time (section 3.3)."""
+"""Multi-tracker fusion (section 3.1.3): simultaneous estimates of one edge combined."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from services.algorithms import average_poses, average_positions, fuse_poses
+from services.algorithms import fuse_poses
 from services.registry import Inputs, Port, Service, complete_correspondences, register
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D
 
@@ -60,32 +60,3 @@ class Fusion(Service):
             np.array(covariances),
         )
         return {"fused": fused.to_measurement(timestamp_ns)}
-
-
-@register
-class Averaging(Service):
-    """The mean of many samples of a rigid (static) relationship, with the covariance of the
-    mean: the time expansion of a static edge (poses, positions or rotations)."""
-
-    NAME = "averaging"
-    INPUTS = {"AB": Port((Pose, ErrorPose, Position3D, Rotation3D))}
-    OUTPUTS = ("mean",)
-    CORRESPONDENCE = ("AB",)
-    MIN_CORRESPONDENCES = 2
-    PARAMETERS = {"min_samples": 30}
-
-    def min_correspondences(self) -> int:
-        return max(self.MIN_CORRESPONDENCES, int(self.parameters["min_samples"]))
-
-    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
-        samples = [row[0] for row in complete_correspondences(values, self.CORRESPONDENCE)]
-        if isinstance(samples[0], Position3D):
-            mean, covariance = average_positions(np.array([s.position for s in samples]))
-            return {"mean": Position3D(timestamp_ns, mean, covariance)}
-        mean = average_poses(
-            np.array([s.rotation for s in samples]),
-            np.array([getattr(s, "translation", np.zeros(3)) for s in samples]),
-        )
-        if isinstance(samples[0], Rotation3D):
-            return {"mean": Rotation3D(timestamp_ns, mean.rotation)}
-        return {"mean": mean.to_measurement(timestamp_ns)}

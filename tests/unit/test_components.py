@@ -145,17 +145,44 @@ def test_fusion_of_rotations_is_the_pose_fusion_without_translation():
         make("fusion").compute({"AB": [rotations[0], Pose(T, quats[1], [0, 0, 0])]}, T)
 
 
-def test_averaging_and_pose_split():
-    samples = [Pose(i, [0, 0, 0, 1], [1.0 + 0.01 * (-1) ** i, 0, 0]) for i in range(10)]
-    mean = make("averaging", min_samples=10).compute({"AB": samples}, T)["mean"]
+def test_averaging_estimates_incrementally_and_reports_progress():
+    samples = [Pose(i, [0, 0, 0, 1], [1.0 + 0.01 * (-1) ** i, 0, 0]) for i in range(60)]
+    at_once = make("averaging")
+    mean = at_once.compute({"AB": samples}, T)["mean"]
     assert isinstance(mean, ErrorPose)
-    np.testing.assert_allclose(mean.translation, [1.0, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(mean.translation, [1.0, 0, 0], atol=1e-9)
+    one_by_one = make("averaging")  # as the worker feeds an incremental service
+    for sample in samples:
+        out = one_by_one.compute({"AB": [sample]}, sample.timestamp_ns)
+    np.testing.assert_allclose(out["mean"].translation, mean.translation, atol=1e-12)
+    (progress,) = one_by_one.progress().values()
+    assert (progress.accepted, progress.rejected) == (60, 0)
+    assert progress.status in ("averaging", "converged")
+    assert progress.value["translation"] == pytest.approx(list(mean.translation))
     rotations = [
-        Rotation3D(i, Rotation.from_euler("z", d, degrees=True).as_quat())
-        for i, d in enumerate((9, 11))
+        Rotation3D(i, Rotation.from_euler("z", (9, 11)[i % 2], degrees=True).as_quat())
+        for i in range(20)
     ]
     mean_rotation = make("averaging").compute({"AB": rotations}, T)["mean"]
     assert np.degrees(quaternions.angle(mean_rotation.rotation)) == pytest.approx(10.0)
+
+
+def test_averaging_publishes_nothing_before_its_start_or_for_a_moving_relation():
+    averaging = make("averaging")
+    few = [Position3D(i, [0.0, 0.0, 1.0]) for i in range(5)]
+    assert averaging.compute({"AB": few}, T) == {}
+    assert averaging.progress()["mean"].status == "initialising"
+    rng = np.random.default_rng(3)
+    moving = make("averaging")
+    for i in range(200):  # 1 mm noise, drifting 0.5 mm per sample
+        position = np.array([0.0005 * i, 0.0, 1.0]) + rng.normal(0, 1e-3, 3)
+        out = moving.compute({"AB": [Position3D(i, position, np.eye(3) * 1e-6)]}, i)
+    assert out == {}
+    progress = moving.progress()["mean"]
+    assert progress.not_static and progress.motion is not None and progress.value is None
+
+
+def test_pose_split():
     parts = make("pose_split").compute({"AB": ErrorPose(T, [0, 0, 0, 1], [1, 2, 3], np.eye(6))}, T)
     np.testing.assert_allclose(parts["position"].position, [1, 2, 3])
     assert isinstance(parts["rotation"], Rotation3D)
@@ -181,10 +208,18 @@ def test_time_accumulator_keeps_distinct_samples_until_the_multiplicity():
 
 
 def test_time_accumulator_history_is_bounded_and_options_validated():
-    accumulator = TimeAccumulator(make("averaging"), parse_time_expansion({"max_samples": 3}))
+    accumulator = TimeAccumulator(
+        make("hand_eye_calibration"), parse_time_expansion({"max_samples": 3})
+    )
     for i in range(10):
-        accumulator.add({"AB": Pose(i, [0, 0, 0, 1], [i, 0, 0])})
+        pose = Pose(i, Rotation.from_euler("z", 10 * i, degrees=True).as_quat(), [i, 0, 0])
+        accumulator.add({"RH": pose, "CO": pose})
     assert len(accumulator) == 3
+    incremental = TimeAccumulator(make("averaging"), {})
+    for i in range(10):
+        incremental.add({"AB": Pose(i, [0, 0, 0, 1], [i, 0, 0])})
+    assert len(incremental) == 1 and incremental.ready()  # each new sample goes on alone
+    assert [p.timestamp_ns for p in incremental.expanded({})["AB"]] == [9]
     for bad, fragment in (
         ({"min_motion": -1}, ">= 0"),
         ({"speed": 1}, "unknown options"),

@@ -1,0 +1,112 @@
+"""Averaging: a static relationship estimated over time from a dynamic estimate of it.
+
+The time expansion of a static edge (paper sections 3.3 and 4.2: "direct computation" of a
+calibration, a per-frame estimate composed of measured edges, integrated over time). Each
+sample enters :class:`services.algorithms.StaticEstimator` as it arrives: every accepted sample
+since the flow started counts (information form), outliers such as PnP flips are gated out,
+the covariance is checked against the samples' spread, and the estimate reports its progress
+(``ubitrack_agent.net.progress``): converged by the estimator's rule, or not static when the
+samples move more than their noise explains, in which case nothing is published.
+"""
+
+from __future__ import annotations
+
+import math
+
+from services.algorithms import StaticEstimator, StaticState, Status
+from services.algorithms.static_estimate import DEFAULT_INIT_SAMPLES
+from services.registry import Inputs, Port, Service, register
+from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D, to_json
+from ubitrack_agent.net.progress import Progress
+
+_KINDS: dict[type[Measurement], str] = {
+    Pose: "pose",
+    ErrorPose: "pose",
+    Position3D: "position",
+    Rotation3D: "rotation",
+}
+
+
+@register
+class Averaging(Service):
+    """The static estimate of edge A->B from its dynamic samples (time expansion): a robust,
+    information-form mean with an honest covariance, a convergence rule and a motion check
+    (:mod:`services.algorithms.static_estimate`). Parameters: the tolerances at which the
+    estimate counts as converged (``translation_tolerance`` in metres,
+    ``rotation_tolerance_deg``) and the least number of accepted samples (``min_samples``)."""
+
+    NAME = "averaging"
+    INPUTS = {"AB": Port((Pose, ErrorPose, Position3D, Rotation3D))}
+    OUTPUTS = ("mean",)
+    CORRESPONDENCE = ("AB",)
+    MIN_CORRESPONDENCES = 2
+    INCREMENTAL = True
+    PARAMETERS = {"min_samples": 50, "translation_tolerance": 1e-3, "rotation_tolerance_deg": 0.1}
+
+    def __init__(self, parameters: Inputs) -> None:
+        super().__init__(parameters)
+        self._estimator: StaticEstimator | None = None
+        self._kind: str | None = None
+        self._state: StaticState | None = None
+        self._timestamp_ns = 0
+
+    def min_correspondences(self) -> int:
+        """Samples the estimator's robust start needs before its first estimate."""
+        return DEFAULT_INIT_SAMPLES
+
+    def _estimator_for(self, sample: Measurement) -> StaticEstimator:
+        kind = _KINDS[type(sample)]
+        if self._estimator is None:
+            self._kind = kind
+            self._estimator = StaticEstimator(
+                kind,
+                translation_tolerance=float(self.parameters["translation_tolerance"]),
+                rotation_tolerance=math.radians(float(self.parameters["rotation_tolerance_deg"])),
+                min_samples=int(self.parameters["min_samples"]),
+            )
+        elif kind != self._kind:
+            raise ValueError(f"averaging: a {type(sample).__name__} among {self._kind} samples")
+        return self._estimator
+
+    def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
+        for sample in values["AB"]:
+            if sample is None:
+                continue
+            estimator = self._estimator_for(sample)
+            self._state = estimator.add(
+                getattr(sample, "rotation", None),
+                getattr(sample, "translation", getattr(sample, "position", None)),
+                getattr(sample, "covariance", None),
+            )
+            self._timestamp_ns = timestamp_ns
+        state = self._state
+        if state is None or state.status in (Status.INITIALISING, Status.NOT_STATIC):
+            return {}
+        return {"mean": state.to_measurement(timestamp_ns)}
+
+    def progress(self) -> dict[str, Progress]:
+        state = self._state
+        if state is None:
+            return {}
+        value = None
+        if state.status not in (Status.INITIALISING, Status.NOT_STATIC):
+            value = to_json(state.to_measurement(self._timestamp_ns))
+        motion = state.motion._asdict() if state.motion is not None else None
+        return {
+            "mean": Progress(
+                instance="",
+                status=str(state.status),
+                accepted=state.accepted,
+                rejected=state.rejected,
+                timestamp_ns=self._timestamp_ns,
+                std_translation=state.std_translation,
+                std_rotation=state.std_rotation,
+                tolerance_translation=float(self.parameters["translation_tolerance"]),
+                tolerance_rotation=math.radians(float(self.parameters["rotation_tolerance_deg"])),
+                spread_translation=state.spread_translation,
+                spread_rotation=state.spread_rotation,
+                noise_scale=state.noise_scale,
+                motion=motion,
+                value=value,
+            )
+        }
