@@ -19,6 +19,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "host",
     "plan",
     "subscribe",
+    "calibrate",
+    "store",
     "status",
     "sim",
     "dtrack",

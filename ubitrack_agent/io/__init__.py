@@ -3,7 +3,7 @@
 adapter base (:mod:`.adapter`), the A.R.T. DTrack2 format and adapter (:mod:`.dtrack`) and the
 static-edges file of calibration results (:mod:`.static_edges`)."""
 
-from ubitrack_agent.io.application import Relation
+from ubitrack_agent.io.application import NotStatic, Relation
 from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
 
-__all__ = ["EdgeAnnouncement", "Provider", "Relation"]
+__all__ = ["EdgeAnnouncement", "NotStatic", "Provider", "Relation"]

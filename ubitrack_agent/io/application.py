@@ -17,12 +17,18 @@
 Declaring the query token ``<root>/query/...`` tells the agent what to compute; samples arrive
 on the stable key ``<root>/relation/...``, which stays the same whenever the agent rewires the
 data flow behind it. Every payload is validated; bad ones are counted in ``rejected``.
+
+A static relation computed from dynamic inputs (a calibration) also reports its progress
+(``ubitrack_agent.net.progress``): :attr:`Relation.progress` is the latest report, and
+:meth:`Relation.wait_for` raises :class:`NotStatic` when the inputs show that the relation
+moves, instead of waiting for an average that would mean nothing.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import queue
 import threading
@@ -34,6 +40,7 @@ from typing import Any, Self
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
 from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
+from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
 from ubitrack_agent.net.transport import fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.application")
@@ -41,6 +48,28 @@ log = logging.getLogger("ubitrack.application")
 _TYPES_BY_SRG: dict[str, tuple[type[Measurement], ...]] = {}
 for _cls in MEASUREMENT_TYPES.values():
     _TYPES_BY_SRG[_cls.SRG_TYPE] = (*_TYPES_BY_SRG.get(_cls.SRG_TYPE, ()), _cls)
+
+
+class NotStatic(RuntimeError):
+    """A static relation was asked for, but its inputs move more than their noise explains;
+    ``progress`` holds the report (its ``motion`` says how far)."""
+
+    def __init__(self, relation: RelationId, progress: Progress) -> None:
+        moved = progress.motion or {}
+        super().__init__(
+            f"{relation} is not static: its estimate moved "
+            f"{_describe_motion(moved)} more than the measurements' noise explains"
+        )
+        self.progress = progress
+
+
+def _describe_motion(motion: dict[str, Any]) -> str:
+    parts = []
+    if isinstance(motion.get("translation"), float):
+        parts.append(f"{motion['translation'] * 1000:.1f} mm")
+    if isinstance(motion.get("rotation"), float):
+        parts.append(f"{math.degrees(motion['rotation']):.2f} deg")
+    return " and ".join(parts) or "by"
 
 
 def default_application_id() -> str:
@@ -78,15 +107,36 @@ class Relation:
         self._subscriber = session.declare_subscriber(
             self.key, lambda sample: self._receive(sample.payload.to_bytes())
         )
+        self.progress: Progress | None = None
+        """The latest progress report of a static relation computed over time, or None."""
+        wanted = [(self.key, self._receive, lambda: self._count > 0)]
+        self._progress_subscriber = None
+        if relation.static:
+            progress_key = keys.progress(relation)
+            self._progress_subscriber = session.declare_subscriber(
+                progress_key, lambda sample: self._receive_progress(sample.payload.to_bytes())
+            )
+            wanted.append((progress_key, self._receive_progress, lambda: bool(self.progress)))
         self._token = session.liveliness().declare_token(keys.query(relation, self.application))
         self._closed = threading.Event()
         # A static result published before this application started: ask for it.
         self._fetcher = threading.Thread(
-            target=fetch_until_satisfied,
-            args=(session, [(self.key, self._receive, lambda: self._count > 0)], self._closed),
-            daemon=True,
+            target=fetch_until_satisfied, args=(session, wanted, self._closed), daemon=True
         )
         self._fetcher.start()
+
+    def _receive_progress(self, payload: bytes) -> None:
+        """Runs on zenoh's thread: keep the latest valid report, wake waiters if it says the
+        relation is not static."""
+        try:
+            progress = parse_progress(payload)
+        except ProgressError as exc:
+            self.rejected += 1
+            log.warning("%s: rejected progress report: %s", self.relation, exc)
+            return
+        with self._lock:
+            self.progress = progress
+            self._lock.notify_all()
 
     def _receive(self, payload: bytes) -> None:
         """Runs on zenoh's thread: validate, store, notify; no zenoh calls, no blocking."""
@@ -129,12 +179,22 @@ class Relation:
             return self._buffer.lookup(timestamp_ns)
 
     def wait_for(self, timeout: float | None = None) -> Measurement:
-        """Block until the next sample arrives (the first one if none yet); ``TimeoutError``."""
+        """Block until the next sample arrives (the first one if none yet); ``TimeoutError``,
+        or :class:`NotStatic` for a static relation whose inputs move."""
         with self._lock:
             seen = self._count
-            if not self._lock.wait_for(lambda: self._count > seen, timeout=timeout):
+
+            def done() -> bool:
+                return self._count > seen or self._moving()
+
+            if not self._lock.wait_for(done, timeout=timeout):
                 raise TimeoutError(f"no sample of {self.relation} within {timeout} s")
+            if self._count == seen and self.progress is not None:
+                raise NotStatic(self.relation, self.progress)
             return self._buffer.latest()
+
+    def _moving(self) -> bool:
+        return self.progress is not None and self.progress.not_static
 
     def __iter__(self) -> Iterator[Measurement]:
         """Samples in arrival order, blocking for each (oldest dropped if the reader lags)."""
@@ -157,6 +217,8 @@ class Relation:
         self._fetcher.join(timeout=1.0)
         self._token.undeclare()
         self._subscriber.undeclare()
+        if self._progress_subscriber is not None:
+            self._progress_subscriber.undeclare()
 
     def __enter__(self) -> Self:
         return self

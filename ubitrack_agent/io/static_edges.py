@@ -30,6 +30,15 @@ missing field, a bad name, a value of the wrong shape or a non-number raises
 :class:`StaticEdgesError` naming the file, the entry and the field, e.g.
 ``calib.yaml: edges[1] (C->HT 6D): Pose.rotation: not a unit quaternion (norm 2)``.
 
+A calibration store (:mod:`ubitrack_agent.io.calibration_store`) also records where a value
+came from and what it replaced: an entry may hold ``provenance`` (a flat mapping: when, which
+flow, how many samples, its uncertainty) and ``history`` (up to :data:`MAX_HISTORY` earlier
+values, newest first, each its value fields and provenance)::
+
+      - {from: C, to: HT, type: 6D, rotation: [...], translation: [...], covariance: [...],
+         provenance: {time: "2026-11-22T15:04:05Z", flow: averaging-1a2b, samples: 212},
+         history: [{rotation: [...], translation: [...], provenance: {...}}]}
+
 :func:`write_static_edges` writes such a file atomically: to a temporary file in the same
 directory, flushed and ``fsync``-ed, then renamed over the target (``os.replace``) and the
 directory ``fsync``-ed, so a reader sees the old file or the new one, never a partial one.
@@ -40,7 +49,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import secrets
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,6 +78,11 @@ VALUE_TYPES: dict[str, tuple[type[Measurement], ...]] = {
 """Edge types a static-edges file holds, and the measurement types their values may have."""
 
 _EDGE_KEYS = ("from", "to", "type")
+_RECORD_KEYS = ("provenance", "history")
+MAX_HISTORY = 20
+"""Earlier values a store keeps per edge."""
+
+Scalar = str | int | float | bool | None
 
 
 class StaticEdgesError(ValueError):
@@ -78,10 +92,14 @@ class StaticEdgesError(ValueError):
 
 @dataclass(frozen=True)
 class StaticEdge:
-    """An announced static edge and its value."""
+    """An announced static edge and its value, with where the value came from and the values it
+    replaced (newest first), as a calibration store keeps them."""
 
     announcement: EdgeAnnouncement
     value: Measurement
+    provenance: Mapping[str, Scalar] | None = None
+    history: tuple[Mapping[str, Any], ...] = ()
+    """Earlier values: each the value's fields (as in the file) and its ``provenance``."""
 
 
 def static_announcement(source: str, target: str, edge_type: str) -> EdgeAnnouncement:
@@ -156,21 +174,50 @@ class _Reader:
             )
         cls = _value_type(edge_type, entry)
         required, optional = _value_fields(cls)
-        self.keys(where, entry, (*_EDGE_KEYS, *required), optional)
+        self.keys(where, entry, (*_EDGE_KEYS, *required), (*optional, *_RECORD_KEYS))
         source = self.name(f"{where}.from", entry["from"])
         target = self.name(f"{where}.to", entry["to"])
         where = f"{where} ({source}->{target} {edge_type})"
-        values = {key: value for key, value in entry.items() if key not in _EDGE_KEYS}
+        history = entry.get("history", [])
+        if not isinstance(history, list) or len(history) > MAX_HISTORY:
+            raise self.fail(f"{where}.history", f"must be a list of at most {MAX_HISTORY} values")
+        for i, earlier in enumerate(history):
+            at = f"{where}.history[{i}]"
+            if not isinstance(earlier, dict):
+                raise self.fail(at, "must be a mapping of the value's fields and provenance")
+            self.value(at, edge_type, earlier)
+        return StaticEdge(
+            static_announcement(source, target, edge_type),
+            self.value(where, edge_type, entry),
+            self.provenance(where, entry.get("provenance")),
+            tuple(history),
+        )
+
+    def value(self, where: str, edge_type: str, entry: dict[str, Any]) -> Measurement:
+        """The measurement of an entry's value fields (and checks its provenance)."""
+        cls = _value_type(edge_type, entry)
+        required, optional = _value_fields(cls)
+        values = {k: v for k, v in entry.items() if k not in (*_EDGE_KEYS, *_RECORD_KEYS)}
+        self.keys(where, values, required, optional)
         for key, value in values.items():
             if key != "image_size" and not _numbers(value):
                 raise self.fail(where, f"{key}: must be a list of numbers, got {value!r}")
+        self.provenance(where, entry.get("provenance"))
         try:
-            return StaticEdge(
-                static_announcement(source, target, edge_type),
-                cls(self.timestamp_ns, **values),
-            )
+            return cls(self.timestamp_ns, **values)
         except MeasurementError as exc:
             raise self.fail(where, str(exc)) from None
+
+    def provenance(self, where: str, value: Any) -> Mapping[str, Scalar] | None:
+        """Where a value came from: a flat mapping of names to strings and numbers."""
+        if value is None:
+            return None
+        scalars = (str, int, float, bool, type(None))
+        if not isinstance(value, dict) or not all(
+            isinstance(k, str) and isinstance(v, scalars) for k, v in value.items()
+        ):
+            raise self.fail(f"{where}.provenance", "must be a mapping of names to plain values")
+        return value
 
     def document(self, data: Any) -> tuple[str, list[StaticEdge]]:
         if not isinstance(data, dict):
@@ -210,6 +257,11 @@ def read_static_edges(
     return parse_static_edges(data, timestamp_ns, str(path))
 
 
+def value_fields(value: Measurement) -> dict[str, Any]:
+    """A value's fields as a static-edges entry holds them (lists of numbers)."""
+    return {k: v for k, v in to_json(value).items() if k not in ("type", "timestamp_ns")}
+
+
 def format_static_edges(provider: str, edges: Iterable[StaticEdge]) -> str:
     """The static-edges file (YAML text) of ``edges`` served by ``provider``; ``ValueError``
     for a value the format cannot hold (its type is not one of :data:`VALUE_TYPES`)."""
@@ -221,11 +273,13 @@ def format_static_edges(provider: str, edges: Iterable[StaticEdge]) -> str:
                 f"edge {announcement.name}: a {type(value).__name__} cannot be stored as a "
                 f"{announcement.type} static edge"
             )
-        fields = {k: v for k, v in to_json(value).items() if k not in ("type", "timestamp_ns")}
-        entries.append(
-            {"from": announcement.source, "to": announcement.target, "type": announcement.type}
-            | fields
-        )
+        entry = {"from": announcement.source, "to": announcement.target, "type": announcement.type}
+        entry |= value_fields(value)
+        if edge.provenance is not None:
+            entry["provenance"] = dict(edge.provenance)
+        if edge.history:
+            entry["history"] = [dict(earlier) for earlier in edge.history]
+        entries.append(entry)
     document = {"provider": validate_key_chunks(provider, single_chunk=True), "edges": entries}
     return yaml.safe_dump(document, sort_keys=False, default_flow_style=None)
 

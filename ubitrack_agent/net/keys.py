@@ -22,6 +22,10 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/worker/<instance>         liveliness token of a running pattern worker
     <root>/control/<instance>        rewire / reconfigure a running worker (JSON, put)
     <root>/status/<instance>         a worker's counters (JSON, queryable)
+    <root>/progress/<from>/<to>/<type>/static
+                                     progress of a static relation computed over time (JSON,
+                                     net.progress); also a queryable answering the latest
+    <root>/store/<name>              queryable of a calibration store: save requests (JSON)
     <root>/truth/<from>/<to>         queryable of a simulated world: the ground truth of the
                                      relation (msgpack), at ``?t=<ns>`` or now
 
@@ -141,6 +145,10 @@ class KeySpace:
         """Where the computation of a static ``relation`` from dynamic inputs (a calibration)
         reports its progress (``ubitrack_agent.net.progress``)."""
         return f"{self.root}/progress/{relation.chunks}"
+
+    def store(self, name: str) -> str:
+        """Queryable of the calibration store ``name``: save requests (JSON)."""
+        return f"{self.root}/store/{validate_key_chunks(name, single_chunk=True)}"
 
     def parse_query(self, key: str) -> tuple[RelationId, str]:
         """``(relation, application)`` from a query token key; ``ValueError`` if malformed."""

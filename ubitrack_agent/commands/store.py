@@ -1,0 +1,61 @@
+"""``ubitrack store``: the calibration store, serving a static-edges file and saving to it."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ubitrack_agent.net import config
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "store",
+        help="serve the static edges of a calibration file and save new calibrations to it",
+        description="Announce every edge of the static-edges FILE (docs/simulators.md, "
+        "'Static-edges files') as a measured static edge, one provider '<name>.<edge>' each, "
+        "and save the calibrations that `ubitrack calibrate --save` sends: written atomically "
+        "to FILE with their provenance, the previous value kept in the entry's history, then "
+        "served. A missing FILE is an empty store, created on the first save. Runs until "
+        "SIGINT/SIGTERM.",
+    )
+    parser.add_argument("file", metavar="FILE", help="static-edges file (YAML)")
+    parser.add_argument(
+        "--name",
+        default="store",
+        help="the store's name in keys and provider ids (default: %(default)s)",
+    )
+    config.add_arguments(parser)
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ubitrack_agent.io.calibration_store import CalibrationStore
+    from ubitrack_agent.io.static_edges import StaticEdgesError
+    from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+    from ubitrack_agent.net.lifecycle import stop_on_signals
+    from ubitrack_agent.net.session import open_session
+
+    prog = "ubitrack store"
+    try:
+        settings = config.from_arguments(args, role="member")
+        validate_key_chunks(args.name, single_chunk=True)
+    except ValueError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    stop = stop_on_signals()
+    keys = KeySpace(settings.key_prefix)
+    with open_session(settings) as session:
+        try:
+            store = CalibrationStore(session, keys, args.file, args.name)
+        except StaticEdgesError as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return 2
+        with store:
+            print(
+                f"{prog}: serving {len(store.edges)} edge(s) of {args.file} on "
+                f"{keys.store(args.name)}",
+                flush=True,
+            )
+            stop.wait()
+    return 0
