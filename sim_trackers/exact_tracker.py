@@ -1,7 +1,8 @@
-"""A noise-free 6D tracker for tests and benchmarks: announces ``T->WT`` (static) and
-``T->HT`` (dynamic) through the sensor API and publishes them from ground truth, so a test
-knows the true ``WT->HT`` at any time (:func:`true_wt_ht`). The published covariance is the
-announced accuracy ``sigma`` on every axis, so two trackers are told apart by it.
+"""A noise-free 6D tracker for tests and benchmarks: announces ``T->WT`` (static, unless
+``--hide-world``) and ``T->HT`` (dynamic) through the sensor API and publishes them from
+ground truth, so a test knows the true ``WT->HT`` at any time (:func:`true_wt_ht`). The
+published covariance is the announced accuracy ``sigma`` on every axis, so two trackers are
+told apart by it.
 
 Run: ``python -m sim_trackers.exact_tracker --provider art --tracker ART --yaw 30 ...``.
 """
@@ -43,6 +44,11 @@ def main() -> int:
     parser.add_argument("--x", type=float, default=2.0, help="tracker x offset, metres")
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--sigma", type=float, default=1e-3, help="announced accuracy (m)")
+    parser.add_argument(
+        "--hide-world",
+        action="store_true",
+        help="announce only T->HT: where the tracker stands must then be calibrated",
+    )
     config.add_arguments(parser)
     args = parser.parse_args()
     settings = config.from_arguments(args, role="member")
@@ -50,14 +56,18 @@ def main() -> int:
     cov = np.diag([args.sigma**2] * 6)
     q_wt, t_wt = tracker_pose(args.yaw, args.x)
     edges = [
-        EdgeAnnouncement(args.tracker, "WT", "6D", static=True, name="WT", sigma=args.sigma),
         EdgeAnnouncement(args.tracker, "HT", "6D", name="HT", rate=args.rate, sigma=args.sigma),
     ]
+    if not args.hide_world:
+        edges.append(
+            EdgeAnnouncement(args.tracker, "WT", "6D", static=True, name="WT", sigma=args.sigma)
+        )
     with (
         open_session(settings) as session,
         Provider(session, KeySpace(settings.key_prefix), args.provider, edges) as provider,
     ):
-        provider.publish("WT", ErrorPose(time.time_ns(), q_wt, t_wt, cov))
+        if not args.hide_world:
+            provider.publish("WT", ErrorPose(time.time_ns(), q_wt, t_wt, cov))
         while not stop.wait(1.0 / args.rate):
             now = time.time_ns()
             q, t = se3.compose(q_wt, t_wt, *true_wt_ht(now))

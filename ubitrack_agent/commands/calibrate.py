@@ -26,7 +26,8 @@ from ubitrack_agent.net import config
 
 TYPES = ("6D", "3D", "3R")
 KNOWN_WAIT_S = 2.0
-"""A value with no progress report for this long after it arrived is a stored edge."""
+"""A value that has arrived while no progress report came for this long is not being
+calibrated: it is a measured static edge (a stored calibration)."""
 PRINT_EVERY_S = 0.5
 """Progress lines at most this often (a report comes with every sample), and on each change
 of status."""
@@ -148,13 +149,19 @@ def run(args: argparse.Namespace) -> int:
             if relation.latest() is not None and first_value_at is None:
                 first_value_at = time.monotonic()
             due = time.monotonic() - printed_at > PRINT_EVERY_S
-            if progress is not None and (progress.status != shown or due):
+            if (
+                progress is not None
+                and not _waited(relation.progress_at, KNOWN_WAIT_S)
+                and (progress.status != shown or due)
+            ):
                 shown, printed_at = progress.status, time.monotonic()
                 line = describe(progress, relation_id.source, relation_id.target)
                 say({"event": "progress", **vars(progress)}, line)
                 if progress.converged:
                     break
-            elif progress is None and _waited(first_value_at, KNOWN_WAIT_S):
+            elif _waited(first_value_at, KNOWN_WAIT_S) and (
+                progress is None or _waited(relation.progress_at, KNOWN_WAIT_S)
+            ):
                 value = to_json(relation.latest())
                 say(
                     {"event": "known", "value": value},

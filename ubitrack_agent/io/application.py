@@ -32,6 +32,7 @@ import math
 import os
 import queue
 import threading
+import time
 import uuid
 from collections.abc import Callable, Iterator
 from types import TracebackType
@@ -109,6 +110,9 @@ class Relation:
         )
         self.progress: Progress | None = None
         """The latest progress report of a static relation computed over time, or None."""
+        self.progress_at: float | None = None
+        """When (``time.monotonic()``) it arrived: a report that stops coming is from a flow
+        the agent has replaced (by a stored value, say)."""
         wanted = [(self.key, self._receive, lambda: self._count > 0)]
         self._progress_subscriber = None
         if relation.static:
@@ -135,7 +139,7 @@ class Relation:
             log.warning("%s: rejected progress report: %s", self.relation, exc)
             return
         with self._lock:
-            self.progress = progress
+            self.progress, self.progress_at = progress, time.monotonic()
             self._lock.notify_all()
 
     def _receive(self, payload: bytes) -> None:
