@@ -19,18 +19,11 @@ import argparse
 import json
 import math
 import sys
-import time
 from typing import Any
 
 from ubitrack_agent.net import config
 
 TYPES = ("6D", "3D", "3R")
-KNOWN_WAIT_S = 2.0
-"""A value that has arrived while no progress report came for this long is not being
-calibrated: it is a measured static edge (a stored calibration)."""
-PRINT_EVERY_S = 0.5
-"""Progress lines at most this often (a report comes with every sample), and on each change
-of status."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -96,26 +89,11 @@ def describe(progress: Any, source: str, target: str) -> str:
     )
 
 
-def _waited(since: float | None, seconds: float) -> bool:
-    return since is not None and time.monotonic() - since > seconds
-
-
-def _save(session: Any, keys: Any, store: str, request: dict[str, Any]) -> dict[str, Any]:
-    """Send a save request to the store; its answer, or ``RuntimeError`` saying why not."""
-    replies = list(session.get(keys.store(store), payload=json.dumps(request), timeout=5.0))
-    for reply in replies:
-        if reply.ok is not None:
-            return json.loads(reply.ok.payload.to_bytes())
-        raise RuntimeError(f"the store refused: {reply.err.payload.to_bytes().decode()}")
-    raise RuntimeError(
-        f"no calibration store answers on {keys.store(store)}; start one with `ubitrack store FILE`"
-    )
-
-
 def run(args: argparse.Namespace) -> int:
-    from ubitrack_agent.core import to_json
     from ubitrack_agent.io.application import NotStatic, Relation
+    from ubitrack_agent.io.calibration import StoreError, follow, save, save_request
     from ubitrack_agent.net.keys import KeySpace, RelationId
+    from ubitrack_agent.net.progress import Progress
     from ubitrack_agent.net.session import open_session
 
     prog = "ubitrack calibrate"
@@ -134,73 +112,41 @@ def run(args: argparse.Namespace) -> int:
         open_session(settings) as session,
         Relation(session, keys, relation_id, application=None) as relation,
     ):
-        deadline = time.monotonic() + args.timeout
-        shown, first_value_at, printed_at = None, None, 0.0
-        progress = None
-        while time.monotonic() < deadline:
-            try:
-                relation.wait_for(timeout=0.5)
-            except TimeoutError:
-                pass
-            except NotStatic as exc:
-                say({"event": "not_static", **vars(exc.progress)}, f"{prog}: {exc}")
-                return 1
-            progress = relation.progress
-            if relation.latest() is not None and first_value_at is None:
-                first_value_at = time.monotonic()
-            due = time.monotonic() - printed_at > PRINT_EVERY_S
-            if (
-                progress is not None
-                and not _waited(relation.progress_at, KNOWN_WAIT_S)
-                and (progress.status != shown or due)
-            ):
-                shown, printed_at = progress.status, time.monotonic()
-                line = describe(progress, relation_id.source, relation_id.target)
-                say({"event": "progress", **vars(progress)}, line)
-                if progress.converged:
-                    break
-            elif _waited(first_value_at, KNOWN_WAIT_S) and (
-                progress is None or _waited(relation.progress_at, KNOWN_WAIT_S)
-            ):
-                value = to_json(relation.latest())
-                say(
-                    {"event": "known", "value": value},
-                    f"{relation_id} is already known (a measured static edge): {value}",
-                )
-                return 0
-        else:
+
+        def report(progress: Progress) -> None:
+            line = describe(progress, relation_id.source, relation_id.target)
+            say({"event": "progress", **vars(progress)}, line)
+
+        outcome = follow(relation, args.timeout, report)
+        if outcome.kind == "known":
+            say(
+                {"event": "known", "value": outcome.value},
+                f"{relation_id} is already known (a measured static edge): {outcome.value}",
+            )
+            return 0
+        if outcome.kind == "not_static":
+            message = f"{prog}: {NotStatic(relation_id, outcome.progress)}"
+            say({"event": "not_static", **vars(outcome.progress)}, message)
+            return 1
+        if outcome.kind == "timeout":
             print(
                 f"{prog}: {relation_id} did not converge within {args.timeout:.0f} s",
                 file=sys.stderr,
             )
             return 1
-        result = {"event": "converged", "value": progress.value, "instance": progress.instance}
+        progress = outcome.progress
         say(
-            result,
+            {"event": "converged", "value": progress.value, "instance": progress.instance},
             f"converged: {relation_id} = {json.dumps(progress.value)}\n"
             f"  uncertainty {_mm(progress.std_translation)} {_deg(progress.std_rotation)} "
             f"from {progress.accepted} samples ({progress.rejected} rejected)",
         )
         if not args.save:
             return 0
-        value = {k: v for k, v in progress.value.items() if k not in ("type", "timestamp_ns")}
-        request = {
-            "from": relation_id.source,
-            "to": relation_id.target,
-            "type": relation_id.type,
-            "value": value,
-            "provenance": {
-                "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                "flow": progress.instance,
-                "samples": progress.accepted,
-                "rejected": progress.rejected,
-                "std_translation": progress.std_translation,
-                "std_rotation": progress.std_rotation,
-            },
-        }
+        request = save_request(relation_id.source, relation_id.target, relation_id.type, progress)
         try:
-            answer = _save(session, keys, args.store, request)
-        except RuntimeError as exc:
+            answer = save(session, keys, args.store, request)
+        except StoreError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return 1
         say({"event": "saved", **answer}, f"saved as {answer['edge']} in {answer['file']}")
