@@ -21,8 +21,10 @@ import json
 import queue
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -51,6 +53,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", action="store_true", help="print JSON lines instead of text")
     parser.add_argument("--scenario", help="scenario file (default: the paper's figure 1)")
     parser.add_argument("--art-port", type=int, default=0, help="UDP port (default: a free one)")
+    parser.add_argument(
+        "--calibration",
+        metavar="FILE",
+        help="the calibration store's file (default: a new temporary file, removed at the end; "
+        "with an existing file holding C->HT, the demo skips calibrating)",
+    )
+    parser.add_argument(
+        "--calibration-timeout",
+        type=float,
+        default=180.0,
+        help="longest the live C->HT calibration may take (default: %(default)s s)",
+    )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
 
@@ -170,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
     keys = KeySpace(hub.key_prefix)
     say = _printer(args.json)
     children = Processes()
+    scratch = tempfile.TemporaryDirectory(prefix="ubitrack-demo-")
+    calibration_file = args.calibration or str(Path(scratch.name) / "calibration.yaml")
     try:
         children.start(
             "agent",
@@ -198,6 +214,7 @@ def run(args: argparse.Namespace) -> int:
             )
             for name in ("sim database", "sim camera"):
                 children.start(name, [*name.split(), *scenario_flag, *member])
+            children.start("store", ["store", calibration_file, *member])
             for name, arguments in art.items():
                 children.start(name, arguments)
             say(
@@ -210,6 +227,9 @@ def run(args: argparse.Namespace) -> int:
                 "started C->A 6D on " + relation.key,
             )
             _wait_for_first_sample(samples, children, session, keys)
+            _calibrate(session, keys, scenario.world, say, args.calibration_timeout)
+            while not samples.empty():  # what arrived while calibrating is not a phase's
+                samples.get_nowait()
             phases = []
             for index, name in enumerate(PHASES):
                 if index == 1:
@@ -240,6 +260,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     finally:
         children.stop_all()
+        scratch.cleanup()
     summary = [phase.summary(args.phase_seconds) for phase in phases]
     for line in summary:
         say({"event": "summary", **line}, _summary_text(line))
@@ -289,6 +310,83 @@ def _wait_for_first_sample(samples: queue.SimpleQueue, children: Processes, sess
         or "the agent serves it, but no sample arrived"
     )
     raise DemoFailed(f"C->A did not flow within {FIRST_SAMPLE_S:.0f} s: {reason}")
+
+
+CALIBRATED = ("C", "HT", "6D")
+"""The relation the demo calibrates live (the paper's section 4.2)."""
+
+
+def _calibrate(session, keys, world, say, timeout: float) -> None:
+    """Calibrate C->HT live (or find it stored), save it, and wait until the agent has rewired
+    the tracking flow onto the stored edge. The truth is used only to print the error."""
+    from ubitrack_agent.commands.calibrate import describe
+    from ubitrack_agent.core import quaternions
+    from ubitrack_agent.io.application import NotStatic, Relation
+    from ubitrack_agent.io.calibration import StoreError, follow, save, save_request
+    from ubitrack_agent.net.keys import RelationId
+
+    relation_id = RelationId(*CALIBRATED, static=True)
+    started = time.monotonic()
+
+    def report(progress) -> None:
+        say(
+            {"event": "calibrating", **vars(progress)},
+            "[calibration] " + describe(progress, "C", "HT"),
+        )
+
+    with Relation(session, keys, relation_id, application="demo-calibration") as relation:
+        outcome = follow(relation, timeout, report)
+        if outcome.kind == "not_static":
+            raise DemoFailed(str(NotStatic(relation_id, outcome.progress)))
+        if outcome.kind == "timeout":
+            raise DemoFailed(f"C->HT did not converge within {timeout:.0f} s")
+        stored = {"file": None}
+        if outcome.kind == "converged":
+            try:
+                stored = save(session, keys, "store", save_request(*CALIBRATED, outcome.progress))
+            except StoreError as exc:
+                raise DemoFailed(str(exc)) from None
+    q, t = np.asarray(outcome.value["rotation"]), np.asarray(outcome.value["translation"])
+    q_true, t_true = world.pose("C", "HT", time.time_ns())
+    error_deg = np.degrees(
+        quaternions.angle(quaternions.multiply(quaternions.conjugate(q_true), q))
+    )
+    line = {
+        "event": "calibration",
+        "outcome": outcome.kind,
+        "seconds": round(time.monotonic() - started, 1),
+        "samples": outcome.progress.accepted if outcome.progress else None,
+        "rejected": outcome.progress.rejected if outcome.progress else None,
+        "error_mm": round(float(np.linalg.norm(t - t_true)) * 1000, 3),
+        "error_deg": round(float(error_deg), 4),
+        "file": stored["file"],
+    }
+    say(
+        line,
+        f"calibration C->HT {outcome.kind} after {line['seconds']} s: error against the truth "
+        f"{line['error_mm']} mm {line['error_deg']} deg"
+        + (f"; saved in {line['file']}" if line["file"] else " (from the store)"),
+    )
+    if stored["file"] is None:
+        return  # known already: the tracking flow uses it
+    store_data = keys.data(stored["provider"]) + "/"
+    deadline = time.monotonic() + FIRST_SAMPLE_S
+    while not _reads(session, keys, store_data):
+        if time.monotonic() > deadline:
+            raise DemoFailed(f"the tracking flow did not take up {stored['provider']}")
+        time.sleep(0.1)
+
+
+def _reads(session, keys, marker: str) -> bool:
+    """Whether every component the agent runs is alive and one reads a key below ``marker``."""
+    from ubitrack_agent.net.transport import fetch_latest
+
+    replies = fetch_latest(session, keys.agent_status(), timeout=0.5)
+    if not replies:
+        return False
+    components = json.loads(replies[0])["components"].values()
+    alive = bool(components) and all(c["alive"] for c in components)
+    return alive and any(b["key"].startswith(marker) for c in components for b in c["inputs"])
 
 
 def _flow_check(session, keys, provider: str, uses_provider: bool):
