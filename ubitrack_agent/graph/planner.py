@@ -12,6 +12,10 @@ For a query ``(from, to, type, static)`` the planner
    towards the query, :meth:`Workspace._wanted`),
 3. returns every distinct derivation of the queried edge, best first by the cost model below.
 
+A static query may name a frame the SRG lacks: a calibration introduces it (the tip of a tip
+calibration, :func:`introducible_frames`; ``docs/planner.md``, "Frames introduced by a
+calibration").
+
 Cost model (``docs/planner.md``): each edge carries an expected error variance (m^2), a latency
 and the sensors and steps it uses. Variances propagate per template rule (``sum`` for inversion,
 concatenation and calibrations, inverse-variance ``fusion``, ``pooled`` for point-correspondence
@@ -91,7 +95,8 @@ class Query:
 @dataclass(frozen=True)
 class Step:
     """One applied pattern instance. ``outputs`` are ``(name, from, to, type, edge id)``; the id
-    is ``None`` for an output not added to the SRG (already measured, e.g. R->O of hand-eye)."""
+    is ``None`` for an output not added to the SRG: already measured (e.g. R->O of hand-eye),
+    not rigid (the pivot T->P of a tip calibration queried from the marker), or not useful."""
 
     id: str
     template: Template
@@ -244,7 +249,7 @@ def _chain_distances(
             along = _hops(poses, end, float("inf"))
             near[end] = {n: along.get(n, len(frames) + anywhere[n]) for n in frames}
     source, target = goal
-    return near.get(source, near.get(target, {})), near.get(target, near.get(source, {}))
+    return near.get(source, near.get(target)), near.get(target, near.get(source))
 
 
 def introducible_frames(
@@ -420,16 +425,17 @@ class Workspace:
         outputs, added = [], []
         for name, source, target, edge_type, static, mode in instance.outputs:
             edge_id = None
-            # a time expansion holds for rigid relations only (an introduced frame's other
-            # relations, e.g. the pivot of a tip calibration, are listed, not added), and a
-            # measured one needs no calibration
-            calibrated = instance.expansion == "time" and (
-                self.index.is_measured_rigid(source, target)
-                or not self.index.is_rigid(source, target)
+            # a time expansion yields rigid relations: those not measured already are added;
+            # hand-eye's measured R->O is listed, not added, and so is a relation of an
+            # introduced frame the query leaves non-rigid (the pivot of a tip calibration
+            # queried from the marker)
+            kept = instance.expansion != "time" or (
+                self.index.is_rigid(source, target)
+                and not self.index.is_measured_rigid(source, target)
             )
             if (
                 edge_type in self.useful_types
-                and not calibrated
+                and kept
                 and self._wanted(template, edge_type, source, target)
             ):
                 pair = "-".join(sorted((source, target)))
