@@ -12,9 +12,8 @@ import numpy as np
 
 from services.algorithms import (
     absolute_orientation,
-    average_poses,
     decompose_projection,
-    hand_eye_park_martin,
+    hand_eye_calibration,
     projection_dlt,
     solve_pnp,
     solve_pnp_ransac,
@@ -152,9 +151,16 @@ class Triangulation(Service):
 
 @register
 class HandEyeCalibration(Service):
-    """``AX = XB`` (Park & Martin) from simultaneous poses of a hand H in R and of an object O
-    in the eye C: outputs the eye in the hand (``HC``) and the object in R (``RO``, the mean of
-    ``RH_i HC CO_i``). Time expansion; motions must rotate about two or more axes."""
+    """``AX = XB`` from simultaneous poses of a hand H in R and of an object O in the eye C:
+    the eye in the hand (``HC``) and the object in R (``RO``), each with its covariance.
+
+    :func:`services.algorithms.hand_eye_calibration`: Park & Martin's closed form over all
+    motion pairs, then a joint Gauss-Newton refinement of both poses over the absolute poses
+    (Dornaika & Horaud 1998), so ``RO``'s covariance includes the uncertainty of ``HC``. The
+    samples' covariances weight it when every ``RH`` and ``CO`` sample carries one
+    (``ErrorPose``); otherwise the noise is estimated from the residuals. Time expansion;
+    motions must rotate about two or more axes.
+    """
 
     NAME = "hand_eye_calibration"
     INPUTS = {"RH": Port(POSES), "CO": Port(POSES)}
@@ -166,13 +172,20 @@ class HandEyeCalibration(Service):
     def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
         rows = _rows(values, self.CORRESPONDENCE, self.MIN_CORRESPONDENCES)
         hands, eyes = zip(*rows, strict=True)
-        hand_q = np.array([h.rotation for h in hands])
-        hand_t = np.array([h.translation for h in hands])
-        eye_q = np.array([e.rotation for e in eyes])
-        eye_t = np.array([e.translation for e in eyes])
-        x = hand_eye_park_martin(hand_q, hand_t, eye_q, eye_t, all_pairs=len(rows) <= 50)
-        q_ro, t_ro = se3.compose(
-            *se3.compose(hand_q, hand_t, x.rotation, x.translation), eye_q, eye_t
+        covariances = None
+        if all(isinstance(sample, ErrorPose) for sample in (*hands, *eyes)):
+            covariances = (
+                np.array([h.covariance for h in hands]),
+                np.array([e.covariance for e in eyes]),
+            )
+        solution = hand_eye_calibration(
+            np.array([h.rotation for h in hands]),
+            np.array([h.translation for h in hands]),
+            np.array([e.rotation for e in eyes]),
+            np.array([e.translation for e in eyes]),
+            *(covariances or (None, None)),
         )
-        ro = average_poses(q_ro, t_ro)
-        return {"HC": x.to_measurement(timestamp_ns), "RO": ro.to_measurement(timestamp_ns)}
+        return {
+            "HC": solution.eye_in_hand.to_measurement(timestamp_ns),
+            "RO": solution.target_in_base.to_measurement(timestamp_ns),
+        }

@@ -4,8 +4,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bench.synthetic import CAMERA_MATRIX, hand_eye_scene, rng_for
-from services.algorithms import fuse_poses
+from bench.synthetic import (
+    CAMERA_MATRIX,
+    body_noise_covariances,
+    hand_eye_scene,
+    noisy_hand_eye_scene,
+    perturb_with_covariances,
+    pivot_scene,
+    rng_for,
+)
+from services.algorithms import fuse_poses, hand_eye_calibration, tip_calibration
 from services.expansion import TimeAccumulator
 from services.registry import lookup
 from ubitrack_agent.core import (
@@ -112,6 +120,75 @@ def test_hand_eye_calibration_gives_eye_in_hand_and_object_in_base():
         *se3.compose(hand_q[0], hand_t[0], truth.rotation, truth.translation), eye_q[0], eye_t[0]
     )
     assert_pose(out["RO"], q_ro, t_ro, atol=1e-6)
+    assert isinstance(out["HC"], ErrorPose) and isinstance(out["RO"], ErrorPose)
+
+
+def _hand_eye_outputs(poses, covariances, plain_eye: int | None = None):
+    """The service's outputs for samples carrying ``covariances`` (ErrorPose), except the eye
+    sample ``plain_eye``, which is a Pose."""
+    qg, tg, qc, tc = poses
+    hand_cov, eye_cov = covariances
+    hands = [ErrorPose(T, *pose) for pose in zip(qg, tg, hand_cov, strict=True)]
+    eyes = [ErrorPose(T, *pose) for pose in zip(qc, tc, eye_cov, strict=True)]
+    if plain_eye is not None:
+        eyes[plain_eye] = Pose(T, qc[plain_eye], tc[plain_eye])
+    return make("hand_eye_calibration").compute({"RH": hands, "CO": eyes}, T)
+
+
+def _assert_estimate(measurement, estimate):
+    assert isinstance(measurement, ErrorPose)
+    assert_pose(measurement, estimate.rotation, estimate.translation, atol=1e-12)
+    np.testing.assert_allclose(measurement.covariance, estimate.covariance, rtol=1e-9, atol=0)
+
+
+def test_hand_eye_service_is_the_refined_estimator_over_all_pairs_with_both_covariances():
+    """60 rows (the old wiring switched to consecutive pairs above 50): the outputs are the
+    algorithm's, weighted by the samples' covariances, and RO's covariance includes the
+    uncertainty of HC (the algorithm's joint solution, not a mean of ``RH_i HC CO_i``)."""
+    _, _, poses, covariances = noisy_hand_eye_scene(rng_for("hand-eye service noisy"), 60, "low")
+    out = _hand_eye_outputs(poses, covariances)
+    solution = hand_eye_calibration(*poses, *covariances)
+    assert not solution.noise_from_residuals
+    _assert_estimate(out["HC"], solution.eye_in_hand)
+    _assert_estimate(out["RO"], solution.target_in_base)
+
+    mixed = _hand_eye_outputs(poses, covariances, plain_eye=7)  # one sample without covariance
+    from_residuals = hand_eye_calibration(*poses)
+    assert from_residuals.noise_from_residuals
+    _assert_estimate(mixed["HC"], from_residuals.eye_in_hand)
+    _assert_estimate(mixed["RO"], from_residuals.target_in_base)
+    assert not np.allclose(mixed["RO"].covariance, out["RO"].covariance, rtol=1e-3, atol=0)
+
+
+def test_tip_calibration_weights_by_the_poses_covariances_when_every_sample_has_one():
+    rng = rng_for("tip service")
+    tip, pivot, (q, t) = pivot_scene(rng, 40)
+    covariances = body_noise_covariances(t, np.radians(0.1), 2e-4)
+    q, t = perturb_with_covariances(rng, q, t, covariances)
+    poses = [ErrorPose(T, *pose) for pose in zip(q, t, covariances, strict=True)]
+    service = make("tip_calibration")
+    out = service.compute({"TM": poses}, T)
+    solution = tip_calibration(q, t, covariances)
+    for name, value, covariance in (
+        ("MP", solution.tip_in_marker, solution.tip_covariance),
+        ("TP", solution.pivot_in_tracker, solution.pivot_covariance),
+    ):
+        assert isinstance(out[name], Position3D) and out[name].timestamp_ns == T
+        np.testing.assert_allclose(out[name].position, value, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(out[name].covariance, covariance, rtol=1e-9, atol=0)
+    assert np.linalg.norm(out["MP"].position - tip) < 1e-3
+    assert np.linalg.norm(out["TP"].position - pivot) < 1e-3
+
+    poses[3] = Pose(T, q[3], t[3])  # one sample without covariance: noise from the residuals
+    mixed = service.compute({"TM": poses}, T)
+    from_residuals = tip_calibration(q, t)
+    np.testing.assert_allclose(mixed["MP"].covariance, from_residuals.tip_covariance, rtol=1e-9)
+    with pytest.raises(ValueError, match="29 poses, need 30"):
+        service.compute({"TM": poses[:29]}, T)
+    turns = Rotation.from_euler("z", np.arange(30.0)[:, None], degrees=True).as_quat()
+    about_z = [Pose(T, turn, t[0]) for turn in turns]
+    with pytest.raises(ValueError, match="one axis only"):
+        service.compute({"TM": about_z}, T)
 
 
 def test_fusion_of_equal_and_weighted_estimates():

@@ -213,14 +213,38 @@ def _relation(world: Mapping[str, Transform], source: str, target: str) -> Trans
     return se3.compose(*se3.invert(*world[source]), *world[target])
 
 
-def _rigid_groups(template: Template) -> list[list[str]]:
-    """Roles that keep their relative poses over a time expansion: joined by a static input (one
-    outside the correspondence) or by an output (the results of a time expansion are static)."""
+def _static_links(template: Template) -> list[tuple[str, str]]:
+    """Role pairs that keep their relation over a time expansion: static inputs (outside the
+    correspondence) and outputs (the results of a time expansion are static)."""
     corr = template.correspondence
     edges = set(corr.edges) if corr is not None else set()
-    group = {role: {role} for role in template.roles}
     pairs = [(s.source, s.target) for s in template.inputs if s.name not in edges]
-    for a, b in [*pairs, *((s.source, s.target) for s in template.outputs)]:
+    return [*pairs, *((s.source, s.target) for s in template.outputs)]
+
+
+def _pivots(template: Template, binding: Mapping[str, str]) -> set[str]:
+    """Points (roles only ever the target of a 3D or 2D edge) held by static links in two or
+    more roles: the tip of a pointer is fixed in its marker and, on the pivot, in the tracker,
+    yet the marker turns about it. Such a point keeps only its position."""
+    edges = (*template.inputs, *template.outputs)
+    sources = {spec.source for spec in edges}
+    points = {
+        spec.target
+        for spec in edges
+        if spec.target not in sources
+        and all(resolve(e.type, binding) in ("3D", "2D") for e in edges if e.target == spec.target)
+    }
+    holders = [b for _, b in _static_links(template)]
+    return {point for point in points if holders.count(point) > 1}
+
+
+def _rigid_groups(template: Template, pivots: set[str]) -> list[list[str]]:
+    """Roles that keep their relative poses over a time expansion: joined by a static link
+    (:func:`_static_links`) other than one holding a pivot (:func:`_pivots`)."""
+    group = {role: {role} for role in template.roles}
+    for a, b in _static_links(template):
+        if b in pivots:
+            continue
         merged = group[a] | group[b]
         for role in merged:
             group[role] = merged
@@ -229,18 +253,30 @@ def _rigid_groups(template: Template) -> list[list[str]]:
 
 
 def _moved(
-    world: dict[str, Transform], groups: list[list[str]], images: set[str], rng: np.random.Generator
+    world: dict[str, Transform],
+    template: Template,
+    groups: list[list[str]],
+    pivots: set[str],
+    images: set[str],
+    rng: np.random.Generator,
 ) -> dict[str, Transform]:
-    """The scene at another instant: the group holding a camera (else the first) stays, every
-    other rigid group is placed anew, its first role drawn like :func:`_place` and the others
-    carried along."""
+    """The scene at another instant: the group holding a camera (else the first) and the
+    pivots stay, every other rigid group is placed anew, its first role drawn like
+    :func:`_place` and the others carried along; a group holding a pivot is turned at random
+    about it instead (one pivot per group)."""
     anchor = next((g for g in groups if images & set(g)), groups[0])
+    held = {a: b for a, b in _static_links(template) if b in pivots}
     moved = dict(world)
     for members in groups:
-        if members is anchor:
+        if members is anchor or set(members) <= pivots:
             continue
         lead = members[0]
-        new_lead = _place(rng, lead in images)
+        pivot = next((held[role] for role in members if role in held), None)
+        if pivot is None:
+            new_lead = _place(rng, lead in images)
+        else:
+            turn, centre = Rotation.random(rng=rng).as_quat(), world[pivot][1]
+            new_lead = se3.compose(turn, centre - quaternions.rotate(turn, centre), *world[lead])
         for role in members:
             moved[role] = se3.compose(*new_lead, *_relation(world, lead, role))
     return moved
@@ -267,9 +303,11 @@ def _scenes(
         ]
         return world, copies
     if expansion == "time":
-        groups = _rigid_groups(template)
+        pivots = _pivots(template, binding)
+        groups = _rigid_groups(template, pivots)
         copies = [
-            _moved(world, groups, images, rng) for _ in range(max(corr.multiplicity.lo, minimum))
+            _moved(world, template, groups, pivots, images, rng)
+            for _ in range(max(corr.multiplicity.lo, minimum))
         ]
         return copies[-1], copies
     return world, []

@@ -209,3 +209,33 @@ def test_pose_split_has_two_outputs_and_only_splits_measured_poses(by_pattern):
     assert [o[1:4] for o in instance.outputs] == [("A", "B", "3D"), ("A", "B", "3R")]
     index.add(replace(index.edges["A->B:6D"], id="derived", measured=False, canon="d"))
     assert len(instances(by_pattern["pose_split"], index)) == 1
+
+
+def test_tip_calibration_binds_its_introduced_role_to_a_new_frame_only(by_pattern):
+    template = by_pattern["tip_calibration"]
+    pointer = [("T", "M", "6D", False), ("T", "B", "6D", False), ("M", "N", "6D", True)]
+    assert instances(template, index_of(pointer, rigid=[("M", "Tip")])) == []  # no new frame
+    index = index_of(pointer, rigid=[("M", "Tip")])
+    index.new_frames = ("Tip",)
+    (instance,) = instances(template, index)  # the query's rigid pair says where Tip belongs
+    assert instance.expansion == "time"
+    assert dict(instance.inputs) == {"TM": ("T->M:6D",)}
+    assert [o[1:5] for o in instance.outputs] == [
+        ("M", "Tip", "3D", True),
+        ("T", "Tip", "3D", True),
+    ]
+    pivot = index_of(pointer, rigid=[("T", "Tip")])
+    pivot.new_frames = ("Tip",)
+    assert sorted(dict(i.inputs)["TM"] for i in instances(template, pivot)) == [
+        ("T->B:6D",),
+        ("T->M:6D",),
+    ]  # which body pivots is not known: each is an occurrence
+    nothing_rigid = index_of(pointer)
+    nothing_rigid.new_frames = ("Tip",)
+    assert instances(template, nothing_rigid) == []  # no relation of Tip to keep
+
+
+def test_an_introduced_role_binds_a_frame_distinct_from_the_other_roles(by_pattern):
+    index = index_of([("T", "M", "6D", False)], rigid=[("T", "M")])
+    index.new_frames = ("M",)  # (the planner passes only frames the SRG lacks)
+    assert list(find_matches(by_pattern["tip_calibration"], index)) == []

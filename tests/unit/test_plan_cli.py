@@ -13,6 +13,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 TRACKING = str(ROOT / "examples" / "paper_tracking.yaml")
 CALIBRATION = str(ROOT / "examples" / "paper_calibration.yaml")
+POINTER = str(ROOT / "examples" / "pointer_tip.yaml")
 
 
 def run_json(capsys, *args):
@@ -108,3 +109,43 @@ def test_without_plans_as_if_a_sensor_had_failed(capsys):
     assert "MultiTrackerFusion" not in {step["pattern"] for step in steps}
     assert main(["plan", *query, "--without", "NOPE"]) == 1
     assert "--without NOPE: no such provider" in capsys.readouterr().err
+
+
+def test_a_static_query_to_the_pointer_tip_plans_its_tip_calibration(capsys):
+    assert main(["plan", POINTER, "--from", "M", "--to", "Tip", "--type", "3D", "--static"]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        "static 3D M->Tip: 1 solution(s)",
+        "",
+        "solution 1: cost 0.628, static",
+        "  1. TipCalibration (time): T->M:6D  =>  M->Tip:3D, T->Tip:3D",
+    ]
+    # T->Tip is the pivot: Tip fixed in T, about which one of the bodies was turned
+    status, document = run_json(
+        capsys, POINTER, "--from", "T", "--to", "Tip", "--type", "3D", "--static", "--all"
+    )
+    assert status == 0
+    assert [s["steps"] for s in document["solutions"]] == [
+        [
+            {
+                "pattern": "TipCalibration",
+                "expansion": "time",
+                "inputs": [["T", body, "6D"]],
+                "outputs": [[body, "Tip", "3D"], ["T", "Tip", "3D"]],
+            }
+        ]
+        for body in ("M", "R")
+    ]
+
+
+def test_the_calibrated_tip_is_tracked_once_stored_as_a_static_edge(capsys, tmp_path):
+    query = ("--from", "T", "--to", "Tip", "--type", "3D")
+    assert main(["plan", POINTER, *query]) == 2  # which body's tip: the query does not say
+    assert "a calibration introduces a frame only for a static query" in capsys.readouterr().err
+    stored = tmp_path / "pointer_calibrated.yaml"
+    text = Path(POINTER).read_text(encoding="utf-8")
+    stored.write_text(text + "  - {from: M, to: Tip, type: 3D, static: true}\n", encoding="utf-8")
+    status, document = run_json(capsys, str(stored), *query)
+    assert status == 0
+    (step,) = document["solutions"][0]["steps"]
+    assert step["pattern"] == "Concatenation"
+    assert step["inputs"] == [["T", "M", "6D"], ["M", "Tip", "3D"]]

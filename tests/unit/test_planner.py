@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import random
 from collections import Counter
 from dataclasses import replace
@@ -16,13 +17,14 @@ from ubitrack_agent.graph.planner import (
     NoSolutionError,
     PlanningError,
     Query,
+    introducible_frames,
     plan,
     relevant_frames,
     saturate,
     useful_types,
     with_solution,
 )
-from ubitrack_agent.graph.srg import parse_setup
+from ubitrack_agent.graph.srg import load_setup, parse_setup
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -342,3 +344,84 @@ def test_any_srg_gets_valid_solutions_or_a_clear_error(templates, edges, query):
                         assert a.sources.isdisjoint(b.sources) or (
                             a.time_integrated or b.time_integrated
                         )
+
+
+# --- a frame introduced by a calibration: the pointer's tip --------------------------------------
+
+POINTER = (("T", "M", "6D", False), ("T", "B", "6D", False))
+"""A tracker T following a pointer's marker M and another body B; the tip is no frame yet."""
+
+
+def test_a_static_query_to_a_new_frame_plans_the_tip_calibration(templates):
+    srg = setup(*POINTER)
+    (solution,) = plan(srg, templates, Query("M", "Tip", "3D", static=True))
+    (step,) = solution.steps
+    assert (step.template.pattern, step.expansion) == ("TipCalibration", "time")
+    assert dict(step.inputs) == {"TM": ("T->M:6D",)}
+    added = {(src, dst): edge_id for _, src, dst, _, edge_id in step.outputs}
+    assert added[("M", "Tip")] == solution.edge.id
+    assert added[("T", "Tip")] is None  # the pivot: Tip is fixed in T only while calibrating
+    graph = with_solution(srg, solution)
+    assert [(u, v) for u, v, d in graph.edges(data=True) if not d["measured"]] == [("M", "Tip")]
+
+
+def test_the_pivot_is_the_static_relation_of_the_tracker_to_the_new_frame(templates):
+    found = plan(setup(*POINTER), templates, Query("T", "Tip", "3D", static=True))
+    # either body may be the one pivoting: both are derivations, each adding only T->Tip; they
+    # are not fused (each calibration defines Tip: they may have calibrated different points)
+    assert sorted(dict(s.steps[0].inputs)["TM"] for s in found) == [("T->B:6D",), ("T->M:6D",)]
+    for solution in found:
+        outputs = {(src, dst): edge_id for _, src, dst, _, edge_id in solution.steps[0].outputs}
+        assert outputs[("T", "Tip")] == solution.edge.id
+        assert list(outputs.values()).count(None) == 1
+
+
+def test_a_tip_on_a_marker_rigidly_mounted_on_the_pointer(templates):
+    srg = setup(*POINTER, ("M", "N", "6D", True))
+    best = plan(srg, templates, Query("N", "Tip", "3D", static=True))[0]
+    assert [s.template.pattern for s in best.steps] == ["Concatenation", "TipCalibration"]
+    assert dict(best.steps[-1].inputs)["TM"] == (best.steps[0].outputs[0][4],)  # T->N
+
+
+def test_a_new_frame_needs_a_static_query_and_a_calibration_that_yields_it(templates):
+    srg = setup(*POINTER)
+    with pytest.raises(NoSolutionError, match="frame\\(s\\) Tip not in the SRG \\(a calibration"):
+        plan(srg, templates, Query("T", "Tip", "3D"))  # which body's tip: not said
+    message = "no derivation of static 6D M->Tip: frame Tip is not in the SRG and no calibration"
+    with pytest.raises(NoSolutionError, match=message):
+        plan(srg, templates, Query("M", "Tip", "6D", static=True))  # a point has no orientation
+    with pytest.raises(NoSolutionError, match="frame\\(s\\) Tip, X not in the SRG"):
+        plan(srg, templates, Query("Tip", "X", "3D", static=True))
+    without = [t for t in templates if not t.introduced]
+    with pytest.raises(NoSolutionError, match=r"^frame\(s\) Tip not in the SRG$"):
+        plan(srg, without, Query("M", "Tip", "3D", static=True))
+
+
+def test_introducible_frames_and_their_neighbourhood(templates):
+    srg = setup(("A", "B", "6D", False), ("B", "C", "6D", False), ("C", "D", "6D", False))
+    assert introducible_frames(srg, templates, Query("A", "Tip", "3D", static=True)) == ("Tip",)
+    assert introducible_frames(srg, templates, Query("Tip", "A", "3D", static=True)) == ("Tip",)
+    assert introducible_frames(srg, templates, Query("A", "Tip", "3D")) == ()
+    assert introducible_frames(srg, templates, Query("A", "D", "3D", static=True)) == ()
+    assert introducible_frames(srg, templates, Query("X", "Tip", "3D", static=True)) == ()
+    # the new frame counts as one hop from A: frames within slack + 1 hops take part
+    assert relevant_frames(srg, "A", "Tip", 1, ("Tip",)) == {"A", "B", "C"}
+    with pytest.raises(NoSolutionError, match="frame\\(s\\) Tip not in the SRG"):
+        relevant_frames(srg, "A", "Tip", 1)
+
+
+@pytest.mark.parametrize("name", ["paper_tracking", "paper_calibration"])
+def test_a_pattern_introducing_frames_changes_no_plan_between_frames_of_the_srg(templates, name):
+    srg = load_setup(ROOT / "examples" / f"{name}.yaml")
+    without = [t for t in templates if not t.introduced]
+
+    def documents(catalogue, query):
+        try:
+            return [s.as_json() for s in plan(srg, catalogue, query)]
+        except NoSolutionError as exc:
+            return str(exc)
+
+    for source, target in itertools.permutations(sorted(srg.nodes), 2):
+        for edge_type in ("6D", "3D"):
+            query = Query(source, target, edge_type, static=True)  # time-only patterns run
+            assert documents(templates, query) == documents(without, query), query

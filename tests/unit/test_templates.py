@@ -47,9 +47,12 @@ PAPER_PATTERNS = {
 }
 """The patterns of the paper's catalogue (sections 3.1, 3.4, 4.3) that ship as templates."""
 
+UBITRACK_PATTERNS = {"TipCalibration"}
+"""Patterns shipped beyond the paper's catalogue, after Ubitrack's components."""
+
 
 def test_shipped_catalogue_covers_every_pattern(templates):
-    assert {t.pattern for t in templates} == PAPER_PATTERNS
+    assert {t.pattern for t in templates} == PAPER_PATTERNS | UBITRACK_PATTERNS
     assert len({t.service for t in templates}) == len(templates)
     signatures = {t.pattern: t.signature for t in templates}
     assert signatures.pop("Inversion") == "inverse"
@@ -78,6 +81,27 @@ def test_hand_eye_is_time_only_with_static_outputs(templates):
     hand_eye = next(t for t in templates if t.pattern == "HandEyeCalibration")
     assert hand_eye.time_only
     assert all(o.static is True for o in hand_eye.outputs)
+
+
+def test_only_the_tip_calibration_introduces_a_frame(templates):
+    introducing = {t.pattern: t.introduced for t in templates if t.introduced}
+    assert introducing == {"TipCalibration": ("P",)}
+    tip = next(t for t in templates if t.pattern == "TipCalibration")
+    assert tip.time_only and [o.name for o in tip.outputs] == ["MP", "TP"]
+
+
+def test_a_frame_is_introduced_only_by_a_time_only_pattern():
+    data = copy.deepcopy(POSE_2D3D)
+    data["roles"].append("X")
+    data["outputs"].append({"name": "CX", "from": "C", "to": "X", "type": "3D"})
+    with pytest.raises(TemplateError) as info:
+        parse_template(data, "templates/pose.yaml")
+    assert str(info.value) == (
+        "templates/pose.yaml: field 'roles': X bound by no input: only a time-only pattern "
+        "(a calibration, correspondence expansions [time]) may introduce a frame"
+    )
+    data["correspondence"]["expansions"] = ["time"]
+    assert parse_template(data).introduced == ("X",)
 
 
 def test_parse_and_load_round_trip(tmp_path):

@@ -16,6 +16,10 @@ Bookkeeping against redundant derivations lives here too: every edge carries the
 measured edges it depends on (``sources``); the inputs of one occurrence must not share a
 source (:func:`independent`), the copies of a space expansion must each add information, and
 an input may exclude the outputs of given patterns (``not_from``: no inverse of an inverse).
+
+A role no input binds (:attr:`Template.introduced`, the tip of a tip calibration) is bound,
+once the inputs are, to a frame the query names and the SRG lacks (:attr:`EdgeIndex.new_frames`);
+the outputs to such a frame hold only where the query declares it rigid (:func:`_time_ok`).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
+from itertools import permutations
 
 import networkx as nx
 
@@ -62,7 +67,9 @@ class EdgeRecord:
 @dataclass
 class EdgeIndex:
     """Adjacency and (type, static) partitions of the working SRG, updated as edges are
-    inferred (the partitioning of section 5.1 that keeps the subgraph search small)."""
+    inferred (the partitioning of section 5.1 that keeps the subgraph search small).
+    ``new_frames`` are frames a query names that have no edge yet: only a pattern's introduced
+    roles bind them."""
 
     edges: dict[str, EdgeRecord] = field(default_factory=dict)
     out: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
@@ -72,6 +79,7 @@ class EdgeIndex:
     measured_rigid: set[frozenset[str]] = field(default_factory=set)
     dynamic_measured: set[str] = field(default_factory=set)
     retired: set[str] = field(default_factory=set)
+    new_frames: tuple[str, ...] = ()
 
     def add(self, record: EdgeRecord) -> None:
         """Insert ``record`` into every index."""
@@ -208,10 +216,26 @@ def _unbind(made: list[tuple[dict[str, str], str]]) -> None:
 
 
 def _rigid_links(template: Template) -> list[tuple[str, str]]:
-    """Role pairs a time-only template requires to be rigid (its static outputs)."""
+    """Role pairs a time-only template requires to be rigid: its static outputs between frames
+    of the SRG (an introduced frame's relations are the query's to declare, :func:`_time_ok`)."""
     if not template.time_only:
         return []
-    return [(o.source, o.target) for o in template.outputs if o.static is True]
+    new = set(template.introduced)
+    return [
+        (o.source, o.target)
+        for o in template.outputs
+        if o.static is True and not {o.source, o.target} & new
+    ]
+
+
+def _introductions(
+    template: Template, index: EdgeIndex, roles: Mapping[str, str]
+) -> Iterator[dict[str, str]]:
+    """Bindings of the template's introduced roles to distinct new frames not bound already;
+    a single empty binding for a template that introduces none."""
+    free = [frame for frame in index.new_frames if frame not in roles.values()]
+    for frames in permutations(free, len(template.introduced)):
+        yield dict(zip(template.introduced, frames, strict=True))
 
 
 def _candidates(
@@ -253,12 +277,13 @@ def _extend(
     types: dict[str, str],
 ) -> Iterator[Match]:
     if len(bound) == len(template.inputs):
-        yield Match(
-            template,
-            tuple(bound[i] for i in range(len(template.inputs))),
-            tuple(sorted(roles.items())),
-            tuple(sorted(types.items())),
-        )
+        for introduced in _introductions(template, index, roles):
+            yield Match(
+                template,
+                tuple(bound[i] for i in range(len(template.inputs))),
+                tuple(sorted({**roles, **introduced}.items())),
+                tuple(sorted(types.items())),
+            )
         return
     i = _next_input(template, bound, roles)
     spec = template.inputs[i]
@@ -370,14 +395,23 @@ def _outputs(
 
 def _time_ok(match: Match, index: EdgeIndex) -> bool:
     """Conditions of a time expansion: correspondence edges dynamic, all other inputs static,
-    and every output joins frames known to be rigid (time expansions yield static edges)."""
-    corr = match.template.correspondence
+    and every output joins frames known to be rigid (time expansions yield static edges).
+
+    An output to an introduced frame is exempt: the SRG knows nothing of that frame, so the
+    query says which of its relations is rigid (the tip in the marker, or the pivot in the
+    tracker); at least one must be, and the planner adds only those."""
+    template = match.template
+    corr = template.correspondence
     assert corr is not None
-    for spec, edge_id in zip(match.template.inputs, match.edges, strict=True):
+    for spec, edge_id in zip(template.inputs, match.edges, strict=True):
         if index.edges[edge_id].static != (spec.name not in corr.edges):
             return False
     roles = dict(match.roles)
-    return all(index.is_rigid(roles[o.source], roles[o.target]) for o in match.template.outputs)
+    new = set(template.introduced)
+    rigid = {o.name: index.is_rigid(roles[o.source], roles[o.target]) for o in template.outputs}
+    known = [rigid[o.name] for o in template.outputs if not {o.source, o.target} & new]
+    introducing = [rigid[o.name] for o in template.outputs if {o.source, o.target} & new]
+    return all(known) and (not introducing or any(introducing))
 
 
 def expand_group(members: list[Match], index: EdgeIndex) -> list[Instance]:

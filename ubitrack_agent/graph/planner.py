@@ -12,6 +12,10 @@ For a query ``(from, to, type, static)`` the planner
    towards the query, :meth:`Workspace._wanted`),
 3. returns every distinct derivation of the queried edge, best first by the cost model below.
 
+A static query may name a frame the SRG lacks: a calibration introduces it (the tip of a tip
+calibration, :func:`introducible_frames`; ``docs/planner.md``, "Frames introduced by a
+calibration").
+
 Cost model (``docs/planner.md``): each edge carries an expected error variance (m^2), a latency
 and the sensors and steps it uses. Variances propagate per template rule (``sum`` for inversion,
 concatenation and calibrations, inverse-variance ``fusion``, ``pooled`` for point-correspondence
@@ -91,7 +95,8 @@ class Query:
 @dataclass(frozen=True)
 class Step:
     """One applied pattern instance. ``outputs`` are ``(name, from, to, type, edge id)``; the id
-    is ``None`` for an output not added to the SRG (already measured, e.g. R->O of hand-eye)."""
+    is ``None`` for an output not added to the SRG: already measured (e.g. R->O of hand-eye),
+    not rigid (the pivot T->P of a tip calibration queried from the marker), or not useful."""
 
     id: str
     template: Template
@@ -228,21 +233,45 @@ def _chain_distances(
     srg: nx.MultiDiGraph, frames: set[str], goal: tuple[str, str]
 ) -> tuple[dict[str, int], dict[str, int]]:
     """Hop distances of ``frames`` from each query frame along 6D edges (the links of chains);
-    frames without a 6D path come after all others, ordered by their distance along any edge."""
+    frames without a 6D path come after all others, ordered by their distance along any edge.
+    A query frame the SRG lacks (to be introduced by a calibration) has no distances of its
+    own: it takes those of the other query frame, so only chains between frames at equal
+    distance from it are left out."""
     sub = srg.subgraph(frames)
     poses = nx.MultiDiGraph(
         (u, v, k) for u, v, k, t in sub.edges(keys=True, data="type") if t == "6D"
     )
     poses.add_nodes_from(frames)
-    out = []
+    near = {}
     for end in goal:
-        anywhere = _hops(sub, end, float("inf"))
-        along = _hops(poses, end, float("inf"))
-        out.append({n: along.get(n, len(frames) + anywhere[n]) for n in frames})
-    return out[0], out[1]
+        if end in frames:
+            anywhere = _hops(sub, end, float("inf"))
+            along = _hops(poses, end, float("inf"))
+            near[end] = {n: along.get(n, len(frames) + anywhere[n]) for n in frames}
+    source, target = goal
+    return near.get(source, near.get(target)), near.get(target, near.get(source))
 
 
-def relevant_frames(srg: nx.MultiDiGraph, source: str, target: str, slack: int) -> set[str]:
+def introducible_frames(
+    srg: nx.MultiDiGraph, templates: Sequence[Template], query: Query
+) -> tuple[str, ...]:
+    """The query frame the SRG lacks that a calibration may introduce, or ``()``.
+
+    A pattern introduces a frame through a role no input binds (:attr:`Template.introduced`,
+    e.g. the tip of a tip calibration). Only a static query may name such a frame: it declares
+    the frame rigid to the other query frame, which says where the new frame is attached (the
+    tip to the pointer's marker, not to some other tracked body). The other frame must be in
+    the SRG.
+    """
+    missing = tuple(n for n in (query.source, query.target) if n not in srg)
+    if query.static and len(missing) == 1 and any(t.introduced for t in templates):
+        return missing
+    return ()
+
+
+def relevant_frames(
+    srg: nx.MultiDiGraph, source: str, target: str, slack: int, new_frames: Iterable[str] = ()
+) -> set[str]:
     """Frames that can take part in a derivation of ``source -> target``.
 
     A frame lies on a simple path between the two frames iff it is in the biconnected block of
@@ -250,10 +279,18 @@ def relevant_frames(srg: nx.MultiDiGraph, source: str, target: str, slack: int) 
     ``slack`` hops beyond the shortest path are dropped. Only the neighbourhood of the two frames
     is visited. Raises :class:`NoSolutionError` naming the frames if they are absent or not
     connected.
+
+    ``new_frames`` (from :func:`introducible_frames`) names a query frame absent from the SRG
+    that a calibration may introduce. It counts as one hop from the other query frame, so the
+    frame it is attached to lies within ``slack`` hops of that frame, and the frames measuring
+    it one hop further: the frames within ``slack + 1`` hops are returned.
     """
-    missing = [n for n in (source, target) if n not in srg]
+    missing = [n for n in (source, target) if n not in srg and n not in new_frames]
     if missing:
         raise NoSolutionError(f"frame(s) {', '.join(missing)} not in the SRG")
+    present = [n for n in (source, target) if n in srg]
+    if len(present) == 1:
+        return set(_hops(srg, present[0], slack + 1))
     from_source = _hops(srg, source, float("inf"), target, slack)
     if target not in from_source:
         part_a = sorted(from_source)
@@ -364,6 +401,15 @@ class Workspace:
         template = instance.template
         pattern = template.pattern
         sources = frozenset().union(*(e.sources for e in inputs))
+        # a new frame is defined by the one calibration introducing it: the frame counts as a
+        # source, so no derivation combines two introductions (two tip calibrations may have
+        # calibrated different points)
+        sources |= {
+            f"introduced:{frame}"
+            for _, source, target, *_ in instance.outputs
+            for frame in (source, target)
+            if frame in self.index.new_frames
+        }
         providers = frozenset().union(*(e.providers for e in inputs))
         steps = frozenset({step_id}).union(*(e.steps for e in inputs))
         # the computation's signature: an inverse is its input, a chain the sorted computations
@@ -379,12 +425,17 @@ class Workspace:
         outputs, added = [], []
         for name, source, target, edge_type, static, mode in instance.outputs:
             edge_id = None
-            calibrated = instance.expansion == "time" and self.index.is_measured_rigid(
-                source, target
+            # a time expansion yields rigid relations: those not measured already are added;
+            # hand-eye's measured R->O is listed, not added, and so is a relation of an
+            # introduced frame the query leaves non-rigid (the pivot of a tip calibration
+            # queried from the marker)
+            kept = instance.expansion != "time" or (
+                self.index.is_rigid(source, target)
+                and not self.index.is_measured_rigid(source, target)
             )
             if (
                 edge_type in self.useful_types
-                and not calibrated
+                and kept
                 and self._wanted(template, edge_type, source, target)
             ):
                 pair = "-".join(sorted((source, target)))
@@ -430,6 +481,7 @@ def saturate(
     rigid: Iterable[tuple[str, str]] = (),
     per_relation: int = DEFAULT_PER_RELATION,
     goal: tuple[str, str] | None = None,
+    new_frames: Iterable[str] = (),
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
@@ -437,8 +489,9 @@ def saturate(
     patterns (calibrations) only run when some rigid relation is not measured. With a ``goal``
     (the query's source and target), chains (concatenations) are restricted as
     :meth:`Workspace._wanted` explains. ``rigid`` adds frame pairs known to be rigid besides
-    those joined by static edges. Each round only looks for occurrences that use an edge
-    inferred in the previous round.
+    those joined by static edges. ``new_frames`` are frames without edges that patterns with
+    introduced roles may bind (:func:`introducible_frames`); without them those patterns do not
+    run. Each round only looks for occurrences that use an edge inferred in the previous round.
     """
     frames = set(frames)
     ws = Workspace(
@@ -446,6 +499,7 @@ def saturate(
         useful_types=useful_types(templates, wanted),
         goal=goal,
     )
+    ws.index.new_frames = tuple(new_frames)
     if goal is not None:
         ws.distances = _chain_distances(srg, frames, goal)
     for source in sorted(frames):  # a canonical order: the plan must not depend on announcement
@@ -455,8 +509,13 @@ def saturate(
     rigid = [(a, b) for a, b in rigid if not ws.index.is_measured_rigid(a, b)]
     for a, b in rigid:
         ws.index.add_rigid(a, b)
-    # a time-only pattern yields static edges, wanted only for rigid relations not yet measured
-    templates = [t for t in templates if rigid or not t.time_only]
+    # a time-only pattern yields static edges, wanted only for rigid relations not yet measured;
+    # a pattern introducing a frame needs a frame to introduce
+    templates = [
+        t
+        for t in templates
+        if (rigid or not t.time_only) and (ws.index.new_frames or not t.introduced)
+    ]
     groups: dict[tuple, dict[tuple[str, ...], Match]] = {}
     applied: set[tuple] = set()
     new = list(ws.index.edges)
@@ -556,16 +615,27 @@ def plan(
     The first solution is the best derivation by the cost model; the whole list is what the
     design tool shows with ``--all``.
     """
-    frames = relevant_frames(srg, query.source, query.target, slack)
+    absent = [n for n in (query.source, query.target) if n not in srg]
+    if absent and not query.static and any(t.introduced for t in templates):
+        raise NoSolutionError(
+            f"frame(s) {', '.join(absent)} not in the SRG (a calibration introduces a frame "
+            f"only for a static query, which names the frame it is rigidly attached to)"
+        )
+    new = introducible_frames(srg, templates, query)
+    frames = relevant_frames(srg, query.source, query.target, slack, new)
     rigid = [(query.source, query.target)] if query.static else []
     goal = (query.source, query.target)
-    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal)
+    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal, new)
     found = solutions(ws, query)
     if not found:
         kind = "static " if query.static else ""
+        why = (
+            f"frame {new[0]} is not in the SRG and no calibration introduces it"
+            if new
+            else "the frames are connected, but no combination of patterns yields that edge"
+        )
         raise NoSolutionError(
-            f"no derivation of {kind}{query.type} {query.source}->{query.target}: the frames are "
-            f"connected, but no combination of patterns yields that edge "
+            f"no derivation of {kind}{query.type} {query.source}->{query.target}: {why} "
             f"(frames considered: {', '.join(sorted(frames))})"
         )
     return found

@@ -147,6 +147,18 @@ class Template:
         """True if the pattern is only ever applied expanded in time (its outputs are static)."""
         return self.correspondence is not None and self.correspondence.expansions == {"time"}
 
+    @property
+    def introduced(self) -> tuple[str, ...]:
+        """Roles no input binds: frames the pattern introduces (the tip of a tip calibration).
+
+        Only a time-only pattern may have them: integrating its inputs over time it determines
+        a frame no single measurement touches. The planner binds such a role to a frame that a
+        static query names and the SRG lacks (``docs/planner.md``).
+        """
+        bound = {role for spec in self.inputs for role in (spec.source, spec.target)}
+        used = {role for spec in self.outputs for role in (spec.source, spec.target)}
+        return tuple(role for role in self.roles if role in used - bound)
+
 
 # --- loading and validation --------------------------------------------------------------------
 
@@ -357,7 +369,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
     signature = c.choice("field 'signature'", data.get("signature", "step"), SIGNATURES)
     if signature == "inverse" and len(inputs) != 1:
         raise c.fail("field 'signature'", "an inverse has exactly one input")
-    return Template(
+    template = Template(
         name=Path(origin).stem,
         pattern=pattern,
         service=service,
@@ -371,6 +383,13 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
         parameters=dict(parameters),
         signature=signature,
     )
+    if template.introduced and not template.time_only:
+        raise c.fail(
+            "field 'roles'",
+            f"{', '.join(template.introduced)} bound by no input: only a time-only pattern "
+            f"(a calibration, correspondence expansions [time]) may introduce a frame",
+        )
+    return template
 
 
 def load_template(path: str | Path | Traversable) -> Template:
