@@ -18,7 +18,6 @@ import pytest
 from sim_trackers.pivot import PivotMotion
 from tests.integration.conftest import kill_tagged
 from tests.integration.zenoh_helpers import free_port, member_flags, wait_until
-from ubitrack_agent.agent.flows import plan_relations
 from ubitrack_agent.agent.materialise import component_specs
 from ubitrack_agent.core import Position3D
 from ubitrack_agent.graph.dataflow import plan_flows, relation_name
@@ -45,13 +44,6 @@ largest 0.34 mm, mean NEES 2.9)."""
 NEES_BOUND = 16.27
 """chi-square, 3 degrees of freedom, 99.9 %: the error within about 4 sigma of the stated
 covariance."""
-
-
-def _agent_plans_frames_a_calibration_introduces() -> bool:
-    """Whether the agent leaves a frame no provider announces to the planner (which has a tip
-    calibration introduce it) rather than refusing the query before planning."""
-    srg = parse_setup({"edges": [POINTER_EDGE]})
-    return not plan_relations(srg, load_templates(), [TIP]).unsolved
 
 
 @contextmanager
@@ -96,12 +88,6 @@ def _assert_converges_to_the_true_tip(relation: Relation) -> None:
     assert error @ np.linalg.solve(tip.covariance, error) < NEES_BOUND
 
 
-@pytest.mark.xfail(
-    not _agent_plans_frames_a_calibration_introduces(),
-    reason="ubitrack_agent/agent/flows.py refuses a query naming a frame no provider announces "
-    "before planning (docs/planner.md, Limits)",
-    run=False,
-)
 def test_the_agent_calibrates_the_tip_of_a_pivoted_pointer(processes):
     with _network(as_hub=False) as (session, keys, port, domain):
         agent = ("-m", "ubitrack_agent.cli", "--log-level", "INFO", "agent")

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import networkx as nx
 
 from ubitrack_agent.graph.dataflow import DataFlow, from_solution, plan_flows, relation_name
-from ubitrack_agent.graph.planner import PlanningError, Query, Solution
+from ubitrack_agent.graph.planner import PlanningError, Query, Solution, introducible_frames
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import RelationId
 
@@ -68,7 +68,8 @@ def plan_relations(
             continue
         name = relation_name(query)
         names[name] = relation
-        missing = [f for f in (relation.source, relation.target) if f not in srg]
+        new = introducible_frames(srg, templates, query)  # a calibration may add a frame
+        missing = [f for f in (relation.source, relation.target) if f not in srg and f not in new]
         if missing:
             unsolved[name] = f"no provider announces frame(s) {', '.join(missing)}"
             continue
