@@ -20,8 +20,12 @@ import pytest
 import yaml
 
 from sim_trackers.exact_tracker import tracker_pose
-from tests.integration.zenoh_helpers import free_port, member_flags
+from tests.integration.zenoh_helpers import free_port, member_flags, wait_until
 from ubitrack_agent.core import quaternions, se3
+from ubitrack_agent.net import config
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.transport import fetch_latest
 
 pytestmark = pytest.mark.integration
 
@@ -85,8 +89,18 @@ def test_calibrate_save_survive_a_kill_and_answer_from_the_store(processes, tmp_
     assert entry["provenance"]["samples"] >= 50
     assert not [name for name in os.listdir(tmp_path) if name.endswith(".tmp")]
 
-    # Restarted, the store serves it: the static query is answered without calibrating again.
+    # Restarted, the store serves it: once the agent has it in the SRG, the static query is
+    # answered from the store without calibrating again.
     store()
+    hub = config.Settings(listen=(f"tcp/127.0.0.1:{port}",), domain=domain)
+    with open_session(config.member_of(hub)) as session:
+        keys = KeySpace(hub.key_prefix)
+
+        def stored_edge_planned() -> bool:
+            replies = fetch_latest(session, keys.agent_status(), timeout=0.5)
+            return bool(replies) and "store.ART_T2" in json.loads(replies[0])["providers"]
+
+        wait_until(stored_edge_planned, timeout=20)
     (known,) = calibrate()
     assert known["event"] == "known"
     np.testing.assert_allclose(known["value"]["translation"], converged["translation"])
