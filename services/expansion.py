@@ -33,7 +33,9 @@ from ubitrack_agent.core import (
     Position3D,
     Rotation3D,
     quaternions,
+    to_json,
 )
+from ubitrack_agent.net.progress import Progress
 
 DEFAULT_MAX_SAMPLES = 200
 
@@ -103,3 +105,59 @@ class TimeAccumulator:
         incremental service: the latest sample alone)."""
         ports = self.service.CORRESPONDENCE
         return {**values, **{port: [sample[port] for sample in self.samples] for port in ports}}
+
+
+class BatchProgress:
+    """Progress of a static result recomputed over the accumulated samples (a time-expanded
+    batch estimate: hand-eye, tip calibration), in the form averaging reports it
+    (``ubitrack_agent.net.progress``).
+
+    The uncertainty is the result's own covariance: RMS translation error ``sqrt(trace)`` of
+    its translation (or position) block, RMS rotation error of its rotation block. Converged
+    when the correspondences reach the service's multiplicity, both errors are within the
+    tolerances, and the result moved by less than them over the last ``window`` results (the
+    rule of :mod:`services.algorithms.static_estimate`, on results instead of samples).
+    Without a covariance it never converges: nothing says how good the result is.
+    """
+
+    def __init__(
+        self,
+        translation_tolerance: float = 1e-3,
+        rotation_tolerance: float = float(np.radians(0.1)),
+        window: int = 10,
+    ) -> None:
+        self.translation_tolerance = translation_tolerance
+        self.rotation_tolerance = rotation_tolerance
+        self._recent: deque[Measurement] = deque(maxlen=window + 1)
+
+    def update(self, result: Measurement, samples: int, timestamp_ns: int) -> Progress:
+        """The progress after a new ``result`` computed from ``samples`` correspondences."""
+        self._recent.append(result)
+        covariance = getattr(result, "covariance", None)
+        std_t = std_r = None
+        if covariance is not None:
+            covariance = np.asarray(covariance)
+            if covariance.shape == (6, 6):
+                std_r = float(np.sqrt(np.trace(covariance[:3, :3])))
+                std_t = float(np.sqrt(np.trace(covariance[3:, 3:])))
+            else:
+                std_t = float(np.sqrt(np.trace(covariance)))
+        moved = [motion(self._recent[0], later) for later in self._recent]
+        stable = len(self._recent) == self._recent.maxlen and all(
+            t < self.translation_tolerance and r < np.degrees(self.rotation_tolerance)
+            for t, r in moved
+        )
+        precise = std_t is not None and std_t <= self.translation_tolerance
+        precise = precise and (std_r is None or std_r <= self.rotation_tolerance)
+        return Progress(
+            instance="",
+            status="converged" if precise and stable else "averaging",
+            accepted=samples,
+            rejected=0,
+            timestamp_ns=timestamp_ns,
+            std_translation=std_t,
+            std_rotation=std_r,
+            tolerance_translation=self.translation_tolerance,
+            tolerance_rotation=self.rotation_tolerance,
+            value=to_json(result),
+        )

@@ -34,7 +34,7 @@ from collections import Counter, deque
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from services.expansion import TimeAccumulator
+from services.expansion import BatchProgress, TimeAccumulator
 from services.registry import Service, lookup
 from services.spec import check_bindings, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
@@ -131,6 +131,11 @@ class Worker:
         self._token = session.liveliness().declare_token(keys.worker(spec.instance))
 
     def _new_accumulator(self) -> TimeAccumulator | None:
+        """The time expansion's accumulator, and for a batch estimate over it (not an
+        incremental service, which reports its own) the tracker of its progress."""
+        batch = self.spec.expansion == "time" and not self._service_class.INCREMENTAL
+        self._batch_progress: dict[str, BatchProgress] | None = {} if batch else None
+        """By output port."""
         if self.spec.expansion != "time":
             return None
         return TimeAccumulator(self._service, self.spec.time_expansion)
@@ -302,12 +307,18 @@ class Worker:
             for key in self._routes.get(port, ()):
                 self._publishers[key].put(payload)
             self.counters["published"] += 1
-        self._publish_progress()
+        self._publish_progress(outputs, timestamp_ns)
 
-    def _publish_progress(self) -> None:
+    def _publish_progress(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         """The progress of each static estimate (``ubitrack_agent.net.progress``), also when
         there is no estimate to publish (still initialising, or the relation moves)."""
-        for port, progress in self._service.progress().items():
+        reports = self._service.progress()
+        if self._batch_progress is not None and self._accumulator is not None:
+            samples = len(self._accumulator)
+            for port, value in outputs.items():
+                tracker = self._batch_progress.setdefault(port, BatchProgress())
+                reports[port] = tracker.update(value, samples, timestamp_ns)
+        for port, progress in reports.items():
             progress = replace(progress, instance=self.spec.instance)
             self.progress[port] = progress
             payload = progress.to_json().encode()

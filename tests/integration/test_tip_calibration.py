@@ -96,6 +96,9 @@ def test_the_agent_calibrates_the_tip_of_a_pivoted_pointer(processes):
         _start_pointer(processes, port, domain)
         with Relation(session, keys, TIP, application="pointer-app") as relation:
             _assert_converges_to_the_true_tip(relation)
+            # The batch estimate reports its progress like averaging does (ubitrack calibrate).
+            wait_until(lambda: relation.progress and relation.progress.converged)
+            assert relation.progress.accepted >= 30 and relation.progress.value["position"]
 
 
 def test_the_planned_tip_calibration_runs_on_a_host_manager(processes):

@@ -14,7 +14,7 @@ from bench.synthetic import (
     rng_for,
 )
 from services.algorithms import fuse_poses, hand_eye_calibration, tip_calibration
-from services.expansion import TimeAccumulator
+from services.expansion import BatchProgress, TimeAccumulator
 from services.registry import lookup
 from ubitrack_agent.core import (
     ErrorPose,
@@ -304,3 +304,18 @@ def test_time_accumulator_history_is_bounded_and_options_validated():
     ):
         with pytest.raises(ValueError, match=fragment):
             parse_time_expansion(bad)
+
+
+def test_batch_progress_converges_on_precise_stable_results_only():
+    tracker = BatchProgress(translation_tolerance=1e-3, window=3)
+    precise = [Position3D(i, [0.1, 0.0, 0.0], np.eye(3) * 1e-8) for i in range(4)]
+    statuses = [tracker.update(result, 10 + i, i).status for i, result in enumerate(precise)]
+    assert statuses == ["averaging"] * 3 + ["converged"]  # stable over the window at last
+    vague = BatchProgress(window=1)
+    wide = Position3D(0, [0.1, 0.0, 0.0], np.eye(3) * 1e-4)  # 17 mm RMS
+    assert [vague.update(wide, 10, 0).status for _ in range(3)] == ["averaging"] * 3
+    moving = BatchProgress(window=2)
+    jumps = [Position3D(i, [0.01 * i, 0.0, 0.0], np.eye(3) * 1e-8) for i in range(6)]
+    assert all(moving.update(result, 10, 0).status == "averaging" for result in jumps)
+    report = tracker.update(precise[0], 14, 5)
+    assert report.value["position"] == [0.1, 0.0, 0.0] and report.std_translation < 1e-3
