@@ -104,3 +104,28 @@ def test_calibrate_save_survive_a_kill_and_answer_from_the_store(processes, tmp_
     (known,) = calibrate()
     assert known["event"] == "known"
     np.testing.assert_allclose(known["value"]["translation"], converged["translation"])
+
+
+def test_a_static_query_on_a_moving_relation_is_answered_not_static(processes):
+    """ART->HT moves (the head target walks its path): asked as static, the averaging flow
+    finds the samples moving more than their noise explains, and says so."""
+    port = free_port()
+    domain = f"cal{port}"
+    member = member_flags(port, domain)
+    agent = ["agent", "--listen", f"tcp/127.0.0.1:{port}", "--domain", domain]
+    for command in (
+        ["-m", "ubitrack_agent.cli", *agent],
+        ["-m", "sim_trackers.exact_tracker", "--provider", "art", "--tracker", "ART", *member],
+    ):
+        processes.append(subprocess.Popen([sys.executable, *command], start_new_session=True))
+    command = ["calibrate", "ART", "HT", "--json", "--timeout", "60", *member]
+    out = subprocess.run(
+        [sys.executable, "-m", "ubitrack_agent.cli", *command],
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
+    assert out.returncode == 1, out.stderr[-2000:]
+    last = json.loads(out.stdout.splitlines()[-1])
+    assert last["event"] == "not_static" and last["motion"]["translation"] > 0.005
+    assert "ART->HT:6D static is not static" in last["message"]

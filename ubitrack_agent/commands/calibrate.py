@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
             return 0
         if outcome.kind == "not_static":
             message = f"{prog}: {NotStatic(relation_id, outcome.progress)}"
-            say({"event": "not_static", **vars(outcome.progress)}, message)
+            say({"event": "not_static", "message": message, **vars(outcome.progress)}, message)
             return 1
         if outcome.kind == "timeout":
             print(
