@@ -35,12 +35,12 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
-from types import TracebackType
-from typing import Any, Self
+from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
 from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
+from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
 from ubitrack_agent.net.transport import fetch_until_satisfied
 
@@ -77,7 +77,7 @@ def default_application_id() -> str:
     return f"app-{os.getpid()}-{uuid.uuid4().hex[:8]}"
 
 
-class Relation:
+class Relation(Closing):
     """A subscription to one queried relationship (see the module docstring).
 
     A context manager: ``with Relation(...) as relation:`` closes it on leaving the block.
@@ -223,14 +223,3 @@ class Relation:
         self._subscriber.undeclare()
         if self._progress_subscriber is not None:
             self._progress_subscriber.undeclare()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()

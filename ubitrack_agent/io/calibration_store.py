@@ -55,6 +55,7 @@ from ubitrack_agent.io.static_edges import (
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.json_messages import MessageError, field, load_object
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.lifecycle import Closing
 
 log = logging.getLogger("ubitrack.store")
 
@@ -73,7 +74,7 @@ def announced_sigma(value: Measurement) -> float | None:
     return math.sqrt(float(np.trace(covariance)))
 
 
-class CalibrationStore:
+class CalibrationStore(Closing):
     """Serves the static edges of ``path`` under provider ids ``<name>.<edge>`` and saves new
     ones to it (see the module docstring). A missing file is an empty store (created on the
     first save). Use as a context manager, or call :meth:`close`."""
@@ -91,6 +92,7 @@ class CalibrationStore:
         self._providers: dict[str, Provider] = {}
         for edge in self.edges.values():
             self._serve(edge)
+        self._closed = False
         self._requests: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._queryable = session.declare_queryable(
             keys.store(name), lambda query: self._requests.put(query)
@@ -158,14 +160,12 @@ class CalibrationStore:
                 query.reply(query.key_expr, json.dumps(answer))
 
     def close(self) -> None:
+        """Stop taking requests and withdraw every edge; a second call does nothing."""
+        if self._closed:
+            return
+        self._closed = True
         self._queryable.undeclare()
         self._requests.put(None)
         self._thread.join(timeout=2.0)
         for provider in self._providers.values():
             provider.close()
-
-    def __enter__(self) -> CalibrationStore:
-        return self
-
-    def __exit__(self, *_: object) -> None:
-        self.close()

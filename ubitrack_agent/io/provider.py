@@ -27,11 +27,11 @@ import json
 import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
-from types import TracebackType
-from typing import Any, Self
+from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, encode
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.transport import LatestValuePublisher
 
 SRG_TYPES = frozenset(cls.SRG_TYPE for cls in MEASUREMENT_TYPES.values())
@@ -86,7 +86,7 @@ class EdgeAnnouncement:
         return data
 
 
-class Provider:
+class Provider(Closing):
     """Announces a set of edges under ``provider_id`` and publishes their measurements.
 
     A context manager: ``with Provider(...) as provider:`` closes it on leaving the block.
@@ -143,14 +143,3 @@ class Provider:
         self._thread.join(timeout=1.0)
         for publisher in self._publishers.values():
             publisher.undeclare()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()

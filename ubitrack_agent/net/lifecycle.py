@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import signal
 import threading
+from abc import abstractmethod
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 
 
 def on_termination(handler: Callable[[], object]) -> None:
@@ -22,3 +24,16 @@ def stop_on_signals() -> threading.Event:
     stop = threading.Event()
     on_termination(stop.set)
     return stop
+
+
+class Closing(AbstractContextManager):
+    """Base of the objects that hold zenoh declarations (providers, relations, stores): a
+    context manager whose exit calls :meth:`close`, which must withdraw them and be safe to
+    call twice."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Withdraw what was declared; a second call does nothing."""
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
