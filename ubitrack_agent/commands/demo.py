@@ -365,7 +365,7 @@ def _calibrate(session, keys, world, say, timeout: float) -> None:
         line,
         f"calibration C->HT {outcome.kind} after {line['seconds']} s: error against the truth "
         f"{line['error_mm']} mm {line['error_deg']} deg"
-        + (f"; saved in {line['file']}" if line["file"] else " (from the store)"),
+        + (f"; saved in {line['file']}" if line["file"] else " (already a measured static edge)"),
     )
     if stored["file"] is None:
         return  # known already: the tracking flow uses it
