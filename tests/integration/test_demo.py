@@ -41,6 +41,9 @@ def test_demo_runs_three_phases_with_sensible_errors(processes):
     out, err = demo.communicate(timeout=180)
     assert demo.returncode == 0, err[-3000:]
     lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+    (calibration,) = [line for line in lines if line["event"] == "calibration"]
+    assert calibration["outcome"] in ("known", "converged")  # C->HT before tracking on it
+    assert calibration["error_mm"] < 2.0 and calibration["error_deg"] < 0.2
     summaries = {line["phase"]: line for line in lines if line["event"] == "summary"}
     assert list(summaries) == ["fused", "camera only", "fused again"]
     for summary in summaries.values():
