@@ -115,9 +115,6 @@ class Provider(Closing):
         self._token = session.liveliness().declare_token(keys.provider(self.id))
         self._closed = False
 
-    def data_key(self, edge_name: str) -> str:
-        return self._publishers[edge_name].key
-
     def publish(self, edge_name: str, measurement: Measurement) -> None:
         """Publish one measurement of edge ``edge_name``; its type must match the edge's."""
         edge = self.edges.get(edge_name)
