@@ -55,16 +55,33 @@ the reduced chi-square (Birge ratio squared) of the accepted residuals about the
 up, pessimistic ones kept. Without covariances: the noise covariance
 ``(S - s s^T / n) / (n - 1) / kappa``.
 
-Covariance. ``P = S_k' Lambda^-1 + common_covariance``. The first term is the averaging part,
-which more samples reduce. With covariances ``S_k'`` is 1 while the accepted residuals' chi-square
-is consistent with them (below its upper 5 % point: Bar-Shalom et al. 2001, section 5.4, the
-consistency test), else ``k^2``: the stated covariances are trusted unless the data show them
-optimistic (``max(1, k^2)`` would overstate honest ones by 3 % at 60 samples). Without
-covariances it is the noise covariance. An estimated scale is multiplied by ``nu / (nu - m -
-1)`` (m = 1 for ``k^2``, d for a matrix: the mean of the inverse of a scaled chi-square or
-Wishart variable, Anderson 2003, chapter 7), which gives the estimate's NEES the mean d. The
-second term is the covariance of an error all samples share (e.g. a static input composed into
-each), which no number of samples reduces.
+Covariance. ``P = c g Lambda^-1 V Lambda^-1 + common_covariance``, the first term the
+averaging part, which more samples reduce. It does not trust the noise model: ``V`` is the
+covariance of the score ``sum W_i (xi_i - delta)`` estimated by batch means, the sandwich
+(Huber 1967; White, Econometrica 48(4), 1980) with the scores summed over batches of
+consecutive samples so that errors correlated in time count as they are (the
+heteroskedasticity- and autocorrelation-consistent covariance of Newey & West, Econometrica
+55(3), 1987, in its batch-means form: Schmeiser, Operations Research 30(3), 1982; Flegal &
+Jones, Annals of Statistics 38(2), 2010). Samples arrive at 30-90 Hz from PnP, whose errors
+the stated covariances get wrong in size (the pixel noise estimated from five points' residuals,
+four degrees of freedom), in shape (tracker errors a pixel-only covariance leaves out), and in
+time: the live flow interpolates a 30 Hz PnP pose to the tracker's instants, so neighbouring
+samples share an error (autocorrelation 0.78, 0.43, 0.14 at lags 1-3, measured live), and a
+covariance for independent samples came out 3 times too small in variance (NEES 20-30; the
+live estimate converged at 2.7 mm from the truth with a stated 1 mm). Batches: between
+``BATCHES`` (64) and 128 of consecutive accepted samples, pairs merged when full (dynamic
+batch means, Yeh & Schmeiser, Proc. Winter Simulation Conference 2000), O(1) memory; each
+batch's score is whitened by its own information before the scatter is taken, so that a few
+samples with tiny stated covariances cannot leave the estimate with few degrees of freedom
+(:meth:`_Batches.score_covariance`). Batches shorter than the errors' correlation miss part
+of it: ``g`` (:func:`batch_length_correction`) restores the share an AR(1) process with the
+whitened residuals' lag-one autocorrelation would lose (exact for AR(1), conservative for
+shorter-range correlation, 1 for independent samples and long batches). ``c = nu / (nu - d -
+1)`` (``nu``, about the number of batches less one, 63 or more from 64 samples on) makes the
+inverse unbiased (the inverse Wishart mean, Anderson 2003, chapter 7), so that the estimate's
+NEES has the mean d. ``effective_samples`` is ``accepted`` over the variance inflation
+against the noise model. The second term is the covariance of an error all samples share (e.g.
+a static input composed into each), which no number of samples reduces.
 
 Converged. ``accepted >= min_samples``; the averaging part's RMS translation error
 ``sqrt(trace(J P J^T))`` (``J = [-[t]x, I]``, the translation's change under ``xi``) at most
@@ -78,12 +95,19 @@ Motion check, over the last ``motion_window`` (M) samples, after every sample:
 * more than half failed the gate (a jump, a fast motion). With an outlier rate p the false
   alarm per window is ``P(Binomial(M, p) > M/2)``: 1e-13 at p = 5 %, 5e-5 at 20 % (M = 30);
 * or the information-weighted mean of the window's accepted samples differs from that of the
-  accepted samples before it by more than their noise explains: ``D^T (S_k (Lambda_w^-1 +
-  Lambda_b^-1))^-1 D`` above the ``1 - motion_false_alarm`` quantile of its distribution (as
-  the gate's; Hotelling's two-sample test). A drift moves the window's mean away from the older
-  samples' however much the noise scale grows. False alarm: at most ``motion_false_alarm``
-  (1e-6) per sample, at most 1 % over 10,000 samples by the union bound, far less in fact as
-  overlapping windows are strongly correlated.
+  accepted samples before it by more than their noise explains: ``D^T (f S_k (Lambda_w^-1 +
+  Lambda_b^-1))^-1 D`` above the ``1 - motion_false_alarm`` quantile of ``d F(d, nu_f)``.
+  ``f`` is the variance of the means of blocks of M/2 consecutive accepted samples against
+  the noise model's, from the successive differences of the block means taken about their mean
+  (:class:`_BlockMeans`, the batch-means control chart of Runger & Willemain, IIE Transactions
+  28(6), 1996): errors correlated over fewer than M/2 samples widen it as much as they widen
+  the window's mean, and a steady drift, which moves every block alike, does not; ``nu_f``
+  counts its degrees of freedom (2/3 d per difference). The test waits for a few blocks: with
+  the default window the first 60-90 samples (2-3 s at 30 Hz) can only be stopped by the
+  rejections rule. A drift moves the window's mean away from the older samples' however much
+  the noise scale grows. False alarm: at most ``motion_false_alarm`` (1e-6) per sample, at
+  most 1 % over 10,000 samples by the union bound, far less in fact as overlapping windows are
+  strongly correlated.
 
 Either makes the status ``not_static``. The motion may have begun anywhere in the window, so
 its samples leave the sums (exactly: they are linear in the samples) and the rest stays as the
@@ -92,9 +116,10 @@ and how far the latest M/2 samples are from that estimate (median, translation i
 rotation in radians), updated with every later sample; nothing is averaged any more. Start a
 new estimator to estimate again (a remounted target, say).
 
-The noise is assumed independent from sample to sample. Noise correlated over several samples
-(a camera whose errors wander slowly) makes window means differ more than independent noise
-explains, and is reported as motion rather than published with an optimistic covariance.
+Limits: correlation over more than a few hundred samples (an error that follows the motion
+over a 20 s walk, say) is counted in the covariance only once the batches are that long, and
+by the motion check not at all: a static relation whose errors wander that slowly is reported
+as moving.
 """
 
 from __future__ import annotations
@@ -128,9 +153,14 @@ samples still give an invertible one: far below any tracker's noise."""
 CONVERGED_STEP = 1e-13
 """Gauss-Newton stops when the step is below this (m, rad): round-off of values of order 1."""
 
-CONSISTENCY_QUANTILE = 1.6448536269514722
-"""Standard normal quantile of 0.95: the published covariance is scaled up only when a
-one-sided chi-square test at 5 % finds the stated sample covariances optimistic."""
+BATCHES = 64
+"""Batch means: between ``BATCHES`` and ``2 BATCHES`` batches of consecutive accepted samples
+(their length doubles when there are ``2 BATCHES``), so the covariance rests on at least 63
+degrees of freedom once there are 64 samples."""
+
+MAX_AUTOCORRELATION = 0.97
+"""Largest lag-one autocorrelation used for the batch-length correction (Andrews & Monahan
+1992 restrict their prewhitening filter likewise)."""
 
 MAX_ITERATIONS = 20
 """Iterations of Gauss-Newton and of the concentration steps."""
@@ -188,6 +218,11 @@ class StaticState(NamedTuple):
     noise_scale: float | None
     """Reduced chi-square of the accepted samples (``k^2``; > 1: their covariances are
     optimistic); ``None`` for samples without covariance."""
+    effective_samples: float | None
+    """How many independent samples of the noise model (the stated covariances times the
+    noise scale, or the noise covariance) the estimate is worth: ``accepted`` over the
+    batch means' variance inflation (below ``accepted`` when the samples' errors are
+    correlated in time)."""
     std_translation: float | None
     """RMS translation error of the averaging part (m), ``sqrt(trace)`` of its translation
     covariance: what more samples reduce. ``None`` for rotations."""
@@ -287,20 +322,160 @@ class _Moments(_Sums):
 
 class _Entry(NamedTuple):
     """A sample in the motion window: whether it entered, ``W`` and ``xi`` at the current
-    reference."""
+    reference, and its place among the accepted samples (its batch), -1 if not accepted."""
 
     accepted: bool
     weight: np.ndarray
     xi: np.ndarray
+    ordinal: int = -1
+
+
+class _Batches:
+    """Sums of ``W_i`` and ``W_i xi_i`` over batches of consecutive accepted samples, for the
+    batch-means covariance (module docstring): dynamic batch means (Yeh & Schmeiser 2000), at
+    most ``2 BATCHES`` batches of ``size`` samples each, adjacent pairs merged (``size``
+    doubled) when the last one is full; O(1) memory. Sample ``ordinal`` (its place among the
+    accepted samples) is in batch ``ordinal // size``."""
+
+    __slots__ = ("added", "counts", "information", "size", "weighted_sum")
+
+    def __init__(self, dim: int) -> None:
+        self.size = 1
+        self.added = 0
+        self.counts = np.zeros(2 * BATCHES, dtype=int)
+        self.information = np.zeros((2 * BATCHES, dim, dim))
+        self.weighted_sum = np.zeros((2 * BATCHES, dim))
+
+    @property
+    def count(self) -> int:
+        """Batches holding samples (the last one may be partly filled)."""
+        return -(-self.added // self.size)
+
+    def add(self, xi: np.ndarray, weight: np.ndarray) -> int:
+        """Add the next accepted sample; returns its ordinal."""
+        if self.added == 2 * BATCHES * self.size:
+            for sums in (self.counts, self.information, self.weighted_sum):
+                sums[:BATCHES] = sums[0::2] + sums[1::2]
+                sums[BATCHES:] = 0
+            self.size *= 2
+        ordinal = self.added
+        batch = ordinal // self.size
+        self.counts[batch] += 1
+        self.information[batch] += weight
+        self.weighted_sum[batch] += weight @ xi
+        self.added += 1
+        return ordinal
+
+    def remove(self, ordinal: int, xi: np.ndarray, weight: np.ndarray) -> None:
+        """Take sample ``ordinal`` out of its batch (``xi`` at the current reference)."""
+        batch = ordinal // self.size
+        self.counts[batch] -= 1
+        self.information[batch] -= weight
+        self.weighted_sum[batch] -= weight @ xi
+
+    def shift(self, delta: np.ndarray) -> None:
+        """Re-express at ``Exp(delta) T_ref`` to first order (``xi_i - delta``); the second
+        order term changes a batch's score by a relative ``|delta| / 2``, a fraction of a
+        standard deviation of the estimate, which a variance estimate does not notice."""
+        count = self.count
+        self.weighted_sum[:count] -= self.information[:count] @ delta
+
+    def score_covariance(
+        self, information_inverse: np.ndarray, weighted_sum: np.ndarray
+    ) -> tuple[np.ndarray, int]:
+        """``(V, nu)``: the covariance of the score ``sum W_i (xi_i - delta)``, whose
+        covariance sandwiched in ``Lambda^-1`` is the estimate's, and its degrees of freedom.
+
+        Each batch's score about the estimate, ``U_b = eta_b - Lambda_b Lambda^-1 eta``, is
+        whitened by its own information, ``L_b^-1 U_b`` with ``Lambda_b = L_b L_b^T``
+        (Cholesky), so that every batch counts alike however its samples are weighted (a few
+        samples with very small stated covariances would otherwise leave a sandwich with few
+        effective degrees of freedom). Their scatter, ``sum L_b^-1 U_b U_b^T L_b^-T``, has
+        the expectation ``A^1/2 C A^1/2`` when the batches' scores have the covariances
+        ``L_b A L_b^T``, with ``C = K I - sum L_b^T Lambda^-1 L_b`` (the scores are taken
+        about the estimate, which the batches share; ``(K - 1) I`` for equal batches), so
+        ``A = C^-1/2 (scatter) C^-1/2``: the inflation of the stated covariances, ``I`` when
+        they are right and the samples independent. Then ``V = sum L_b A L_b^T`` and
+        ``nu = tr(C) / d``."""
+        used = self.counts[: self.count] > 0
+        information = self.information[: self.count][used]
+        scores = self.weighted_sum[: self.count][used] - information @ (
+            information_inverse @ weighted_sum
+        )
+        roots = np.linalg.cholesky(information)
+        whitened = np.linalg.solve(roots, scores[..., None])[..., 0]
+        dim = len(weighted_sum)
+        shared = np.einsum("kji,jl,klm->im", roots, information_inverse, roots)
+        values, vectors = np.linalg.eigh(len(information) * np.eye(dim) - shared)
+        values = np.maximum(values, 1.0)
+        root = (vectors / np.sqrt(values)) @ vectors.T
+        inflation = root @ (whitened.T @ whitened) @ root
+        covariance = np.einsum("kij,jl,kml->im", roots, inflation, roots)
+        return covariance, max(round(float(values.sum()) / dim), 1)
+
+
+class _BlockMeans:
+    """The spread of the means of consecutive blocks of ``size`` accepted samples (half a
+    motion window) that the noise alone causes, correlated or not: the batch-means control
+    chart of Runger & Willemain ("Batch-means control charts for autocorrelated data", IIE
+    Transactions 28(6), 1996), with the block means' variance from their successive
+    differences (von Neumann, Kent, Bellinson & Hart, "The mean square successive difference",
+    Annals of Mathematical Statistics 12(2), 1941). Each difference of the blocks'
+    information-weighted means, ``z_j = m_j - m_(j-1)``, is whitened by its variance under the
+    noise model, ``G_j G_j^T = S (Lambda_j^-1 + Lambda_(j-1)^-1)`` (``S`` the noise scale then);
+    the scatter of the whitened differences about their mean, over ``d``, is the inflation of
+    a block mean's variance over the model's. Taken about their mean, the differences do not
+    see a steady drift, which moves every block by the same amount."""
+
+    __slots__ = ("_size", "block", "count", "previous", "square", "total")
+
+    def __init__(self, dim: int, size: int) -> None:
+        self._size = size
+        self.block = _Sums(dim)
+        self.count = 0
+        self.previous: tuple[np.ndarray, np.ndarray] | None = None
+        self.total = np.zeros(dim)
+        self.square = 0.0
+
+    def add(self, xi: np.ndarray, weight: np.ndarray, scale: np.ndarray) -> None:
+        """Add an accepted sample; when the block is full, close it (``scale``: the noise
+        scale now)."""
+        block = self.block
+        block.add(xi, weight)
+        if block.n < self._size:
+            return
+        spread = np.linalg.inv(block.information)
+        mean = spread @ block.weighted_sum
+        if self.previous is not None:
+            previous_mean, previous_spread = self.previous
+            root = np.linalg.cholesky(symmetric(scale @ (spread + previous_spread)))
+            whitened = np.linalg.solve(root, mean - previous_mean)
+            self.total += whitened
+            self.square += float(whitened @ whitened)
+            self.count += 1
+        self.previous = mean, spread
+        self.block = _Sums(len(xi))
+
+    def shift(self, delta: np.ndarray) -> None:
+        """Re-express at ``Exp(delta) T_ref`` (to first order: differences do not change)."""
+        self.block.weighted_sum -= self.block.information @ delta
+        if self.previous is not None:
+            self.previous = self.previous[0] - delta, self.previous[1]
+
+    def inflation(self, dim: int) -> tuple[float, int]:
+        """``(f, nu)``: the inflation and its degrees of freedom, ``2/3 d`` per difference
+        beyond the first (neighbouring differences share a block: von Neumann et al. 1941);
+        ``(1, 1)`` before there are two differences."""
+        if self.count < 2:
+            return 1.0, 1
+        scatter = self.square - float(self.total @ self.total) / self.count
+        return scatter / (dim * (self.count - 1)), max(round(2 * dim * (self.count - 1) / 3), 1)
 
 
 class _Noise(NamedTuple):
     """The noise model estimated from residuals (see :meth:`StaticEstimator._noise`)."""
 
     scale: np.ndarray
-    scale_inverse: np.ndarray
-    published: np.ndarray
-    published_inverse: np.ndarray
     reduced_chi2: float | None
 
 
@@ -331,12 +506,19 @@ class _Quantile:
         return self._value
 
 
-def _chi2_upper_5_percent(nu: int) -> float:
-    """The upper 5 % point of ``chi2_nu / nu`` by Wilson & Hilferty's cube-root normal
-    approximation (PNAS 17, 1931): within 3e-4 of the exact value for ``nu >= 20``, and free,
-    where scipy's quantile costs 50 us."""
-    a = 2.0 / (9.0 * nu)
-    return (1.0 - a + CONSISTENCY_QUANTILE * math.sqrt(a)) ** 3
+def batch_length_correction(rho: float, size: int) -> float:
+    """How much longer-range correlation batches of ``size`` samples miss, for AR(1) samples
+    with lag-one autocorrelation ``rho``: the long-run variance ``(1 + rho) / (1 - rho)``
+    (Bayley & Hammersley, "The effective number of independent observations in an
+    autocorrelated time series", J. Royal Statistical Society Suppl. 8(2), 1946) over the
+    variance of a batch sum, ``(1 + rho) / (1 - rho) - 2 rho (1 - rho^b) / (b (1 - rho)^2)``
+    per sample. 1 for ``rho <= 0`` (negatively correlated samples make batch means
+    conservative) and for long batches; ``rho`` is capped at :data:`MAX_AUTOCORRELATION`."""
+    rho = min(rho, MAX_AUTOCORRELATION)
+    if rho <= 0.0:
+        return 1.0
+    long_run = (1.0 + rho) / (1.0 - rho)
+    return long_run / (long_run - 2.0 * rho * (1.0 - rho**size) / (size * (1.0 - rho) ** 2))
 
 
 def _trimmed_consistency(alpha: float, dim: int) -> float:
@@ -347,6 +529,9 @@ def _trimmed_consistency(alpha: float, dim: int) -> float:
 
 DEFAULT_INIT_SAMPLES = 20
 """The robust start's batch by default: the samples before the first estimate."""
+
+DEFAULT_MOTION_WINDOW = 30
+"""The motion check's window by default, samples (1 s at a camera's 30 Hz)."""
 
 
 class StaticEstimator:
@@ -384,7 +569,7 @@ class StaticEstimator:
         stability_window: int = 20,
         init_samples: int = DEFAULT_INIT_SAMPLES,
         gate_probability: float = 0.999,
-        motion_window: int = 30,
+        motion_window: int = DEFAULT_MOTION_WINDOW,
         motion_false_alarm: float = 1e-6,
         common_covariance: Any = None,
     ) -> None:
@@ -411,12 +596,17 @@ class StaticEstimator:
         self._value: Vector = ()
         self._moments = _Moments(dim, curved=self._space.adjoint(np.zeros(dim)) is not None)
         self._delta = np.zeros(dim)
-        self._noise_model = _Noise(*[np.eye(dim)] * 4, None)
-        self._information_inverse = np.eye(dim)
+        self._noise_model = _Noise(np.eye(dim), None)
+        self._batches = _Batches(dim)
+        self._lag_sums = np.zeros(2)
+        self._last_whitened: np.ndarray | None = None
+        self._blocks = _BlockMeans(dim, self._motion_window // 2)
+        self._averaging_raw = np.eye(dim)
+        self._batch_dof = 1
         self._std: tuple[float | None, float | None] = (None, None)
         self._averaging = np.zeros((dim, dim))
         self._window: deque[_Entry] = deque(maxlen=self._motion_window)
-        self._window_moments = _Sums(dim)
+        self._window_sums = _Sums(dim)
         self._history: deque[Vector] = deque(maxlen=window + 1)
         self._status = Status.INITIALISING
         self._rejected = 0
@@ -546,12 +736,14 @@ class StaticEstimator:
         self._reference = self._mean(values[accepted], weights[accepted], center)
         xi = space.logs(values, self._reference)
         self._status = Status.AVERAGING
+        self._noise_model = self._noise(chi2, centred.T @ centred, keep, consistency)
         for k, ok in enumerate(accepted.tolist()):
+            ordinal = -1
             if ok:
-                self._moments.add(xi[k], weights[k])
+                ordinal = self._accept(xi[k], weights[k], xi[k])
             else:
                 self._rejected += 1
-            self._push(_Entry(ok, weights[k], xi[k]))
+            self._push(_Entry(ok, weights[k], xi[k], ordinal))
         self._pending = []
         self._last_accepted = bool(accepted[-1])
         self._refresh()
@@ -580,28 +772,12 @@ class StaticEstimator:
         ``scale`` multiplies the samples' covariances (``I`` without) in the gate and the
         motion check: with covariances ``max(1, k^2) I``, ``k^2 = chi2 / nu / consistency``
         the reduced chi-square; without, the noise covariance ``scatter / nu / consistency``.
-        ``published`` is the scale of the covariance: 1 while the chi-square is consistent
-        with the stated covariances (below its upper 5 % point), else ``k^2``; without
-        covariances the noise covariance; either estimate times ``nu / (nu - m - 1)`` (m = 1
-        or d), the factor that makes its inverse unbiased (inverse chi-square and inverse
-        Wishart means; Anderson 2003, chapter 7), so that the estimate's NEES has mean d;
-        ``nu`` counts the scale's degrees of freedom. Trusting consistent covariances instead
-        of taking ``max(1, k^2)`` avoids a bias: the latter overstates an honest covariance by
-        ``E[max(1, k^2)] - 1``, 3 % at 60 samples.
         """
         dim, nu = self._space.dim, self._dof(count)
         if self._weighted:
             k2 = chi2 / nu / consistency
-            scale = max(1.0, k2)
-            published = k2 * nu / max(nu - 2, 1) if k2 > _chi2_upper_5_percent(nu) else 1.0
-            identity = np.eye(dim)
-            return _Noise(
-                scale * identity, identity / scale, published * identity, identity / published, k2
-            )
-        noise = scatter / nu / consistency + NOISE_FLOOR**2 * np.eye(dim)
-        noise_inverse = np.linalg.inv(noise)
-        unbiased = nu / max(nu - dim - 1, 1)
-        return _Noise(noise, noise_inverse, noise * unbiased, noise_inverse / unbiased, None)
+            return _Noise(max(1.0, k2) * np.eye(dim), k2)
+        return _Noise(scatter / nu / consistency + NOISE_FLOOR**2 * np.eye(dim), None)
 
     # ------------------------------------------------------------------------------ averaging
 
@@ -612,17 +788,30 @@ class StaticEstimator:
         distance2 = float(residual @ np.linalg.solve(innovation, residual))
         accepted = distance2 <= self._gate(self._dof(self._moments.n), not self._weighted)
         self._last_accepted = accepted
+        ordinal = -1
         if accepted:
-            self._moments.add(xi, weight)
+            ordinal = self._accept(xi, weight, residual)
         else:
             self._rejected += 1
-        self._push(_Entry(accepted, weight, xi))
+        self._push(_Entry(accepted, weight, xi, ordinal))
         if accepted:
             self._refresh()
             self._history.append(self._value)
         self._check_motion()
         if accepted and self._status is Status.AVERAGING and self._is_converged():
             self._status = Status.CONVERGED
+
+    def _accept(self, xi: np.ndarray, weight: np.ndarray, residual: np.ndarray) -> int:
+        """Enter an accepted sample (``xi`` at the reference, ``residual`` from the estimate
+        before it) into the sums, its batch, its block and the lag-one autocorrelation of the
+        whitened residuals ``L_i^T r_i`` (``W_i = L_i L_i^T``); returns its ordinal."""
+        self._moments.add(xi, weight)
+        self._blocks.add(xi, weight, self._noise_model.scale)
+        whitened = np.linalg.cholesky(weight).T @ residual
+        if self._last_whitened is not None:
+            self._lag_sums += (float(whitened @ self._last_whitened), float(whitened @ whitened))
+        self._last_whitened = whitened
+        return self._batches.add(xi, weight)
 
     def _refresh(self) -> None:
         """Estimate, noise scale and averaging covariance from the sums; re-linearise."""
@@ -637,15 +826,26 @@ class StaticEstimator:
             chi2 = moments.chi2 - float(moments.weighted_sum @ self._delta)
             scatter = moments.scatter - np.outer(moments.total, moments.total) / moments.n
             self._noise_model = self._noise(chi2, scatter, moments.n, self._truncation)
-        self._averaging = symmetric(self._noise_model.published @ information_inverse)
-        # The averaging covariance's inverse is Lambda times the published scale's inverse.
-        precision = moments.information @ self._noise_model.published_inverse
-        distance2 = float(self._delta @ precision @ self._delta)
+        dim = space.dim
+        score_covariance, nu = self._batches.score_covariance(
+            information_inverse, moments.weighted_sum
+        )
+        cross, square = self._lag_sums
+        correction = batch_length_correction(
+            cross / square if square > 0.0 else 0.0, self._batches.size
+        )
+        raw = correction * information_inverse @ score_covariance @ information_inverse
+        self._averaging_raw = symmetric(raw) + NOISE_FLOOR**2 * np.eye(dim)
+        self._batch_dof = nu
+        self._averaging = self._averaging_raw * (nu / max(nu - dim - 1, 1))
+        distance2 = float(self._delta @ np.linalg.solve(self._averaging, self._delta))
         if distance2 > RELINEARISE**2:
             delta = self._delta.tolist()
             adjoint = space.adjoint(delta)
             self._reference = space.exp(delta, self._reference)
             moments.shift(self._delta, adjoint)
+            self._batches.shift(self._delta)
+            self._blocks.shift(self._delta)
             self._shift_window(self._delta, adjoint)
             self._delta = np.zeros(space.dim)
         self._value = space.exp(self._delta.tolist(), self._reference)
@@ -656,10 +856,10 @@ class StaticEstimator:
         if len(self._window) == self._motion_window:
             oldest = self._window[0]
             if oldest.accepted:
-                self._window_moments.add(oldest.xi, oldest.weight, -1)
+                self._window_sums.add(oldest.xi, oldest.weight, -1)
         self._window.append(entry)
         if entry.accepted:
-            self._window_moments.add(entry.xi, entry.weight)
+            self._window_sums.add(entry.xi, entry.weight)
 
     def _shift_window(self, delta: np.ndarray, adjoint: np.ndarray | None) -> None:
         """The window's ``xi`` at ``Exp(delta) T_ref`` to second order, as the sums'."""
@@ -668,7 +868,7 @@ class StaticEstimator:
         if adjoint is not None:
             xi += 0.5 * (xi + delta) @ adjoint.T
         self._window.clear()
-        self._window_moments = _Sums(self._space.dim)
+        self._window_sums = _Sums(self._space.dim)
         for entry, moved in zip(entries, xi, strict=True):
             self._push(entry._replace(xi=moved))
 
@@ -713,7 +913,7 @@ class StaticEstimator:
         if len(window) == self._motion_window and 2 * rejected > len(window):
             self._stop("rejections", rejected / len(window))
             return
-        inside, moments = self._window_moments, self._moments
+        inside, moments = self._window_sums, self._moments
         if inside.n < self._motion_window // 2 or moments.n - inside.n < self._motion_window:
             return
         before = moments.information - inside.information
@@ -723,27 +923,36 @@ class StaticEstimator:
         # (S (A^-1 + B^-1))^-1 = A (A + B)^-1 B S^-1, S commuting with the informations (it is
         # a multiple of I with covariances, and they are multiples of I without).
         precision = inside.information @ self._information_inverse @ before
-        statistic = float(difference @ precision @ self._noise_model.scale_inverse @ difference)
-        if statistic > self._motion_threshold(self._dof(moments.n), not self._weighted):
+        scaled = np.linalg.solve(self._noise_model.scale, difference)
+        inflation, nu = self._blocks.inflation(self._space.dim)
+        statistic = float(difference @ precision @ scaled) / max(inflation, 1e-12)
+        if statistic > self._motion_threshold(nu, False):
             self._stop("window_mean", statistic)
 
     def _stop(self, rule: str, statistic: float) -> None:
         """Not static. The motion may have begun anywhere in the window, so its samples leave
         the sums (which are linear in them: exactly) and the rest is kept as the last static
         estimate, if at least two samples remain."""
-        inside = self._window_moments
+        inside = self._window_sums
         if self._moments.n - inside.n >= 2:
             for entry in self._window:
                 if entry.accepted:
                     self._moments.add(entry.xi, entry.weight, -1)
+                    self._batches.remove(entry.ordinal, entry.xi, entry.weight)
             self._rejected += inside.n
-            self._window_moments = _Sums(self._space.dim)
+            self._window_sums = _Sums(self._space.dim)
             entries = [entry._replace(accepted=False) for entry in self._window]
             self._window = deque(entries, maxlen=self._motion_window)
             self._refresh()
         self._status = Status.NOT_STATIC
         self._last_accepted = None
         self._motion = Motion(rule, *self._moving_offset(), statistic)
+
+    def _inflation(self) -> float:
+        """The batch means' variance over the noise model's, ``tr(Lambda S^-1 P_raw) / d``
+        (``S`` the noise scale): 1 for independent samples that fit the model."""
+        model_inverse = self._moments.information @ np.linalg.inv(self._noise_model.scale)
+        return float(np.trace(model_inverse @ self._averaging_raw)) / self._space.dim
 
     def _moving_offset(self) -> tuple[float | None, float | None]:
         """Displacement from the estimate of the median ``xi`` of the latest M/2 samples."""
@@ -764,7 +973,7 @@ class StaticEstimator:
         kind = self._space.name
         empty = StaticState(
             kind, self._status, None, None, None, 0, self._rejected, None, None, None, None,
-            None, None, None,
+            None, None, None, None,
         )  # fmt: skip
         if not self._value:
             return empty
@@ -783,6 +992,7 @@ class StaticEstimator:
             accepted=moments.n,
             last_accepted=self._last_accepted,
             noise_scale=self._noise_model.reduced_chi2,
+            effective_samples=moments.n / self._inflation(),
             std_translation=std_t,
             std_rotation=std_r,
             spread_translation=spread_t,

@@ -14,6 +14,7 @@ from bench.synthetic import (
     rng_for,
 )
 from services.algorithms import fuse_poses, hand_eye_calibration, tip_calibration
+from services.components.averaging import motion_window
 from services.expansion import BatchProgress, TimeAccumulator
 from services.registry import lookup
 from ubitrack_agent.core import (
@@ -251,12 +252,24 @@ def test_averaging_publishes_nothing_before_its_start_or_for_a_moving_relation()
     assert averaging.progress()["mean"].status == "initialising"
     rng = np.random.default_rng(3)
     moving = make("averaging")
-    for i in range(200):  # 1 mm noise, drifting 0.5 mm per sample
+    for i in range(200):  # 1 mm noise, drifting 0.5 mm per sample at 30 Hz
         position = np.array([0.0005 * i, 0.0, 1.0]) + rng.normal(0, 1e-3, 3)
-        out = moving.compute({"AB": [Position3D(i, position, np.eye(3) * 1e-6)]}, i)
+        stamp = i * 33_333_333
+        out = moving.compute({"AB": [Position3D(stamp, position, np.eye(3) * 1e-6)]}, stamp)
     assert out == {}
     progress = moving.progress()["mean"]
     assert progress.not_static and progress.motion is not None and progress.value is None
+
+
+def test_averaging_sets_the_motion_window_to_a_second_of_samples():
+    def samples(period_ns, count=20):
+        return [Position3D(i * period_ns, [0.0, 0.0, 1.0]) for i in range(count)]
+
+    assert motion_window(samples(11_111_111)) == 90  # 90 Hz: the live direct computation
+    assert motion_window(samples(33_333_333)) == 30
+    assert motion_window(samples(100_000_000)) == 30  # never below the estimator's default
+    assert motion_window(samples(1)) == 1000  # at most 1,000
+    assert motion_window(samples(0)) == 30  # no time: the default
 
 
 def test_pose_split():
