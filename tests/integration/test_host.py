@@ -112,6 +112,11 @@ class Network:
         wait_until(lambda: self.agent_status() is not None, timeout=20)
         return process
 
+    def tracker(self) -> subprocess.Popen:
+        """A noise-free tracker ART announcing ART->WT and ART->HT."""
+        tracker = ("--provider", "art", "--tracker", "ART", "--yaw", "30", "--x", "2")
+        return self.start("-m", "sim_trackers.exact_tracker", *tracker)
+
     def agent_status(self) -> dict | None:
         replies = fetch_latest(self.session, self.keys.agent_status(), timeout=0.5)
         return json.loads(replies[0]) if replies else None
@@ -257,18 +262,7 @@ def test_unregistered_services_and_malformed_requests_are_refused(hub):
 
 def test_an_agent_without_a_host_manager_waits_for_one_then_serves(net):
     agent = net.agent("--no-host")
-    net.start(
-        "-m",
-        "sim_trackers.exact_tracker",
-        "--provider",
-        "art",
-        "--tracker",
-        "ART",
-        "--yaw",
-        "30",
-        "--x",
-        "2",
-    )
+    net.tracker()
     relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
     wait_until(lambda: (net.agent_status() or {}).get("components"), timeout=20)
     time.sleep(2.0)  # settled: it would have started workers by now
@@ -295,18 +289,7 @@ def test_workers_killed_before_and_after_their_token_are_started_again(net):
     net.agent("--no-host")
     net.host("lab", pool_size=0)  # cold starts: time to kill a worker before its token
     tokens = net.tokens()
-    net.start(
-        "-m",
-        "sim_trackers.exact_tracker",
-        "--provider",
-        "art",
-        "--tracker",
-        "ART",
-        "--yaw",
-        "30",
-        "--x",
-        "2",
-    )
+    net.tracker()
     relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
     instances = wait_until(lambda: net.status("lab")["instances"], timeout=20)
     victim, process = next(iter(instances.items()))
@@ -333,18 +316,7 @@ def test_workers_killed_before_and_after_their_token_are_started_again(net):
 
 def test_the_agent_starts_its_host_manager_again_and_a_clean_stop_ends_every_worker(net):
     agent = net.agent()  # with its own host manager
-    net.start(
-        "-m",
-        "sim_trackers.exact_tracker",
-        "--provider",
-        "art",
-        "--tracker",
-        "ART",
-        "--yaw",
-        "30",
-        "--x",
-        "2",
-    )
+    net.tracker()
     relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
     wait_until(lambda: relation.latest() is not None, timeout=30)
     (name,) = net.agent_status()["hosts"]
