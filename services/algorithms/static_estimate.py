@@ -335,9 +335,10 @@ class _Batches:
     batch-means covariance (module docstring): dynamic batch means (Yeh & Schmeiser 2000), at
     most ``2 BATCHES`` batches of ``size`` samples each, adjacent pairs merged (``size``
     doubled) when the last one is full; O(1) memory. Sample ``ordinal`` (its place among the
-    accepted samples) is in batch ``ordinal // size``."""
+    accepted samples) is in batch ``ordinal // size``. The Cholesky factors of the batches'
+    information are kept for the batches that have not changed (all but the last, mostly)."""
 
-    __slots__ = ("added", "counts", "information", "size", "weighted_sum")
+    __slots__ = ("added", "counts", "factored", "information", "roots", "size", "weighted_sum")
 
     def __init__(self, dim: int) -> None:
         self.size = 1
@@ -345,6 +346,9 @@ class _Batches:
         self.counts = np.zeros(2 * BATCHES, dtype=int)
         self.information = np.zeros((2 * BATCHES, dim, dim))
         self.weighted_sum = np.zeros((2 * BATCHES, dim))
+        self.roots = np.zeros((2 * BATCHES, dim, dim))
+        """``L_b`` (``Lambda_b = L_b L_b^T``) of the batches before ``factored``."""
+        self.factored = 0
 
     @property
     def count(self) -> int:
@@ -358,8 +362,10 @@ class _Batches:
                 sums[:BATCHES] = sums[0::2] + sums[1::2]
                 sums[BATCHES:] = 0
             self.size *= 2
+            self.factored = 0
         ordinal = self.added
         batch = ordinal // self.size
+        self.factored = min(self.factored, batch)
         self.counts[batch] += 1
         self.information[batch] += weight
         self.weighted_sum[batch] += weight @ xi
@@ -369,6 +375,7 @@ class _Batches:
     def remove(self, ordinal: int, xi: np.ndarray, weight: np.ndarray) -> None:
         """Take sample ``ordinal`` out of its batch (``xi`` at the current reference)."""
         batch = ordinal // self.size
+        self.factored = min(self.factored, batch)
         self.counts[batch] -= 1
         self.information[batch] -= weight
         self.weighted_sum[batch] -= weight @ xi
@@ -397,20 +404,25 @@ class _Batches:
         ``A = C^-1/2 (scatter) C^-1/2``: the inflation of the stated covariances, ``I`` when
         they are right and the samples independent. Then ``V = sum L_b A L_b^T`` and
         ``nu = tr(C) / d``."""
-        used = self.counts[: self.count] > 0
-        information = self.information[: self.count][used]
-        scores = self.weighted_sum[: self.count][used] - information @ (
+        count = self.count
+        stale = np.arange(self.factored, count)
+        stale = stale[self.counts[stale] > 0]
+        self.roots[stale] = np.linalg.cholesky(self.information[stale])
+        self.factored = count
+        used = self.counts[:count] > 0
+        information, roots = self.information[:count][used], self.roots[:count][used]
+        scores = self.weighted_sum[:count][used] - information @ (
             information_inverse @ weighted_sum
         )
-        roots = np.linalg.cholesky(information)
         whitened = np.linalg.solve(roots, scores[..., None])[..., 0]
+        transposed = roots.transpose(0, 2, 1)
+        shared = (transposed @ information_inverse @ roots).sum(axis=0)
         dim = len(weighted_sum)
-        shared = np.einsum("kji,jl,klm->im", roots, information_inverse, roots)
         values, vectors = np.linalg.eigh(len(information) * np.eye(dim) - shared)
         values = np.maximum(values, 1.0)
         root = (vectors / np.sqrt(values)) @ vectors.T
         inflation = root @ (whitened.T @ whitened) @ root
-        covariance = np.einsum("kij,jl,kml->im", roots, inflation, roots)
+        covariance = (roots @ inflation @ transposed).sum(axis=0)
         return covariance, max(round(float(values.sum()) / dim), 1)
 
 
