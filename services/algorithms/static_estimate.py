@@ -4,9 +4,10 @@ A static relation computed from dynamic inputs (a camera-to-target pose from PnP
 tracker poses, say) arrives as one noisy sample per frame. :class:`StaticEstimator` turns the
 stream into one estimate with an honest covariance, a converged flag the caller can stop on,
 and a ``not_static`` verdict when the relation moves. One sample at a time, O(1) time and
-memory per sample. Kinds: ``"pose"`` (6D; 6x6 covariance over the left perturbation
-``T = Exp(xi) T_mean``, ``xi = (phi, rho)``), ``"position"`` (3D, 3x3) and ``"rotation"`` (3R,
-3x3 over ``phi``, ``R = Exp(phi) R_mean``); either every sample has a covariance or none has.
+memory per sample (about 0.45 ms for a pose, most of it the batch-means covariance). Kinds:
+``"pose"`` (6D; 6x6 covariance over the left perturbation ``T = Exp(xi) T_mean``, ``xi = (phi,
+rho)``), ``"position"`` (3D, 3x3) and ``"rotation"`` (3R, 3x3 over ``phi``, ``R = Exp(phi)
+R_mean``); either every sample has a covariance or none has.
 
 Estimate. The weighted mean on the manifold, ``T`` with ``sum_i W_i Log(T_i T^-1) = 0``,
 ``W_i = Sigma_i^-1`` (Barfoot & Furgale, "Associating uncertainty with three-dimensional poses
@@ -556,17 +557,18 @@ class StaticEstimator:
     * ``translation_tolerance`` (m, default 1 mm), ``rotation_tolerance`` (rad, default 0.1
       degree): the RMS errors of the averaging part at which the estimate counts as converged.
       0.1 degree at a 0.57 m lever arm moves a point by 1 mm, so the two balance at the working
-      distance of camera and tracker set-ups; per-frame PnP noise (about 1 cm, 0.5 degree)
-      reaches them in about 100 samples, a few seconds, and tighter values would wait for
-      errors that correlated effects (PnP bias, tracker calibration) dominate anyway.
-    * ``min_samples`` (50): accepted samples before convergence; with sample covariances the
-      reduced chi-square then rests on at least 147 degrees of freedom (relative standard
-      deviation <= 12 %), without them the noise covariance on 49.
+      distance of camera and tracker set-ups; the figure-1 calibration's samples (PnP at 1.5-2.5
+      m, a few centimetres and about a degree per frame) reach them in about 10 s, and tighter
+      values would wait for errors that correlated effects (PnP bias, tracker calibration)
+      dominate anyway.
+    * ``min_samples`` (50): accepted samples before convergence; the batch-means covariance
+      then rests on 49 degrees of freedom (batches of one sample until there are 128).
     * ``stability_window`` (20): accepted samples over which the estimate must have moved less
       than one standard deviation.
     * ``init_samples`` (20, at least ``2 d + 1``): the robust start's batch.
     * ``gate_probability`` (0.999): probability that a good sample passes the gate.
-    * ``motion_window`` (30) and ``motion_false_alarm`` (1e-6 per sample): the motion check.
+    * ``motion_window`` (30) and ``motion_false_alarm`` (1e-6 per sample): the motion check;
+      the window should span about a second (the averaging service sets it from the rate).
     * ``common_covariance``: covariance (d x d, positive semi-definite) of an error all samples
       share; added to the published covariance, also settable later.
     """
