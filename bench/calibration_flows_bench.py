@@ -23,6 +23,8 @@ Flows (``ubitrack plan examples/paper_calibration.yaml --from C --to HT --type 6
 * ``hand-eye over time``: :func:`services.algorithms.hand_eye.hand_eye_calibration` on every
   third frame's ``ART -> HT`` and PnP ``C -> WT`` (the closed form costs O(N^2): 0.7 s at 600
   poses, 6 s at 1,800), noise from the residuals; ``C -> HT`` is the inverse of its ``X``;
+* ``hand-eye, live component``: the hand-eye service and its time expansion as the live worker
+  runs them (:func:`live_hand_eye_run`: samples 5 degrees apart, at most 200, Park-Martin);
 * ``time-expanded PnP``: one PnP of ``C -> HT`` over every frame's ``IP -> Fi`` and ``HT ->
   Fi`` at once (SQPNP + Levenberg-Marquardt, :func:`services.algorithms.pnp.solve_pnp` on the
   stacked points: the paper's third solution expanded in space and time), with a covariance
@@ -69,6 +71,8 @@ from services.algorithms.hand_eye import hand_eye_calibration
 from services.algorithms.pnp import _projected, solve_pnp
 from services.algorithms.static_estimate import DEFAULT_INIT_SAMPLES, StaticEstimator, StaticState
 from services.components.averaging import motion_window
+from services.expansion import TimeAccumulator
+from services.registry import lookup
 from ubitrack_agent.core import se3
 from ubitrack_agent.core.uncertainty import invert_covariance
 
@@ -195,6 +199,38 @@ def hand_eye_run(recording: Recording) -> dict[str, Any]:
     return result
 
 
+def live_hand_eye_run(recording: Recording) -> dict[str, Any]:
+    """The hand-eye component as the live worker runs it: every camera frame's ``ART -> HT``
+    and ``C -> WT`` offered to its time expansion (:class:`services.expansion.TimeAccumulator`:
+    kept when 5 degrees from the last kept, at most 200, oldest dropped), Park-Martin on what
+    is kept; no covariance."""
+    truth = PoseEstimate(recording.truth_q, recording.truth_t)
+    head, camera = hand_eye_inputs(recording)
+    service = lookup("hand_eye_calibration")({})
+    accumulator = TimeAccumulator(service, {})
+    checkpoints = list(CHECKPOINTS_S)
+    result: dict[str, Any] = {"checkpoints": {}}
+    latest = None
+    for k in np.flatnonzero(head.valid & camera.valid).tolist():
+        elapsed = _elapsed_s(recording, int(recording.camera_ns[k]))
+        while checkpoints and elapsed > checkpoints[0]:
+            if latest is not None:
+                result["checkpoints"][checkpoints[0]] = _score(latest, truth)
+            checkpoints.pop(0)
+        values = {"RH": head.pose(k), "CO": camera.pose(k)}
+        if accumulator.add(values) and accumulator.ready():
+            try:
+                x = service.compute(accumulator.expanded(values), int(recording.camera_ns[k]))
+            except ValueError:  # rotations about one axis so far
+                continue
+            q, t = se3.invert(x["HC"].rotation, x["HC"].translation)
+            latest = PoseEstimate(q, t)
+    for checkpoint in checkpoints:
+        if latest is not None:
+            result["checkpoints"][checkpoint] = _score(latest, truth)
+    return result
+
+
 def clustered_covariance(
     pose: PoseEstimate,
     points: list[np.ndarray],
@@ -254,6 +290,7 @@ def run_seed(seed: int, duration_s: float) -> dict[str, Any]:
     flips = rng_for(f"flow-flips-{seed}").random(len(live.q)) < FLIP_RATE
     flows["direct + averaging (live stream), 3 % flips"] = averaging_run(recording, live, flips)
     flows["hand-eye over time"] = hand_eye_run(recording)
+    flows["hand-eye, live component"] = live_hand_eye_run(recording)
     flows["time-expanded PnP"] = time_expanded_pnp_run(recording)
     return flows
 
