@@ -616,7 +616,6 @@ class StaticEstimator:
         self._last_whitened: np.ndarray | None = None
         self._blocks = _BlockMeans(dim, self._motion_window // 2)
         self._averaging_raw = np.eye(dim)
-        self._batch_dof = 1
         self._std: tuple[float | None, float | None] = (None, None)
         self._averaging = np.zeros((dim, dim))
         self._window: deque[_Entry] = deque(maxlen=self._motion_window)
@@ -850,7 +849,6 @@ class StaticEstimator:
         )
         raw = correction * information_inverse @ score_covariance @ information_inverse
         self._averaging_raw = symmetric(raw) + NOISE_FLOOR**2 * np.eye(dim)
-        self._batch_dof = nu
         self._averaging = self._averaging_raw * (nu / max(nu - dim - 1, 1))
         distance2 = float(self._delta @ np.linalg.solve(self._averaging, self._delta))
         if distance2 > RELINEARISE**2:
