@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import argparse
 import zlib
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import NamedTuple
 
@@ -93,23 +93,6 @@ class Recording:
     truth_q: np.ndarray
     truth_t: np.ndarray
     """The true ``C -> HT``."""
-
-    def until(self, seconds: float) -> Recording:
-        """The first ``seconds`` of the recording (camera frames and the tracker frames up to
-        the next one after the last camera frame)."""
-        start = self.camera_ns[0]
-        frames = int(np.searchsorted(self.camera_ns, start + round(seconds * 1e9), "right"))
-        last = self.camera_ns[frames - 1]
-        tracker = int(np.searchsorted(self.tracker_ns, last, "left")) + 1
-        cut = {}
-        for field in fields(self):
-            value = getattr(self, field.name)
-            if field.name in ("camera_ns", "pixels"):
-                value = value[:frames]
-            elif field.name.startswith(("tracker", "art_")):
-                value = value[:tracker]
-            cut[field.name] = value
-        return replace(self, **cut)
 
     def save(self, path: str | Path) -> None:
         """Write to ``path`` with ``numpy.savez``."""

@@ -7,7 +7,8 @@ Run: ``python -m bench.static_estimate_bench [--trials N] [--long N]`` (defaults
   3x optimistic ones (true noise 3x the stated standard deviations), both with 3 % PnP-flip
   outliers, an error shared by all samples, samples without covariance, and noise correlated
   in time (AR(1), 0.6 and 0.9 per sample); with the two-sided 95 % chi-square interval of the
-  mean NEES;
+  mean NEES (for a covariance estimated on as many degrees of freedom as the estimator's
+  batches give);
 * outlier immunity: the largest move of the estimate caused by a flip, in the estimate's
   standard deviations (always 0 if every flip is rejected), and the fraction of flips
   rejected;
@@ -32,7 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from bench.synthetic import left_error, random_quaternion, rng_for
 from services.algorithms.estimate import PoseEstimate, perturb_left, rigid
-from services.algorithms.static_estimate import StaticEstimator, StaticState
+from services.algorithms.static_estimate import BATCHES, StaticEstimator, StaticState
 
 RESULTS = Path(__file__).parent / "results" / "static_estimate.json"
 
@@ -129,6 +130,15 @@ def nees_interval(
     return dof - z * spread, dof + z * spread
 
 
+def batch_dof(samples: int) -> int:
+    """Degrees of freedom of the estimator's batch-means covariance after ``samples``
+    accepted samples: batches less one (module docstring of ``static_estimate``)."""
+    size = 1
+    while samples > 2 * BATCHES * size:
+        size *= 2
+    return -(-samples // size) - 1
+
+
 def nees_experiment(name: str, trials: int, samples: int, **stream) -> list[float]:
     """NEES of the final estimate over seeded trials; ``stream`` as :func:`pose_stream`, plus
     ``with_covariance`` (default True) and ``common_known`` (pass ``common`` to the
@@ -215,9 +225,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--long", type=int, default=100, help="long static runs")
     args = parser.parse_args(argv)
     trials = args.trials
-    low, high = nees_interval(trials, 6)
-    results: dict[str, object] = {"trials": trials, "nees_interval_95": [low, high]}
-    print(f"mean NEES over {trials} trials, 6 dof, 95 % interval [{low:.2f}, {high:.2f}]")
+    intervals = {samples: nees_interval(trials, 6, nu=batch_dof(samples)) for samples in (60, 300)}
+    results: dict[str, object] = {"trials": trials, "nees_interval_95": intervals}
+    print(
+        f"mean NEES over {trials} trials, 6 dof, 95 % interval of the mean "
+        + ", ".join(f"N={n}: [{low:.2f}, {high:.2f}]" for n, (low, high) in intervals.items())
+    )
     common = np.diag([1e-5, 1e-5, 1e-5, 4e-6, 4e-6, 4e-6])
     cases = {
         "honest": {},
@@ -233,6 +246,7 @@ def main(argv: list[str] | None = None) -> None:
         for samples in (60, 300):
             values = nees_experiment(f"{name}-{samples}", trials, samples, **dict(stream))
             mean = float(np.mean(values))
+            low, high = intervals[samples]
             verdict = "ok" if low <= mean <= high else "OUT"
             print(f"  {name:28s} N={samples:4d}: {mean:6.2f} {verdict}")
             results[f"nees {name} N={samples}"] = mean

@@ -4,9 +4,10 @@ A static relation computed from dynamic inputs (a camera-to-target pose from PnP
 tracker poses, say) arrives as one noisy sample per frame. :class:`StaticEstimator` turns the
 stream into one estimate with an honest covariance, a converged flag the caller can stop on,
 and a ``not_static`` verdict when the relation moves. One sample at a time, O(1) time and
-memory per sample. Kinds: ``"pose"`` (6D; 6x6 covariance over the left perturbation
-``T = Exp(xi) T_mean``, ``xi = (phi, rho)``), ``"position"`` (3D, 3x3) and ``"rotation"`` (3R,
-3x3 over ``phi``, ``R = Exp(phi) R_mean``); either every sample has a covariance or none has.
+memory per sample (about 0.45 ms for a pose, most of it the batch-means covariance). Kinds:
+``"pose"`` (6D; 6x6 covariance over the left perturbation ``T = Exp(xi) T_mean``, ``xi = (phi,
+rho)``), ``"position"`` (3D, 3x3) and ``"rotation"`` (3R, 3x3 over ``phi``, ``R = Exp(phi)
+R_mean``); either every sample has a covariance or none has.
 
 Estimate. The weighted mean on the manifold, ``T`` with ``sum_i W_i Log(T_i T^-1) = 0``,
 ``W_i = Sigma_i^-1`` (Barfoot & Furgale, "Associating uncertainty with three-dimensional poses
@@ -335,9 +336,10 @@ class _Batches:
     batch-means covariance (module docstring): dynamic batch means (Yeh & Schmeiser 2000), at
     most ``2 BATCHES`` batches of ``size`` samples each, adjacent pairs merged (``size``
     doubled) when the last one is full; O(1) memory. Sample ``ordinal`` (its place among the
-    accepted samples) is in batch ``ordinal // size``."""
+    accepted samples) is in batch ``ordinal // size``. The Cholesky factors of the batches'
+    information are kept for the batches that have not changed (all but the last, mostly)."""
 
-    __slots__ = ("added", "counts", "information", "size", "weighted_sum")
+    __slots__ = ("added", "counts", "factored", "information", "roots", "size", "weighted_sum")
 
     def __init__(self, dim: int) -> None:
         self.size = 1
@@ -345,6 +347,9 @@ class _Batches:
         self.counts = np.zeros(2 * BATCHES, dtype=int)
         self.information = np.zeros((2 * BATCHES, dim, dim))
         self.weighted_sum = np.zeros((2 * BATCHES, dim))
+        self.roots = np.zeros((2 * BATCHES, dim, dim))
+        """``L_b`` (``Lambda_b = L_b L_b^T``) of the batches before ``factored``."""
+        self.factored = 0
 
     @property
     def count(self) -> int:
@@ -358,8 +363,10 @@ class _Batches:
                 sums[:BATCHES] = sums[0::2] + sums[1::2]
                 sums[BATCHES:] = 0
             self.size *= 2
+            self.factored = 0
         ordinal = self.added
         batch = ordinal // self.size
+        self.factored = min(self.factored, batch)
         self.counts[batch] += 1
         self.information[batch] += weight
         self.weighted_sum[batch] += weight @ xi
@@ -369,6 +376,7 @@ class _Batches:
     def remove(self, ordinal: int, xi: np.ndarray, weight: np.ndarray) -> None:
         """Take sample ``ordinal`` out of its batch (``xi`` at the current reference)."""
         batch = ordinal // self.size
+        self.factored = min(self.factored, batch)
         self.counts[batch] -= 1
         self.information[batch] -= weight
         self.weighted_sum[batch] -= weight @ xi
@@ -397,20 +405,25 @@ class _Batches:
         ``A = C^-1/2 (scatter) C^-1/2``: the inflation of the stated covariances, ``I`` when
         they are right and the samples independent. Then ``V = sum L_b A L_b^T`` and
         ``nu = tr(C) / d``."""
-        used = self.counts[: self.count] > 0
-        information = self.information[: self.count][used]
-        scores = self.weighted_sum[: self.count][used] - information @ (
+        count = self.count
+        stale = np.arange(self.factored, count)
+        stale = stale[self.counts[stale] > 0]
+        self.roots[stale] = np.linalg.cholesky(self.information[stale])
+        self.factored = count
+        used = self.counts[:count] > 0
+        information, roots = self.information[:count][used], self.roots[:count][used]
+        scores = self.weighted_sum[:count][used] - information @ (
             information_inverse @ weighted_sum
         )
-        roots = np.linalg.cholesky(information)
         whitened = np.linalg.solve(roots, scores[..., None])[..., 0]
+        transposed = roots.transpose(0, 2, 1)
+        shared = (transposed @ information_inverse @ roots).sum(axis=0)
         dim = len(weighted_sum)
-        shared = np.einsum("kji,jl,klm->im", roots, information_inverse, roots)
         values, vectors = np.linalg.eigh(len(information) * np.eye(dim) - shared)
         values = np.maximum(values, 1.0)
         root = (vectors / np.sqrt(values)) @ vectors.T
         inflation = root @ (whitened.T @ whitened) @ root
-        covariance = np.einsum("kij,jl,kml->im", roots, inflation, roots)
+        covariance = (roots @ inflation @ transposed).sum(axis=0)
         return covariance, max(round(float(values.sum()) / dim), 1)
 
 
@@ -425,9 +438,30 @@ class _BlockMeans:
     noise model, ``G_j G_j^T = S (Lambda_j^-1 + Lambda_(j-1)^-1)`` (``S`` the noise scale then);
     the scatter of the whitened differences about their mean, over ``d``, is the inflation of
     a block mean's variance over the model's. Taken about their mean, the differences do not
-    see a steady drift, which moves every block by the same amount."""
+    see a steady drift, which moves every block by the same amount.
 
-    __slots__ = ("_size", "block", "count", "previous", "square", "total")
+    Blocks shorter than the errors' correlation, and neighbouring blocks that share it, make
+    that inflation fall short of the long-run one the window test needs; it is corrected for an
+    AR(1) process (:func:`block_difference_correction`) whose lag-one autocorrelation comes from
+    the whitened residuals within each block about the block's mean (a drift hardly moves
+    them), with Kendall's correction for the mean's removal ("Note on bias in the estimation of
+    autocorrelation", Biometrika 41, 1954: ``E r_1 = rho - (1 + 3 rho) / b``)."""
+
+    __slots__ = (
+        "_first",
+        "_lag",
+        "_last",
+        "_size",
+        "_square",
+        "_sum",
+        "block",
+        "count",
+        "lag",
+        "previous",
+        "spread",
+        "square",
+        "total",
+    )
 
     def __init__(self, dim: int, size: int) -> None:
         self._size = size
@@ -436,14 +470,33 @@ class _BlockMeans:
         self.previous: tuple[np.ndarray, np.ndarray] | None = None
         self.total = np.zeros(dim)
         self.square = 0.0
+        self.lag = 0.0
+        """Sum over closed blocks of the lag-one products of residuals about the block mean."""
+        self.spread = 0.0
+        """Sum over closed blocks of the squared residuals about the block mean."""
+        self._sum = np.zeros(dim)
+        self._first: np.ndarray | None = None
+        self._last: np.ndarray | None = None
+        self._lag = 0.0
+        self._square = 0.0
 
-    def add(self, xi: np.ndarray, weight: np.ndarray, scale: np.ndarray) -> None:
-        """Add an accepted sample; when the block is full, close it (``scale``: the noise
-        scale now)."""
+    def add(
+        self, xi: np.ndarray, weight: np.ndarray, scale: np.ndarray, residual: np.ndarray
+    ) -> None:
+        """Add an accepted sample (``residual``: whitened, from the estimate before it); when
+        the block is full, close it (``scale``: the noise scale now)."""
         block = self.block
         block.add(xi, weight)
+        if self._last is None:
+            self._first = residual
+        else:
+            self._lag += float(residual @ self._last)
+        self._last = residual
+        self._sum += residual
+        self._square += float(residual @ residual)
         if block.n < self._size:
             return
+        self._close_lag()
         spread = np.linalg.inv(block.information)
         mean = spread @ block.weighted_sum
         if self.previous is not None:
@@ -456,6 +509,29 @@ class _BlockMeans:
         self.previous = mean, spread
         self.block = _Sums(len(xi))
 
+    def _close_lag(self) -> None:
+        """Add the closed block's lag-one products and squares about its mean."""
+        size, total = self._size, self._sum
+        mean = total / size
+        self.lag += (
+            self._lag
+            - float(mean @ (2.0 * total - self._first - self._last))
+            + (size - 1) * float(mean @ mean)
+        )
+        self.spread += self._square - size * float(mean @ mean)
+        self._sum = np.zeros_like(total)
+        self._first = self._last = None
+        self._lag = self._square = 0.0
+
+    def autocorrelation(self) -> float:
+        """Lag-one autocorrelation of the residuals within blocks, bias-corrected (Kendall
+        1954); 0 before a block has closed."""
+        size = self._size
+        if self.spread <= 0.0:
+            return 0.0
+        within = (self.lag / (size - 1)) / (self.spread / size)
+        return (within + 1.0 / size) / (1.0 - 3.0 / size)
+
     def shift(self, delta: np.ndarray) -> None:
         """Re-express at ``Exp(delta) T_ref`` (to first order: differences do not change)."""
         self.block.weighted_sum -= self.block.information @ delta
@@ -463,13 +539,15 @@ class _BlockMeans:
             self.previous = self.previous[0] - delta, self.previous[1]
 
     def inflation(self, dim: int) -> tuple[float, int]:
-        """``(f, nu)``: the inflation and its degrees of freedom, ``2/3 d`` per difference
-        beyond the first (neighbouring differences share a block: von Neumann et al. 1941);
-        ``(1, 1)`` before there are two differences."""
+        """``(f, nu)``: the long-run inflation and its degrees of freedom, ``2/3 d`` per
+        difference beyond the first (neighbouring differences share a block: von Neumann et al.
+        1941); ``(1, 1)`` before there are two differences."""
         if self.count < 2:
             return 1.0, 1
         scatter = self.square - float(self.total @ self.total) / self.count
-        return scatter / (dim * (self.count - 1)), max(round(2 * dim * (self.count - 1) / 3), 1)
+        correction = block_difference_correction(self.autocorrelation(), self._size)
+        inflation = correction * scatter / (dim * (self.count - 1))
+        return inflation, max(round(2 * dim * (self.count - 1) / 3), 1)
 
 
 class _Noise(NamedTuple):
@@ -521,6 +599,21 @@ def batch_length_correction(rho: float, size: int) -> float:
     return long_run / (long_run - 2.0 * rho * (1.0 - rho**size) / (size * (1.0 - rho) ** 2))
 
 
+def block_difference_correction(rho: float, size: int) -> float:
+    """The long-run variance over what successive differences of means of ``size`` AR(1)
+    samples (lag-one autocorrelation ``rho``) show: ``E (m_j - m_(j-1))^2 / 2`` is the block
+    mean's variance less the covariance of neighbouring blocks, per sample ``(1 + rho) / (1 -
+    rho) - rho (1 - rho^b) (3 - rho^b) / (b (1 - rho)^2)``. 1 for ``rho <= 0``; ``rho`` is
+    capped at :data:`MAX_AUTOCORRELATION`."""
+    rho = min(rho, MAX_AUTOCORRELATION)
+    if rho <= 0.0:
+        return 1.0
+    long_run = (1.0 + rho) / (1.0 - rho)
+    power = rho**size
+    shown = long_run - rho * (1.0 - power) * (3.0 - power) / (size * (1.0 - rho) ** 2)
+    return long_run / shown
+
+
 def _trimmed_consistency(alpha: float, dim: int) -> float:
     """``E[chi2_d | chi2_d <= q_alpha] / d``: the mean of a chi-square kept below its
     ``alpha`` quantile, over d (Croux & Haesbroeck 1999; the MCD consistency factor)."""
@@ -544,17 +637,18 @@ class StaticEstimator:
     * ``translation_tolerance`` (m, default 1 mm), ``rotation_tolerance`` (rad, default 0.1
       degree): the RMS errors of the averaging part at which the estimate counts as converged.
       0.1 degree at a 0.57 m lever arm moves a point by 1 mm, so the two balance at the working
-      distance of camera and tracker set-ups; per-frame PnP noise (about 1 cm, 0.5 degree)
-      reaches them in about 100 samples, a few seconds, and tighter values would wait for
-      errors that correlated effects (PnP bias, tracker calibration) dominate anyway.
-    * ``min_samples`` (50): accepted samples before convergence; with sample covariances the
-      reduced chi-square then rests on at least 147 degrees of freedom (relative standard
-      deviation <= 12 %), without them the noise covariance on 49.
+      distance of camera and tracker set-ups; the figure-1 calibration's samples (PnP at 1.5-2.5
+      m, a few centimetres and about a degree per frame) reach them in about 10 s, and tighter
+      values would wait for errors that correlated effects (PnP bias, tracker calibration)
+      dominate anyway.
+    * ``min_samples`` (50): accepted samples before convergence; the batch-means covariance
+      then rests on 49 degrees of freedom (batches of one sample until there are 128).
     * ``stability_window`` (20): accepted samples over which the estimate must have moved less
       than one standard deviation.
     * ``init_samples`` (20, at least ``2 d + 1``): the robust start's batch.
     * ``gate_probability`` (0.999): probability that a good sample passes the gate.
-    * ``motion_window`` (30) and ``motion_false_alarm`` (1e-6 per sample): the motion check.
+    * ``motion_window`` (30) and ``motion_false_alarm`` (1e-6 per sample): the motion check;
+      the window should span about a second (the averaging service sets it from the rate).
     * ``common_covariance``: covariance (d x d, positive semi-definite) of an error all samples
       share; added to the published covariance, also settable later.
     """
@@ -602,7 +696,6 @@ class StaticEstimator:
         self._last_whitened: np.ndarray | None = None
         self._blocks = _BlockMeans(dim, self._motion_window // 2)
         self._averaging_raw = np.eye(dim)
-        self._batch_dof = 1
         self._std: tuple[float | None, float | None] = (None, None)
         self._averaging = np.zeros((dim, dim))
         self._window: deque[_Entry] = deque(maxlen=self._motion_window)
@@ -806,8 +899,8 @@ class StaticEstimator:
         before it) into the sums, its batch, its block and the lag-one autocorrelation of the
         whitened residuals ``L_i^T r_i`` (``W_i = L_i L_i^T``); returns its ordinal."""
         self._moments.add(xi, weight)
-        self._blocks.add(xi, weight, self._noise_model.scale)
         whitened = np.linalg.cholesky(weight).T @ residual
+        self._blocks.add(xi, weight, self._noise_model.scale, whitened)
         if self._last_whitened is not None:
             self._lag_sums += (float(whitened @ self._last_whitened), float(whitened @ whitened))
         self._last_whitened = whitened
@@ -836,7 +929,6 @@ class StaticEstimator:
         )
         raw = correction * information_inverse @ score_covariance @ information_inverse
         self._averaging_raw = symmetric(raw) + NOISE_FLOOR**2 * np.eye(dim)
-        self._batch_dof = nu
         self._averaging = self._averaging_raw * (nu / max(nu - dim - 1, 1))
         distance2 = float(self._delta @ np.linalg.solve(self._averaging, self._delta))
         if distance2 > RELINEARISE**2:

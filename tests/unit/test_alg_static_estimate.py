@@ -31,6 +31,7 @@ from services.algorithms.static_estimate import (
     StaticEstimator,
     Status,
     batch_length_correction,
+    block_difference_correction,
 )
 from ubitrack_agent.core import ErrorPose, Position3D, Rotation3D
 
@@ -518,6 +519,33 @@ def test_the_recorded_figure1_stream_converges_honestly_and_stays_static(live_fi
     assert nees(state, truth) < stats.chi2.ppf(0.999, 6)
     # Three samples per camera frame, and more shared through the interpolation.
     assert state.effective_samples < state.accepted / 2
+
+
+def test_long_correlated_streams_are_never_flagged():
+    # AR(1) at 0.9: correlated over a third of the motion window. Blocks of 15 samples show
+    # a third of the long-run variance in their successive differences; without the AR(1)
+    # correction (block_difference_correction) every one of these runs was flagged.
+    rng = rng_for("static-correlated-long")
+    for _ in range(3):
+        truth = random_truth(rng)
+        q, t, _ = pose_stream(rng, truth, 4000, correlation=0.9, outliers=0.01)
+        state = run(StaticEstimator("pose"), q, t, PNP_COVARIANCE)
+        assert not state.not_static
+
+
+def test_block_difference_correction_is_what_successive_differences_miss():
+    assert block_difference_correction(0.0, 15) == 1.0
+    assert block_difference_correction(-0.3, 15) == 1.0
+    # Monte Carlo: half the mean squared difference of neighbouring 15-sample block sums of
+    # AR(1) samples, per sample, times the correction, is the long-run variance 19.
+    rng = rng_for("static-block-difference")
+    white = rng.normal(size=(4000, 200))
+    x = white.copy()
+    for k in range(1, 200):
+        x[:, k] = 0.9 * x[:, k - 1] + math.sqrt(1 - 0.81) * white[:, k]
+    sums = x[:, 170:200].reshape(4000, 2, 15).sum(axis=2)  # stationary by then
+    shown = np.mean((sums[:, 1] - sums[:, 0]) ** 2) / 2 / 15
+    assert shown * block_difference_correction(0.9, 15) == pytest.approx(19.0, rel=0.1)
 
 
 def test_batch_length_correction_is_the_ar1_share_that_batches_miss():
