@@ -186,3 +186,46 @@ def test_replanning_prefers_running_components_within_the_margin():
         "pose_estimation_2d3d",
         "concatenation",
     }
+
+
+def live_like_fragments():
+    """The paper's setup with the live sigmas (A.R.T. 0.3 mm, camera about 1.4 mm at 2 m), the
+    database without C->HT and a calibration store that holds it."""
+    fragments = paper_fragments()
+    features = [f"F{i}" for i in range(1, 6)]
+    fragments["art"] = fragment_entries(
+        "art",
+        fragment(
+            "art",
+            edge("HT", "ART", "HT", rate=60, sigma=3e-4),
+            edge("WT", "ART", "WT", static=True, sigma=3e-4),
+        ),
+    )
+    fragments["camera"] = fragment_entries(
+        "camera",
+        fragment("camera", *(edge(f, "IP", f, "2D", rate=30, sigma=1.4e-3) for f in features)),
+    )
+    database = [e for e in fragments["database"] if e["id"] != "database/C_HT"]
+    stored = edge("C_HT", "C", "HT", static=True, sigma=1.1e-3)  # as a converged calibration
+    store = fragment_entries("store", fragment("store", stored))
+    return {**fragments, "database": database}, store
+
+
+def test_a_new_relation_is_not_pulled_onto_another_relations_components():
+    """After a live C->HT calibration, its running inversion and concatenations make the
+    A.R.T.-only path to C->A cheap to start and within the margin of fusion; a new C->A query
+    still gets fusion (the cheapest), and keeps it on the next replan."""
+    fragments, store = live_like_fragments()
+    calibration = RelationId("C", "HT", "6D", static=True)
+    calibrating = plan_relations(build_srg(fragments), TEMPLATES, [calibration])
+    running = set(calibrating.flow.components)
+    srg = build_srg({**fragments, "store": store})
+    tracking = RelationId("C", "A", "6D")
+    cheapest = plan_relations(srg, TEMPLATES, [tracking])
+    assert "fusion" in {c.service for c in cheapest.flow.components.values()}
+    adopting = plan_relations(srg, TEMPLATES, [tracking], running)  # no plan yet: all count
+    assert "fusion" not in {c.service for c in adopting.flow.components.values()}
+    fresh = plan_relations(srg, TEMPLATES, [tracking], running, previous=calibrating)
+    assert "fusion" in {c.service for c in fresh.flow.components.values()}
+    again = plan_relations(srg, TEMPLATES, [tracking], set(fresh.flow.components), fresh)
+    assert set(again.flow.components) == set(fresh.flow.components)

@@ -202,7 +202,9 @@ class Agent:
 
     def _replan(self) -> None:
         self.srg = build_srg(self.fragments)
-        self.plan = plan_relations(self.srg, self.templates, self.queries, set(self.running))
+        self.plan = plan_relations(
+            self.srg, self.templates, self.queries, set(self.running), self.plan
+        )
         self.wanted = component_specs(self.plan.flow, self.srg, self.keys, self.plan.relations)
         self.counters["replans"] += 1
         for name, reason in self.plan.unsolved.items():
