@@ -3,7 +3,9 @@
 Run: ``python -m bench.calibration_flows_bench [--seeds N] [--duration SECONDS]
 [--false-alarm-seeds M]`` (defaults 20 seeds of 60 s and 40 more recordings for the live
 stream's false alarms, about 18 minutes). Prints markdown tables and writes
-``bench/results/calibration_flows.json``.
+``bench/results/calibration_flows.json``. With ``--time-gains`` it prints only the planner's
+``time_gain`` of averaging and hand-eye as measured (:func:`time_gains`, from that file and a
+minute of new recordings).
 
 Each seed records the figure-1 set-up offline (:mod:`bench.figure1_recording`: the simulators'
 models, camera 30 Hz, tracker 60 Hz, no ``C -> HT`` in the database) and every flow estimates
@@ -415,6 +417,54 @@ def print_tables(summary: dict[str, Any], seeds: int) -> None:
             )
 
 
+TIME_GAIN_FLOWS = {
+    "averaging": "direct + averaging (live stream)",
+    "hand_eye_calibration": "hand-eye over time",
+}
+"""Templates whose ``time_gain`` (``templates/*.yaml``) these flows measure."""
+TIME_GAIN_AT_S = 10.0
+"""The accumulation time the planner's ``time_gain`` refers to (``docs/planner.md``)."""
+
+
+def one_sample_rms(seeds: int) -> tuple[float, float]:
+    """RMS error (mm, degrees) of one live-stream sample of the direct computation over the
+    first :data:`TIME_GAIN_AT_S` of ``seeds`` recordings, without PnP flips (samples whose
+    rotation error exceeds ten times their recording's median): the per-sample error that an
+    accumulation reduces."""
+    millimetres, degrees = [], []
+    for seed in range(seeds):
+        recording = record(seed, TIME_GAIN_AT_S)
+        samples = live_direct_samples(recording)
+        truth = PoseEstimate(recording.truth_q, recording.truth_t, None)
+        errors = np.array(
+            [
+                left_error(PoseEstimate(samples.q[k], samples.t[k], None), truth)
+                for k in np.flatnonzero(samples.valid)
+            ]
+        )
+        rotation = np.linalg.norm(errors[:, :3], axis=1)
+        kept = rotation < 10 * np.median(rotation)
+        millimetres += list(1e3 * np.linalg.norm(errors[kept, 3:], axis=1))
+        degrees += list(np.degrees(rotation[kept]))
+    return _rms(millimetres), _rms(degrees)
+
+
+def time_gains(summary: dict[str, Any], seeds: int) -> dict[str, dict[str, float]]:
+    """Per template of :data:`TIME_GAIN_FLOWS`: the variance of its flow's result after
+    :data:`TIME_GAIN_AT_S` relative to one direct sample's (translation and rotation), from
+    the summary's checkpoints (as read back from the results file) and
+    :func:`one_sample_rms` on the same seeds."""
+    sample_mm, sample_deg = one_sample_rms(seeds)
+    gains = {}
+    for template, flow in TIME_GAIN_FLOWS.items():
+        row = summary[flow]["checkpoints"][str(TIME_GAIN_AT_S)]
+        gains[template] = {
+            "translation": (row["error_mm"] / sample_mm) ** 2,
+            "rotation": (row["error_deg"] / sample_deg) ** 2,
+        }
+    return {"one sample": {"error_mm": sample_mm, "error_deg": sample_deg}, **gains}
+
+
 FALSE_ALARM_SEED = 1000
 """First seed of the false-alarm runs (apart from the flows' seeds)."""
 
@@ -436,7 +486,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--false-alarm-seeds", type=int, default=40, help="more recordings, live stream only"
     )
+    parser.add_argument(
+        "--time-gains",
+        action="store_true",
+        help="only print the planner's time gains from the results file and --seeds recordings",
+    )
     args = parser.parse_args(argv)
+    if args.time_gains:
+        summary = json.loads(RESULTS.read_text())["summary"]
+        print(json.dumps(time_gains(summary, args.seeds), indent=1))
+        return
     started = time.time()
     runs = []
     for seed in range(args.seeds):

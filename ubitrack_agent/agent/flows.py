@@ -3,13 +3,14 @@
 Stability: for a relation the agent serves already, among the solutions whose cost is within
 :data:`HYSTERESIS` of the best, the agent takes the one that needs the fewest components beside
 the running ones of the relation's current derivation. A marginally cheaper derivation is not
-worth stopping a working flow and starting another (on the paper's setup, losing the A.R.T.
-tracker leaves a camera-only derivation through the running pose estimation at 4 % above a
-fresh one that needs six new components). A new relation gets the cheapest derivation, even
-where components running for another relation would make a worse one cheap to start (after a
-live C->HT calibration, its inversion and concatenations would otherwise pull a new C->A query
-onto the A.R.T.-only path, within the margin of fusion). Before the agent's first plan (a
-restarted agent adopting running workers) every running component counts.
+worth stopping a working flow and starting another (on the paper's setup without the A.R.T.
+tracker, 2D-3D pose estimation of C->A on the marker balls expressed in A costs 1.5 % more
+than pose estimation of C->WT followed by WT->A: whichever runs stays). A new relation gets
+the cheapest derivation, even where components running for another relation would make a
+worse one cheap to start (after a live C->HT calibration, its inversion and concatenations
+would otherwise pull a new C->A query onto the A.R.T.-only path, within the margin of
+fusion). Before the agent's first plan (a restarted agent adopting running workers) every
+running component counts.
 """
 
 from __future__ import annotations

@@ -167,7 +167,8 @@ def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
         copies = len(variances[corr.edges[0]])
         per_copy = sum(sum(variances[n]) for n in corr.edges) / copies
         scale = corr.multiplicity.lo / copies if instance.expansion == "space" else 1.0
-        variance = fixed + per_copy * scale
+        shared = min(_shared_variance(instance, records), per_copy)
+        variance = fixed + shared + (per_copy - shared) * scale
     else:
         variance = sum(every)
     variance *= spec.gain * (spec.time_gain if instance.expansion == "time" else 1.0)
@@ -175,6 +176,20 @@ def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
     rates = [e.quality.rate for e in inputs if e.mode == "push" and e.quality.rate > 0]
     latency = max(e.quality.latency for e in inputs) + spec.latency
     return Quality(variance, min(rates, default=0.0), latency)
+
+
+def _shared_variance(instance: Instance, records: Mapping[str, EdgeRecord]) -> float:
+    """The variance of the measured edges every copy of a space-expanded correspondence
+    derives from: an error they share moves all copies alike and does not average out (the
+    points HT->Fi of section 4.2 all carry the error of ART->HT and ART->WT)."""
+    corr = instance.template.correspondence
+    if corr is None or instance.expansion != "space":
+        return 0.0
+    copies = zip(*(ids for name, ids in instance.inputs if name in corr.edges), strict=True)
+    common = frozenset.intersection(
+        *(frozenset().union(*(records[e].sources for e in copy)) for copy in copies)
+    )
+    return sum(records[e].quality.variance for e in common if e in records)
 
 
 def useful_types(templates: Sequence[Template], wanted: str) -> frozenset[str]:
