@@ -50,7 +50,8 @@ def test_camera_occlusion_and_dropout():
 
 
 def test_database_values_are_the_world_truth():
-    edges = {e.announcement.name: e for e in static_edges(WORLD, SCENARIO.database_edges, T0)}
+    served = (*SCENARIO.database_edges, DatabaseEdge("C", "HT", "6D"))  # a calibrated database
+    edges = {e.announcement.name: e for e in static_edges(WORLD, served, T0)}
     assert all(e.announcement.static for e in edges.values())
     assert isinstance(edges["C_IP"].value, Projection)
     np.testing.assert_array_equal(

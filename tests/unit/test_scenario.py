@@ -20,7 +20,8 @@ def test_default_scenario_is_the_paper_figure_one_setup():
     assert scenario.art.bodies == {0: "WT", 1: "HT"} and scenario.art.static_bodies == ("WT",)
     assert scenario.camera.features == ("F1", "F2", "F3", "F4", "F5")
     edges = {(e.source, e.target, e.type) for e in scenario.database_edges}
-    assert ("C", "IP", "3x4") in edges and ("C", "HT", "6D") in edges
+    assert ("C", "IP", "3x4") in edges
+    assert ("C", "HT", "6D") not in edges  # calibrated live (section 4.2), as a user would
     assert ("WT", "A", "6D") in edges and ("WT", "F5", "3D") in edges
 
 
@@ -68,7 +69,7 @@ _DELETE = object()
         ("camera.image_plane", "IQ", "camera.image_plane: unknown image plane 'IQ'"),
         ("camera.features", [], "camera.features: must be a non-empty list"),
         ("database.edges.0.type", "9D", "database.edges[0].type: must be one of"),
-        ("database.edges.1.to", "F1", "database.edges[1]: C->F1 moves"),
+        ("database.edges.1.from", "C", "database.edges[1]: C->F1 moves"),
         ("database.edges.0.from", "WT", "database.edges[0]: 'IP' is not an image plane of camera"),
         ("seed", -3, "seed: must be an integer"),
     ],

@@ -1,9 +1,12 @@
 """``ubitrack demo``: the paper's figure-1 setup, live, on an embedded zenoh network.
 
 Starts the agent (the zenoh hub: peer mode on loopback, no router), the calibration database,
-the simulated HMD camera, the simulated A.R.T. tracker with its DTrack adapter (given the
-scenario's ``art`` section as flags: :func:`dtrack_flags`), all as separate processes, then
-acts as an application asking for ``C -> A`` (camera to augmentation, 6D).
+a calibration store, the simulated HMD camera, the simulated A.R.T. tracker with its DTrack
+adapter (given the scenario's ``art`` section as flags: :func:`dtrack_flags`), all as separate
+processes. First it calibrates ``C -> HT`` (section 4.2) as ``ubitrack calibrate C HT --type
+6D --save`` would, with the progress shown, unless the database or the store already has it
+(the default scenario's database does not); then it acts as an application asking for ``C ->
+A`` (camera to augmentation, 6D), which runs on the stored calibration.
 Once a second it prints the pose it receives, its rate, its latency and its error against the
 scenario's ground truth. Three phases: both trackers (the agent builds the data flow of the
 paper's figure 6: 2D-3D pose estimation fused with the A.R.T. path); the A.R.T. tracker
