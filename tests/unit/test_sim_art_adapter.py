@@ -101,11 +101,16 @@ def test_markers_become_3d_edges():
     assert name == "ART_F1" and isinstance(position, Position3D)
     truth = SCENARIO.world.pose("ART", "F1", T0)[1]
     assert np.linalg.norm(position.position - truth) < 0.003
-    assert [(e.name, e.type, e.static, e.rate, e.sigma) for e in adapter.edges] == [
-        ("ART_WT", "6D", True, None, 0.0003),
-        ("ART_HT", "6D", False, 60.0, 0.0003),
-        ("ART_F1", "3D", False, 60.0, 0.0003),
+    # A body's sigma counts its rotation noise at a 1 m lever arm: sqrt(3 (0.3 mm)^2 +
+    # 3 (0.05 deg in rad x 1 m)^2); a marker's is its position noise.
+    body_sigma = (3 * 0.0003**2 + 3 * np.radians(0.05) ** 2) ** 0.5
+    assert [(e.name, e.type, e.static, e.rate) for e in adapter.edges] == [
+        ("ART_WT", "6D", True, None),
+        ("ART_HT", "6D", False, 60.0),
+        ("ART_F1", "3D", False, 60.0),
     ]
+    sigmas = [e.sigma for e in adapter.edges]
+    assert sigmas == pytest.approx([body_sigma, body_sigma, 0.0003])
 
 
 def test_bad_datagrams_and_unmapped_ids_are_counted_not_fatal(caplog):

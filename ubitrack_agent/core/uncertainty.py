@@ -59,6 +59,24 @@ def isotropic_pose_covariance(sigma_rotation_rad: float, sigma_translation_m: fl
     return np.diag([sigma_rotation_rad**2] * 3 + [sigma_translation_m**2] * 3)
 
 
+LEVER_ARM_M = 1.0
+"""The lever arm at which a pose's expected error counts its rotation (:func:`expected_error`)."""
+
+
+def expected_error(covariance: np.ndarray) -> float:
+    """The scalar RMS error (m) a covariance claims, as the planner's ``sigma`` of an edge
+    (``docs/planner.md``): for a 6x6 pose covariance the RMS displacement of a point
+    :data:`LEVER_ARM_M` from the origin, ``sqrt(trace(Sigma_rho) + trace(Sigma_phi) * 1 m^2)``
+    (so a tracker's rotation noise counts: 0.05 degrees is 0.87 mm there); for a position's
+    3x3 (or a 2x2 metric) covariance ``sqrt(trace(Sigma))``."""
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape == (6, 6):
+        return float(
+            np.sqrt(np.trace(covariance[3:, 3:]) + np.trace(covariance[:3, :3]) * LEVER_ARM_M**2)
+        )
+    return float(np.sqrt(np.trace(covariance)))
+
+
 def in_place_covariance(translation: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     """The left-perturbation covariance of a pose at ``translation`` whose noise
     ``(phi, rho) ~ N(0, covariance)`` is given in place: rotation about the body's own origin

@@ -13,9 +13,11 @@ output, *Settings -> Output*, at this host's port) or its simulator (:mod:`sim_t
   the body's own origin, ``sigma_mm`` per axis, independent) in the middleware's
   left-perturbation convention (:func:`ubitrack_agent.core.uncertainty.in_place_covariance`).
   A mapped marker becomes a :class:`~ubitrack_agent.core.Position3D` with covariance
-  ``sigma_mm^2 I``. A body or marker the datagram does not list, or lists with quality < 0 (the
-  SDK's mark of an untracked item), is not published; an unmapped id is ignored and counted
-  (``unmapped_body_<id>``, ``unmapped_marker_<id>``).
+  ``sigma_mm^2 I``. Each edge announces as ``sigma`` the expected error of that noise
+  (:func:`~ubitrack_agent.core.uncertainty.expected_error`: a body's at a 1 m lever arm, so
+  the planner weighs A.R.T.'s rotation noise too). A body or marker the datagram does not
+  list, or lists with quality < 0 (the SDK's mark of an untracked item), is not published; an
+  unmapped id is ignored and counted (``unmapped_body_<id>``, ``unmapped_marker_<id>``).
 * **Timestamps.** ``"device"``: DTrack's ``ts`` (seconds since 00:00 UTC, the time of the IR
   flash) placed on the host's current UTC day, moved by a day when it is more than twelve hours
   off (datagrams around midnight), as VRPN does; this needs the controller's clock synchronised
@@ -32,7 +34,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ubitrack_agent.core import ErrorPose, Measurement, Position3D
-from ubitrack_agent.core.uncertainty import in_place_covariance, isotropic_pose_covariance
+from ubitrack_agent.core.uncertainty import (
+    expected_error,
+    in_place_covariance,
+    isotropic_pose_covariance,
+)
 from ubitrack_agent.io.adapter import RejectedInput, SensorAdapter, TimestampPolicy
 from ubitrack_agent.io.dtrack.format import DTrackFormatError, parse_frame, timestamp_from_ts
 from ubitrack_agent.io.provider import EdgeAnnouncement
@@ -81,6 +87,7 @@ class DTrackAdapter(SensorAdapter):
         if sigma_mm < 0 or sigma_deg < 0:
             raise ValueError("noise sigmas must be >= 0")
         sigma_m = sigma_mm / 1000.0
+        pose_sigma = expected_error(isotropic_pose_covariance(np.radians(sigma_deg), sigma_m))
         edges = [
             EdgeAnnouncement(
                 tracker,
@@ -88,7 +95,7 @@ class DTrackAdapter(SensorAdapter):
                 "6D",
                 static=frame in static_bodies,
                 rate=None if frame in static_bodies else rate,
-                sigma=sigma_m,
+                sigma=pose_sigma,
             )
             for frame in bodies.values()
         ]
