@@ -98,7 +98,8 @@ VALID_6D = {"from": "C", "to": "HT", "type": "6D", "rotation": [0, 0, 0, 1], "tr
         ),
         (
             {"provider": "db", "edges": [VALID_6D | {"rotation": [0, 0, 0, 2]}]},
-            "edges[0] (C->HT 6D): Pose.rotation: not a unit quaternion",
+            "edges[0] (C->HT 6D): Pose.rotation: not a unit quaternion (norm 2, more than 0.001 "
+            "from 1): normalise it",
         ),
         (
             {"provider": "db", "edges": [VALID_6D | {"translation": [0, True, 0]}]},
@@ -127,6 +128,15 @@ def test_mistakes_name_the_file_the_entry_and_the_field(tmp_path, document, mess
     path.write_text(yaml.safe_dump(document), encoding="utf-8")
     with pytest.raises(StaticEdgesError, match=re.escape(f"{path}: {message}")):
         read_static_edges(path, T0)
+
+
+def test_a_quaternion_typed_with_four_decimals_is_normalised():
+    typed = [0.7071, 0.0, 0.0, 0.7071]  # norm 0.99999040: beyond the wire's 1e-6
+    history = [{"rotation": typed, "translation": [0, 0, 0]}]
+    entry = VALID_6D | {"rotation": typed, "history": history}
+    _, (edge,) = parse_static_edges({"provider": "db", "edges": [entry]}, T0)
+    assert edge.value.rotation == pytest.approx(np.array(typed) / np.linalg.norm(typed))
+    assert abs(np.linalg.norm(edge.value.rotation) - 1.0) < 1e-15
 
 
 def test_unreadable_files(tmp_path):

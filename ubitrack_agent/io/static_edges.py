@@ -28,7 +28,10 @@ with the same name are an error. The file stores no timestamps: the reader stamp
 with the time it is given (a server's start time). Validation is strict: an unknown key, a
 missing field, a bad name, a value of the wrong shape or a non-number raises
 :class:`StaticEdgesError` naming the file, the entry and the field, e.g.
-``calib.yaml: edges[1] (C->HT 6D): Pose.rotation: not a unit quaternion (norm 2)``.
+``calib.yaml: edges[1] (C->HT 6D): Pose.rotation: not a unit quaternion (norm 2, more than
+0.001 from 1): normalise it``. A quaternion typed by hand (four decimals) whose norm is within
+:data:`~ubitrack_agent.core.measurements.TYPED_QUATERNION_TOLERANCE` (1e-3) of 1 is accepted
+and normalised.
 
 A calibration store (:mod:`ubitrack_agent.io.calibration_store`) also records where a value
 came from and what it replaced: an entry may hold ``provenance`` (a flat mapping: when, which
@@ -66,6 +69,7 @@ from ubitrack_agent.core import (
     Projection,
     to_json,
 )
+from ubitrack_agent.core.measurements import normalise_typed_quaternion
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.net.keys import validate_key_chunks
 
@@ -204,6 +208,10 @@ class _Reader:
                 raise self.fail(where, f"{key}: must be a list of numbers, got {value!r}")
         self.provenance(where, entry.get("provenance"))
         try:
+            if "rotation" in values:
+                values["rotation"] = normalise_typed_quaternion(
+                    f"{cls.__name__}.rotation", values["rotation"]
+                )
             return cls(self.timestamp_ns, **values)
         except MeasurementError as exc:
             raise self.fail(where, str(exc)) from None
