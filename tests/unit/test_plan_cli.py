@@ -27,8 +27,10 @@ def test_json_output_follows_the_issue_schema(capsys):
     assert status == 0
     assert document["query"] == {"from": "C", "to": "A", "type": "6D", "static": False}
     (best,) = document["solutions"]  # without --all only the best
-    assert set(best) == {"cost", "static", "steps"}
+    assert set(best) == {"cost", "static", "measured", "steps"}
     assert isinstance(best["cost"], float) and best["static"] is False
+    assert ["C", "HT", "6D", "database"] in best["measured"]  # with the providers
+    assert ["ART", "HT", "6D", "ART"] in best["measured"] and len(best["measured"]) == 15
     patterns = [s["pattern"] for s in best["steps"]]
     assert sorted(patterns) == sorted(
         ["PoseEstimation2D3D", "Inversion"] + ["Concatenation"] * 3 + ["MultiTrackerFusion"]
@@ -118,6 +120,7 @@ def test_a_static_query_to_the_pointer_tip_plans_its_tip_calibration(capsys):
         "",
         "solution 1: cost 0.628, static",
         "  1. TipCalibration (time): T->M:6D  =>  M->Tip:3D, T->Tip:3D",
+        "  measured: T->M:6D (T)",
     ]
     # T->Tip is the pivot: Tip fixed in T, about which one of the bodies was turned
     status, document = run_json(
