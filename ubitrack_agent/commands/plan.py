@@ -38,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="+",
         metavar="FILE",
         help="setup file (edges:), static-edges file (provider:, edges:) or simulator "
-        "scenario (frames:, ...); their edges are merged",
+        "scenario (frames:, ...); their edges are merged; give the FILEs one after another",
     )
     parser.add_argument(
         "--from", dest="source", required=True, metavar="FRAME", help="source frame"
