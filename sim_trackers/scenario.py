@@ -22,6 +22,8 @@ from scipy.spatial.transform import Rotation
 
 from sim_trackers.trajectories import LissajousPath
 from sim_trackers.world import FixedPlacement, Frame, ImagePlane, Placement, World, WorldError
+from ubitrack_agent.core import MeasurementError
+from ubitrack_agent.core.measurements import normalise_typed_quaternion
 from ubitrack_agent.io.static_edges import VALUE_TYPES
 from ubitrack_agent.net.keys import validate_key_chunks
 
@@ -160,8 +162,10 @@ def _placement(read: FieldReader, where: str, spec: dict[str, Any]) -> Placement
     rotation: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0)
     if "rotation" in spec:
         rotation = read.vector(f"{where}.rotation", spec["rotation"], 4)
-        if abs(np.linalg.norm(rotation) - 1.0) > 1e-6:
-            raise read.fail(f"{where}.rotation", "must be a unit quaternion (x, y, z, w)")
+        try:
+            rotation = tuple(normalise_typed_quaternion(f"{where}.rotation", rotation))
+        except MeasurementError as exc:
+            raise ScenarioError(f"{read.path}: {exc}") from None
     elif "euler_deg" in spec:
         angles = read.vector(f"{where}.euler_deg", spec["euler_deg"], 3)
         rotation = tuple(Rotation.from_euler("xyz", angles, degrees=True).as_quat())

@@ -18,6 +18,7 @@ from ubitrack_agent.core import (
     Projection,
     Rotation3D,
 )
+from ubitrack_agent.core.measurements import normalise_typed_quaternion
 
 Q = [0.0, 0.0, 0.0, 1.0]
 K = [[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]]
@@ -126,3 +127,31 @@ def test_quaternion_tolerance_and_no_renormalisation():
     assert Pose(0, almost, [0, 0, 0]).rotation[3] == almost[3]
     with pytest.raises(MeasurementError):
         Pose(0, [0.0, 0.0, 0.0, 1.0 + 2e-6], [0, 0, 0])
+
+
+TYPED = [0.7071, 0.0, 0.0, 0.7071]  # 90 degrees about x, four decimals: norm 0.99999040
+
+
+def test_a_typed_quaternion_is_normalised_for_files_only():
+    q = normalise_typed_quaternion("rotation", TYPED)
+    assert math.isclose(float(np.linalg.norm(q)), 1.0, abs_tol=1e-15)
+    assert np.allclose(q, np.array(TYPED) / np.linalg.norm(TYPED))
+    assert Pose(0, q, [0, 0, 0]).rotation.tolist() == q.tolist()
+    unit = [0.0, 0.6, 0.0, 0.8000001]  # a unit quaternion for the wire: kept as given
+    assert normalise_typed_quaternion("rotation", unit).tolist() == unit
+    with pytest.raises(MeasurementError, match=r"norm 0\.99999"):
+        Pose(0, TYPED, [0, 0, 0])  # measurements (and the wire codec) stay strict
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        ([0.0, 0.0, 0.0, 1.002], r"not a unit quaternion \(norm 1\.002, more than 0\.001"),
+        ([0, 0, 0, 2], r"from 1\): normalise it"),
+        ([0, 0, 1], "rotation: shape must be 4"),
+        ([0, 0, math.nan, 1], "rotation: contains NaN"),
+    ],
+)
+def test_a_typed_quaternion_far_from_unit_is_refused_with_a_hint(value, message):
+    with pytest.raises(MeasurementError, match=message):
+        normalise_typed_quaternion("rotation", value)

@@ -5,8 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 
+from sim_trackers.scenario import DEFAULT_SCENARIO as SCENARIO
 from ubitrack_agent.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -27,8 +30,10 @@ def test_json_output_follows_the_issue_schema(capsys):
     assert status == 0
     assert document["query"] == {"from": "C", "to": "A", "type": "6D", "static": False}
     (best,) = document["solutions"]  # without --all only the best
-    assert set(best) == {"cost", "static", "steps"}
+    assert set(best) == {"cost", "static", "measured", "steps"}
     assert isinstance(best["cost"], float) and best["static"] is False
+    assert ["C", "HT", "6D", "database"] in best["measured"]  # with the providers
+    assert ["ART", "HT", "6D", "ART"] in best["measured"] and len(best["measured"]) == 15
     patterns = [s["pattern"] for s in best["steps"]]
     assert sorted(patterns) == sorted(
         ["PoseEstimation2D3D", "Inversion"] + ["Concatenation"] * 3 + ["MultiTrackerFusion"]
@@ -98,6 +103,7 @@ def test_help_lists_the_options(capsys):
     out = capsys.readouterr().out
     for option in ("--from", "--to", "--type", "--static", "--all", "--json", "--dot"):
         assert option in out
+    assert "FILE [FILE ...]" in out and "static-edges file" in out and "scenario" in out
 
 
 def test_without_plans_as_if_a_sensor_had_failed(capsys):
@@ -118,6 +124,7 @@ def test_a_static_query_to_the_pointer_tip_plans_its_tip_calibration(capsys):
         "",
         "solution 1: cost 0.628, static",
         "  1. TipCalibration (time): T->M:6D  =>  M->Tip:3D, T->Tip:3D",
+        "  measured: T->M:6D (T)",
     ]
     # T->Tip is the pivot: Tip fixed in T, about which one of the bodies was turned
     status, document = run_json(
@@ -149,3 +156,51 @@ def test_the_calibrated_tip_is_tracked_once_stored_as_a_static_edge(capsys, tmp_
     (step,) = document["solutions"][0]["steps"]
     assert step["pattern"] == "Concatenation"
     assert step["inputs"] == [["T", "M", "6D"], ["M", "Tip", "3D"]]
+
+
+def test_a_static_edges_file_serves_an_edge_the_setup_lacks(capsys, tmp_path):
+    """Offline on the files the live system uses: the tracking setup without C->HT plus the
+    calibration store's file holding it."""
+    setup = yaml.safe_load(Path(TRACKING).read_text(encoding="utf-8"))
+    setup["edges"] = [e for e in setup["edges"] if (e["from"], e["to"]) != ("C", "HT")]
+    without = tmp_path / "tracking_without_c_ht.yaml"
+    without.write_text(yaml.safe_dump(setup), encoding="utf-8")
+    store = tmp_path / "store.yaml"
+    c_ht = {"from": "C", "to": "HT", "type": "6D", "rotation": [0.7071, 0, 0, 0.7071]}  # typed
+    c_ht |= {"translation": [0.03, -0.06, 0.04], "covariance": (np.eye(6) * 1e-8).tolist()}
+    store.write_text(yaml.safe_dump({"provider": "store", "edges": [c_ht]}), encoding="utf-8")
+    query = ("--from", "C", "--to", "A", "--type", "6D")
+    assert main(["plan", str(without), *query]) == 0
+    assert "MultiTrackerFusion" not in capsys.readouterr().out  # the camera alone
+    status, document = run_json(capsys, str(without), str(store), *query)
+    assert status == 0
+    best = document["solutions"][0]
+    assert "MultiTrackerFusion" in {step["pattern"] for step in best["steps"]}  # figure 6
+    assert ["C", "HT", "6D"] in [edge for step in best["steps"] for edge in step["inputs"]]
+    assert [e for e in best["measured"] if e[:2] == ["C", "HT"]] == [["C", "HT", "6D", "store"]]
+    assert main(["plan", str(without), str(store), *query, "--without", "store"]) == 0
+    assert "C->HT:6D (store)" not in capsys.readouterr().out
+    # given beside the full setup, the stored edge replaces the setup's database edge
+    assert main(["plan", TRACKING, str(store), "--from", "C", "--to", "HT", "--type", "6D"]) == 0
+    captured = capsys.readouterr()
+    assert "  measured: C->HT:6D (store)" in captured.out.splitlines()
+    assert f"{store}: edges[0] C->HT 6D (provider store) replaces {TRACKING}: edges[2]" in (
+        captured.err
+    )
+
+
+def test_a_scenario_plans_as_its_simulators_announce(capsys):
+    args = (str(SCENARIO), "--from", "C", "--to", "A", "--type", "6D")
+    status, document = run_json(capsys, *args)
+    assert status == 0
+    measured = document["solutions"][0]["measured"]
+    assert {provider for *_, provider in measured} == {"ART", "camera", "database"}
+
+
+def test_an_unknown_document_names_the_formats_plan_reads(capsys, tmp_path):
+    other = tmp_path / "settings.yaml"
+    other.write_text("mode: peer\n", encoding="utf-8")
+    assert main(["plan", str(other), "--from", "C", "--to", "A", "--type", "6D"]) == 1
+    err = capsys.readouterr().err
+    assert f"{other}: not a document ubitrack plan reads; expected a setup file" in err
+    assert "static-edges file" in err and "simulator scenario" in err

@@ -82,6 +82,16 @@ def test_mistakes_are_named_with_file_and_field(tmp_path, field, value, message)
         load_scenario(path)
 
 
+def test_a_rotation_typed_with_four_decimals_is_normalised(tmp_path):
+    data = copy.deepcopy(BASE)
+    data["frames"]["F1"]["rotation"] = [0.7071, 0.0, 0.0, 0.7071]  # norm 0.99999040
+    placement = load_scenario(_write(tmp_path, data)).world.frames["F1"].placement
+    assert placement.rotation == pytest.approx((0.5**0.5, 0.0, 0.0, 0.5**0.5), abs=1e-15)
+    data["frames"]["F1"]["rotation"] = [0.7, 0.0, 0.0, 0.7]  # norm 0.98995
+    with pytest.raises(ScenarioError, match=r"frames\.F1\.rotation: .*normalise it"):
+        load_scenario(_write(tmp_path, data))
+
+
 def test_unreadable_and_invalid_yaml(tmp_path):
     with pytest.raises(ScenarioError, match="cannot read"):
         load_scenario(tmp_path / "missing.yaml")

@@ -13,11 +13,12 @@ import yaml
 
 from sim_trackers.database import static_edges
 from sim_trackers.scenario import DatabaseEdge, load_scenario
-from ubitrack_agent.core import ErrorPose, Position2D
+from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D
 from ubitrack_agent.io import static_edges as static_edges_module
 from ubitrack_agent.io.static_edges import (
     StaticEdge,
     StaticEdgesError,
+    announced_sigma,
     format_static_edges,
     parse_static_edges,
     read_static_edges,
@@ -55,6 +56,16 @@ def test_round_trip_of_every_type(tmp_path):
     # the file keeps no time: the values are stamped on reading
     assert [e.value for e in loaded] == [replace(e.value, timestamp_ns=T1) for e in edges]
     assert type(loaded[-1].value) is ErrorPose  # a 6D entry with a covariance
+
+
+def test_a_served_edge_announces_the_sigma_of_its_covariance():
+    pose_covariance = np.diag([1e-6] * 3 + [4e-8] * 3)  # rotation (rad^2) first, then metres^2
+    pose = ErrorPose(T0, [0, 0, 0, 1], [0, 0, 0], pose_covariance)
+    assert announced_sigma(pose) == pytest.approx((3e-6 + 1.2e-7) ** 0.5)  # at a 1 m lever arm
+    assert announced_sigma(Position3D(T0, [1, 2, 3], np.eye(3) * 1e-6)) == pytest.approx(3e-6**0.5)
+    assert announced_sigma(Pose(T0, [0, 0, 0, 1], [0, 0, 0])) is None  # the planner's default
+    edge = StaticEdge(static_announcement("C", "HT", "6D"), pose)
+    assert edge.served_announcement() == replace(edge.announcement, sigma=announced_sigma(pose))
 
 
 def test_the_documented_example_reads():
@@ -98,7 +109,8 @@ VALID_6D = {"from": "C", "to": "HT", "type": "6D", "rotation": [0, 0, 0, 1], "tr
         ),
         (
             {"provider": "db", "edges": [VALID_6D | {"rotation": [0, 0, 0, 2]}]},
-            "edges[0] (C->HT 6D): Pose.rotation: not a unit quaternion",
+            "edges[0] (C->HT 6D): Pose.rotation: not a unit quaternion (norm 2, more than 0.001 "
+            "from 1): normalise it",
         ),
         (
             {"provider": "db", "edges": [VALID_6D | {"translation": [0, True, 0]}]},
@@ -127,6 +139,15 @@ def test_mistakes_name_the_file_the_entry_and_the_field(tmp_path, document, mess
     path.write_text(yaml.safe_dump(document), encoding="utf-8")
     with pytest.raises(StaticEdgesError, match=re.escape(f"{path}: {message}")):
         read_static_edges(path, T0)
+
+
+def test_a_quaternion_typed_with_four_decimals_is_normalised():
+    typed = [0.7071, 0.0, 0.0, 0.7071]  # norm 0.99999040: beyond the wire's 1e-6
+    history = [{"rotation": typed, "translation": [0, 0, 0]}]
+    entry = VALID_6D | {"rotation": typed, "history": history}
+    _, (edge,) = parse_static_edges({"provider": "db", "edges": [entry]}, T0)
+    assert edge.value.rotation == pytest.approx(np.array(typed) / np.linalg.norm(typed))
+    assert abs(np.linalg.norm(edge.value.rotation) - 1.0) < 1e-15
 
 
 def test_unreadable_files(tmp_path):

@@ -46,7 +46,14 @@ def fragment_entries(provider: str, payload: bytes) -> list[dict[str, Any]]:
         'fragment must be {"provider": ..., "edges": [...]}',
     )
     _check(data["provider"] == provider, where, f"fragment names provider {data['provider']!r}")
-    edges = data["edges"]
+    return provider_entries(provider, data["edges"])
+
+
+def provider_entries(provider: str, edges: Any) -> list[dict[str, Any]]:
+    """The setup-file entries (``srg.parse_setup`` form) of the announced ``edges`` of
+    ``provider`` (``EdgeAnnouncement.as_json`` objects): ids ``<provider>/<name>``, the
+    provider set; :class:`AnnouncementError` naming the provider and the field if invalid."""
+    where = f"provider {provider!r}"
     _check(
         isinstance(edges, list) and 0 < len(edges) <= MAX_EDGES,
         where,

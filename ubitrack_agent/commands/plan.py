@@ -1,7 +1,8 @@
 """``ubitrack plan``: the offline tracking setup design tool (paper section 5.2.2).
 
-Reads a setup file, plans the queried relationship and prints the solutions; works with no
-network at all.
+Reads setup files, static-edges files and simulator scenarios, merged into one SRG
+(:mod:`ubitrack_agent.commands.plan_inputs`), plans the queried relationship and prints the
+solutions; works with no network at all.
 """
 
 from __future__ import annotations
@@ -20,15 +21,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``plan`` subcommand."""
     parser = subparsers.add_parser(
         "plan",
-        help="plan how to derive a spatial relationship from a setup file (offline)",
+        help="plan how to derive a spatial relationship from setup files (offline)",
         description=(
-            "Find the derivations of FROM->TO in the SRG of SETUP with the pattern templates, "
-            "best first by expected error, latency and number of sensors (docs/planner.md). "
-            "Exit status: 0 if there is a solution, 2 if there is none, 1 if a setup or "
+            "Find the derivations of FROM->TO in the SRG of the FILEs with the pattern "
+            "templates, best first by expected error, latency and number of sensors "
+            "(docs/planner.md). Each FILE is a setup file, a static-edges file (what "
+            "'ubitrack store' and 'ubitrack sim database --edges' serve; its entries are "
+            "static edges of its provider, replacing the setups' static edges of the same "
+            "relation) or a simulator scenario, told apart by their top-level keys. "
+            "Exit status: 0 if there is a solution, 2 if there is none, 1 if an input or "
             "template file is invalid."
         ),
     )
-    parser.add_argument("setup", metavar="SETUP.yaml", help="SRG setup file")
+    parser.add_argument(
+        "files",
+        nargs="+",
+        metavar="FILE",
+        help="setup file (edges:), static-edges file (provider:, edges:) or simulator "
+        "scenario (frames:, ...); their edges are merged; give the FILEs one after another",
+    )
     parser.add_argument(
         "--from", dest="source", required=True, metavar="FRAME", help="source frame"
     )
@@ -77,13 +88,16 @@ def _render(dot_path: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Plan the query of ``args``; print the solutions; 0 if found, 2 if none, 1 on bad input."""
+    from ubitrack_agent.commands.plan_inputs import load_plan_srg
     from ubitrack_agent.graph.dot import to_dot
     from ubitrack_agent.graph.planner import NoSolutionError, PlanningError, Query, plan
-    from ubitrack_agent.graph.srg import SetupError, load_setup, remove_provider
+    from ubitrack_agent.graph.srg import SetupError, remove_provider
     from ubitrack_agent.graph.templates import TemplateError, load_templates
 
     try:
-        srg = load_setup(args.setup)
+        srg, notes = load_plan_srg(args.files)
+        for note in notes:
+            print(f"ubitrack plan: {note}", file=sys.stderr)
         providers = {data["provider"] for *_, data in srg.edges(data=True)}
         for provider in args.without:
             if provider not in providers:
@@ -120,6 +134,10 @@ def run(args: argparse.Namespace) -> int:
                 ins = ", ".join(f"{a}->{b}:{t}" for a, b, t in step["inputs"])
                 outs = ", ".join(f"{a}->{b}:{t}" for a, b, t in step["outputs"])
                 print(f"  {k}. {step['pattern']} ({step['expansion']}): {ins}  =>  {outs}")
+            measured = (
+                f"{e.source}->{e.target}:{e.type} ({e.provider})" for e in solution.measured()
+            )
+            print(f"  measured: {', '.join(measured)}")
     if args.dot:
         path = Path(args.dot)
         path.write_text(to_dot(srg, found[0], f"{query.source}->{query.target}"), encoding="utf-8")

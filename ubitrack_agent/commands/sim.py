@@ -212,7 +212,7 @@ def _run_database(args: argparse.Namespace) -> int:
             return 2
         return 0
     stop = stop_on_signals()
-    announced = [edge.announcement for edge in edges]
+    announced = [edge.served_announcement() for edge in edges]
     with provider_session(settings, provider_id, announced) as provider:
         for edge in edges:
             provider.publish(edge.announcement.name, edge.value)

@@ -8,7 +8,10 @@ Conventions (also in ``docs/architecture.md``):
 * **Units.** Metres and radians. Adapters convert from millimetres (A.R.T. DTrack) on entry.
 * **Quaternions** are ``(x, y, z, w)``, scalar last, as in scipy's ``Rotation.from_quat``.
   They are validated to be of unit norm within :data:`UNIT_QUATERNION_TOLERANCE` and are kept
-  exactly as given (not renormalised), so that encode/decode round-trips are exact.
+  exactly as given (not renormalised), so that encode/decode round-trips are exact. Readers of
+  files typed by hand (static-edges files, scenarios) first pass a quaternion through
+  :func:`normalise_typed_quaternion`, which normalises one whose norm is within
+  :data:`TYPED_QUATERNION_TOLERANCE` of 1 (four decimals) but not a unit quaternion.
 * **Pose covariance** is 6x6 over the left ("global") perturbation ``T = Exp(xi) T_mean`` with
   ``xi = (phi, rho)``, rotation first, expressed in the coordinates of the edge's source frame A;
   this is the ordering of scipy's ``RigidTransform.as_exp_coords`` and of pytransform3d. See
@@ -41,6 +44,11 @@ from ubitrack_agent.core.errors import MeasurementError
 
 UNIT_QUATERNION_TOLERANCE = 1e-6
 """Largest accepted deviation of a quaternion's norm from 1."""
+
+TYPED_QUATERNION_TOLERANCE = 1e-3
+"""Largest deviation from 1 of the norm of a quaternion read from a file, which
+:func:`normalise_typed_quaternion` normalises: a unit quaternion typed with four decimals is
+off by up to about 1e-4. The wire codec keeps :data:`UNIT_QUATERNION_TOLERANCE`."""
 
 MAX_TIMESTAMP_NS = 2**63 - 1
 """Timestamps are non-negative signed 64-bit nanoseconds (until the year 2262)."""
@@ -220,6 +228,24 @@ class Measurement:
 
 
 _ROTATION = ArrayField("rotation", (4,), check=check_unit_quaternion)
+
+
+def normalise_typed_quaternion(where: str, value: Any) -> np.ndarray:
+    """``value``, a quaternion (x, y, z, w) read from a file: as given if it is a unit quaternion
+    within :data:`UNIT_QUATERNION_TOLERANCE` (so files round-trip exactly), else divided by its
+    norm; raises :class:`MeasurementError` naming ``where`` if it is not four finite numbers or
+    its norm is more than :data:`TYPED_QUATERNION_TOLERANCE` from 1."""
+    q = _as_array(where, value, _ROTATION, full=False)
+    deviation = abs(math.hypot(*q) - 1.0)
+    if deviation > TYPED_QUATERNION_TOLERANCE:
+        raise _fail(
+            where,
+            f"not a unit quaternion (norm {math.hypot(*q):.9g}, more than "
+            f"{TYPED_QUATERNION_TOLERANCE:g} from 1): normalise it",
+        )
+    return q if deviation <= UNIT_QUATERNION_TOLERANCE else q / math.hypot(*q)
+
+
 _TRANSLATION = ArrayField("translation", (3,))
 
 

@@ -124,6 +124,7 @@ class Solution:
         return {
             "cost": round(self.cost, 6),
             "static": self.static,
+            "measured": [[e.source, e.target, e.type, e.provider] for e in self.measured()],
             "steps": [
                 {
                     "pattern": step.template.pattern,
@@ -134,6 +135,11 @@ class Solution:
                 for step in self.steps
             ],
         }
+
+    def measured(self) -> list[EdgeRecord]:
+        """The measured edges the solution reads (itself, if it is one), by frames and type."""
+        measured = (record for record in self.records.values() if record.measured)
+        return sorted(measured, key=lambda e: (e.source, e.target, e.type, e.provider, e.id))
 
     @property
     def cost(self) -> float:

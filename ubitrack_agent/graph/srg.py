@@ -175,6 +175,37 @@ def _check_value(where: str, key: str, value: Any, want: type | tuple[type, ...]
         raise SetupError(f"{where}, field {key!r}: must not be negative, got {value!r}")
 
 
+def add_setup_edge(srg: nx.MultiDiGraph, entry: Any, where: str) -> str:
+    """Check one edge entry of a setup file (see :func:`parse_setup`) and add it to ``srg``;
+    returns its id; :class:`SetupError` prefixed with ``where`` if it is invalid."""
+    if not isinstance(entry, dict):
+        raise SetupError(f"{where}: must be a mapping, got {entry!r}")
+    unknown = set(entry) - set(_EDGE_KEYS)
+    if unknown:
+        raise SetupError(f"{where}: unknown field(s) {sorted(unknown)}")
+    for key in _REQUIRED_EDGE_KEYS:
+        if key not in entry:
+            raise SetupError(f"{where}: missing field {key!r}")
+    for key, value in entry.items():
+        _check_value(where, key, value, _EDGE_KEYS[key])
+    sigma = float(entry.get("sigma", DEFAULT_SIGMA))
+    quality = Quality(sigma**2, float(entry.get("rate", 0.0)), float(entry.get("latency", 0.0)))
+    try:
+        return add_measured_edge(
+            srg,
+            entry["from"],
+            entry["to"],
+            entry["type"],
+            static=entry.get("static", False),
+            mode=entry.get("mode", "push"),
+            provider=entry.get("provider"),
+            quality=quality,
+            edge_id=entry.get("id"),
+        )
+    except SetupError as exc:
+        raise SetupError(f"{where}: {exc}") from None
+
+
 def parse_setup(data: Any, origin: str = "<setup>") -> nx.MultiDiGraph:
     """Build an SRG from the parsed YAML of a setup file; ``origin`` names it in errors.
 
@@ -194,45 +225,24 @@ def parse_setup(data: Any, origin: str = "<setup>") -> nx.MultiDiGraph:
     srg = new_srg()
     srg.graph["name"] = data.get("name", origin)
     for i, entry in enumerate(edges):
-        where = f"{origin}: edges[{i}]"
-        if not isinstance(entry, dict):
-            raise SetupError(f"{where}: must be a mapping, got {entry!r}")
-        unknown = set(entry) - set(_EDGE_KEYS)
-        if unknown:
-            raise SetupError(f"{where}: unknown field(s) {sorted(unknown)}")
-        for key in _REQUIRED_EDGE_KEYS:
-            if key not in entry:
-                raise SetupError(f"{where}: missing field {key!r}")
-        for key, value in entry.items():
-            _check_value(where, key, value, _EDGE_KEYS[key])
-        sigma = float(entry.get("sigma", DEFAULT_SIGMA))
-        quality = Quality(sigma**2, float(entry.get("rate", 0.0)), float(entry.get("latency", 0.0)))
-        try:
-            add_measured_edge(
-                srg,
-                entry["from"],
-                entry["to"],
-                entry["type"],
-                static=entry.get("static", False),
-                mode=entry.get("mode", "push"),
-                provider=entry.get("provider"),
-                quality=quality,
-                edge_id=entry.get("id"),
-            )
-        except SetupError as exc:
-            raise SetupError(f"{where}: {exc}") from None
+        add_setup_edge(srg, entry, f"{origin}: edges[{i}]")
     return srg
 
 
-def load_setup(path: str | Path) -> nx.MultiDiGraph:
-    """Load and validate a setup file (YAML); raises :class:`SetupError` naming the file."""
+def read_yaml(path: str | Path) -> Any:
+    """The YAML document in ``path``; :class:`SetupError` naming the file if it is unreadable
+    or not YAML."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise SetupError(f"{path}: cannot read ({exc.strerror})") from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise SetupError(f"{path}: not valid YAML ({exc})") from None
-    return parse_setup(data, str(path))
+
+
+def load_setup(path: str | Path) -> nx.MultiDiGraph:
+    """Load and validate a setup file (YAML); raises :class:`SetupError` naming the file."""
+    return parse_setup(read_yaml(path), str(path))

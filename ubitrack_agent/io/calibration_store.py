@@ -19,16 +19,15 @@ relation) uses it; and it takes save requests for newly converged calibrations
   ``{"file": "<path>", "edge": "C_HT", "provider": "store.C_HT"}``. A refused request gets an
   error reply ``{"error": "refused", "reason": "..."}``, is logged (rate-limited) and counted.
   A ``kill -9`` at any moment leaves the old file or the new one, never a partial one.
-* The announced ``sigma`` of a stored 6D value with a covariance is the RMS error at a 1 m
-  lever arm, ``sqrt(trace(Sigma_rho) + trace(Sigma_phi) * 1 m^2)``; of a 3D value
-  ``sqrt(trace(Sigma))``; without a covariance the planner's default.
+* Each edge is announced with the ``sigma`` of its value's covariance
+  (:meth:`~ubitrack_agent.io.static_edges.StaticEdge.served_announcement`), as every server of
+  a static-edges file announces it and ``ubitrack plan`` reads it.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import queue
 import threading
@@ -39,9 +38,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from ubitrack_agent.core import Measurement
 from ubitrack_agent.io.provider import Provider
 from ubitrack_agent.io.static_edges import (
     MAX_HISTORY,
@@ -61,17 +57,6 @@ log = logging.getLogger("ubitrack.store")
 
 MAX_REQUEST_BYTES = 64 * 1024
 """A save request holds one value: a few kilobytes."""
-
-
-def announced_sigma(value: Measurement) -> float | None:
-    """The RMS error the planner is told for a stored value (see the module docstring)."""
-    covariance = getattr(value, "covariance", None)
-    if covariance is None:
-        return None
-    covariance = np.asarray(covariance)
-    if covariance.shape == (6, 6):
-        return math.sqrt(float(np.trace(covariance[3:, 3:]) + np.trace(covariance[:3, :3])))
-    return math.sqrt(float(np.trace(covariance)))
 
 
 class CalibrationStore(Closing):
@@ -107,9 +92,8 @@ class CalibrationStore(Closing):
         """Announce ``edge`` (once) and publish its value."""
         name = edge.announcement.name
         if name not in self._providers:
-            announcement = replace(edge.announcement, sigma=announced_sigma(edge.value))
             self._providers[name] = Provider(
-                self._session, self._keys, self.provider_id(edge), [announcement]
+                self._session, self._keys, self.provider_id(edge), [edge.served_announcement()]
             )
         self._providers[name].publish(name, replace(edge.value, timestamp_ns=time.time_ns()))
 

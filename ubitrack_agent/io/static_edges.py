@@ -22,13 +22,19 @@ model); optional ones may be left out:
 * ``intrinsics``: ``matrix``, optionally ``distortion`` and ``image_size: [width, height]``
   (``CameraIntrinsics``).
 
-Every edge is static. Its name is ``<from>_<to>``, or ``<from>_<to>_intrinsics`` for an
-``intrinsics`` edge so that it can sit beside the ``3x4`` edge of the same camera; two entries
-with the same name are an error. The file stores no timestamps: the reader stamps every value
-with the time it is given (a server's start time). Validation is strict: an unknown key, a
+Every edge is static; its server announces it (:meth:`StaticEdge.served_announcement`) with
+the expected error :func:`announced_sigma` derives from the value's covariance, so the planner
+weighs a calibrated value by its uncertainty. Its name is ``<from>_<to>``, or
+``<from>_<to>_intrinsics`` for an ``intrinsics`` edge so that it can sit beside the ``3x4``
+edge of the same camera; two entries with the same name are an error. The file stores no
+timestamps: the reader stamps every value with the time it is given (a server's start time).
+Validation is strict: an unknown key, a
 missing field, a bad name, a value of the wrong shape or a non-number raises
 :class:`StaticEdgesError` naming the file, the entry and the field, e.g.
-``calib.yaml: edges[1] (C->HT 6D): Pose.rotation: not a unit quaternion (norm 2)``.
+``calib.yaml: edges[1] (C->HT 6D): Pose.rotation: not a unit quaternion (norm 2, more than
+0.001 from 1): normalise it``. A quaternion typed by hand (four decimals) whose norm is within
+:data:`~ubitrack_agent.core.measurements.TYPED_QUATERNION_TOLERANCE` (1e-3) of 1 is accepted
+and normalised.
 
 A calibration store (:mod:`ubitrack_agent.io.calibration_store`) also records where a value
 came from and what it replaced: an entry may hold ``provenance`` (a flat mapping: when, which
@@ -47,6 +53,7 @@ directory ``fsync``-ed, so a reader sees the old file or the new one, never a pa
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import secrets
 from collections.abc import Iterable, Mapping
@@ -54,6 +61,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from ubitrack_agent.core import (
@@ -66,6 +74,7 @@ from ubitrack_agent.core import (
     Projection,
     to_json,
 )
+from ubitrack_agent.core.measurements import normalise_typed_quaternion
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.net.keys import validate_key_chunks
 
@@ -100,6 +109,25 @@ class StaticEdge:
     provenance: Mapping[str, Scalar] | None = None
     history: tuple[Mapping[str, Any], ...] = ()
     """Earlier values: each the value's fields (as in the file) and its ``provenance``."""
+
+    def served_announcement(self) -> EdgeAnnouncement:
+        """The announcement a server of this edge makes: with the :func:`announced_sigma` of
+        its value."""
+        return dataclasses.replace(self.announcement, sigma=announced_sigma(self.value))
+
+
+def announced_sigma(value: Measurement) -> float | None:
+    """The RMS error (m) the planner is told for a stored value: for a 6D value with a
+    covariance the RMS error at a 1 m lever arm, ``sqrt(trace(Sigma_rho) + trace(Sigma_phi) *
+    1 m^2)``; for a 3D value with one ``sqrt(trace(Sigma))``; ``None`` (the planner's default)
+    without a covariance."""
+    covariance = getattr(value, "covariance", None)
+    if covariance is None:
+        return None
+    covariance = np.asarray(covariance)
+    if covariance.shape == (6, 6):
+        return math.sqrt(float(np.trace(covariance[3:, 3:]) + np.trace(covariance[:3, :3])))
+    return math.sqrt(float(np.trace(covariance)))
 
 
 def static_announcement(source: str, target: str, edge_type: str) -> EdgeAnnouncement:
@@ -204,6 +232,10 @@ class _Reader:
                 raise self.fail(where, f"{key}: must be a list of numbers, got {value!r}")
         self.provenance(where, entry.get("provenance"))
         try:
+            if "rotation" in values:
+                values["rotation"] = normalise_typed_quaternion(
+                    f"{cls.__name__}.rotation", values["rotation"]
+                )
             return cls(self.timestamp_ns, **values)
         except MeasurementError as exc:
             raise self.fail(where, str(exc)) from None
