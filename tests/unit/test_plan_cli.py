@@ -189,12 +189,21 @@ def test_a_static_edges_file_serves_an_edge_the_setup_lacks(capsys, tmp_path):
     )
 
 
-def test_a_scenario_plans_as_its_simulators_announce(capsys):
-    args = (str(SCENARIO), "--from", "C", "--to", "A", "--type", "6D")
-    status, document = run_json(capsys, *args)
+def test_a_scenario_plans_as_its_simulators_announce(capsys, tmp_path):
+    """The default scenario's database lacks C->HT: the camera alone, until a store has it."""
+    query = ("--from", "C", "--to", "A", "--type", "6D")
+    status, document = run_json(capsys, str(SCENARIO), *query)
     assert status == 0
     measured = document["solutions"][0]["measured"]
-    assert {provider for *_, provider in measured} == {"ART", "camera", "database"}
+    assert {provider for *_, provider in measured} == {"camera", "database"}
+    store = tmp_path / "store.yaml"
+    c_ht = {"from": "C", "to": "HT", "type": "6D", "rotation": [0, 0, 0, 1]}
+    c_ht |= {"translation": [0.03, -0.06, 0.04], "covariance": (np.eye(6) * 1e-8).tolist()}
+    store.write_text(yaml.safe_dump({"provider": "store", "edges": [c_ht]}), encoding="utf-8")
+    status, document = run_json(capsys, str(SCENARIO), str(store), *query)
+    assert status == 0
+    measured = document["solutions"][0]["measured"]
+    assert {provider for *_, provider in measured} == {"ART", "camera", "database", "store"}
 
 
 def test_an_unknown_document_names_the_formats_plan_reads(capsys, tmp_path):

@@ -126,11 +126,14 @@ def test_a_scenario_gives_the_edges_its_simulators_announce():
         edges["IP", "F1", "2D"],
     )
     assert tracked.entry["provider"] == "ART" and not tracked.entry["static"]
-    assert tracked.entry["rate"] == 60 and tracked.entry["sigma"] == pytest.approx(0.0003)
+    # 0.3 mm and 0.05 degrees per axis: the expected error at a 1 m lever arm
+    body_sigma = (3 * 0.0003**2 + 3 * np.radians(0.05) ** 2) ** 0.5
+    assert tracked.entry["rate"] == 60 and tracked.entry["sigma"] == pytest.approx(body_sigma)
     assert room.entry["static"] and room.where.endswith("paper_figure1.yaml: art: ART_WT")
     assert feature.entry["provider"] == "camera" and feature.entry["id"] == "camera/IP_F1"
     database = [edge for edge in edges.values() if edge.entry["provider"] == "database"]
-    assert {edge.relation for edge in database} >= {("C", "HT", "6D"), ("C", "IP", "3x4")}
+    assert {edge.relation for edge in database} >= {("WT", "A", "6D"), ("C", "IP", "3x4")}
+    assert ("C", "HT", "6D") not in edges  # the default scenario calibrates it live
     assert all(edge.entry["static"] and not edge.stored for edge in database)
 
 
@@ -141,7 +144,6 @@ def test_files_of_every_format_merge_into_one_srg(tmp_path):
         (tmp_path / name).write_text(yaml.safe_dump(document), encoding="utf-8")
     srg, notes = load_plan_srg([str(DEFAULT_SCENARIO), *paths])
     assert [note.split(" replaces ")[1] for note in notes] == [
-        f"{DEFAULT_SCENARIO}: database: C_HT",
         f"{DEFAULT_SCENARIO}: database: WT_F1",
         f"{tmp_path / 'setup.yaml'}: edges[1]",
     ]

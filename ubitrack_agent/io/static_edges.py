@@ -53,7 +53,6 @@ directory ``fsync``-ed, so a reader sees the old file or the new one, never a pa
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import secrets
 from collections.abc import Iterable, Mapping
@@ -61,7 +60,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
 from ubitrack_agent.core import (
@@ -75,6 +73,7 @@ from ubitrack_agent.core import (
     to_json,
 )
 from ubitrack_agent.core.measurements import normalise_typed_quaternion
+from ubitrack_agent.core.uncertainty import expected_error
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.net.keys import validate_key_chunks
 
@@ -117,17 +116,11 @@ class StaticEdge:
 
 
 def announced_sigma(value: Measurement) -> float | None:
-    """The RMS error (m) the planner is told for a stored value: for a 6D value with a
-    covariance the RMS error at a 1 m lever arm, ``sqrt(trace(Sigma_rho) + trace(Sigma_phi) *
-    1 m^2)``; for a 3D value with one ``sqrt(trace(Sigma))``; ``None`` (the planner's default)
-    without a covariance."""
+    """The RMS error (m) the planner is told for a stored value: the
+    :func:`~ubitrack_agent.core.uncertainty.expected_error` of its covariance (a 6D value's at
+    a 1 m lever arm), ``None`` (the planner's default) without a covariance."""
     covariance = getattr(value, "covariance", None)
-    if covariance is None:
-        return None
-    covariance = np.asarray(covariance)
-    if covariance.shape == (6, 6):
-        return math.sqrt(float(np.trace(covariance[3:, 3:]) + np.trace(covariance[:3, :3])))
-    return math.sqrt(float(np.trace(covariance)))
+    return None if covariance is None else expected_error(covariance)
 
 
 def static_announcement(source: str, target: str, edge_type: str) -> EdgeAnnouncement:
