@@ -186,3 +186,55 @@ def test_replanning_prefers_running_components_within_the_margin():
         "pose_estimation_2d3d",
         "concatenation",
     }
+
+
+RECALIBRATE_C_HT = RelationId("C", "HT", "6D", static=True, recalibrate=True)
+
+
+def keys_read(specs):
+    return {binding.key for spec in specs.values() for binding in spec.inputs}
+
+
+def test_a_recalibration_ignores_the_stored_edge_the_other_queries_keep_using():
+    stored = KEYS.data("database/C_HT")
+    _, alone = specs_for(paper_fragments(), RECALIBRATE_C_HT)
+    assert stored not in keys_read(alone)
+    (recalibration,) = [s for s in alone.values() if s.relations]
+    assert recalibration.service == "averaging" and recalibration.expansion == "time"
+    assert recalibration.relations == {"mean": (KEYS.relation(RECALIBRATE_C_HT),)}
+
+    static, tracking = RelationId("C", "HT", "6D", static=True), RelationId("C", "A", "6D")
+    plan, specs = specs_for(paper_fragments(), RECALIBRATE_C_HT, static, tracking)
+    assert not plan.unsolved
+    assert plan.relations["C->HT:6D/recalibrate"] == RECALIBRATE_C_HT
+    assert specs[recalibration.instance] == recalibration  # shares the others' components
+    assert keys_read(alone) <= keys_read(specs)
+    (relay,) = [s for s in specs.values() if s.service == "relay"]
+    assert relay.inputs[0].key == stored and relay.relations == {"out": (KEYS.relation(static),)}
+    readers = [s.service for s in specs.values() if stored in {b.key for b in s.inputs}]
+    assert sorted(readers) == ["concatenation", "relay"]  # the tracking chain still uses it
+
+
+def test_a_recalibration_with_no_other_derivation_is_unsolved_saying_why():
+    fragments = {"database": paper_fragments()["database"]}
+    plan, specs = specs_for(fragments, RECALIBRATE_C_HT, RelationId("C", "HT", "6D", True))
+    reason = plan.unsolved["C->HT:6D/recalibrate"]
+    assert reason.startswith("without the measured static edge(s) database/C_HT: ")
+    assert "HT" in reason
+    (relay,) = specs.values()  # the static relation is still served from the stored edge
+    assert relay.relations == {"out": (KEYS.relation(RelationId("C", "HT", "6D", True)),)}
+
+
+def test_a_stored_tip_is_calibrated_again_on_request():
+    fragments = {
+        "tracker": fragment_entries("tracker", fragment("tracker", edge("M", "T", "M", rate=60))),
+        "store.M_Tip": fragment_entries(
+            "store.M_Tip", fragment("store.M_Tip", edge("M_Tip", "M", "Tip", "3D", static=True))
+        ),
+    }
+    recalibration = RelationId("M", "Tip", "3D", static=True, recalibrate=True)
+    plan, specs = specs_for(fragments, recalibration)
+    assert not plan.unsolved
+    (calibration,) = [s for s in specs.values() if s.relations]
+    assert calibration.service == "tip_calibration"
+    assert KEYS.relation(recalibration) in calibration.relations["MP"]

@@ -14,8 +14,15 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 
-from ubitrack_agent.graph.dataflow import DataFlow, from_solution, plan_flows, relation_name
+from ubitrack_agent.graph.dataflow import (
+    DataFlow,
+    from_solution,
+    merge,
+    plan_flows,
+    relation_name,
+)
 from ubitrack_agent.graph.planner import PlanningError, Query, Solution, introducible_frames
+from ubitrack_agent.graph.srg import remove_static_relation, static_relation_edges
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import RelationId
 
@@ -52,13 +59,14 @@ def stable_choice(running: Set[str]) -> Callable[[Query, Sequence[Solution]], So
     return choose
 
 
-def plan_relations(
+def _plan_on(
     srg: nx.MultiDiGraph,
     templates: Sequence[Template],
     relations: Iterable[RelationId],
-    running: Set[str] = frozenset(),
+    choose: Callable[[Query, Sequence[Solution]], Solution],
 ) -> Plan:
-    """A derivation of each relation (:func:`stable_choice`), merged into one data flow."""
+    """A derivation of each relation on ``srg`` chosen by ``choose``, merged into one data flow
+    under the data flow's relation names (``"C->HT:6D/static"``)."""
     queries, names, unsolved = [], {}, {}
     for relation in sorted(set(relations), key=str):
         try:
@@ -74,5 +82,57 @@ def plan_relations(
             unsolved[name] = f"no provider announces frame(s) {', '.join(missing)}"
             continue
         queries.append(query)
-    flow, unresolved = plan_flows(srg, templates, queries, stable_choice(running))
+    flow, unresolved = plan_flows(srg, templates, queries, choose)
     return Plan(flow, names, {**unsolved, **unresolved})
+
+
+def recalibration_name(relation: RelationId) -> str:
+    """The plan's name of a recalibration, e.g. ``"C->HT:6D/recalibrate"``: apart from the
+    static relation's ``"C->HT:6D/static"``, which other queries may be using meanwhile."""
+    return f"{relation.source}->{relation.target}:{relation.type}/recalibrate"
+
+
+def _recalibration_plan(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    relation: RelationId,
+    choose: Callable[[Query, Sequence[Solution]], Solution],
+) -> Plan:
+    """The static ``relation`` planned on ``srg`` without the measured static edges between
+    its frames (``srg.remove_static_relation``), so it is computed from the other edges
+    (calibrated over time); an unsolved reason says which edges it ignored."""
+    source, target = relation.source, relation.target
+    ignored = static_relation_edges(srg, source, target)
+    planned = _plan_on(remove_static_relation(srg, source, target), templates, [relation], choose)
+    name = recalibration_name(relation)
+    without = f"without the measured static edge(s) {', '.join(ignored)}: " if ignored else ""
+    binding = next(iter(planned.flow.relations.values()), None)
+    reason = next(iter(planned.unsolved.values()), None)
+    return Plan(
+        DataFlow(planned.flow.components, {name: binding} if binding else {}),
+        {name: relation},
+        {name: without + reason} if reason else {},
+    )
+
+
+def plan_relations(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    relations: Iterable[RelationId],
+    running: Set[str] = frozenset(),
+) -> Plan:
+    """A derivation of each relation (:func:`stable_choice`), merged into one data flow. A
+    recalibration is planned on the SRG without the measured static edges of its relation,
+    every other relation on the whole SRG (so the stored edge keeps serving them)."""
+    choose = stable_choice(running)
+    relations = set(relations)
+    plans = [_plan_on(srg, templates, [r for r in relations if not r.recalibrate], choose)]
+    plans += [
+        _recalibration_plan(srg, templates, relation, choose)
+        for relation in sorted((r for r in relations if r.recalibrate), key=str)
+    ]
+    return Plan(
+        merge(plan.flow for plan in plans),
+        {name: r for plan in plans for name, r in plan.relations.items()},
+        {name: reason for plan in plans for name, reason in plan.unsolved.items()},
+    )
