@@ -38,7 +38,6 @@ def test_recalibrate_replaces_a_wrong_stored_value(processes, tmp_path):
     calibration_file = tmp_path / "calibration.yaml"
     wrong = write_wrong_calibration(calibration_file)
     live.agent()
-    live.hidden_trackers()
     live.store(calibration_file)
     static = RelationId("ART", "T2", "6D", static=True)
     with (
@@ -46,6 +45,13 @@ def test_recalibrate_replaces_a_wrong_stored_value(processes, tmp_path):
         Relation(session, KeySpace(live.hub.key_prefix), static, application="user") as user,
     ):
         live.wait_for_provider(session, "store.ART_T2")
+        # Without the trackers only the stored edge joins ART and T2: nothing to recalibrate.
+        out = live.run_calibrate("ART", "T2", "--recalibrate", "--timeout", "3")
+        assert out.returncode == 1
+        assert "without the measured static edge(s) store.ART_T2/ART_T2: " in out.stderr
+        assert "no provider announces frame(s) ART, T2" in out.stderr
+
+        live.hidden_trackers()
         wait_until(lambda: user.latest() is not None, timeout=20)
         np.testing.assert_allclose(to_json(user.latest())["translation"], wrong)
 

@@ -5,6 +5,11 @@ takes the one that needs the fewest components not already running. A marginally
 derivation is not worth stopping a working flow and starting another (on the paper's setup,
 losing the A.R.T. tracker leaves a camera-only derivation through the running pose estimation
 at 4 % above a fresh one that needs six new components).
+
+A recalibration (``RelationId.recalibrate``) is planned on its own SRG, the live one without
+the measured static edges between its frames (``graph.srg.remove_static_relation``), under its
+own name (:func:`recalibration_name`); every other relation on the live SRG, so the stored
+edge keeps serving them while the recalibration runs.
 """
 
 from __future__ import annotations

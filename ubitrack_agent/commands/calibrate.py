@@ -16,6 +16,9 @@ using the stored value are not disturbed meanwhile. ``--save`` then replaces the
 (the store keeps the previous one in the entry's history), and from then on the static relation
 and every tracking flow use the new one.
 
+On a time-out it says why the agent cannot serve the relation, if it cannot (``ubitrack
+status`` lists the same reasons).
+
 Exit status: 0 converged (and saved with ``--save``) or already known; 1 not static, no
 convergence within ``--timeout``, or the store refused or did not answer; 2 bad arguments.
 """
@@ -109,6 +112,19 @@ def _known_from(recalibrate: bool) -> str:
     return "a measured static edge"
 
 
+def unsolved_reason(session: Any, keys: Any, relation: Any) -> str:
+    """Why the agent does not serve the static ``relation`` (from its status), as a clause to
+    append to a message; empty when it serves it."""
+    from ubitrack_agent.net.transport import fetch_latest
+
+    replies = fetch_latest(session, keys.agent_status(), timeout=1.0)
+    if not replies:
+        return f"; no agent answers on {keys.agent_status()}"
+    name = f"{relation.source}->{relation.target}:{relation.type}/{relation.kind}"
+    reason = json.loads(replies[0]).get("unsolved", {}).get(name)
+    return f": the agent cannot serve it: {reason}" if reason else ""
+
+
 def run(args: argparse.Namespace) -> int:
     from ubitrack_agent.io.application import NotStatic, Relation
     from ubitrack_agent.io.calibration import StoreError, follow, save, save_request
@@ -153,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
             return 1
         if outcome.kind == "timeout":
             print(
-                f"{prog}: {relation_id} did not converge within {args.timeout:.0f} s",
+                f"{prog}: {relation_id} did not converge within {args.timeout:.0f} s"
+                f"{unsolved_reason(session, keys, relation_id)}",
                 file=sys.stderr,
             )
             return 1
