@@ -5,7 +5,7 @@ import json
 import pytest
 
 from ubitrack_agent.agent.announcements import AnnouncementError, build_srg, fragment_entries
-from ubitrack_agent.agent.flows import plan_relations
+from ubitrack_agent.agent.flows import plan_name, plan_relations
 from ubitrack_agent.agent.materialise import component_specs
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import load_templates
@@ -238,3 +238,11 @@ def test_a_stored_tip_is_calibrated_again_on_request():
     (calibration,) = [s for s in specs.values() if s.relations]
     assert calibration.service == "tip_calibration"
     assert KEYS.relation(recalibration) in calibration.relations["MP"]
+
+
+def test_plan_names_keep_a_recalibration_apart():
+    assert plan_name(RelationId("C", "A", "6D")) == "C->A:6D"
+    assert plan_name(RelationId("C", "HT", "6D", static=True)) == "C->HT:6D/static"
+    assert plan_name(RECALIBRATE_C_HT) == "C->HT:6D/recalibrate"
+    plan, _ = specs_for(paper_fragments(), RelationId("C", "HT", "7D", True, True))
+    assert "unknown type '7D'" in plan.unsolved["C->HT:7D recalibrate"]

@@ -8,7 +8,7 @@ at 4 % above a fresh one that needs six new components).
 
 A recalibration (``RelationId.recalibrate``) is planned on its own SRG, the live one without
 the measured static edges between its frames (``graph.srg.remove_static_relation``), under its
-own name (:func:`recalibration_name`); every other relation on the live SRG, so the stored
+own name (:func:`plan_name`); every other relation on the live SRG, so the stored
 edge keeps serving them while the recalibration runs.
 """
 
@@ -37,8 +37,8 @@ HYSTERESIS = 0.10
 
 @dataclass(frozen=True)
 class Plan:
-    """The merged data flow serving every plannable relation (by the data flow's relation
-    names, e.g. ``"C->A:6D"``), and the relations that cannot be planned with the reason."""
+    """The merged data flow serving every plannable relation (by :func:`plan_name`, e.g.
+    ``"C->A:6D"``), and the relations that cannot be planned with the reason."""
 
     flow: DataFlow
     relations: dict[str, RelationId] = field(default_factory=dict)
@@ -91,10 +91,13 @@ def _plan_on(
     return Plan(flow, names, {**unsolved, **unresolved})
 
 
-def recalibration_name(relation: RelationId) -> str:
-    """The plan's name of a recalibration, e.g. ``"C->HT:6D/recalibrate"``: apart from the
-    static relation's ``"C->HT:6D/static"``, which other queries may be using meanwhile."""
-    return f"{relation.source}->{relation.target}:{relation.type}/recalibrate"
+def plan_name(relation: RelationId) -> str:
+    """The name a plan (and the agent's status) gives ``relation``: the data flow's relation
+    name (``"C->A:6D"``, ``"C->HT:6D/static"``), or for a recalibration
+    ``"C->HT:6D/recalibrate"``, apart from the static relation other queries may be using
+    meanwhile. ``PlanningError`` for a type the planner does not know."""
+    name = relation_name(Query(relation.source, relation.target, relation.type, relation.static))
+    return name.replace("/static", "/recalibrate") if relation.recalibrate else name
 
 
 def _recalibration_plan(
@@ -109,7 +112,9 @@ def _recalibration_plan(
     source, target = relation.source, relation.target
     ignored = static_relation_edges(srg, source, target)
     planned = _plan_on(remove_static_relation(srg, source, target), templates, [relation], choose)
-    name = recalibration_name(relation)
+    if not planned.relations:
+        return planned  # not a query the planner takes (its type), with the reason
+    name = plan_name(relation)
     without = f"without the measured static edge(s) {', '.join(ignored)}: " if ignored else ""
     binding = next(iter(planned.flow.relations.values()), None)
     reason = next(iter(planned.unsolved.values()), None)

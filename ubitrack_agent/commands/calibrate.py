@@ -115,13 +115,13 @@ def _known_from(recalibrate: bool) -> str:
 def unsolved_reason(session: Any, keys: Any, relation: Any) -> str:
     """Why the agent does not serve the static ``relation`` (from its status), as a clause to
     append to a message; empty when it serves it."""
+    from ubitrack_agent.agent.flows import plan_name
     from ubitrack_agent.net.transport import fetch_latest
 
     replies = fetch_latest(session, keys.agent_status(), timeout=1.0)
     if not replies:
         return f"; no agent answers on {keys.agent_status()}"
-    name = f"{relation.source}->{relation.target}:{relation.type}/{relation.kind}"
-    reason = json.loads(replies[0]).get("unsolved", {}).get(name)
+    reason = json.loads(replies[0]).get("unsolved", {}).get(plan_name(relation))
     return f": the agent cannot serve it: {reason}" if reason else ""
 
 
