@@ -5,7 +5,7 @@ import json
 import pytest
 
 from ubitrack_agent.agent.announcements import AnnouncementError, build_srg, fragment_entries
-from ubitrack_agent.agent.flows import HYSTERESIS, Plan, plan_relations
+from ubitrack_agent.agent.flows import HYSTERESIS, Plan, plan_name, plan_relations
 from ubitrack_agent.agent.materialise import component_specs
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.dataflow import DataFlow, from_solution, relation_name
@@ -233,3 +233,63 @@ def test_a_new_relation_is_not_pulled_onto_another_relations_components():
     assert "fusion" in {c.service for c in fresh.flow.components.values()}
     again = plan_relations(srg, TEMPLATES, [tracking], set(fresh.flow.components), fresh)
     assert set(again.flow.components) == set(fresh.flow.components)
+
+
+RECALIBRATE_C_HT = RelationId("C", "HT", "6D", static=True, recalibrate=True)
+
+
+def keys_read(specs):
+    return {binding.key for spec in specs.values() for binding in spec.inputs}
+
+
+def test_a_recalibration_ignores_the_stored_edge_the_other_queries_keep_using():
+    stored = KEYS.data("database/C_HT")
+    _, alone = specs_for(paper_fragments(), RECALIBRATE_C_HT)
+    assert stored not in keys_read(alone)
+    (recalibration,) = [s for s in alone.values() if s.relations]
+    assert recalibration.service == "averaging" and recalibration.expansion == "time"
+    assert recalibration.relations == {"mean": (KEYS.relation(RECALIBRATE_C_HT),)}
+
+    static, tracking = RelationId("C", "HT", "6D", static=True), RelationId("C", "A", "6D")
+    plan, specs = specs_for(paper_fragments(), RECALIBRATE_C_HT, static, tracking)
+    assert not plan.unsolved
+    assert plan.relations["C->HT:6D/recalibrate"] == RECALIBRATE_C_HT
+    assert specs[recalibration.instance] == recalibration  # shares the others' components
+    assert keys_read(alone) <= keys_read(specs)
+    (relay,) = [s for s in specs.values() if s.service == "relay"]
+    assert relay.inputs[0].key == stored and relay.relations == {"out": (KEYS.relation(static),)}
+    readers = [s.service for s in specs.values() if stored in {b.key for b in s.inputs}]
+    assert sorted(readers) == ["concatenation", "relay"]  # the tracking chain still uses it
+
+
+def test_a_recalibration_with_no_other_derivation_is_unsolved_saying_why():
+    fragments = {"database": paper_fragments()["database"]}
+    plan, specs = specs_for(fragments, RECALIBRATE_C_HT, RelationId("C", "HT", "6D", True))
+    reason = plan.unsolved["C->HT:6D/recalibrate"]
+    assert reason.startswith("without the measured static edge(s) database/C_HT: ")
+    assert "HT" in reason
+    (relay,) = specs.values()  # the static relation is still served from the stored edge
+    assert relay.relations == {"out": (KEYS.relation(RelationId("C", "HT", "6D", True)),)}
+
+
+def test_a_stored_tip_is_calibrated_again_on_request():
+    fragments = {
+        "tracker": fragment_entries("tracker", fragment("tracker", edge("M", "T", "M", rate=60))),
+        "store.M_Tip": fragment_entries(
+            "store.M_Tip", fragment("store.M_Tip", edge("M_Tip", "M", "Tip", "3D", static=True))
+        ),
+    }
+    recalibration = RelationId("M", "Tip", "3D", static=True, recalibrate=True)
+    plan, specs = specs_for(fragments, recalibration)
+    assert not plan.unsolved
+    (calibration,) = [s for s in specs.values() if s.relations]
+    assert calibration.service == "tip_calibration"
+    assert KEYS.relation(recalibration) in calibration.relations["MP"]
+
+
+def test_plan_names_keep_a_recalibration_apart():
+    assert plan_name(RelationId("C", "A", "6D")) == "C->A:6D"
+    assert plan_name(RelationId("C", "HT", "6D", static=True)) == "C->HT:6D/static"
+    assert plan_name(RECALIBRATE_C_HT) == "C->HT:6D/recalibrate"
+    plan, _ = specs_for(paper_fragments(), RelationId("C", "HT", "7D", True, True))
+    assert "unknown type '7D'" in plan.unsolved["C->HT:7D recalibrate"]

@@ -12,6 +12,8 @@ from ubitrack_agent.graph.srg import (
     new_srg,
     parse_setup,
     remove_provider,
+    remove_static_relation,
+    static_relation_edges,
 )
 from ubitrack_agent.net.keys import validate_key_chunks
 
@@ -131,3 +133,28 @@ def test_remove_provider_drops_only_that_sensors_edges(tracking_setup):
     assert not without.has_edge("ART", "HT")
     assert without.has_edge("ART", "WT")  # a database edge, not the tracker's
     assert without.number_of_edges() == tracking_setup.number_of_edges() - 1
+
+
+def test_a_recalibration_plans_without_the_static_edges_of_its_relation(tracking_setup):
+    srg = tracking_setup.copy()
+    add_measured_edge(srg, "HT", "C", "6D", static=True, provider="store")  # either direction
+    add_measured_edge(srg, "C", "HT", "3D", static=True, provider="store")  # any type
+    add_measured_edge(srg, "C", "HT", "6D", provider="C")  # dynamic: kept
+    ignored = ["C->HT:3D", "C->HT:6D", "HT->C:6D"]
+    assert static_relation_edges(srg, "C", "HT") == static_relation_edges(srg, "HT", "C") == ignored
+    without = remove_static_relation(srg, "HT", "C")
+    assert [key for _, _, key in without.edges(keys=True)] == [
+        key for _, _, key in srg.edges(keys=True) if key not in ignored
+    ]
+    assert without.has_edge("C", "HT", "C->HT:6D#2")
+    assert srg.number_of_edges() == without.number_of_edges() + 3  # the SRG itself is untouched
+    assert set(without.graph["edge_index"]) == {key for _, _, key in without.edges(keys=True)}
+
+
+def test_a_frame_only_the_static_relation_reached_leaves_with_it():
+    srg = new_srg()
+    add_measured_edge(srg, "T", "M", "6D")
+    add_measured_edge(srg, "M", "Tip", "3D", static=True)  # a stored tip calibration
+    without = remove_static_relation(srg, "M", "Tip")
+    assert set(without.nodes) == {"T", "M"}  # so the calibration may introduce Tip again
+    assert remove_static_relation(srg, "T", "M").number_of_edges() == 2  # nothing static there

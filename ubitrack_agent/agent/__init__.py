@@ -1,7 +1,8 @@
 """The live agent (paper section 5.2.1, the Ubitrack Middleware Agent) rebuilt on zenoh.
 
 * :mod:`.announcements` - providers' SRG fragments into validated SRG edges (pure);
-* :mod:`.flows` - plan every queried relation and merge the data flows (pure);
+* :mod:`.flows` - plan every queried relation (a recalibration without its stored edges) and
+  merge the data flows (pure);
 * :mod:`.materialise` - data flow components into worker specifications (pure);
 * :mod:`.reconcile` - the start / stop / update actions between running and wanted (pure);
 * :mod:`.hosts` - the host managers: starting and stopping workers over zenoh;

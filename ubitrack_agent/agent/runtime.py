@@ -5,7 +5,7 @@ whole state from them alone (``docs/protocol.md``):
 
 * providers (``<root>/provider/<id>``): on appearance their SRG fragment is fetched from
   ``<root>/fragment/<id>`` and validated; on disappearance their edges leave the SRG;
-* queries (``<root>/query/<from>/<to>/<type>/<static>/<app>``): the relations applications
+* queries (``<root>/query/<from>/<to>/<type>/<kind>/<app>``): the relations applications
   want; applications asking for the same relation share it;
 * workers (``<root>/worker/<instance>``): which components are alive.
 

@@ -9,6 +9,16 @@ result and its uncertainty, and with ``--save`` sends it to the calibration stor
 store``), which writes it to its file and serves it from then on. A relation that is already
 a measured static edge (stored earlier) is printed as it is.
 
+With ``--recalibrate`` it calibrates the relation again, as after remounting a target: the
+agent computes it from the dynamic inputs while ignoring the measured static edges between the
+two frames (the stored value, in either direction), on keys of its own, so the applications
+using the stored value are not disturbed meanwhile. ``--save`` then replaces the stored value
+(the store keeps the previous one in the entry's history), and from then on the static relation
+and every tracking flow use the new one.
+
+On a time-out it says why the agent cannot serve the relation, if it cannot (``ubitrack
+status`` lists the same reasons).
+
 Exit status: 0 converged (and saved with ``--save``) or already known; 1 not static, no
 convergence within ``--timeout``, or the store refused or did not answer; 2 bad arguments.
 """
@@ -36,6 +46,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("source", metavar="FROM", help="source frame, e.g. C")
     parser.add_argument("target", metavar="TO", help="target frame, e.g. HT")
     parser.add_argument("--type", default="6D", choices=TYPES, help="(default: %(default)s)")
+    parser.add_argument(
+        "--recalibrate",
+        action="store_true",
+        help="calibrate again, ignoring the stored value (and any measured static edge) of the "
+        "relation",
+    )
     parser.add_argument(
         "--save", action="store_true", help="send the converged result to the calibration store"
     )
@@ -89,6 +105,26 @@ def describe(progress: Any, source: str, target: str) -> str:
     )
 
 
+def _known_from(recalibrate: bool) -> str:
+    """Where a value that needs no calibrating comes from."""
+    if recalibrate:
+        return "computed from other static edges, without calibrating"
+    return "a measured static edge"
+
+
+def unsolved_reason(session: Any, keys: Any, relation: Any) -> str:
+    """Why the agent does not serve the static ``relation`` (from its status), as a clause to
+    append to a message; empty when it serves it."""
+    from ubitrack_agent.agent.flows import plan_name
+    from ubitrack_agent.net.transport import fetch_latest
+
+    replies = fetch_latest(session, keys.agent_status(), timeout=1.0)
+    if not replies:
+        return f"; no agent answers on {keys.agent_status()}"
+    reason = json.loads(replies[0]).get("unsolved", {}).get(plan_name(relation))
+    return f": the agent cannot serve it: {reason}" if reason else ""
+
+
 def run(args: argparse.Namespace) -> int:
     from ubitrack_agent.io.application import NotStatic, Relation
     from ubitrack_agent.io.calibration import StoreError, follow, save, save_request
@@ -99,7 +135,9 @@ def run(args: argparse.Namespace) -> int:
     prog = "ubitrack calibrate"
     try:
         settings = config.from_arguments(args, role="member")
-        relation_id = RelationId(args.source, args.target, args.type, static=True)
+        relation_id = RelationId(
+            args.source, args.target, args.type, static=True, recalibrate=args.recalibrate
+        )
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -121,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
         if outcome.kind == "known":
             say(
                 {"event": "known", "value": outcome.value},
-                f"{relation_id} is already known (a measured static edge): {outcome.value}",
+                f"{relation_id} is already known ({_known_from(args.recalibrate)}): "
+                f"{outcome.value}",
             )
             return 0
         if outcome.kind == "not_static":
@@ -130,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
             return 1
         if outcome.kind == "timeout":
             print(
-                f"{prog}: {relation_id} did not converge within {args.timeout:.0f} s",
+                f"{prog}: {relation_id} did not converge within {args.timeout:.0f} s"
+                f"{unsolved_reason(session, keys, relation_id)}",
                 file=sys.stderr,
             )
             return 1

@@ -138,14 +138,36 @@ def edge_ids(srg: nx.MultiDiGraph) -> Mapping[str, tuple[str, str]]:
     return srg.graph.get("edge_index", {})
 
 
-def remove_provider(srg: nx.MultiDiGraph, provider: str) -> nx.MultiDiGraph:
-    """A copy of ``srg`` without the edges of ``provider`` (a sensor that disappeared)."""
+def _without_edges(srg: nx.MultiDiGraph, dropped: set[str]) -> nx.MultiDiGraph:
+    """A copy of ``srg`` without the edges ``dropped`` (a frame left with no edge goes too)."""
     out = new_srg()
     for u, v, key, data in srg.edges(keys=True, data=True):
-        if data["provider"] != provider:
+        if key not in dropped:
             out.add_edge(u, v, key=key, **data)
             out.graph.setdefault("edge_index", {})[key] = (u, v)
     return out
+
+
+def remove_provider(srg: nx.MultiDiGraph, provider: str) -> nx.MultiDiGraph:
+    """A copy of ``srg`` without the edges of ``provider`` (a sensor that disappeared)."""
+    dropped = {key for _, _, key, name in srg.edges(keys=True, data="provider") if name == provider}
+    return _without_edges(srg, dropped)
+
+
+def static_relation_edges(srg: nx.MultiDiGraph, a: str, b: str) -> list[str]:
+    """The ids of the measured static edges between frames ``a`` and ``b``, in either
+    direction and of any type (e.g. a stored calibration of ``a->b``), sorted."""
+    return sorted(
+        key
+        for u, v, key, data in srg.edges(keys=True, data=True)
+        if {u, v} == {a, b} and data["static"] and data["measured"]
+    )
+
+
+def remove_static_relation(srg: nx.MultiDiGraph, a: str, b: str) -> nx.MultiDiGraph:
+    """A copy of ``srg`` without :func:`static_relation_edges` of ``a`` and ``b`` (the SRG a
+    recalibration of ``a->b`` is planned on)."""
+    return _without_edges(srg, set(static_relation_edges(srg, a, b)))
 
 
 # --- setup files -------------------------------------------------------------------------------

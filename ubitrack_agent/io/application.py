@@ -18,6 +18,11 @@ Declaring the query token ``<root>/query/...`` tells the agent what to compute; 
 on the stable key ``<root>/relation/...``, which stays the same whenever the agent rewires the
 data flow behind it. Every payload is validated; bad ones are counted in ``rejected``.
 
+``RelationId(..., static=True, recalibrate=True)`` asks to calibrate a static relation again
+(after remounting a target): the agent computes it from the dynamic inputs while ignoring the
+measured static edges between its two frames (a stored calibration), on relation and progress
+keys of its own, while the plain static relation keeps serving the stored value.
+
 A static relation computed from dynamic inputs (a calibration) also reports its progress
 (``ubitrack_agent.net.progress``): :attr:`Relation.progress` is the latest report, and
 :meth:`Relation.wait_for` raises :class:`NotStatic` when the inputs show that the relation

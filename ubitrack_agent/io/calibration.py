@@ -7,7 +7,9 @@ change of status; it ends with an :class:`Outcome`: ``converged`` (the estimator
 ``known`` (a value arrives but no progress: the relation is a measured static edge, e.g. one
 stored earlier), ``not_static`` or ``timeout``. :func:`save` sends a converged result to the
 calibration store (``docs/protocol.md``, "Calibration"). ``ubitrack calibrate`` and the demo
-use both.
+use both. Following a recalibration (a ``Relation`` of a ``RelationId(..., recalibrate=True)``)
+is the same; saving its result replaces the stored value, the previous one going to the
+entry's history.
 """
 
 from __future__ import annotations

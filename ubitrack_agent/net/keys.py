@@ -7,10 +7,11 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/data/<edge-id>            measurements of one SRG edge (msgpack, see core.codec);
                                      measured edges are <provider>/<edge-name>; the key is also
                                      a queryable answering the latest value
-    <root>/query/<from>/<to>/<type>/<static|dynamic>/<app>
+    <root>/query/<from>/<to>/<type>/<kind>/<app>
                                      liveliness token of an application's query: the key is
-                                     the whole description, so liveliness alone rebuilds state
-    <root>/relation/<from>/<to>/<type>/<static|dynamic>
+                                     the whole description, so liveliness alone rebuilds state;
+                                     <kind> is static, dynamic or recalibrate (below)
+    <root>/relation/<from>/<to>/<type>/<kind>
                                      the stable key on which a queried relation is delivered
     <root>/agent                     liveliness token of the agent
     <root>/agent/status              queryable: the agent's state (JSON)
@@ -22,12 +23,18 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/worker/<instance>         liveliness token of a running pattern worker
     <root>/control/<instance>        rewire / reconfigure a running worker (JSON, put)
     <root>/status/<instance>         a worker's counters (JSON, queryable)
-    <root>/progress/<from>/<to>/<type>/static
+    <root>/progress/<from>/<to>/<type>/<static|recalibrate>
                                      progress of a static relation computed over time (JSON,
                                      net.progress); also a queryable answering the latest
     <root>/store/<name>              queryable of a calibration store: save requests (JSON)
     <root>/truth/<from>/<to>         queryable of a simulated world: the ground truth of the
                                      relation (msgpack), at ``?t=<ns>`` or now
+
+The kind chunk says what is asked: ``dynamic`` a relation that may change, ``static`` a rigid
+one (answered by a measured static edge, e.g. a stored calibration, or calibrated over time),
+``recalibrate`` the same rigid relation calibrated again from dynamic inputs while ignoring the
+measured static edges between its two frames (in either direction). A recalibration has keys
+of its own, so what reads the static relation meanwhile is not disturbed.
 
 Names that end up inside keys (frames, edge ids, domains) are checked chunk by chunk: no empty
 chunks, no wildcards (``*``, ``$``), no ``#``/``?`` (selector syntax), no ``@`` (zenoh's
@@ -55,27 +62,56 @@ def validate_key_chunks(text: str, single_chunk: bool = False) -> str:
     return text
 
 
+KINDS: dict[str, tuple[bool, bool]] = {
+    "dynamic": (False, False),
+    "static": (True, False),
+    "recalibrate": (True, True),
+}
+"""The kind chunk of query and relation keys, and the ``(static, recalibrate)`` it stands for."""
+
+
 @dataclass(frozen=True)
 class RelationId:
-    """A relationship an application asks for: ``source -> target`` of ``type``."""
+    """A relationship an application asks for: ``source -> target`` of ``type``.
+
+    ``recalibrate`` (only with ``static``) asks to calibrate the static relation again from
+    dynamic inputs, ignoring the measured static edges between the two frames (the stored
+    calibration being replaced); it has its own relation and progress keys.
+    """
 
     source: str
     target: str
     type: str
     static: bool = False
+    recalibrate: bool = False
 
     def __post_init__(self) -> None:
         for name in (self.source, self.target, self.type):
             validate_key_chunks(name, single_chunk=True)
         if self.source == self.target:
             raise ValueError(f"a relation joins two different frames, got {self.source!r} twice")
+        if self.recalibrate and not self.static:
+            raise ValueError("a recalibration is of a static relation: give static=True")
+
+    @property
+    def kind(self) -> str:
+        """The kind chunk of its keys: ``dynamic``, ``static`` or ``recalibrate``."""
+        return next(k for k, flags in KINDS.items() if flags == (self.static, self.recalibrate))
 
     @property
     def chunks(self) -> str:
-        return f"{self.source}/{self.target}/{self.type}/{'static' if self.static else 'dynamic'}"
+        return f"{self.source}/{self.target}/{self.type}/{self.kind}"
 
     def __str__(self) -> str:
-        return f"{self.source}->{self.target}:{self.type}{' static' if self.static else ''}"
+        kind = "" if self.kind == "dynamic" else f" {self.kind}"
+        return f"{self.source}->{self.target}:{self.type}{kind}"
+
+
+def _relation(source: str, target: str, edge_type: str, kind: str, key: str) -> RelationId:
+    """The relation named by the chunks of ``key``; ``ValueError`` for an unknown kind."""
+    if kind not in KINDS:
+        raise ValueError(f"{key!r}: kind {kind!r} is not one of {sorted(KINDS)}")
+    return RelationId(source, target, edge_type, *KINDS[kind])
 
 
 class KeySpace:
@@ -137,13 +173,13 @@ class KeySpace:
         if not key.startswith(prefix):
             raise ValueError(f"{key!r} is not a relation key under {prefix!r}")
         parts = key[len(prefix) :].split("/")
-        if len(parts) != 4 or parts[3] not in ("static", "dynamic"):
-            raise ValueError(f"{key!r}: expected relation/<from>/<to>/<type>/<static|dynamic>")
-        return RelationId(*parts[:3], parts[3] == "static")
+        if len(parts) != 4:
+            raise ValueError(f"{key!r}: expected relation/<from>/<to>/<type>/<kind>")
+        return _relation(*parts, key=key)
 
     def progress(self, relation: RelationId) -> str:
-        """Where the computation of a static ``relation`` from dynamic inputs (a calibration)
-        reports its progress (``ubitrack_agent.net.progress``)."""
+        """Where the computation of a static ``relation`` from dynamic inputs (a calibration, or
+        a recalibration on keys of its own) reports its progress (``net.progress``)."""
         return f"{self.root}/progress/{relation.chunks}"
 
     def store(self, name: str) -> str:
@@ -156,11 +192,10 @@ class KeySpace:
         if not key.startswith(prefix):
             raise ValueError(f"{key!r} is not a query key under {prefix!r}")
         parts = key[len(prefix) :].split("/")
-        if len(parts) != 5 or parts[3] not in ("static", "dynamic"):
-            raise ValueError(f"{key!r}: expected query/<from>/<to>/<type>/<static|dynamic>/<app>")
-        source, target, edge_type, staticness, app = parts
-        relation = RelationId(source, target, edge_type, staticness == "static")
-        return relation, validate_key_chunks(app, single_chunk=True)
+        if len(parts) != 5:
+            raise ValueError(f"{key!r}: expected query/<from>/<to>/<type>/<kind>/<app>")
+        *chunks, app = parts
+        return _relation(*chunks, key=key), validate_key_chunks(app, single_chunk=True)
 
     def parse_provider(self, key: str) -> str:
         """The provider id of a provider token key; ``ValueError`` if malformed."""

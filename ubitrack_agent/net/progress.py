@@ -3,10 +3,11 @@ wire.
 
 A worker whose output is a static estimate (averaging a calibration over time, section 4.2 of
 the paper) publishes, beside each new estimate on the relation key, a :class:`Progress` on
-``<root>/progress/<from>/<to>/<type>/static`` (``KeySpace.progress``): where the estimate
-stands, how many samples it holds and rejected, how uncertain it is against the tolerances it
-must reach, and the estimate itself. Applications (``Relation.progress``), ``ubitrack
-calibrate`` and the calibration store read it; JSON, one object::
+``<root>/progress/<from>/<to>/<type>/static`` (``.../recalibrate`` for a recalibration;
+``KeySpace.progress``): where the estimate stands, how many samples it holds and rejected, how
+uncertain it is against the tolerances it must reach, and the estimate itself. Applications
+(``Relation.progress``), ``ubitrack calibrate`` and the calibration store read it; JSON, one
+object::
 
     {"instance": "averaging-1a2b3c", "status": "averaging", "accepted": 212, "rejected": 3,
      "std_translation": 0.0011, "std_rotation": 0.0009, "tolerance_translation": 0.001,
