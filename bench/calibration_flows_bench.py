@@ -18,8 +18,9 @@ Flows (``ubitrack plan examples/paper_calibration.yaml --from C --to HT --type 6
 * ``direct + averaging (live stream)``: per-sample ``C -> HT = (C -> WT)(WT -> ART)(ART ->
   HT)`` as the live flow computes it (90 Hz, PnP poses interpolated between camera frames:
   :func:`bench.figure1_recording.live_direct_samples`), fed one at a time to the averaging
-  service's :class:`services.algorithms.StaticEstimator` with its parameters (50 samples,
-  1 mm, 0.1 degree, a motion window of 1 s: :func:`services.components.averaging.motion_window`);
+  service's :class:`services.algorithms.StaticEstimator` with its parameters
+  (:func:`services.components.averaging.static_estimator`: 50 samples, 0.5 mm, 0.1 degree, a
+  motion window of 1 s);
 * ``direct + averaging (camera rate)``: the same at the camera's instants only (30 Hz);
 * ``PnP through HT->Fi + averaging``: per-frame PnP of ``C -> HT`` on ``IP -> Fi`` and
   ``HT -> Fi = (HT -> ART)(ART -> WT)(WT -> Fi)``, averaged likewise;
@@ -75,11 +76,10 @@ from services.algorithms.hand_eye import hand_eye_calibration
 from services.algorithms.pnp import _projected, solve_pnp
 from services.algorithms.static_estimate import (
     DEFAULT_INIT_SAMPLES,
-    StaticEstimator,
     StaticState,
     Status,
 )
-from services.components.averaging import motion_window
+from services.components.averaging import Averaging, static_estimator
 from services.expansion import TimeAccumulator
 from services.registry import lookup
 from ubitrack_agent.core import se3
@@ -132,7 +132,7 @@ def averaging_run(
     """Feed a flow's samples to the averaging service's estimator, one at a time."""
     truth = PoseEstimate(recording.truth_q, recording.truth_t)
     start = [samples.pose(k) for k in np.flatnonzero(samples.valid)[:DEFAULT_INIT_SAMPLES]]
-    estimator = StaticEstimator("pose", motion_window=motion_window(start))
+    estimator = static_estimator("pose", Averaging.PARAMETERS, start)
     checkpoints = list(CHECKPOINTS_S)
     result: dict[str, Any] = {"checkpoints": {}, "converged_s": None, "not_static_s": None}
     entered: list[int] = []

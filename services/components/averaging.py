@@ -20,6 +20,8 @@ the viewing geometry, and the check fired on a static relation (recorded streams
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 from services.algorithms import StaticEstimator, StaticState, Status
 from services.algorithms.static_estimate import DEFAULT_INIT_SAMPLES, DEFAULT_MOTION_WINDOW
@@ -41,6 +43,20 @@ _KINDS: dict[type[Measurement], str] = {
 }
 
 
+def static_estimator(
+    kind: str, parameters: Mapping[str, Any], start: Sequence[Measurement]
+) -> StaticEstimator:
+    """The estimator the averaging service runs with ``parameters`` (its ``PARAMETERS``
+    completed by the template's), its motion window set from the robust start's samples."""
+    return StaticEstimator(
+        kind,
+        translation_tolerance=float(parameters["translation_tolerance"]),
+        rotation_tolerance=math.radians(float(parameters["rotation_tolerance_deg"])),
+        min_samples=int(parameters["min_samples"]),
+        motion_window=motion_window(start),
+    )
+
+
 @register
 class Averaging(Service):
     """The static estimate of edge A->B from its dynamic samples (time expansion): a robust,
@@ -55,7 +71,7 @@ class Averaging(Service):
     CORRESPONDENCE = ("AB",)
     MIN_CORRESPONDENCES = 2
     INCREMENTAL = True
-    PARAMETERS = {"min_samples": 50, "translation_tolerance": 1e-3, "rotation_tolerance_deg": 0.1}
+    PARAMETERS = {"min_samples": 50, "translation_tolerance": 5e-4, "rotation_tolerance_deg": 0.1}
 
     def __init__(self, parameters: Inputs) -> None:
         super().__init__(parameters)
@@ -81,13 +97,7 @@ class Averaging(Service):
             self._start.append(sample)
             if len(self._start) < DEFAULT_INIT_SAMPLES:
                 return
-            self._estimator = StaticEstimator(
-                kind,
-                translation_tolerance=float(self.parameters["translation_tolerance"]),
-                rotation_tolerance=math.radians(float(self.parameters["rotation_tolerance_deg"])),
-                min_samples=int(self.parameters["min_samples"]),
-                motion_window=motion_window(self._start),
-            )
+            self._estimator = static_estimator(kind, self.parameters, self._start)
             held, self._start = self._start, []
         else:
             held = [sample]
