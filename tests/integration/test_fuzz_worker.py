@@ -13,6 +13,7 @@ import json
 import time
 from collections.abc import Iterator
 
+import msgpack
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -28,6 +29,8 @@ from ubitrack_agent.net.host_protocol import Start, encode_request
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
 pytestmark = pytest.mark.integration
+
+IDENTITY = ([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
 
 EXAMPLES = 400
 """Hostile messages in all (the test takes about 20 s on two shared CPUs, start-up included)."""
@@ -87,7 +90,10 @@ def pool_specifications(draw, valid: ComponentSpec) -> bytes:
     if draw(st.booleans()):
         return draw(hostile_json)
     broken = {
-        "instance": draw(st.sampled_from(["*", "a b", "", "x" * 300, "Ä"]) | json_values),
+        "instance": draw(
+            st.sampled_from(["*", "a b", "", "a/b", "Ä", "$*"])
+            | json_values.filter(lambda v: not isinstance(v, str))
+        ),
         "service": draw(st.sampled_from(["os.system", "../relay", "relay*"])),
         "parameters": {"x" + draw(st.text(max_size=5)): draw(json_values)},
         "inputs": draw(json_values.filter(lambda v: v != [])),
@@ -170,6 +176,13 @@ def test_hostile_input_never_stops_a_worker_or_the_host_manager(hub):
 
     drive()
     pool_watch.undeclare()
+    # The regressions of issue 11, each once whatever hypothesis drew.
+    six_floats = msgpack.unpackb(encode(Pose(1, [0, 0, 0, 1], [0, 0, 0])))
+    six_floats["translation"] = np.zeros(6).tobytes()
+    hub.session.put(keys.data("F/HT"), msgpack.packb(six_floats))
+    hub.session.put(keys.data("F/HT"), encode(Pose(time.time_ns() + 86_400 * 10**9, *IDENTITY)))
+    hub.session.put(keys.control("fz1"), nested_json(100_000, as_map=False))
+    hub.session.put(keys.pool(idle[0]), nested_json(100_000, as_map=True))
 
     # Every process is alive and answers.
     assert worker.poll() is None and host.poll() is None
