@@ -6,7 +6,7 @@ worker processes through a :class:`services.supervisor.Supervisor`. It declares
 * the liveliness token ``<root>/host/<name>`` once it serves requests;
 * the queryable ``<root>/host/<name>/request``: start, stop and status requests
   (:mod:`ubitrack_agent.net.host_protocol`); a start's specification is checked for form and
-  against the registered service (``services.spec.check_spec``, and the service's parameters)
+  against the registered service and its parameters (``services.spec.check_spec``)
   before anything runs, so only registered services run;
 * ``<root>/host/<name>/exited``: an :class:`~ubitrack_agent.net.host_protocol.Exited` for every
   instance that ended without being asked (its process exited, even before declaring its
@@ -79,7 +79,12 @@ class HostManager:
         liveliness = session.liveliness()
         self._pool_watch = liveliness.declare_subscriber(
             keys.all_pools(),
-            lambda sample: self._events.put(("pool", (str(sample.kind), str(sample.key_expr)))),
+            logs.guarded(
+                lambda sample: self._events.put(("pool", (str(sample.kind), str(sample.key_expr)))),
+                self.counters,
+                log,
+                "pool token",
+            ),
             history=True,
         )
         self._exits = session.declare_publisher(keys.host_exited(name))
@@ -99,13 +104,14 @@ class HostManager:
 
     def run(self) -> None:
         """Handle requests and pool tokens, reap and refill, until :meth:`stop`."""
+        handle = logs.guarded(self._handle, self.counters, log, "host event")
         try:
             while not self._stop.is_set():
                 try:
                     kind, event = self._events.get(timeout=LOOP_S)
-                    self._handle(kind, event)
+                    handle(kind, event)
                     while not self._events.empty():
-                        self._handle(*self._events.get_nowait())
+                        handle(*self._events.get_nowait())
                 except queue.Empty:
                     pass
                 for exited in self.supervisor.reap():
@@ -169,18 +175,15 @@ class HostManager:
         self, counter: str, message: str, detail: Exception, with_traceback: bool = False
     ) -> None:
         """Count a problem; log it (rate-limited), with the traceback being handled if asked."""
-        self.counters[counter] += 1
-        if logs.rate_limited(self.counters[counter]):
-            log.error(message, detail, exc_info=with_traceback)
+        logs.count_problem(self.counters, counter, log, message, detail, exc_info=with_traceback)
 
     def _serve(self, request: Request) -> str:
         """The JSON reply to a well-formed request; :class:`ProtocolError` if refused."""
         match request:
             case Start(spec=spec):
                 try:
-                    service = check_spec(spec)
-                    service(spec.parameters)  # rejects parameters the service does not take
-                except (SpecError, ValueError, TypeError) as exc:
+                    check_spec(spec)
+                except SpecError as exc:
                     raise ProtocolError("refused_spec", str(exc)) from None
                 return self.supervisor.start(spec).to_json()
             case Stop(instance=instance):

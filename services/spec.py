@@ -2,14 +2,16 @@
 
 :func:`ubitrack_agent.net.spec.parse_spec` checks a specification's form; this module checks
 what only the services know: the service is registered, the bindings fit its input ports and
-the correspondence's expansion, the outputs and relation routes name its output ports. The
-worker and the host manager run both checks before anything starts, so nothing from the
-network runs but a registered service wired as it declares.
+the correspondence's expansion, the outputs and relation routes name its output ports, the
+service accepts the parameters. The worker (and an idle pool worker) and the host manager run
+both checks before anything starts, so nothing from the network runs but a registered service
+wired as it declares.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 from services.registry import Service, lookup
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError
@@ -28,7 +30,17 @@ def check_spec(spec: ComponentSpec) -> type[Service]:
         raise SpecError(f"spec.expansion: {service.NAME} has no correspondence to expand")
     check_bindings(spec.inputs, service, spec.expansion)
     check_relations(spec.relations, service)
+    check_parameters(spec.parameters, service)
     return service
+
+
+def check_parameters(parameters: Mapping[str, Any], service: type[Service]) -> Service:
+    """The service built with ``parameters``, or :class:`SpecError` if it refuses them (unknown
+    names, wrong types, values out of range or overflowing)."""
+    try:
+        return service(parameters)
+    except (ValueError, TypeError, ArithmeticError) as exc:
+        raise SpecError(f"spec.parameters: {exc}") from None
 
 
 def check_bindings(

@@ -16,8 +16,14 @@ takes commands on ``<root>/control/<instance>``:
 
 Zenoh callbacks only append to a bounded inbox (never calling zenoh, never blocking the
 receive path); one thread decodes, synchronises (:mod:`ubitrack_agent.core.timeline`), computes and
-publishes. Bad input is rejected with a logged reason and counted; it never stops the worker.
-SIGTERM or SIGINT ends it cleanly, closing the session.
+publishes. Handling is total (issue 11): bad input (a sample the codec refuses, one stamped
+too far ahead of this host's clock, a control command or specification that is not a bounded
+JSON object of the right form) is rejected, logged rate-limited
+(:func:`ubitrack_agent.net.logs.rate_limited`) and counted in :data:`COUNTERS`, shown in the
+status; so is every path on which a sample is consumed without an output. An unexpected
+exception while handling network input is logged with its traceback and counted
+(``internal_errors``); it never stops the worker. SIGTERM or SIGINT ends it cleanly, closing
+the session.
 """
 
 from __future__ import annotations
@@ -31,16 +37,18 @@ import sys
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from services.expansion import BatchProgress, TimeAccumulator
 from services.registry import Service, lookup
-from services.spec import check_bindings, check_relations, check_spec
+from services.spec import check_bindings, check_parameters, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import MeasurementError, decode, encode
-from ubitrack_agent.core.timeline import SampleBuffer
+from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import config, logs
+from ubitrack_agent.net.json_messages import load_object
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.progress import Progress
@@ -61,11 +69,43 @@ INBOX_CAPACITY = 4096
 
 CONTROL_FIELDS = frozenset({"inputs", "parameters", "relations", "stop"})
 """What a control command may change (see the module docstring)."""
+MAX_CONTROL_BYTES = 64 * 1024
+"""Largest control command read (a rewire of a dozen bindings takes a kilobyte)."""
 
-COUNTERS = ("received", "published", "dropped", "rejected", "failed", "overflow", "rewired")
-"""Counter names: received samples, published outputs, triggers dropped for a missing or
-out-of-tolerance input, rejected samples and commands, failed computations, inbox overflows,
-and rewires applied."""
+COUNTERS = {
+    "received": "samples received on the input keys",
+    "published": "outputs published",
+    "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
+    "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
+    "dropped_stale": "samples older than everything their input's buffer holds",
+    "superseded": "samples from a subscription that a rewire replaced",
+    "buffered": "samples of inputs that do not trigger, kept for the next trigger",
+    "stale_triggers": "trigger samples at an instant pending, computed, or before the last",
+    "dropped": "triggers dropped: an input had no value at the trigger's time",
+    "not_distinct": "time expansion: correspondence values too close to the last kept",
+    "accumulating": "time expansion: fewer correspondences kept than the pattern needs",
+    "no_output": "computations that published nothing (an estimate not yet ready)",
+    "failed": "computations that failed (degenerate input)",
+    "overflow": "samples and commands dropped because the inbox was full",
+    "rejected_commands": "control commands refused",
+    "rewired": "control commands applied",
+    "internal_errors": "unexpected exceptions handling network input (logged with traceback)",
+}
+"""The worker's counters (its status), each with what it counts. Every sample received is
+``rejected``, ``rejected_future``, ``dropped_stale``, ``superseded``, ``buffered`` or a trigger;
+every trigger is ``stale_triggers``, ``dropped``, ``not_distinct``, ``accumulating``,
+``failed``, ``no_output`` or publishes: a worker that receives but does not publish shows why."""
+
+
+@dataclass(frozen=True)
+class ControlCommand:
+    """A control command read and checked in full before any of it is applied."""
+
+    stop: bool = False
+    parameters: dict[str, Any] | None = None
+    service: Service | None = None
+    inputs: tuple[InputBinding, ...] | None = None
+    relations: dict[str, tuple[str, ...]] | None = None
 
 
 class Inbox:
@@ -100,10 +140,18 @@ class _Input:
 class Worker:
     """Runs ``spec`` on an open zenoh ``session`` until :meth:`stop`."""
 
-    def __init__(self, spec: ComponentSpec, session: Any, keys: KeySpace) -> None:
+    def __init__(
+        self,
+        spec: ComponentSpec,
+        session: Any,
+        keys: KeySpace,
+        pool_counters: Counter[str] | None = None,
+    ) -> None:
         self.spec = spec
+        self.pool_counters = pool_counters
+        """The counters of the pool this process belongs to, if any (shown in status)."""
         self.keys = keys
-        self.counters: Counter[str] = Counter({name: 0 for name in COUNTERS})
+        self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
         self._session = session
         self._service_class = lookup(spec.service)
         self._service: Service = self._service_class(spec.parameters)
@@ -123,7 +171,7 @@ class Worker:
         self._route_outputs(spec.relations)
         self._control = session.declare_subscriber(
             keys.control(spec.instance),
-            lambda s: self._inbox.put(("control", s.payload.to_bytes())),
+            self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes()))),
         )
         self._status = session.declare_queryable(keys.status(spec.instance))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
@@ -155,7 +203,11 @@ class Worker:
                 kept.subscriber.undeclare()
             subscriber = self._session.declare_subscriber(
                 binding.key,
-                lambda s, i=index: self._inbox.put(("data", generation, i, s.payload.to_bytes())),
+                self._guarded(
+                    lambda s, i=index: self._inbox.put(
+                        ("data", generation, i, s.payload.to_bytes())
+                    )
+                ),
             )
             inputs.append(_Input(binding, buffer, subscriber))
         for item in old.values():
@@ -192,72 +244,109 @@ class Worker:
         self._progress_routes = progress_routes
 
     def _static_relations(self, relation_keys: tuple[str, ...]) -> list[RelationId]:
-        """The static relations among ``relation_keys`` (keys the agent built)."""
-        relations = [self.keys.parse_relation(key) for key in relation_keys]
+        """The static relations among ``relation_keys`` (a key that is no relation key of
+        this domain is only published on)."""
+        relations = []
+        for key in relation_keys:
+            try:
+                relations.append(self.keys.parse_relation(key))
+            except ValueError:
+                continue
         return [relation for relation in relations if relation.static]
 
+    # -- control ------------------------------------------------------------------------------
+
+    def _parse_control(self, payload: bytes) -> ControlCommand:
+        """The command in ``payload``, checked against the running service; ``ValueError``
+        (``SpecError``, ``MessageError``) naming what is wrong."""
+        command = load_object(payload, MAX_CONTROL_BYTES)
+        if not command or set(command) - CONTROL_FIELDS:
+            raise SpecError(f"control: expected an object with some of {sorted(CONTROL_FIELDS)}")
+        if "stop" in command:
+            if set(command) != {"stop"} or command["stop"] is not True:
+                raise SpecError('control.stop: expected {"stop": true} alone')
+            return ControlCommand(stop=True)
+        parsed = ControlCommand()
+        if "parameters" in command:
+            parameters = command["parameters"]
+            if not isinstance(parameters, dict):
+                raise SpecError("control.parameters: expected an object")
+            service = check_parameters(parameters, self._service_class)
+            parsed = replace(parsed, parameters=dict(parameters), service=service)
+        if "inputs" in command:
+            bindings = parse_bindings(command["inputs"], "control.inputs")
+            check_bindings(bindings, self._service_class, self.spec.expansion, "control.inputs")
+            parsed = replace(parsed, inputs=bindings)
+        if "relations" in command:
+            relations = parse_relations(command["relations"], "control.relations")
+            check_relations(relations, self._service_class, "control.relations")
+            parsed = replace(parsed, relations=relations)
+        return parsed
+
     def _apply_control(self, payload: bytes) -> None:
+        """Apply a control command in full, or reject it (counted, logged) and keep running
+        as before."""
         try:
-            command = json.loads(payload)
-            if not isinstance(command, dict) or not command or set(command) - CONTROL_FIELDS:
-                raise SpecError(
-                    f"control: expected an object with some of {sorted(CONTROL_FIELDS)}"
-                )
-            if command.get("stop") is True:
-                log.info("%s: stopped by control command", self.spec.instance)
-                self.released = True
-                self.stop()
-                return
-            if "parameters" in command:
-                if not isinstance(command["parameters"], dict):
-                    raise SpecError("control.parameters: expected an object")
-                service = self._service_class(command["parameters"])
-                self.spec = replace(self.spec, parameters=command["parameters"])
-                self._service = service
-                self._accumulator = self._new_accumulator()
-            if "inputs" in command:
-                bindings = parse_bindings(command["inputs"], "control.inputs")
-                check_bindings(bindings, self._service_class, self.spec.expansion, "control.inputs")
-                self.spec = replace(self.spec, inputs=bindings)
-                self._bind(bindings)
-            if "relations" in command:
-                relations = parse_relations(command["relations"], "control.relations")
-                check_relations(relations, self._service_class, "control.relations")
-                self.spec = replace(self.spec, relations=relations)
-                self._route_outputs(relations)
-        except (ValueError, TypeError) as exc:
-            self.counters["rejected"] += 1
-            log.error("%s: rejected control command: %s", self.spec.instance, exc)
+            command = self._parse_control(payload)
+        except ValueError as exc:
+            self._count("rejected_commands", "rejected control command: %s", exc)
             return
+        if command.stop:
+            log.info("%s: stopped by control command", self.spec.instance)
+            self.released = True
+            self.stop()
+            return
+        if command.service is not None:
+            self.spec = replace(self.spec, parameters=command.parameters or {})
+            self._service = command.service
+            self._accumulator = self._new_accumulator()
+        if command.inputs is not None:
+            self.spec = replace(self.spec, inputs=command.inputs)
+            self._bind(command.inputs)
+        if command.relations is not None:
+            self.spec = replace(self.spec, relations=command.relations)
+            self._route_outputs(command.relations)
         self.counters["rewired"] += 1
-        log.info("%s: reconfigured: %s", self.spec.instance, sorted(command))
+        log.info("%s: reconfigured", self.spec.instance)
+
+    def _count(self, counter: str, message: str, *details: Any) -> None:
+        """Count a rejection or an input consumed without an output; log it, rate-limited."""
+        logs.count_problem(
+            self.counters, counter, log, f"%s: {message}", self.spec.instance, *details
+        )
+
+    def _guarded(self, handler: Callable[..., None]) -> Callable[..., None]:
+        """``handler`` made total (:func:`ubitrack_agent.net.logs.guarded`)."""
+        return logs.guarded(handler, self.counters, log, self.spec.instance)
 
     # -- data path --------------------------------------------------------------------------
 
     def _on_sample(self, generation: int, index: int, payload: bytes) -> None:
-        if generation != self._generation:
-            return  # arrived from a subscription a rewire replaced
-        item = self._inputs[index]
         self.counters["received"] += 1
+        if generation != self._generation:
+            self.counters["superseded"] += 1  # from a subscription a rewire replaced
+            return
+        item = self._inputs[index]
+        key = item.binding.key
         try:
             sample = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
         except MeasurementError as exc:
-            self.counters["rejected"] += 1
-            if logs.rate_limited(self.counters["rejected"]):
-                log.warning(
-                    "%s: rejected sample on %s: %s", self.spec.instance, item.binding.key, exc
-                )
+            self._count("rejected", "rejected sample on %s: %s", key, exc)
             return
-        item.buffer.add(sample)
+        t = sample.timestamp_ns
+        if ahead_of_clock(t, time.time_ns()):
+            self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
+            return
+        if not item.buffer.add(sample):
+            self._count("dropped_stale", "dropped sample on %s older than its buffer: %d", key, t)
+            return
         if not item.binding.trigger:
-            return
-        if item.binding.static:
-            self._evaluate(sample.timestamp_ns)  # a new static value: recompute at once
-        else:
+            self.counters["buffered"] += 1
+        elif item.binding.static:
+            self._evaluate(t)  # a new static value: recompute at once
+        elif not self._pending.add(t, time.monotonic(), self._wait_s(item, t)):
             # Held until the other inputs catch up; an instant already computed is ignored.
-            self._pending.add(
-                sample.timestamp_ns, time.monotonic(), self._wait_s(item, sample.timestamp_ns)
-            )
+            self.counters["stale_triggers"] += 1
 
     def _dynamic_buffers(self) -> list[SampleBuffer]:
         return [item.buffer for item in self._inputs if not item.binding.static]
@@ -291,17 +380,21 @@ class Worker:
                 values[port] = value
         if self._accumulator is None:
             self._compute(values, t)
-        elif self._accumulator.add(values) and self._accumulator.ready():
+        elif not self._accumulator.add(values):
+            self.counters["not_distinct"] += 1
+        elif not self._accumulator.ready():
+            self.counters["accumulating"] += 1
+        else:
             self._compute(self._accumulator.expanded(values), t)
 
     def _compute(self, values: dict[str, Any], timestamp_ns: int) -> None:
         try:
             outputs = self._service.compute(values, timestamp_ns)
         except (ValueError, MeasurementError, ArithmeticError) as exc:
-            self.counters["failed"] += 1
-            if logs.rate_limited(self.counters["failed"]):
-                log.warning("%s: computation failed: %s", self.spec.instance, exc)
+            self._count("failed", "computation failed: %s", exc)
             return
+        if not outputs:
+            self.counters["no_output"] += 1
         for port, value in outputs.items():
             payload = encode(value)
             for key in self._routes.get(port, ()):
@@ -333,31 +426,41 @@ class Worker:
             "service": self.spec.service,
             "pid": os.getpid(),
             "counters": dict(self.counters),
+            **({"pool": dict(self.pool_counters)} if self.pool_counters is not None else {}),
             "progress": {port: asdict(progress) for port, progress in self.progress.items()},
             "spec": self.spec.as_dict(),
         }
 
     def _serve_status(self) -> None:
+        reply = self._guarded(self._reply_status)
         for query in self._status:
             with query:
-                query.reply(self.keys.status(self.spec.instance), json.dumps(self.status()))
+                reply(query)
+
+    def _reply_status(self, query: Any) -> None:
+        query.reply(self.keys.status(self.spec.instance), json.dumps(self.status()))
 
     def stop(self) -> None:
         self._stop.set()
+
+    def step(self, longest_s: float = 0.1) -> None:
+        """Handle the next inbox item (waiting at most ``longest_s`` or until the next trigger
+        is due), then the triggers due; never raises (:meth:`_guarded`)."""
+        deadline = self._pending.next_deadline()
+        timeout = longest_s if deadline is None else max(0.0, deadline - time.monotonic())
+        item = self._inbox.get(timeout=min(longest_s, timeout))
+        if item is not None and item[0] == "data":
+            self._guarded(self._on_sample)(*item[1:])
+        elif item is not None:
+            self._guarded(self._apply_control)(item[1])
+        self._guarded(self._process_due_triggers)()
 
     def run(self) -> None:
         """Process the inbox until :meth:`stop`; then undeclare everything."""
         self._status_thread.start()
         try:
             while not self._stop.is_set():
-                deadline = self._pending.next_deadline()
-                timeout = 0.1 if deadline is None else max(0.0, deadline - time.monotonic())
-                item = self._inbox.get(timeout=min(0.1, timeout))
-                if item is not None and item[0] == "data":
-                    self._on_sample(*item[1:])
-                elif item is not None:
-                    self._apply_control(item[1])
-                self._process_due_triggers()
+                self.step()
         finally:
             self._token.undeclare()
             for item in self._inputs:
@@ -395,11 +498,16 @@ class Pool:
 
     The process idles only while its parent (the host manager) lives: when its standard
     input closes it leaves the pool (an assigned worker keeps running: a restarted agent
-    adopts it). SIGTERM or SIGINT ends it. Malformed specifications are logged and ignored.
+    adopts it). SIGTERM or SIGINT ends it. A specification that is not a bounded JSON object
+    (``net.json_messages``), is malformed, or names no registered service wired as it
+    declares (``services.spec.check_spec``) is rejected, logged rate-limited and counted in
+    :attr:`counters` (``rejected_specs``; shown in the status of the instances it runs); the
+    member keeps waiting.
     """
 
     def __init__(self, session: Any, keys: KeySpace, pool_id: str) -> None:
         self.session, self.keys, self.pool_id = session, keys, pool_id
+        self.counters: Counter[str] = Counter(rejected_specs=0, internal_errors=0)
         self.orphaned = threading.Event()
         self._inbox: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
         threading.Thread(target=self._watch_parent, daemon=True).start()
@@ -414,28 +522,46 @@ class Pool:
         """The next specification, or None when the process should end."""
         if self.orphaned.is_set():
             return None
-        subscriber = self.session.declare_subscriber(
-            self.keys.pool(self.pool_id), lambda sample: self._inbox.put(sample.payload.to_bytes())
+        receive = logs.guarded(
+            lambda sample: self._inbox.put(sample.payload.to_bytes()),
+            self.counters,
+            log,
+            f"pool worker {self.pool_id}",
         )
+        subscriber = self.session.declare_subscriber(self.keys.pool(self.pool_id), receive)
         token = self.session.liveliness().declare_token(self.keys.pool(self.pool_id))
         on_termination(lambda: self._inbox.put(None))
         try:
             while (payload := self._inbox.get()) is not None:
-                try:
-                    spec = parse_spec(payload.decode("utf-8"))
-                    check_spec(spec)
+                spec = self._read_spec(payload)
+                if spec is not None:
                     return spec
-                except (SpecError, UnicodeDecodeError) as exc:
-                    log.error("pool worker %s: rejected specification: %s", self.pool_id, exc)
             return None
         finally:
             token.undeclare()
             subscriber.undeclare()
 
+    def _read_spec(self, payload: bytes) -> ComponentSpec | None:
+        """The specification in ``payload`` checked in full, or None (rejected, counted)."""
+        try:
+            spec = parse_spec(payload)
+            check_spec(spec)
+        except SpecError as exc:
+            logs.count_problem(
+                self.counters,
+                "rejected_specs",
+                log,
+                "pool worker %s: rejected specification: %s",
+                self.pool_id,
+                exc,
+            )
+            return None
+        return spec
 
-def run_worker(session: Any, keys: KeySpace, spec: ComponentSpec) -> bool:
+
+def run_worker(session: Any, keys: KeySpace, spec: ComponentSpec, pool: Pool | None = None) -> bool:
     """Run one component until stopped; True if the agent released it (it may be reused)."""
-    worker = Worker(spec, session, keys)
+    worker = Worker(spec, session, keys, None if pool is None else pool.counters)
     on_termination(worker.stop)
     log.info("%s: running %s", spec.instance, spec.service)
     worker.run()
@@ -470,7 +596,7 @@ def main(argv: list[str] | None = None) -> int:
                 spec = pool.wait() if pool is not None else None
                 if spec is None:
                     return 0
-            released = run_worker(session, keys, spec)
+            released = run_worker(session, keys, spec, pool)
             if not (released and pool is not None):
                 return 0
             spec = None  # back to the pool

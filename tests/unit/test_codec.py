@@ -23,7 +23,11 @@ from ubitrack_agent.core import (
     decode,
     encode,
 )
-from ubitrack_agent.core.measurements import MAX_TIMESTAMP_NS, OPENCV_DISTORTION_LENGTHS
+from ubitrack_agent.core.measurements import (
+    MAX_TIMESTAMP_NS,
+    MEASUREMENT_TYPES,
+    OPENCV_DISTORTION_LENGTHS,
+)
 
 finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False)
 timestamps = st.integers(min_value=0, max_value=MAX_TIMESTAMP_NS)
@@ -180,3 +184,169 @@ def test_image_size_wire_form():
     message["image_size"] = [640, "tall"]
     with pytest.raises(MeasurementError, match="image_size"):
         decode(msgpack.packb(message))
+
+
+# -- hostile messages: what a fuzz run against a live worker sends ------------------------------
+# Each generator starts from a valid message and breaks one thing the way an attacker or a
+# buggy sensor would; decode must return a valid measurement or raise MeasurementError.
+
+HUGE_FLOATS = (1e308, -1e308, float("inf"), float("-inf"), float("nan"), 5e-324, -0.0)
+HUGE_INTS = (2**63 - 1, 2**63, 2**64 - 1, -(2**63), -1, -(2**31))
+
+
+def _fields(value: Measurement) -> tuple[dict, list]:
+    """The unpacked message of ``value`` and the names of its array fields present."""
+    message = msgpack.unpackb(encode(value))
+    return message, [spec.name for spec in value.ARRAY_FIELDS if spec.name in message]
+
+
+def _packed(message: dict) -> bytes:
+    return msgpack.packb(message, use_bin_type=True)
+
+
+@st.composite
+def reshaped_fields(draw):
+    """An array field holding a multiple or a fraction of its values (6 floats for a
+    3-vector, 72 for a 6x6 covariance, 2 for a quaternion, none at all)."""
+    message, names = _fields(draw(measurements))
+    name = draw(st.sampled_from(names))
+    values = np.frombuffer(message[name], dtype="<f8")
+    size = max(values.size, 1)
+    count = draw(
+        st.sampled_from([0, 1, size // 2, size - 1, size + 1, 2 * size, 3 * size, 12 * size])
+        | st.integers(0, 16 * size)
+    )
+    message[name] = np.resize(values if values.size else np.ones(1), count).tobytes()
+    return _packed(message)
+
+
+@st.composite
+def truncated_messages(draw):
+    """A valid message cut anywhere, or one of its arrays cut anywhere."""
+    raw = encode(draw(measurements))
+    if draw(st.booleans()):
+        return raw[: draw(st.integers(0, len(raw) - 1))]
+    message, names = _fields(draw(measurements))
+    name = draw(st.sampled_from(names))
+    message[name] = message[name][: draw(st.integers(0, max(len(message[name]) - 1, 0)))]
+    return _packed(message)
+
+
+def _nest(value, depth: int, as_map: bool):
+    for _ in range(depth):
+        value = {"k": value} if as_map else [value]
+    return value
+
+
+@st.composite
+def nested_messages(draw):
+    """msgpack maps and lists nested deeply: as the whole message, or as a field's value."""
+    depth = draw(st.integers(1, 3000))
+    as_map = draw(st.booleans())
+    if draw(st.booleans()):
+        # Raw bytes: one-element fixarrays / fixmaps nested ``depth`` deep, built without
+        # recursion (msgpack.packb itself refuses nesting this deep).
+        head = (b"\x81\xa1k" if as_map else b"\x91") * depth
+        return head + b"\xc0"
+    message, names = _fields(draw(measurements))
+    name = draw(st.sampled_from([*names, "t", "v", "type", "image_size"]))
+    message[name] = _nest(draw(st.sampled_from([1, 1.0, b"", "x"])), min(depth, 500), as_map)
+    return _packed(message)
+
+
+@st.composite
+def huge_numbers(draw):
+    """Overflowing, infinite and NaN numbers in arrays, timestamps and the version."""
+    message, names = _fields(draw(measurements))
+    choice = draw(st.sampled_from(["array", "t", "v", "image_size"]))
+    if choice == "array":
+        name = draw(st.sampled_from(names))
+        values = np.frombuffer(message[name], dtype="<f8").copy()
+        if values.size:
+            index = draw(st.integers(0, values.size - 1))
+            values[index] = draw(st.sampled_from(HUGE_FLOATS))
+            if draw(st.booleans()):
+                values[:] = draw(st.sampled_from(HUGE_FLOATS))
+        message[name] = values.tobytes()
+    else:
+        number = st.sampled_from(HUGE_INTS) | st.sampled_from(HUGE_FLOATS)
+        message[choice] = draw(number if choice != "image_size" else st.lists(number, max_size=3))
+    return _packed(message)
+
+
+@st.composite
+def wrong_but_valid_values(draw):
+    """Well-formed messages with values no sensor should send: non-unit quaternions,
+    covariances that are not positive semi-definite or not symmetric, timestamps below zero
+    or at and beyond the int64 bound."""
+    timestamp = draw(
+        st.sampled_from([-1, 0, 2**63 - 2, 2**63 - 1, 2**63, 2**64 - 1])
+        | st.integers(-(2**63), 2**64 - 1)
+    )
+    kind = draw(st.sampled_from(["quaternion", "covariance", "timestamp"]))
+    if kind == "quaternion":
+        q = draw(vectors(4)) * draw(st.sampled_from([0.0, 0.5, 1.0 + 1e-5, 2.0, 1e300]))
+        value = {"type": "Rotation3D", "rotation": q.tobytes()}
+    elif kind == "covariance":
+        a = draw(covariances(6))
+        a[draw(st.integers(0, 5)), draw(st.integers(0, 5))] += draw(st.sampled_from([-1.0, 1e3]))
+        a = a - np.eye(6) * draw(st.floats(0.0, 10.0))
+        value = {
+            "type": "ErrorPose",
+            "rotation": np.array([0.0, 0.0, 0.0, 1.0]).tobytes(),
+            "translation": np.zeros(3).tobytes(),
+            "covariance": a.tobytes(),
+        }
+    else:
+        value = {"type": "Pose", "rotation": np.array([0.0, 0.0, 0.0, 1.0]).tobytes()}
+        value["translation"] = np.zeros(3).tobytes()
+    return _packed({"v": 1, "t": timestamp, **value})
+
+
+hostile_messages = st.one_of(
+    reshaped_fields(),
+    truncated_messages(),
+    nested_messages(),
+    huge_numbers(),
+    wrong_but_valid_values(),
+)
+
+
+@settings(max_examples=600)
+@given(hostile_messages)
+def test_hostile_messages_decode_validly_or_are_rejected_cleanly(data: bytes):
+    try:
+        decoded = decode(data)
+    except MeasurementError:
+        return
+    assert decode(encode(decoded)) == decoded
+
+
+@pytest.mark.parametrize(
+    "tag, field_name, count",
+    [
+        ("Pose", "translation", 6),
+        ("Pose", "rotation", 8),
+        ("ErrorPose", "covariance", 72),
+        ("Position2D", "position", 4),
+        ("Projection", "matrix", 24),
+        ("CameraIntrinsics", "matrix", 18),
+    ],
+)
+def test_a_multiple_of_a_fixed_shape_is_rejected(tag, field_name, count):
+    message = {
+        "v": 1,
+        "type": tag,
+        "t": 1,
+        "rotation": np.array([0.0, 0.0, 0.0, 1.0]).tobytes(),
+        "translation": np.zeros(3).tobytes(),
+        "covariance": np.eye(6).tobytes(),
+        "position": np.zeros(2).tobytes(),
+        "matrix": np.eye(3, 4).tobytes(),
+        "distortion": b"",
+    }
+    keep = {f.name for f in MEASUREMENT_TYPES[tag].ARRAY_FIELDS} | {"v", "type", "t"}
+    message = {k: v for k, v in message.items() if k in keep}
+    message[field_name] = np.zeros(count).tobytes()
+    with pytest.raises(MeasurementError, match=f"{count} values do not fit"):
+        decode(_packed(message))

@@ -2,6 +2,8 @@
 every request gets a reply of its kind, and nothing raises out of the handler."""
 
 import json
+import threading
+import time
 from types import SimpleNamespace
 
 import pytest
@@ -12,6 +14,11 @@ from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import KeySpace
 
 KEYS = KeySpace("ubitrack/test")
+
+
+class FakeQueryable(list):
+    def undeclare(self) -> None:
+        pass
 
 
 class FakeSession:
@@ -25,10 +32,12 @@ class FakeSession:
         )
 
     def declare_publisher(self, key):
-        return SimpleNamespace(put=lambda data: self.puts.append((key, data)))
+        return SimpleNamespace(
+            put=lambda data: self.puts.append((key, data)), undeclare=lambda: None
+        )
 
     def declare_queryable(self, key):
-        return []  # no request arrives through zenoh here: the tests hand them over
+        return FakeQueryable()  # no request arrives through zenoh: the tests hand them over
 
 
 class FakeQuery:
@@ -86,3 +95,47 @@ def test_a_reply_that_cannot_be_sent_is_logged_not_raised(manager):
     assert answer(manager, b"{not json", reply_fails=True) == (None, {})
     assert answer(manager, encode_request(Status()).encode(), reply_fails=True) == (None, {})
     assert manager.counters["malformed_requests"] == 1
+
+
+SPEC = {
+    "instance": "r1",
+    "service": "relay",
+    "inputs": [{"port": "in", "key": "ubitrack/test/data/src/in", "trigger": True}],
+    "outputs": {"out": "ubitrack/test/data/r1/out"},
+}
+
+
+@pytest.mark.parametrize(
+    "payload, error",
+    [
+        (b'{"op": "status", "x": ' + b"[" * 40 + b"]" * 40 + b"}", "malformed_request"),
+        (b"[" * 150_000 + b"]" * 150_000, "oversized_request"),
+        (b"[" * 50_000 + b"]" * 50_000, "malformed_request"),
+        (json.dumps({"op": "start", "spec": {**SPEC, "parameters": {"x": 1e400}}}), "refused_spec"),
+        (json.dumps({"op": "start", "spec": {**SPEC, "tolerance_ms": 2**80}}), "refused_spec"),
+        (json.dumps({"op": "start", "spec": {**SPEC, "service": "os.system"}}), "refused_spec"),
+        (json.dumps({"op": "stop", "instance": "**"}), "malformed_request"),
+    ],
+)
+def test_hostile_requests_get_a_typed_refusal(manager, payload, error):
+    data = payload.encode() if isinstance(payload, str) else payload
+    ok, refusal = answer(manager, data)
+    assert not ok and refusal["error"] == error, refusal
+    assert manager.counters.get("internal_errors", 0) == 0
+
+
+def test_a_fault_handling_a_pool_token_is_counted_not_raised(manager, monkeypatch):
+    def broken(*args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(manager.supervisor, "on_pool_token", broken)
+    for pool_id in ("p1", "p2"):
+        manager._events.put(("pool", ("SampleKind.PUT", f"ubitrack/test/pool/{pool_id}")))
+    thread = threading.Thread(target=manager.run)
+    thread.start()
+    deadline = time.monotonic() + 5
+    while manager.counters["internal_errors"] < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    manager.stop()
+    thread.join(timeout=5)
+    assert manager.counters["internal_errors"] == 2 and not thread.is_alive()

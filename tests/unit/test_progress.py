@@ -80,6 +80,7 @@ def test_any_payload_gives_a_progress_or_a_progress_error(payload):
         (None, "malformed_request"),
         (b"[" * 100_000 + b"]" * 100_000, "oversized_request"),
         (b"[" * 5000 + b"]" * 5000, "malformed_request"),  # nested too deeply
+        (b'{"a": ' + b"[" * 40 + b"]" * 40 + b"}", "malformed_request"),  # beyond MAX_DEPTH
         (b"\xff", "malformed_request"),
         (b"[1]", "malformed_request"),
     ],

@@ -137,7 +137,7 @@ def test_invalid_specs_name_the_field(change, fragment):
 
 
 def test_spec_text_must_be_a_json_object():
-    with pytest.raises(SpecError, match="not valid JSON"):
+    with pytest.raises(SpecError, match="not JSON"):
         parse_spec("{")
     with pytest.raises(SpecError, match="expected a JSON object"):
         parse_spec("[1]")

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, Rotation3D, quaternions
-from ubitrack_agent.core.timeline import SampleBuffer, interpolate
+from ubitrack_agent.core.timeline import MAX_FUTURE_NS, SampleBuffer, ahead_of_clock, interpolate
 
 MS = 1_000_000
 
@@ -114,3 +114,18 @@ def test_strict_lookup_raises_typed_errors():
     images.add(Position2D(0, [0, 0]))
     images.add(Position2D(10, [10, 0]))
     np.testing.assert_allclose(images.lookup(7).position, [10, 0])
+
+
+def test_a_sample_beyond_a_full_buffers_horizon_is_refused():
+    buffer = SampleBuffer(static=False, history=3)
+    assert all(buffer.add(Pose(t, [0, 0, 0, 1], [0, 0, 0])) for t in (10, 20, 30))
+    assert not buffer.add(Pose(5, [0, 0, 0, 1], [0, 0, 0]))
+    assert buffer.add(Pose(15, [0, 0, 0, 1], [0, 0, 0]))  # within the horizon: inserted
+    assert [buffer.value_at(t, 0).timestamp_ns for t in (15, 20, 30)] == [15, 20, 30]
+
+
+def test_ahead_of_clock_bound():
+    now = 1_700_000_000 * 10**9
+    assert not ahead_of_clock(now + MAX_FUTURE_NS, now)
+    assert ahead_of_clock(now + MAX_FUTURE_NS + 1, now)
+    assert not ahead_of_clock(0, now)  # the past is accepted: replayed recordings

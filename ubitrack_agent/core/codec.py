@@ -78,7 +78,9 @@ def _array(where: str, raw: Any, shape: tuple[int | None, ...]) -> np.ndarray:
         raise MeasurementError(f"{where}: {len(raw)} bytes is not a whole number of float64")
     flat = np.frombuffer(raw, dtype=_FLOAT)
     fixed = math.prod(d for d in shape if d is not None)
-    if fixed == 0 or flat.size % fixed:
+    free = None in shape
+    # A fixed shape takes exactly its size; a list (one free dimension) any whole multiple.
+    if fixed == 0 or flat.size % fixed or (not free and flat.size != fixed):
         raise MeasurementError(f"{where}: {flat.size} values do not fit shape {shape}")
     return flat.reshape([flat.size // fixed if d is None else d for d in shape])
 

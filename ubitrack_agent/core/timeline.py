@@ -12,6 +12,15 @@ one to answer ``lookup(t)``. The rules:
   tolerance window, re-stamped to ``t``;
 * otherwise the input has no value at ``t`` and the trigger is dropped and counted.
 
+Timestamps are in the sensor host's clock, synchronised with the receiving host's. A sample
+stamped more than :data:`MAX_FUTURE_NS` ahead of the receiving host's clock
+(:func:`ahead_of_clock`) never enters a buffer: it would stay the newest sample, so the
+buffer's latest value, and every trigger instant after it, would wait for the clock to reach
+it (one pose stamped a day ahead stopped a relation for a day). Samples from the past are
+accepted, so a recording replayed with its original timestamps works, as long as it is never
+ahead of the clock: a dynamic buffer keeps the newest ``history`` samples by timestamp, and a
+sample older than all of them (beyond the buffer's horizon) is refused by :meth:`SampleBuffer.add`.
+
 This replaces Ubitrack's hand-inserted buffer and interpolation components: the application
 never places them. Buffers keep a bounded history, so memory stays bounded.
 
@@ -33,6 +42,17 @@ from ubitrack_agent.core.uncertainty import interpolate_covariance
 
 DEFAULT_HISTORY = 64
 """Samples a dynamic input keeps: a second of a 60 Hz tracker."""
+
+MAX_FUTURE_NS = 10 * 10**9
+"""How far ahead of the receiving host's clock a sample's timestamp may be (10 s: clocks kept
+by NTP agree within milliseconds; an unsynchronised host seconds off still works). A sample
+accepted just within it can hold back newer instants by at most this long."""
+
+
+def ahead_of_clock(timestamp_ns: int, now_ns: int) -> bool:
+    """Whether a sample stamped ``timestamp_ns`` is too far ahead of the clock reading
+    ``now_ns`` (``time.time_ns()`` on the receiving host) to be used (:data:`MAX_FUTURE_NS`)."""
+    return timestamp_ns - now_ns > MAX_FUTURE_NS
 
 
 def interpolate(before: Measurement, after: Measurement, timestamp_ns: int) -> Measurement | None:
@@ -70,23 +90,27 @@ class SampleBuffer:
     def __len__(self) -> int:
         return len(self._samples)
 
-    def add(self, sample: Measurement) -> None:
-        """Store a sample; out-of-order samples are inserted in time order."""
-        self._period = None
+    def add(self, sample: Measurement) -> bool:
+        """Store a sample; out-of-order samples are inserted in time order. False (nothing
+        stored) for a dynamic sample older than every sample of a full buffer: beyond its
+        horizon."""
         t = sample.timestamp_ns
         if not self._times or t >= self._times[-1]:
+            self._period = None
             self._samples.append(sample)
             self._times.append(t)
-            return
+            return True
         index = bisect.bisect_right(self._times, t)
         if len(self._samples) == self._samples.maxlen:
             if index == 0:
-                return  # older than everything kept
+                return False
             self._samples.popleft()
             self._times.popleft()
             index -= 1
+        self._period = None
         self._samples.insert(index, sample)
         self._times.insert(index, t)
+        return True
 
     def latest(self) -> Measurement | None:
         return self._samples[-1] if self._samples else None

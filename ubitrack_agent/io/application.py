@@ -16,7 +16,12 @@
 
 Declaring the query token ``<root>/query/...`` tells the agent what to compute; samples arrive
 on the stable key ``<root>/relation/...``, which stays the same whenever the agent rewires the
-data flow behind it. Every payload is validated; bad ones are counted in ``rejected``.
+data flow behind it. Every payload is validated; bad ones are counted in ``rejected``, and
+samples stamped more than ``core.timeline.MAX_FUTURE_NS`` ahead of this host's clock in
+``rejected_future``: one future sample would otherwise stay :meth:`Relation.latest` until the
+clock reached it. :attr:`Relation.counters` holds these and the other counts of samples not
+used (``dropped_stale``: older than every sample held; ``internal_errors``); each is logged
+rate-limited.
 
 ``RelationId(..., static=True, recalibrate=True)`` asks to calibrate a static relation again
 (after remounting a target): the agent computes it from the dynamic inputs while ignoring the
@@ -39,11 +44,13 @@ import queue
 import threading
 import time
 import uuid
+from collections import Counter
 from collections.abc import Callable, Iterator
 from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
-from ubitrack_agent.core.timeline import SampleBuffer
+from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
+from ubitrack_agent.net import logs
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
@@ -103,29 +110,34 @@ class Relation(Closing):
         self.application = validate_key_chunks(
             application or default_application_id(), single_chunk=True
         )
-        self.rejected = 0
+        self.counters: Counter[str] = Counter(
+            dict.fromkeys(("rejected", "rejected_future", "dropped_stale", "internal_errors"), 0)
+        )
+        """Samples and reports not used, by reason (see the module docstring)."""
         self._expected = _TYPES_BY_SRG.get(relation.type, ())
         self._buffer = SampleBuffer(static=relation.static, history=history)
         self._lock = threading.Condition()
-        self._count = 0
+        self._received = 0
         self._callback = callback
         self._queue: queue.Queue[Measurement] = queue.Queue(maxsize=queue_size)
+        receive = self._guarded(self._receive)
         self._subscriber = session.declare_subscriber(
-            self.key, lambda sample: self._receive(sample.payload.to_bytes())
+            self.key, lambda sample: receive(sample.payload.to_bytes())
         )
         self.progress: Progress | None = None
         """The latest progress report of a static relation computed over time, or None."""
         self.progress_at: float | None = None
         """When (``time.monotonic()``) it arrived: a report that stops coming is from a flow
         the agent has replaced (by a stored value, say)."""
-        wanted = [(self.key, self._receive, lambda: self._count > 0)]
+        wanted = [(self.key, receive, lambda: self._received > 0)]
         self._progress_subscriber = None
         if relation.static:
             progress_key = keys.progress(relation)
+            receive_progress = self._guarded(self._receive_progress)
             self._progress_subscriber = session.declare_subscriber(
-                progress_key, lambda sample: self._receive_progress(sample.payload.to_bytes())
+                progress_key, lambda sample: receive_progress(sample.payload.to_bytes())
             )
-            wanted.append((progress_key, self._receive_progress, lambda: bool(self.progress)))
+            wanted.append((progress_key, receive_progress, lambda: bool(self.progress)))
         self._token = session.liveliness().declare_token(keys.query(relation, self.application))
         self._closed = threading.Event()
         # A static result published before this application started: ask for it.
@@ -134,14 +146,25 @@ class Relation(Closing):
         )
         self._fetcher.start()
 
+    @property
+    def rejected(self) -> int:
+        """Samples and progress reports refused as malformed."""
+        return self.counters["rejected"]
+
+    def _guarded(self, handler: Callable[[bytes], None]) -> Callable[[bytes], None]:
+        """``handler`` never raising into zenoh's or the fetcher's thread (``net.logs.guarded``)."""
+        return logs.guarded(handler, self.counters, log, str(self.relation))
+
+    def _count(self, counter: str, message: str, *details: Any) -> None:
+        logs.count_problem(self.counters, counter, log, f"%s: {message}", self.relation, *details)
+
     def _receive_progress(self, payload: bytes) -> None:
         """Runs on zenoh's thread: keep the latest valid report, wake waiters if it says the
         relation is not static."""
         try:
             progress = parse_progress(payload)
         except ProgressError as exc:
-            self.rejected += 1
-            log.warning("%s: rejected progress report: %s", self.relation, exc)
+            self._count("rejected", "rejected progress report: %s", exc)
             return
         with self._lock:
             self.progress, self.progress_at = progress, time.monotonic()
@@ -152,12 +175,16 @@ class Relation(Closing):
         try:
             sample = decode(payload, expected=self._expected or None)
         except MeasurementError as exc:
-            self.rejected += 1
-            log.warning("%s: rejected sample: %s", self.relation, exc)
+            self._count("rejected", "rejected sample: %s", exc)
+            return
+        if ahead_of_clock(sample.timestamp_ns, time.time_ns()):
+            self._count("rejected_future", "rejected sample stamped ahead: %d", sample.timestamp_ns)
             return
         with self._lock:
-            self._buffer.add(sample)
-            self._count += 1
+            if not self._buffer.add(sample):
+                self._count("dropped_stale", "dropped sample older than those held")
+                return
+            self._received += 1
             self._lock.notify_all()
         while True:
             try:
@@ -174,7 +201,7 @@ class Relation(Closing):
 
     @property
     def received(self) -> int:
-        return self._count
+        return self._received
 
     def latest(self) -> Measurement | None:
         """The newest sample, or None before the first."""
@@ -191,14 +218,14 @@ class Relation(Closing):
         """Block until the next sample arrives (the first one if none yet); ``TimeoutError``,
         or :class:`NotStatic` for a static relation whose inputs move."""
         with self._lock:
-            seen = self._count
+            seen = self._received
 
             def done() -> bool:
-                return self._count > seen or self._moving()
+                return self._received > seen or self._moving()
 
             if not self._lock.wait_for(done, timeout=timeout):
                 raise TimeoutError(f"no sample of {self.relation} within {timeout} s")
-            if self._count == seen and self.progress is not None:
+            if self._received == seen and self.progress is not None:
                 raise NotStatic(self.relation, self.progress)
             return self._buffer.latest()
 

@@ -1,10 +1,12 @@
 """JSON messages from the network, read totally: bounded size, bounded nesting, one object.
 
-Every JSON message the middleware receives (host requests and reports, calibration progress)
-is first read by :func:`load_object`, which returns a ``dict`` or raises
-:class:`MessageError` and nothing else, whatever the bytes hold: not UTF-8, not JSON, nested
-deeper than the parser's recursion limit, larger than the caller's bound, or not an object.
-Fields are then checked by the message's own parser with :func:`field`.
+Every JSON message the middleware receives (host requests and reports, calibration progress,
+worker control commands, component specifications) is first read by :func:`load_object`,
+which returns a ``dict`` or raises :class:`MessageError` and nothing else, whatever the bytes
+hold: not UTF-8, not JSON, larger than the caller's bound, nested deeper than
+:data:`MAX_DEPTH`, or not an object. The depth bound keeps every later step (copying,
+comparing, re-encoding the message) far from Python's recursion limit. Fields are then checked
+by the message's own parser with :func:`field`.
 """
 
 from __future__ import annotations
@@ -13,6 +15,10 @@ import json
 import math
 from collections.abc import Mapping
 from typing import Any
+
+MAX_DEPTH = 32
+"""Deepest nesting of objects and arrays accepted (the top-level object is depth 1); a
+specification nests four deep."""
 
 
 class MessageError(ValueError):
@@ -41,7 +47,24 @@ def load_object(payload: bytes | None, max_bytes: int) -> dict[str, Any]:
         raise MessageError("malformed_request", "nested too deeply") from None
     if not isinstance(data, dict):
         raise MessageError("malformed_request", "expected a JSON object")
+    if _deeper_than(data, MAX_DEPTH):
+        raise MessageError("malformed_request", f"nested deeper than {MAX_DEPTH}")
     return data
+
+
+def _deeper_than(data: Any, limit: int) -> bool:
+    """Whether ``data`` nests objects and arrays more than ``limit`` deep (without recursion)."""
+    stack = [(data, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if isinstance(value, dict):
+            value = value.values()
+        elif not isinstance(value, list):
+            continue
+        if depth > limit:
+            return True
+        stack.extend((child, depth + 1) for child in value)
+    return False
 
 
 def field(data: Mapping[str, Any], name: str, kind: type, optional: bool = False) -> Any:

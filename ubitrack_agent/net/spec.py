@@ -30,7 +30,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import validate_key_chunks
+
+MAX_SPEC_BYTES = 256 * 1024
+"""Largest specification read from text (a specification takes a few kilobytes)."""
 
 DEFAULT_TOLERANCE_MS = 5.0
 """How far from a trigger's time the nearest sample of an input may be when there is no
@@ -154,8 +158,8 @@ def parse_time_expansion(options: Any) -> dict[str, float]:
     if unknown:
         raise ValueError(f"unknown options {unknown}; known: {list(TIME_EXPANSION_OPTIONS)}")
     for name, value in options.items():
-        if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
-            raise ValueError(f"{name} must be a number >= 0")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value < 1e12:
+            raise ValueError(f"{name} must be a number >= 0 and below 1e12")
     if "max_samples" in options and not 1 <= options["max_samples"] <= 100_000:
         raise ValueError("max_samples must be in [1, 100000]")
     return {name: float(value) for name, value in options.items()}
@@ -168,13 +172,17 @@ def _milliseconds(data: Mapping[str, Any], name: str, default: float) -> float:
     return float(value)
 
 
-def parse_spec(text: str | Mapping[str, Any]) -> ComponentSpec:
-    """Parse and validate a specification (JSON text or an already decoded mapping)."""
-    if isinstance(text, str):
+def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
+    """Parse and validate a specification: JSON text or bytes (from the command line or the
+    network, read by :func:`~ubitrack_agent.net.json_messages.load_object`: at most
+    :data:`MAX_SPEC_BYTES`, nested at most ``MAX_DEPTH`` deep), or a mapping already read so.
+    Raises :class:`SpecError` and nothing else."""
+    if isinstance(text, str | bytes):
+        raw = text.encode("utf-8", "surrogatepass") if isinstance(text, str) else text
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise SpecError(f"spec: not valid JSON ({exc})") from None
+            data = load_object(raw, MAX_SPEC_BYTES)
+        except MessageError as exc:
+            raise SpecError(f"spec: {exc.reason}") from None
     else:
         data = text
     if not isinstance(data, dict):

@@ -9,9 +9,15 @@ still marked unstable in zenoh-python.
 
 from __future__ import annotations
 
+import logging
 import threading
+from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any
+
+from ubitrack_agent.net import logs
+
+log = logging.getLogger("ubitrack.transport")
 
 FETCH_RETRY_DELAYS = (0.0,) + (0.02,) * 50 + (0.1,) * 20 + (0.5,) * 10
 """Seconds between attempts to fetch current values after subscribing: every 20 ms for a
@@ -24,6 +30,8 @@ class LatestValuePublisher:
 
     def __init__(self, session: Any, key: str) -> None:
         self.key = key
+        self.counters: Counter[str] = Counter()
+        """``internal_errors``: queries that could not be answered (logged, rate-limited)."""
         self._latest: bytes | None = None
         self._publisher = session.declare_publisher(key)
         self._queryable = session.declare_queryable(key)
@@ -40,12 +48,17 @@ class LatestValuePublisher:
         return bool(self._publisher.matching_status.matching)
 
     def _serve(self) -> None:
-        # Replies from this thread, never from a zenoh callback.
+        # Replies from this thread, never from a zenoh callback; a failed reply (the querier
+        # gone) is counted and logged, and the next query is answered.
+        reply = logs.guarded(self._reply, self.counters, log, self.key)
         for query in self._queryable:
             with query:
-                latest = self._latest
-                if latest is not None:
-                    query.reply(self.key, latest)
+                reply(query)
+
+    def _reply(self, query: Any) -> None:
+        latest = self._latest
+        if latest is not None:
+            query.reply(self.key, latest)
 
     def undeclare(self) -> None:
         self._queryable.undeclare()

@@ -1,0 +1,222 @@
+"""The worker's handling of network input (``services/worker.py``, issue 11) on a stand-in
+session: every sample, control command and pool specification is used or rejected with a
+named counter, and nothing raises out of a handler."""
+
+from __future__ import annotations
+
+import json
+import time
+from types import SimpleNamespace
+
+import msgpack
+import numpy as np
+import pytest
+
+from services.worker import COUNTERS, Pool, Worker
+from ubitrack_agent.core import Pose, decode, encode
+from ubitrack_agent.core.timeline import MAX_FUTURE_NS
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+
+KEYS = KeySpace("ubitrack/test")
+IDENTITY = [0.0, 0.0, 0.0, 1.0]
+
+
+class FakeQueryable(list):
+    """No query arrives."""
+
+    def undeclare(self) -> None:
+        pass
+
+
+class FakeSession:
+    """Records subscriptions and puts; answers no query."""
+
+    def __init__(self) -> None:
+        self.callbacks: dict[str, object] = {}
+        self.puts: list[tuple[str, bytes]] = []
+
+    def declare_subscriber(self, key, callback):
+        self.callbacks[key] = callback
+        return SimpleNamespace(undeclare=lambda: self.callbacks.pop(key, None))
+
+    def declare_publisher(self, key):
+        return SimpleNamespace(
+            put=lambda data: self.puts.append((key, data)), undeclare=lambda: None
+        )
+
+    def declare_queryable(self, key):
+        return FakeQueryable()
+
+    def liveliness(self):
+        return SimpleNamespace(declare_token=lambda key: SimpleNamespace(undeclare=lambda: None))
+
+    def get(self, key, timeout=None):
+        return []
+
+    def deliver(self, key: str, payload: bytes) -> None:
+        """What zenoh does when ``payload`` arrives on ``key``."""
+        self.callbacks[key](SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload)))
+
+
+SPEC = ComponentSpec(
+    instance="concat1",
+    service="concatenation",
+    inputs=(
+        InputBinding("AB", KEYS.data("ART/WT"), static=True),
+        InputBinding("BC", KEYS.data("ART/HT"), trigger=True),
+    ),
+    outputs={"AC": KEYS.data("concat1/AC")},
+)
+
+
+@pytest.fixture
+def worker():
+    session = FakeSession()
+    worker = Worker(SPEC, session, KEYS)
+    yield worker, session
+    worker.stop()
+
+
+def feed(worker: Worker, session: FakeSession, key: str, payload: bytes) -> None:
+    session.deliver(key, payload)
+    worker.step(longest_s=0.0)
+
+
+def outputs(session: FakeSession) -> list[Pose]:
+    return [decode(data) for key, data in session.puts if key == KEYS.data("concat1/AC")]
+
+
+def pose(t: int, x: float = 1.0) -> bytes:
+    return encode(Pose(t, IDENTITY, [x, 0.0, 0.0]))
+
+
+def test_status_shows_every_counter(worker):
+    w, _ = worker
+    assert set(w.status()["counters"]) == set(COUNTERS)
+
+
+def test_a_pose_stamped_a_day_ahead_is_rejected_and_never_stalls_the_relation(worker):
+    """Regression: one valid pose a day ahead stopped the relation until the worker restarted
+    (received rising, published flat, nothing counted)."""
+    w, session = worker
+    now = time.time_ns()
+    feed(w, session, KEYS.data("ART/WT"), pose(now, 0.5))
+    feed(w, session, KEYS.data("ART/HT"), pose(now + 86_400 * 10**9))
+    assert w.counters["rejected_future"] == 1
+    for i in range(1, 4):
+        feed(w, session, KEYS.data("ART/HT"), pose(now + i * 1_000_000))
+    results = outputs(session)
+    assert [r.timestamp_ns for r in results] == [now + i * 1_000_000 for i in (1, 2, 3)]
+    np.testing.assert_allclose(results[-1].translation, [1.5, 0.0, 0.0])
+
+
+def test_a_sample_just_within_the_bound_is_used(worker):
+    w, session = worker
+    now = time.time_ns()
+    feed(w, session, KEYS.data("ART/WT"), pose(now))
+    feed(w, session, KEYS.data("ART/HT"), pose(now + MAX_FUTURE_NS // 2))
+    assert w.counters["rejected_future"] == 0 and len(outputs(session)) == 1
+
+
+def test_a_pose_with_six_translation_values_is_rejected(worker):
+    """Regression: the codec raised ValueError from reshape, which killed the worker."""
+    w, session = worker
+    message = msgpack.unpackb(pose(time.time_ns()))
+    message["translation"] = np.zeros(6).tobytes()
+    feed(w, session, KEYS.data("ART/HT"), msgpack.packb(message))
+    assert w.counters["rejected"] == 1 and w.counters["internal_errors"] == 0
+
+
+def test_every_sample_consumed_without_output_is_counted(worker):
+    w, session = worker
+    now = time.time_ns()
+    feed(w, session, KEYS.data("ART/HT"), pose(now))  # no static value yet: dropped
+    w.step(longest_s=0.0)
+    feed(w, session, KEYS.data("ART/WT"), pose(now))  # a static input, not a trigger
+    feed(w, session, KEYS.data("ART/HT"), pose(now))  # the instant already computed
+    feed(w, session, KEYS.data("ART/HT"), pose(now + 1))
+    c = w.counters
+    assert (c["received"], c["dropped"], c["buffered"], c["stale_triggers"]) == (4, 1, 1, 1)
+    assert c["published"] == 1
+
+
+def test_a_sample_older_than_its_buffer_is_counted(worker):
+    w, session = worker
+    now = time.time_ns()
+    for i in range(1, 70):  # a full buffer: 64 samples
+        feed(w, session, KEYS.data("ART/HT"), pose(now + i))
+    feed(w, session, KEYS.data("ART/HT"), pose(now - 10**9))
+    assert w.counters["dropped_stale"] == 1
+
+
+@pytest.mark.parametrize(
+    "payload, reason",
+    [
+        (b"[" * 100_000 + b"]" * 100_000, "not JSON or nested"),  # RecursionError before
+        (json.dumps({"inputs": 1}).encode(), "inputs"),
+        ((b'{"parameters": ' + b"[" * 40 + b"]" * 40 + b"}"), "nested"),
+        (b"\xff\xfe", "not UTF-8"),
+        (json.dumps({"stop": "yes"}).encode(), "stop"),
+        (json.dumps({"stop": 1}).encode(), "stop"),  # 1 == True in Python, not in JSON
+        (json.dumps({"stop": True, "inputs": []}).encode(), "stop"),
+        (json.dumps({"parameters": {"nope": 1}}).encode(), "unknown parameters"),
+        (b"{" + b" " * 70_000 + b"}", "oversized"),
+    ],
+)
+def test_a_bad_control_command_is_rejected_and_counted(worker, payload, reason):
+    w, session = worker
+    feed(w, session, KEYS.control("concat1"), payload)
+    assert w.counters["rejected_commands"] == 1
+    assert w.counters["internal_errors"] == 0 and w.counters["rewired"] == 0
+
+
+def test_a_control_command_is_applied_in_full_or_not_at_all(worker):
+    w, session = worker
+    command = {
+        "relations": {"AC": [KEYS.relation(RelationId("C", "A", "6D"))]},
+        "inputs": [{"port": "nope", "key": "a"}],
+    }
+    feed(w, session, KEYS.control("concat1"), json.dumps(command).encode())
+    assert w.counters["rejected_commands"] == 1 and w.spec == SPEC
+
+
+def test_an_unexpected_fault_is_counted_not_raised(worker, monkeypatch):
+    w, session = worker
+
+    def broken(*args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(w._service, "compute", broken)
+    now = time.time_ns()
+    feed(w, session, KEYS.data("ART/WT"), pose(now))
+    feed(w, session, KEYS.data("ART/HT"), pose(now))
+    assert w.counters["internal_errors"] == 1
+    monkeypatch.undo()
+    feed(w, session, KEYS.data("ART/HT"), pose(now + 1))
+    assert w.counters["published"] == 1
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        b"[" * 100_000 + b"]" * 100_000,  # RecursionError killed the idle pool worker
+        b'{"instance": ' + b"[" * 50 + b"]" * 50 + b"}",
+        b"\xff",
+        json.dumps({**SPEC.as_dict(), "service": "os.system"}).encode(),
+        json.dumps({**SPEC.as_dict(), "parameters": {"x": 1e400}}).encode(),
+        json.dumps({**SPEC.as_dict(), "relations": {"AC": ["not/a/relation"]}})[:-1].encode(),
+    ],
+)
+def test_an_idle_pool_worker_rejects_a_bad_specification_and_keeps_waiting(monkeypatch, payload):
+    monkeypatch.setattr(Pool, "_watch_parent", lambda self: None)
+    pool = Pool(FakeSession(), KEYS, "p1")
+    assert pool._read_spec(payload) is None
+    assert pool.counters["rejected_specs"] == 1
+    assert pool._read_spec(SPEC.to_json().encode()) == SPEC
+
+
+def test_a_relation_route_that_is_no_relation_key_does_not_stop_the_worker():
+    spec = ComponentSpec(**{**vars(SPEC), "relations": {"AC": ("some/other/key",)}})
+    worker = Worker(spec, FakeSession(), KEYS)
+    worker.stop()
