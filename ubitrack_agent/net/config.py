@@ -88,6 +88,9 @@ class Settings:
                 "period_max_ms": 500,
                 "period_increase_factor": 2,
             },
+            # A client cannot open without its router (zenoh's default gives up at once):
+            # wait for it as long as it takes, so processes still start in any order.
+            **({"connect/timeout_ms": -1} if self.mode == "client" else {}),
             **self._security_options(),
         }
 
