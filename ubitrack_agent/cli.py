@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "sim",
     "dtrack",
     "config",
+    "certs",
     "demo",
 )
 """Modules of :mod:`ubitrack_agent.commands`, in the order ``--help`` lists them."""

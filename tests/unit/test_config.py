@@ -1,5 +1,6 @@
 """Settings resolution: defaults < file < environment < flags, with errors naming the source."""
 
+import argparse
 import json
 
 import pytest
@@ -119,3 +120,68 @@ def test_every_command_has_help(capsys):
             cli.main([name, "--help"])
         assert info.value.code == 0
         assert name in capsys.readouterr().out
+
+
+def _security_files(directory):
+    for name in ("ca.pem", "me.pem", "me-key.pem"):
+        (directory / name).write_text("PEM\n")
+    (directory / "acl.json").write_text('{"enabled": true, "default_permission": "deny"}\n')
+
+
+def test_tls_and_access_control_files_are_relative_to_the_settings_file(tmp_path, monkeypatch):
+    _security_files(tmp_path)
+    path = tmp_path / "hub.yaml"
+    path.write_text(
+        "mode: router\nlisten: [tls/0.0.0.0:7448]\ntls_root_ca: ca.pem\n"
+        "tls_certificate: me.pem\ntls_key: me-key.pem\naccess_control: acl.json\n"
+    )
+    monkeypatch.chdir("/")
+    hub = config.resolve("hub", config_file=path, env={})
+    assert hub.tls_root_ca == str(tmp_path / "ca.pem")
+    options = hub.zenoh_options()
+    assert options["transport/link/tls"]["enable_mtls"] is True
+    assert options["transport/link/tls"]["connect_certificate"] == str(tmp_path / "me.pem")
+    assert options["access_control"]["default_permission"] == "deny"
+
+
+def test_members_of_an_access_controlled_hub_are_clients_with_its_tls(tmp_path):
+    _security_files(tmp_path)
+    path = tmp_path / "hub.yaml"
+    path.write_text(
+        "mode: router\nlisten: [tls/0.0.0.0:7448]\ntls_root_ca: ca.pem\n"
+        "tls_certificate: me.pem\ntls_key: me-key.pem\naccess_control: acl.json\n"
+    )
+    member = config.member_of(config.resolve("hub", config_file=path, env={}))
+    assert (member.mode, member.connect, member.listen) == ("client", ("tls/127.0.0.1:7448",), ())
+    assert member.access_control is None and member.tls_key == str(tmp_path / "me-key.pem")
+    parser = argparse.ArgumentParser()
+    config.add_arguments(parser)
+    handed = config.from_arguments(parser.parse_args(config.as_flags(member)), role="member")
+    assert handed == member  # what a child process resolves from the flags
+    assert handed.zenoh_options()["connect/timeout_ms"] == -1  # waits for its router
+
+
+@pytest.mark.parametrize(
+    "content, fragment",
+    [
+        ("tls_root_ca: ca.pem\n", "go together"),
+        ("tls_root_ca: missing.pem\n", "is not a readable file"),
+        ("access_control: acl.json\n", "access_control needs TLS"),
+        (
+            "tls_root_ca: ca.pem\ntls_certificate: me.pem\ntls_key: me-key.pem\n"
+            "access_control: acl.json\nlisten: [tcp/0.0.0.0:7448]\n",
+            "listen on tls/ endpoints only",
+        ),
+        (
+            "tls_root_ca: ca.pem\ntls_certificate: me.pem\ntls_key: me-key.pem\n"
+            "access_control: ca.pem\nlisten: [tls/0.0.0.0:7448]\n",
+            "expected a mapping",
+        ),
+    ],
+)
+def test_inconsistent_security_settings_are_refused(tmp_path, content, fragment):
+    _security_files(tmp_path)
+    path = tmp_path / "bad.yaml"
+    path.write_text(content)
+    with pytest.raises(config.ConfigError, match=fragment):
+        config.resolve("hub", config_file=path, env={})

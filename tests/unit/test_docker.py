@@ -1,6 +1,7 @@
 """docker/ is right by construction: every container runs a command the CLI accepts, and
 docker-compose (where installed) accepts the file."""
 
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -8,7 +9,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from ubitrack_agent import cli
 from ubitrack_agent.cli import build_parser
+from ubitrack_agent.net import config
 
 DOCKER = Path(__file__).resolve().parents[2] / "docker"
 
@@ -45,5 +48,51 @@ def test_docker_compose_accepts_the_file():
         ["docker-compose", "-f", str(DOCKER / "compose.yaml"), "config", "--quiet"],
         capture_output=True,
         text=True,
+    )
+    assert result.returncode == 0, result.stderr
+
+
+def _certs_command(compose_file: Path) -> list[str]:
+    """The ``ubitrack certs`` arguments the file's header says to run first."""
+    lines = compose_file.read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if "ubitrack certs" in line)
+    words = " ".join(line.lstrip("# ").rstrip("\\") for line in lines[start : start + 2]).split()
+    return words[words.index("certs") :]
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl not installed")
+def test_the_tls_variant_hands_every_zenoh_service_valid_secure_settings(tmp_path, monkeypatch):
+    """Every container of compose.tls.yaml resolves its settings (files made by the header's
+    command, then its environment, then its command's flags) to mutual TLS: the agent a
+    router enforcing the access control, the others clients listening nowhere."""
+    command = _certs_command(DOCKER / "compose.tls.yaml")
+    assert cli.main([*(str(tmp_path) if w == "docker/certs" else w for w in command)]) == 0
+    base = yaml.safe_load((DOCKER / "compose.yaml").read_text())["services"]
+    override = yaml.safe_load((DOCKER / "compose.tls.yaml").read_text())["services"]
+    assert set(override) == set(base) - {"art"}  # every zenoh process; art speaks UDP only
+    parser = build_parser()
+    for name, service in override.items():
+        assert "./certs:/etc/ubitrack:ro" in service["volumes"], name
+        env = {**base[name].get("environment", {}), **service["environment"]}
+        env["UBITRACK_CONFIG"] = env["UBITRACK_CONFIG"].replace("/etc/ubitrack", str(tmp_path))
+        args = parser.parse_args(service.get("command", base[name]["command"]))
+        monkeypatch.setattr(os, "environ", env)
+        settings = config.from_arguments(args, role="hub" if name == "agent" else "member")
+        assert settings.tls and settings.domain == "lab", name
+        if name == "agent":
+            assert settings.mode == "router" and settings.access_control is not None
+        else:
+            assert (settings.mode, settings.connect, settings.listen) == (
+                "client",
+                ("tls/agent:7448",),
+                (),
+            )
+
+
+@pytest.mark.skipif(shutil.which("docker-compose") is None, reason="docker-compose not installed")
+def test_docker_compose_accepts_the_tls_variant():
+    files = ["-f", str(DOCKER / "compose.yaml"), "-f", str(DOCKER / "compose.tls.yaml")]
+    result = subprocess.run(
+        ["docker-compose", *files, "config", "--quiet"], capture_output=True, text=True
     )
     assert result.returncode == 0, result.stderr

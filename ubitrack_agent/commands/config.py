@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import asdict
 
 from ubitrack_agent.net import config
 
@@ -38,14 +39,7 @@ def run(args: argparse.Namespace) -> int:
             {
                 "role": args.role,
                 "key_prefix": settings.key_prefix,
-                "settings": {
-                    "mode": settings.mode,
-                    "connect": list(settings.connect),
-                    "listen": list(settings.listen),
-                    "multicast": settings.multicast,
-                    "prefix": settings.prefix,
-                    "domain": settings.domain,
-                },
+                "settings": asdict(settings),
                 "zenoh": settings.zenoh_options(),
             },
             indent=2,

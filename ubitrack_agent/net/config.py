@@ -11,6 +11,11 @@ processes can start in any order. Gossip scouting then lets members connect to e
 directly. A multi-host setup only changes ``connect``/``listen`` (or uses ``mode: client``
 towards a router).
 
+Opt-in security (``docs/security.md``): ``tls_root_ca``, ``tls_certificate`` and ``tls_key``
+make every link TLS with client certificates (mutual TLS); ``access_control`` names a file
+holding zenoh's ``access_control`` block (``net.access`` builds it), for the hub, a router
+that every member reaches as a client, so that it sees every message.
+
 This module is pure; :mod:`ubitrack_agent.net.session` turns :class:`Settings` into a session.
 """
 
@@ -51,6 +56,15 @@ class Settings:
     multicast: bool = False
     prefix: str = "ubitrack"
     domain: str = "default"
+    tls_root_ca: str | None = None
+    tls_certificate: str | None = None
+    tls_key: str | None = None
+    access_control: str | None = None
+
+    @property
+    def tls(self) -> bool:
+        """Whether links are mutual TLS (the three ``tls_*`` files are given together)."""
+        return self.tls_root_ca is not None
 
     @property
     def key_prefix(self) -> str:
@@ -74,7 +88,31 @@ class Settings:
                 "period_max_ms": 500,
                 "period_increase_factor": 2,
             },
+            # A client cannot open without its router (zenoh's default gives up at once):
+            # wait for it as long as it takes, so processes still start in any order.
+            **({"connect/timeout_ms": -1} if self.mode == "client" else {}),
+            **self._security_options(),
         }
+
+    def _security_options(self) -> dict[str, Any]:
+        """The TLS and access-control entries, when configured."""
+        options: dict[str, Any] = {}
+        if self.tls:
+            options["transport/link/tls"] = {
+                "root_ca_certificate": self.tls_root_ca,
+                "listen_certificate": self.tls_certificate,
+                "listen_private_key": self.tls_key,
+                "connect_certificate": self.tls_certificate,
+                "connect_private_key": self.tls_key,
+                "enable_mtls": True,
+            }
+        if self.access_control is not None:
+            options["access_control"] = load_access_control(self.access_control)
+        return options
+
+
+MEMBER_LISTEN = ("tcp/127.0.0.1:0",)
+"""Where a member peer listens by default: a random loopback port."""
 
 
 def defaults(role: Role) -> Settings:
@@ -82,21 +120,25 @@ def defaults(role: Role) -> Settings:
     hub = f"tcp/127.0.0.1:{DEFAULT_HUB_PORT}"
     if role == "hub":
         return Settings(listen=(hub,))
-    return Settings(connect=(hub,), listen=("tcp/127.0.0.1:0",))
+    return Settings(connect=(hub,), listen=MEMBER_LISTEN)
 
 
 def member_of(hub: Settings) -> Settings:
-    """Settings of a process joining ``hub``'s network and domain: it connects where the hub
-    connects (a router) or else where it listens (a wildcard address as loopback), listens on
-    a random loopback port, and is a peer even when the hub is a router."""
+    """Settings of a process joining ``hub``'s network and domain, with the hub's TLS files:
+    it connects where the hub connects (a router) or else where it listens (a wildcard address
+    as loopback). It is a client, listening nowhere, when the hub enforces access control (so
+    that every message passes the hub) or is itself a client; else a peer, even when the hub
+    is a router, listening on a random loopback port."""
     connect = hub.connect or tuple(
         endpoint.replace("0.0.0.0", "127.0.0.1") for endpoint in hub.listen
     )
+    client = hub.access_control is not None or hub.mode == "client"
     return replace(
         hub,
-        mode="peer" if hub.mode == "router" else hub.mode,
+        mode="client" if client else "peer",
         connect=connect,
-        listen=("tcp/127.0.0.1:0",),
+        listen=() if client else MEMBER_LISTEN,
+        access_control=None,
     )
 
 
@@ -108,7 +150,15 @@ def as_flags(settings: Settings) -> list[str]:
         flags += ["--connect", endpoint]
     for endpoint in settings.listen:
         flags += ["--listen", endpoint]
+    for name in PATH_SETTINGS:
+        if getattr(settings, name) is not None:
+            flags += [_flag(name), getattr(settings, name)]
     return [*flags, "--multicast" if settings.multicast else "--no-multicast"]
+
+
+def _flag(name: str) -> str:
+    """The command-line flag of setting ``name``."""
+    return "--" + name.replace("_", "-")
 
 
 def member_flags(hub: Settings) -> list[str]:
@@ -139,9 +189,35 @@ def _boolean(source: str, value: Any) -> bool:
     raise ConfigError(f"{source}: expected true or false, got {value!r}")
 
 
-def _parse(source: str, name: str, value: Any) -> Any:
-    """Check one setting's value; ``source`` names its origin for error messages."""
+PATH_SETTINGS = ("tls_root_ca", "tls_certificate", "tls_key", "access_control")
+"""Settings naming a file; a relative path is relative to the settings file naming it (else to
+the working directory), and becomes absolute, so child processes can be handed it."""
+
+
+def _path(where: str, value: Any, base: Path) -> str:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{where}: expected a file name")
+    path = (base / Path(value).expanduser()).resolve()
+    if not path.is_file():
+        raise ConfigError(f"{where}: {path} is not a readable file")
+    return str(path)
+
+
+def load_access_control(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Zenoh's ``access_control`` block from a JSON (or YAML) file (``net.access`` builds
+    one); ``ConfigError`` if it is not a mapping."""
+    block = load_file(path)
+    if not block:
+        raise ConfigError(f"{path}: expected zenoh's access_control block (a mapping)")
+    return block
+
+
+def _parse(source: str, name: str, value: Any, base: Path) -> Any:
+    """Check one setting's value; ``source`` names its origin for error messages and ``base``
+    is the directory relative file names start from."""
     where = f"{source}: {name}"
+    if name in PATH_SETTINGS:
+        return _path(where, value, base)
     if name == "mode":
         if value not in MODES:
             raise ConfigError(f"{where}: must be one of {', '.join(MODES)}, got {value!r}")
@@ -162,11 +238,29 @@ def _parse(source: str, name: str, value: Any) -> Any:
 SETTING_NAMES = tuple(f.name for f in fields(Settings))
 
 
-def _apply(settings: Settings, source: str, values: Mapping[str, Any]) -> Settings:
+def _apply(settings: Settings, source: str, values: Mapping[str, Any], base: Path) -> Settings:
     unknown = sorted(set(values) - set(SETTING_NAMES))
     if unknown:
         raise ConfigError(f"{source}: unknown settings {unknown}; known: {list(SETTING_NAMES)}")
-    return replace(settings, **{k: _parse(source, k, v) for k, v in values.items()})
+    return replace(settings, **{k: _parse(source, k, v, base) for k, v in values.items()})
+
+
+def _checked(settings: Settings) -> Settings:
+    """``settings`` if its security settings fit together, else ``ConfigError``."""
+    given = [name for name in PATH_SETTINGS[:3] if getattr(settings, name) is not None]
+    if given and len(given) < 3:
+        raise ConfigError(
+            f"tls_root_ca, tls_certificate and tls_key go together; only {given} given"
+        )
+    if settings.access_control is None:
+        return settings
+    if not settings.tls:
+        raise ConfigError("access_control needs TLS: its subjects are certificate common names")
+    plain = [e for e in settings.listen if not e.startswith("tls/")]
+    if plain:
+        raise ConfigError(f"access_control: listen on tls/ endpoints only, not {plain}")
+    load_access_control(settings.access_control)
+    return settings
 
 
 def load_file(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -202,15 +296,22 @@ def resolve(
     env: Mapping[str, str] | None = None,
     flags: Mapping[str, Any] | None = None,
 ) -> Settings:
-    """Combine defaults < file < environment < flags (``None`` flag values are ignored)."""
+    """Combine defaults < file < environment < flags (``None`` flag values are ignored). A
+    client listens only where one of them says (zenoh's default), not on the member default."""
     env = os.environ if env is None else env
-    settings = defaults(role)
     config_file = config_file or env.get(ENV_PREFIX + "CONFIG")
+    layers = [
+        ("environment", from_environment(env), Path.cwd()),
+        ("command line", {k: v for k, v in (flags or {}).items() if v is not None}, Path.cwd()),
+    ]
     if config_file:
-        settings = _apply(settings, str(config_file), load_file(config_file))
-    settings = _apply(settings, "environment", from_environment(env))
-    given = {k: v for k, v in (flags or {}).items() if v is not None}
-    return _apply(settings, "command line", given)
+        layers.insert(0, (str(config_file), load_file(config_file), Path(config_file).parent))
+    settings = defaults(role)
+    for source, values, base in layers:
+        settings = _apply(settings, source, values, base)
+    if settings.mode == "client" and not any("listen" in values for _, values, _ in layers):
+        settings = replace(settings, listen=())
+    return _checked(settings)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -235,6 +336,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--domain", help="key domain, ubitrack/<domain>/... (default: default)")
     group.add_argument("--prefix", help="key prefix (default: ubitrack)")
+    group.add_argument("--tls-root-ca", metavar="FILE", help="CA certificate (PEM): mutual TLS")
+    group.add_argument("--tls-certificate", metavar="FILE", help="this process's certificate")
+    group.add_argument("--tls-key", metavar="FILE", help="this process's private key")
+    group.add_argument(
+        "--access-control",
+        metavar="FILE",
+        help="zenoh access_control block (JSON) a hub enforces (docs/security.md)",
+    )
 
 
 def from_arguments(args: argparse.Namespace, role: Role) -> Settings:

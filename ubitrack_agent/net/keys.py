@@ -268,6 +268,12 @@ class KeySpace:
             raise ValueError(f"{key!r} is not a host exit key (<root>/host/<name>/exited)")
         return self.parse_host(key[: -len(suffix)])
 
+    def pattern(self, *chunks: str) -> str:
+        """The key expression ``<root>/<chunks>``, whose chunks may be zenoh wildcards (``*``,
+        ``**``, ``$*``): for access-control rules (``net.access``), never declared or
+        published on; the first chunk is one of the layout's above."""
+        return "/".join((self.root, *chunks))
+
     def _parse_name(self, key: str, kind: str) -> str:
         """The single chunk after ``<root>/<kind>/`` in ``key``; ``ValueError`` otherwise."""
         prefix = f"{self.root}/{kind}/"
