@@ -97,4 +97,6 @@ def run(args: argparse.Namespace) -> int:
         state = "alive" if component["alive"] else "starting"
         print(f"worker {instance} ({component['service']}, {state}): {component['counters']}")
     print(f"counters: {status['counters']}")
+    for counter, reason in status.get("problems", {}).items():
+        print(f"  last {counter}: {reason}")
     return 0
