@@ -23,6 +23,7 @@ from ubitrack_agent.agent.announcements import (
     fragment_entries,
 )
 from ubitrack_agent.agent.flows import plan_relations, stable_choice
+from ubitrack_agent.agent.liveness import DataLiveness
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.graph.planner import Query, plan
 from ubitrack_agent.graph.srg import QUALITY_BOUNDS, SetupError, parse_setup
@@ -211,3 +212,34 @@ def test_rejections_are_logged_rate_limited(caplog):
     assert problems.counters["rejected_worker_keys"] == 2000
     assert problems.last["rejected_worker_keys"] == "ignored 1999"
     assert len(caplog.records) == 12  # the first ten, the 1000th and the 2000th
+
+
+def test_an_edge_whose_data_stopped_is_stale_until_data_returns():
+    liveness = DataLiveness()
+    entries = [
+        {"id": "a/HT", "rate": 100.0},  # window max(20 / 100, 1) = 1 s
+        {"id": "a/slow", "rate": 0.5},  # 40 s
+        {"id": "a/WT", "rate": 100.0, "static": True},
+        {"id": "a/pull", "rate": 100.0, "mode": "pull"},
+        {"id": "a/unrated"},
+    ]
+    added, _ = liveness.watch(entries, now=0.0)
+    assert added == {"a/HT", "a/slow"}
+    assert liveness.windows == {"a/HT": 1.0, "a/slow": 40.0}
+    assert liveness.stale(0.9) == frozenset()  # a new edge has its window to deliver
+    assert liveness.stale(1.1) == {"a/HT"}
+    liveness.arrived("a/HT", 1.2)
+    assert liveness.stale(1.3) == frozenset()
+    assert liveness.stale(41.0) == {"a/HT", "a/slow"}
+    _, removed = liveness.watch(entries[:1], now=41.0)
+    assert removed == {"a/slow"}
+    assert liveness.stale(41.0) == {"a/HT"}
+
+
+def test_the_live_srg_leaves_out_stale_edges():
+    entries = [
+        {"from": "W", "to": "H", "type": "6D", "provider": "a", "id": "a/H", "rate": 60},
+        {"from": "W", "to": "H", "type": "6D", "provider": "b", "id": "b/H", "rate": 60},
+    ]
+    srg = build_srg({"live": entries}, without={"a/H"})
+    assert [key for _, _, key in srg.edges(keys=True)] == ["b/H"]

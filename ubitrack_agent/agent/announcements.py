@@ -13,7 +13,7 @@ it and ignores that provider, never crashing.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Set
 from typing import Any
 
 import networkx as nx
@@ -88,9 +88,17 @@ def provider_entries(provider: str, edges: Any) -> list[dict[str, Any]]:
     return entries
 
 
-def build_srg(fragments: Mapping[str, list[dict[str, Any]]]) -> nx.MultiDiGraph:
-    """The live SRG of every accepted provider's edges."""
-    entries = [entry for provider in sorted(fragments) for entry in fragments[provider]]
+def build_srg(
+    fragments: Mapping[str, list[dict[str, Any]]], without: Set[str] = frozenset()
+) -> nx.MultiDiGraph:
+    """The live SRG of every accepted provider's edges, less the edge ids ``without`` (those
+    whose data stopped: ``agent.liveness``)."""
+    entries = [
+        entry
+        for provider in sorted(fragments)
+        for entry in fragments[provider]
+        if entry["id"] not in without
+    ]
     if not entries:
         return new_srg()
     return parse_setup({"name": "live", "edges": entries}, origin="live SRG")

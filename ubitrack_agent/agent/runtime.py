@@ -9,6 +9,9 @@ whole state from them alone (``docs/protocol.md``):
   want; applications asking for the same relation share it;
 * workers (``<root>/worker/<instance>``): which components are alive.
 
+It also watches the arrival of data on the measured edges that announce a rate
+(:mod:`.liveness`): an edge whose data stopped is planned without until its data returns.
+
 After each batch of events it replans every relation (:mod:`.flows`), turns the merged data
 flow into worker specifications (:mod:`.materialise`) and reconciles the running workers with
 them (:mod:`.reconcile`): start or stop (through a host manager, over zenoh only: :mod:`.hosts`),
@@ -45,6 +48,7 @@ from ubitrack_agent.agent.announcements import (
 )
 from ubitrack_agent.agent.flows import Plan, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
+from ubitrack_agent.agent.liveness import DataLiveness
 from ubitrack_agent.agent.materialise import component_specs
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
@@ -84,6 +88,9 @@ class Agent:
         self.problems = Problems(self.counters)
         self._guard = Guard(self.problems)
         self._replan_due = False
+        self.liveness = DataLiveness()
+        self.stale: frozenset[str] = frozenset()
+        self._data_watches: dict[str, Any] = {}
         self.fragments: dict[str, list[dict[str, Any]]] = {}
         self.rejected: dict[str, str] = {}
         self.queries: dict[RelationId, set[str]] = defaultdict(set)
@@ -255,7 +262,8 @@ class Agent:
     def _replan(self) -> None:
         """Plan every queried relation on the live SRG; the state changes only once the whole
         plan is made (a failure keeps the previous plan, and planning is asked again)."""
-        srg = build_srg(self.fragments)
+        self._watch_data()
+        srg = build_srg(self.fragments, without=self.stale)
         plan = plan_relations(srg, self.templates, self.queries, set(self.running), self.plan)
         wanted = component_specs(plan.flow, srg, self.keys, plan.relations)
         self.srg, self.plan, self.wanted = srg, plan, wanted
@@ -263,6 +271,36 @@ class Agent:
         self.counters["replans"] += 1
         for name, reason in self.plan.unsolved.items():
             log.warning("cannot serve %s: %s", name, reason)
+
+    def _watch_data(self) -> None:
+        """Subscribe to the data keys of exactly the edges :class:`.liveness.DataLiveness`
+        watches among the accepted providers' (only arrival times are recorded)."""
+        entries = [entry for entries in self.fragments.values() for entry in entries]
+        added, removed = self.liveness.watch(entries, time.monotonic())
+        for edge_id in removed:
+            self._data_watches.pop(edge_id).undeclare()
+        for edge_id in sorted(added):
+            self._data_watches[edge_id] = self.session.declare_subscriber(
+                self.keys.data(edge_id),
+                lambda _sample, edge_id=edge_id: self.liveness.arrived(edge_id, time.monotonic()),
+            )
+
+    def _check_liveness(self) -> bool:
+        """Update the stale edges; True if they changed (then the agent replans)."""
+        stale = self.liveness.stale(time.monotonic())
+        if stale == self.stale:
+            return False
+        for edge_id in sorted(stale - self.stale):
+            self.counters["stale_edges"] += 1
+            window = self.liveness.windows[edge_id]
+            log.warning(
+                "%s: no data for %.1f s, planning without it until it returns", edge_id, window
+            )
+        for edge_id in sorted(self.stale - stale):
+            self.counters["returned_edges"] += 1
+            log.warning("%s: data again, planning with it", edge_id)
+        self.stale = stale
+        return True
 
     def _settled(self) -> bool:
         """Start-up history has arrived: peers reconnect to a restarted agent within their
@@ -331,6 +369,7 @@ class Agent:
                         "liveliness", self._handle, *event, default=False
                     )
                 self._replan_due |= guard.periodic("fragments", self._fetch_fragments, False)
+                self._replan_due |= guard.periodic("liveness", self._check_liveness, False)
                 guard.periodic("hosts", self._reap_hosts, None)
                 if self._replan_due:
                     guard.periodic("replan", self._replan, None)
@@ -373,6 +412,7 @@ class Agent:
             "key_prefix": self.keys.root,
             "providers": {p: [e["id"] for e in entries] for p, entries in self.fragments.items()},
             "rejected_providers": dict(self.rejected),
+            "stale_edges": sorted(self.stale),
             "srg": [
                 {"id": key, "from": u, "to": v, "type": d["type"], "static": d["static"]}
                 for u, v, key, d in self.srg.edges(keys=True, data=True)
@@ -415,6 +455,8 @@ class Agent:
             watch.undeclare()
         self._status.undeclare()
         self._status_thread.join(timeout=1.0)
+        for watch in self._data_watches.values():
+            watch.undeclare()
         if stop_workers:
             for instance in sorted({*self.running, *self._retiring}):
                 self.hosts.stop(instance)
