@@ -246,3 +246,30 @@ def test_hostile_input_on_every_entry_point_leaves_the_agent_serving(setup):  # 
             token.undeclare()
         server.close()
         relation.close()
+
+
+def test_an_agent_started_among_hostile_tokens_keeps_running(setup):  # noqa: F811
+    """A restarted agent reads the tokens already there (liveliness history): hostile ones
+    must not make it crash-loop (issue 11: it died again within 6 s while the token existed)."""
+    session, root = setup.session, setup.keys.root
+    server = FragmentServer(session, setup.keys)
+    server.payloads["fz-sigma"] = fragment("fz-sigma", [with_field("sigma", 1e200)])
+    names = ["*", "**", "a b", "a$*b", "Ä"]
+    keys = [f"{root}/{kind}/{name}" for kind in ("worker", "provider", "host") for name in names]
+    tokens = [session.liveliness().declare_token(key) for key in keys]
+    tokens.append(session.liveliness().declare_token(setup.keys.provider("fz-sigma")))
+    try:
+        agent = setup.start_agent()
+        setup.tracker("art", "ART", 30.0, 2.0)
+        with Relation(session, setup.keys, WT_HT, application="app") as relation:
+            for sample in fresh_samples(relation, 10, timeout=30):
+                assert_true_pose(sample)
+        status = setup.status()
+        assert agent.poll() is None
+        assert "fz-sigma" in status["rejected_providers"]
+        for kind in ("worker", "provider", "host"):
+            assert status["counters"][f"rejected_{kind}_keys"] >= len(names)
+    finally:
+        for token in tokens:
+            token.undeclare()
+        server.close()
