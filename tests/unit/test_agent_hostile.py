@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import threading
 
 import pytest
 from hypothesis import given, settings
@@ -25,6 +26,7 @@ from ubitrack_agent.agent.announcements import (
 from ubitrack_agent.agent.flows import plan_relations, stable_choice
 from ubitrack_agent.agent.liveness import DataLiveness
 from ubitrack_agent.agent.problems import Guard, Problems
+from ubitrack_agent.agent.runtime import Agent
 from ubitrack_agent.graph.planner import Query, plan
 from ubitrack_agent.graph.srg import QUALITY_BOUNDS, SetupError, parse_setup
 from ubitrack_agent.graph.templates import load_templates
@@ -243,3 +245,21 @@ def test_the_live_srg_leaves_out_stale_edges():
     ]
     srg = build_srg({"live": entries}, without={"a/H"})
     assert [key for _, _, key in srg.edges(keys=True)] == ["b/H"]
+
+
+def test_a_failing_loop_leaves_the_workers_running_and_a_clean_stop_ends_them():
+    agent = Agent.__new__(Agent)  # the loop alone: no session
+    agent._stop = threading.Event()
+    agent._guard = Guard(Problems())
+    closed = []
+    agent._close = lambda stop_workers: closed.append(stop_workers)
+
+    def broken():
+        raise RuntimeError("the loop itself")
+
+    agent._next_batch = broken
+    with pytest.raises(RuntimeError):
+        agent.run()
+    agent._stop.set()
+    agent.run()
+    assert closed == [False, True]
