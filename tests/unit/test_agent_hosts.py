@@ -57,7 +57,7 @@ class FakeSession:
         answer = self.answers.get(host)
         return [] if answer is None else [answer(request)]
 
-    def put(self, key, data):
+    def put(self, key, data, **options):
         self.puts.append((key, data))
 
 

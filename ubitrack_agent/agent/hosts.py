@@ -45,6 +45,7 @@ from ubitrack_agent.net.host_protocol import (
 )
 from ubitrack_agent.net.keys import KeyRejection, KeySpace
 from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -128,7 +129,7 @@ class Hosts:
                 return
             except ProtocolError as exc:
                 self._problems.report("failed_stops", "%s: host did not stop it: %s", instance, exc)
-        self._session.put(self._keys.control(instance), STOP_COMMAND)
+        put_command(self._session, self._keys.control(instance), STOP_COMMAND)
 
     def _answering(self) -> list[str]:
         """Live host managers by name, less those that did not answer lately."""

@@ -57,6 +57,7 @@ from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -296,8 +297,8 @@ class Agent:
             log.warning(
                 "%s: no data for %.1f s, planning without it until it returns", edge_id, window
             )
-        for edge_id in sorted(self.stale - stale):
-            self.counters["returned_edges"] += 1
+        for edge_id in sorted((self.stale - stale) & set(self.liveness.windows)):
+            self.counters["returned_edges"] += 1  # (not an edge whose provider left)
             log.warning("%s: data again, planning with it", edge_id)
         self.stale = stale
         return True
@@ -352,7 +353,7 @@ class Agent:
                 self._stop_worker(instance)
 
     def _send_control(self, instance: str, command: dict[str, Any]) -> None:
-        self.session.put(self.keys.control(instance), json.dumps(command))
+        put_command(self.session, self.keys.control(instance), json.dumps(command))
 
     # -- main loop and status -----------------------------------------------------------------
 

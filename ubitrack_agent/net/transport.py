@@ -13,6 +13,8 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import zenoh
+
 FETCH_RETRY_DELAYS = (0.0,) + (0.02,) * 50 + (0.1,) * 20 + (0.5,) * 10
 """Seconds between attempts to fetch current values after subscribing: every 20 ms for a
 second, then less often, for 8 s in all. Links come up in the background after ``zenoh.open``,
@@ -51,6 +53,18 @@ class LatestValuePublisher:
         self._queryable.undeclare()
         self._publisher.undeclare()
         self._thread.join(timeout=1.0)
+
+
+def put_command(session: Any, key: str, payload: str | bytes) -> None:
+    """Put a command (a control command to a worker) so that a busy link delays it instead of
+    dropping it: zenoh's default for a put drops a message the transmission queue cannot take
+    at once, and a lost rewire leaves a relation without data."""
+    session.put(
+        key,
+        payload,
+        congestion_control=zenoh.CongestionControl.BLOCK,
+        priority=zenoh.Priority.INTERACTIVE_HIGH,
+    )
 
 
 def fetch_latest(session: Any, key: str, timeout: float = 1.0) -> list[bytes]:
