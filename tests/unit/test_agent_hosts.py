@@ -2,13 +2,13 @@
 session: where starts go, when they wait, which exit reports restart what, how stops go."""
 
 import json
-from collections import Counter
 from types import SimpleNamespace
 
 import pytest
 
 from ubitrack_agent.agent import hosts as hosts_module
 from ubitrack_agent.agent.hosts import Hosts, Placement
+from ubitrack_agent.agent.problems import Problems
 from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
@@ -57,7 +57,7 @@ class FakeSession:
         answer = self.answers.get(host)
         return [] if answer is None else [answer(request)]
 
-    def put(self, key, data):
+    def put(self, key, data, **options):
         self.puts.append((key, data))
 
 
@@ -86,8 +86,8 @@ def clock(monkeypatch):
 
 @pytest.fixture
 def world(clock):
-    session, counters = FakeSession(), Counter()
-    return session, Hosts(session, KEYS, counters), counters
+    session, problems = FakeSession(), Problems()
+    return session, Hosts(session, KEYS, problems), problems.counters
 
 
 def host_appears(session: FakeSession, hosts: Hosts, name: str) -> None:
@@ -149,7 +149,8 @@ def test_only_a_matching_exit_report_restarts(world):
     session.event(exits, PUT, KEYS.host_exited("other"), b"{garbage")
     session.event(exits, PUT, KEYS.host_exited("lab") + "/extra", b"{}")
     assert hosts.reap(set()) == []
-    assert counters["rejected_host_reports"] == 2
+    assert counters["rejected_host_reports"] == 1  # the garbage payload
+    assert counters["rejected_host_exited_keys"] == 1  # the key with a chunk too many
     report = Exited("a", "run-a", 1, -9, "exited")
     session.event(exits, PUT, KEYS.host_exited("lab"), report.to_json().encode())
     assert hosts.reap({"a"}) == ["a"]

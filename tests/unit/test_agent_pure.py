@@ -68,16 +68,16 @@ def test_fragment_entries_carry_ids_and_providers():
     "payload, fragment_text",
     [
         (b"{", "not JSON"),
-        (b"[]", "must be"),
+        (b"[]", "expected a JSON object"),
         (fragment("other", edge("HT", "ART", "HT")), "names provider 'other'"),
         (fragment("art"), "1 to"),
         (fragment("art", edge("HT", "ART", "HT", colour=1)), "unknown fields ['colour']"),
         (fragment("art", edge("H/T", "ART", "HT")), "name"),
         (fragment("art", edge("HT", "A*", "HT")), "from"),
         (fragment("art", edge("HT", "ART", "HT", "7D")), "unknown type"),
-        (fragment("art", edge("HT", "ART", "HT", rate=-1)), "negative"),
+        (fragment("art", edge("HT", "ART", "HT", rate=-1)), "in [0, 100000], got -1"),
         (fragment("art", edge("HT", "ART", "HT"), edge("HT", "ART", "WT")), "duplicate"),
-        (b"x" * (2 << 20), "larger than"),
+        (b"x" * (2 << 20), "at most 1048576"),
     ],
 )
 def test_malformed_fragments_are_rejected_with_the_reason(payload, fragment_text):

@@ -71,7 +71,7 @@ def test_quality_fields_are_read():
         ({"from": "A", "to": "B", "type": "7D"}, "unknown type '7D'"),
         ({"from": "A", "to": "B", "type": "6D", "static": "yes"}, "field 'static'"),
         ({"from": "A", "type": "6D"}, "missing field 'to'"),
-        ({"from": "A", "to": "B", "type": "6D", "sigma": -1}, "must not be negative"),
+        ({"from": "A", "to": "B", "type": "6D", "sigma": -1}, "in [0, 1000], got -1"),
         ({"from": "A", "to": "B", "type": "6D", "mode": "poll"}, "unknown mode"),
         ({"from": "A", "to": "A", "type": "6D"}, "two different frames"),
         ({"from": "A/B", "to": "B", "type": "6D"}, "frame name 'A/B'"),

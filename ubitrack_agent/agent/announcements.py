@@ -4,22 +4,27 @@ A fragment is JSON ``{"provider": "<id>", "edges": [{"name", "from", "to", "type
 "mode", "sigma", "rate", "latency"}, ...]}`` (see :class:`ubitrack_agent.io.provider.Provider`).
 Each edge becomes a measured SRG edge with id ``<provider>/<name>``, which is also the tail of
 its data key. Anything malformed raises :class:`AnnouncementError` naming the provider and the
-field; the agent logs it, counts it and ignores that provider, never crashing.
+field, and nothing else, whatever the bytes: the fragment is read by
+``net.json_messages.load_object`` (at most :data:`MAX_FRAGMENT_BYTES`, bounded nesting), holds
+at most :data:`MAX_EDGES` edges, names follow ``core.names`` (at most 128 characters) and the
+numbers are finite and within ``graph.srg.QUALITY_BOUNDS``. The agent logs the rejection, counts
+it and ignores that provider, never crashing.
 """
 
 from __future__ import annotations
 
-import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Set
 from typing import Any
 
 import networkx as nx
 
+from ubitrack_agent.core.names import shown
 from ubitrack_agent.graph.srg import SetupError, new_srg, parse_setup
+from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import validate_key_chunks
 
 MAX_FRAGMENT_BYTES = 1 << 20
-MAX_EDGES = 10_000
+MAX_EDGES = 1000
 _EDGE_FIELDS = {"name", "from", "to", "type", "static", "mode", "sigma", "rate", "latency"}
 
 
@@ -35,17 +40,18 @@ def _check(condition: bool, where: str, what: str) -> None:
 def fragment_entries(provider: str, payload: bytes) -> list[dict[str, Any]]:
     """The setup-file entries (``srg.parse_setup`` form) of ``provider``'s fragment."""
     where = f"provider {provider!r}"
-    _check(len(payload) <= MAX_FRAGMENT_BYTES, where, f"fragment larger than {MAX_FRAGMENT_BYTES}")
     try:
-        data = json.loads(payload)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise AnnouncementError(f"{where}: fragment is not JSON ({exc})") from None
+        data = load_object(payload, MAX_FRAGMENT_BYTES)
+    except MessageError as exc:
+        raise AnnouncementError(f"{where}: fragment {exc.reason}") from None
     _check(
-        isinstance(data, dict) and set(data) == {"provider", "edges"},
+        set(data) == {"provider", "edges"},
         where,
         'fragment must be {"provider": ..., "edges": [...]}',
     )
-    _check(data["provider"] == provider, where, f"fragment names provider {data['provider']!r}")
+    _check(
+        data["provider"] == provider, where, f"fragment names provider {shown(data['provider'])}"
+    )
     return provider_entries(provider, data["edges"])
 
 
@@ -71,7 +77,7 @@ def provider_entries(provider: str, edges: Any) -> list[dict[str, Any]]:
                 validate_key_chunks(value, single_chunk=True)
             except ValueError as exc:
                 raise AnnouncementError(f"{at}.{field_name}: {exc}") from None
-        _check(edge["name"] not in names, at, f"duplicate edge name {edge['name']!r}")
+        _check(edge["name"] not in names, at, f"duplicate edge name {edge['name']}")
         names.add(edge["name"])
         entry = {k: v for k, v in edge.items() if k != "name"}
         entries.append({**entry, "id": f"{provider}/{edge['name']}", "provider": provider})
@@ -82,9 +88,17 @@ def provider_entries(provider: str, edges: Any) -> list[dict[str, Any]]:
     return entries
 
 
-def build_srg(fragments: Mapping[str, list[dict[str, Any]]]) -> nx.MultiDiGraph:
-    """The live SRG of every accepted provider's edges."""
-    entries = [entry for provider in sorted(fragments) for entry in fragments[provider]]
+def build_srg(
+    fragments: Mapping[str, list[dict[str, Any]]], without: Set[str] = frozenset()
+) -> nx.MultiDiGraph:
+    """The live SRG of every accepted provider's edges, less the edge ids ``without`` (those
+    whose data stopped: ``agent.liveness``)."""
+    entries = [
+        entry
+        for provider in sorted(fragments)
+        for entry in fragments[provider]
+        if entry["id"] not in without
+    ]
     if not entries:
         return new_srg()
     return parse_setup({"name": "live", "edges": entries}, origin="live SRG")

@@ -76,7 +76,7 @@ def stable_choice(
         def new_components(solution: Solution) -> int:
             return len(set(from_solution(solution, query).components) - kept)
 
-        eligible = [s for s in solutions if s.cost <= limit]
+        eligible = [s for s in solutions if s.cost <= limit] or solutions[:1]  # NaN-proof
         return min(eligible, key=lambda s: (new_components(s), s.cost))
 
     return choose

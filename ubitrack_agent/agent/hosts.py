@@ -27,13 +27,12 @@ from __future__ import annotations
 import logging
 import queue
 import time
-from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
 import zenoh
 
-from ubitrack_agent.net import logs
+from ubitrack_agent.agent.problems import Problems
 from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
@@ -44,8 +43,9 @@ from ubitrack_agent.net.host_protocol import (
     Stop,
     encode_request,
 )
-from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.keys import KeyRejection, KeySpace
 from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -68,10 +68,10 @@ class Placement:
 class Hosts:
     """The host managers on ``session`` and the instances placed on them."""
 
-    def __init__(self, session: Any, keys: KeySpace, counters: Counter[str]) -> None:
+    def __init__(self, session: Any, keys: KeySpace, problems: Problems) -> None:
         self._session = session
         self._keys = keys
-        self._counters = counters
+        self._problems = problems
         self.live: set[str] = set()
         self.placements: dict[str, Placement] = {}
         self._retry_at: dict[str, float] = {}
@@ -110,7 +110,9 @@ class Hosts:
             started = Started.parse(self._request(host, Start(spec)))
         except ProtocolError as exc:
             self._retry_at[instance] = time.monotonic() + START_RETRY_S
-            self._problem("refused_starts", "%s: host %s did not start it: %s", instance, host, exc)
+            self._problems.report(
+                "refused_starts", "%s: host %s did not start it: %s", instance, host, exc
+            )
             return False
         self._retry_at.pop(instance, None)
         self.placements[instance] = Placement(host, started.run)
@@ -126,8 +128,8 @@ class Hosts:
                 self._request(placement.host, Stop(instance))
                 return
             except ProtocolError as exc:
-                self._problem("failed_stops", "%s: host did not stop it: %s", instance, exc)
-        self._session.put(self._keys.control(instance), STOP_COMMAND)
+                self._problems.report("failed_stops", "%s: host did not stop it: %s", instance, exc)
+        put_command(self._session, self._keys.control(instance), STOP_COMMAND)
 
     def _answering(self) -> list[str]:
         """Live host managers by name, less those that did not answer lately."""
@@ -164,13 +166,15 @@ class Hosts:
         ended: list[str] = []
         while not self._events.empty():
             kind, key, payload = self._events.get_nowait()
-            try:
-                if kind == "exited":
-                    ended += self._on_exited(self._keys.parse_host_exited(key), payload)
-                else:
-                    ended += self._on_host(self._keys.parse_host(key), kind == PUT, alive)
-            except ValueError as exc:
-                self._problem("rejected_host_reports", "ignored host report %r: %s", key, exc)
+            token = self._keys.parse_token("host_exited" if kind == "exited" else "host", key)
+            if isinstance(token, KeyRejection):
+                self._problems.report(
+                    token.counter, "ignored %s key %r: %s", token.kind, token.key, token.reason
+                )
+            elif kind == "exited":
+                ended += self._on_exited(token.name, payload)
+            else:
+                ended += self._on_host(token.name, kind == PUT, alive)
         return ended
 
     def _on_host(self, host: str, appeared: bool, alive: set[str]) -> list[str]:
@@ -187,17 +191,18 @@ class Hosts:
         return [instance for instance in lost if instance not in alive]
 
     def _on_exited(self, host: str, payload: bytes) -> list[str]:
-        exited = Exited.parse(payload)
+        try:
+            exited = Exited.parse(payload)
+        except ProtocolError as exc:
+            self._problems.report(
+                "rejected_host_reports", "ignored exit report of %s: %s", host, exc
+            )
+            return []
         if self.placements.get(exited.instance) != Placement(host, exited.run):
             return []  # an earlier run, or not ours
         del self.placements[exited.instance]
         log.warning("%s: worker ended on host %s (%s)", exited.instance, host, exited.reason)
         return [exited.instance]
-
-    def _problem(self, counter: str, message: str, *arguments: Any) -> None:
-        self._counters[counter] += 1
-        if logs.rate_limited(self._counters[counter]):
-            log.warning(message, *arguments)
 
     def close(self) -> None:
         self._watch.undeclare()

@@ -9,14 +9,24 @@ whole state from them alone (``docs/protocol.md``):
   want; applications asking for the same relation share it;
 * workers (``<root>/worker/<instance>``): which components are alive.
 
+It also watches the arrival of data on the measured edges that announce a rate
+(:mod:`.liveness`): an edge whose data stopped is planned without until its data returns.
+
 After each batch of events it replans every relation (:mod:`.flows`), turns the merged data
 flow into worker specifications (:mod:`.materialise`) and reconciles the running workers with
 them (:mod:`.reconcile`): start or stop (through a host manager, over zenoh only: :mod:`.hosts`),
 or rewire in place with a control command. A start no host manager took is tried again on a
 later pass. A worker that ends on its own is started again; a worker alive but not known (left
 by an earlier agent) is adopted if wanted, stopped otherwise. Events are handled on the agent's
-own thread; zenoh callbacks only queue them. Malformed announcements, queries and host reports
-are logged and counted, and never stop the agent. A clean stop stops every worker it runs.
+own thread; zenoh callbacks only queue them.
+
+Nothing from the network can end the agent: every key is parsed by ``KeySpace.parse_token``
+and every fragment by :func:`.announcements.fragment_entries`, which return a value or a
+rejection; rejections are counted, logged rate-limited and shown in the status
+(:mod:`.problems`). Every handler runs under a :class:`.problems.Guard`, so even an unforeseen
+exception is counted (``failed_<handler>``) and the agent carries on; a handler run on every
+pass backs off while it keeps failing. A clean stop stops every worker it runs; should the
+loop itself ever fail, the workers are left running for a restarted agent to adopt.
 """
 
 from __future__ import annotations
@@ -27,19 +37,27 @@ import queue
 import threading
 import time
 from collections import Counter, defaultdict
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any
 
-from ubitrack_agent.agent.announcements import AnnouncementError, build_srg, fragment_entries
+from ubitrack_agent.agent.announcements import (
+    MAX_FRAGMENT_BYTES,
+    AnnouncementError,
+    build_srg,
+    fragment_entries,
+)
 from ubitrack_agent.agent.flows import Plan, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
+from ubitrack_agent.agent.liveness import DataLiveness
 from ubitrack_agent.agent.materialise import component_specs
+from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.config import Settings
-from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -48,6 +66,8 @@ BATCH_WINDOW_S = 0.002
 FRAGMENT_TIMEOUT_S = 0.3
 FRAGMENT_ATTEMPTS = 8
 """A provider whose fragment query goes unanswered this often (over about 6 s) is rejected."""
+MAX_LIVE_EDGES = 10_000
+"""Most measured edges the live SRG holds: a fragment that would exceed it is rejected."""
 RETIRE_S = 2.0
 """Longest time a worker the plan dropped keeps running while its replacements start."""
 SETTLE_S = 1.5
@@ -66,6 +86,12 @@ class Agent:
         self.keys = KeySpace(settings.key_prefix)
         self.templates = tuple(templates)
         self.counters: Counter[str] = Counter()
+        self.problems = Problems(self.counters)
+        self._guard = Guard(self.problems)
+        self._replan_due = False
+        self.liveness = DataLiveness()
+        self.stale: frozenset[str] = frozenset()
+        self._data_watches: dict[str, Any] = {}
         self.fragments: dict[str, list[dict[str, Any]]] = {}
         self.rejected: dict[str, str] = {}
         self.queries: dict[RelationId, set[str]] = defaultdict(set)
@@ -84,7 +110,7 @@ class Agent:
         self._stop = threading.Event()
         self._status_json = "{}"
         self.session = open_session(settings)
-        self.hosts = Hosts(self.session, self.keys, self.counters)
+        self.hosts = Hosts(self.session, self.keys, self.problems)
         liveliness = self.session.liveliness()
         self._watches = [
             liveliness.declare_subscriber(
@@ -109,30 +135,35 @@ class Agent:
 
     def _handle(self, kind: str, change: str, key: str) -> bool:
         """Apply one liveliness event; True if the SRG or the queries changed."""
+        token = self.keys.parse_token(kind, key)
+        if isinstance(token, KeyRejection):
+            self.problems.report(
+                token.counter, "ignored malformed %s key %r: %s", kind, token.key, token.reason
+            )
+            return False
         appeared = change == PUT
-        try:
-            if kind == "provider":
-                provider = self.keys.parse_provider(key)
-                if appeared:
-                    self._pending_fragments[provider] = (0, 0.0)
-                    return False
-                self._pending_fragments.pop(provider, None)
-                self.rejected.pop(provider, None)
-                return self.fragments.pop(provider, None) is not None
-            if kind == "query":
-                relation, application = self.keys.parse_query(key)
-                apps = self.queries[relation]
-                before = bool(apps)
-                apps.add(application) if appeared else apps.discard(application)
-                if not apps:
-                    del self.queries[relation]
-                return before != bool(apps)
-            self._on_worker(self.keys.parse_worker(key), appeared)
+        if token.relation is not None:
+            return self._on_query(token.relation, token.name, appeared)
+        if kind == "provider":
+            return self._on_provider(token.name, appeared)
+        self._on_worker(token.name, appeared)
+        return False
+
+    def _on_provider(self, provider: str, appeared: bool) -> bool:
+        if appeared:
+            self._pending_fragments[provider] = (0, 0.0)
             return False
-        except ValueError as exc:
-            self.counters[f"rejected_{kind}_keys"] += 1
-            log.error("ignored malformed %s key %r: %s", kind, key, exc)
-            return False
+        self._pending_fragments.pop(provider, None)
+        self.rejected.pop(provider, None)
+        return self.fragments.pop(provider, None) is not None
+
+    def _on_query(self, relation: RelationId, application: str, appeared: bool) -> bool:
+        apps = self.queries[relation]
+        before = bool(apps)
+        apps.add(application) if appeared else apps.discard(application)
+        if not apps:
+            del self.queries[relation]
+        return before != bool(apps)
 
     def _on_worker(self, instance: str, appeared: bool) -> None:
         if appeared:
@@ -164,51 +195,113 @@ class Agent:
                 self._stop_worker(instance)
 
     def _fetch_fragments(self) -> bool:
-        """Fetch the fragments of providers that appeared; True if the SRG changed. A provider
-        that does not answer is asked again (at most ``FRAGMENT_ATTEMPTS`` times, a little
-        later each time), then rejected, so one broken provider never holds the agent up."""
-        changed = False
+        """Fetch the fragments of providers that appeared; True if the SRG changed. The due
+        providers are asked at once, so their waits overlap. A provider that does not answer is
+        asked again (at most ``FRAGMENT_ATTEMPTS`` times, a little later each time), then
+        rejected, so one broken provider never holds the agent up."""
         now = time.monotonic()
-        for provider, (attempts, due) in sorted(self._pending_fragments.items()):
-            if now < due:
-                continue
-            replies = [
-                r.ok.payload.to_bytes()
-                for r in self.session.get(self.keys.fragment(provider), timeout=FRAGMENT_TIMEOUT_S)
-                if r.ok is not None
-            ]
-            if not replies:
-                if attempts + 1 < FRAGMENT_ATTEMPTS:
-                    self._pending_fragments[provider] = (attempts + 1, now + 0.05 * 2**attempts)
-                    continue
-                replies = [b""]  # rejected below: no fragment
-            del self._pending_fragments[provider]
-            try:
-                if not replies[0]:
-                    raise AnnouncementError(
-                        f"provider {provider!r}: no fragment on {self.keys.fragment(provider)}"
-                    )
-                self.fragments[provider] = fragment_entries(provider, replies[0])
-                self.rejected.pop(provider, None)
-                changed = True
-            except AnnouncementError as exc:
-                self.counters["rejected_announcements"] += 1
-                self.rejected[provider] = str(exc)
-                changed = self.fragments.pop(provider, None) is not None or changed
-                log.error("rejected announcement: %s", exc)
+        asked = {
+            provider: self.session.get(self.keys.fragment(provider), timeout=FRAGMENT_TIMEOUT_S)
+            for provider, (_, due) in sorted(self._pending_fragments.items())
+            if now >= due
+        }
+        changed = False
+        for provider, replies in asked.items():
+            took = self._guard.call(
+                "fragment", self._take_fragment, provider, replies, default=False
+            )
+            changed = took or changed
         return changed
+
+    def _take_fragment(self, provider: str, replies: Iterable[Any]) -> bool:
+        """Accept or reject ``provider``'s fragment from the ``replies`` to its query, or ask
+        again later if there is none; True if the SRG changed."""
+        attempts, _ = self._pending_fragments.pop(provider)
+        payload = next((r.ok.payload for r in replies if r.ok is not None), None)
+        if payload is None and attempts + 1 < FRAGMENT_ATTEMPTS:
+            self._pending_fragments[provider] = (
+                attempts + 1,
+                time.monotonic() + 0.05 * 2**attempts,
+            )
+            return False
+        try:
+            entries = fragment_entries(provider, self._fragment_bytes(provider, payload))
+            self._check_room(provider, entries)
+        except AnnouncementError as exc:
+            self.problems.report("rejected_announcements", "rejected announcement: %s", exc)
+            self.rejected[provider] = str(exc)
+            return self.fragments.pop(provider, None) is not None
+        self.fragments[provider] = entries
+        self.rejected.pop(provider, None)
+        return True
+
+    def _fragment_bytes(self, provider: str, payload: Any) -> bytes:
+        """The bytes of a fragment's payload, unread if it is too large to be one;
+        :class:`AnnouncementError` if there is none."""
+        if payload is None:
+            where = self.keys.fragment(provider)
+            raise AnnouncementError(f"provider {provider!r}: no fragment on {where}")
+        if len(payload) > MAX_FRAGMENT_BYTES:  # refused before it is copied
+            raise AnnouncementError(
+                f"provider {provider!r}: fragment {len(payload)} bytes, at most "
+                f"{MAX_FRAGMENT_BYTES}"
+            )
+        return payload.to_bytes()
+
+    def _check_room(self, provider: str, entries: list[dict[str, Any]]) -> None:
+        """:class:`AnnouncementError` if ``entries`` would take the live SRG past
+        ``MAX_LIVE_EDGES``."""
+        others = sum(len(e) for p, e in self.fragments.items() if p != provider)
+        if others + len(entries) > MAX_LIVE_EDGES:
+            raise AnnouncementError(
+                f"provider {provider!r}: {len(entries)} edges would take the live SRG past "
+                f"{MAX_LIVE_EDGES} edges"
+            )
 
     # -- planning and reconciling -------------------------------------------------------------
 
     def _replan(self) -> None:
-        self.srg = build_srg(self.fragments)
-        self.plan = plan_relations(
-            self.srg, self.templates, self.queries, set(self.running), self.plan
-        )
-        self.wanted = component_specs(self.plan.flow, self.srg, self.keys, self.plan.relations)
+        """Plan every queried relation on the live SRG; the state changes only once the whole
+        plan is made (a failure keeps the previous plan, and planning is asked again)."""
+        self._watch_data()
+        srg = build_srg(self.fragments, without=self.stale)
+        plan = plan_relations(srg, self.templates, self.queries, set(self.running), self.plan)
+        wanted = component_specs(plan.flow, srg, self.keys, plan.relations)
+        self.srg, self.plan, self.wanted = srg, plan, wanted
+        self._replan_due = False
         self.counters["replans"] += 1
         for name, reason in self.plan.unsolved.items():
             log.warning("cannot serve %s: %s", name, reason)
+
+    def _watch_data(self) -> None:
+        """Subscribe to the data keys of exactly the edges :class:`.liveness.DataLiveness`
+        watches among the accepted providers' (only arrival times are recorded)."""
+        entries = [entry for entries in self.fragments.values() for entry in entries]
+        added, removed = self.liveness.watch(entries, time.monotonic())
+        for edge_id in removed:
+            self._data_watches.pop(edge_id).undeclare()
+        for edge_id in sorted(added):
+            self._data_watches[edge_id] = self.session.declare_subscriber(
+                self.keys.data(edge_id),
+                lambda _sample, edge_id=edge_id: self.liveness.arrived(edge_id, time.monotonic()),
+            )
+
+    def _check_liveness(self) -> bool:
+        """Update the stale edges; True if they changed (then the agent replans)."""
+        stale = self.liveness.stale(time.monotonic())
+        if stale == self.stale:
+            return False
+        for edge_id in sorted(stale - self.stale):
+            self.counters["stale_edges"] += 1
+            window = self.liveness.windows[edge_id]
+            log.warning(
+                "%s: no data for %.1f s, planning without it until it returns", edge_id, window
+            )
+        for edge_id in sorted((self.stale - stale) & set(self.liveness.windows)):
+            self.counters["returned_edges"] += 1  # (not an edge whose provider left)
+            log.warning("%s: data again, planning with it", edge_id)
+        self.stale = stale
+        return True
 
     def _settled(self) -> bool:
         """Start-up history has arrived: peers reconnect to a restarted agent within their
@@ -260,36 +353,54 @@ class Agent:
                 self._stop_worker(instance)
 
     def _send_control(self, instance: str, command: dict[str, Any]) -> None:
-        self.session.put(self.keys.control(instance), json.dumps(command))
+        put_command(self.session, self.keys.control(instance), json.dumps(command))
 
     # -- main loop and status -----------------------------------------------------------------
 
     def run(self) -> None:
-        """Handle events until :meth:`stop`."""
+        """Handle events until :meth:`stop`; every handler runs under the guard (module
+        docstring)."""
         status_due = 0.0
+        guard = self._guard
         try:
             while not self._stop.is_set():
-                try:
-                    batch = [self._events.get(timeout=0.05)]
-                    time.sleep(BATCH_WINDOW_S)
-                    while not self._events.empty():
-                        batch.append(self._events.get_nowait())
-                except queue.Empty:
-                    batch = []
-                changed = any([self._handle(*event) for event in batch])
-                changed = self._fetch_fragments() or changed
-                for instance in self.hosts.reap(self.alive):
-                    if self.running.pop(instance, None) is not None:
-                        self.counters["restarts"] += 1
-                if changed:
-                    self._replan()
-                self._reconcile()
-                self._retire()
-                if batch or changed or time.monotonic() > status_due:
-                    self._status_json = json.dumps(self.status())
+                batch = self._next_batch()
+                for event in batch:
+                    self._replan_due |= guard.call(
+                        "liveliness", self._handle, *event, default=False
+                    )
+                self._replan_due |= guard.periodic("fragments", self._fetch_fragments, False)
+                self._replan_due |= guard.periodic("liveness", self._check_liveness, False)
+                guard.periodic("hosts", self._reap_hosts, None)
+                if self._replan_due:
+                    guard.periodic("replan", self._replan, None)
+                guard.periodic("reconcile", self._reconcile, None)
+                guard.periodic("retire", self._retire, None)
+                if batch or time.monotonic() > status_due:
+                    guard.periodic("status", self._refresh_status, None)
                     status_due = time.monotonic() + STATUS_REFRESH_S
         finally:
-            self._close()
+            self._close(stop_workers=self._stop.is_set())
+
+    def _next_batch(self) -> list[tuple[str, str, str]]:
+        """The events queued within ``BATCH_WINDOW_S`` of the next one (none after 50 ms)."""
+        try:
+            batch = [self._events.get(timeout=0.05)]
+        except queue.Empty:
+            return []
+        time.sleep(BATCH_WINDOW_S)
+        while not self._events.empty():
+            batch.append(self._events.get_nowait())
+        return batch
+
+    def _reap_hosts(self) -> None:
+        """Apply host managers' tokens and exit reports: forget the instances that ended."""
+        for instance in self.hosts.reap(self.alive):
+            if self.running.pop(instance, None) is not None:
+                self.counters["restarts"] += 1
+
+    def _refresh_status(self) -> None:
+        self._status_json = json.dumps(self.status())
 
     def stop(self) -> None:
         self._stop.set()
@@ -302,6 +413,7 @@ class Agent:
             "key_prefix": self.keys.root,
             "providers": {p: [e["id"] for e in entries] for p, entries in self.fragments.items()},
             "rejected_providers": dict(self.rejected),
+            "stale_edges": sorted(self.stale),
             "srg": [
                 {"id": key, "from": u, "to": v, "type": d["type"], "static": d["static"]}
                 for u, v, key, d in self.srg.edges(keys=True, data=True)
@@ -324,23 +436,33 @@ class Agent:
             },
             "hosts": sorted(self.hosts.live),
             "counters": dict(self.counters),
+            "problems": dict(self.problems.last),
             "last_change_ns": self.last_change_ns,
         }
 
     def _serve_status(self) -> None:
         for query in self._status:
             with query:
-                query.reply(self.keys.agent_status(), self._status_json)
+                self._guard.call("status_query", self._answer_status, query, default=None)
 
-    def _close(self) -> None:
-        """Stop every worker this agent runs (a clean stop), then leave the network."""
+    def _answer_status(self, query: Any) -> None:
+        query.reply(self.keys.agent_status(), self._status_json)
+
+    def _close(self, stop_workers: bool) -> None:
+        """Stop every worker this agent runs if ``stop_workers`` (a clean stop; otherwise they
+        keep running for a restarted agent to adopt), then leave the network."""
         self._token.undeclare()
         for watch in self._watches:
             watch.undeclare()
         self._status.undeclare()
         self._status_thread.join(timeout=1.0)
-        for instance in sorted({*self.running, *self._retiring}):
-            self.hosts.stop(instance)
+        for watch in self._data_watches.values():
+            watch.undeclare()
+        if stop_workers:
+            for instance in sorted({*self.running, *self._retiring}):
+                self.hosts.stop(instance)
+        else:
+            log.error("the agent failed: its workers keep running for a restarted agent")
         self.hosts.close()
         self.session.close()
 

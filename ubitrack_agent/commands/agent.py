@@ -8,6 +8,7 @@ import logging
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 
 from services.host import DEFAULT_POOL_SIZE
 from ubitrack_agent.net import config
@@ -100,10 +101,18 @@ class EmbeddedHost:
 
     def stop(self) -> None:
         """End the host manager, which ends every worker it started."""
+        self._end(subprocess.Popen.terminate)
+
+    def abandon(self) -> None:
+        """End the host manager as if the agent had died (its standard input closes): it leaves
+        the assigned workers running for a restarted agent to adopt."""
+        self._end(lambda process: process.stdin.close())
+
+    def _end(self, how: Callable[[subprocess.Popen], None]) -> None:
         with self._lock:  # no start is under way, and none follows
             self._stopping.set()
             process = self.process
-        process.terminate()
+        how(process)
         try:
             process.wait(timeout=HOST_EXIT_S)
         except subprocess.TimeoutExpired:
@@ -142,7 +151,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"ubitrack agent: serving {agent.keys.root} on {', '.join(settings.listen)}", flush=True)
     try:
         agent.run()
-    finally:
+    except Exception:
+        log.exception("the agent failed; its workers keep running for a restarted agent")
         if host is not None:
-            host.stop()
+            host.abandon()
+        return 1
+    if host is not None:
+        host.stop()
     return 0

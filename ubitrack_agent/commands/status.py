@@ -89,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
     )
     for provider, reason in status["rejected_providers"].items():
         print(f"  rejected provider {provider}: {reason}")
+    for edge_id in status.get("stale_edges", []):
+        print(f"  stale edge {edge_id}: its data stopped, planned without it")
     for relation, apps in status["queries"].items():
         print(f"query {relation} from {', '.join(apps)}")
     for name, reason in status["unsolved"].items():
@@ -97,4 +99,6 @@ def run(args: argparse.Namespace) -> int:
         state = "alive" if component["alive"] else "starting"
         print(f"worker {instance} ({component['service']}, {state}): {component['counters']}")
     print(f"counters: {status['counters']}")
+    for counter, reason in status.get("problems", {}).items():
+        print(f"  last {counter}: {reason}")
     return 0

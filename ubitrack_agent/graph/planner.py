@@ -62,6 +62,8 @@ DEFAULT_SLACK = 2
 """Longest detour (hops beyond a shortest path) a derivation may take through the SRG."""
 DEFAULT_PER_RELATION = 8
 """Most alternatives kept per (from, to, type, static) relation during planning."""
+VARIANCE_FLOOR = 1e-30
+"""Smallest variance (m^2) fusion divides by: a measured edge may announce sigma 0."""
 _TIE = 1e-9
 
 
@@ -166,8 +168,8 @@ def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
     corr = instance.template.correspondence
     variances = {name: [records[e].quality.variance for e in ids] for name, ids in instance.inputs}
     every = [v for vs in variances.values() for v in vs]
-    if spec.rule == "fusion":
-        variance = 1.0 / sum(1.0 / max(v, 1e-30) for v in every)
+    if spec.rule == "fusion":  # an exact input (variance 0) makes the fusion exact, not 1/0
+        variance = 1.0 / sum(1.0 / max(v, VARIANCE_FLOOR) for v in every)
     elif spec.rule == "pooled" and corr is not None:
         fixed = sum(v for n, vs in variances.items() if n not in corr.edges for v in vs)
         copies = len(variances[corr.edges[0]])

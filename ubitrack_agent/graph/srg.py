@@ -21,7 +21,7 @@ from typing import Any
 import networkx as nx
 import yaml
 
-from ubitrack_agent.core.names import check_name
+from ubitrack_agent.core.names import check_name, shown
 
 EDGE_TYPES: frozenset[str] = frozenset({"6D", "3D", "2D", "3x4", "3R", "intrinsics"})
 """Edge types (section 2.2): the ``SRG_TYPE`` names of :mod:`ubitrack_agent.core.measurements`."""
@@ -31,6 +31,15 @@ MODES: frozenset[str] = frozenset({"push", "pull"})
 
 DEFAULT_SIGMA = 1e-3
 """Expected RMS error (metres, or the metric error a 2D error induces) when a setup gives none."""
+
+QUALITY_BOUNDS: dict[str, tuple[float, float]] = {
+    "sigma": (0.0, 1e3),
+    "rate": (0.0, 1e5),
+    "latency": (0.0, 60.0),
+}
+"""The closed range of each number an edge may announce: ``sigma`` (m), ``rate`` (Hz, 0 for
+unknown), ``latency`` (s). NaN, infinities and numbers outside are refused (:class:`SetupError`),
+so the planner's arithmetic stays finite (``docs/planner.md``, "Setup files")."""
 
 
 class SetupError(ValueError):
@@ -192,9 +201,14 @@ def _check_value(where: str, key: str, value: Any, want: type | tuple[type, ...]
     ok = isinstance(value, want) and not (isinstance(value, bool) and want is not bool)
     if not ok:
         names = want.__name__ if isinstance(want, type) else " or ".join(t.__name__ for t in want)
-        raise SetupError(f"{where}, field {key!r}: expected {names}, got {value!r}")
-    if isinstance(value, int | float) and not isinstance(value, bool) and value < 0:
-        raise SetupError(f"{where}, field {key!r}: must not be negative, got {value!r}")
+        raise SetupError(f"{where}, field {key!r}: expected {names}, got {shown(value)}")
+    if key in QUALITY_BOUNDS:
+        low, high = QUALITY_BOUNDS[key]
+        if not low <= value <= high:  # also refuses NaN; an int of any size compares exactly
+            raise SetupError(
+                f"{where}, field {key!r}: must be a finite number in [{low:g}, {high:g}], "
+                f"got {shown(value)}"
+            )
 
 
 def add_setup_edge(srg: nx.MultiDiGraph, entry: Any, where: str) -> str:

@@ -45,6 +45,8 @@ def load_object(payload: bytes | None, max_bytes: int) -> dict[str, Any]:
         raise MessageError("malformed_request", f"not JSON ({exc})") from None
     except RecursionError:
         raise MessageError("malformed_request", "nested too deeply") from None
+    except ValueError as exc:  # an integer literal of more digits than Python converts
+        raise MessageError("malformed_request", f"not JSON ({exc})") from None
     if not isinstance(data, dict):
         raise MessageError("malformed_request", "expected a JSON object")
     if _deeper_than(data, MAX_DEPTH):

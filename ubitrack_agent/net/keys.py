@@ -39,28 +39,41 @@ of its own, so what reads the static relation meanwhile is not disturbed.
 Names that end up inside keys (frames, edge ids, domains) are checked chunk by chunk: no empty
 chunks, no wildcards (``*``, ``$``), no ``#``/``?`` (selector syntax), no ``@`` (zenoh's
 admin space) and no whitespace, so a hostile name can never widen a subscription.
+
+Keys read from the network (liveliness tokens, exit reports) go through
+:meth:`KeySpace.parse_token`, which is total: it returns a :class:`Token` or a
+:class:`KeyRejection` naming the reason, whatever the key holds, and reads no key longer than
+:data:`MAX_KEY_CHARS`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ubitrack_agent.core.names import check_name
+from ubitrack_agent.core.names import check_name, shown
+
+MAX_KEY_CHARS = 1024
+"""Longest key read from the network; a longer one is rejected unread."""
 
 
 def validate_key_chunks(text: str, single_chunk: bool = False) -> str:
     """Return ``text`` if it is a safe literal key (one chunk if ``single_chunk``), else raise."""
     if not isinstance(text, str) or not text:
         raise ValueError("must be a non-empty string")
+    if len(text) > MAX_KEY_CHARS:
+        raise ValueError(f"{shown(text)} is longer than {MAX_KEY_CHARS} characters")
     chunks = text.split("/")
     if single_chunk and len(chunks) > 1:
-        raise ValueError(f"{text!r} must not contain '/'")
+        raise ValueError(f"{shown(text)} must not contain '/'")
     for chunk in chunks:
         if not chunk:
-            raise ValueError(f"{text!r} has an empty chunk (leading, trailing or double '/')")
+            raise ValueError(f"{shown(text)} has an empty chunk (leading, trailing or double '/')")
         check_name(chunk)
     return text
 
+
+TOKEN_KINDS = ("provider", "query", "worker", "pool", "host", "host_exited")
+"""The kinds of key :meth:`KeySpace.parse_token` reads."""
 
 KINDS: dict[str, tuple[bool, bool]] = {
     "dynamic": (False, False),
@@ -105,6 +118,32 @@ class RelationId:
     def __str__(self) -> str:
         kind = "" if self.kind == "dynamic" else f" {self.kind}"
         return f"{self.source}->{self.target}:{self.type}{kind}"
+
+
+@dataclass(frozen=True)
+class Token:
+    """A key from the network, parsed: its ``kind`` (one of :data:`TOKEN_KINDS`), its ``name``
+    (provider id, worker instance, pool id, host name; for a query the application) and, for a
+    query, the ``relation`` asked for."""
+
+    kind: str
+    name: str
+    relation: RelationId | None = None
+
+
+@dataclass(frozen=True)
+class KeyRejection:
+    """A key from the network that :meth:`KeySpace.parse_token` refused, and why. ``key`` is
+    cut to :data:`MAX_KEY_CHARS`; it is network text, to be logged with ``%r``."""
+
+    kind: str
+    key: str
+    reason: str
+
+    @property
+    def counter(self) -> str:
+        """The name of the counter of such rejections (``rejected_worker_keys``)."""
+        return f"rejected_{self.kind}_keys"
 
 
 def _relation(source: str, target: str, edge_type: str, kind: str, key: str) -> RelationId:
@@ -273,6 +312,23 @@ class KeySpace:
         ``**``, ``$*``): for access-control rules (``net.access``), never declared or
         published on; the first chunk is one of the layout's above."""
         return "/".join((self.root, *chunks))
+
+    def parse_token(self, kind: str, key: str) -> Token | KeyRejection:
+        """The ``kind`` key ``key`` read from the network (a token's or an exit report's), or
+        why it is refused; never raises for any ``key``. ``ValueError`` for an unknown ``kind``
+        (a programming error, not network input)."""
+        if kind not in TOKEN_KINDS:
+            raise ValueError(f"unknown token kind {kind!r}, expected one of {TOKEN_KINDS}")
+        if len(key) > MAX_KEY_CHARS:
+            reason = f"{len(key)} characters, at most {MAX_KEY_CHARS}"
+            return KeyRejection(kind, key[:MAX_KEY_CHARS], reason)
+        try:
+            if kind == "query":
+                relation, application = self.parse_query(key)
+                return Token(kind, application, relation)
+            return Token(kind, getattr(self, f"parse_{kind}")(key))
+        except ValueError as exc:
+            return KeyRejection(kind, key, str(exc))
 
     def _parse_name(self, key: str, kind: str) -> str:
         """The single chunk after ``<root>/<kind>/`` in ``key``; ``ValueError`` otherwise."""

@@ -15,6 +15,8 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import zenoh
+
 from ubitrack_agent.net import logs
 
 log = logging.getLogger("ubitrack.transport")
@@ -64,6 +66,18 @@ class LatestValuePublisher:
         self._queryable.undeclare()
         self._publisher.undeclare()
         self._thread.join(timeout=1.0)
+
+
+def put_command(session: Any, key: str, payload: str | bytes) -> None:
+    """Put a command (a control command to a worker) so that a busy link delays it instead of
+    dropping it: zenoh's default for a put drops a message the transmission queue cannot take
+    at once, and a lost rewire leaves a relation without data."""
+    session.put(
+        key,
+        payload,
+        congestion_control=zenoh.CongestionControl.BLOCK,
+        priority=zenoh.Priority.INTERACTIVE_HIGH,
+    )
 
 
 def fetch_latest(session: Any, key: str, timeout: float = 1.0) -> list[bytes]:
