@@ -1,5 +1,5 @@
-"""docker/ is right by construction: every container runs a command the CLI accepts, and
-docker-compose (where installed) accepts the file."""
+"""docker/ is right by construction: every container runs a command the CLI accepts and is
+restarted when it exits, and docker-compose (where installed) accepts the file."""
 
 import os
 import shutil
@@ -42,14 +42,34 @@ def test_the_image_installs_the_package_as_users_do():
     assert {"ubitrack_agent", "services", "sim_trackers", "templates"} <= copied
 
 
-@pytest.mark.skipif(shutil.which("docker-compose") is None, reason="docker-compose not installed")
-def test_docker_compose_accepts_the_file():
+RESTART = "unless-stopped"
+"""Every container's restart policy: restarted whenever it exits, unless stopped by hand."""
+
+
+def test_every_service_is_restarted_when_it_exits():
+    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    assert {name: service.get("restart") for name, service in compose["services"].items()} == (
+        dict.fromkeys(compose["services"], RESTART)
+    )
+
+
+def resolved_services(*files: str) -> dict:
+    """The services as docker-compose resolves ``files`` (merged, anchors expanded)."""
+    arguments = [argument for name in files for argument in ("-f", str(DOCKER / name))]
     result = subprocess.run(
-        ["docker-compose", "-f", str(DOCKER / "compose.yaml"), "config", "--quiet"],
-        capture_output=True,
-        text=True,
+        ["docker-compose", *arguments, "config"], capture_output=True, text=True
     )
     assert result.returncode == 0, result.stderr
+    return yaml.safe_load(result.stdout)["services"]
+
+
+@pytest.mark.skipif(shutil.which("docker-compose") is None, reason="docker-compose not installed")
+@pytest.mark.parametrize("files", [("compose.yaml",), ("compose.yaml", "compose.tls.yaml")])
+def test_docker_compose_accepts_the_files_and_keeps_the_restart_policy(files):
+    services = resolved_services(*files)
+    assert {name: service["restart"] for name, service in services.items()} == dict.fromkeys(
+        services, RESTART
+    )
 
 
 def _certs_command(compose_file: Path) -> list[str]:
@@ -87,12 +107,3 @@ def test_the_tls_variant_hands_every_zenoh_service_valid_secure_settings(tmp_pat
                 ("tls/agent:7448",),
                 (),
             )
-
-
-@pytest.mark.skipif(shutil.which("docker-compose") is None, reason="docker-compose not installed")
-def test_docker_compose_accepts_the_tls_variant():
-    files = ["-f", str(DOCKER / "compose.yaml"), "-f", str(DOCKER / "compose.tls.yaml")]
-    result = subprocess.run(
-        ["docker-compose", *files, "config", "--quiet"], capture_output=True, text=True
-    )
-    assert result.returncode == 0, result.stderr
