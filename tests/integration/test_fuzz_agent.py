@@ -7,9 +7,6 @@ true relation through fusion, and has counted the rejections. Bounded: well unde
 
 from __future__ import annotations
 
-import json
-import math
-import threading
 import time
 
 import pytest
@@ -17,10 +14,22 @@ import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.integration.fuzz_inputs import (
+    EXIT_REPORT_HOSTS,
+    EXIT_REPORT_PAYLOADS,
+    HOSTILE_NAMES,
+    QUERY_CHUNKS,
+    STATUS_PARAMETERS,
+    STATUS_PAYLOADS,
+    TOKEN_KINDS,
+    FragmentServer,
+    fragment,
+    hostile_fragment,
+    rss_mb,
+    with_field,
+)
 from tests.integration.test_agent import WT_HT, assert_true_pose, fresh_samples, setup  # noqa: F401
 from tests.integration.zenoh_helpers import wait_until
-from ubitrack_agent.core.names import check_name
-from ubitrack_agent.graph.srg import EDGE_TYPES
 from ubitrack_agent.io.application import Relation
 
 pytestmark = pytest.mark.integration
@@ -42,95 +51,6 @@ FUZZ = settings(
     database=None,
     suppress_health_check=list(HealthCheck),
 )
-
-
-def invalid(name: str) -> bool:
-    try:
-        check_name(name)
-    except ValueError:
-        return True
-    return False
-
-
-HOSTILE_NAMES = st.sampled_from(
-    ["*", "**", "a b", "a$*b", "Ä", "@x", "a/b", "x" * 2000, "a\nb", "\x00", "$*"]
-) | st.text(max_size=30).filter(invalid)
-GOOD_NAMES = st.from_regex(r"\Afz-[a-z0-9]{1,8}\Z")
-HOSTILE_NUMBERS = st.sampled_from(
-    [1e200, -1e200, 10**400, -(10**400), math.nan, math.inf, -math.inf, -1e-9, 1e6]
-) | st.one_of(st.text(max_size=5), st.lists(st.integers(), max_size=3), st.booleans(), st.none())
-"""Out of range for sigma, rate and latency alike (``graph.srg.QUALITY_BOUNDS``), or no number."""
-NOT_A_WORD = st.text(max_size=8).filter(lambda text: text not in {"push", "pull", *EDGE_TYPES})
-BASE_EDGE = {
-    "name": "e",
-    "from": "FZ1",
-    "to": "FZ2",
-    "type": "6D",
-    "static": False,
-    "mode": "push",
-    "sigma": 0.001,
-    "rate": 50.0,
-}
-
-
-def with_field(field: str, value) -> dict:
-    return {**BASE_EDGE, field: value}
-
-
-EDGES = st.one_of(
-    st.builds(with_field, st.sampled_from(["sigma", "rate", "latency"]), HOSTILE_NUMBERS),
-    st.builds(with_field, st.sampled_from(["name", "from", "to"]), HOSTILE_NAMES),
-    st.builds(with_field, st.sampled_from(["type", "mode", "static"]), NOT_A_WORD),
-    st.builds(with_field, st.sampled_from(["colour", "provider", "id"]), st.integers()),
-)
-
-
-def fragment(provider: str, edges: list) -> bytes:
-    return json.dumps({"provider": provider, "edges": edges}).encode()
-
-
-def hostile_fragment(provider: str) -> st.SearchStrategy[bytes]:
-    """Fragments that must all be rejected, each hostile in one way."""
-    many = [{**BASE_EDGE, "name": f"e{i}"} for i in range(1001)]
-    return st.one_of(
-        st.builds(lambda e: fragment(provider, [e]), EDGES),
-        st.builds(lambda e: fragment(provider, [BASE_EDGE, e]), EDGES),
-        st.just(fragment(provider, many)),
-        st.just(fragment("someone-else", [BASE_EDGE])),
-        st.just(fragment(provider, [])),
-        st.just(b'{"provider": "' + provider.encode() + b'", "edges": ' + b"[" * 20000),
-        st.just(b'{"provider": "p", "edges": [' + b"[" * 5000 + b"]" * 5000 + b"]}"),
-        st.just(fragment(provider, [with_field("name", "n" * 300_000)])),
-        st.just(b" " * (2 << 20)),
-        st.binary(max_size=200),
-        st.just(b'{"provider": 1' + b"0" * 5000 + b', "edges": []}'),
-    )
-
-
-class FragmentServer:
-    """One queryable on every fragment key, answering the hostile providers' fragments."""
-
-    def __init__(self, session, keys) -> None:
-        self.payloads: dict[str, bytes] = {}
-        self._prefix = keys.fragment("x")[:-1]
-        self._queryable = session.declare_queryable(self._prefix + "*")
-        threading.Thread(target=self._serve, daemon=True).start()
-
-    def _serve(self) -> None:
-        for query in self._queryable:
-            with query:
-                payload = self.payloads.get(str(query.key_expr)[len(self._prefix) :])
-                if payload is not None:
-                    query.reply(query.key_expr, payload)
-
-    def close(self) -> None:
-        self._queryable.undeclare()
-
-
-def rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status", encoding="ascii") as status:
-        line = next(line for line in status if line.startswith("VmRSS:"))
-    return int(line.split()[1]) / 1024
 
 
 def test_hostile_input_on_every_entry_point_leaves_the_agent_serving(setup):  # noqa: F811
@@ -156,18 +76,12 @@ def test_hostile_input_on_every_entry_point_leaves_the_agent_serving(setup):  # 
         rss_before = rss_mb(agent.pid)
 
         @FUZZ
-        @given(kind=st.sampled_from(["provider", "worker", "host", "pool"]), name=HOSTILE_NAMES)
+        @given(kind=TOKEN_KINDS, name=HOSTILE_NAMES)
         def hostile_tokens(kind, name):
             declare(f"{root}/{kind}/{name}")
 
         @FUZZ
-        @given(
-            chunks=st.lists(
-                st.one_of(HOSTILE_NAMES, st.sampled_from(["FZ1", "FZ2", "6D", "7D", "dynamic"])),
-                min_size=1,
-                max_size=7,
-            )
-        )
+        @given(chunks=QUERY_CHUNKS)
         def hostile_queries(chunks):
             declare(f"{root}/query/{'/'.join(chunks)}")
 
@@ -180,20 +94,7 @@ def test_hostile_input_on_every_entry_point_leaves_the_agent_serving(setup):  # 
             sent["fragments"] += 1
 
         @FUZZ
-        @given(
-            host=st.one_of(HOSTILE_NAMES, st.just("vm"), GOOD_NAMES),
-            payload=st.one_of(
-                st.binary(max_size=100),
-                st.builds(
-                    lambda obj: json.dumps(obj).encode(),
-                    st.dictionaries(
-                        st.sampled_from(["instance", "run", "pid", "reason"]),
-                        st.text(max_size=5) | st.integers(),
-                    ),
-                ),
-                st.just(b"[" * 20000),
-            ),
-        )
+        @given(host=EXIT_REPORT_HOSTS, payload=EXIT_REPORT_PAYLOADS)
         def hostile_exit_reports(host, payload):
             try:
                 session.put(f"{root}/host/{host}/exited", payload)
@@ -202,7 +103,7 @@ def test_hostile_input_on_every_entry_point_leaves_the_agent_serving(setup):  # 
                 sent["refused"] += 1
 
         @FUZZ
-        @given(parameters=st.text(max_size=40), payload=st.binary(max_size=100))
+        @given(parameters=STATUS_PARAMETERS, payload=STATUS_PAYLOADS)
         def hostile_status_queries(parameters, payload):
             try:
                 replies = session.get(

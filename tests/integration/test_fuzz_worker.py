@@ -19,12 +19,17 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.integration.fuzz_inputs import (
+    control_commands,
+    host_requests,
+    measurement_payloads,
+    nested_json,
+    pool_specifications,
+)
 from tests.integration.test_host import Network, network, relay
 from tests.integration.test_worker import expected, query_status, random_pose, start_worker
 from tests.integration.zenoh_helpers import Collector, wait_until
-from tests.unit.test_codec import hostile_messages, measurements
 from ubitrack_agent.core import Pose, decode, encode, se3
-from ubitrack_agent.core.timeline import MAX_FUTURE_NS
 from ubitrack_agent.net.host_protocol import Start, encode_request
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
@@ -34,83 +39,6 @@ IDENTITY = ([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
 
 EXAMPLES = 400
 """Hostile messages in all (the test takes about 20 s on two shared CPUs, start-up included)."""
-
-json_values = st.recursive(
-    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner),
-    max_leaves=20,
-)
-
-
-def nested_json(depth: int, as_map: bool) -> bytes:
-    """JSON nested ``depth`` deep (the parser's recursion limit is about a thousand)."""
-    if as_map:
-        return b'{"a": ' * depth + b"1" + b"}" * depth
-    return b"[" * depth + b"]" * depth
-
-
-hostile_json = st.one_of(
-    st.binary(max_size=300),
-    json_values.map(lambda value: json.dumps(value).encode()),
-    st.builds(nested_json, st.integers(30, 200_000), st.booleans()),
-    st.integers(70_000, 300_000).map(lambda n: b'{"a": "' + b"x" * n + b'"}'),  # oversized
-)
-
-
-@st.composite
-def future_poses(draw) -> bytes:
-    """A valid pose stamped beyond the bound ahead of the clock: a day, or just past it."""
-    ahead = draw(st.sampled_from([86_400 * 10**9, MAX_FUTURE_NS + 10**9, 2**62]))
-    return encode(Pose(time.time_ns() + ahead, [0, 0, 0, 1], [1.0, 2.0, 3.0]))
-
-
-measurement_payloads = st.one_of(
-    hostile_messages,
-    future_poses(),
-    st.binary(max_size=200),
-    measurements.map(encode).filter(lambda data: decode(data).timestamp_ns < time.time_ns()),
-)
-
-
-@st.composite
-def control_commands(draw) -> bytes:
-    """Control commands with the right field names and wrong values, or anything at all (never
-    a valid stop: that would end the run on purpose)."""
-    if draw(st.booleans()):
-        return draw(hostile_json)
-    name = draw(st.sampled_from(["inputs", "parameters", "relations", "stop", "colour"]))
-    value = draw(json_values.filter(lambda v: v is not True))
-    return json.dumps({name: value}).encode()
-
-
-@st.composite
-def pool_specifications(draw, valid: ComponentSpec) -> bytes:
-    """A specification with one field broken (never a valid one: a pool member would run it),
-    or anything at all."""
-    if draw(st.booleans()):
-        return draw(hostile_json)
-    broken = {
-        "instance": draw(
-            st.sampled_from(["*", "a b", "", "a/b", "Ä", "$*"])
-            | json_values.filter(lambda v: not isinstance(v, str))
-        ),
-        "service": draw(st.sampled_from(["os.system", "../relay", "relay*"])),
-        "parameters": {"x" + draw(st.text(max_size=5)): draw(json_values)},
-        "inputs": draw(json_values.filter(lambda v: v != [])),
-        "tolerance_ms": draw(st.sampled_from([-1, 1e400, 2**70, "5"])),
-    }
-    name = draw(st.sampled_from(sorted(broken)))
-    return json.dumps({**valid.as_dict(), name: broken[name]}).encode()
-
-
-@st.composite
-def host_requests(draw, valid: ComponentSpec) -> bytes:
-    if draw(st.booleans()):
-        return draw(hostile_json)
-    op = draw(st.sampled_from(["start", "stop", "status", "launch", None]))
-    if op == "start":
-        return encode_request(Start(valid)).replace('"relay"', '"nope"').encode()
-    return json.dumps({"op": op, "instance": draw(json_values), "spec": draw(json_values)}).encode()
 
 
 @pytest.fixture
