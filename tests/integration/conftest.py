@@ -16,6 +16,11 @@ def processes() -> Iterator[list[subprocess.Popen]]:
     """Processes a test starts; each is started in its own group and killed with it at the end."""
     started: list[subprocess.Popen] = []
     yield started
+    end_groups(started)
+
+
+def end_groups(started: list[subprocess.Popen]) -> None:
+    """End the process group of each of ``started`` still running: SIGTERM, SIGKILL after 5 s."""
     for process in started:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGTERM)

@@ -96,6 +96,12 @@ class Setup:
 
 @pytest.fixture
 def setup(processes) -> Iterator[Setup]:
+    yield from opened(processes)
+
+
+def opened(processes: list) -> Iterator[Setup]:
+    """A setup on a fresh port and domain, its session open until the generator ends; then the
+    processes tagged with its domain are killed (``processes`` are the caller's to end)."""
     port = free_port()
     domain = f"agent{port}"
     settings = config.Settings(
