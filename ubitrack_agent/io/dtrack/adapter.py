@@ -47,7 +47,7 @@ from collections.abc import Collection, Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ubitrack_agent.core import ErrorPose, Measurement, Position3D
+from ubitrack_agent.core import ErrorPose, Measurement, MeasurementError, Position3D
 from ubitrack_agent.core.uncertainty import (
     expected_error,
     in_place_covariance,
@@ -158,10 +158,16 @@ class DTrackAdapter(SensorAdapter):
         for line_id in frame.skipped_lines:
             self._skip_line(line_id)
         device_ns = self._device_ns(frame, received_ns) if self.timestamps == "device" else None
-        stamp = self.stamp(device_ns, received_ns)
+        try:
+            return self._measurements(frame, self.stamp(device_ns, received_ns))
+        except MeasurementError as exc:  # e.g. a position so large its covariance overflows
+            raise RejectedInput(f"datagram out of range: {exc}") from None
+
+    def _measurements(self, frame: DTrackFrame, stamp: int) -> list[tuple[str, Measurement]]:
+        """The mapped items of ``frame``, stamped ``stamp``."""
         # A hybrid body's fused pose replaces its optical one when both lines list it.
         bodies = {body.id: body for body in (*frame.bodies, *frame.hybrid_bodies)}
-        measurements = [
+        measurements: list[tuple[str, Measurement]] = [
             (edge, self._pose(item, stamp))
             for items, edges, kind in (
                 (bodies.values(), self.body_edges, "body"),
@@ -200,8 +206,8 @@ class DTrackAdapter(SensorAdapter):
                 return frame.unix_time.unix_ns
             self.ignore(
                 "ts2_clock_off",
-                "ts2 is more than 0.1 s from this host's clock; using the receive time minus "
-                "DTrack's latency instead",
+                "ts2's time, more than 0.1 s off this host's clock (the receive time minus "
+                "ts2's latency is used instead)",
                 logging.WARNING,
             )
             return received_ns - frame.unix_time.latency_ns
