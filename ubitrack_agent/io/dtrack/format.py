@@ -48,6 +48,7 @@ import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -265,14 +266,20 @@ def _check_buttons(where: str, text: str, buttons: str, joysticks: str = "0") ->
     _fields(f"{where} buttons", text, needed)
 
 
-def _parse_6d(rest: str) -> tuple[Body6D, ...]:
-    bodies = []
-    for index, (head, position, matrix) in enumerate(_items("6d", rest, 1, 3)):
-        where = f"6d body {index}"
-        body_id, quality, _ = _head(where, head, 2)
+def _parse_poses(line_id: str, label: str, rest: str) -> tuple[Body6D, ...]:
+    """``6d n [id qu]``, or ``6df``/``6dmt`` ``n [id qu bt]`` (listed in id order), each item
+    then ``[sx sy sz ...][b0 .. b8]``."""
+    with_buttons = line_id != "6d"
+    items = []
+    for index, (head, position, matrix) in enumerate(_items(line_id, rest, 1, 3)):
+        where = f"{line_id} {label} {index}"
+        item_id, quality, values = _head(where, head, 3 if with_buttons else 2)
+        if with_buttons:
+            _check_index(where, item_id, index)
+            _int(f"{where} buttons", values[2])
         if pose := _pose(where, quality >= 0, position, matrix):
-            bodies.append(Body6D(body_id, quality, *pose))
-    return tuple(bodies)
+            items.append(Body6D(item_id, quality, *pose))
+    return tuple(items)
 
 
 def _parse_6di(rest: str) -> tuple[Body6D, ...]:
@@ -288,18 +295,6 @@ def _parse_6di(rest: str) -> tuple[Body6D, ...]:
     return tuple(bodies)
 
 
-def _parse_6df(rest: str) -> tuple[Body6D, ...]:
-    flysticks = []
-    for index, (head, position, matrix) in enumerate(_items("6df", rest, 1, 3)):
-        where = f"6df Flystick {index}"
-        flystick_id, quality, values = _head(where, head, 3)
-        _check_index(where, flystick_id, index)
-        _int(f"{where} buttons", values[2])
-        if pose := _pose(where, quality >= 0, position, matrix):
-            flysticks.append(Body6D(flystick_id, quality, *pose))
-    return tuple(flysticks)
-
-
 def _parse_6df2(rest: str) -> tuple[Body6D, ...]:
     flysticks = []
     for index, (head, position, matrix, buttons) in enumerate(_items("6df2", rest, 2, 4)):
@@ -310,18 +305,6 @@ def _parse_6df2(rest: str) -> tuple[Body6D, ...]:
         if pose := _pose(where, quality >= 0, position, matrix):
             flysticks.append(Body6D(flystick_id, quality, *pose))
     return tuple(flysticks)
-
-
-def _parse_6dmt(rest: str) -> tuple[Body6D, ...]:
-    tools = []
-    for index, (head, position, matrix) in enumerate(_items("6dmt", rest, 1, 3)):
-        where = f"6dmt tool {index}"
-        tool_id, quality, values = _head(where, head, 3)
-        _check_index(where, tool_id, index)
-        _int(f"{where} buttons", values[2])
-        if pose := _pose(where, quality >= 0, position, matrix):
-            tools.append(Body6D(tool_id, quality, *pose))
-    return tuple(tools)
 
 
 def _covariance(where: str, text: str) -> np.ndarray:
@@ -375,11 +358,11 @@ _LINES: dict[str, tuple[str, Callable[[str], Any]]] = {
     "ts": ("timestamp_s", _parse_ts),
     "ts2": ("unix_time", _parse_ts2),
     "6dcal": ("calibrated_bodies", lambda rest: _int("6dcal", rest.strip())),
-    "6d": ("bodies", _parse_6d),
+    "6d": ("bodies", partial(_parse_poses, "6d", "body")),
     "6di": ("hybrid_bodies", _parse_6di),
-    "6df": ("flysticks", _parse_6df),
+    "6df": ("flysticks", partial(_parse_poses, "6df", "Flystick")),
     "6df2": ("flysticks", _parse_6df2),
-    "6dmt": ("tools", _parse_6dmt),
+    "6dmt": ("tools", partial(_parse_poses, "6dmt", "tool")),
     "6dmt2": ("tools", _parse_6dmt2),
     "3d": ("markers", _parse_3d),
 }
