@@ -28,10 +28,19 @@ def test_defaults_are_those_of_a_real_system_and_help_documents_them(capsys):
         "receive",
     )
     assert args.body == [(0, "WT")] and args.static == [] and args.marker == []
+    assert args.tool == [] and args.flystick == []
     with pytest.raises(SystemExit):
         build_parser().parse_args(["dtrack", "--help"])
     help_text = " ".join(capsys.readouterr().out.split())
-    for documented in ("--body ID=FRAME", "(default: 5000)", "(default: 0.5)", "(default: ART)"):
+    for documented in (
+        "--body ID=FRAME",
+        "--tool ID=FRAME",
+        "--flystick ID=FRAME",
+        "(default: 5000)",
+        "(default: 0.5)",
+        "(default: ART)",
+        "ts2",
+    ):
         assert documented in help_text
     assert "--scenario" not in help_text
 
@@ -41,6 +50,8 @@ def test_defaults_are_those_of_a_real_system_and_help_documents_them(capsys):
     [
         ([], "no DTrack body mapped to a frame: give --body ID=FRAME"),
         (["--body", "0=WT", "--body", "0=HT"], "--body 0 is given twice (WT, HT)"),
+        (["--tool", "0=P", "--tool", "0=Q"], "--tool 0 is given twice (P, Q)"),
+        (["--flystick", "1=FS", "--body", "0=FS"], "two edges would be named 'ART_FS'"),
         (["--body", "0=HT", "--static", "WT"], "static body 'WT' is not a mapped body's frame"),
         (["--body", "0=HT", "--provider", "a/b"], "a/b"),
         (["--body", "0=HT", "--rate", "-1"], "rate must be a number >= 0"),

@@ -145,9 +145,11 @@ def test_receive_time_policy_and_missing_ts():
 @pytest.mark.parametrize(
     ("mapping", "message"),
     [
-        ({"bodies": {}}, "no DTrack body or marker is mapped"),
-        ({"bodies": {-1: "HT"}}, "body ids count from 0 and marker ids from 1"),
-        ({"bodies": {0: "HT"}, "markers": {0: "F1"}}, "body ids count from 0 and marker ids"),
+        ({"bodies": {}}, "no DTrack body, tool, Flystick or marker is mapped"),
+        ({"bodies": {-1: "HT"}}, "Flystick ids count from 0 and marker ids from 1"),
+        ({"bodies": {0: "HT"}, "markers": {0: "F1"}}, "ids count from 0 and marker ids"),
+        ({"bodies": {}, "tools": {-1: "P"}}, "ids count from 0 and marker ids"),
+        ({"bodies": {0: "HT"}, "flysticks": {0: "HT"}}, "two edges would be named 'ART_HT'"),
         ({"bodies": {0: "HT"}, "static_bodies": ("WT",)}, "static body 'WT' is not a mapped"),
         ({"bodies": {0: "HT", 1: "HT"}}, "two edges would be named 'ART_HT'"),
         ({"bodies": {0: "H/T"}}, "H/T"),

@@ -1,18 +1,24 @@
 """``ubitrack dtrack``: A.R.T. DTrack2 ASCII UDP in, SRG edges on zenoh out.
 
 Listens for the datagrams of a real A.R.T. controller (in DTrack, Settings -> Output: send
-fr, ts, 6dcal, 6d and, for single markers, 3d to this host and port) or of ``ubitrack sim
-art``, and publishes each mapped body as a 6D edge TRACKER -> FRAME and each mapped single
-marker as a 3D edge, under provider PROVIDER (docs/simulators.md). Map every body you need
-with --body ID=FRAME, using the ids of DTrack's 6d output (from 0), and every single marker
-with --marker ID=FRAME (ids from 1); at least one is required, and unmapped ids are ignored
-and counted. Mark bodies fixed in the room with --static FRAME.
+fr, ts or ts2, 6dcal, 6d or 6di and, as needed, 6dmt/6dmt2, 6df/6df2 and 3d to this host and
+port) or of ``ubitrack sim art``, and publishes under provider PROVIDER (docs/simulators.md)
+each mapped body, measurement tool and Flystick as a 6D edge TRACKER -> FRAME and each mapped
+single marker as a 3D edge. Map every body you need with --body ID=FRAME, using the ids of
+DTrack's 6d output (from 0; hybrid bodies of the 6di line use the same ids and mapping),
+measurement tools with --tool ID=FRAME and Flysticks with --flystick ID=FRAME (ids from 0;
+only their poses: buttons and joysticks are not published), and single markers with --marker
+ID=FRAME (ids from 1); at least one mapping is required, and unmapped ids are ignored and
+counted. Mark bodies fixed in the room with --static FRAME. Other line types (gl, 6dj, 6dcov,
+st, unknown ones) are skipped with one warning per type.
 
 The covariance published with each pose is the noise given by --sigma-mm and --sigma-deg
-(per axis, rotation about the body's origin); the defaults are a conservative guess for a
-calibrated room-size system, not a manufacturer's figure: measure yours. Timestamps are the
-receive time unless --timestamps device, which uses DTrack's ts line and needs the
-controller's clock synchronised with this host's (NTP or PTP).
+(per axis, rotation about the body's origin; a 6dmt2 tool's own position covariance replaces
+--sigma-mm); the defaults are a conservative guess for a calibrated room-size system, not a
+manufacturer's figure: measure yours. Timestamps are the receive time unless --timestamps
+device, which uses DTRACK3's ts2 line when it is within 0.1 s of this host's clock (else the
+receive time minus its latency) or DTrack's ts line, which needs the controller's clock
+synchronised with this host's (NTP or PTP).
 
 Example, the paper's figure-1 setup: ubitrack dtrack --body 0=WT --body 1=HT --static WT.
 Runs until SIGINT/SIGTERM or --duration seconds, then logs its counters and exits 0; a bad
@@ -74,7 +80,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="ID=FRAME",
-        help="map a DTrack body id (from 0) to a frame (repeatable)",
+        help="map a DTrack body id (6d or 6di, from 0) to a frame (repeatable)",
     )
     parser.add_argument(
         "--static",
@@ -90,6 +96,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=[],
         metavar="ID=FRAME",
         help="map a DTrack single-marker id (from 1) to a frame (repeatable)",
+    )
+    parser.add_argument(
+        "--tool",
+        type=_id_frame,
+        action="append",
+        default=[],
+        metavar="ID=FRAME",
+        help="map a DTrack measurement-tool id (6dmt/6dmt2, from 0) to a frame (repeatable)",
+    )
+    parser.add_argument(
+        "--flystick",
+        type=_id_frame,
+        action="append",
+        default=[],
+        metavar="ID=FRAME",
+        help="map a DTrack Flystick id (6df/6df2, from 0) to a frame, its pose only (repeatable)",
     )
     parser.add_argument(
         "--rate",
@@ -116,7 +138,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--timestamps",
         choices=("receive", "device"),
         default="receive",
-        help="receive: this host's receive time; device: DTrack's ts line on this host's UTC "
+        help="receive: this host's receive time; device: DTrack's ts2 line (or the receive "
+        "time minus its latency if ts2 is over 0.1 s off), else its ts line on this host's UTC "
         "day, for a synchronised controller (default: %(default)s)",
     )
     parser.add_argument(
@@ -147,11 +170,12 @@ def run(args: argparse.Namespace) -> int:
     from ubitrack_agent.net.session import open_session
 
     prog = "ubitrack dtrack"
-    if not args.body and not args.marker:
+    if not (args.body or args.marker or args.tool or args.flystick):
         print(
             f"{prog}: no DTrack body mapped to a frame: give --body ID=FRAME for each body "
             "(ids as in DTrack's 6d output, from 0), e.g. --body 0=WT --body 1=HT, "
-            "or --marker ID=FRAME for single markers",
+            "or --tool, --flystick or --marker ID=FRAME for measurement tools, Flysticks "
+            "or single markers",
             file=sys.stderr,
         )
         return 2
@@ -167,6 +191,8 @@ def run(args: argparse.Namespace) -> int:
             sigma_deg=args.sigma_deg,
             rate=args.rate,
             timestamps=args.timestamps,
+            tools=_id_map(args.tool, "--tool"),
+            flysticks=_id_map(args.flystick, "--flystick"),
         )
     except ValueError as exc:  # config.ConfigError is one too
         print(f"{prog}: {exc}", file=sys.stderr)

@@ -12,7 +12,8 @@ jobs, following the conventions of :mod:`ubitrack_agent.core.measurements`:
    conventions: metres, quaternions ``(x, y, z, w)``, pose covariance 6x6 over the left
    perturbation with rotation first (:mod:`ubitrack_agent.core.uncertainty` turns per-axis
    figures into it). Input that breaks the device's format raises :class:`RejectedInput`; a
-   valid item the adapter has no edge for is passed to :meth:`SensorAdapter.ignore`.
+   valid item the adapter has no edge for, or a kind of data it does not support, is passed
+   to :meth:`SensorAdapter.ignore`.
 3. **Timestamp** through :meth:`SensorAdapter.stamp`, by the adapter's policy:
 
    * ``"receive"`` (the default): the host's clock when the input arrived
@@ -102,11 +103,12 @@ class SensorAdapter(ABC):
             return device_ns
         return received_ns
 
-    def ignore(self, counter: str, reason: str) -> None:
-        """Count a valid item that has no edge under ``counter``; log ``reason`` the first
-        time."""
+    def ignore(self, counter: str, reason: str, level: int = logging.INFO) -> None:
+        """Count under ``counter`` valid input the adapter leaves out (an item that has no
+        edge, a data type it does not support); log ``reason`` at ``level`` the first time
+        only, never per input."""
         if not self.counters[counter]:
-            log.info("%s: %s; ignored", self.device, reason)
+            log.log(level, "%s: %s; ignored", self.device, reason)
         self.counters[counter] += 1
 
     def handle(self, raw: bytes, received_ns: int, publisher: Publisher) -> int:
