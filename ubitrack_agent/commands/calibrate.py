@@ -31,6 +31,7 @@ import math
 import sys
 from typing import Any
 
+from ubitrack_agent.commands.agent_status import unsolved_reason
 from ubitrack_agent.net import config
 
 TYPES = ("6D", "3D", "3R")
@@ -110,19 +111,6 @@ def _known_from(recalibrate: bool) -> str:
     if recalibrate:
         return "computed from other static edges, without calibrating"
     return "a measured static edge"
-
-
-def unsolved_reason(session: Any, keys: Any, relation: Any) -> str:
-    """Why the agent does not serve the static ``relation`` (from its status), as a clause to
-    append to a message; empty when it serves it."""
-    from ubitrack_agent.agent.flows import plan_name
-    from ubitrack_agent.net.transport import fetch_latest
-
-    replies = fetch_latest(session, keys.agent_status(), timeout=1.0)
-    if not replies:
-        return f"; no agent answers on {keys.agent_status()}"
-    reason = json.loads(replies[0]).get("unsolved", {}).get(plan_name(relation))
-    return f": the agent cannot serve it: {reason}" if reason else ""
 
 
 def run(args: argparse.Namespace) -> int:
