@@ -29,9 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def live_dot(status: dict[str, Any]) -> str:
     """DOT of the live SRG (solid) and the edges running components derive (dashed)."""
-
-    def quote(text: str) -> str:
-        return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    from ubitrack_agent.graph.dot import quote
 
     lines = [f"digraph {quote(status.get('key_prefix', 'SRG'))} {{", "  rankdir=LR;"]
     for edge in status.get("srg", []):
@@ -40,7 +38,7 @@ def live_dot(status: dict[str, Any]) -> str:
     for instance, component in status.get("components", {}).items():
         colour = "red" if component.get("alive") else "grey"
         for source, target, edge_type in component.get("derives", []):
-            label = f"{component['service']} {edge_type}\\n{instance}"
+            label = f"{component['service']} {edge_type}\n{instance}"
             lines.append(
                 f"  {quote(source)} -> {quote(target)} [label={quote(label)}, style=dashed, "
                 f"color={colour}, fontcolor={colour}];"

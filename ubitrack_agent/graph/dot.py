@@ -11,8 +11,11 @@ import networkx as nx
 from ubitrack_agent.graph.planner import Solution, with_solution
 
 
-def _quote(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+def quote(text: str) -> str:
+    """``text`` as a DOT string: backslashes and quotes escaped, a line break as DOT's ``\\n``
+    (escaped once: a label with ``\\n`` in it must not show the two characters)."""
+    escaped = text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+    return f'"{escaped}"'
 
 
 def to_dot(srg: nx.MultiDiGraph, solution: Solution | None = None, title: str = "SRG") -> str:
@@ -20,9 +23,9 @@ def to_dot(srg: nx.MultiDiGraph, solution: Solution | None = None, title: str = 
     graph = srg if solution is None else with_solution(srg, solution)
     used = set(solution.records) if solution is not None else set()
     steps = {} if solution is None else {s.id: (n, s) for n, s in enumerate(solution.steps, 1)}
-    lines = [f"digraph {_quote(title)} {{", "  rankdir=LR;", "  node [shape=ellipse];"]
+    lines = [f"digraph {quote(title)} {{", "  rankdir=LR;", "  node [shape=ellipse];"]
     for node in sorted(graph.nodes):
-        lines.append(f"  {_quote(node)};")
+        lines.append(f"  {quote(node)};")
     for u, v, key, data in sorted(graph.edges(keys=True, data=True), key=lambda e: e[2]):
         label = data["type"] + (" static" if data["static"] else "")
         if data["measured"]:
@@ -31,6 +34,6 @@ def to_dot(srg: nx.MultiDiGraph, solution: Solution | None = None, title: str = 
             n, step = steps[data["derivation"]]
             label = f"{n}. {step.template.pattern} ({step.expansion}) {label}"
             style = ', style=dashed, color="red", fontcolor="red"'
-        lines.append(f"  {_quote(u)} -> {_quote(v)} [label={_quote(label)}{style}];")
+        lines.append(f"  {quote(u)} -> {quote(v)} [label={quote(label)}{style}];")
     lines.append("}")
     return "\n".join(lines) + "\n"
