@@ -119,17 +119,19 @@ class Hosts:
         log.info("%s: started on host %s (run %s)", instance, host, started.run)
         return True
 
-    def stop(self, instance: str) -> None:
-        """Stop ``instance`` through its host manager, else with the stop command."""
+    def stop(self, instance: str) -> bool:
+        """Stop ``instance`` through its host manager, else with the stop command; True if a
+        host manager took the stop (it then owns the process until it has ended)."""
         self._retry_at.pop(instance, None)
         placement = self.placements.pop(instance, None)
         if placement is not None and placement.host in self._answering():
             try:
                 self._request(placement.host, Stop(instance))
-                return
+                return True
             except ProtocolError as exc:
                 self._problems.report("failed_stops", "%s: host did not stop it: %s", instance, exc)
         put_command(self._session, self._keys.control(instance), STOP_COMMAND)
+        return False
 
     def _answering(self) -> list[str]:
         """Live host managers by name, less those that did not answer lately."""
