@@ -46,7 +46,7 @@ class Setup:
         self.processes.append(process)
         return process
 
-    def start_agent(self) -> subprocess.Popen:
+    def start_agent(self, *extra: str) -> subprocess.Popen:
         process = subprocess.Popen(
             [
                 sys.executable,
@@ -59,6 +59,7 @@ class Setup:
                 f"tcp/127.0.0.1:{self.port}",
                 "--domain",
                 self.domain,
+                *extra,
             ],
             start_new_session=True,
         )

@@ -366,6 +366,7 @@ class Agent:
         for spec in started:
             self.running[spec.instance] = spec
             self._stopped.pop(spec.instance, None)
+            self._retiring.pop(spec.instance, None)  # wanted again before it was stopped
         for instance, command in actions.update:
             self._send_control(instance, command)
             self.running[instance] = self.wanted[instance]
