@@ -2,8 +2,9 @@
 
 Start: ``python -m services.worker --spec '<json>' [zenoh flags]`` (see :mod:`services.spec`).
 The worker opens its own zenoh session (explicit endpoints, multicast off: it opens in
-milliseconds), takes commands on ``<root>/control/<instance>`` (subscribed first, before
-anything else is declared), subscribes to its input keys, publishes its outputs, answers its
+milliseconds), takes commands on ``<root>/control/<instance>`` and, for this process alone, on
+``<root>/control/<instance>/<incarnation>`` (subscribed first, before anything else is
+declared), subscribes to its input keys, publishes its outputs, answers its
 counters on ``<root>/status/<instance>`` and, last, declares the liveliness token
 ``<root>/worker/<instance>/<incarnation>`` (``<pid>.<nonce>``, new for every run):
 
@@ -170,16 +171,20 @@ class Worker:
         self._progress_routes: dict[str, list[str]] = {}
         self.progress: dict[str, Progress] = {}
         """The latest progress of each static estimate, by output port (shown in status)."""
-        self._control = session.declare_subscriber(
-            keys.control(spec.instance),
-            self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes()))),
-        )
+        self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
+        """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
+        take = self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes())))
+        self._controls = [
+            session.declare_subscriber(key, take)
+            for key in (
+                keys.control(spec.instance),
+                keys.control_incarnation(spec.instance, self.incarnation),
+            )
+        ]
         self._route_outputs(spec.relations)
         self._status = session.declare_queryable(keys.status(spec.instance))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
         self._bind(spec.inputs)
-        self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
-        """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
         self._token = session.liveliness().declare_token(
             keys.worker(spec.instance, self.incarnation)
         )
@@ -472,7 +477,8 @@ class Worker:
             self._token.undeclare()
             for item in self._inputs:
                 item.subscriber.undeclare()
-            self._control.undeclare()
+            for control in self._controls:
+                control.undeclare()
             self._status.undeclare()
             for publisher in self._publishers.values():
                 publisher.undeclare()

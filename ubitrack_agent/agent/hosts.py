@@ -27,7 +27,7 @@ from __future__ import annotations
 import logging
 import queue
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
@@ -59,10 +59,12 @@ PUT = "SampleKind.PUT"
 
 @dataclass(frozen=True)
 class Placement:
-    """Where an instance runs: the host manager that started it and the run it named."""
+    """Where an instance runs: the host manager that started it, the run it named, and the
+    process's pid (which the worker's token incarnation carries; not compared)."""
 
     host: str
     run: str
+    pid: int = field(default=0, compare=False)
 
 
 class Hosts:
@@ -115,7 +117,7 @@ class Hosts:
             )
             return False
         self._retry_at.pop(instance, None)
-        self.placements[instance] = Placement(host, started.run)
+        self.placements[instance] = Placement(host, started.run, started.pid)
         log.info("%s: started on host %s (run %s)", instance, host, started.run)
         return True
 

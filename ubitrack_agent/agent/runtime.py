@@ -109,8 +109,10 @@ class Agent:
         self.rejected: dict[str, str] = {}
         self.queries: dict[RelationId, set[str]] = defaultdict(set)
         self.alive: set[str] = set()
-        self.incarnations: dict[str, set[str]] = defaultdict(set)
-        """The incarnations (processes) whose token is up, by instance."""
+        self.incarnations: dict[str, dict[str, float]] = defaultdict(dict)
+        """The incarnations (processes) whose token is up, by instance: when each appeared."""
+        self._duplicate_stops: dict[tuple[str, str], float] = {}
+        """Duplicate processes told to stop, (instance, incarnation): when to tell again."""
         self.running: dict[str, ComponentSpec] = {}
         self.wanted: dict[str, ComponentSpec] = {}
         self.plan: Plan | None = None
@@ -186,10 +188,11 @@ class Agent:
         plan may prefer it."""
         incarnations = self.incarnations[instance]
         if appeared:
-            incarnations.add(incarnation)
+            incarnations.setdefault(incarnation, time.monotonic())
             self.alive.add(instance)
             return instance not in self.running
-        incarnations.discard(incarnation)
+        incarnations.pop(incarnation, None)
+        self._duplicate_stops.pop((instance, incarnation), None)
         if incarnations:
             self.counters["earlier_incarnation_removals"] += 1
             return False  # an earlier process's token: the current one still runs
@@ -385,6 +388,33 @@ class Agent:
         owned = self.hosts.stop(instance)
         self._stopped[instance] = None if owned else time.monotonic() + STOP_RESEND_S
 
+    def _stop_duplicates(self) -> None:
+        """An instance alive in several processes (say, one an earlier agent's host manager was
+        still starting when it died, and one started since) keeps the process its host manager
+        placed, else the one seen first; each other one is stopped alone, on its incarnation's
+        control key, again every ``STOP_RESEND_S`` while its token stays."""
+        now = time.monotonic()
+        for instance, seen in self.incarnations.items():
+            if len(seen) < 2:
+                continue
+            keep = self._kept_incarnation(instance, seen)
+            for incarnation in sorted(set(seen) - {keep}):
+                if now >= self._duplicate_stops.get((instance, incarnation), 0.0):
+                    self.counters["duplicate_stops"] += 1
+                    log.warning("%s: also runs in %s: stopping that one", instance, incarnation)
+                    key = self.keys.control_incarnation(instance, incarnation)
+                    put_command(self.session, key, STOP_COMMAND)
+                    self._duplicate_stops[instance, incarnation] = now + STOP_RESEND_S
+
+    def _kept_incarnation(self, instance: str, seen: dict[str, float]) -> str:
+        """The incarnation of ``instance`` to keep among ``seen`` (see :meth:`_stop_duplicates`)."""
+        placement = self.hosts.placements.get(instance)
+        if placement is not None:
+            placed = [i for i in seen if i.partition(".")[0] == str(placement.pid)]
+            if placed:
+                return placed[0]
+        return min(seen, key=lambda incarnation: (seen[incarnation], incarnation))
+
     def _resend_stops(self) -> None:
         """Put the stop again to workers the agent stopped itself whose token is still up
         (a stop put while the worker was still starting, or while its link to the agent was
@@ -434,6 +464,7 @@ class Agent:
                 guard.periodic("reconcile", self._reconcile, None)
                 guard.periodic("retire", self._retire, None)
                 guard.periodic("resend_stops", self._resend_stops, None)
+                guard.periodic("duplicates", self._stop_duplicates, None)
                 if batch or time.monotonic() > status_due:
                     guard.periodic("status", self._refresh_status, None)
                     status_due = time.monotonic() + STATUS_REFRESH_S

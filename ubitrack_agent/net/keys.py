@@ -26,6 +26,8 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
                                      from another's, so a late removal of an earlier process's
                                      token is not taken for the current one's
     <root>/control/<instance>        rewire / reconfigure a running worker (JSON, put)
+    <root>/control/<instance>/<incarnation>
+                                     the same, to one process only (stopping a duplicate)
     <root>/status/<instance>         a worker's counters (JSON, queryable)
     <root>/progress/<from>/<to>/<type>/<static|recalibrate>
                                      progress of a static relation computed over time (JSON,
@@ -183,6 +185,10 @@ class KeySpace:
     def control(self, instance: str) -> str:
         """Key on which the agent sends reconfiguration commands to ``instance``."""
         return f"{self.root}/control/{validate_key_chunks(instance, single_chunk=True)}"
+
+    def control_incarnation(self, instance: str, incarnation: str) -> str:
+        """Key on which one process (``incarnation``) running ``instance`` takes commands."""
+        return f"{self.control(instance)}/{validate_key_chunks(incarnation, single_chunk=True)}"
 
     def status(self, instance: str) -> str:
         """Queryable that answers ``instance``'s counters."""
