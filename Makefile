@@ -21,7 +21,8 @@ test: $(STAMP)
 	$(VENV)/bin/python -m pytest
 
 bench: $(STAMP)
-	for name in plan_bench accuracy_bench calibration_bench dataflow_bench worker_start; do \
+	for name in plan_bench accuracy_bench calibration_bench dataflow_bench worker_start \
+		agent_restart_bench; do \
 		$(VENV)/bin/python -m bench.$$name || exit 1; done
 
 clean:
