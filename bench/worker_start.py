@@ -54,7 +54,7 @@ class TokenClock:
         """The time ``instance``'s token appeared (waiting for it)."""
         while True:
             kind, key, at = self._appeared.get(timeout=60)
-            if kind.endswith("PUT") and self._keys.parse_worker(key) == instance:
+            if kind.endswith("PUT") and self._keys.parse_worker(key)[0] == instance:
                 return at
 
 

@@ -11,9 +11,17 @@ so the supervisor keeps a **warm pool** of idle members (``python -m services.wo
   start a fresh process with ``--spec`` (it joins the pool once released);
 * refill: one process at a time, and only after ``REFILL_QUIET_S`` without a start, so the
   imports never compete with a data flow that has just been rewired;
-* stop: put the stop command on the instance's control key; the released process goes back to
-  the pool while the pool is short (it must show its pool token within ``STOP_GRACE_S``),
-  otherwise it is terminated, and killed after ``STOP_GRACE_S``;
+* stop: put the stop command on the instance's control key and keep the process as
+  *releasing*: the stop is put again every ``STOP_RESEND_S`` (a process still starting, not yet
+  subscribed to its control key, would miss a single one) until the process confirms it by
+  declaring its pool token again, which it does only once its run has ended; only then does it
+  count as a pool member (or, with the pool full, is it terminated). Not confirmed within
+  ``STOP_GRACE_S``, it is terminated (SIGTERM), and killed (SIGKILL) ``STOP_GRACE_S`` later; a
+  process stopped is owned until it has exited, so no stop is ever lost;
+* a start of an instance whose earlier process is still releasing terminates that process, so
+  one instance never runs twice here and no stop meant for it reaches the new one;
+* a pool member not ready within ``POOL_READY_S`` (spawned, or its pool token vanished) is
+  terminated, so a stuck member never stops the pool from refilling;
 * a pool token appearing for a process that runs an instance means a stop command from
   elsewhere released it: the instance ended (reported, like a process that exited).
 
@@ -37,14 +45,20 @@ from typing import Any
 from ubitrack_agent.net.host_protocol import STOP_COMMAND, Exited, ProtocolError, Started
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.host")
 
 STOP_GRACE_S = 3.0
 """How long a stopped worker may take to exit (or a released one to rejoin the pool) before it
 is terminated, and a terminated one before it is killed."""
+STOP_RESEND_S = 0.5
+"""A stop not yet confirmed is put again this often."""
 REFILL_QUIET_S = 3.0
 """The pool is topped up only after this long without a component being started."""
+POOL_READY_S = 20.0
+"""A pool member whose pool token is not up this long after it was spawned (or after its token
+vanished) is terminated."""
 
 
 @dataclass
@@ -55,6 +69,16 @@ class Assignment:
     run: str
     pool_id: str
     process: subprocess.Popen
+
+
+@dataclass
+class Release:
+    """A process told to stop running ``instance``, until it confirms (its pool token)."""
+
+    instance: str
+    process: subprocess.Popen
+    deadline: float
+    resend_at: float
 
 
 class Supervisor:
@@ -79,8 +103,10 @@ class Supervisor:
         self._members: dict[str, subprocess.Popen] = {}
         """Idle pool members by pool id: ready, starting, or returning after a release."""
         self._ready: set[str] = set()
-        self._returning: dict[str, float] = {}
-        """Released members by pool id: the time by which their pool token must be up."""
+        self._unready_since: dict[str, float] = {}
+        """Members without their pool token up, by pool id: since when."""
+        self._releasing: dict[str, Release] = {}
+        """Processes told to stop, by pool id, until they confirm."""
         self.assigned: dict[str, Assignment] = {}
         self._stopping: list[tuple[subprocess.Popen, float]] = []
         self._last_start = -REFILL_QUIET_S
@@ -98,10 +124,11 @@ class Supervisor:
         quiet for ``REFILL_QUIET_S``."""
         starting = set(self._members) - self._ready
         quiet = time.monotonic() - self._last_start > REFILL_QUIET_S
-        if len(self._members) < self.pool_size and quiet and not starting:
+        if self._pool_has_room() and quiet and not starting:
             pool_id = f"{self._tag}-{uuid.uuid4().hex[:8]}"
             try:
                 self._members[pool_id] = self._spawn(pool_id)
+                self._unready_since[pool_id] = time.monotonic()
             except OSError as exc:
                 self.counters["failed_pool_spawns"] += 1
                 self._last_start = time.monotonic()  # try again after a quiet period
@@ -111,11 +138,18 @@ class Supervisor:
         """A pool token appeared or vanished; the instance it ended, if its process was
         running one (released by a stop command this host manager did not send)."""
         if not appeared:
-            self._ready.discard(pool_id)
+            if pool_id in self._ready:
+                self._ready.discard(pool_id)
+                self._unready_since[pool_id] = time.monotonic()
             return None
         if pool_id in self._members:
             self._ready.add(pool_id)
-            self._returning.pop(pool_id, None)
+            self._unready_since.pop(pool_id, None)
+            return None
+        release = self._releasing.pop(pool_id, None)
+        if release is not None:
+            self.counters["stops_confirmed"] += 1
+            self._rejoin(pool_id, release.process)
             return None
         owner = next((i for i, a in self.assigned.items() if a.pool_id == pool_id), None)
         if owner is None:
@@ -123,17 +157,27 @@ class Supervisor:
         assignment = self.assigned.pop(owner)
         self.counters["released"] += 1
         log.info("%s: released by a stop command from elsewhere", owner)
+        self._rejoin(pool_id, assignment.process)
+        return Exited(owner, assignment.run, assignment.process.pid, None, "released")
+
+    def _pool_has_room(self) -> bool:
+        """Whether the pool (members and processes returning to it) is short."""
+        return len(self._members) + len(self._releasing) < self.pool_size
+
+    def _rejoin(self, pool_id: str, process: subprocess.Popen) -> None:
+        """A process that ended its run and showed its pool token: a ready member if the pool
+        is short, else terminated."""
         if len(self._members) < self.pool_size:
-            self._members[pool_id] = assignment.process
+            self._members[pool_id] = process
             self._ready.add(pool_id)
         else:
-            self._terminate(assignment.process)
-        return Exited(owner, assignment.run, assignment.process.pid, None, "released")
+            self._terminate(process)
 
     def _take_ready(self) -> tuple[str, subprocess.Popen] | None:
         while self._ready:
             pool_id = self._ready.pop()
             process = self._members.pop(pool_id)
+            self._unready_since.pop(pool_id, None)
             if process.poll() is None:
                 return pool_id, process
         return None
@@ -150,10 +194,11 @@ class Supervisor:
                 self.counters["reused"] += 1
                 return Started(spec.instance, current.run, current.process.pid, reused=True)
             self.stop(spec.instance)
+        self._terminate_releases_of(spec.instance)
         taken = self._take_ready()
         if taken is not None:
             pool_id, process = taken
-            self._session.put(self._keys.pool(pool_id), spec.to_json())
+            put_command(self._session, self._keys.pool(pool_id), spec.to_json())
             self.counters["started_from_pool"] += 1
             log.info("%s: assigned to pool worker %s", spec.instance, pool_id)
         else:
@@ -171,19 +216,28 @@ class Supervisor:
 
     def stop(self, instance: str) -> str:
         """Put the stop command on ``instance``'s control key (wherever it runs) and release
-        or terminate its process here: ``"released"``, ``"terminated"`` or ``"none"``."""
-        self._session.put(self._keys.control(instance), STOP_COMMAND)
+        or terminate its process here: ``"released"`` (it returns to the pool once it confirms,
+        module docstring), ``"terminated"`` or ``"none"``."""
+        put_command(self._session, self._keys.control(instance), STOP_COMMAND)
         assignment = self.assigned.pop(instance, None)
         if assignment is None:
             return "none"
         self.counters["stopped"] += 1
         process = assignment.process
-        if process.poll() is None and len(self._members) < self.pool_size:
-            self._members[assignment.pool_id] = process
-            self._returning[assignment.pool_id] = time.monotonic() + STOP_GRACE_S
+        if process.poll() is None and self._pool_has_room():
+            now = time.monotonic()
+            release = Release(instance, process, now + STOP_GRACE_S, now + STOP_RESEND_S)
+            self._releasing[assignment.pool_id] = release
             return "released"
         self._terminate(process)
         return "terminated"
+
+    def _terminate_releases_of(self, instance: str) -> None:
+        """Terminate the processes still releasing ``instance`` (it is starting again)."""
+        for pool_id, release in list(self._releasing.items()):
+            if release.instance == instance:
+                del self._releasing[pool_id]
+                self._terminate(release.process)
 
     def _terminate(self, process: subprocess.Popen) -> None:
         if process.poll() is None:
@@ -202,10 +256,15 @@ class Supervisor:
                 pid = assignment.process.pid
                 exits.append(Exited(instance, assignment.run, pid, returncode, "exited"))
         now = time.monotonic()
-        for pool_id, deadline in list(self._returning.items()):
-            if now > deadline:
-                del self._returning[pool_id]
-                log.warning("pool worker %s did not rejoin the pool: terminating it", pool_id)
+        self._follow_releases(now)
+        for pool_id, since in list(self._unready_since.items()):
+            if now - since > POOL_READY_S:
+                log.warning(
+                    "pool worker %s not ready for %.0f s: terminating it", pool_id, now - since
+                )
+                self.counters["unready_members"] += 1
+                del self._unready_since[pool_id]
+                self._ready.discard(pool_id)
                 self._terminate(self._members.pop(pool_id))
         still = []
         for process, deadline in self._stopping:
@@ -218,13 +277,34 @@ class Supervisor:
         for pool_id in [p for p, process in self._members.items() if process.poll() is not None]:
             del self._members[pool_id]
             self._ready.discard(pool_id)
-            self._returning.pop(pool_id, None)
+            self._unready_since.pop(pool_id, None)
         return exits
+
+    def _follow_releases(self, now: float) -> None:
+        """Forget releasing processes that exited, put the stop again to those that did not
+        confirm yet, terminate those past their deadline."""
+        for pool_id, release in list(self._releasing.items()):
+            if release.process.poll() is not None:
+                del self._releasing[pool_id]
+            elif now > release.deadline:
+                del self._releasing[pool_id]
+                self.counters["unconfirmed_stops"] += 1
+                log.warning(
+                    "%s: process %d did not confirm its stop: terminating it",
+                    release.instance,
+                    release.process.pid,
+                )
+                self._terminate(release.process)
+            elif now > release.resend_at:
+                release.resend_at = now + STOP_RESEND_S
+                self.counters["stops_resent"] += 1
+                put_command(self._session, self._keys.control(release.instance), STOP_COMMAND)
 
     def terminate_all(self) -> None:
         """End every process this supervisor started (the host manager is stopping cleanly)."""
         everything = [a.process for a in self.assigned.values()]
         everything += [*self._members.values(), *(process for process, _ in self._stopping)]
+        everything += [release.process for release in self._releasing.values()]
         for process in everything:
             if process.poll() is None:
                 process.terminate()
@@ -237,7 +317,8 @@ class Supervisor:
         self.assigned.clear()
         self._members.clear()
         self._ready.clear()
-        self._returning.clear()
+        self._unready_since.clear()
+        self._releasing.clear()
         self._stopping.clear()
 
     def status(self) -> dict[str, Any]:
@@ -246,6 +327,7 @@ class Supervisor:
             "pool_size": self.pool_size,
             "pool_ready": len(self._ready),
             "pool_starting": len(self._members) - len(self._ready),
+            "releasing": len(self._releasing),
             "stopping": len(self._stopping),
             "instances": {
                 instance: {

@@ -2,9 +2,11 @@
 
 Start: ``python -m services.worker --spec '<json>' [zenoh flags]`` (see :mod:`services.spec`).
 The worker opens its own zenoh session (explicit endpoints, multicast off: it opens in
-milliseconds), declares the liveliness token ``<root>/worker/<instance>``, subscribes to its
-input keys, publishes its outputs, answers its counters on ``<root>/status/<instance>`` and
-takes commands on ``<root>/control/<instance>``:
+milliseconds), takes commands on ``<root>/control/<instance>`` and, for this process alone, on
+``<root>/control/<instance>/<incarnation>`` (subscribed first, before anything else is
+declared), subscribes to its input keys, publishes its outputs, answers its
+counters on ``<root>/status/<instance>`` and, last, declares the liveliness token
+``<root>/worker/<instance>/<incarnation>`` (``<pid>.<nonce>``, new for every run):
 
 * ``{"inputs": [<bindings>]}`` rewires: bindings whose key is unchanged keep their history;
 * ``{"parameters": {...}}`` rebuilds the service with new parameters;
@@ -36,6 +38,7 @@ import queue
 import sys
 import threading
 import time
+import uuid
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -168,15 +171,23 @@ class Worker:
         self._progress_routes: dict[str, list[str]] = {}
         self.progress: dict[str, Progress] = {}
         """The latest progress of each static estimate, by output port (shown in status)."""
+        self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
+        """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
+        take = self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes())))
+        self._controls = [
+            session.declare_subscriber(key, take)
+            for key in (
+                keys.control(spec.instance),
+                keys.control_incarnation(spec.instance, self.incarnation),
+            )
+        ]
         self._route_outputs(spec.relations)
-        self._control = session.declare_subscriber(
-            keys.control(spec.instance),
-            self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes()))),
-        )
         self._status = session.declare_queryable(keys.status(spec.instance))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
         self._bind(spec.inputs)
-        self._token = session.liveliness().declare_token(keys.worker(spec.instance))
+        self._token = session.liveliness().declare_token(
+            keys.worker(spec.instance, self.incarnation)
+        )
 
     def _new_accumulator(self) -> TimeAccumulator | None:
         """The time expansion's accumulator, and for a batch estimate over it (not an
@@ -425,6 +436,7 @@ class Worker:
             "instance": self.spec.instance,
             "service": self.spec.service,
             "pid": os.getpid(),
+            "incarnation": self.incarnation,
             "counters": dict(self.counters),
             **({"pool": dict(self.pool_counters)} if self.pool_counters is not None else {}),
             "progress": {port: asdict(progress) for port, progress in self.progress.items()},
@@ -465,7 +477,8 @@ class Worker:
             self._token.undeclare()
             for item in self._inputs:
                 item.subscriber.undeclare()
-            self._control.undeclare()
+            for control in self._controls:
+                control.undeclare()
             self._status.undeclare()
             for publisher in self._publishers.values():
                 publisher.undeclare()

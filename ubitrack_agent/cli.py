@@ -31,7 +31,9 @@ COMMAND_MODULES: tuple[str, ...] = (
 """Modules of :mod:`ubitrack_agent.commands`, in the order ``--help`` lists them."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every subcommand, or of ``only`` that one (its module alone is imported:
+    a restarted agent is up sooner without the others' imports)."""
     parser = argparse.ArgumentParser(
         prog="ubitrack",
         description="Spatial relationship pattern middleware for tracking and calibration.",
@@ -39,13 +41,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     logs.add_log_level_argument(parser)
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMAND_MODULES:
+    for name in COMMAND_MODULES if only is None else (only,):
         importlib.import_module(f"{__package__}.commands.{name}").register(subparsers)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    arguments = sys.argv[1:] if argv is None else argv
+    command = next((a for a in arguments if a in COMMAND_MODULES), None)
+    args = build_parser(command).parse_args(arguments)
     logs.configure(args.log_level)
     try:
         return int(args.func(args) or 0)

@@ -133,7 +133,7 @@ def _attack(session, keys: KeySpace, instances: list[str], name: str) -> list:
         time.sleep(0.01)
     liveliness = session.liveliness()
     return [
-        liveliness.declare_token(keys.worker(f"fake-{name}")),
+        liveliness.declare_token(keys.worker(f"fake-{name}", "1.fake")),
         liveliness.declare_token(keys.provider(f"fake-{name}")),
         liveliness.declare_token(keys.pool(f"fake-{name}")),
     ]

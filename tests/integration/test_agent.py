@@ -46,7 +46,8 @@ class Setup:
         self.processes.append(process)
         return process
 
-    def start_agent(self) -> subprocess.Popen:
+    def start_agent(self, *extra: str, wait: bool = True) -> subprocess.Popen:
+        """The agent (``extra``: more of its options), waiting until it answers if ``wait``."""
         process = subprocess.Popen(
             [
                 sys.executable,
@@ -59,11 +60,13 @@ class Setup:
                 f"tcp/127.0.0.1:{self.port}",
                 "--domain",
                 self.domain,
+                *extra,
             ],
             start_new_session=True,
         )
         self.processes.append(process)
-        wait_until(lambda: self.status() is not None, timeout=20)
+        if wait:
+            wait_until(lambda: self.status() is not None, timeout=20)
         return process
 
     def tracker(self, provider: str, tracker: str, yaw: float, x: float) -> subprocess.Popen:

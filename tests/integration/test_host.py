@@ -85,7 +85,7 @@ class Network:
         watch = self.session.liveliness().declare_subscriber(
             self.keys.all_workers(),
             lambda s: events.append(
-                (str(s.kind), self.keys.parse_worker(str(s.key_expr)), time.monotonic())
+                (str(s.kind), self.keys.parse_worker(str(s.key_expr))[0], time.monotonic())
             ),
         )
         self.watches.append(watch)

@@ -58,7 +58,7 @@ def test_concatenation_worker_computes_rejects_rewires_and_stops(processes):
     with hub_session(port) as session:
         tokens = []
         liveliness = session.liveliness().declare_subscriber(
-            keys.worker("concat1"), lambda s: tokens.append(str(s.kind))
+            keys.worker_tokens("concat1"), lambda s: tokens.append(str(s.kind))
         )
         output = Collector(session, keys.data("concat1/AC"))
         worker = start_worker(processes, spec, port, domain, session, keys)
@@ -146,7 +146,7 @@ def query_status(session, keys: KeySpace, instance: str) -> dict:
 def start_worker(processes, spec: ComponentSpec, port: int, domain: str, session, keys):
     tokens = []
     watcher = session.liveliness().declare_subscriber(
-        keys.worker(spec.instance), lambda s: tokens.append(str(s.kind)), history=True
+        keys.worker_tokens(spec.instance), lambda s: tokens.append(str(s.kind)), history=True
     )
     worker = subprocess.Popen(
         [

@@ -47,6 +47,8 @@ PREFIXES = {
 def key_of(kind: str, name: str) -> str:
     if kind == "host_exited":
         return f"{KEYS.root}/host/{name}/exited"
+    if kind == "worker":
+        return f"{KEYS.root}/worker/{name}/1.a"
     return f"{KEYS.root}/{PREFIXES[kind]}{name}"
 
 
@@ -63,7 +65,13 @@ def test_every_token_kind_rejects_hostile_names(kind, name):
 def test_every_token_kind_reads_a_good_name(kind):
     token = KEYS.parse_token(kind, key_of(kind, "good-1"))
     relation = RelationId("C", "HT", "6D") if kind == "query" else None
-    assert token == Token(kind, "good-1", relation)
+    incarnation = "1.a" if kind == "worker" else ""
+    assert token == Token(kind, "good-1", relation, incarnation)
+
+
+@pytest.mark.parametrize("tail", ["concat-1", "concat-1/1.a/x", "concat-1/*", "concat-1/"])
+def test_a_worker_key_names_an_instance_and_one_incarnation(tail):
+    assert isinstance(KEYS.parse_token("worker", f"{KEYS.root}/worker/{tail}"), KeyRejection)
 
 
 @settings(max_examples=300, deadline=None)

@@ -126,7 +126,7 @@ def test_host_keys_and_their_parsers():
     assert KEYS.parse_host(KEYS.host("lab-pc")) == "lab-pc"
     assert KEYS.parse_host_exited(KEYS.host_exited("lab-pc")) == "lab-pc"
     assert KEYS.parse_pool(KEYS.pool("ab-12")) == "ab-12"
-    assert KEYS.parse_worker(KEYS.worker("concat-1")) == "concat-1"
+    assert KEYS.parse_worker(KEYS.worker("concat-1", "42.a1b2")) == ("concat-1", "42.a1b2")
 
 
 @pytest.mark.parametrize(

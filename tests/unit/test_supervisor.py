@@ -45,7 +45,7 @@ class FakeSession:
     def __init__(self) -> None:
         self.puts: list[tuple[str, str]] = []
 
-    def put(self, key: str, payload: str) -> None:
+    def put(self, key: str, payload: str, **_options: object) -> None:
         self.puts.append((key, payload))
 
 
@@ -151,6 +151,43 @@ def test_a_released_member_that_does_not_rejoin_is_terminated_then_killed(make, 
     supervisor.reap()
     assert spawned[0].signals == ["TERM", "KILL"]
     assert supervisor.counters["killed"] == 1
+
+
+def test_a_stop_is_put_again_until_the_process_confirms_it(make, clock):
+    """A process still starting misses a stop put before it subscribed: the stop is put again
+    until its pool token shows it ended its run; only then is it a pool member."""
+    supervisor, session, spawned = make(pool_size=1)
+    supervisor.start(spec("a"))
+    supervisor.stop("a")
+    assert supervisor.status()["releasing"] == 1 and supervisor.status()["pool_ready"] == 0
+    for _ in range(3):
+        clock[0] += supervisor_module.STOP_RESEND_S + 0.01
+        supervisor.reap()
+    assert session.puts.count((KEYS.control("a"), STOP_COMMAND)) == 4
+    supervisor.on_pool_token(spawned[0].arguments[0], appeared=True)
+    assert supervisor.status()["releasing"] == 0 and supervisor.status()["pool_ready"] == 1
+    assert supervisor.counters["stops_confirmed"] == 1 and spawned[0].signals == []
+
+
+def test_starting_an_instance_again_terminates_its_releasing_process(make, clock):
+    supervisor, session, spawned = make(pool_size=2)
+    supervisor.start(spec("a"))
+    supervisor.stop("a")
+    supervisor.start(spec("a"))  # wanted again before the first process confirmed its stop
+    assert spawned[0].signals == ["TERM"] and len(spawned) == 2
+    clock[0] += supervisor_module.STOP_RESEND_S + 0.01
+    supervisor.reap()
+    assert session.puts.count((KEYS.control("a"), STOP_COMMAND)) == 1  # none for the new one
+
+
+def test_a_member_that_never_gets_ready_is_terminated_and_the_pool_refills(make, clock):
+    supervisor, _, spawned = make(pool_size=1)
+    supervisor.fill_pool()
+    clock[0] += supervisor_module.POOL_READY_S + 0.1
+    supervisor.reap()
+    assert spawned[0].signals == ["TERM"]
+    supervisor.fill_pool()
+    assert len(spawned) == 2
 
 
 def test_exits_and_releases_from_elsewhere_are_reported(make, clock):

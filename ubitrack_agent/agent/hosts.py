@@ -27,7 +27,7 @@ from __future__ import annotations
 import logging
 import queue
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
@@ -59,10 +59,12 @@ PUT = "SampleKind.PUT"
 
 @dataclass(frozen=True)
 class Placement:
-    """Where an instance runs: the host manager that started it and the run it named."""
+    """Where an instance runs: the host manager that started it, the run it named, and the
+    process's pid (which the worker's token incarnation carries; not compared)."""
 
     host: str
     run: str
+    pid: int = field(default=0, compare=False)
 
 
 class Hosts:
@@ -115,21 +117,23 @@ class Hosts:
             )
             return False
         self._retry_at.pop(instance, None)
-        self.placements[instance] = Placement(host, started.run)
+        self.placements[instance] = Placement(host, started.run, started.pid)
         log.info("%s: started on host %s (run %s)", instance, host, started.run)
         return True
 
-    def stop(self, instance: str) -> None:
-        """Stop ``instance`` through its host manager, else with the stop command."""
+    def stop(self, instance: str) -> bool:
+        """Stop ``instance`` through its host manager, else with the stop command; True if a
+        host manager took the stop (it then owns the process until it has ended)."""
         self._retry_at.pop(instance, None)
         placement = self.placements.pop(instance, None)
         if placement is not None and placement.host in self._answering():
             try:
                 self._request(placement.host, Stop(instance))
-                return
+                return True
             except ProtocolError as exc:
                 self._problems.report("failed_stops", "%s: host did not stop it: %s", instance, exc)
         put_command(self._session, self._keys.control(instance), STOP_COMMAND)
+        return False
 
     def _answering(self) -> list[str]:
         """Live host managers by name, less those that did not answer lately."""

@@ -7,7 +7,9 @@ whole state from them alone (``docs/protocol.md``):
   ``<root>/fragment/<id>`` and validated; on disappearance their edges leave the SRG;
 * queries (``<root>/query/<from>/<to>/<type>/<kind>/<app>``): the relations applications
   want; applications asking for the same relation share it;
-* workers (``<root>/worker/<instance>``): which components are alive.
+* workers (``<root>/worker/<instance>/<incarnation>``): which components are alive, and in
+  which processes; a token's removal affects only the incarnation that declared it, so a late
+  removal of an earlier process's token never makes a running worker "vanish".
 
 It also watches the arrival of data on the measured edges that announce a rate
 (:mod:`.liveness`): an edge whose data stopped is planned without until its data returns.
@@ -17,8 +19,12 @@ flow into worker specifications (:mod:`.materialise`) and reconciles the running
 them (:mod:`.reconcile`): start or stop (through a host manager, over zenoh only: :mod:`.hosts`),
 or rewire in place with a control command. A start no host manager took is tried again on a
 later pass. A worker that ends on its own is started again; a worker alive but not known (left
-by an earlier agent) is adopted if wanted, stopped otherwise. Events are handled on the agent's
-own thread; zenoh callbacks only queue them.
+by an earlier agent) is adopted if wanted, stopped otherwise, but only once it has been
+unwanted for ``ORPHAN_GRACE_S`` after start-up settled (``SETTLE_S``). Planning prefers the
+components that are alive, adopted or not, so a restarted agent replans onto what runs.
+A stop the agent puts itself (for a worker no host manager owns) is put again every
+``STOP_RESEND_S`` while the worker's token stays up and nothing wants it. Events are handled
+on the agent's own thread; zenoh callbacks only queue them.
 
 Nothing from the network can end the agent: every key is parsed by ``KeySpace.parse_token``
 and every fragment by :func:`.announcements.fragment_entries`, which return a value or a
@@ -54,6 +60,7 @@ from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.config import Settings
+from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec
@@ -73,6 +80,12 @@ RETIRE_S = 2.0
 SETTLE_S = 1.5
 """After start-up, wait this long (for the liveliness history, which arrives as peers
 reconnect) before starting or stopping workers; adopting starts at once."""
+ORPHAN_GRACE_S = 2.0
+"""A worker alive that no plan wants is stopped only after it has been unwanted this long
+(and start-up has settled): the fragment that makes it wanted may still be on its way."""
+STOP_RESEND_S = 1.0
+"""A stop put on a worker's control key by the agent is put again this often while the
+worker's token stays up."""
 PUT = "SampleKind.PUT"
 STATUS_REFRESH_S = 0.25
 """The status answer is rebuilt on every event, and at least this often (counters, rejections
@@ -96,6 +109,10 @@ class Agent:
         self.rejected: dict[str, str] = {}
         self.queries: dict[RelationId, set[str]] = defaultdict(set)
         self.alive: set[str] = set()
+        self.incarnations: dict[str, dict[str, float]] = defaultdict(dict)
+        """The incarnations (processes) whose token is up, by instance: when each appeared."""
+        self._duplicate_stops: dict[tuple[str, str], float] = {}
+        """Duplicate processes told to stop, (instance, incarnation): when to tell again."""
         self.running: dict[str, ComponentSpec] = {}
         self.wanted: dict[str, ComponentSpec] = {}
         self.plan: Plan | None = None
@@ -103,7 +120,9 @@ class Agent:
         self.last_change_ns: int | None = None
         self._pending_fragments: dict[str, tuple[int, float]] = {}
         """Providers whose fragment is still to fetch: (attempts so far, next attempt)."""
-        self._stopped: set[str] = set()
+        self._stopped: dict[str, float | None] = {}
+        """Instances stopped: when to put the stop again (None: a host manager owns it)."""
+        self._unwanted_since: dict[str, float] = {}
         self._retiring: dict[str, float] = {}
         self._started = time.monotonic()
         self._events: queue.SimpleQueue[tuple[str, str, str]] = queue.SimpleQueue()
@@ -146,8 +165,7 @@ class Agent:
             return self._on_query(token.relation, token.name, appeared)
         if kind == "provider":
             return self._on_provider(token.name, appeared)
-        self._on_worker(token.name, appeared)
-        return False
+        return self._on_worker(token.name, token.incarnation, appeared)
 
     def _on_provider(self, provider: str, appeared: bool) -> bool:
         if appeared:
@@ -165,34 +183,60 @@ class Agent:
             del self.queries[relation]
         return before != bool(apps)
 
-    def _on_worker(self, instance: str, appeared: bool) -> None:
+    def _on_worker(self, instance: str, incarnation: str, appeared: bool) -> bool:
+        """Apply a worker token event; True (replan) if a worker nothing runs appeared, so the
+        plan may prefer it."""
+        incarnations = self.incarnations[instance]
         if appeared:
+            incarnations.setdefault(incarnation, time.monotonic())
             self.alive.add(instance)
-            return
+            return instance not in self.running
+        incarnations.pop(incarnation, None)
+        self._duplicate_stops.pop((instance, incarnation), None)
+        if incarnations:
+            self.counters["earlier_incarnation_removals"] += 1
+            return False  # an earlier process's token: the current one still runs
+        del self.incarnations[instance]
         self.alive.discard(instance)
-        self._stopped.discard(instance)
+        self._stopped.pop(instance, None)
         if self.hosts.reports_exit_of(instance):
-            return  # its host manager reports when the process ends: that restarts it
+            return False  # its host manager reports when the process ends: that restarts it
         if self.running.pop(instance, None) is not None:
             self.counters["restarts"] += 1
             log.warning("%s: worker vanished, starting it again", instance)
+        return False
 
     def _claim_unknown_workers(self) -> None:
-        """Workers alive but not started by this agent (an earlier agent's): adopt the wanted
-        ones, making sure of their wiring; stop the others once start-up history has settled."""
-        settled = self._settled()
-        for instance in sorted(self.alive - set(self.running) - self._stopped):
+        """Workers alive but not run by this agent (an earlier agent's, or one stopped that is
+        wanted again before it ended): adopt the wanted ones, making sure of their wiring; stop
+        the others once they have been unwanted for ``ORPHAN_GRACE_S`` after start-up settled
+        and every announced fragment is in."""
+        now = time.monotonic()
+        for instance in sorted(self.alive - set(self.running)):
             wanted = self.wanted.get(instance)
+            if self._stopped.get(instance, 0.0) is None:
+                continue  # its host manager is stopping it; a start there replaces it
             if wanted is not None:
-                if self._retiring.pop(instance, None) is None:
-                    self.counters["adopted"] += 1
-                wiring = {k: wanted.as_dict()[k] for k in ("inputs", "relations", "parameters")}
-                self._send_control(instance, wiring)
-                self.running[instance] = wanted
-            elif settled and instance not in self._retiring:
-                self.counters["orphans_stopped"] += 1
-                log.info("%s: unknown worker, stopping it", instance)
-                self._stop_worker(instance)
+                self._adopt(instance, wanted)
+            elif instance not in self._stopped and instance not in self._retiring:
+                since = self._unwanted_since.setdefault(instance, now)
+                if self._settled() and not self._pending_fragments and now - since > ORPHAN_GRACE_S:
+                    self.counters["orphans_stopped"] += 1
+                    log.info("%s: unknown worker, stopping it", instance)
+                    self._stop_worker(instance)
+        for instance in set(self._unwanted_since) - (self.alive - set(self.running)):
+            del self._unwanted_since[instance]
+
+    def _adopt(self, instance: str, wanted: ComponentSpec) -> None:
+        """Take a running worker as ``wanted``, sending it that wiring."""
+        self._unwanted_since.pop(instance, None)
+        retiring = self._retiring.pop(instance, None) is not None
+        stopped = self._stopped.pop(instance, None) is not None
+        if not (retiring or stopped):
+            self.counters["adopted"] += 1
+        wiring = {k: wanted.as_dict()[k] for k in ("inputs", "relations", "parameters")}
+        self._send_control(instance, wiring)
+        self.running[instance] = wanted
 
     def _fetch_fragments(self) -> bool:
         """Fetch the fragments of providers that appeared; True if the SRG changed. The due
@@ -265,7 +309,8 @@ class Agent:
         plan is made (a failure keeps the previous plan, and planning is asked again)."""
         self._watch_data()
         srg = build_srg(self.fragments, without=self.stale)
-        plan = plan_relations(srg, self.templates, self.queries, set(self.running), self.plan)
+        running = set(self.running) | self.alive
+        plan = plan_relations(srg, self.templates, self.queries, running, self.plan)
         wanted = component_specs(plan.flow, srg, self.keys, plan.relations)
         self.srg, self.plan, self.wanted = srg, plan, wanted
         self._replan_due = False
@@ -323,6 +368,8 @@ class Agent:
         started = [spec for spec in actions.start if self.hosts.start(spec)]
         for spec in started:
             self.running[spec.instance] = spec
+            self._stopped.pop(spec.instance, None)
+            self._retiring.pop(spec.instance, None)  # wanted again before it was stopped
         for instance, command in actions.update:
             self._send_control(instance, command)
             self.running[instance] = self.wanted[instance]
@@ -338,8 +385,48 @@ class Agent:
             )
 
     def _stop_worker(self, instance: str) -> None:
-        self.hosts.stop(instance)
-        self._stopped.add(instance)
+        owned = self.hosts.stop(instance)
+        self._stopped[instance] = None if owned else time.monotonic() + STOP_RESEND_S
+
+    def _stop_duplicates(self) -> None:
+        """An instance alive in several processes (say, one an earlier agent's host manager was
+        still starting when it died, and one started since) keeps the process its host manager
+        placed, else the one seen first; each other one is stopped alone, on its incarnation's
+        control key, again every ``STOP_RESEND_S`` while its token stays."""
+        now = time.monotonic()
+        for instance, seen in self.incarnations.items():
+            if len(seen) < 2:
+                continue
+            keep = self._kept_incarnation(instance, seen)
+            for incarnation in sorted(set(seen) - {keep}):
+                if now >= self._duplicate_stops.get((instance, incarnation), 0.0):
+                    self.counters["duplicate_stops"] += 1
+                    log.warning("%s: also runs in %s: stopping that one", instance, incarnation)
+                    key = self.keys.control_incarnation(instance, incarnation)
+                    put_command(self.session, key, STOP_COMMAND)
+                    self._duplicate_stops[instance, incarnation] = now + STOP_RESEND_S
+
+    def _kept_incarnation(self, instance: str, seen: dict[str, float]) -> str:
+        """The incarnation of ``instance`` to keep among ``seen`` (see :meth:`_stop_duplicates`)."""
+        placement = self.hosts.placements.get(instance)
+        if placement is not None:
+            placed = [i for i in seen if i.partition(".")[0] == str(placement.pid)]
+            if placed:
+                return placed[0]
+        return min(seen, key=lambda incarnation: (seen[incarnation], incarnation))
+
+    def _resend_stops(self) -> None:
+        """Put the stop again to workers the agent stopped itself whose token is still up
+        (a stop put while the worker was still starting, or while its link to the agent was
+        down, may be lost); never to one that is wanted again."""
+        now = time.monotonic()
+        for instance, due in list(self._stopped.items()):
+            if due is not None and now > due and instance in self.alive:
+                if instance in self.wanted or instance in self.running:
+                    continue
+                self.counters["stops_resent"] += 1
+                put_command(self.session, self.keys.control(instance), STOP_COMMAND)
+                self._stopped[instance] = now + STOP_RESEND_S
 
     def _retire(self) -> None:
         """Stop the workers the plan no longer wants once every wanted worker is alive (make
@@ -376,6 +463,8 @@ class Agent:
                     guard.periodic("replan", self._replan, None)
                 guard.periodic("reconcile", self._reconcile, None)
                 guard.periodic("retire", self._retire, None)
+                guard.periodic("resend_stops", self._resend_stops, None)
+                guard.periodic("duplicates", self._stop_duplicates, None)
                 if batch or time.monotonic() > status_due:
                     guard.periodic("status", self._refresh_status, None)
                     status_due = time.monotonic() + STATUS_REFRESH_S

@@ -84,7 +84,7 @@ def _role_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]
     outputs = [keys.pattern(kind, "**") for kind in ("data", "relation", "progress")]
     provider_data = [key for p in providers for key in _provider_keys(keys, p)["data"]]
     host_requests = keys.pattern("host", "*", "request")
-    controls = keys.pattern("control", "*")
+    controls = keys.pattern("control", "**")
     return [
         _rule("worker-tokens", ["liveliness_token"], [keys.all_workers(), keys.all_pools()]),
         _rule("worker-outputs", [*WRITES, *SERVES], outputs),

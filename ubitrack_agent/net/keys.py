@@ -20,8 +20,14 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/host/<name>/exited        a worker that ended without being asked (JSON, put)
     <root>/pool/<id>                 an idle pre-started worker: its token, and where its
                                      component specification is sent
-    <root>/worker/<instance>         liveliness token of a running pattern worker
+    <root>/worker/<instance>/<incarnation>
+                                     liveliness token of a running pattern worker; the
+                                     incarnation (``<pid>.<nonce>``) tells one process's token
+                                     from another's, so a late removal of an earlier process's
+                                     token is not taken for the current one's
     <root>/control/<instance>        rewire / reconfigure a running worker (JSON, put)
+    <root>/control/<instance>/<incarnation>
+                                     the same, to one process only (stopping a duplicate)
     <root>/status/<instance>         a worker's counters (JSON, queryable)
     <root>/progress/<from>/<to>/<type>/<static|recalibrate>
                                      progress of a static relation computed over time (JSON,
@@ -123,12 +129,13 @@ class RelationId:
 @dataclass(frozen=True)
 class Token:
     """A key from the network, parsed: its ``kind`` (one of :data:`TOKEN_KINDS`), its ``name``
-    (provider id, worker instance, pool id, host name; for a query the application) and, for a
-    query, the ``relation`` asked for."""
+    (provider id, worker instance, pool id, host name; for a query the application), for a
+    query the ``relation`` asked for, and for a worker the ``incarnation`` of the process."""
 
     kind: str
     name: str
     relation: RelationId | None = None
+    incarnation: str = ""
 
 
 @dataclass(frozen=True)
@@ -163,13 +170,25 @@ class KeySpace:
         """Key on which the measurements of edge ``edge_id`` flow."""
         return f"{self.root}/data/{validate_key_chunks(edge_id)}"
 
-    def worker(self, instance: str) -> str:
-        """Liveliness token of the worker running component ``instance``."""
-        return f"{self.root}/worker/{validate_key_chunks(instance, single_chunk=True)}"
+    def worker(self, instance: str, incarnation: str) -> str:
+        """Liveliness token of the worker process ``incarnation`` running component
+        ``instance``."""
+        validate_key_chunks(instance, single_chunk=True)
+        return (
+            f"{self.root}/worker/{instance}/{validate_key_chunks(incarnation, single_chunk=True)}"
+        )
+
+    def worker_tokens(self, instance: str) -> str:
+        """Selector of the tokens of every process running component ``instance``."""
+        return f"{self.root}/worker/{validate_key_chunks(instance, single_chunk=True)}/*"
 
     def control(self, instance: str) -> str:
         """Key on which the agent sends reconfiguration commands to ``instance``."""
         return f"{self.root}/control/{validate_key_chunks(instance, single_chunk=True)}"
+
+    def control_incarnation(self, instance: str, incarnation: str) -> str:
+        """Key on which one process (``incarnation``) running ``instance`` takes commands."""
+        return f"{self.control(instance)}/{validate_key_chunks(incarnation, single_chunk=True)}"
 
     def status(self, instance: str) -> str:
         """Queryable that answers ``instance``'s counters."""
@@ -270,11 +289,12 @@ class KeySpace:
 
     def all_workers(self) -> str:
         """Selector of every running worker's token."""
-        return f"{self.root}/worker/*"
+        return f"{self.root}/worker/*/*"
 
-    def parse_worker(self, key: str) -> str:
-        """The instance of a worker token key; ``ValueError`` if malformed."""
-        return self._parse_name(key, "worker")
+    def parse_worker(self, key: str) -> tuple[str, str]:
+        """The instance and incarnation of a worker token key; ``ValueError`` if malformed."""
+        instance, _, incarnation = self._parse_name(key, "worker", chunks=2).partition("/")
+        return instance, incarnation
 
     def host(self, name: str) -> str:
         """Liveliness token of the host manager ``name`` (one per machine)."""
@@ -326,13 +346,20 @@ class KeySpace:
             if kind == "query":
                 relation, application = self.parse_query(key)
                 return Token(kind, application, relation)
+            if kind == "worker":
+                instance, incarnation = self.parse_worker(key)
+                return Token(kind, instance, incarnation=incarnation)
             return Token(kind, getattr(self, f"parse_{kind}")(key))
         except ValueError as exc:
             return KeyRejection(kind, key, str(exc))
 
-    def _parse_name(self, key: str, kind: str) -> str:
-        """The single chunk after ``<root>/<kind>/`` in ``key``; ``ValueError`` otherwise."""
+    def _parse_name(self, key: str, kind: str, chunks: int = 1) -> str:
+        """The ``chunks`` chunks after ``<root>/<kind>/`` in ``key``; ``ValueError``
+        otherwise."""
         prefix = f"{self.root}/{kind}/"
         if not key.startswith(prefix):
             raise ValueError(f"{key!r} is not a {kind} key under {prefix!r}")
-        return validate_key_chunks(key[len(prefix) :], single_chunk=True)
+        name = validate_key_chunks(key[len(prefix) :])
+        if name.count("/") != chunks - 1:
+            raise ValueError(f"{key!r}: expected {chunks} chunk(s) after {prefix!r}")
+        return name

@@ -1,0 +1,63 @@
+"""The agent's view of worker processes (``agent/runtime.py``) without a session: token events
+matched to the incarnation that declared them, and duplicates stopped one process at a time
+(regression tests of the chaos run of issue 11)."""
+
+from __future__ import annotations
+
+from collections import Counter, defaultdict
+from types import SimpleNamespace
+
+from ubitrack_agent.agent.hosts import Placement
+from ubitrack_agent.agent.runtime import Agent
+from ubitrack_agent.net.host_protocol import STOP_COMMAND
+from ubitrack_agent.net.keys import KeySpace
+
+KEYS = KeySpace("ubitrack/test")
+
+
+def agent(placements: dict[str, Placement] | None = None) -> tuple[Agent, list]:
+    """An agent's worker bookkeeping alone, with the puts it makes."""
+    puts: list[tuple[str, str]] = []
+    bare = Agent.__new__(Agent)
+    bare.keys = KEYS
+    bare.counters = Counter()
+    bare.alive = set()
+    bare.incarnations = defaultdict(dict)
+    bare.running = {}
+    bare._stopped = {}
+    bare._duplicate_stops = {}
+    placed = dict(placements or {})
+    bare.hosts = SimpleNamespace(placements=placed, reports_exit_of=lambda i: i in placed)
+    bare.session = SimpleNamespace(put=lambda key, payload, **_: puts.append((key, payload)))
+    return bare, puts
+
+
+def test_a_late_removal_of_an_earlier_process_token_leaves_the_current_one_alive():
+    bare, _ = agent()
+    bare.running["concat-1"] = "spec"
+    bare._on_worker("concat-1", "100.aaaa", appeared=True)
+    bare._on_worker("concat-1", "200.bbbb", appeared=True)  # started again
+    bare._on_worker("concat-1", "100.aaaa", appeared=False)  # the old token's late removal
+    assert "concat-1" in bare.alive and bare.running == {"concat-1": "spec"}
+    assert bare.counters["earlier_incarnation_removals"] == 1
+    assert bare.counters["restarts"] == 0
+    bare._on_worker("concat-1", "200.bbbb", appeared=False)  # now it is gone
+    assert "concat-1" not in bare.alive and bare.counters["restarts"] == 1
+
+
+def test_a_duplicate_is_stopped_alone_keeping_the_placed_process():
+    bare, puts = agent({"concat-1": Placement("lab", "run-1", 200)})
+    bare._on_worker("concat-1", "100.aaaa", appeared=True)  # an earlier agent's, still starting
+    bare._on_worker("concat-1", "200.bbbb", appeared=True)  # the one the host manager placed
+    bare._stop_duplicates()
+    assert puts == [(KEYS.control_incarnation("concat-1", "100.aaaa"), STOP_COMMAND)]
+    bare._stop_duplicates()  # not again before STOP_RESEND_S
+    assert len(puts) == 1
+
+
+def test_without_a_placement_the_process_seen_first_is_kept():
+    bare, puts = agent()
+    bare._on_worker("concat-1", "300.cccc", appeared=True)
+    bare._on_worker("concat-1", "100.aaaa", appeared=True)
+    bare._stop_duplicates()
+    assert puts == [(KEYS.control_incarnation("concat-1", "100.aaaa"), STOP_COMMAND)]
