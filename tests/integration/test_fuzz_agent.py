@@ -159,7 +159,9 @@ def test_an_agent_started_among_hostile_tokens_keeps_running(setup):  # noqa: F8
     server = FragmentServer(session, setup.keys)
     server.payloads["fz-sigma"] = fragment("fz-sigma", [with_field("sigma", 1e200)])
     names = ["*", "**", "a b", "a$*b", "Ä"]
-    keys = [f"{root}/{kind}/{name}" for kind in ("worker", "provider", "host") for name in names]
+    # a worker's token is <root>/worker/<instance>/<incarnation>: hostile instance names there
+    keys = [f"{root}/worker/{name}/1.x" for name in names]
+    keys += [f"{root}/{kind}/{name}" for kind in ("provider", "host") for name in names]
     tokens = [session.liveliness().declare_token(key) for key in keys]
     tokens.append(session.liveliness().declare_token(setup.keys.provider("fz-sigma")))
     try:
