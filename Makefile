@@ -22,7 +22,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	for name in plan_bench accuracy_bench calibration_bench dataflow_bench worker_start \
-		fuzz_bench; do \
+		fuzz_bench camera_bench; do \
 		$(VENV)/bin/python -m bench.$$name || exit 1; done
 
 clean:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -127,8 +128,10 @@ class FakeCapture:
 def test_the_loop_ends_with_the_file_and_counts_bad_frames(world, frame):
     adapter, out = _adapter(world), Collector()
     capture = FakeCapture([frame, np.zeros((4, 4), np.float64), frame])
-    serve_capture(capture, adapter, out, threading.Event(), from_device=False)
+    lines: list[str] = []
+    serve_capture(capture, adapter, out, threading.Event(), from_device=False, report=lines.append)
     assert adapter.counters["received"] == 3 and adapter.counters["rejected"] == 1
+    assert len(lines) == 1 and "markers seen: 7 x2; rejected frames: 1" in lines[0]
     assert len(out.published) == 8
     stamps = [m.timestamp_ns for _, m in out.published]
     assert len(set(stamps[:4])) == 1 and stamps[4] > stamps[3]
@@ -179,3 +182,30 @@ def test_the_intrinsics_come_from_a_static_edges_file(tmp_path: Path):
     assert intrinsics.matrix[0, 0] == 600 and tuple(intrinsics.image_size) == (640, 480)
     with pytest.raises(StaticEdgesError, match=r"no intrinsics edge C->IP2 \(edges: \['C->IP'\]"):
         read_intrinsics(path, "C", "IP2")
+
+
+def _camera(*argv: str) -> int:
+    from ubitrack_agent.cli import main
+
+    return main(["camera", *argv])
+
+
+def test_the_command_exits_2_with_the_reason(tmp_path: Path, capsys):
+    intrinsics = tmp_path / "camera.yaml"
+    intrinsics.write_text(
+        "provider: p\nedges:\n  - {from: C, to: IP, type: intrinsics, "
+        "matrix: [[600, 0, 320], [0, 600, 240], [0, 0, 1]], image_size: [640, 480]}\n"
+    )
+    missing = str(tmp_path / "missing.avi")
+    assert _camera(missing, "--intrinsics", str(intrinsics), "--marker", "7") == 2
+    assert "OpenCV cannot open file" in capsys.readouterr().err
+    video = tmp_path / "one.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (320, 240))
+    writer.write(np.full((240, 320, 3), 255, np.uint8))
+    writer.release()
+    assert _camera(str(video), "--intrinsics", str(intrinsics)) == 2
+    assert "no marker mapped" in capsys.readouterr().err
+    assert _camera(str(video), "--intrinsics", str(intrinsics), "--marker", "7") == 2
+    assert "320x240 px but the intrinsics are for 640x480" in capsys.readouterr().err
+    assert _camera(str(video), "--intrinsics", str(intrinsics), "--marker", "7", "--pose") == 2
+    assert "--pose needs --marker-length" in capsys.readouterr().err

@@ -12,9 +12,9 @@ solvePnP, IPPE_SQUARE). Unmapped ids are ignored and counted.
 
 The intrinsics come from the intrinsics edge CAMERA -> IMAGE_PLANE of the static-edges file
 --intrinsics (docs/camera.md shows one; a ChArUco calibration command is planned). Every 5 s
-a status line gives the frames per second and the markers seen (--quiet: none). Runs until
-SIGINT/SIGTERM, --duration seconds or the end of a file, then logs its counters and exits 0;
-a bad option, file or source exits 2 with the reason.
+and at the end it prints a status line: frames per second and markers seen (--quiet: none).
+Runs until SIGINT/SIGTERM, --duration seconds or the end of a file, then logs its counters
+and exits 0; a bad option, file or source exits 2 with the reason.
 
 Example: ubitrack camera 0 --intrinsics camera.yaml --marker 7 --pose --marker-length 0.05
 """
@@ -200,5 +200,9 @@ def _serve(args: argparse.Namespace, settings: config.Settings, adapter: Any, so
             stop,
             from_device=args.source.isdigit(),
             duration_s=args.duration,
-            status_every_s=None if args.quiet else capture.STATUS_INTERVAL_S,
+            report=None if args.quiet else _print_status,
         )
+
+
+def _print_status(line: str) -> None:
+    print(line, flush=True)

@@ -15,6 +15,7 @@ import logging
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from typing import Protocol
 
 import cv2
@@ -101,11 +102,13 @@ def serve_capture(
     stop: threading.Event,
     from_device: bool,
     duration_s: float | None = None,
-    status_every_s: float | None = STATUS_INTERVAL_S,
+    report: Callable[[str], None] | None = None,
+    status_every_s: float = STATUS_INTERVAL_S,
 ) -> None:
     """Read frames from ``capture`` and hand each to ``adapter`` until ``stop`` is set,
     ``duration_s`` has passed, a file ends or a device is gone (see the module docstring);
-    log a :class:`StatusLine` every ``status_every_s`` seconds (``None``: never)."""
+    pass a :class:`StatusLine` to ``report`` every ``status_every_s`` seconds and at the
+    end (``report`` ``None``: no status)."""
     start = time.monotonic()
     status = StatusLine(adapter, start)
     failed_in_a_row = 0
@@ -126,5 +129,7 @@ def serve_capture(
                 break
             stop.wait(RETRY_S)
         now = time.monotonic()
-        if status_every_s is not None and now - status.since_s >= status_every_s:
-            log.info("%s", status.line(now))
+        if report is not None and now - status.since_s >= status_every_s:
+            report(status.line(now))
+    if report is not None:
+        report(status.line(time.monotonic()))
