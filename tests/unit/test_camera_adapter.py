@@ -4,12 +4,15 @@ the frame loop on a fake capture, and reading the intrinsics."""
 
 from __future__ import annotations
 
+import json
+import textwrap
 import threading
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from bench.marker_images import marker_world, render, true_corners
 from ubitrack_agent.core import CameraIntrinsics, Pose, Position2D
@@ -209,3 +212,29 @@ def test_the_command_exits_2_with_the_reason(tmp_path: Path, capsys):
     assert "320x240 px but the intrinsics are for 640x480" in capsys.readouterr().err
     assert _camera(str(video), "--intrinsics", str(intrinsics), "--marker", "7", "--pose") == 2
     assert "--pose needs --marker-length" in capsys.readouterr().err
+
+
+def test_the_webcam_guide_plans_the_markers_pose_by_2d3d_pose_estimation(tmp_path, capsys):
+    """docs/camera.md's static-edges file and the camera's announcements: the planner finds
+    C->M7 from the four corners, as from the simulated camera's features."""
+    from ubitrack_agent.cli import main
+
+    guide = (Path(__file__).resolve().parents[2] / "docs" / "camera.md").read_text()
+    block = guide.split("```yaml\n", 1)[1].split("```", 1)[0]
+    static = tmp_path / "camera.yaml"
+    static.write_text(textwrap.dedent(block))
+    intrinsics = read_intrinsics(static, "C", "IP")
+    adapter = CameraAdapter("IP", {7: "M7"}, make_detector(), intrinsics)
+    setup = {
+        "name": "webcam",
+        "edges": [
+            {"from": e.source, "to": e.target, "type": e.type, "provider": "webcam"}
+            for e in adapter.edges
+        ],
+    }
+    (tmp_path / "setup.yaml").write_text(yaml.safe_dump(setup))
+    argv = [str(tmp_path / "setup.yaml"), str(static), "--from", "C", "--to", "M7", "--type", "6D"]
+    assert main(["plan", *argv, "--json"]) == 0
+    (best,) = json.loads(capsys.readouterr().out)["solutions"]
+    assert [step["pattern"] for step in best["steps"]] == ["PoseEstimation2D3D"]
+    assert ["IP", "M7_3", "2D", "webcam"] in best["measured"]
