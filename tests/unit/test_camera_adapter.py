@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import textwrap
 import threading
+import time
 from pathlib import Path
 
 import cv2
@@ -138,6 +139,13 @@ def test_the_loop_ends_with_the_file_and_counts_bad_frames(world, frame):
     assert len(out.published) == 8
     stamps = [m.timestamp_ns for _, m in out.published]
     assert len(set(stamps[:4])) == 1 and stamps[4] > stamps[3]
+
+
+def test_a_file_is_read_at_its_frame_rate(world, frame):
+    adapter, start = _adapter(world), time.monotonic()
+    capture = FakeCapture([frame] * 3)
+    serve_capture(capture, adapter, Collector(), threading.Event(), False, pace_hz=50.0)
+    assert adapter.counters["received"] == 3 and time.monotonic() - start >= 0.06
 
 
 def test_a_device_is_retried_then_given_up(world, frame):

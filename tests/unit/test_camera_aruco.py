@@ -85,6 +85,8 @@ def test_detector_parameters_are_set_by_name_and_checked():
         make_detector("5X5_7")
     with pytest.raises(ValueError, match="no field 'nonsense'"):
         make_detector(parameters={"nonsense": 1})
+    with pytest.raises(ValueError, match="takes a whole number"):
+        make_detector(parameters={"cornerRefinementWinSize": 2.5})
 
 
 def test_the_renderer_needs_a_distortion_free_camera():

@@ -1,14 +1,14 @@
 """``ubitrack camera``: a webcam or video file in, ArUco marker corners as SRG edges out.
 
-Reads frames from SOURCE (a video device index, 0 for the first webcam, or a video file) with
-OpenCV, detects the ArUco markers of --dictionary in each (OpenCV's ArucoDetector with
-sub-pixel corner refinement; set any cv2.aruco.DetectorParameters field with --detector-param
-NAME=VALUE), and publishes under provider PROVIDER, for each marker mapped with --marker
-ID[=FRAME] (frame M<ID> by default), its four corners as 2D edges IMAGE_PLANE -> FRAME_0 ..
-FRAME_3 (pixels, ArUco's corner order: top-left, top-right, bottom-right, bottom-left of the
-printed marker), all of a frame with the time it was read, as `ubitrack sim camera` does; with
---pose and --marker-length, also each marker's pose as a 6D edge CAMERA -> FRAME (OpenCV's
-solvePnP, IPPE_SQUARE). Unmapped ids are ignored and counted.
+Reads frames from SOURCE (a video device index, 0 for the first webcam, or a video file, read
+at its frame rate) with OpenCV, detects the ArUco markers of --dictionary in each (OpenCV's
+ArucoDetector with sub-pixel corner refinement; set any cv2.aruco.DetectorParameters field with
+--detector-param NAME=VALUE), and publishes under provider PROVIDER, for each marker mapped
+with --marker ID[=FRAME] (frame M<ID> by default), its four corners as 2D edges IMAGE_PLANE ->
+FRAME_0 .. FRAME_3 (pixels, ArUco's corner order: top-left, top-right, bottom-right,
+bottom-left of the printed marker), all of a frame with the time it was read, as `ubitrack sim
+camera` does; with --pose and --marker-length, also each marker's pose as a 6D edge CAMERA ->
+FRAME (OpenCV's solvePnP, IPPE_SQUARE). Unmapped ids are ignored and counted.
 
 The intrinsics come from the intrinsics edge CAMERA -> IMAGE_PLANE of the static-edges file
 --intrinsics (docs/camera.md shows one; a ChArUco calibration command is planned). Every 5 s
@@ -140,9 +140,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
     try:
-        settings, adapter = _configure(args, args.rate or capture.frame_rate(source))
+        source_rate = capture.frame_rate(source)
+        settings, adapter = _configure(args, args.rate or source_rate)
         capture.check_frame_size(source, adapter.intrinsics)
-        _serve(args, settings, adapter, source)
+        _serve(args, settings, adapter, source, source_rate)
     except ValueError as exc:  # ConfigError and StaticEdgesError are ValueErrors too
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -180,14 +181,22 @@ def _configure(args: argparse.Namespace, rate: float | None) -> tuple[config.Set
     return settings, adapter
 
 
-def _serve(args: argparse.Namespace, settings: config.Settings, adapter: Any, source: Any) -> None:
-    """Publish the markers of ``source``'s frames until a signal, the duration or its end."""
+def _serve(
+    args: argparse.Namespace,
+    settings: config.Settings,
+    adapter: Any,
+    source: Any,
+    source_rate: float | None,
+) -> None:
+    """Publish the markers of ``source``'s frames until a signal, the duration or its end; a
+    file is read at its frame rate ``source_rate``."""
     from ubitrack_agent.io.camera import capture
     from ubitrack_agent.io.provider import Provider
     from ubitrack_agent.net.keys import KeySpace
     from ubitrack_agent.net.lifecycle import stop_on_signals
     from ubitrack_agent.net.session import open_session
 
+    from_device = args.source.isdigit()
     stop = stop_on_signals()
     with (
         open_session(settings) as session,
@@ -198,9 +207,10 @@ def _serve(args: argparse.Namespace, settings: config.Settings, adapter: Any, so
             adapter,
             out,
             stop,
-            from_device=args.source.isdigit(),
+            from_device=from_device,
             duration_s=args.duration,
             report=None if args.quiet else _print_status,
+            pace_hz=None if from_device else source_rate,
         )
 
 

@@ -64,8 +64,11 @@ def make_detector(
     for name, value in (parameters or {}).items():
         if name.startswith("_") or not hasattr(settings, name) or callable(getattr(settings, name)):
             raise ValueError(f"cv2.aruco.DetectorParameters has no field {name!r}")
+        kind = type(getattr(settings, name))
+        if kind is not float and value != int(value):
+            raise ValueError(f"DetectorParameters.{name} takes a whole number, got {value!r}")
         try:
-            setattr(settings, name, type(getattr(settings, name))(value))
+            setattr(settings, name, kind(value))
         except (TypeError, ValueError, cv2.error) as exc:
             raise ValueError(f"DetectorParameters.{name} = {value!r}: {exc}") from None
     return cv2.aruco.ArucoDetector(

@@ -3,10 +3,12 @@ periodic one-line status.
 
 ``cv2.VideoCapture(index)`` opens a video device (``0`` is the first webcam),
 ``cv2.VideoCapture(path)`` a video file or an image sequence (``img_%04d.png``);
-``read() -> retval, image`` gives the next frame. Every frame is stamped with the time it was
-read and handed to :meth:`~ubitrack_agent.io.adapter.SensorAdapter.handle`, which counts a bad
-one and goes on. A failed read ends a file; from a device it is counted (``read_failed``) and
-retried, and :data:`MAX_FAILED_READS` of them in a row (the device is gone) end the loop too.
+``read() -> retval, image`` gives the next frame, from a device as it comes and from a file at
+the file's frame rate (a recording replays at its own pace, not in a burst). Every frame is
+stamped with the time it was read and handed to
+:meth:`~ubitrack_agent.io.adapter.SensorAdapter.handle`, which counts a bad one and goes on.
+A failed read ends a file; from a device it is counted (``read_failed``) and retried, and
+:data:`MAX_FAILED_READS` of them in a row (the device is gone) end the loop too.
 """
 
 from __future__ import annotations
@@ -104,15 +106,19 @@ def serve_capture(
     duration_s: float | None = None,
     report: Callable[[str], None] | None = None,
     status_every_s: float = STATUS_INTERVAL_S,
+    pace_hz: float | None = None,
 ) -> None:
     """Read frames from ``capture`` and hand each to ``adapter`` until ``stop`` is set,
-    ``duration_s`` has passed, a file ends or a device is gone (see the module docstring);
-    pass a :class:`StatusLine` to ``report`` every ``status_every_s`` seconds and at the
-    end (``report`` ``None``: no status)."""
+    ``duration_s`` has passed, a file ends or a device is gone (see the module docstring),
+    at most ``pace_hz`` a second if given (a file's frame rate); pass a :class:`StatusLine`
+    to ``report`` every ``status_every_s`` seconds and at the end (``None``: no status)."""
     start = time.monotonic()
     status = StatusLine(adapter, start)
-    failed_in_a_row = 0
+    failed_in_a_row = reads = 0
     while not stop.is_set() and (duration_s is None or time.monotonic() - start < duration_s):
+        if pace_hz is not None and stop.wait(max(0.0, start + reads / pace_hz - time.monotonic())):
+            break
+        reads += 1
         ok, image = capture.read()
         received_ns = time.time_ns()
         if ok and image is not None:
