@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "status",
     "sim",
     "dtrack",
+    "camera",
     "config",
     "certs",
     "demo",

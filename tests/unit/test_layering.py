@@ -35,8 +35,8 @@ def _layer(*allowed: str, forbidden: tuple[str, ...] = ()) -> Layer:
 
 
 CORE, GRAPH, NET, IO = (f"ubitrack_agent.{name}" for name in ("core", "graph", "net", "io"))
-AGENT = "ubitrack_agent.agent"
-EVERYTHING = (CORE, GRAPH, NET, IO, AGENT, "services", "sim_trackers", "templates")
+AGENT, CAMERA = "ubitrack_agent.agent", f"{IO}.camera"
+EVERYTHING = (CORE, GRAPH, NET, IO, CAMERA, AGENT, "services", "sim_trackers", "templates")
 NO_PROCESSES = ("subprocess", "multiprocessing")
 LAYERS: dict[str, Layer] = {
     # Bottom to top.
@@ -46,6 +46,7 @@ LAYERS: dict[str, Layer] = {
     GRAPH: _layer(CORE, forbidden=("zenoh", "cv2", *NO_PROCESSES)),
     NET: _layer(CORE, forbidden=("networkx", "cv2", *NO_PROCESSES)),
     IO: _layer(CORE, NET, forbidden=("networkx", "cv2")),
+    CAMERA: _layer(CORE, NET, IO, forbidden=("networkx",)),  # the one io package with OpenCV
     AGENT: _layer(CORE, GRAPH, NET, forbidden=("cv2", "scipy")),
     "services": _layer(CORE, NET, forbidden=("networkx",)),
     "sim_trackers": _layer(CORE, NET, IO, forbidden=("networkx",)),

@@ -22,7 +22,7 @@ from ubitrack_agent.io.provider import EdgeAnnouncement
 T0 = 1_763_700_000_000_000_000
 
 
-class ToyAdapter(SensorAdapter):
+class ToyAdapter(SensorAdapter[bytes]):
     device = "toy"
 
     def __init__(self, timestamps="receive") -> None:

@@ -1,7 +1,8 @@
 """The client layer: the sensor and application APIs (:class:`~.provider.Provider`,
 :class:`~.application.Relation`) and real sources and sinks, with no simulator code: the sensor
-adapter base (:mod:`.adapter`), the A.R.T. DTrack2 format and adapter (:mod:`.dtrack`) and the
-static-edges file of calibration results (:mod:`.static_edges`)."""
+adapter base (:mod:`.adapter`), the A.R.T. DTrack2 format and adapter (:mod:`.dtrack`), the real
+camera's ArUco detection and adapter (:mod:`.camera`, the one package here that loads OpenCV)
+and the static-edges file of calibration results (:mod:`.static_edges`)."""
 
 from ubitrack_agent.io.application import NotStatic, Relation
 from ubitrack_agent.io.provider import EdgeAnnouncement, Provider

@@ -48,7 +48,7 @@ import time
 from abc import ABC, abstractmethod
 from collections import Counter
 from collections.abc import Iterable
-from typing import ClassVar, Literal, Protocol, get_args
+from typing import ClassVar, Generic, Literal, Protocol, TypeVar, get_args
 
 from ubitrack_agent.core import Measurement
 from ubitrack_agent.io.provider import EdgeAnnouncement
@@ -59,6 +59,9 @@ TimestampPolicy = Literal["receive", "device"]
 TIMESTAMP_POLICIES: tuple[str, ...] = get_args(TimestampPolicy)
 
 MAX_DATAGRAM = 65_535
+
+RawInput = TypeVar("RawInput")
+"""What one unit of a device's output is: ``bytes`` for a datagram, an image for a frame."""
 
 
 class RejectedInput(ValueError):
@@ -71,9 +74,10 @@ class Publisher(Protocol):
     def publish(self, edge_name: str, measurement: Measurement) -> None: ...
 
 
-class SensorAdapter(ABC):
-    """Base of the sensor adapters (see the module docstring): subclasses pass their edges to
-    ``__init__``, implement :meth:`convert`, and call :meth:`stamp` and :meth:`ignore`."""
+class SensorAdapter(ABC, Generic[RawInput]):
+    """Base of the sensor adapters (see the module docstring): subclasses name their unit of
+    input (``SensorAdapter[bytes]`` for datagrams), pass their edges to ``__init__``, implement
+    :meth:`convert`, and call :meth:`stamp` and :meth:`ignore`."""
 
     device: ClassVar[str] = "sensor"
     """The device's name in log messages."""
@@ -91,7 +95,7 @@ class SensorAdapter(ABC):
         self.counters: Counter[str] = Counter()
 
     @abstractmethod
-    def convert(self, raw: bytes, received_ns: int) -> list[tuple[str, Measurement]]:
+    def convert(self, raw: RawInput, received_ns: int) -> list[tuple[str, Measurement]]:
         """The measurements in one unit of device output that arrived at ``received_ns``;
         raises :class:`RejectedInput` if it does not follow the device's format."""
 
@@ -111,7 +115,7 @@ class SensorAdapter(ABC):
             log.log(level, "%s: %s; ignored", self.device, reason)
         self.counters[counter] += 1
 
-    def handle(self, raw: bytes, received_ns: int, publisher: Publisher) -> int:
+    def handle(self, raw: RawInput, received_ns: int, publisher: Publisher) -> int:
         """Convert one unit of device output and publish its measurements; returns how many
         were published (0 for rejected input, which is logged and counted)."""
         self.counters["received"] += 1
@@ -144,7 +148,7 @@ def open_udp_socket(host: str, port: int) -> socket.socket:
 
 def serve_udp(
     sock: socket.socket,
-    adapter: SensorAdapter,
+    adapter: SensorAdapter[bytes],
     publisher: Publisher,
     stop: threading.Event,
     duration_s: float | None = None,

@@ -89,7 +89,7 @@ MAX_LINE_TYPES = 32
 bound on the counters a stream of odd datagrams can create)."""
 
 
-class DTrackAdapter(SensorAdapter):
+class DTrackAdapter(SensorAdapter[bytes]):
     """Turns DTrack datagrams into measurements of the mapped bodies, measurement tools,
     Flysticks and markers (see the module docstring); ``ValueError`` for an inconsistent
     mapping."""
