@@ -36,7 +36,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         default=DEFAULT_TIMEOUT_S,
         help="give up (exit 1, saying why) after this many seconds without a sample "
-        "(default: %(default)s; inf waits for ever)",
+        "(default: %(default)s; inf waits for ever; a static relation still being calibrated "
+        "has no sample until it converges: `ubitrack calibrate` shows its progress)",
     )
     parser.add_argument("--app-id", help="application id in the query key (default: generated)")
     config.add_arguments(parser)
