@@ -24,6 +24,8 @@ from sim_trackers.runtime import run_periodic
 from sim_trackers.scenario import ArtSettings
 from sim_trackers.world import World
 from ubitrack_agent.core.uncertainty import isotropic_pose_covariance
+from ubitrack_agent.io.adapter import TimestampPolicy
+from ubitrack_agent.io.dtrack.adapter import DTrackAdapter
 from ubitrack_agent.io.dtrack.format import (
     Body6D,
     DTrackFrame,
@@ -33,6 +35,22 @@ from ubitrack_agent.io.dtrack.format import (
 )
 
 log = logging.getLogger("ubitrack.sim.art")
+
+
+def dtrack_adapter(art: ArtSettings, timestamps: TimestampPolicy = "receive") -> DTrackAdapter:
+    """The DTrack adapter that reads this simulator (the scenario's ``art`` section): its
+    tracker frame, body and marker mapping, static bodies, noise and rate, as
+    ``ubitrack_agent.commands.demo.dtrack_flags`` gives them to ``ubitrack dtrack``."""
+    return DTrackAdapter(
+        art.frame,
+        art.bodies,
+        art.static_bodies,
+        art.markers,
+        sigma_mm=art.noise.position_mm,
+        sigma_deg=art.noise.rotation_deg,
+        rate=art.rate,
+        timestamps=timestamps,
+    )
 
 
 class ArtSimulator:

@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial.transform import RigidTransform, Rotation
 
 from sim_trackers.scenario import load_scenario
-from sim_trackers.sim_art import ArtSimulator
+from sim_trackers.sim_art import ArtSimulator, dtrack_adapter
 from ubitrack_agent.core import ErrorPose, Position3D
 from ubitrack_agent.io.dtrack.adapter import DTrackAdapter
 from ubitrack_agent.io.dtrack.format import (
@@ -35,17 +35,7 @@ class Recorder:
 
 
 def _adapter(art, timestamps="device") -> tuple[DTrackAdapter, Recorder]:
-    adapter = DTrackAdapter(
-        art.frame,
-        art.bodies,
-        art.static_bodies,
-        art.markers,
-        sigma_mm=art.noise.position_mm,
-        sigma_deg=art.noise.rotation_deg,
-        rate=art.rate,
-        timestamps=timestamps,
-    )
-    return adapter, Recorder()
+    return dtrack_adapter(art, timestamps), Recorder()
 
 
 def test_round_trip_through_dtrack_matches_ground_truth_within_noise():

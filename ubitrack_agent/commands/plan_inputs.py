@@ -33,10 +33,10 @@ import networkx as nx
 
 from sim_trackers.database import static_edges
 from sim_trackers.scenario import ScenarioError, load_scenario
+from sim_trackers.sim_art import dtrack_adapter
 from sim_trackers.sim_camera import announcements
 from ubitrack_agent.agent.announcements import AnnouncementError, provider_entries
 from ubitrack_agent.graph.srg import SetupError, add_setup_edge, new_srg, parse_setup, read_yaml
-from ubitrack_agent.io.dtrack.adapter import DTrackAdapter
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.io.static_edges import StaticEdgesError, parse_static_edges
 
@@ -121,15 +121,7 @@ def scenario_edges(origin: str) -> list[PlanEdge]:
     except ScenarioError as exc:
         raise SetupError(str(exc)) from None
     art = scenario.art
-    tracker = DTrackAdapter(
-        art.frame,
-        art.bodies,
-        art.static_bodies,
-        art.markers,
-        sigma_mm=art.noise.position_mm,
-        sigma_deg=art.noise.rotation_deg,
-        rate=art.rate,
-    )
+    tracker = dtrack_adapter(art)
     database = static_edges(scenario.world, scenario.database_edges, 0)
     sections = [
         (art.provider, tracker.edges, "art"),
