@@ -17,7 +17,8 @@ Conventions, common to every function here:
 
 Modules: :mod:`.absolute_orientation` (3D-3D), :mod:`.pnp` (2D-3D pose), :mod:`.dlt`
 (projective calibration), :mod:`.triangulation`, :mod:`.hand_eye`, :mod:`.tip_calibration`
-(pivot calibration), :mod:`.fusion` (inverse-covariance fusion and a Kalman filter),
+(pivot calibration), :mod:`.fusion` (inverse-covariance fusion), :mod:`.pose_filter` (an
+error-state Kalman filter fusing asynchronous pose measurements as they arrive),
 :mod:`.averaging`, :mod:`.static_estimate` (incremental, robust estimate of a static relation
 from a stream, with convergence and motion checks; one object per stream, the only stateful
 algorithm besides the Kalman filter), :mod:`.tangent` (left-perturbation log/exp of poses,
@@ -29,7 +30,7 @@ from services.algorithms.auxiliary import compose_projection, decompose_projecti
 from services.algorithms.averaging import average_poses, average_positions
 from services.algorithms.dlt import projection_dlt
 from services.algorithms.estimate import PoseEstimate
-from services.algorithms.fusion import PoseKalmanFilter, fuse_poses
+from services.algorithms.fusion import fuse_poses
 from services.algorithms.hand_eye import (
     HandEyeSolution,
     hand_eye_calibration,
@@ -37,11 +38,13 @@ from services.algorithms.hand_eye import (
     hand_eye_park_martin,
 )
 from services.algorithms.pnp import solve_pnp, solve_pnp_ransac
+from services.algorithms.pose_filter import FilterSettings, PoseKalmanFilter
 from services.algorithms.static_estimate import Motion, StaticEstimator, StaticState, Status
 from services.algorithms.tip_calibration import TipSolution, tip_calibration
 from services.algorithms.triangulation import Triangulation, triangulate_points
 
 __all__ = [
+    "FilterSettings",
     "HandEyeSolution",
     "Motion",
     "PoseEstimate",

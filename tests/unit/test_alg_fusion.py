@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from bench.synthetic import left_error, random_quaternion, rng_for, rotation_error, sample_poses
-from services.algorithms.estimate import PoseEstimate, perturb_left, rigid, to_estimate
-from services.algorithms.fusion import PoseKalmanFilter, fuse_poses
+from services.algorithms.estimate import PoseEstimate
+from services.algorithms.fusion import fuse_poses
 
 COV = np.diag([1e-4, 2e-4, 1e-4, 1e-6, 1e-6, 4e-6])
 
@@ -62,52 +62,3 @@ def test_complementary_anisotropic_trackers():
 def test_fusion_bad_input_raises_value_error(q, t, covs, message):
     with pytest.raises(ValueError, match=message):
         fuse_poses(q, t, covs)
-
-
-SECOND = 1_000_000_000
-
-
-def test_kalman_tracks_constant_velocity_motion_from_two_asynchronous_trackers():
-    rng = rng_for("kalman-motion")
-    velocity, spin = np.array([0.2, -0.1, 0.05]), np.array([0.0, 0.0, 0.5])
-    start = random_quaternion(rng)
-
-    def truth(time_s):
-        rotation = perturb_left(
-            np.concatenate((spin * time_s, np.zeros(3))), rigid(start, np.zeros(3))
-        )
-        return PoseEstimate(to_estimate(rotation, None).rotation, velocity * time_s)
-
-    cov = np.diag([np.radians(0.1) ** 2] * 3 + [1e-6] * 3)
-    kalman = PoseKalmanFilter(angular_noise=1e-3, linear_noise=1e-3)
-    raw, filtered = [], []
-    for k in range(240):
-        time_s = k / 120  # two 60 Hz trackers, half a period apart
-        pose = truth(time_s)
-        q, t = sample_poses(rng, pose, [cov])
-        kalman.update(int(time_s * SECOND), q[0], t[0], cov)
-        if k > 60:
-            raw.append(np.linalg.norm(t[0] - pose.translation))
-            filtered.append(
-                np.linalg.norm(kalman.predict(int(time_s * SECOND)).translation - pose.translation)
-            )
-    assert np.sqrt(np.mean(np.square(filtered))) < 0.5 * np.sqrt(np.mean(np.square(raw)))
-    ahead = kalman.predict(int(2.1 * SECOND))
-    error = left_error(ahead, truth(2.1))
-    assert error @ np.linalg.solve(ahead.covariance, error) < 22.5  # chi^2(6) at 99.9 %
-    assert np.linalg.norm(error[3:]) < 5e-3
-    assert np.all(np.linalg.eigvalsh(ahead.covariance) > 0)
-    assert kalman.predict(int(2.5 * SECOND)).covariance[3, 3] > ahead.covariance[3, 3]
-
-
-def test_kalman_rejects_out_of_order_and_premature_use():
-    kalman = PoseKalmanFilter(angular_noise=1.0, linear_noise=1.0)
-    with pytest.raises(ValueError, match="no measurement"):
-        kalman.predict(0)
-    kalman.update(10, [0, 0, 0, 1.0], np.zeros(3), COV)
-    with pytest.raises(ValueError, match="older"):
-        kalman.update(5, [0, 0, 0, 1.0], np.zeros(3), COV)
-    with pytest.raises(ValueError, match="unit quaternion"):
-        kalman.update(20, [0, 0, 0, 2.0], np.zeros(3), COV)
-    with pytest.raises(ValueError, match="angular_noise"):
-        PoseKalmanFilter(angular_noise=-1.0, linear_noise=1.0)

@@ -39,6 +39,24 @@ def test_single_quaternion_shapes():
     assert quaternions.rotate(q, np.ones((5, 3))).shape == (5, 3)
 
 
+def test_rotation_vector_maps_match_scipy():
+    rng = np.random.default_rng(5)
+    vectors = np.concatenate(
+        (
+            rng.normal(size=(50, 3)),
+            1e-9 * rng.normal(size=(5, 3)),
+            3.1 * np.eye(3),
+            np.zeros((1, 3)),
+        )
+    )
+    expected = Rotation.from_rotvec(vectors).as_quat()
+    q = quaternions.from_rotvec(vectors)
+    assert np.allclose(np.abs(np.sum(q * expected, axis=1)), 1.0, atol=1e-12)
+    assert np.allclose(quaternions.to_rotvec(expected), Rotation.from_quat(expected).as_rotvec())
+    assert np.allclose(quaternions.to_rotvec(-expected), Rotation.from_quat(expected).as_rotvec())
+    assert quaternions.from_rotvec(np.array([0.1, 0.0, 0.0])).shape == (4,)
+
+
 def test_conjugate_inverts():
     q = Rotation.random(20, rng=RNG).as_quat()
     assert_same_rotation(quaternions.multiply(q, quaternions.conjugate(q)), quaternions.IDENTITY)

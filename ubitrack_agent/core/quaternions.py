@@ -14,6 +14,8 @@ SIGGRAPH 1985 (SLERP).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -85,6 +87,34 @@ def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 def from_matrix(matrix: np.ndarray) -> np.ndarray:
     """Unit quaternions of rotation matrices (scipy; projects to the nearest rotation)."""
     return Rotation.from_matrix(matrix).as_quat()
+
+
+def from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``Exp(v)`` of rotation vectors (..., 3) (axis times angle, radians);
+    the series ``sin(a/2)/a ~ 1/2 - a^2/48`` near zero."""
+    v = np.asarray(v, dtype=float)
+    if v.shape == (3,):  # one rotation: scalar maths, a few microseconds
+        half = 0.5 * math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        scale = 0.5 - half * half / 12.0 if half < 1e-4 else math.sin(half) / (2 * half)
+        return np.array([scale * v[0], scale * v[1], scale * v[2], math.cos(half)])
+    half = 0.5 * np.linalg.norm(v, axis=-1, keepdims=True)
+    small = half < 1e-4
+    scale = np.where(small, 0.5 - half**2 / 12.0, np.sin(half) / np.where(small, 1.0, 2 * half))
+    return np.concatenate((scale * v, np.cos(half)), axis=-1)
+
+
+def to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``Log(q)`` (..., 3) of unit quaternions (..., 4), angle in
+    ``[0, pi]`` (``q`` and ``-q`` give the same vector)."""
+    q = np.asarray(q, dtype=float)
+    q = np.where(q[..., 3:] < 0.0, -q, q)
+    sine = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
+    half = np.arctan2(sine, q[..., 3:])
+    small = sine < 1e-8
+    scale = np.where(
+        small, 2.0 / np.where(small, q[..., 3:], 1.0), 2.0 * half / np.where(small, 1.0, sine)
+    )
+    return scale * q[..., :3]
 
 
 def angle(q: np.ndarray) -> np.ndarray:
