@@ -14,7 +14,7 @@ import importlib
 import pkgutil
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from ubitrack_agent.core import Measurement
@@ -29,6 +29,16 @@ class Port:
 
 
 Inputs = Mapping[str, Measurement | list[Measurement]]
+
+
+@dataclass(frozen=True)
+class Pushed:
+    """What an asynchronous service made of one input sample (:meth:`Service.push`): the
+    outputs to publish at once, or none and the worker counter saying why (``gated``,
+    ``late``, ``dropped_stale``: ``services.worker.COUNTERS``)."""
+
+    outputs: dict[str, Measurement] = field(default_factory=dict)
+    reason: str = "no_output"
 
 
 class Service(ABC):
@@ -70,6 +80,22 @@ class Service(ABC):
     @abstractmethod
     def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
         """Outputs by port for inputs synchronised to ``timestamp_ns``."""
+
+    def asynchronous(self) -> bool:
+        """Whether this instance takes every input sample as it arrives (:meth:`push`) instead
+        of inputs synchronised at a trigger's time (:meth:`compute`); a parameter may choose."""
+        return False
+
+    def push(self, port: str, sample: Measurement) -> Pushed:
+        """An asynchronous service's update by one sample of ``port``, in arrival order
+        (timestamps may go back); ``ValueError`` for a sample it cannot use."""
+        raise NotImplementedError(f"{self.NAME} is not asynchronous")
+
+    def value_at(self, port: str, timestamp_ns: int) -> Measurement:
+        """An asynchronous service's output ``port`` at ``timestamp_ns`` from its own state (a
+        filter's motion model), for a query at a given time (``net.time_queries``); raises
+        ``ExtrapolationError`` or ``NoDataError`` where it has no answer."""
+        raise NotImplementedError(f"{self.NAME} is not asynchronous")
 
     def min_correspondences(self) -> int:
         """Correspondences needed before computing (a parameter may raise the bound)."""

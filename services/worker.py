@@ -45,10 +45,11 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from services.expansion import BatchProgress, TimeAccumulator
-from services.registry import Service, lookup
+from services.registry import Pushed, Service, lookup
 from services.spec import check_bindings, check_parameters, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
-from ubitrack_agent.core import MeasurementError, decode, encode
+from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
+from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.json_messages import load_object
@@ -63,6 +64,7 @@ from ubitrack_agent.net.spec import (
     parse_relations,
     parse_spec,
 )
+from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.net.transport import LatestValuePublisher, fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.worker")
@@ -93,11 +95,22 @@ COUNTERS = {
     "rejected_commands": "control commands refused",
     "rewired": "control commands applied",
     "internal_errors": "unexpected exceptions handling network input (logged with traceback)",
+    "gated": "asynchronous filter: samples refused by the innovation gate (outliers)",
+    "late": "asynchronous filter: samples older than the newest, re-filtered (in the next output)",
+    "time_queries": "queries for the value at a given time answered",
+    "time_queries_refused": "queries for the value at a given time answered with an error",
 }
 """The worker's counters (its status), each with what it counts. Every sample received is
 ``rejected``, ``rejected_future``, ``dropped_stale``, ``superseded``, ``buffered`` or a trigger;
 every trigger is ``stale_triggers``, ``dropped``, ``not_distinct``, ``accumulating``,
-``failed``, ``no_output`` or publishes: a worker that receives but does not publish shows why."""
+``failed``, ``no_output`` or publishes: a worker that receives but does not publish shows why.
+For an asynchronous service every sample is a trigger and ends ``gated``, ``late``,
+``dropped_stale``, ``failed`` or publishes."""
+
+ANSWER_TIMEOUT_S = 0.15
+"""Longest a query for the value at a given time waits for the worker thread's answer."""
+UPSTREAM_TIMEOUT_S = 0.1
+"""Longest the worker thread waits for an input's producer to answer such a query."""
 
 
 @dataclass(frozen=True)
@@ -131,6 +144,26 @@ class Inbox:
             if not self._items:
                 self._ready.wait(timeout)
             return self._items.popleft() if self._items else None
+
+
+class _Answer:
+    """A query for an output's value at a given time, handed from a publisher's thread to the
+    worker thread, which fills in the payload or the error."""
+
+    def __init__(self, port: str, timestamp_ns: int) -> None:
+        self.port, self.timestamp_ns = port, timestamp_ns
+        self.payload: bytes | None = None
+        self.error: Exception | None = None
+        self.done = threading.Event()
+
+    def wait(self) -> bytes:
+        if not self.done.wait(ANSWER_TIMEOUT_S):
+            raise TimeoutError(f"no answer within {ANSWER_TIMEOUT_S} s (the worker is busy)")
+        if self.error is not None:
+            raise self.error
+        if self.payload is None:  # an unexpected error, logged and counted by the worker
+            raise NoDataError("the worker could not answer")
+        return self.payload
 
 
 @dataclass
@@ -246,11 +279,14 @@ class Worker:
             port: [self.keys.progress(relation) for relation in self._static_relations(keys)]
             for port, keys in relations.items()
         }
+        answers = {key: port for port, keys in routes.items() for key in keys}
         wanted = {key for keys in (*routes.values(), *progress_routes.values()) for key in keys}
         for key in set(self._publishers) - wanted:
             self._publishers.pop(key).undeclare()
         for key in wanted - set(self._publishers):
-            self._publishers[key] = LatestValuePublisher(self._session, key)
+            port = answers.get(key)
+            at = None if port is None else (lambda t, port=port: self._ask(port, t))
+            self._publishers[key] = LatestValuePublisher(self._session, key, at)
         self._routes = routes
         self._progress_routes = progress_routes
 
@@ -348,6 +384,9 @@ class Worker:
         if ahead_of_clock(t, time.time_ns()):
             self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
             return
+        if self._service.asynchronous():
+            self._push(item.binding.port, sample)
+            return
         if not item.buffer.add(sample):
             self._count("dropped_stale", "dropped sample on %s older than its buffer: %d", key, t)
             return
@@ -398,6 +437,18 @@ class Worker:
         else:
             self._compute(self._accumulator.expanded(values), t)
 
+    def _push(self, port: str, sample: Measurement) -> None:
+        """An asynchronous service's update by one sample, published at once."""
+        try:
+            pushed: Pushed = self._service.push(port, sample)
+        except (ValueError, MeasurementError, ArithmeticError) as exc:
+            self._count("failed", "update failed: %s", exc)
+            return
+        if pushed.outputs:
+            self._publish(pushed.outputs, sample.timestamp_ns)
+        else:
+            self.counters[pushed.reason] += 1
+
     def _compute(self, values: dict[str, Any], timestamp_ns: int) -> None:
         try:
             outputs = self._service.compute(values, timestamp_ns)
@@ -406,6 +457,9 @@ class Worker:
             return
         if not outputs:
             self.counters["no_output"] += 1
+        self._publish(outputs, timestamp_ns)
+
+    def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         for port, value in outputs.items():
             payload = encode(value)
             for key in self._routes.get(port, ()):
@@ -428,6 +482,71 @@ class Worker:
             payload = progress.to_json().encode()
             for key in self._progress_routes.get(port, ()):
                 self._publishers[key].put(payload)
+
+    # -- values at a given time (net.time_queries) --------------------------------------------
+
+    def _ask(self, port: str, timestamp_ns: int) -> bytes:
+        """Runs on a publisher's thread: the worker thread's answer for ``port`` at a time."""
+        answer = _Answer(port, timestamp_ns)
+        self._inbox.put(("at", answer))
+        return answer.wait()
+
+    def _answer(self, answer: _Answer) -> None:
+        try:
+            answer.payload = encode(self._value_at(answer.port, answer.timestamp_ns))
+            self.counters["time_queries"] += 1
+        except (ValueError, LookupError, TimeoutError) as exc:
+            answer.error = exc
+            self.counters["time_queries_refused"] += 1
+        finally:
+            answer.done.set()
+
+    def _value_at(self, port: str, t: int) -> Measurement:
+        """Output ``port`` at ``t``: an asynchronous service's own answer (its filter's
+        prediction); otherwise computed from every input at ``t``, each interpolated within
+        its samples or, after them, asked of its producer in turn (a chain of such queries
+        ends at a filter that predicts, or at a measured edge, which refuses). A time
+        expansion's result is not a function of time and is not answered."""
+        if self._service.asynchronous():
+            return self._service.value_at(port, t)
+        if self.spec.expansion == "time":
+            raise ExtrapolationError("a time-expanded estimate has no value at a given time")
+        space = self.spec.expansion == "space"
+        values: dict[str, Any] = {}
+        for item in self._inputs:
+            correspondence = space and item.binding.port in self._service_class.CORRESPONDENCE
+            try:
+                value: Measurement | None = self._input_at(item, t)
+            except (ExtrapolationError, NoDataError, TimeoutError, MeasurementError):
+                if not correspondence:
+                    raise
+                value = None  # a space expansion uses the rows it has
+            if correspondence:
+                values.setdefault(item.binding.port, []).append(value)
+            else:
+                values[item.binding.port] = value
+        try:
+            outputs = self._service.compute(values, t)
+        except ExtrapolationError:
+            raise
+        except (ValueError, ArithmeticError) as exc:
+            raise NoDataError(f"no value at {t}: {exc}") from None
+        if port not in outputs:
+            raise NoDataError(f"no value of {port} at {t}")
+        return outputs[port]
+
+    def _input_at(self, item: _Input, t: int) -> Measurement:
+        buffer = item.buffer
+        newest = buffer.newest_time()
+        if newest is None:
+            raise NoDataError(f"no sample of {item.binding.key} yet")
+        if buffer.static or t <= newest:
+            return buffer.lookup(t)
+        payload = fetch_at(self._session, item.binding.key, t, UPSTREAM_TIMEOUT_S)
+        value = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
+        if value.timestamp_ns != t:
+            raise ExtrapolationError(f"{item.binding.key} answered for another time")
+        return value
 
     # -- status and life cycle ----------------------------------------------------------------
 
@@ -463,6 +582,8 @@ class Worker:
         item = self._inbox.get(timeout=min(longest_s, timeout))
         if item is not None and item[0] == "data":
             self._guarded(self._on_sample)(*item[1:])
+        elif item is not None and item[0] == "at":
+            self._guarded(self._answer)(item[1])
         elif item is not None:
             self._guarded(self._apply_control)(item[1])
         self._guarded(self._process_due_triggers)()

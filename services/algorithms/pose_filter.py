@@ -48,6 +48,7 @@ from services.algorithms.estimate import PoseEstimate, symmetric
 from ubitrack_agent.core import quaternions
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.measurements import check_timestamp
+from ubitrack_agent.core.timeline import MAX_AHEAD_NS
 from ubitrack_agent.core.uncertainty import skew
 
 GATE_9999 = 27.856
@@ -92,7 +93,7 @@ class FilterSettings:
     restart_after: int = 5
     window_ns: int = 200_000_000
     restart_ns: int = 500_000_000
-    max_ahead_ns: int = 100_000_000
+    max_ahead_ns: int = MAX_AHEAD_NS
 
     def __post_init__(self) -> None:
         for name in ("angular_noise", "linear_noise", "initial_speed_std", "gate"):

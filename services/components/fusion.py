@@ -2,23 +2,45 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import numpy as np
 
-from services.algorithms import fuse_poses
-from services.registry import Inputs, Port, Service, complete_correspondences, register
+from services.algorithms import FilterSettings, PoseKalmanFilter, fuse_poses
+from services.registry import Inputs, Port, Pushed, Service, complete_correspondences, register
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D
+
+POLICIES = ("asynchronous", "synchronised")
+
+_REASONS = {"gated": "gated", "late": "late", "too_old": "dropped_stale"}
+"""Worker counters of the filter's outcomes that publish nothing (``updated`` and
+``restarted`` publish)."""
 
 
 @register
 class Fusion(Service):
-    """Information-weighted fusion of simultaneous estimates of one edge (space expansion).
+    """Fusion of several estimates of one edge (space expansion), by one of two ``policy``:
 
-    6D estimates are fused on SE(3) (:func:`services.algorithms.fuse_poses`); 3D positions by
-    inverse-covariance weighting; 3R rotations on SO(3) by the same iteration (as poses without
-    translation). An estimate without covariance gets ``default_sigma`` (metres and radians) on
-    every axis, so plain estimates (and rotations, which carry none) get equal weights. The
-    planner fuses two or more estimates; at run time those available at the trigger's time are
-    fused, so the output goes on while one tracker has lost the target.
+    * ``asynchronous`` (the default, 6D only): every estimate updates an error-state Kalman
+      filter with a constant-velocity model as it arrives, and the filter's pose and
+      covariance at the estimate's time are published at once
+      (:class:`services.algorithms.PoseKalmanFilter`, after Ubitrack's ``PoseKalmanFilter``
+      and Welch & Bishop's SCAAT): no estimate waits for another tracker. Estimates arriving
+      out of order within ``window_ms`` are re-filtered from the kept history (counted
+      ``late``: their effect is in the next output), outliers are refused by the innovation
+      gate ``gate`` (``gated``), the process noise is ``angular_noise`` (rad^2/s^3) and
+      ``linear_noise`` (m^2/s^3). Its output also answers a query at a given time by the
+      filter's prediction (:meth:`value_at`).
+    * ``synchronised``: the worker synchronises the estimates at each trigger's time
+      (``services.triggers``) and they are fused as simultaneous: 6D on SE(3)
+      (:func:`services.algorithms.fuse_poses`), 3D positions by inverse-covariance weighting,
+      3R rotations on SO(3) by the same iteration (as poses without translation). Those
+      available at the trigger's time are fused, so the output goes on while one tracker has
+      lost the target. 3D and 3R estimates need this policy.
+
+    An estimate without covariance gets ``default_sigma`` (metres and radians) on every axis,
+    so plain estimates (and rotations, which carry none) get equal weights.
     """
 
     NAME = "fusion"
@@ -26,7 +48,52 @@ class Fusion(Service):
     OUTPUTS = ("fused",)
     CORRESPONDENCE = ("AB",)
     MIN_CORRESPONDENCES = 2
-    PARAMETERS = {"default_sigma": 1e-3}
+    PARAMETERS = {
+        "default_sigma": 1e-3,
+        "policy": "asynchronous",
+        "angular_noise": 1.0,
+        "linear_noise": 1.0,
+        "gate": 27.86,
+        "window_ms": 200.0,
+    }
+
+    def __init__(self, parameters: Mapping[str, Any]) -> None:
+        super().__init__(parameters)
+        if self.parameters["policy"] not in POLICIES:
+            raise ValueError(f"fusion: policy must be one of {POLICIES}")
+        settings = FilterSettings(
+            angular_noise=float(self.parameters["angular_noise"]),
+            linear_noise=float(self.parameters["linear_noise"]),
+            gate=float(self.parameters["gate"]),
+            window_ns=int(float(self.parameters["window_ms"]) * 1e6),
+        )
+        self._filter = PoseKalmanFilter(
+            settings.angular_noise, settings.linear_noise, settings=settings
+        )
+
+    def asynchronous(self) -> bool:
+        return self.parameters["policy"] == "asynchronous"
+
+    def push(self, port: str, sample: Measurement) -> Pushed:
+        if not isinstance(sample, Pose | ErrorPose):
+            raise ValueError(
+                f"asynchronous fusion filters 6D poses, not {type(sample).__name__}: "
+                "give 3D and 3R estimates the policy 'synchronised'"
+            )
+        outcome = self._filter.update(
+            sample.timestamp_ns, sample.rotation, sample.translation, self._covariance(sample)
+        )
+        if outcome in _REASONS:
+            return Pushed(reason=_REASONS[outcome])
+        return Pushed({"fused": self.value_at("fused", sample.timestamp_ns)})
+
+    def value_at(self, port: str, timestamp_ns: int) -> Measurement:
+        return self._filter.estimate(timestamp_ns).to_measurement(timestamp_ns)
+
+    def _covariance(self, estimate: Pose | ErrorPose) -> np.ndarray:
+        if isinstance(estimate, ErrorPose):
+            return estimate.covariance
+        return float(self.parameters["default_sigma"]) ** 2 * np.eye(6)
 
     def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
         estimates = [row[0] for row in complete_correspondences(values, self.CORRESPONDENCE)]
@@ -51,9 +118,7 @@ class Fusion(Service):
         if not all(isinstance(e, Pose | ErrorPose) for e in estimates):
             kinds = sorted({type(e).__name__ for e in estimates})
             raise ValueError(f"cannot fuse estimates of different types: {', '.join(kinds)}")
-        covariances = [
-            e.covariance if isinstance(e, ErrorPose) else default * np.eye(6) for e in estimates
-        ]
+        covariances = [self._covariance(e) for e in estimates]
         fused = fuse_poses(
             np.array([e.rotation for e in estimates]),
             np.array([e.translation for e in estimates]),

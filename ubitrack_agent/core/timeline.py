@@ -48,6 +48,12 @@ MAX_FUTURE_NS = 10 * 10**9
 by NTP agree within milliseconds; an unsynchronised host seconds off still works). A sample
 accepted just within it can hold back newer instants by at most this long."""
 
+MAX_AHEAD_NS = 100 * 10**6
+"""How far after its newest measurement a producer predicts a value when asked for one at a
+given time (100 ms: a frame or two of display latency with margin; a constant-velocity
+prediction of a walking head is off by millimetres at 20 ms, centimetres beyond 100 ms).
+``ubitrack_agent.net.time_queries``, ``Relation.predict``."""
+
 
 def ahead_of_clock(timestamp_ns: int, now_ns: int) -> bool:
     """Whether a sample stamped ``timestamp_ns`` is too far ahead of the clock reading

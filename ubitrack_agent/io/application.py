@@ -10,8 +10,10 @@
         first = relation.wait_for(timeout=5.0)          # next sample, event-driven
         for pose in relation:                           # iterator form, blocks per sample
             ...
-        relation.lookup(t_ns)                           # interpolated; NoDataError,
-                                                        # ExtrapolationError otherwise
+        relation.lookup(t_ns)                           # interpolated, or after the
+                                                        # newest sample predicted
+        relation.predict(time.time_ns() + 20_000_000)   # where at display time (producer's
+                                                        # filter, <= core.timeline.MAX_AHEAD_NS)
     # leaving the block withdraws the query (as relation.close() does)
 
 Declaring the query token ``<root>/query/...`` tells the agent what to compute; samples arrive
@@ -22,6 +24,13 @@ samples stamped more than ``core.timeline.MAX_FUTURE_NS`` ahead of this host's c
 clock reached it. :attr:`Relation.counters` holds these and the other counts of samples not
 used (``dropped_stale``: older than every sample held; ``internal_errors``); each is logged
 rate-limited.
+
+A relation's value at a given time (``lookup``, ``predict``) comes from the samples held where
+they surround the time, and otherwise from the producer, asked with a query on the relation
+key (``net.time_queries``): a fusion filter answers from its motion model up to
+``core.timeline.MAX_AHEAD_NS`` (100 ms) after its newest measurement, and a flow without one
+refuses (``ExtrapolationError``). Errors are typed: ``NoDataError`` (nothing yet, or no
+producer answering), ``ExtrapolationError`` (a time it cannot answer), ``TimeoutError``.
 
 ``RelationId(..., static=True, recalibrate=True)`` asks to calibrate a static relation again
 (after remounting a target): the agent computes it from the dynamic inputs while ignoring the
@@ -49,11 +58,13 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
+from ubitrack_agent.core.errors import ExtrapolationError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
+from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.net.transport import fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.application")
@@ -107,6 +118,7 @@ class Relation(Closing):
     ) -> None:
         self.relation = relation
         self.key = keys.relation(relation)
+        self._session = session
         self.application = validate_key_chunks(
             application or default_application_id(), single_chunk=True
         )
@@ -208,11 +220,32 @@ class Relation(Closing):
         with self._lock:
             return self._buffer.latest()
 
-    def lookup(self, timestamp_ns: int) -> Measurement:
-        """The relation at ``timestamp_ns`` (interpolated between samples; a static relation
-        answers its latest value). Raises ``NoDataError`` or ``ExtrapolationError``."""
+    def lookup(self, timestamp_ns: int, timeout: float = 0.2) -> Measurement:
+        """The relation at ``timestamp_ns``: interpolated between the samples held (a static
+        relation answers its latest value), and after the newest sample :meth:`predict`-ed.
+        Raises ``NoDataError``, ``ExtrapolationError`` (before the samples held, or beyond
+        what the producer predicts) or ``TimeoutError``."""
         with self._lock:
-            return self._buffer.lookup(timestamp_ns)
+            newest = self._buffer.newest_time()
+            if self.relation.static or newest is None or timestamp_ns <= newest:
+                return self._buffer.lookup(timestamp_ns)
+        return self.predict(timestamp_ns, timeout)
+
+    def predict(self, timestamp_ns: int, timeout: float = 0.2) -> Measurement:
+        """The relation at ``timestamp_ns`` as its producer answers it (a query on the relation
+        key): a fusion filter predicts from its motion model, at most
+        ``core.timeline.MAX_AHEAD_NS`` (100 ms) after its newest measurement, and interpolates
+        within its recent past; a flow without a motion model answers only within its inputs'
+        samples. The renderer's question: where will it be at display time. Raises
+        ``ExtrapolationError`` (a time the producer cannot answer), ``NoDataError`` (no
+        producer answered within ``timeout`` seconds, or it has no data yet),
+        ``TimeoutError`` (the producer was busy) or ``MeasurementError`` (a malformed
+        answer)."""
+        payload = fetch_at(self._session, self.key, timestamp_ns, timeout)
+        value = decode(payload, expected=self._expected or None)
+        if value.timestamp_ns != timestamp_ns:
+            raise ExtrapolationError(f"{self.relation}: the producer answered another time")
+        return value
 
     def wait_for(self, timeout: float | None = None) -> Measurement:
         """Block until the next sample arrives (the first one if none yet); ``TimeoutError``,

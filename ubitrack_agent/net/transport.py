@@ -4,7 +4,10 @@
 with the latest one, so a subscriber that starts late (a worker started after a calibration
 database announced its static edges) gets the current value at once with a ``get``. This is
 the role of a latched topic; zenoh's own ``AdvancedPublisher`` cache does the same but is
-still marked unstable in zenoh-python.
+still marked unstable in zenoh-python. Given an ``at`` function, it also answers a query
+for the value at a given time (``<key>?t=<ns>``, :mod:`ubitrack_agent.net.time_queries`);
+without one such a query gets an ``extrapolation`` error reply (a measured edge has no motion
+model).
 """
 
 from __future__ import annotations
@@ -17,7 +20,9 @@ from typing import Any
 
 import zenoh
 
+from ubitrack_agent.core.errors import ExtrapolationError
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.time_queries import error_payload, requested_time
 
 log = logging.getLogger("ubitrack.transport")
 
@@ -30,8 +35,10 @@ and an upstream worker started at the same moment computes its static result a l
 class LatestValuePublisher:
     """A publisher whose latest payload is also served on its key's queryable."""
 
-    def __init__(self, session: Any, key: str) -> None:
+    def __init__(self, session: Any, key: str, at: Callable[[int], bytes] | None = None) -> None:
         self.key = key
+        self._at = at
+        """The encoded value at a given time, or a typed error (``net.time_queries.ERRORS``)."""
         self.counters: Counter[str] = Counter()
         """``internal_errors``: queries that could not be answered (logged, rate-limited)."""
         self._latest: bytes | None = None
@@ -58,9 +65,24 @@ class LatestValuePublisher:
                 reply(query)
 
     def _reply(self, query: Any) -> None:
-        latest = self._latest
-        if latest is not None:
-            query.reply(self.key, latest)
+        try:
+            timestamp_ns = requested_time(query.parameters)
+            if timestamp_ns is not None and self._at is None:
+                raise ExtrapolationError("a measured edge answers its latest value only")
+        except ValueError as exc:  # ExtrapolationError is one
+            query.reply_err(error_payload(exc))
+            return
+        if timestamp_ns is None:
+            latest = self._latest
+            if latest is not None:
+                query.reply(self.key, latest)
+            return
+        try:
+            payload = self._at(timestamp_ns)
+        except (ValueError, LookupError, TimeoutError) as exc:
+            query.reply_err(error_payload(exc))
+            return
+        query.reply(self.key, payload)
 
     def undeclare(self) -> None:
         self._queryable.undeclare()
