@@ -5,9 +5,13 @@ Interpolating an input at a trigger's time ``t`` needs a sample of that input at
 its own key, and unsynchronised trackers sample at different instants), so a trigger is held
 until every live dynamic input has a sample at or after ``t``, or until its wait is over
 (one and a half periods of the slowest live input, capped); then it is evaluated (nearest
-sample within the tolerance window where there is nothing to interpolate). Every dynamic
-binding may trigger: an instant is computed once, and a trigger older than the last instant
-computed is stale.
+sample within the tolerance window where there is nothing to interpolate). An input sampled at
+the same instants as the trigger's own (the other features of one camera frame, the other
+bodies of one tracker frame: its newest sample's time is one the trigger's input also has)
+travels with it, so it is waited for only :data:`SAME_INSTANT_WAIT_NS`: a feature hidden in
+this frame does not hold the frame's pose back by a period. Every dynamic binding may
+trigger: an instant is computed once, and a trigger older than the last instant computed is
+stale.
 """
 
 from __future__ import annotations
@@ -21,6 +25,9 @@ LIVE_PERIODS = 2.0
 not waited for (an occluded feature, a tracker that lost its target)."""
 WAIT_PERIODS = 1.5
 """A trigger waits up to this many periods of the slowest live input for its next sample."""
+SAME_INSTANT_WAIT_NS = 3_000_000
+"""How long a trigger waits for an input sampled at the same instants as its own (3 ms: the
+samples of one frame are published back to back, within a fraction of a millisecond)."""
 
 
 def _live(buffer: SampleBuffer, timestamp_ns: int, default_period_ns: int) -> bool:
@@ -37,16 +44,28 @@ def lagging(buffers: Iterable[SampleBuffer], timestamp_ns: int, default_period_n
     )
 
 
+def _same_instants(buffer: SampleBuffer, trigger: SampleBuffer) -> bool:
+    newest = buffer.newest_time()
+    return newest is not None and trigger.has_sample_at(newest)
+
+
 def wait_for(
-    buffers: Iterable[SampleBuffer], timestamp_ns: int, default_period_ns: int, cap_ns: int
+    buffers: Iterable[SampleBuffer],
+    timestamp_ns: int,
+    default_period_ns: int,
+    cap_ns: int,
+    trigger: SampleBuffer | None = None,
 ) -> float:
-    """Seconds a trigger at ``timestamp_ns`` may wait for the live inputs' next samples."""
-    periods = [
-        b.typical_period_ns() or default_period_ns
+    """Seconds a trigger at ``timestamp_ns`` (on the input holding ``trigger``) may wait for
+    the live inputs' next samples."""
+    waits = [
+        SAME_INSTANT_WAIT_NS
+        if trigger is not None and _same_instants(b, trigger)
+        else WAIT_PERIODS * (b.typical_period_ns() or default_period_ns)
         for b in buffers
         if _live(b, timestamp_ns, default_period_ns)
     ]
-    return min(WAIT_PERIODS * max(periods, default=0), cap_ns) * 1e-9
+    return min(max(waits, default=0), cap_ns) * 1e-9
 
 
 class PendingTriggers:

@@ -405,7 +405,7 @@ class Worker:
         """How long a trigger may wait for the other live dynamic inputs (services.triggers)."""
         others = [b for b in self._dynamic_buffers() if b is not trigger.buffer]
         cap_ns = int(self.spec.wait_ms * 1e6)
-        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns)
+        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, trigger.buffer)
 
     def _caught_up(self, timestamp_ns: int) -> bool:
         return not lagging(self._dynamic_buffers(), timestamp_ns, self.spec.tolerance_ns)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import queue
 import signal
 import subprocess
 import sys
@@ -187,6 +188,7 @@ def test_time_expanded_tracker_alignment_and_space_expanded_fusion(processes):
         inputs=tuple(InputBinding("AB", keys.data(f"T{i}/AB"), trigger=i == 0) for i in range(2)),
         outputs={"fused": keys.data("fuse/fused")},
         expansion="space",
+        parameters={"policy": "synchronised"},
     )
     q, t = Rotation.random(rng=RNG).as_quat(), RNG.normal(size=3)
     with hub_session(port) as session:
@@ -216,3 +218,93 @@ def test_time_expanded_tracker_alignment_and_space_expanded_fusion(processes):
         result = decode(fused.next(), expected=ErrorPose)
         np.testing.assert_allclose(result.translation, [1.1, 0, 0], atol=1e-9)
         np.testing.assert_allclose(np.diag(result.covariance), 0.5e-6, rtol=1e-6)
+
+
+def test_asynchronous_fusion_publishes_each_estimate_and_answers_times(processes):
+    """The default fusion: every estimate is published at once (none waits for the other
+    tracker), a late one is re-filtered, a flipped one is gated; queries at a time are answered
+    by the filter (20 ms ahead on a constant-velocity motion) and, through a concatenation
+    downstream, by the concatenation asking the filter in turn."""
+    from ubitrack_agent.core.errors import ExtrapolationError
+    from ubitrack_agent.net.time_queries import fetch_at
+
+    port = free_port()
+    domain = f"f{port}"
+    keys = KeySpace(f"ubitrack/{domain}")
+    fusion = ComponentSpec(
+        instance="fuse",
+        service="fusion",
+        inputs=tuple(InputBinding("AB", keys.data(f"T{i}/AB"), trigger=True) for i in range(2)),
+        outputs={"fused": keys.data("fuse/fused")},
+        expansion="space",
+    )
+    concat = ComponentSpec(
+        instance="concat",
+        service="concatenation",
+        inputs=(
+            InputBinding("AB", keys.data("fuse/fused"), trigger=True),
+            InputBinding("BC", keys.data("S/BC"), static=True),
+        ),
+        outputs={"AC": keys.data("concat/AC")},
+    )
+    q = Rotation.random(rng=RNG).as_quat()
+    velocity = np.array([0.3, -0.1, 0.05])
+    covariance = np.diag([1e-6] * 3 + [1e-8] * 3)
+    start = time.time_ns() - 10**9
+
+    def truth(t_ns: int) -> np.ndarray:
+        return velocity * (t_ns - start) * 1e-9
+
+    def estimate(t_ns: int) -> ErrorPose:
+        return ErrorPose(t_ns, q, truth(t_ns), covariance)
+
+    static = Pose(0, [0, 0, 0, 1.0], [0, 0, 1.0])
+    with hub_session(port) as session:
+        fused = Collector(session, keys.data("fuse/fused"))
+        static_publisher = session.declare_publisher(keys.data("S/BC"))
+        start_worker(processes, fusion, port, domain, session, keys)
+        start_worker(processes, concat, port, domain, session, keys)
+        trackers = [session.declare_publisher(keys.data(f"T{i}/AB")) for i in range(2)]
+        wait_until(lambda: all(p.matching_status.matching for p in (*trackers, static_publisher)))
+        static_publisher.put(encode(static))
+        times = [start + k * 10**7 for k in range(40)]  # 100 Hz, alternating trackers
+
+        def first_output() -> bool:  # until the worker's publisher has found the collector
+            trackers[0].put(encode(estimate(times[0])))
+            time.sleep(0.1)
+            return not fused.items.empty()
+
+        wait_until(first_output, timeout=10.0)
+        time.sleep(0.2)
+        fused.drain()
+        late = times[20]
+        for k, t_ns in enumerate(times[1:], start=1):
+            if t_ns == late:
+                continue
+            trackers[k % 2].put(encode(estimate(t_ns)))
+            if t_ns == times[21]:
+                time.sleep(0.05)  # the newer one is in before the late one is sent
+                trackers[0].put(encode(estimate(late)))  # arrives after a newer one
+            time.sleep(0.002)
+        flipped = Rotation.from_quat(q) * Rotation.from_rotvec([0, 0, np.pi])
+        newest = times[-1] + 5 * 10**6
+        trackers[1].put(encode(ErrorPose(newest, flipped.as_quat(), truth(newest), covariance)))
+        outputs = [decode(fused.next(), expected=ErrorPose) for _ in range(len(times) - 2)]
+        assert [o.timestamp_ns for o in outputs] == [t for t in times[1:] if t != late]
+        assert np.linalg.norm(outputs[-1].translation - truth(times[-1])) < 1e-4
+        assert wait_until(lambda: settled(session, keys, "fuse", late=1, gated=1))
+        with pytest.raises(queue.Empty):
+            fused.next(timeout=0.3)  # the flip published nothing
+
+        ahead = times[-1] + 20 * 10**6
+        value = decode(fetch_at(session, keys.data("fuse/fused"), ahead, 1.0), expected=ErrorPose)
+        assert value.timestamp_ns == ahead
+        assert np.linalg.norm(value.translation - truth(ahead)) < 1e-4
+        composed = decode(fetch_at(session, keys.data("concat/AC"), ahead, 1.0))
+        lever = se3.transform_points(q, truth(ahead), np.array([[0, 0, 1.0]]))[0]
+        assert composed.timestamp_ns == ahead
+        assert np.linalg.norm(composed.translation - lever) < 1e-4
+        too_far = times[-1] + 500 * 10**6  # beyond the filter's prediction bound
+        for key in (keys.data("fuse/fused"), keys.data("concat/AC")):
+            with pytest.raises(ExtrapolationError, match="ahead"):
+                fetch_at(session, key, too_far, 1.0)

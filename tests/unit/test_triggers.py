@@ -51,3 +51,20 @@ def test_only_live_inputs_are_waited_for():
     assert wait_for([steady], trigger_time, 5 * ms, cap_ns=50 * ms) == pytest.approx(0.015)
     assert wait_for([steady], trigger_time, 5 * ms, cap_ns=12 * ms) == pytest.approx(0.012)
     assert wait_for([occluded], late, 5 * ms, cap_ns=50 * ms) == 0.0
+
+
+def test_an_input_of_the_same_frame_is_waited_for_briefly():
+    """Features of one camera frame share its instants: one missing from this frame (hidden)
+    holds the trigger for SAME_INSTANT_WAIT_NS, not for one and a half frames."""
+    from services.triggers import SAME_INSTANT_WAIT_NS, wait_for
+
+    ms = 1_000_000
+    frames = [0, 33 * ms, 66 * ms]
+    trigger = _buffer([*frames, 99 * ms])  # F1 of the frame at 99 ms has arrived
+    hidden = _buffer(frames)  # F2: same instants, not (yet) in this frame
+    other_clock = _buffer([5 * ms, 38 * ms, 71 * ms])  # another sensor's samples
+    assert wait_for([hidden], 99 * ms, 5 * ms, 50 * ms, trigger) == SAME_INSTANT_WAIT_NS * 1e-9
+    assert wait_for([hidden], 99 * ms, 5 * ms, 50 * ms) == pytest.approx(0.0495)
+    assert wait_for([other_clock], 99 * ms, 5 * ms, 50 * ms, trigger) == pytest.approx(0.0495)
+    both = wait_for([hidden, other_clock], 99 * ms, 5 * ms, 50 * ms, trigger)
+    assert both == pytest.approx(0.0495)

@@ -125,6 +125,11 @@ class SampleBuffer:
         """Timestamp of the newest sample held, None when empty."""
         return self._times[-1] if self._times else None
 
+    def has_sample_at(self, timestamp_ns: int) -> bool:
+        """Whether a sample stamped exactly ``timestamp_ns`` is held."""
+        index = bisect.bisect_left(self._times, timestamp_ns)
+        return index < len(self._times) and self._times[index] == timestamp_ns
+
     def typical_period_ns(self) -> int | None:
         """Median gap between the recent samples (None with fewer than three); cached until
         the next sample, as triggers ask for it on every pass."""
