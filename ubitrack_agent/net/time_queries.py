@@ -60,14 +60,14 @@ def error_payload(error: Exception) -> bytes:
 
 
 def raise_error(payload: bytes, key: str) -> NoReturn:
-    """Raise the typed exception an error reply from ``key`` names (``ValueError`` for a reply
-    that is not one)."""
+    """Raise the typed exception an error reply from ``key`` names; a reply that is not one
+    (zenoh's own, e.g. on a query's time-out) is :class:`NoDataError` quoting it."""
     try:
         reply = json.loads(payload[:4096])
         kind, message = reply["error"], str(reply["message"])
         error = ERRORS[kind]
     except (ValueError, KeyError, TypeError):
-        raise ValueError(f"{key}: malformed error reply") from None
+        raise NoDataError(f"{key}: no answer ({payload[:80]!r})") from None
     raise error(f"{key}: {message}")
 
 

@@ -1,0 +1,306 @@
+"""The demo's flow, live: latency and error of C->A fused asynchronously, fused synchronised
+(the wait-for-all policy) and on the A.R.T. path alone, and the pose predicted for display.
+
+Run: ``python -m bench.fusion_latency_bench [--phase-seconds S] [--seed N]`` (defaults 15 s
+phases, seed 7; about a minute and a half). Prints a table and writes
+``bench/results/fusion_latency.json``.
+
+The processes of ``ubitrack demo`` (agent, simulated database, HMD camera, A.R.T. tracker and
+its DTrack adapter; the same flags, :mod:`ubitrack_agent.commands.demo`), with ``C -> HT``
+served by the database from the scenario's truth (as ``bench.calibrated_tracking_bench``'s
+*true* runs) so no calibration runs first, and this process as the application asking for
+``C -> A``. Phases, in one run:
+
+1. **asynchronous**: the flow of the paper's figure 6 with the fusion template's default
+   policy (``asynchronous``: each estimate updates the filter and is published at once);
+2. **synchronised**: the same running flow after a control command sets the fusion worker's
+   ``policy`` to ``synchronised`` (estimates synchronised at each trigger and fused as
+   simultaneous: the behaviour before);
+3. **A.R.T. only**: the camera simulator stopped; the agent rewires ``C -> A`` to the A.R.T.
+   path alone (no fusion hop).
+
+Per sample the application receives: latency (its arrival, ``time.time_ns()`` in the
+subscriber's callback, minus its timestamp; one host, one clock), the error against the
+scenario's truth at its timestamp, and the error against the truth at its arrival (what a
+renderer drawing it at once shows). The first second of each phase (the rewiring) is left
+out. Every 50 ms the application also asks for the pose 20 ms ahead of its clock
+(``Relation.predict``) and compares it, and the latest sample it holds, with the truth at
+that display time. The simulator's truth serves only to compute these errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import queue
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.calibrated_tracking_bench import scenario_with_true_calibration
+from sim_trackers.scenario import load_scenario
+from ubitrack_agent.commands.demo import Processes, dtrack_flags, simulator_arguments
+from ubitrack_agent.core import decode, quaternions
+from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net import config
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.transport import fetch_latest, put_command
+
+RESULTS = Path(__file__).parent / "results" / "fusion_latency.json"
+SETTLE_S = 1.0
+"""Seconds left out at the start of each phase (rewiring, filter start)."""
+AHEAD_NS = 20_000_000
+"""How far ahead of the clock the renderer-style question asks."""
+
+
+def errors(sample: Any, world: Any, at_ns: int) -> tuple[float, float]:
+    """Translation (mm) and rotation (degrees) error of ``sample`` against the truth at
+    ``at_ns``."""
+    q, t = world.pose("C", "A", at_ns)
+    relative = quaternions.multiply(quaternions.conjugate(q), sample.rotation)
+    return (
+        float(np.linalg.norm(sample.translation - t)) * 1000,
+        float(np.degrees(quaternions.angle(relative))),
+    )
+
+
+def components(session: Any, keys: KeySpace) -> dict[str, Any]:
+    replies = fetch_latest(session, keys.agent_status(), timeout=1.0)
+    return json.loads(replies[0])["components"] if replies else {}
+
+
+def wait_for_services(session: Any, keys: KeySpace, present: bool, timeout: float = 60) -> None:
+    """Until every component is alive and fusion is (``present``) or is not among them."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        running = components(session, keys)
+        services = {c["service"] for c in running.values()}
+        alive = running and all(c["alive"] for c in running.values())
+        if alive and ("fusion" in services) == present:
+            return
+        time.sleep(0.2)
+    raise RuntimeError(f"the flow did not {'gain' if present else 'lose'} fusion in time")
+
+
+def summarise(
+    name: str, samples: list[tuple[int, Any]], world: Any, ahead: dict, art_times: set[int]
+) -> dict:
+    latencies = [(arrived - s.timestamp_ns) / 1e6 for arrived, s in samples]
+    by_art = [
+        lat for lat, (_, s) in zip(latencies, samples, strict=True) if s.timestamp_ns in art_times
+    ]
+    by_camera = [
+        lat
+        for lat, (_, s) in zip(latencies, samples, strict=True)
+        if s.timestamp_ns not in art_times
+    ]
+    at_stamp = np.array([errors(s, world, s.timestamp_ns) for _, s in samples])
+    at_arrival = np.array([errors(s, world, arrived) for arrived, s in samples])
+
+    def rms(values: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.square(values))))
+
+    return {
+        "phase": name,
+        "samples": len(samples),
+        "latency_ms_p50": float(np.percentile(latencies, 50)),
+        "latency_ms_p90": float(np.percentile(latencies, 90)),
+        "art_stamped": len(by_art),
+        "art_stamped_latency_ms_p50": float(np.median(by_art)) if by_art else None,
+        "camera_stamped_latency_ms_p50": float(np.median(by_camera)) if by_camera else None,
+        "error_mm_rms": rms(at_stamp[:, 0]),
+        "error_deg_rms": rms(at_stamp[:, 1]),
+        "error_at_arrival_mm_rms": rms(at_arrival[:, 0]),
+        "predicted_20ms_mm_rms": rms(np.array(ahead["predicted"])) if ahead["predicted"] else None,
+        "latest_at_display_mm_rms": rms(np.array(ahead["latest"])) if ahead["latest"] else None,
+        "predictions": len(ahead["predicted"]),
+        "prediction_errors": ahead["refused"],
+    }
+
+
+def run_phase(
+    name: str,
+    seconds: float,
+    relation: Relation,
+    arrivals: queue.SimpleQueue,
+    world: Any,
+    art_times: set[int],
+) -> dict:
+    time.sleep(SETTLE_S)
+    while not arrivals.empty():
+        arrivals.get_nowait()
+    ahead: dict[str, Any] = {"predicted": [], "latest": [], "refused": 0}
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        display = time.time_ns() + AHEAD_NS
+        latest = relation.latest()
+        try:
+            predicted = relation.predict(display)
+        except (ExtrapolationError, NoDataError, TimeoutError):
+            ahead["refused"] += 1
+        else:
+            ahead["predicted"].append(errors(predicted, world, display)[0])
+            ahead["latest"].append(errors(latest, world, display)[0])
+        time.sleep(0.05)
+    samples = []
+    while not arrivals.empty():
+        samples.append(arrivals.get_nowait())
+    return summarise(name, samples, world, ahead, art_times)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--phase-seconds", type=float, default=15.0)
+    parser.add_argument("--seed", type=int, default=7, help="the simulators' noise seed")
+    parser.add_argument(
+        "--parameters",
+        type=json.loads,
+        default={},
+        help="fusion parameters (JSON) set on the running worker for both fused phases, e.g. "
+        "'{\"linear_noise\": 0.1}' (default: the template's)",
+    )
+    config.add_arguments(parser)
+    args = parser.parse_args(argv)
+    if not args.listen:  # a network of its own: a free port and domain
+        port = _free_port("tcp")
+        args.listen, args.domain = [f"tcp/127.0.0.1:{port}"], args.domain or f"bench{port}"
+    hub = config.from_arguments(args, role="hub")
+    member = config.member_flags(hub)
+    keys = KeySpace(hub.key_prefix)
+    children = Processes()
+    phases = []
+    with tempfile.TemporaryDirectory() as scratch:
+        scenario_path = scenario_with_true_calibration(Path(scratch))
+        scenario = load_scenario(str(scenario_path))
+        scenario_flag = ["--scenario", str(scenario_path)]
+        art_port = _free_port("udp")
+        simulators = simulator_arguments(scenario_flag, art_port, args.seed)
+        arrivals: queue.SimpleQueue = queue.SimpleQueue()
+        try:
+            children.start("agent", ["agent", *config.as_flags(hub)])
+            with (
+                open_session(config.member_of(hub)) as session,
+                Relation(
+                    session,
+                    keys,
+                    RelationId("C", "A", "6D"),
+                    application="fusion-bench",
+                    callback=lambda m: arrivals.put((time.time_ns(), m)),
+                ) as relation,
+            ):
+                art_times: set[int] = set()  # the A.R.T. frames' timestamps
+                watch = session.declare_subscriber(
+                    keys.data(scenario.art.provider) + "/**",
+                    lambda sample: art_times.add(decode(sample.payload.to_bytes()).timestamp_ns),
+                )
+                children.start("sim database", ["sim", "database", *scenario_flag, *member])
+                children.start("sim camera", [*simulators["sim camera"], *member])
+                children.start("sim art", simulators["sim art"])
+                children.start("dtrack", ["dtrack", *dtrack_flags(scenario.art, art_port), *member])
+                relation.wait_for(timeout=90)
+                wait_for_services(session, keys, present=True)
+                world = scenario.world
+                (fusion,) = [
+                    i for i, c in components(session, keys).items() if c["service"] == "fusion"
+                ]
+                if args.parameters:
+                    put_command(
+                        session, keys.control(fusion), json.dumps({"parameters": args.parameters})
+                    )
+                phases.append(
+                    run_phase(
+                        "asynchronous", args.phase_seconds, relation, arrivals, world, art_times
+                    )
+                )
+                print(json.dumps(phases[-1]), flush=True)
+                (fusion,) = [
+                    i for i, c in components(session, keys).items() if c["service"] == "fusion"
+                ]
+                put_command(
+                    session,
+                    keys.control(fusion),
+                    json.dumps({"parameters": {"policy": "synchronised"}}),
+                )
+                phases.append(
+                    run_phase(
+                        "synchronised", args.phase_seconds, relation, arrivals, world, art_times
+                    )
+                )
+                print(json.dumps(phases[-1]), flush=True)
+                children.stop("sim camera")
+                wait_for_services(session, keys, present=False)
+                phases.append(
+                    run_phase(
+                        "A.R.T. only", args.phase_seconds, relation, arrivals, world, art_times
+                    )
+                )
+                print(json.dumps(phases[-1]), flush=True)
+                watch.undeclare()
+        finally:
+            children.stop_all()
+    print_table(phases)
+    RESULTS.parent.mkdir(exist_ok=True)
+    RESULTS.write_text(
+        json.dumps(
+            {
+                "command": f"python -m bench.fusion_latency_bench --phase-seconds "
+                f"{args.phase_seconds:g} --seed {args.seed}"
+                + (f" --parameters '{json.dumps(args.parameters)}'" if args.parameters else ""),
+                "date": time.strftime("%Y-%m-%d"),
+                "machine": {"python": platform.python_version(), "cpus": _cpus()},
+                "phases": phases,
+            },
+            indent=1,
+        )
+    )
+
+
+def print_table(phases: list[dict]) -> None:
+    print(
+        "\n| phase | samples | latency p50 / p90 (ms) | p50 of A.R.T.- / camera-stamped | "
+        "error at timestamp (mm / deg RMS) | error at arrival (mm RMS) | "
+        "20 ms ahead: predicted / latest sample (mm RMS) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for p in phases:
+        ahead = (
+            f"{p['predicted_20ms_mm_rms']:.2f} / {p['latest_at_display_mm_rms']:.2f}"
+            if p["predicted_20ms_mm_rms"] is not None
+            else f"refused ({p['prediction_errors']})"
+        )
+        split = " / ".join(
+            "-" if p[k] is None else f"{p[k]:.1f}"
+            for k in ("art_stamped_latency_ms_p50", "camera_stamped_latency_ms_p50")
+        )
+        print(
+            f"| {p['phase']} | {p['samples']} | {p['latency_ms_p50']:.1f} / "
+            f"{p['latency_ms_p90']:.1f} | {split} | "
+            f"{p['error_mm_rms']:.2f} / {p['error_deg_rms']:.3f} | "
+            f"{p['error_at_arrival_mm_rms']:.2f} | {ahead} |"
+        )
+
+
+def _cpus() -> int | None:
+    import os
+
+    return os.cpu_count()
+
+
+def _free_port(kind: str) -> int:
+    import socket
+
+    with socket.socket(
+        socket.AF_INET, {"udp": socket.SOCK_DGRAM, "tcp": socket.SOCK_STREAM}[kind]
+    ) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+if __name__ == "__main__":
+    main()
