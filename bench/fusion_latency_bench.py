@@ -1,9 +1,9 @@
 """The demo's flow, live: latency and error of C->A fused asynchronously, fused synchronised
 (the wait-for-all policy) and on the A.R.T. path alone, and the pose predicted for display.
 
-Run: ``python -m bench.fusion_latency_bench [--phase-seconds S] [--seed N]`` (defaults 15 s
-phases, seed 7; about a minute and a half). Prints a table and writes
-``bench/results/fusion_latency.json``.
+Run: ``python -m bench.fusion_latency_bench [--phase-seconds S] [--seed N] [--parameters
+JSON]`` (defaults 15 s phases, seed 7, the template's fusion parameters; about two minutes).
+Prints a table and writes ``bench/results/fusion_latency.json``.
 
 The processes of ``ubitrack demo`` (agent, simulated database, HMD camera, A.R.T. tracker and
 its DTrack adapter; the same flags, :mod:`ubitrack_agent.commands.demo`), with ``C -> HT``
@@ -17,7 +17,14 @@ served by the database from the scenario's truth (as ``bench.calibrated_tracking
    ``policy`` to ``synchronised`` (estimates synchronised at each trigger and fused as
    simultaneous: the behaviour before);
 3. **A.R.T. only**: the camera simulator stopped; the agent rewires ``C -> A`` to the A.R.T.
-   path alone (no fusion hop).
+   path alone (no fusion hop);
+4. **asynchronous again**: the camera back, fusion with the template's policy again (so the
+   A.R.T.-only phase lies between two asynchronous ones: the load of this shared machine
+   drifts between phases).
+
+In the fused phases the bench also times the fusion hop itself, paired per timestamp: the
+arrival of the fusion's output minus the arrival of the estimate it came from at the
+fusion's input, both seen by this process at the same moment.
 
 Per sample the application receives: latency (its arrival, ``time.time_ns()`` in the
 subscriber's callback, minus its timestamp; one host, one clock), the error against the
@@ -36,6 +43,8 @@ import platform
 import queue
 import tempfile
 import time
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -124,13 +133,55 @@ def summarise(
     }
 
 
-def run_phase(
+def fused_phase(
+    session: Any,
+    keys: KeySpace,
+    measure: Callable[..., dict],
+    parameters: dict[str, Any],
     name: str,
+    policy: dict[str, Any],
+) -> dict:
+    """A phase of the fused flow with the fusion worker's ``parameters`` and ``policy`` set
+    (a control command), also timing the fusion hop itself: per timestamp, the arrival of
+    the fusion's output minus the arrival of the estimate of that timestamp at its input (the
+    two paired in the same moment, unlike two phases under a varying load)."""
+    (fusion,) = [(i, c) for i, c in components(session, keys).items() if c["service"] == "fusion"]
+    instance, spec = fusion
+    if parameters or policy:
+        command = {"parameters": {**parameters, **policy}}
+        put_command(session, keys.control(instance), json.dumps(command))
+    inputs: dict[int, int] = {}
+    hops: list[float] = []
+
+    def arrived_in(sample: Any) -> None:
+        inputs.setdefault(decode(sample.payload.to_bytes()).timestamp_ns, time.time_ns())
+
+    def arrived_out(sample: Any) -> None:
+        now = time.time_ns()
+        sent = inputs.get(decode(sample.payload.to_bytes()).timestamp_ns)
+        if sent is not None:
+            hops.append((now - sent) / 1e6)
+
+    watches = [session.declare_subscriber(b["key"], arrived_in) for b in spec["inputs"]]
+    watches.append(session.declare_subscriber(spec["outputs"]["fused"], arrived_out))
+    try:
+        result = measure(name)
+    finally:
+        for watch in watches:
+            watch.undeclare()
+    result["fusion_hop_ms_p50"] = float(np.median(hops)) if hops else None
+    result["fusion_hop_ms_p90"] = float(np.percentile(hops, 90)) if hops else None
+    print(json.dumps(result), flush=True)
+    return result
+
+
+def run_phase(
     seconds: float,
     relation: Relation,
     arrivals: queue.SimpleQueue,
     world: Any,
     art_times: set[int],
+    name: str,
 ) -> dict:
     time.sleep(SETTLE_S)
     while not arrivals.empty():
@@ -206,41 +257,19 @@ def main(argv: list[str] | None = None) -> None:
                 relation.wait_for(timeout=90)
                 wait_for_services(session, keys, present=True)
                 world = scenario.world
-                (fusion,) = [
-                    i for i, c in components(session, keys).items() if c["service"] == "fusion"
-                ]
-                if args.parameters:
-                    put_command(
-                        session, keys.control(fusion), json.dumps({"parameters": args.parameters})
-                    )
-                phases.append(
-                    run_phase(
-                        "asynchronous", args.phase_seconds, relation, arrivals, world, art_times
-                    )
+                measure = partial(
+                    run_phase, args.phase_seconds, relation, arrivals, world, art_times
                 )
-                print(json.dumps(phases[-1]), flush=True)
-                (fusion,) = [
-                    i for i, c in components(session, keys).items() if c["service"] == "fusion"
-                ]
-                put_command(
-                    session,
-                    keys.control(fusion),
-                    json.dumps({"parameters": {"policy": "synchronised"}}),
-                )
-                phases.append(
-                    run_phase(
-                        "synchronised", args.phase_seconds, relation, arrivals, world, art_times
-                    )
-                )
-                print(json.dumps(phases[-1]), flush=True)
+                fused = partial(fused_phase, session, keys, measure, args.parameters)
+                phases.append(fused("asynchronous", {}))
+                phases.append(fused("synchronised", {"policy": "synchronised"}))
                 children.stop("sim camera")
                 wait_for_services(session, keys, present=False)
-                phases.append(
-                    run_phase(
-                        "A.R.T. only", args.phase_seconds, relation, arrivals, world, art_times
-                    )
-                )
+                phases.append(measure("A.R.T. only"))
                 print(json.dumps(phases[-1]), flush=True)
+                children.start("sim camera", [*simulators["sim camera"], *member])
+                wait_for_services(session, keys, present=True)
+                phases.append(fused("asynchronous again", {}))
                 watch.undeclare()
         finally:
             children.stop_all()
@@ -265,14 +294,20 @@ def print_table(phases: list[dict]) -> None:
     print(
         "\n| phase | samples | latency p50 / p90 (ms) | p50 of A.R.T.- / camera-stamped | "
         "error at timestamp (mm / deg RMS) | error at arrival (mm RMS) | "
-        "20 ms ahead: predicted / latest sample (mm RMS) |"
+        "20 ms ahead: predicted / latest sample (mm RMS) | fusion hop p50 / p90 (ms) |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for p in phases:
         ahead = (
-            f"{p['predicted_20ms_mm_rms']:.2f} / {p['latest_at_display_mm_rms']:.2f}"
+            f"{p['predicted_20ms_mm_rms']:.2f} / {p['latest_at_display_mm_rms']:.2f} "
+            f"({p['predictions']} answered, {p['prediction_errors']} refused)"
             if p["predicted_20ms_mm_rms"] is not None
             else f"refused ({p['prediction_errors']})"
+        )
+        hop = (
+            f"{p['fusion_hop_ms_p50']:.2f} / {p['fusion_hop_ms_p90']:.2f}"
+            if p.get("fusion_hop_ms_p50") is not None
+            else "-"
         )
         split = " / ".join(
             "-" if p[k] is None else f"{p[k]:.1f}"
@@ -282,7 +317,7 @@ def print_table(phases: list[dict]) -> None:
             f"| {p['phase']} | {p['samples']} | {p['latency_ms_p50']:.1f} / "
             f"{p['latency_ms_p90']:.1f} | {split} | "
             f"{p['error_mm_rms']:.2f} / {p['error_deg_rms']:.3f} | "
-            f"{p['error_at_arrival_mm_rms']:.2f} | {ahead} |"
+            f"{p['error_at_arrival_mm_rms']:.2f} | {ahead} | {hop} |"
         )
 
 

@@ -51,8 +51,8 @@ class Fusion(Service):
     PARAMETERS = {
         "default_sigma": 1e-3,
         "policy": "asynchronous",
-        "angular_noise": 1.0,
-        "linear_noise": 1.0,
+        "angular_noise": 0.02,
+        "linear_noise": 0.02,
         "gate": 27.86,
         "window_ms": 200.0,
     }
