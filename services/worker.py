@@ -99,6 +99,7 @@ COUNTERS = {
     "late": "asynchronous filter: samples older than the newest, re-filtered (in the next output)",
     "time_queries": "queries for the value at a given time answered",
     "time_queries_refused": "queries for the value at a given time answered with an error",
+    "rejected_queries": "queries for a time that is no timestamp (net.time_queries)",
 }
 """The worker's counters (its status), each with what it counts. Every sample received is
 ``rejected``, ``rejected_future``, ``dropped_stale``, ``superseded``, ``buffered`` or a trigger;
@@ -286,7 +287,7 @@ class Worker:
         for key in wanted - set(self._publishers):
             port = answers.get(key)
             at = None if port is None else (lambda t, port=port: self._ask(port, t))
-            self._publishers[key] = LatestValuePublisher(self._session, key, at)
+            self._publishers[key] = LatestValuePublisher(self._session, key, at, self.counters)
         self._routes = routes
         self._progress_routes = progress_routes
 

@@ -5,6 +5,7 @@ named counter, and nothing raises out of a handler."""
 from __future__ import annotations
 
 import json
+import threading
 import time
 from types import SimpleNamespace
 
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from services.worker import COUNTERS, Pool, Worker
-from ubitrack_agent.core import Pose, decode, encode
+from ubitrack_agent.core import ErrorPose, Pose, Position3D, decode, encode
 from ubitrack_agent.core.timeline import MAX_FUTURE_NS
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
@@ -220,3 +221,51 @@ def test_a_relation_route_that_is_no_relation_key_does_not_stop_the_worker():
     spec = ComponentSpec(**{**vars(SPEC), "relations": {"AC": ("some/other/key",)}})
     worker = Worker(spec, FakeSession(), KEYS)
     worker.stop()
+
+
+FUSION = ComponentSpec(
+    instance="fuse",
+    service="fusion",
+    inputs=tuple(InputBinding("AB", KEYS.data(f"T{i}/AB"), trigger=True) for i in range(2)),
+    outputs={"fused": KEYS.data("fuse/fused")},
+    expansion="space",
+)
+
+
+def error_pose(t: int, x: float = 1.0, rotation=IDENTITY) -> bytes:
+    return encode(ErrorPose(t, rotation, [x, 0.0, 0.0], np.eye(6) * 1e-6))
+
+
+def test_asynchronous_fusion_counts_every_sample_and_answers_a_time():
+    """Each estimate publishes at once or is counted (gated, late, dropped_stale, failed);
+    a query for a time is answered by the filter through the worker thread."""
+    session = FakeSession()
+    w = Worker(FUSION, session, KEYS)
+    now = time.time_ns() - 10**9
+    feed(w, session, KEYS.data("T0/AB"), error_pose(now))
+    feed(w, session, KEYS.data("T1/AB"), error_pose(now + 10**7))
+    feed(w, session, KEYS.data("T0/AB"), error_pose(now + 5 * 10**6))  # late
+    flipped = [0.0, 0.0, 1.0, 0.0]
+    feed(w, session, KEYS.data("T1/AB"), error_pose(now + 2 * 10**7, rotation=flipped))
+    feed(w, session, KEYS.data("T0/AB"), error_pose(now - 10**9))  # beyond the window
+    feed(w, session, KEYS.data("T0/AB"), encode(Position3D(now + 3 * 10**7, [0, 0, 0])))
+    published = [decode(d) for k, d in session.puts if k == KEYS.data("fuse/fused")]
+    assert [p.timestamp_ns for p in published] == [now, now + 10**7]
+    counters = w.counters
+    assert (counters["late"], counters["gated"], counters["dropped_stale"]) == (1, 1, 1)
+    assert counters["failed"] == 1 and counters["received"] == 6
+    publisher = w._publishers[KEYS.data("fuse/fused")]
+    replies: list[bytes] = []
+    query = SimpleNamespace(
+        parameters={"t": str(now + 3 * 10**7)},
+        reply=lambda key, payload: replies.append(payload),
+        reply_err=lambda payload: replies.append(b"error " + payload),
+    )
+    asking = threading.Thread(target=publisher._reply, args=(query,))
+    asking.start()
+    while asking.is_alive():
+        w.step(longest_s=0.01)
+    (reply,) = replies
+    assert decode(reply).timestamp_ns == now + 3 * 10**7
+    assert counters["time_queries"] == 1
+    w.stop()

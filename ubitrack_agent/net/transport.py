@@ -35,12 +35,20 @@ and an upstream worker started at the same moment computes its static result a l
 class LatestValuePublisher:
     """A publisher whose latest payload is also served on its key's queryable."""
 
-    def __init__(self, session: Any, key: str, at: Callable[[int], bytes] | None = None) -> None:
+    def __init__(
+        self,
+        session: Any,
+        key: str,
+        at: Callable[[int], bytes] | None = None,
+        counters: Counter[str] | None = None,
+    ) -> None:
         self.key = key
         self._at = at
         """The encoded value at a given time, or a typed error (``net.time_queries.ERRORS``)."""
-        self.counters: Counter[str] = Counter()
-        """``internal_errors``: queries that could not be answered (logged, rate-limited)."""
+        self.counters: Counter[str] = Counter() if counters is None else counters
+        """``internal_errors``: queries that could not be answered (logged, rate-limited);
+        ``rejected_queries``: queries for a time that is no timestamp. Given ``counters`` (a
+        worker's), it counts there."""
         self._latest: bytes | None = None
         self._publisher = session.declare_publisher(key)
         self._queryable = session.declare_queryable(key)
@@ -70,6 +78,8 @@ class LatestValuePublisher:
             if timestamp_ns is not None and self._at is None:
                 raise ExtrapolationError("a measured edge answers its latest value only")
         except ValueError as exc:  # ExtrapolationError is one
+            if not isinstance(exc, ExtrapolationError):
+                logs.count_problem(self.counters, "rejected_queries", log, "%s: %s", self.key, exc)
             query.reply_err(error_payload(exc))
             return
         if timestamp_ns is None:
