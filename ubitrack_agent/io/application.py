@@ -58,7 +58,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
-from ubitrack_agent.core.errors import ExtrapolationError
+from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
@@ -223,13 +223,17 @@ class Relation(Closing):
     def lookup(self, timestamp_ns: int, timeout: float = 0.2) -> Measurement:
         """The relation at ``timestamp_ns``: interpolated between the samples held (a static
         relation answers its latest value), and after the newest sample :meth:`predict`-ed.
-        Raises ``NoDataError``, ``ExtrapolationError`` (before the samples held, or beyond
-        what the producer predicts) or ``TimeoutError``."""
+        Raises ``NoDataError`` (no sample yet), ``ExtrapolationError`` (before the samples
+        held, or after them where the producer does not predict, or beyond its bound) or
+        ``TimeoutError``."""
         with self._lock:
             newest = self._buffer.newest_time()
             if self.relation.static or newest is None or timestamp_ns <= newest:
                 return self._buffer.lookup(timestamp_ns)
-        return self.predict(timestamp_ns, timeout)
+        try:
+            return self.predict(timestamp_ns, timeout)
+        except NoDataError as exc:  # samples are held, none at that time
+            raise ExtrapolationError(f"after the samples held, and {exc}") from None
 
     def predict(self, timestamp_ns: int, timeout: float = 0.2) -> Measurement:
         """The relation at ``timestamp_ns`` as its producer answers it (a query on the relation
