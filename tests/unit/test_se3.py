@@ -39,6 +39,10 @@ def test_single_quaternion_shapes():
     assert quaternions.rotate(q, np.ones((5, 3))).shape == (5, 3)
 
 
+def vector_of(quaternion: np.ndarray) -> np.ndarray:
+    return Rotation.from_quat(quaternion).as_rotvec()
+
+
 def test_rotation_vector_maps_match_scipy():
     rng = np.random.default_rng(5)
     vectors = np.concatenate(
@@ -54,7 +58,10 @@ def test_rotation_vector_maps_match_scipy():
     assert np.allclose(np.abs(np.sum(q * expected, axis=1)), 1.0, atol=1e-12)
     assert np.allclose(quaternions.to_rotvec(expected), Rotation.from_quat(expected).as_rotvec())
     assert np.allclose(quaternions.to_rotvec(-expected), Rotation.from_quat(expected).as_rotvec())
-    assert quaternions.from_rotvec(np.array([0.1, 0.0, 0.0])).shape == (4,)
+    for vector, quaternion in zip(vectors, expected, strict=True):  # one at a time: scalar path
+        assert abs(abs(quaternions.from_rotvec(vector) @ quaternion) - 1.0) < 1e-12
+        np.testing.assert_allclose(quaternions.to_rotvec(quaternion), vector_of(quaternion))
+        np.testing.assert_allclose(quaternions.to_rotvec(-quaternion), vector_of(quaternion))
 
 
 def test_conjugate_inverts():

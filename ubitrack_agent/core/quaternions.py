@@ -107,6 +107,11 @@ def to_rotvec(q: np.ndarray) -> np.ndarray:
     """Rotation vectors ``Log(q)`` (..., 3) of unit quaternions (..., 4), angle in
     ``[0, pi]`` (``q`` and ``-q`` give the same vector)."""
     q = np.asarray(q, dtype=float)
+    if q.shape == (4,):  # one rotation: scalar maths
+        x, y, z, w = (-q if q[3] < 0.0 else q).tolist()
+        sine = math.sqrt(x * x + y * y + z * z)
+        scale = 2.0 / w if sine < 1e-8 else 2.0 * math.atan2(sine, w) / sine
+        return np.array([scale * x, scale * y, scale * z])
     q = np.where(q[..., 3:] < 0.0, -q, q)
     sine = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
     half = np.arctan2(sine, q[..., 3:])
