@@ -49,7 +49,7 @@ from services.registry import Pushed, Service, lookup
 from services.spec import check_bindings, check_parameters, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
-from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
+from ubitrack_agent.core.errors import ExtrapolationError, NoDataError, NoMotionModel
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.json_messages import load_object
@@ -112,6 +112,9 @@ ANSWER_TIMEOUT_S = 0.15
 """Longest a query for the value at a given time waits for the worker thread's answer."""
 UPSTREAM_TIMEOUT_S = 0.1
 """Longest the worker thread waits for an input's producer to answer such a query."""
+NO_MODEL_S = 1.0
+"""How long an input whose producer answered ``no_model`` (a measured edge) is not asked again:
+a renderer asking every frame must not cost the flow a round trip per input each time."""
 
 
 @dataclass(frozen=True)
@@ -199,6 +202,8 @@ class Worker:
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
         self._inputs: list[_Input] = []
+        self._no_model: dict[str, float] = {}
+        """Input keys whose producers answered ``no_model``, until when (monotonic)."""
         self._generation = 0
         self._publishers: dict[str, LatestValuePublisher] = {}
         self._routes: dict[str, list[str]] = {}
@@ -514,18 +519,25 @@ class Worker:
             raise ExtrapolationError("a time-expanded estimate has no value at a given time")
         space = self.spec.expansion == "space"
         values: dict[str, Any] = {}
+        no_model: list[NoMotionModel] = []
         for item in self._inputs:
             correspondence = space and item.binding.port in self._service_class.CORRESPONDENCE
             try:
                 value: Measurement | None = self._input_at(item, t)
-            except (ExtrapolationError, NoDataError, TimeoutError, MeasurementError):
+            except (ExtrapolationError, NoDataError, TimeoutError, MeasurementError) as exc:
                 if not correspondence:
                     raise
                 value = None  # a space expansion uses the rows it has
+                if isinstance(exc, NoMotionModel):
+                    no_model.append(exc)
             if correspondence:
                 values.setdefault(item.binding.port, []).append(value)
             else:
                 values[item.binding.port] = value
+        if no_model and all(
+            v is None for p in self._service_class.CORRESPONDENCE for v in values.get(p, ())
+        ):
+            raise no_model[0]  # none of the rows can be predicted
         try:
             outputs = self._service.compute(values, t)
         except ExtrapolationError:
@@ -543,7 +555,13 @@ class Worker:
             raise NoDataError(f"no sample of {item.binding.key} yet")
         if buffer.static or t <= newest:
             return buffer.lookup(t)
-        payload = fetch_at(self._session, item.binding.key, t, UPSTREAM_TIMEOUT_S)
+        if time.monotonic() < self._no_model.get(item.binding.key, 0.0):
+            raise NoMotionModel(f"{item.binding.key} has no motion model")
+        try:
+            payload = fetch_at(self._session, item.binding.key, t, UPSTREAM_TIMEOUT_S)
+        except NoMotionModel:
+            self._no_model[item.binding.key] = time.monotonic() + NO_MODEL_S
+            raise
         value = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
         if value.timestamp_ns != t:
             raise ExtrapolationError(f"{item.binding.key} answered for another time")

@@ -6,8 +6,10 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
+from ubitrack_agent.core.errors import ExtrapolationError, NoDataError, NoMotionModel
 from ubitrack_agent.net.time_queries import (
     error_payload,
     raise_error,
@@ -27,11 +29,28 @@ def test_selector_and_requested_time():
 
 
 @pytest.mark.parametrize(
-    "error", [ExtrapolationError("far"), NoDataError("none"), TimeoutError("slow"), ValueError("x")]
+    "error",
+    [
+        ExtrapolationError("far"),
+        NoMotionModel("measured"),
+        NoDataError("none"),
+        TimeoutError("slow"),
+        ValueError("x"),
+    ],
 )
 def test_errors_keep_their_type_across_the_wire(error):
-    with pytest.raises(type(error), match=f"key: {error}"):
+    with pytest.raises(type(error), match=f"key: {error}") as raised:
         raise_error(error_payload(error), "key")
+    assert type(raised.value) is type(error)
+
+
+@given(st.text(max_size=30))
+def test_requested_time_is_total(text):
+    try:
+        value = requested_time({"t": text})
+    except ValueError:
+        return
+    assert value is not None and 0 <= value < 2**63 and value == int(text)
 
 
 def test_a_reply_that_is_no_error_object_reads_as_no_answer():
@@ -98,5 +117,5 @@ def test_publisher_answers_latest_times_and_typed_errors():
     untimed = publisher()
     untimed.put(b"latest")
     (payload,) = answer(untimed, {"t": "50"}).errors
-    with pytest.raises(ExtrapolationError, match="latest value only"):
+    with pytest.raises(NoMotionModel, match="latest value only"):
         raise_error(payload, "k")

@@ -14,5 +14,10 @@ class ExtrapolationError(ValueError):
     """A value was asked for at a time outside the samples available to interpolate it."""
 
 
+class NoMotionModel(ExtrapolationError):
+    """A value was asked for after the samples of a flow that has no motion model to predict
+    it (only measured edges and interpolation on the way)."""
+
+
 class NoDataError(LookupError):
     """A value was asked for before any sample arrived."""

@@ -16,22 +16,24 @@ from __future__ import annotations
 import json
 from typing import Any, NoReturn
 
-from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
+from ubitrack_agent.core.errors import ExtrapolationError, NoDataError, NoMotionModel
 from ubitrack_agent.core.measurements import check_timestamp
 
 TIME_PARAMETER = "t"
 """The selector parameter carrying the time asked for (integer nanoseconds)."""
 
 ERRORS: dict[str, type[Exception]] = {
+    "no_model": NoMotionModel,
     "extrapolation": ExtrapolationError,
     "no_data": NoDataError,
     "timeout": TimeoutError,
     "invalid": ValueError,
 }
-"""Error kinds of a reply and the exception each becomes for the asker: the time lies outside
-what the producer can answer (before its samples, beyond its prediction bound, or no motion
-model on the way: ``extrapolation``), no sample yet (``no_data``), the producer did not
-manage in time (``timeout``), a malformed request (``invalid``)."""
+"""Error kinds of a reply and the exception each becomes for the asker: after the samples of a
+flow with no motion model (``no_model``, an ``ExtrapolationError``), otherwise outside what the
+producer can answer (before its samples, beyond its prediction bound: ``extrapolation``), no
+sample yet (``no_data``), the producer did not manage in time (``timeout``), a malformed
+request (``invalid``)."""
 
 
 def selector(key: str, timestamp_ns: int) -> str:
@@ -45,7 +47,7 @@ def requested_time(parameters: Any) -> int | None:
     text = parameters.get(TIME_PARAMETER)
     if text is None:
         return None
-    if not (isinstance(text, str) and text.isdigit() and len(text) <= 19):
+    if not (isinstance(text, str) and text.isascii() and text.isdigit() and len(text) <= 19):
         raise ValueError(f"{TIME_PARAMETER}: expected integer nanoseconds, got {str(text)[:40]!r}")
     return check_timestamp(TIME_PARAMETER, int(text))
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import zenoh
 
-from ubitrack_agent.core.errors import ExtrapolationError
+from ubitrack_agent.core.errors import ExtrapolationError, NoMotionModel
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.time_queries import error_payload, requested_time
 
@@ -76,7 +76,7 @@ class LatestValuePublisher:
         try:
             timestamp_ns = requested_time(query.parameters)
             if timestamp_ns is not None and self._at is None:
-                raise ExtrapolationError("a measured edge answers its latest value only")
+                raise NoMotionModel("a measured edge answers its latest value only")
         except ValueError as exc:  # ExtrapolationError is one
             if not isinstance(exc, ExtrapolationError):
                 logs.count_problem(self.counters, "rejected_queries", log, "%s: %s", self.key, exc)
