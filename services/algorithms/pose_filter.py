@@ -151,14 +151,9 @@ class PoseKalmanFilter:
     answers the pose and its covariance at a given time, :meth:`predict` at any time.
     """
 
-    def __init__(
-        self,
-        angular_noise: float,
-        linear_noise: float,
-        initial_speed_std: float = 1.0,
-        settings: FilterSettings | None = None,
-    ) -> None:
-        self.settings = settings or FilterSettings(angular_noise, linear_noise, initial_speed_std)
+    def __init__(self, angular_noise: float, linear_noise: float, **tuning: float) -> None:
+        self.settings = FilterSettings(angular_noise, linear_noise, **tuning)
+        """The process noise densities and the rest of :class:`FilterSettings` (``tuning``)."""
         self._history: list[tuple[_Measurement, _State]] = []
         """The measurements of the kept window with the posterior after each, in time order."""
         self._gated_in_row = 0

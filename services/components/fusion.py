@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from services.algorithms import FilterSettings, PoseKalmanFilter, fuse_poses
+from services.algorithms import PoseKalmanFilter, fuse_poses
 from services.registry import Inputs, Port, Pushed, Service, complete_correspondences, register
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D
 
@@ -61,14 +61,11 @@ class Fusion(Service):
         super().__init__(parameters)
         if self.parameters["policy"] not in POLICIES:
             raise ValueError(f"fusion: policy must be one of {POLICIES}")
-        settings = FilterSettings(
-            angular_noise=float(self.parameters["angular_noise"]),
-            linear_noise=float(self.parameters["linear_noise"]),
+        self._filter = PoseKalmanFilter(
+            float(self.parameters["angular_noise"]),
+            float(self.parameters["linear_noise"]),
             gate=float(self.parameters["gate"]),
             window_ns=int(float(self.parameters["window_ms"]) * 1e6),
-        )
-        self._filter = PoseKalmanFilter(
-            settings.angular_noise, settings.linear_noise, settings=settings
         )
 
     def asynchronous(self) -> bool:

@@ -7,7 +7,7 @@ from scipy import stats
 
 from bench.synthetic import left_error, random_quaternion, rng_for
 from services.algorithms.estimate import PoseEstimate
-from services.algorithms.pose_filter import FilterSettings, PoseKalmanFilter
+from services.algorithms.pose_filter import PoseKalmanFilter
 from ubitrack_agent.core import quaternions
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 
@@ -114,7 +114,7 @@ def test_late_measurements_give_the_in_order_result():
 
 
 def test_measurement_older_than_the_window_changes_nothing():
-    kalman = PoseKalmanFilter(1.0, 1.0, settings=FilterSettings(1.0, 1.0, window_ns=50 * MS))
+    kalman = PoseKalmanFilter(1.0, 1.0, window_ns=50 * MS)
     for k in range(10):
         kalman.update(k * 20 * MS, quaternions.IDENTITY, np.zeros(3), COV_A)
     before = kalman.estimate(180 * MS)
