@@ -113,8 +113,9 @@ ANSWER_TIMEOUT_S = 0.15
 UPSTREAM_TIMEOUT_S = 0.1
 """Longest the worker thread waits for an input's producer to answer such a query."""
 NO_MODEL_S = 1.0
-"""How long an input whose producer answered ``no_model`` (a measured edge) is not asked again:
-a renderer asking every frame must not cost the flow a round trip per input each time."""
+"""How long an input whose producer answered ``no_model`` (a measured edge) or nothing is not
+asked again: a renderer asking every frame must not cost the flow a round trip (or a
+time-out) per input each time."""
 
 
 @dataclass(frozen=True)
@@ -559,9 +560,9 @@ class Worker:
             raise NoMotionModel(f"{item.binding.key} has no motion model")
         try:
             payload = fetch_at(self._session, item.binding.key, t, UPSTREAM_TIMEOUT_S)
-        except NoMotionModel:
+        except (NoMotionModel, NoDataError) as exc:  # nothing to predict, or nobody answers
             self._no_model[item.binding.key] = time.monotonic() + NO_MODEL_S
-            raise
+            raise NoMotionModel(f"{item.binding.key}: {exc}") from None
         value = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
         if value.timestamp_ns != t:
             raise ExtrapolationError(f"{item.binding.key} answered for another time")
