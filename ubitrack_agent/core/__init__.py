@@ -1,7 +1,12 @@
 """Measurement types, wire codec and SE(3) maths; no zenoh, no networkx, no processes."""
 
 from ubitrack_agent.core.codec import decode, encode, to_json
-from ubitrack_agent.core.errors import ExtrapolationError, MeasurementError, NoDataError
+from ubitrack_agent.core.errors import (
+    ExtrapolationError,
+    MeasurementError,
+    NoDataError,
+    NoMotionModel,
+)
 from ubitrack_agent.core.measurements import (
     MEASUREMENT_TYPES,
     CameraIntrinsics,
@@ -24,6 +29,7 @@ __all__ = [
     "Measurement",
     "MeasurementError",
     "NoDataError",
+    "NoMotionModel",
     "Pose",
     "Position2D",
     "Position3D",
