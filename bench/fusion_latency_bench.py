@@ -20,7 +20,9 @@ served by the database from the scenario's truth (as ``bench.calibrated_tracking
    path alone (no fusion hop);
 4. **asynchronous again**: the camera back, fusion with the template's policy again (so the
    A.R.T.-only phase lies between two asynchronous ones: the load of this shared machine
-   drifts between phases).
+   drifts between phases);
+5. **camera only**: the A.R.T. tracker stopped; 2D-3D pose estimation alone, whose trigger no
+   longer waits a frame for a hidden feature (``services.triggers``).
 
 In the fused phases the bench also times the fusion hop itself, paired per timestamp: the
 arrival of the fusion's output minus the arrival of the estimate it came from at the
@@ -278,6 +280,10 @@ def main(argv: list[str] | None = None) -> None:
                 children.start("sim camera", [*simulators["sim camera"], *member])
                 wait_for_services(session, keys, present=True)
                 phases.append(fused("asynchronous again", {}))
+                children.stop("sim art", "dtrack")
+                wait_for_services(session, keys, present=False)
+                phases.append(measure("camera only"))
+                print(json.dumps(phases[-1]), flush=True)
                 watch.undeclare()
         finally:
             children.stop_all()

@@ -8,8 +8,10 @@ until every live dynamic input has a sample at or after ``t``, or until its wait
 sample within the tolerance window where there is nothing to interpolate). An input sampled at
 the same instants as the trigger's own (the other features of one camera frame, the other
 bodies of one tracker frame: its newest sample's time is one the trigger's input also has)
-travels with it, so it is waited for only :data:`SAME_INSTANT_WAIT_NS`: a feature hidden in
-this frame does not hold the frame's pose back by a period. Every dynamic binding may
+travels with it, so it is waited for only :data:`SAME_INSTANT_WAIT_NS` after the latest sample
+of that instant arrived: a feature hidden in this frame does not hold the frame's pose back by
+a period, and a frame published slowly (a loaded machine) is still waited for while its
+samples keep coming. Every dynamic binding may
 trigger: an instant is computed once, and a trigger older than the last instant computed is
 stale.
 """
@@ -25,9 +27,10 @@ LIVE_PERIODS = 2.0
 not waited for (an occluded feature, a tracker that lost its target)."""
 WAIT_PERIODS = 1.5
 """A trigger waits up to this many periods of the slowest live input for its next sample."""
-SAME_INSTANT_WAIT_NS = 3_000_000
-"""How long a trigger waits for an input sampled at the same instants as its own (3 ms: the
-samples of one frame are published back to back, within a fraction of a millisecond)."""
+SAME_INSTANT_WAIT_NS = 5_000_000
+"""How long a trigger waits for an input sampled at the same instants as its own after the
+latest sample of that instant (5 ms: the samples of one frame are published back to back,
+within a fraction of a millisecond on an idle machine; the margin is for a loaded one)."""
 
 
 def _live(buffer: SampleBuffer, timestamp_ns: int, default_period_ns: int) -> bool:
@@ -78,12 +81,16 @@ class PendingTriggers:
     def __len__(self) -> int:
         return len(self._deadlines)
 
-    def add(self, timestamp_ns: int, now: float, wait_s: float) -> bool:
+    def add(self, timestamp_ns: int, now: float, wait_s: float, extend: bool = False) -> bool:
         """Hold a trigger for at most ``wait_s``; False if that instant is pending, done, or
-        older than the last done."""
-        if (self.last_done is not None and timestamp_ns <= self.last_done) or (
-            timestamp_ns in self._deadlines
-        ):
+        older than the last done. With ``extend``, another sample of a pending instant holds
+        it until ``now + wait_s`` if that is later: while the samples of one frame keep
+        arriving, the wait for the frame's missing ones runs from the latest."""
+        if self.last_done is not None and timestamp_ns <= self.last_done:
+            return False
+        if timestamp_ns in self._deadlines:
+            if extend:
+                self._deadlines[timestamp_ns] = max(self._deadlines[timestamp_ns], now + wait_s)
             return False
         self._deadlines[timestamp_ns] = now + wait_s
         return True

@@ -401,7 +401,7 @@ class Worker:
             self.counters["buffered"] += 1
         elif item.binding.static:
             self._evaluate(t)  # a new static value: recompute at once
-        elif not self._pending.add(t, time.monotonic(), self._wait_s(item, t)):
+        elif not self._pending.add(t, time.monotonic(), self._wait_s(item, t), extend=True):
             # Held until the other inputs catch up; an instant already computed is ignored.
             self.counters["stale_triggers"] += 1
 

@@ -68,3 +68,15 @@ def test_an_input_of_the_same_frame_is_waited_for_briefly():
     assert wait_for([other_clock], 99 * ms, 5 * ms, 50 * ms, trigger) == pytest.approx(0.0495)
     both = wait_for([hidden, other_clock], 99 * ms, 5 * ms, 50 * ms, trigger)
     assert both == pytest.approx(0.0495)
+
+
+def test_samples_of_a_pending_instant_extend_its_wait_while_they_keep_coming():
+    pending = PendingTriggers()
+    assert pending.add(100, now=0.0, wait_s=0.003)
+    assert not pending.add(100, now=0.002, wait_s=0.003, extend=True)  # F2 of the same frame
+    assert pending.next_deadline() == pytest.approx(0.005)
+    assert not pending.add(100, now=0.003, wait_s=0.001, extend=True)  # never shortened
+    assert pending.next_deadline() == pytest.approx(0.005)
+    assert not pending.add(100, now=0.004, wait_s=0.003)  # without extend: unchanged
+    assert pending.next_deadline() == pytest.approx(0.005)
+    assert pending.due(now=0.0051, caught_up=lambda t: False) == [100]
