@@ -84,13 +84,14 @@ class PendingTriggers:
     def add(self, timestamp_ns: int, now: float, wait_s: float, extend: bool = False) -> bool:
         """Hold a trigger for at most ``wait_s``; False if that instant is pending, done, or
         older than the last done. With ``extend``, another sample of a pending instant holds
-        it until ``now + wait_s`` if that is later: while the samples of one frame keep
-        arriving, the wait for the frame's missing ones runs from the latest."""
+        it until ``now + wait_s`` instead: while the samples of one frame keep arriving, the
+        wait for the frame's missing ones runs from the latest (and is the short one once
+        enough of them are in)."""
         if self.last_done is not None and timestamp_ns <= self.last_done:
             return False
         if timestamp_ns in self._deadlines:
             if extend:
-                self._deadlines[timestamp_ns] = max(self._deadlines[timestamp_ns], now + wait_s)
+                self._deadlines[timestamp_ns] = now + wait_s
             return False
         self._deadlines[timestamp_ns] = now + wait_s
         return True

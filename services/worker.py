@@ -409,10 +409,19 @@ class Worker:
         return [item.buffer for item in self._inputs if not item.binding.static]
 
     def _wait_s(self, trigger: _Input, timestamp_ns: int) -> float:
-        """How long a trigger may wait for the other live dynamic inputs (services.triggers)."""
-        others = [b for b in self._dynamic_buffers() if b is not trigger.buffer]
+        """How long a trigger may wait for the other live dynamic inputs (services.triggers):
+        briefly for the missing samples of its own instant only once enough of them are in to
+        compute (the correspondences a space expansion needs, else all), so a frame whose
+        samples trickle in on a loaded machine is not computed from too few."""
+        dynamic = self._dynamic_buffers()
+        others = [b for b in dynamic if b is not trigger.buffer]
         cap_ns = int(self.spec.wait_ms * 1e6)
-        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, trigger.buffer)
+        present = sum(b.has_sample_at(timestamp_ns) for b in dynamic)
+        needed = (
+            self._service.min_correspondences() if self.spec.expansion == "space" else len(dynamic)
+        )
+        same_instant = trigger.buffer if present >= needed else None
+        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, same_instant)
 
     def _caught_up(self, timestamp_ns: int) -> bool:
         return not lagging(self._dynamic_buffers(), timestamp_ns, self.spec.tolerance_ns)

@@ -75,8 +75,8 @@ def test_samples_of_a_pending_instant_extend_its_wait_while_they_keep_coming():
     assert pending.add(100, now=0.0, wait_s=0.003)
     assert not pending.add(100, now=0.002, wait_s=0.003, extend=True)  # F2 of the same frame
     assert pending.next_deadline() == pytest.approx(0.005)
-    assert not pending.add(100, now=0.003, wait_s=0.001, extend=True)  # never shortened
-    assert pending.next_deadline() == pytest.approx(0.005)
     assert not pending.add(100, now=0.004, wait_s=0.003)  # without extend: unchanged
     assert pending.next_deadline() == pytest.approx(0.005)
-    assert pending.due(now=0.0051, caught_up=lambda t: False) == [100]
+    assert not pending.add(100, now=0.003, wait_s=0.001, extend=True)  # from the latest
+    assert pending.next_deadline() == pytest.approx(0.004)
+    assert pending.due(now=0.0041, caught_up=lambda t: False) == [100]
