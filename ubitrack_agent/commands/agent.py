@@ -120,6 +120,35 @@ class EmbeddedHost:
             process.wait()
 
 
+class HostWhileActive:
+    """The agent's :class:`EmbeddedHost`, run while the agent is the active one of its domain
+    (``agent.election``): a standby's host manager would answer the active agent's requests
+    under the same host name. Stepping down abandons it (the workers keep running)."""
+
+    def __init__(self, settings: config.Settings, pool_size: int, log_level: str) -> None:
+        self._options = (settings, pool_size, log_level)
+        self._stopping = False
+        self.host: EmbeddedHost | None = None
+
+    def on_role(self, active: bool) -> None:
+        if active and self.host is None and not self._stopping:
+            self.host = EmbeddedHost(*self._options)
+        elif not active and self.host is not None:
+            self.host.abandon()
+            self.host = None
+
+    def stop_restarting(self) -> None:
+        """Safe in a signal handler (see :meth:`EmbeddedHost.stop_restarting`)."""
+        self._stopping = True
+        if self.host is not None:
+            self.host.stop_restarting()
+
+    def end(self, keep_workers: bool) -> None:
+        """End the host manager: its workers keep running if ``keep_workers``."""
+        if self.host is not None:
+            self.host.abandon() if keep_workers else self.host.stop()
+
+
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
@@ -135,12 +164,12 @@ def run(args: argparse.Namespace) -> int:
     if args.pool_size < 0:
         print("ubitrack agent: --pool-size must be >= 0", file=sys.stderr)
         return 2
+    host = None if args.no_host else HostWhileActive(settings, args.pool_size, args.log_level)
     try:
-        agent = Agent(settings, templates)
+        agent = Agent(settings, templates, on_role=host.on_role if host else None)
     except zenoh.ZError as exc:
         print(f"ubitrack agent: cannot open zenoh on {settings.listen}: {exc}", file=sys.stderr)
         return 2
-    host = None if args.no_host else EmbeddedHost(settings, args.pool_size, args.log_level)
 
     def stop() -> None:
         if host is not None:
@@ -148,14 +177,18 @@ def run(args: argparse.Namespace) -> int:
         agent.stop()
 
     on_termination(stop)
-    print(f"ubitrack agent: serving {agent.keys.root} on {', '.join(settings.listen)}", flush=True)
+    print(
+        f"ubitrack agent: agent {agent.id} of {agent.keys.root} on {', '.join(settings.listen)} "
+        "(active unless another agent of the domain is)",
+        flush=True,
+    )
     try:
         agent.run()
     except Exception:
         log.exception("the agent failed; its workers keep running for a restarted agent")
         if host is not None:
-            host.abandon()
+            host.end(keep_workers=True)
         return 1
     if host is not None:
-        host.stop()
+        host.end(keep_workers=agent.handed_over)
     return 0
