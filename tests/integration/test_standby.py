@@ -70,7 +70,7 @@ def agent_command(setup: Setup, listen: int, connect: int | None) -> list[str]:
 
 def agent_statuses(setup: Setup) -> dict[str, dict]:
     """Every agent's status, active or standby, by id."""
-    replies = fetch_latest(setup.session, f"{setup.keys.root}/agents/*/status", timeout=0.5)
+    replies = fetch_latest(setup.session, setup.keys.all_agent_statuses(), timeout=0.5)
     statuses = [json.loads(reply) for reply in replies]
     return {status["agent"]["id"]: status for status in statuses if status.get("agent")}
 

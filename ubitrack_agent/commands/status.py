@@ -68,7 +68,12 @@ def run(args: argparse.Namespace) -> int:
             else:
                 time.sleep(0.05)  # links come up in the background after opening
         if status is None:
-            print(f"ubitrack status: no agent answers on {keys.agent_status()}", file=sys.stderr)
+            standbys = fetch_latest(session, keys.all_agent_statuses(), timeout=0.2)
+            waiting = f" ({len(standbys)} agent(s) standing by or settling)" if standbys else ""
+            print(
+                f"ubitrack status: no active agent answers on {keys.agent_status()}{waiting}",
+                file=sys.stderr,
+            )
             return 1
         workers = {}
         for payload in fetch_latest(session, keys.all_statuses(), timeout=args.timeout):
@@ -82,9 +87,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(status, indent=2))
         return 0
     print(
-        f"agent on {status['key_prefix']}: {len(status['srg'])} SRG edges from "
-        f"{len(status['providers'])} providers"
+        f"agent {status['agent']['id']} (active) on {status['key_prefix']}: "
+        f"{len(status['srg'])} SRG edges from {len(status['providers'])} providers"
     )
+    for standby in status["agent"]["standby"]:
+        print(f"  standby agent {standby}: takes over if this one ends")
     for provider, reason in status["rejected_providers"].items():
         print(f"  rejected provider {provider}: {reason}")
     for edge_id in status.get("stale_edges", []):

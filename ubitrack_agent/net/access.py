@@ -68,7 +68,7 @@ def _common_rules(keys: KeySpace) -> list[dict[str, Any]]:
     """Granted to every known role: receiving anything, and reading."""
     readable = [
         keys.agent_status(),
-        keys.pattern("agents", "*", "status"),
+        keys.all_agent_statuses(),
         keys.all_statuses(),
         *(keys.pattern(kind, "**") for kind in ("relation", "data", "progress", "truth")),
         keys.pattern("fragment", "*"),
@@ -95,7 +95,7 @@ def _role_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]
         _rule("host-requests", SERVES, [host_requests]),
         _rule("host-writes", WRITES, [keys.all_host_exits(), keys.all_pools(), controls]),
         _rule("agent-token", ["liveliness_token"], [keys.agent(), keys.pattern("agents", "**")]),
-        _rule("agent-status", SERVES, [keys.agent_status(), keys.pattern("agents", "*", "status")]),
+        _rule("agent-status", SERVES, [keys.agent_status(), keys.all_agent_statuses()]),
         _rule("agent-requests", ["query"], [host_requests]),
         _rule("application-queries", ["liveliness_token"], [keys.all_queries()]),
         _rule("store-requests", ["query"], [keys.pattern("store", "*")]),

@@ -292,6 +292,10 @@ class KeySpace:
         """Queryable answering the state of the agent process ``agent``."""
         return f"{self.agent_member(agent)}/status"
 
+    def all_agent_statuses(self) -> str:
+        """Selector reaching every agent process's status queryable."""
+        return f"{self.root}/agents/*/status"
+
     def all_agents(self) -> str:
         """Selector of every agent process's token."""
         return f"{self.root}/agents/*"
