@@ -56,6 +56,7 @@ from ubitrack_agent.agent.announcements import (
     build_srg,
     fragment_entries,
 )
+from ubitrack_agent.agent.answers import query_answers
 from ubitrack_agent.agent.election import Election, new_agent_id
 from ubitrack_agent.agent.flows import Plan, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
@@ -169,6 +170,9 @@ class Agent:
             liveliness.declare_token(self.keys.agent_member(self.id)),
         ]
         self._declared_active: list[Any] = []
+        self._answers: dict[str, str] = {}
+        """The answer published for each queried relation, by answer key (:mod:`.answers`)."""
+        self._answered: Plan | None = None
 
     # -- events -----------------------------------------------------------------------------
 
@@ -484,8 +488,15 @@ class Agent:
     def _become_active(self) -> None:
         """Declare the active agent's tokens and status; the next reconcile adopts what runs."""
         liveliness = self.session.liveliness()
+        self._answers, self._answered = {}, None  # published afresh
         self._declared_active = [
             self._serve_status(self.keys.agent_status()),
+            self.session.declare_queryable(
+                self.keys.all_answers(),
+                lambda query: self._guard.call(
+                    "answer_query", self._reply_answers, query, default=None
+                ),
+            ),
             liveliness.declare_token(self.keys.agent_active(self.id)),
             liveliness.declare_token(self.keys.agent()),
         ]
@@ -512,6 +523,24 @@ class Agent:
         )
         if self._on_role is not None:
             self._on_role(False)
+
+    def _publish_answers(self) -> None:
+        """Put the answer to each query that changed since the last plan (:mod:`.answers`)."""
+        if self.plan is None or self._answered is self.plan:
+            return
+        answers = query_answers(self.plan, self.queries, self.keys, self.wanted)
+        for key, answer in answers.items():
+            if self._answers.get(key) != answer:
+                self.session.put(key, answer)
+        self._answers, self._answered = answers, self.plan
+
+    def _reply_answers(self, query: Any) -> None:
+        """Reply with every published answer the query's key expression matches (on zenoh's
+        thread: reads one reference)."""
+        answers = self._answers
+        for key, answer in answers.items():
+            if query.key_expr.intersects(key):
+                query.reply(key, answer)
 
     def _undeclare_active(self) -> None:
         for declared in self._declared_active:
@@ -540,6 +569,7 @@ class Agent:
                     guard.periodic("replan", self._replan, None)
                 guard.periodic("election", self._elect, None)
                 if self.active:  # a standby keeps its state current but changes nothing
+                    guard.periodic("answers", self._publish_answers, None)
                     guard.periodic("reconcile", self._reconcile, None)
                     guard.periodic("retire", self._retire, None)
                     guard.periodic("resend_stops", self._resend_stops, None)

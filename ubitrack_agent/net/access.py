@@ -71,6 +71,7 @@ def _common_rules(keys: KeySpace) -> list[dict[str, Any]]:
         keys.all_agent_statuses(),
         keys.all_statuses(),
         *(keys.pattern(kind, "**") for kind in ("relation", "data", "progress", "truth")),
+        keys.all_answers(),
         keys.pattern("fragment", "*"),
     ]
     return [
@@ -97,6 +98,7 @@ def _role_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]
         _rule("agent-token", ["liveliness_token"], [keys.agent(), keys.pattern("agents", "**")]),
         _rule("agent-status", SERVES, [keys.agent_status(), keys.all_agent_statuses()]),
         _rule("agent-requests", ["query"], [host_requests]),
+        _rule("agent-answers", [*WRITES, *SERVES], [keys.all_answers()]),
         _rule("application-queries", ["liveliness_token"], [keys.all_queries()]),
         _rule("store-requests", ["query"], [keys.pattern("store", "*")]),
     ]
@@ -114,6 +116,7 @@ ROLE_RULES: dict[str, tuple[str, ...]] = {
         "agent-token",
         "agent-status",
         "agent-requests",
+        "agent-answers",
     ),
     HOST: (
         "worker-tokens",

@@ -13,6 +13,10 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
                                      <kind> is static, dynamic or recalibrate (below)
     <root>/relation/<from>/<to>/<type>/<kind>
                                      the stable key on which a queried relation is delivered
+    <root>/answer/<from>/<to>/<type>/<kind>
+                                     the active agent's answer to the query: the flow that
+                                     serves it, or why none can (JSON, agent.answers); also a
+                                     queryable answering the latest
     <root>/agent                     liveliness token of the active agent
     <root>/agent/status              queryable: the active agent's state (JSON)
     <root>/agents/<id>               liveliness token of every agent process, active or
@@ -237,6 +241,14 @@ class KeySpace:
     def relation(self, relation: RelationId) -> str:
         """The stable key on which ``relation`` is delivered, whatever flow computes it."""
         return f"{self.root}/relation/{relation.chunks}"
+
+    def answer(self, relation: RelationId) -> str:
+        """Where the active agent says how it serves ``relation``, or why it cannot."""
+        return f"{self.root}/answer/{relation.chunks}"
+
+    def all_answers(self) -> str:
+        """Selector of every answer key."""
+        return f"{self.root}/answer/**"
 
     def parse_relation(self, key: str) -> RelationId:
         """The relation of a relation key; ``ValueError`` if malformed."""
