@@ -14,7 +14,10 @@ seconds, printed and written to ``bench/results/agent_restart.json`` (``_standby
   the new agent's interpreter, imports, session and settling, 1.5 s);
 * ``adopted``: SIGKILL to every wanted component alive and adopted by the active agent (its
   ``adopted`` counter counts all of them, the wanted set is the one before the kill, nothing
-  unsolved) and a host manager alive: the figure the issue asks to be under 2 s;
+  unsolved): the figure the issue asks to be under 2 s;
+* ``host_ready``: SIGKILL to a host manager answering again, the active agent's own (the
+  killed agent's ended with it; a standby starts its own when it takes over): until then a
+  worker that ends cannot be started again;
 * ``same_pids``: whether every component still runs in the process it ran in before (adopted,
   not restarted);
 * ``longest_gap``: the longest time between two samples an application received on ``WT->HT``
@@ -38,6 +41,7 @@ from typing import Any
 
 from tests.integration.conftest import kill_tagged
 from tests.integration.test_agent import WT_HT, Setup
+from tests.integration.test_standby import host_pid
 from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net import config
@@ -66,9 +70,8 @@ def serving(status: dict[str, Any] | None) -> bool:
 
 
 def recovered(status: dict[str, Any] | None, before: set[str]) -> bool:
-    """Every component of ``before`` alive and adopted, nothing else wanted or unsolved, and a
-    host manager alive."""
-    if not status or status["unsolved"] or not status["hosts"]:
+    """Every component of ``before`` alive and adopted, and nothing else wanted or unsolved."""
+    if not status or status["unsolved"]:
         return False
     components = status["components"]
     alive = {instance for instance, c in components.items() if c["alive"]}
@@ -83,21 +86,23 @@ def trial(setup: Setup, agents: list[Any], arrivals: list[float]) -> dict[str, A
     before_status = wait_until(lambda: agent_status(setup))
     before = set(before_status["components"])
     pids = status_pids(setup, sorted(before))
+    old_host = host_pid(setup)
     index = next(i for i, a in enumerate(agents) if before_status["agent"]["id"] == a.agent_id)
     killed = time.perf_counter()
     os.kill(agents[index].pid, signal.SIGKILL)
     agents[index].wait()
     others = [a.port for i, a in enumerate(agents) if i != index]
     agents[index] = start_agent(setup, agents[index].port, others)
-    answering = None
-    while True:
+    answering = adopted = host_ready = adopter = None
+    while adopted is None or host_ready is None:
         status = agent_status(setup)
         now = time.perf_counter()
         if status is not None and answering is None:
             answering = now - killed
-        if recovered(status, before):
-            adopted = now - killed
-            break
+        if adopted is None and recovered(status, before):
+            adopted, adopter = now - killed, status["agent"]["id"]
+        if host_ready is None and host_pid(setup) not in (None, old_host):
+            host_ready = now - killed
         if now - killed > 60:
             raise RuntimeError(f"not recovered in 60 s: {status}")
         time.sleep(POLL_S)
@@ -108,7 +113,8 @@ def trial(setup: Setup, agents: list[Any], arrivals: list[float]) -> dict[str, A
         "serving": serving_at - killed if serving_at else None,
         "answering": answering,
         "adopted": adopted,
-        "took_over": status["agent"]["id"] != agents[index].agent_id,
+        "host_ready": host_ready,
+        "took_over": adopter != agents[index].agent_id,
         "components": len(before),
         "same_pids": status_pids(setup, sorted(before)) == pids,
         "longest_gap": max(gaps, default=None),
@@ -190,6 +196,7 @@ def run(trials: int, standby: bool) -> dict[str, Any]:
 
 def summary(rows: list[dict[str, Any]], standby: bool) -> dict[str, Any]:
     adopted = sorted(row["adopted"] for row in rows)
+    host_ready = sorted(row["host_ready"] for row in rows)
     return {
         "command": "python -m bench.agent_restart_bench" + (" --standby" if standby else ""),
         "date": time.strftime("%Y-%m-%d"),
@@ -197,6 +204,7 @@ def summary(rows: list[dict[str, Any]], standby: bool) -> dict[str, Any]:
         "trials": rows,
         "adopted_median_s": adopted[len(adopted) // 2],
         "adopted_max_s": adopted[-1],
+        "host_ready_median_s": host_ready[len(host_ready) // 2],
         "all_same_pids": all(row["same_pids"] for row in rows),
     }
 

@@ -32,8 +32,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Watch providers and application queries on zenoh, plan every queried "
         "relation with the pattern templates, and have host managers start, stop and rewire "
         "pattern workers so that each relation flows on its stable key. Starts a host manager "
-        "for this machine (python -m services.host) unless --no-host. Ends cleanly on SIGTERM "
-        "or Ctrl-C, stopping every worker it runs.",
+        "for this machine (python -m services.host) unless --no-host. One agent of a domain is "
+        "active; another one started on the domain (on its own endpoint) stands by, changing "
+        "nothing and starting no host manager, and takes over, adopting every worker, when the "
+        "active one ends. Ends cleanly on SIGTERM or Ctrl-C, stopping every worker it runs, "
+        "or, with a standby alive, handing them over.",
     )
     parser.add_argument(
         "--templates", metavar="DIR", help="template directory (default: the shipped templates/)"
