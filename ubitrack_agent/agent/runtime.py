@@ -81,8 +81,9 @@ FRAGMENT_ATTEMPTS = 8
 """A provider whose fragment query goes unanswered this often (over about 6 s) is rejected."""
 MAX_LIVE_EDGES = 10_000
 """Most measured edges the live SRG holds: a fragment that would exceed it is rejected."""
-RETIRE_S = 2.0
-"""Longest time a worker the plan dropped keeps running while its replacements start."""
+RETIRE_S = 10.0
+"""Longest time a worker the plan dropped keeps running, or a rewire waits, while the new
+workers start (a cold start takes seconds on a loaded machine)."""
 SETTLE_S = 1.5
 """After start-up, wait this long (for the liveliness history, which arrives as peers
 reconnect) before deciding whether to be the active agent, and so before adopting, starting or
@@ -142,6 +143,8 @@ class Agent:
         """Instances stopped: when to put the stop again (None: a host manager owns it)."""
         self._unwanted_since: dict[str, float] = {}
         self._retiring: dict[str, float] = {}
+        self._held: dict[str, tuple[dict[str, Any], float]] = {}
+        """Rewires waiting for the workers being started: command and deadline, by instance."""
         self._started = time.monotonic()
         self._events: queue.SimpleQueue[tuple[str, str, str]] = queue.SimpleQueue()
         self._stop = threading.Event()
@@ -231,6 +234,7 @@ class Agent:
         self._stopped.pop(instance, None)
         if self.hosts.reports_exit_of(instance):
             return False  # its host manager reports when the process ends: that restarts it
+        self._held.pop(instance, None)
         if self.running.pop(instance, None) is not None:
             self.counters["restarts"] += 1
             log.warning("%s: worker vanished, starting it again", instance)
@@ -260,6 +264,7 @@ class Agent:
     def _adopt(self, instance: str, wanted: ComponentSpec) -> None:
         """Take a running worker as ``wanted``, sending it that wiring."""
         self._unwanted_since.pop(instance, None)
+        self._held.pop(instance, None)  # the whole wiring goes now
         retiring = self._retiring.pop(instance, None) is not None
         stopped = self._stopped.pop(instance, None) is not None
         if not (retiring or stopped):
@@ -394,6 +399,7 @@ class Agent:
         restarted = {spec.instance for spec in actions.start}
         for instance in actions.stop:
             del self.running[instance]
+            self._held.pop(instance, None)
             if instance in restarted:
                 self._stop_worker(instance)  # replaced by another specification at once
             else:
@@ -404,7 +410,7 @@ class Agent:
             self._stopped.pop(spec.instance, None)
             self._retiring.pop(spec.instance, None)  # wanted again before it was stopped
         for instance, command in actions.update:
-            self._send_control(instance, command)
+            self._rewire(instance, command, wait=bool(started))
             self.running[instance] = self.wanted[instance]
         if started or actions.stop or actions.update:
             self.last_change_ns = time.time_ns()
@@ -416,6 +422,17 @@ class Agent:
                 len(actions.stop),
                 len(actions.update),
             )
+
+    def _rewire(self, instance: str, command: dict[str, Any], wait: bool) -> None:
+        """Send ``command`` to ``instance``, or, if ``wait``, hold it (merged with a command
+        still held) until the workers being started are alive: a relation's old producer keeps
+        publishing until the new one can (make before break, as :meth:`_retire`)."""
+        held, _ = self._held.pop(instance, ({}, 0.0))
+        command = {**held, **command}
+        if wait or held:
+            self._held[instance] = (command, time.monotonic() + RETIRE_S)
+        else:
+            self._send_control(instance, command)
 
     def _stop_worker(self, instance: str) -> None:
         owned = self.hosts.stop(instance)
@@ -462,11 +479,18 @@ class Agent:
                 self._stopped[instance] = now + STOP_RESEND_S
 
     def _retire(self) -> None:
-        """Stop the workers the plan no longer wants once every wanted worker is alive (make
-        before break: the old flow keeps the relation flowing while the new one starts), or
-        after ``RETIRE_S`` at the latest."""
+        """Send the held rewires and stop the workers the plan no longer wants once every
+        wanted worker is alive (make before break: the old flow keeps the relation flowing
+        while the new one starts), or after ``RETIRE_S`` at the latest."""
         all_alive = set(self.wanted) <= self.alive
         now = time.monotonic()
+        for instance, (command, deadline) in list(self._held.items()):
+            if instance not in self.running:
+                del self._held[instance]  # stopped meanwhile: nothing to rewire
+            elif all_alive or now > deadline:
+                del self._held[instance]
+                self._send_control(instance, command)
+                self.counters["held_rewires"] += 1
         for instance, deadline in list(self._retiring.items()):
             if all_alive or now > deadline:
                 del self._retiring[instance]
@@ -512,6 +536,7 @@ class Agent:
         self._undeclare_active()
         self.running.clear()
         self._retiring.clear()
+        self._held.clear()
         self._stopped.clear()
         self._duplicate_stops.clear()
         self._unwanted_since.clear()
@@ -594,6 +619,7 @@ class Agent:
     def _reap_hosts(self) -> None:
         """Apply host managers' tokens and exit reports: forget the instances that ended."""
         for instance in self.hosts.reap(self.alive):
+            self._held.pop(instance, None)
             if self.running.pop(instance, None) is not None:
                 self.counters["restarts"] += 1
 
