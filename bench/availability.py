@@ -62,6 +62,15 @@ def recovery(intervals: list[Interval], event: float, end: float) -> float | Non
     return gaps[-1][1] - event
 
 
+def first_fresh(intervals: list[Interval], event: float) -> float | None:
+    """Seconds from ``event`` to the first moment covered at or after it (0 if it is covered),
+    None if there is none."""
+    for begin, end in intervals:
+        if end > event:
+            return max(begin, event) - event
+    return None
+
+
 def longest_outage(intervals: list[Interval], start: float, end: float) -> float:
     """The longest uncovered stretch of ``[start, end)``, in seconds (0 if none)."""
     return max((finish - begin for begin, finish in outages(intervals, start, end)), default=0.0)

@@ -19,7 +19,8 @@ Measured for each application over each window: the fraction of time it holds fr
 data (``bench/availability.py``): *fresh*, a sample stamped within the last ``FRESH_S``
 (0.25 s); *correct*, within ``TRUE_WITHIN_M`` (3 mm, the largest element difference of the
 pose matrices) of the trackers' known truth at its stamp. Also its longest outage, the
-samples that were not correct, the faults done by kind, and after each window the time until
+samples that were not correct, the faults done by kind, the machine's load average (1 min) at
+the start and end of the window (others share it), and after each window the time until
 the system is whole again (the chaos test's check: one process per wanted component, nothing
 unwanted, no leaked pool worker) with the warm pool full. Printed, and written to
 ``bench/results/churn.json``.
@@ -176,7 +177,7 @@ def churn(chaos: Chaos, apps: Applications, rate: float, seconds: float, seed: i
     followups = Followups()
     done: Counter = Counter()
     skipped: Counter = Counter()
-    began, start = time.monotonic(), time.time()
+    began, start, load = time.monotonic(), time.time(), os.getloadavg()[0]
     for offset in offsets:
         followups.run_until(began + offset)
         if time.monotonic() >= began + seconds:
@@ -212,6 +213,7 @@ def churn(chaos: Chaos, apps: Applications, rate: float, seconds: float, seed: i
         "events_by_kind": dict(sorted(done.items())),
         "skipped_by_kind": dict(sorted(skipped.items())),
         "applications": applications,
+        "load_1min": [round(load, 1), round(os.getloadavg()[0], 1)],
         "steady_after_s": round(time.monotonic() - settle_began, 1),
         "steady_problem": problem,
     }
@@ -247,16 +249,24 @@ def run(rates: list[float], seconds: float, seed: int) -> list[dict[str, Any]]:
 
 
 def table(rows: list[dict[str, Any]]) -> str:
-    """The figures as a Markdown table."""
+    """The figures as Markdown tables: availability per application, then faults by kind."""
     names = list(rows[0]["applications"])
-    head = ["events/s asked", "reached", "events"]
+    head = ["events/s asked", "reached", "events", "load (1 min)"]
     head += [f"{name} available" for name in names] + [f"{name} longest outage" for name in names]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         apps = row["applications"]
         cells = [f"{row['rate']:g}", f"{row['events_per_s']:.2f}", str(row["events"])]
+        cells.append("-".join(f"{load:g}" for load in row["load_1min"]))
         cells += [f"{100 * apps[n]['availability']:.1f} %" for n in names]
         cells += [f"{apps[n]['longest_outage_s']:.2f} s" for n in names]
+        lines.append("| " + " | ".join(cells) + " |")
+    kinds = sorted({kind for row in rows for kind in row["events_by_kind"]})
+    lines += ["", "| events/s asked | " + " | ".join(kinds) + " | skipped |"]
+    lines.append("|" + "---|" * (len(kinds) + 2))
+    for row in rows:
+        cells = [f"{row['rate']:g}"] + [str(row["events_by_kind"].get(k, 0)) for k in kinds]
+        cells.append(str(sum(row["skipped_by_kind"].values())))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

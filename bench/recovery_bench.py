@@ -12,8 +12,9 @@ event of a kind, made by the chaos test's faults (``tests/integration/chaos_faul
 * ``agent SIGKILL and restart``: the agent killed and started again at once (its workers keep
   running and are adopted); also the time to every component alive and adopted, as
   ``bench.agent_restart_bench`` measures it;
-* ``query open``: an application opens ``HT->ART`` (a relation nothing else asks for), to its
-  first fresh, correct sample; it is closed after the trial;
+* ``query open``: an application opens ``HT->ART`` (a relation nothing else asks for): the
+  time to its first fresh, correct sample (and, as ``settled_s``, until it is fresh for good);
+  it is closed after the trial;
 * ``worker SIGKILL, no pool``: as above, on a second system whose agent has ``--pool-size 0``,
   so the component starts in a new process (cold).
 
@@ -22,7 +23,8 @@ for good: the end of its last outage after the event (``bench.availability.recov
 and correct as in ``bench.churn_bench``: stamped within 0.25 s, within 3 mm of the truth), 0
 when it never lapsed. A trial ends once every application has been fresh for ``HOLD_S`` (at
 most ``TIMEOUT_S``). The largest over the applications is the trial's figure. Printed per
-trial, with the median, minimum and maximum per kind, and written to
+trial (with the time, the machine's load average, what arrived: samples, those not correct,
+the longest silence), with the median, minimum and maximum per kind, and written to
 ``bench/results/recovery.json``.
 """
 
@@ -31,6 +33,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import signal
 import statistics
 import time
@@ -40,8 +43,8 @@ from pathlib import Path
 from typing import Any
 
 from bench.agent_restart_bench import agent_status, recovered
-from bench.availability import recovery
-from bench.churn_bench import APPLICATIONS, Applications, machine, steady, system
+from bench.availability import first_fresh, recovery
+from bench.churn_bench import APPLICATIONS, FRESH_S, Applications, machine, steady, system
 from tests.integration.chaos_faults import FLAPPING, POOL_SIZE, TRACKERS, TRUE_WITHIN_M, Chaos
 from ubitrack_agent.net.keys import RelationId
 
@@ -113,12 +116,17 @@ def agent_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
 
 
 def query_open(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
+    """Recovery here is the time to the first fresh, correct sample; the time until the data
+    is fresh for good is ``settled_s``."""
     event = time.time()
     relation = apps.open(QUERY, f"probe{trial}")
     try:
-        return observe(apps, (QUERY,), event)
+        result = observe(apps, (QUERY,), event)
     finally:
         relation.close()
+    first = first_fresh(apps.intervals(QUERY, event + FRESH_S), event)  # samples after event
+    settled = result["recovery_s"]
+    return result | {"recovery_s": None if first is None else round(first, 3), "settled_s": settled}
 
 
 Trial = Callable[[Chaos, Applications, int], dict[str, Any]]
@@ -141,7 +149,8 @@ def trials(chaos: Chaos, apps: Applications, kinds: dict[str, Trial], count: int
                 raise RuntimeError(f"not steady before {kind} trial {index + 1}: {problem}")
             logged = len(chaos.log)
             at = datetime.now(UTC).strftime("%H:%M:%S")
-            row = {"kind": kind, "trial": index + 1, "at": at, **trial(chaos, apps, index)}
+            row = {"kind": kind, "trial": index + 1, "at": at, "load_1min": os.getloadavg()[0]}
+            row |= trial(chaos, apps, index)
             row["event"] = chaos.log[-1] if len(chaos.log) > logged else "query opened"
             rows.append(row)
             print(json.dumps(row), flush=True)

@@ -6,6 +6,7 @@ import pytest
 
 from bench.availability import (
     availability,
+    first_fresh,
     fresh_intervals,
     longest_outage,
     outages,
@@ -44,3 +45,10 @@ def test_recovery_ends_with_the_last_outage_after_the_event():
     assert recovery(intervals, 10.0, 20.0) == pytest.approx(1.5)
     assert recovery(intervals, 12.0, 20.0) == 0.0  # fresh throughout
     assert recovery(intervals, 10.0, 25.0) is None  # still down at the end
+
+
+def test_first_fresh_is_the_first_covered_moment_after_the_event():
+    intervals = [(0.0, 1.0), (2.5, 3.0)]
+    assert first_fresh(intervals, 1.5) == 1.0
+    assert first_fresh(intervals, 0.5) == 0.0
+    assert first_fresh(intervals, 3.0) is None
