@@ -10,22 +10,25 @@ event of a kind, made by the chaos test's faults (``tests/integration/chaos_faul
 * ``worker SIGKILL, warm pool``: a process running a wanted component, drawn (seeded), killed;
   the agent starts the component again from its host manager's warm pool of 3;
 * ``agent SIGKILL and restart``: the agent killed and started again at once (its workers keep
-  running and are adopted); also the time to every component alive and adopted, as
-  ``bench.agent_restart_bench`` measures it;
-* ``query open``: an application opens ``HT->ART`` (a relation nothing else asks for): the
-  time to its first fresh, correct sample (and, as ``settled_s``, until it is fresh for good);
-  it is closed after the trial;
+  running and are adopted);
+* ``query open``: an application opens ``HT->ART``, which nothing else asks for (its first
+  samples can come from the inversion of ``ART->HT`` that the ``HT->WT`` flow runs; a fusion of
+  both trackers then takes over): the time to its first fresh, correct sample (and, as
+  ``settled_s``, until it is fresh for good); it is closed after the trial;
 * ``worker SIGKILL, no pool``: as above, on a second system whose agent has ``--pool-size 0``,
   so the component starts in a new process (cold).
 
 Recovery is the time from the event until every application's data is fresh and correct again
 for good: the end of its last outage after the event (``bench.availability.recovery``; fresh
 and correct as in ``bench.churn_bench``: stamped within 0.25 s, within 3 mm of the truth), 0
-when it never lapsed. A trial ends once every application has been fresh for ``HOLD_S`` (at
-most ``TIMEOUT_S``). The largest over the applications is the trial's figure. Printed per
+when it never lapsed. The largest over the applications is the trial's figure. A trial ends
+once the agent serves again every component it served before (``restored_s``: the killed
+tracker's flows stopped and started again, the killed worker started again, or every
+component adopted by the restarted agent, as ``bench.agent_restart_bench`` measures it) and
+every application has then been fresh for ``HOLD_S`` (at most ``TIMEOUT_S``). Printed per
 trial (with the time, the machine's load average, what arrived: samples, those not correct,
-the longest silence), with the median, minimum and maximum per kind, and written to
-``bench/results/recovery.json``.
+the longest silence, each outage's start after the event and length), with the median,
+minimum and maximum per kind, and written to ``bench/results/recovery.json``.
 """
 
 from __future__ import annotations
@@ -42,8 +45,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from bench.agent_restart_bench import agent_status, recovered
-from bench.availability import first_fresh, recovery
+from bench.agent_restart_bench import agent_status, recovered, serving
+from bench.availability import first_fresh, outages, recovery
 from bench.churn_bench import APPLICATIONS, FRESH_S, Applications, machine, steady, system
 from tests.integration.chaos_faults import FLAPPING, POOL_SIZE, TRACKERS, TRUE_WITHIN_M, Chaos
 from ubitrack_agent.net.keys import RelationId
@@ -61,24 +64,48 @@ def observe(
     apps: Applications,
     relations: tuple[RelationId, ...],
     event: float,
-    condition: Callable[[], bool] | None = None,
+    restored: Callable[[], bool] | None = None,
 ) -> dict[str, Any]:
-    """Wait until every one of ``relations`` has been fresh for ``HOLD_S`` after ``event``
-    (wall clock) and ``condition`` (if any) has held; the recovery of each (None: not within
-    ``TIMEOUT_S``), the largest, and when ``condition`` first held."""
+    """Wait until ``restored`` (if given) has held and every one of ``relations`` has then been
+    fresh for ``HOLD_S`` (at most ``TIMEOUT_S`` after ``event``, wall clock); the recovery of
+    each (None: still down at the end), the largest, when ``restored`` first held, and what
+    arrived."""
     held = None
     while (now := time.time()) - event < TIMEOUT_S:
-        if condition is not None and held is None and condition():
+        if restored is not None and held is None and restored():
             held = round(time.time() - event, 3)
+        settled = restored is None or held is not None
+        since = event + (held or 0.0)
         fresh = all(apps.fresh_since(relation, now - HOLD_S) for relation in relations)
-        if fresh and now - event >= HOLD_S and (condition is None or held is not None):
+        if settled and fresh and now - since >= HOLD_S:
             break
         time.sleep(POLL_S)
     end = time.time()
     each = {str(r): recovery(apps.intervals(r, event - 1.0), event, end) for r in relations}
     worst = None if None in each.values() else round(max(each.values()), 3)
     seen = {str(r): arrivals(apps, r, event, end) for r in relations}
-    return {"recovery_s": worst, "applications": each, "condition_s": held, "arrivals": seen}
+    for relation in relations:  # when each outage began after the event, and how long it was
+        gaps = outages(apps.intervals(relation, event - 1.0), event, end)
+        seen[str(relation)]["outages"] = [[round(b - event, 2), round(e - b, 2)] for b, e in gaps]
+    return {"recovery_s": worst, "applications": each, "restored_s": held, "arrivals": seen}
+
+
+def back(chaos: Chaos, reconfigurations: int) -> Callable[[], bool]:
+    """A condition, made before an event: the agent serves the components it serves now again
+    (every one alive, nothing unsolved), after at least ``reconfigurations`` more
+    reconfigurations (the event's stops and starts)."""
+    now = chaos.setup.status() or {"components": {}, "counters": {}}
+    before, base = set(now["components"]), now["counters"].get("reconfigurations", 0)
+
+    def done() -> bool:
+        status = agent_status(chaos.setup)
+        return (
+            serving(status)
+            and set(status["components"]) == before
+            and status["counters"].get("reconfigurations", 0) >= base + reconfigurations
+        )
+
+    return done
 
 
 def arrivals(apps: Applications, relation: RelationId, start: float, end: float) -> dict:
@@ -97,15 +124,17 @@ def arrivals(apps: Applications, relation: RelationId, start: float, end: float)
 
 def tracker_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
     name = sorted(TRACKERS)[trial % len(TRACKERS)]
+    restored = back(chaos, 2)  # its flows stopped, started again
     event = time.time()
     chaos.kill_tracker(name, signal.SIGKILL).action()  # started again at once
-    return observe(apps, APPLICATIONS, event)
+    return observe(apps, APPLICATIONS, event, restored)
 
 
 def worker_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
+    restored = back(chaos, 1)  # the worker started again
     event = time.time()
     chaos.kill_worker(signal.SIGKILL)
-    return observe(apps, APPLICATIONS, event)
+    return observe(apps, APPLICATIONS, event, restored)
 
 
 def agent_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
@@ -158,14 +187,14 @@ def trials(chaos: Chaos, apps: Applications, kinds: dict[str, Trial], count: int
 
 
 def summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Median, minimum and maximum recovery per kind (and of the condition, where measured)."""
+    """Median, minimum and maximum recovery per kind (and of ``restored_s``, where measured)."""
     kinds: dict[str, dict[str, Any]] = {}
     for kind in dict.fromkeys(row["kind"] for row in rows):
         mine = [row for row in rows if row["kind"] == kind]
         done = [row["recovery_s"] for row in mine if row["recovery_s"] is not None]
         figures: dict[str, Any] = {"trials": len(mine), "not_recovered": len(mine) - len(done)}
         figures |= spread("recovery", done)
-        figures |= spread("condition", [r["condition_s"] for r in mine if r["condition_s"]])
+        figures |= spread("restored", [r["restored_s"] for r in mine if r["restored_s"]])
         kinds[kind] = figures
     return kinds
 
