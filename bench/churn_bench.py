@@ -18,9 +18,10 @@ stream (``--seed`` and the rate), so a run repeats the same faults in the same o
 Measured for each application over each window: the fraction of time it holds fresh, correct
 data (``bench/availability.py``): *fresh*, a sample stamped within the last ``FRESH_S``
 (0.25 s); *correct*, within ``TRUE_WITHIN_M`` (3 mm, the largest element difference of the
-pose matrices) of the trackers' known truth at its stamp. Also its longest outage, the
-samples that were not correct, the faults done by kind, the machine's load average (1 min) at
-the start and end of the window (others share it), and after each window the time until
+pose matrices) of the trackers' known truth at its stamp. Also its longest outage (and when
+each outage over 0.5 s began, in s after the window's start), the samples that were not
+correct, each fault done with its time, the faults by kind, the machine's load average (1 min)
+at the start and end of the window (others share it), and after each window the time until
 the system is whole again (the chaos test's check: one process per wanted component, nothing
 unwanted, no leaked pool worker) with the warm pool full. Printed, and written to
 ``bench/results/churn.json``.
@@ -44,7 +45,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from bench.availability import availability, fresh_intervals, longest_outage
+from bench.availability import availability, fresh_intervals, longest_outage, outages
 from tests.integration.chaos_faults import (
     HT_WT,
     POOL_SIZE,
@@ -177,16 +178,18 @@ def churn(chaos: Chaos, apps: Applications, rate: float, seconds: float, seed: i
     followups = Followups()
     done: Counter = Counter()
     skipped: Counter = Counter()
+    timeline: list[list] = []
     began, start, load = time.monotonic(), time.time(), os.getloadavg()[0]
     for offset in offsets:
         followups.run_until(began + offset)
         if time.monotonic() >= began + seconds:
             break  # faults that blocked pushed this one past the window
         name = chaos.rng.choice(sorted(kinds))
-        logged = len(chaos.log)
+        logged, at = len(chaos.log), round(time.time() - start, 2)
         follow = kinds[name]()
         if len(chaos.log) > logged:
             done[kind_of(chaos.log[-1])] += 1
+            timeline.append([at, chaos.log[-1]])
         else:
             skipped[name] += 1
         if follow is not None:
@@ -204,6 +207,11 @@ def churn(chaos: Chaos, apps: Applications, rate: float, seconds: float, seed: i
             "longest_outage_s": round(longest_outage(intervals, start, end), 3),
             "incorrect_samples": apps.incorrect(relation, start, end),
             "samples": sum(start <= a < end for a, _, _ in apps.samples[relation]),
+            "outages_over_half_s": [
+                [round(b - start, 2), round(e - b, 2)]
+                for b, e in outages(intervals, start, end)
+                if e - b > 0.5
+            ],
         }
     return {
         "rate": rate,
@@ -213,6 +221,7 @@ def churn(chaos: Chaos, apps: Applications, rate: float, seconds: float, seed: i
         "events_by_kind": dict(sorted(done.items())),
         "skipped_by_kind": dict(sorted(skipped.items())),
         "applications": applications,
+        "faults": timeline,
         "load_1min": [round(load, 1), round(os.getloadavg()[0], 1)],
         "steady_after_s": round(time.monotonic() - settle_began, 1),
         "steady_problem": problem,
