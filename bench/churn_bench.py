@@ -13,7 +13,8 @@ a Poisson process of that rate, each of a kind drawn with equal odds: the chaos 
 after 0-1.5 s; a worker killed; the agent killed and started again at once; a query opened and
 closed within 0.05-0.4 s). Faults run one at a time: one that blocks (an agent's clean stop)
 delays the next, so the rate reached is reported too. Each rate has its own seeded random
-stream (``--seed`` and the rate), so a run repeats the same faults in the same order.
+stream (``--seed`` and the rate), so a run repeats the same faults in the same order, up to
+the first one skipped (a worker kill while no agent answers draws less).
 
 Measured for each application over each window: the fraction of time it holds fresh, correct
 data (``bench/availability.py``): *fresh*, a sample stamped within the last ``FRESH_S``
