@@ -22,8 +22,8 @@ from collections.abc import Iterator
 
 import pytest
 
+from tests.integration.chaos_faults import host_status
 from tests.integration.test_agent import WT_HT, Setup, assert_true_pose, fresh_samples, opened
-from tests.integration.test_chaos import host_status
 from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net.transport import fetch_latest
