@@ -68,3 +68,15 @@ def test_the_agent_answers_why_it_cannot_serve_and_what_serves(setup: Setup):
         components = (setup.status() or {})["components"]
         assert answer.components == {i: c["service"] for i, c in components.items()}
         assert sorted(answer.components.values()) == ["concatenation", "inversion"]
+
+
+def test_status_names_the_active_agent_and_says_when_none_is(setup: Setup):
+    command = [sys.executable, "-m", "ubitrack_agent.cli", "status", "--timeout", "1"]
+    flags = member_flags(setup.port, setup.domain)
+    out = subprocess.run([*command, *flags], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and "no active agent answers" in out.stderr, out.stderr
+    setup.start_agent()
+    agent_id = setup.status()["agent"]["id"]
+    out = subprocess.run([*command, *flags], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith(f"agent {agent_id} (active) on {setup.keys.root}")
