@@ -116,6 +116,7 @@ class HostManager:
                     pass
                 for exited in self.supervisor.reap():
                     self._exits.put(exited.to_json())
+                    self.counters["exits_reported"] += 1
                 self.supervisor.fill_pool()
         finally:
             self._close()
@@ -141,6 +142,7 @@ class HostManager:
         exited = self.supervisor.on_pool_token(pool_id, change == PUT)
         if exited is not None:
             self._exits.put(exited.to_json())
+            self.counters["exits_reported"] += 1
 
     # -- requests -----------------------------------------------------------------------------
 

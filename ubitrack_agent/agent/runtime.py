@@ -629,6 +629,11 @@ class Agent:
     def stop(self) -> None:
         self._stop.set()
 
+    def latest_status(self) -> dict[str, Any]:
+        """The status as last refreshed by the agent's thread (at most ``STATUS_REFRESH_S``
+        old): safe to read from any thread."""
+        return json.loads(self._status_json)
+
     def status(self) -> dict[str, Any]:
         """The agent's state: SRG, providers, queries, components, counters (JSON-ready)."""
         plan = self.plan

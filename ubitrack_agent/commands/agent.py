@@ -9,10 +9,12 @@ import subprocess
 import sys
 import threading
 from collections.abc import Callable
+from typing import Any
 
 from services.host import DEFAULT_POOL_SIZE
 from ubitrack_agent.net import config
 from ubitrack_agent.net.lifecycle import on_termination
+from ubitrack_agent.net.status_line import periodic_status
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -49,6 +51,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "each holds about 100 MB (default: %(default)s)",
     )
     parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no status line (every 10 s: role, queries, workers alive, reconfigurations, the "
+        "kinds of problem seen)",
+    )
+    parser.add_argument(
         "--no-host",
         action="store_true",
         help="start no host manager: workers run where `ubitrack host` runs",
@@ -69,6 +77,7 @@ class EmbeddedHost:
             "-m",
             "services.host",
             "--exit-when-stdin-closes",
+            "--quiet",  # the agent's status line counts its workers
             "--pool-size",
             str(pool_size),
             "--log-level",
@@ -121,6 +130,24 @@ class EmbeddedHost:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+
+
+def status_line(status: dict[str, Any]) -> str:
+    """The agent's one-line status (``net.status_line``) from its status."""
+    if not status:
+        return "agent: starting"
+    counters = status["counters"]
+    components = status["components"].values()
+    problems = sorted(status.get("problems", {}))
+    seen = f"; problems: {', '.join(problems)} (ubitrack status)" if problems else ""
+    return (
+        f"agent {status['agent']['id']} {status['agent']['role']}: "
+        f"{len(status['queries'])} queries, {len(status['unsolved'])} unsolved; "
+        f"{sum(c['alive'] for c in components)} of {len(components)} workers alive; "
+        f"{len(status['providers'])} providers, {len(status['stale_edges'])} stale edges; "
+        f"{counters.get('reconfigurations', 0)} reconfigurations, "
+        f"{counters.get('restarts', 0)} restarts{seen}"
+    )
 
 
 class HostWhileActive:
@@ -186,7 +213,8 @@ def run(args: argparse.Namespace) -> int:
         flush=True,
     )
     try:
-        agent.run()
+        with periodic_status(lambda: status_line(agent.latest_status()), not args.quiet):
+            agent.run()
     except Exception:
         log.exception("the agent failed; its workers keep running for a restarted agent")
         if host is not None:
