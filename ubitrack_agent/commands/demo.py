@@ -212,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
     seed = fresh_seed() if args.seed is None else args.seed
     simulators = simulator_arguments(scenario_flag, art_port, seed)
     art = {
-        "dtrack": ["dtrack", *dtrack_flags(scenario.art, art_port), *member],
+        "dtrack": ["dtrack", "--quiet", *dtrack_flags(scenario.art, art_port), *member],
         "sim art": simulators["sim art"],
     }
     keys = KeySpace(hub.key_prefix)
@@ -227,6 +227,7 @@ def run(args: argparse.Namespace) -> int:
                 "--log-level",
                 args.log_level,
                 "agent",
+                "--quiet",  # the demo prints its own lines
                 *config.as_flags(hub),
             ],
         )
