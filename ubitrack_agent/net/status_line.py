@@ -1,5 +1,6 @@
 """The one-line status long-running commands print periodically at the default log level
-(``ubitrack agent``, ``ubitrack host``, ``ubitrack dtrack``; ``ubitrack camera`` has its own),
+(``ubitrack agent``, ``host``, ``dtrack``, ``store`` and the ``sim`` simulators; ``ubitrack
+camera`` has its own),
 so a terminal shows that a process works and how fast without reading logs; ``--quiet`` turns
 it off. Expected, frequent conditions are counted and appear here, not as one warning each.
 """
