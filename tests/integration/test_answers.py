@@ -7,8 +7,10 @@ also publishes on the query's answer key; a served relation's answer names its w
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -22,6 +24,10 @@ from ubitrack_agent.net.transport import fetch_latest
 pytestmark = pytest.mark.integration
 
 NOWHERE = RelationId("NOPE", "HT", "6D")
+
+
+def flags(setup: Setup) -> list[str]:
+    return member_flags(setup.port, setup.domain)
 
 
 @pytest.fixture
@@ -46,7 +52,7 @@ def test_without_an_agent_waiting_ends_with_no_agent(setup: Setup):
     assert out.returncode == 1 and "no agent is active" in out.stderr, out.stderr
 
 
-def test_the_agent_answers_why_it_cannot_serve_and_what_serves(setup: Setup):
+def test_the_agent_answers_why_it_cannot_serve_and_what_serves(setup: Setup, tmp_path: Path):
     setup.start_agent()
     setup.tracker("art", "ART", 30.0, 2.0)
     with (
@@ -68,6 +74,23 @@ def test_the_agent_answers_why_it_cannot_serve_and_what_serves(setup: Setup):
         components = (setup.status() or {})["components"]
         assert answer.components == {i: c["service"] for i, c in components.items()}
         assert sorted(answer.components.values()) == ["concatenation", "inversion"]
+
+        # The live picture of that flow (figure 6's style): source, components, application.
+        dot = tmp_path / "flow.dot"
+        command = ["status", "--dot", str(dot), "--rate-window", "0.5"]
+        out = subprocess.run(
+            [sys.executable, "-m", "ubitrack_agent.cli", *command, *flags(setup)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert out.returncode == 0, out.stderr
+        picture = dot.read_text()
+        assert '"provider art" [shape=house' in picture
+        for instance in answer.components:
+            assert f'"{instance}" [shape=box, color=black' in picture  # alive
+        assert '-> "application WT->HT:6D"' in picture and "app\\nWT->HT:6D" in picture
+        assert re.search(r'-> "application WT->HT:6D" \[label="6D, [1-9]\d* Hz"\]', picture)
 
 
 def test_status_names_the_active_agent_and_says_when_none_is(setup: Setup):

@@ -645,7 +645,14 @@ class Agent:
             "rejected_providers": dict(self.rejected),
             "stale_edges": sorted(self.stale),
             "srg": [
-                {"id": key, "from": u, "to": v, "type": d["type"], "static": d["static"]}
+                {
+                    "id": key,
+                    "from": u,
+                    "to": v,
+                    "type": d["type"],
+                    "static": d["static"],
+                    "rate": d["quality"].rate,
+                }
                 for u, v, key, d in self.srg.edges(keys=True, data=True)
             ],
             "queries": {str(r): sorted(apps) for r, apps in self.queries.items()},
