@@ -54,6 +54,10 @@ def test_a_plain_zenoh_application_decodes_a_relation_as_documented(setup: Setup
             f"{root}/relation/WT/HT/6D/dynamic", lambda s: samples.put(s.payload.to_bytes())
         )
         received = [decode(samples.get(timeout=30)) for _ in range(20)]
+        for key in (f"{root}/agent/status", f"{root}/answer/WT/HT/6D/dynamic"):
+            (reply,) = list(session.get(key, timeout=5.0))
+            assert str(reply.ok.encoding) == "application/json"
+            json.loads(reply.ok.payload.to_bytes())  # what a generic tool may read
         subscriber.undeclare()
         token.undeclare()
     for sample in received:

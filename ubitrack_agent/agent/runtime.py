@@ -66,6 +66,7 @@ from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.config import Settings
+from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
@@ -556,7 +557,7 @@ class Agent:
         answers = query_answers(self.plan, self.queries, self.keys, self.wanted)
         for key, answer in answers.items():
             if self._answers.get(key) != answer:
-                self.session.put(key, answer)
+                self.session.put(key, answer, encoding=JSON)
         self._answers, self._answered = answers, self.plan
 
     def _reply_answers(self, query: Any) -> None:
@@ -565,7 +566,7 @@ class Agent:
         answers = self._answers
         for key, answer in answers.items():
             if query.key_expr.intersects(key):
-                query.reply(key, answer)
+                query.reply(key, answer, encoding=JSON)
 
     def _undeclare_active(self) -> None:
         for declared in self._declared_active:
@@ -692,9 +693,12 @@ class Agent:
         return self.session.declare_queryable(
             key,
             lambda query: self._guard.call(
-                "status_query", query.reply, key, self._status_json, default=None
+                "status_query", self._reply_status, query, key, default=None
             ),
         )
+
+    def _reply_status(self, query: Any, key: str) -> None:
+        query.reply(key, self._status_json, encoding=JSON)
 
     def _close(self, stop_workers: bool) -> None:
         """Leave the network after a clean stop (``stop_workers``) or a failure of the loop.

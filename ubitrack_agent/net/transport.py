@@ -18,6 +18,7 @@ from typing import Any
 import zenoh
 
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.encodings import JSON
 
 log = logging.getLogger("ubitrack.transport")
 
@@ -75,6 +76,7 @@ def put_command(session: Any, key: str, payload: str | bytes) -> None:
     session.put(
         key,
         payload,
+        encoding=JSON,
         congestion_control=zenoh.CongestionControl.BLOCK,
         priority=zenoh.Priority.INTERACTIVE_HIGH,
     )
