@@ -23,12 +23,13 @@ import os
 import socket
 import sys
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 from ubitrack_agent.net.lifecycle import on_termination
+from ubitrack_agent.net.status_line import periodic_status
 
 if TYPE_CHECKING:
     from services.host_manager import HostManager
@@ -44,6 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=socket.gethostname(),
         help="this host manager's name, unique in the domain (default: the machine's host "
         "name, %(default)s)",
+    )
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no status line (every 10 s: workers running, pool ready, requests)",
     )
     parser.add_argument(
         "--pool-size",
@@ -72,7 +78,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def serve(
-    settings: Settings, name: str, pool_size: int, exit_when_stdin_closes: bool = False
+    settings: Settings,
+    name: str,
+    pool_size: int,
+    exit_when_stdin_closes: bool = False,
+    quiet: bool = False,
 ) -> int:
     """Run a host manager until SIGTERM or SIGINT (or, if asked, until standard input closes);
     the exit status (2 for invalid options)."""
@@ -97,8 +107,19 @@ def serve(
                 target=_abandon_when_stdin_closes, args=(manager,), daemon=True
             ).start()
         print(f"host {name}: serving {keys.host_request(name)}", flush=True)
-        manager.run()
+        with periodic_status(lambda: status_line(manager.status()), not quiet):
+            manager.run()
     return 0
+
+
+def status_line(status: dict[str, Any]) -> str:
+    """The host manager's one-line status (``net.status_line``)."""
+    counters = status["counters"]
+    return (
+        f"host {status['name']}: {len(status['instances'])} workers running, pool "
+        f"{status['pool_ready']} of {status['pool_size']} ready; {counters.get('requests', 0)} "
+        f"requests, {counters.get('exits_reported', 0)} workers ended on their own"
+    )
 
 
 def _abandon_when_stdin_closes(manager: HostManager) -> None:
@@ -117,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     except config.ConfigError as exc:
         print(f"host: {exc}", file=sys.stderr)
         return 2
-    return serve(settings, args.name, args.pool_size, args.exit_when_stdin_closes)
+    return serve(settings, args.name, args.pool_size, args.exit_when_stdin_closes, args.quiet)
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ from services.registry import lookup
 from services.spec import check_spec
 from services.supervisor import Supervisor
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import (
     ProtocolError,
     Request,
@@ -87,7 +88,7 @@ class HostManager:
             ),
             history=True,
         )
-        self._exits = session.declare_publisher(keys.host_exited(name))
+        self._exits = session.declare_publisher(keys.host_exited(name), encoding=JSON)
         self._requests = session.declare_queryable(keys.host_request(name))
         self._request_thread = threading.Thread(target=self._receive_requests, daemon=True)
         self._request_thread.start()
@@ -116,6 +117,7 @@ class HostManager:
                     pass
                 for exited in self.supervisor.reap():
                     self._exits.put(exited.to_json())
+                    self.counters["exits_reported"] += 1
                 self.supervisor.fill_pool()
         finally:
             self._close()
@@ -141,6 +143,7 @@ class HostManager:
         exited = self.supervisor.on_pool_token(pool_id, change == PUT)
         if exited is not None:
             self._exits.put(exited.to_json())
+            self.counters["exits_reported"] += 1
 
     # -- requests -----------------------------------------------------------------------------
 
@@ -160,7 +163,7 @@ class HostManager:
                 self._refuse(query, fault, with_traceback=True)
                 return
             try:
-                query.reply(self.keys.host_request(self.name), reply)
+                query.reply(self.keys.host_request(self.name), reply, encoding=JSON)
             except zenoh.ZError as exc:
                 log.warning("could not reply: %s", exc)
 

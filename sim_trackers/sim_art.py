@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import socket
 import threading
+from collections import Counter
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -108,15 +109,20 @@ def run(
     rate_hz: float,
     stop: threading.Event,
     duration_s: float | None = None,
+    counters: Counter[str] | None = None,
 ) -> int:
-    """Send one datagram per frame to ``address`` until stopped; returns the frames sent."""
+    """Send one datagram per frame to ``address`` until stopped, counting ``sent`` and
+    ``send_failed`` in ``counters``; returns the frames sent."""
+    counted = Counter() if counters is None else counters
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
 
         def send(now_ns: int) -> None:
             datagram = encode_frame(simulator.frame(now_ns - now_ns % 1000))
             try:
                 sock.sendto(datagram, address)
+                counted["sent"] += 1
             except OSError as exc:  # e.g. ICMP port unreachable reported on a later send
+                counted["send_failed"] += 1
                 log.debug("send to %s:%d failed: %s", *address, exc)
 
         frames = run_periodic(rate_hz, send, stop, duration_s)

@@ -25,6 +25,7 @@ from typing import Any
 from sim_trackers.world import World
 from ubitrack_agent.core import Measurement, Pose, Position2D, Projection, encode
 from ubitrack_agent.core.measurements import MAX_TIMESTAMP_NS
+from ubitrack_agent.net.encodings import MSGPACK
 from ubitrack_agent.net.keys import KeySpace
 
 log = logging.getLogger("ubitrack.sim.world")
@@ -91,7 +92,8 @@ class TruthServer:
             with query:
                 try:
                     stamp = _timestamp(query.parameters.get("t"))
-                    query.reply(query.key_expr, encode(truth(self.world, source, target, stamp)))
+                    value = encode(truth(self.world, source, target, stamp))
+                    query.reply(query.key_expr, value, encoding=MSGPACK)
                     self.answered += 1
                 except TruthError as exc:
                     self.failed += 1

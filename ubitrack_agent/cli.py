@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "sim",
     "dtrack",
     "camera",
+    "intrinsics",
     "config",
     "certs",
     "demo",

@@ -39,7 +39,7 @@ HOSTILE_NAMES = st.sampled_from(
     ["*", "**", "a b", "a$*b", "Ä", "@x", "a/b", "x" * 2000, "a\nb", "\x00", "$*"]
 ) | st.text(max_size=30).filter(invalid)
 GOOD_NAMES = st.from_regex(r"\Afz-[a-z0-9]{1,8}\Z")
-TOKEN_KINDS = st.sampled_from(["provider", "worker", "host", "pool"])
+TOKEN_KINDS = st.sampled_from(["provider", "worker", "host", "pool", "agents"])
 QUERY_CHUNKS = st.lists(
     st.one_of(HOSTILE_NAMES, st.sampled_from(["FZ1", "FZ2", "6D", "7D", "dynamic"])),
     min_size=1,

@@ -40,6 +40,13 @@ def allowed(subject: str, message: str, key: str, flow: str = "ingress") -> bool
         ("agent", "query", KEYS.host_request("lab1"), "ingress"),
         ("agent", "liveliness_token", KEYS.agent(), "ingress"),
         ("agent", "declare_queryable", KEYS.agent_status(), "ingress"),
+        ("agent", "liveliness_token", KEYS.agent_member("18ea.1"), "ingress"),
+        ("agent", "liveliness_token", KEYS.agent_active("18ea.1"), "ingress"),
+        ("agent", "declare_queryable", KEYS.agent_member_status("18ea.1"), "ingress"),
+        ("agent", "put", KEYS.answer(RELATION), "ingress"),
+        ("agent", "declare_queryable", KEYS.all_answers(), "ingress"),
+        ("application", "query", KEYS.answer(RELATION), "ingress"),
+        ("application", "query", KEYS.all_agent_statuses(), "ingress"),
         ("host", "put", KEYS.pool("p1"), "ingress"),
         ("host", "put", KEYS.control("concat-1"), "ingress"),
         ("host", "put", KEYS.host_exited("lab1"), "ingress"),
@@ -79,6 +86,9 @@ def test_each_role_may_do_its_job(subject, message, key, flow):
         ),  # workers never write a provider's data
         ("agent", "reply", KEYS.measured("store.C_HT", "C_HT"), "ingress"),
         ("host", "liveliness_token", KEYS.agent(), "ingress"),
+        ("host", "liveliness_token", KEYS.agent_active("18ea.1"), "ingress"),  # no takeover
+        ("ART", "put", KEYS.answer(RELATION), "ingress"),  # only the agent answers queries
+        ("application", "liveliness_token", KEYS.agent_member("18ea.1"), "ingress"),
         (
             "host",
             "query",

@@ -12,6 +12,7 @@ import json
 import math
 import threading
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -40,6 +41,7 @@ PREFIXES = {
     "worker": "worker/",
     "pool": "pool/",
     "host": "host/",
+    "agent": "agents/",
     "query": "query/C/HT/6D/dynamic/",
 }
 
@@ -49,6 +51,8 @@ def key_of(kind: str, name: str) -> str:
         return f"{KEYS.root}/host/{name}/exited"
     if kind == "worker":
         return f"{KEYS.root}/worker/{name}/1.a"
+    if kind == "active_agent":
+        return f"{KEYS.root}/agents/{name}/active"
     return f"{KEYS.root}/{PREFIXES[kind]}{name}"
 
 
@@ -236,14 +240,31 @@ def test_an_edge_whose_data_stopped_is_stale_until_data_returns():
     added, _ = liveness.watch(entries, now=0.0)
     assert added == {"a/HT", "a/slow"}
     assert liveness.windows == {"a/HT": 1.0, "a/slow": 40.0}
-    assert liveness.stale(0.9) == frozenset()  # a new edge has its window to deliver
-    assert liveness.stale(1.1) == {"a/HT"}
+    assert checked_until(liveness, 0.0, 0.9) == frozenset()  # a new edge has its window
+    assert checked_until(liveness, 0.9, 1.1) == {"a/HT"}
     liveness.arrived("a/HT", 1.2)
-    assert liveness.stale(1.3) == frozenset()
-    assert liveness.stale(41.0) == {"a/HT", "a/slow"}
+    assert checked_until(liveness, 1.1, 1.3) == frozenset()
+    assert checked_until(liveness, 1.3, 41.0) == {"a/HT", "a/slow"}
     _, removed = liveness.watch(entries[:1], now=41.0)
     assert removed == {"a/slow"}
     assert liveness.stale(41.0) == {"a/HT"}
+
+
+def checked_until(liveness: DataLiveness, start: float, end: float) -> frozenset[str]:
+    """The stale edges at ``end``, checked every 50 ms from ``start`` as the agent does."""
+    for now in np.arange(start, end, 0.05):
+        liveness.stale(float(now))
+    return liveness.stale(end)
+
+
+def test_a_pause_of_the_agent_is_not_silence_of_the_edges():
+    liveness = DataLiveness()
+    liveness.watch([{"id": "a/HT", "rate": 100.0}], now=0.0)
+    assert checked_until(liveness, 0.0, 0.5) == frozenset()
+    assert liveness.stale(3.0) == frozenset()  # no check for 2.5 s: the agent did not run
+    liveness.arrived("a/HT", 3.05)  # samples queued meanwhile arrive
+    assert checked_until(liveness, 3.0, 4.0) == frozenset()
+    assert checked_until(liveness, 4.0, 4.1) == {"a/HT"}  # then silence counts again
 
 
 def test_the_live_srg_leaves_out_stale_edges():

@@ -1,6 +1,6 @@
 """The agent's view of worker processes (``agent/runtime.py``) without a session: token events
-matched to the incarnation that declared them, and duplicates stopped one process at a time
-(regression tests of the chaos run of issue 11)."""
+matched to the incarnation that declared them, duplicates stopped one process at a time
+(regression tests of the chaos run of issue 11), and rewires that wait for the new workers."""
 
 from __future__ import annotations
 
@@ -26,6 +26,9 @@ def agent(placements: dict[str, Placement] | None = None) -> tuple[Agent, list]:
     bare.running = {}
     bare._stopped = {}
     bare._duplicate_stops = {}
+    bare._held = {}
+    bare._retiring = {}
+    bare.wanted = {}
     placed = dict(placements or {})
     bare.hosts = SimpleNamespace(placements=placed, reports_exit_of=lambda i: i in placed)
     bare.session = SimpleNamespace(put=lambda key, payload, **_: puts.append((key, payload)))
@@ -61,3 +64,30 @@ def test_without_a_placement_the_process_seen_first_is_kept():
     bare._on_worker("concat-1", "100.aaaa", appeared=True)
     bare._stop_duplicates()
     assert puts == [(KEYS.control_incarnation("concat-1", "100.aaaa"), STOP_COMMAND)]
+
+
+def test_a_rewire_decided_with_starts_waits_until_the_new_workers_are_alive():
+    """Regression (churn benchmark): a relation moved at once to a fusion still starting cold
+    was silent for 2-7 s."""
+    bare, puts = agent()
+    bare.running = {"fusion-old": "spec", "fusion-new": "spec"}
+    bare.wanted = {"fusion-old": "spec", "fusion-new": "spec"}
+    bare.alive = {"fusion-old"}
+    bare._rewire("fusion-old", {"relations": {}}, wait=True)  # fusion-new takes the relation
+    bare._rewire("fusion-old", {"inputs": []}, wait=False)  # a later change merges with it
+    bare._retire()
+    assert puts == []  # the old producer keeps publishing while the new one starts
+    bare.alive.add("fusion-new")
+    bare._retire()
+    assert puts == [(KEYS.control("fusion-old"), '{"relations": {}, "inputs": []}')]
+    assert bare.counters["held_rewires"] == 1 and bare._held == {}
+
+
+def test_a_held_rewire_of_a_worker_that_ended_is_dropped():
+    bare, puts = agent()
+    bare.running = {"concat-1": "spec"}
+    bare._rewire("concat-1", {"inputs": []}, wait=True)
+    bare._on_worker("concat-1", "100.aaaa", appeared=True)
+    bare._on_worker("concat-1", "100.aaaa", appeared=False)  # it vanished: started afresh
+    bare._retire()
+    assert puts == [] and bare._held == {}

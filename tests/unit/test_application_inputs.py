@@ -5,9 +5,13 @@ a sample stamped far ahead of the clock is rejected and counted, and never freez
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
+
+import pytest
 
 from tests.unit.test_worker_inputs import FakeSession, pose
-from ubitrack_agent.io.application import Relation
+from ubitrack_agent.io.application import NoAgent, Relation, UnsolvedRelation
+from ubitrack_agent.net.answer import Answer
 from ubitrack_agent.net.keys import KeySpace, RelationId
 
 KEYS = KeySpace("ubitrack/test")
@@ -37,3 +41,22 @@ def test_a_broken_callback_or_garbage_never_raises_into_zenoh():
         session.deliver(KEYS.relation(RELATION), b"garbage")
         session.deliver(KEYS.relation(RELATION), pose(time.time_ns()))
         assert relation.rejected == 1 and relation.received == 1
+
+
+def test_silence_is_explained_by_the_agents_answer_or_its_absence():
+    session = FakeSession()
+    with Relation(session, KEYS, RELATION, application="app") as relation:
+        with pytest.raises(NoAgent, match="no agent is active on ubitrack/test"):
+            relation.wait_for(timeout=0.01)
+        active = SimpleNamespace(key_expr=f"{KEYS.agent_active('18ea.1')}", kind="SampleKind.PUT")
+        session.callbacks[KEYS.all_active_agents()](active)
+        with pytest.raises(TimeoutError) as plain:
+            relation.get(timeout=0.01)
+        assert type(plain.value) is TimeoutError  # an agent, and no reason given
+        session.deliver(KEYS.answer(RELATION), b"{not json")
+        assert relation.answer is None and relation.rejected == 1
+        unsolved = Answer(str(RELATION), False, KEYS.relation(RELATION), "no provider announces")
+        session.deliver(KEYS.answer(RELATION), unsolved.encode().encode())
+        with pytest.raises(UnsolvedRelation, match="cannot serve it: no provider") as raised:
+            relation.wait_for(timeout=0.01)
+        assert raised.value.reason == "no provider announces" and relation.answer == unsolved

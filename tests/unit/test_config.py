@@ -47,6 +47,16 @@ def test_comma_separated_endpoints_in_environment():
     assert settings.connect == ("tcp/a:1", "tcp/b:2")
 
 
+def test_members_of_a_hub_that_also_connects_reach_the_hub_first():
+    standby = config.Settings(listen=("tcp/0.0.0.0:7449",), connect=("tcp/10.0.0.1:7448",))
+    member = config.member_of(standby)  # e.g. a standby agent's host manager
+    assert member.connect == ("tcp/127.0.0.1:7449", "tcp/10.0.0.1:7448")
+    member = config.member_of(config.member_of(standby))  # a host manager's worker
+    assert member.connect == ("tcp/127.0.0.1:7449", "tcp/10.0.0.1:7448")
+    client = config.member_of(config.Settings(mode="client", connect=("tcp/r:7447",)))
+    assert (client.mode, client.connect, client.listen) == ("client", ("tcp/r:7447",), ())
+
+
 @pytest.mark.parametrize(
     "content, fragment",
     [

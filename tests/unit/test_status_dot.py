@@ -3,7 +3,11 @@ says and shows no literal backslash-n (issue [surface])."""
 
 from __future__ import annotations
 
-from ubitrack_agent.commands.status import live_dot
+import shutil
+
+import pytest
+
+from ubitrack_agent.commands.status import draw_svg, flow_dot, live_dot
 from ubitrack_agent.graph.dot import quote
 
 
@@ -23,3 +27,63 @@ def test_live_dot_breaks_component_labels_into_two_lines():
     assert '[label="fusion 6D\\nfusion-1a", style=dashed' in dot
     assert "\\\\n" not in dot
     assert '"ART" -> "HT" [label="6D"];' in dot
+
+
+ROOT = "ubitrack/demo"
+
+
+def flow_status() -> dict:
+    """The status of an agent running an inversion for two applications and a fusion."""
+    root = ROOT
+    return {
+        "key_prefix": root,
+        "providers": {"art": ["art/HT"]},
+        "srg": [
+            {"id": "art/HT", "from": "ART", "to": "HT", "type": "6D", "static": False, "rate": 60.0}
+        ],
+        "components": {
+            "inversion-1": {
+                "service": "inversion",
+                "alive": True,
+                "host": "room",
+                "inputs": [{"key": f"{root}/data/art/HT"}],
+                "outputs": {"BA": f"{root}/data/inversion-1/BA"},
+                "relations": {"BA": [f"{root}/relation/HT/ART/6D/dynamic"]},
+                "derives": [["HT", "ART", "6D"]],
+            },
+            "fusion-2": {
+                "service": "fusion",
+                "alive": False,
+                "inputs": [{"key": f"{root}/data/inversion-1/BA"}, {"key": f"{root}/data/x/y"}],
+                "outputs": {"fused": f"{root}/data/fusion-2/fused"},
+                "relations": {},
+                "derives": [["HT", "ART", "6D"]],
+            },
+        },
+        "relations": {"HT->ART:6D": {"key": f"{root}/relation/HT/ART/6D/dynamic"}},
+        "queries": {"HT->ART:6D": ["app1", "app2"]},
+    }
+
+
+def test_the_flow_picture_wires_sources_components_and_applications():
+    root = ROOT
+    dot = flow_dot(flow_status(), {"inversion-1": 59.6})
+    assert '"provider art" [shape=house, label="art"];' in dot
+    assert '"inversion-1" [shape=box, color=black, fontcolor=black, ' in dot
+    assert 'label="inversion\\ninversion-1\\non room"];' in dot
+    assert '"fusion-2" [shape=box, color=grey, fontcolor=grey' in dot  # still starting
+    assert '"provider art" -> "inversion-1" [label="6D, 60 Hz"];' in dot
+    assert '"inversion-1" -> "fusion-2" [label="6D, 60 Hz"];' in dot
+    assert f'"{root}/data/x/y" -> "fusion-2" [label="?"];' in dot  # a producer not known
+    assert '"application HT->ART:6D" [shape=invhouse, label="app1\\napp2\\nHT->ART:6D"];' in dot
+    assert '"inversion-1" -> "application HT->ART:6D" [label="6D, 60 Hz"];' in dot
+    assert "\\\\n" not in dot
+
+
+def test_the_flow_picture_is_drawn_as_svg_by_graphviz(tmp_path):
+    if shutil.which("dot") is None:
+        pytest.skip("Graphviz's dot is not installed (Debian package graphviz)")
+    path = tmp_path / "flow.svg"
+    assert draw_svg(flow_dot(flow_status()), str(path)) is None
+    assert "<svg" in path.read_text() and "inversion" in path.read_text()
+    assert draw_svg("digraph {", str(tmp_path / "bad.svg"))  # Graphviz's complaint

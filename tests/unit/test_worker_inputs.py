@@ -50,7 +50,12 @@ class FakeSession:
         return FakeQueryable()
 
     def liveliness(self):
-        return SimpleNamespace(declare_token=lambda key: SimpleNamespace(undeclare=lambda: None))
+        return SimpleNamespace(
+            declare_token=lambda key: SimpleNamespace(undeclare=lambda: None),
+            declare_subscriber=lambda key, callback, history=False: self.declare_subscriber(
+                key, callback
+            ),
+        )
 
     def get(self, key, timeout=None):
         return []

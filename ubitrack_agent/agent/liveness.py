@@ -9,6 +9,12 @@ at 1 Hz); the agent then plans without it until a sample arrives again. Static e
 and edges without a rate are never stale. A newly watched edge counts from the moment it is
 watched, so a provider has the same time to deliver its first sample.
 
+Silence counts only while the agent itself runs: when its checks pause for longer than
+``PAUSE_S`` (the agent starved of CPU on an overloaded machine, or stopped in a debugger), the
+pause is not held against any edge, and the samples queued meanwhile get the time to arrive.
+Without this, an agent that did not run for a second found every edge stale at once and
+stopped every worker (seen with four test suites on two vCPUs).
+
 Only arrival times are kept: the callback on zenoh's thread stores one number per sample and
 never reads the payload. Everything else runs on the agent's thread.
 """
@@ -22,6 +28,9 @@ STALE_PERIODS = 20.0
 """Periods of its announced rate without a sample after which an edge counts as gone."""
 STALE_MIN_S = 1.0
 """Shortest silence after which an edge counts as gone, whatever its rate."""
+PAUSE_S = 0.25
+"""A longer time between two checks is a pause of the agent, not silence of the edges (the
+agent checks at least every 50 ms)."""
 
 
 def stale_after(entry: Mapping[str, Any]) -> float | None:
@@ -40,6 +49,7 @@ class DataLiveness:
     def __init__(self) -> None:
         self.windows: dict[str, float] = {}
         self._last: dict[str, float] = {}
+        self._checked: float | None = None
 
     def watch(self, entries: Iterable[Mapping[str, Any]], now: float) -> tuple[set[str], set[str]]:
         """Watch exactly the watchable edges among ``entries`` (the live SRG's); returns the
@@ -58,7 +68,13 @@ class DataLiveness:
         self._last[edge_id] = now
 
     def stale(self, now: float) -> frozenset[str]:
-        """The watched edges whose last sample is older than their window."""
+        """The watched edges whose last sample is older than their window, not counting a
+        pause of the checks (module docstring)."""
+        if self._checked is not None and now - self._checked > PAUSE_S:
+            paused = now - self._checked
+            for edge_id, last in list(self._last.items()):
+                self._last[edge_id] = min(last + paused, now)
+        self._checked = now
         return frozenset(
             edge_id
             for edge_id, window in self.windows.items()

@@ -1,7 +1,7 @@
 """The agent: keeps the live SRG and the running data flow in step with what is announced.
 
-It watches three kinds of liveliness tokens, with history, so a restarted agent rebuilds its
-whole state from them alone (``docs/protocol.md``):
+It watches the liveliness tokens of providers, queries, workers and other agents, with
+history, so a restarted agent rebuilds its whole state from them alone (``docs/protocol.md``):
 
 * providers (``<root>/provider/<id>``): on appearance their SRG fragment is fetched from
   ``<root>/fragment/<id>`` and validated; on disappearance their edges leave the SRG;
@@ -9,7 +9,11 @@ whole state from them alone (``docs/protocol.md``):
   want; applications asking for the same relation share it;
 * workers (``<root>/worker/<instance>/<incarnation>``): which components are alive, and in
   which processes; a token's removal affects only the incarnation that declared it, so a late
-  removal of an earlier process's token never makes a running worker "vanish".
+  removal of an earlier process's token never makes a running worker "vanish";
+* agents (``<root>/agents/<id>``, ``<root>/agents/<id>/active``): one agent of a domain is
+  active, the others stand by (:mod:`.election`). A standby does everything below but start,
+  stop or rewire a worker: its plan is current, so when it takes over it adopts every worker
+  that runs at once. A clean stop of the active agent with a standby alive hands over.
 
 It also watches the arrival of data on the measured edges that announce a rate
 (:mod:`.liveness`): an edge whose data stopped is planned without until its data returns.
@@ -43,7 +47,7 @@ import queue
 import threading
 import time
 from collections import Counter, defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 from ubitrack_agent.agent.announcements import (
@@ -52,6 +56,8 @@ from ubitrack_agent.agent.announcements import (
     build_srg,
     fragment_entries,
 )
+from ubitrack_agent.agent.answers import query_answers
+from ubitrack_agent.agent.election import Election, new_agent_id
 from ubitrack_agent.agent.flows import Plan, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
 from ubitrack_agent.agent.liveness import DataLiveness
@@ -60,6 +66,7 @@ from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.config import Settings
+from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
@@ -75,11 +82,13 @@ FRAGMENT_ATTEMPTS = 8
 """A provider whose fragment query goes unanswered this often (over about 6 s) is rejected."""
 MAX_LIVE_EDGES = 10_000
 """Most measured edges the live SRG holds: a fragment that would exceed it is rejected."""
-RETIRE_S = 2.0
-"""Longest time a worker the plan dropped keeps running while its replacements start."""
+RETIRE_S = 10.0
+"""Longest time a worker the plan dropped keeps running, or a rewire waits, while the new
+workers start (a cold start takes seconds on a loaded machine)."""
 SETTLE_S = 1.5
 """After start-up, wait this long (for the liveliness history, which arrives as peers
-reconnect) before starting or stopping workers; adopting starts at once."""
+reconnect) before deciding whether to be the active agent, and so before adopting, starting or
+stopping workers."""
 ORPHAN_GRACE_S = 2.0
 """A worker alive that no plan wants is stopped only after it has been unwanted this long
 (and start-up has settled): the fragment that makes it wanted may still be on its way."""
@@ -95,8 +104,19 @@ and worker liveness also change between events)."""
 class Agent:
     """The live agent on an open zenoh session (see the module docstring)."""
 
-    def __init__(self, settings: Settings, templates: Sequence[Template]) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        templates: Sequence[Template],
+        on_role: Callable[[bool], None] | None = None,
+    ) -> None:
         self.keys = KeySpace(settings.key_prefix)
+        self.id = new_agent_id()
+        self.election = Election(self.id)
+        self.active = False
+        self.handed_over = False
+        """Whether a clean stop left the workers running for a standby agent to adopt."""
+        self._on_role = on_role
         self.templates = tuple(templates)
         self.counters: Counter[str] = Counter()
         self.problems = Problems(self.counters)
@@ -124,6 +144,8 @@ class Agent:
         """Instances stopped: when to put the stop again (None: a host manager owns it)."""
         self._unwanted_since: dict[str, float] = {}
         self._retiring: dict[str, float] = {}
+        self._held: dict[str, tuple[dict[str, Any], float]] = {}
+        """Rewires waiting for the workers being started: command and deadline, by instance."""
         self._started = time.monotonic()
         self._events: queue.SimpleQueue[tuple[str, str, str]] = queue.SimpleQueue()
         self._stop = threading.Event()
@@ -143,12 +165,18 @@ class Agent:
                 ("provider", self.keys.all_providers()),
                 ("query", self.keys.all_queries()),
                 ("worker", self.keys.all_workers()),
+                ("agent", self.keys.all_agents()),
+                ("active_agent", self.keys.all_active_agents()),
             )
         ]
-        self._status = self.session.declare_queryable(self.keys.agent_status())
-        self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
-        self._status_thread.start()
-        self._token = liveliness.declare_token(self.keys.agent())
+        self._declared = [
+            self._serve_status(self.keys.agent_member_status(self.id)),
+            liveliness.declare_token(self.keys.agent_member(self.id)),
+        ]
+        self._declared_active: list[Any] = []
+        self._answers: dict[str, str] = {}
+        """The answer published for each queried relation, by answer key (:mod:`.answers`)."""
+        self._answered: Plan | None = None
 
     # -- events -----------------------------------------------------------------------------
 
@@ -165,6 +193,12 @@ class Agent:
             return self._on_query(token.relation, token.name, appeared)
         if kind == "provider":
             return self._on_provider(token.name, appeared)
+        if kind == "agent":
+            self.election.member(token.name, appeared)
+            return False
+        if kind == "active_agent":
+            self.election.active(token.name, appeared)
+            return False
         return self._on_worker(token.name, token.incarnation, appeared)
 
     def _on_provider(self, provider: str, appeared: bool) -> bool:
@@ -201,6 +235,7 @@ class Agent:
         self._stopped.pop(instance, None)
         if self.hosts.reports_exit_of(instance):
             return False  # its host manager reports when the process ends: that restarts it
+        self._held.pop(instance, None)
         if self.running.pop(instance, None) is not None:
             self.counters["restarts"] += 1
             log.warning("%s: worker vanished, starting it again", instance)
@@ -230,6 +265,7 @@ class Agent:
     def _adopt(self, instance: str, wanted: ComponentSpec) -> None:
         """Take a running worker as ``wanted``, sending it that wiring."""
         self._unwanted_since.pop(instance, None)
+        self._held.pop(instance, None)  # the whole wiring goes now
         retiring = self._retiring.pop(instance, None) is not None
         stopped = self._stopped.pop(instance, None) is not None
         if not (retiring or stopped):
@@ -310,7 +346,10 @@ class Agent:
         self._watch_data()
         srg = build_srg(self.fragments, without=self.stale)
         running = set(self.running) | self.alive
-        plan = plan_relations(srg, self.templates, self.queries, running, self.plan)
+        # A standby follows what the active agent runs (as an agent that has not planned yet
+        # does: every alive component counts), so that it adopts all of it when it takes over.
+        previous = self.plan if self.active else None
+        plan = plan_relations(srg, self.templates, self.queries, running, previous)
         wanted = component_specs(plan.flow, srg, self.keys, plan.relations)
         self.srg, self.plan, self.wanted = srg, plan, wanted
         self._replan_due = False
@@ -361,6 +400,7 @@ class Agent:
         restarted = {spec.instance for spec in actions.start}
         for instance in actions.stop:
             del self.running[instance]
+            self._held.pop(instance, None)
             if instance in restarted:
                 self._stop_worker(instance)  # replaced by another specification at once
             else:
@@ -371,7 +411,7 @@ class Agent:
             self._stopped.pop(spec.instance, None)
             self._retiring.pop(spec.instance, None)  # wanted again before it was stopped
         for instance, command in actions.update:
-            self._send_control(instance, command)
+            self._rewire(instance, command, wait=bool(started))
             self.running[instance] = self.wanted[instance]
         if started or actions.stop or actions.update:
             self.last_change_ns = time.time_ns()
@@ -383,6 +423,17 @@ class Agent:
                 len(actions.stop),
                 len(actions.update),
             )
+
+    def _rewire(self, instance: str, command: dict[str, Any], wait: bool) -> None:
+        """Send ``command`` to ``instance``, or, if ``wait``, hold it (merged with a command
+        still held) until the workers being started are alive: a relation's old producer keeps
+        publishing until the new one can (make before break, as :meth:`_retire`)."""
+        held, _ = self._held.pop(instance, ({}, 0.0))
+        command = {**held, **command}
+        if wait or held:
+            self._held[instance] = (command, time.monotonic() + RETIRE_S)
+        else:
+            self._send_control(instance, command)
 
     def _stop_worker(self, instance: str) -> None:
         owned = self.hosts.stop(instance)
@@ -429,11 +480,18 @@ class Agent:
                 self._stopped[instance] = now + STOP_RESEND_S
 
     def _retire(self) -> None:
-        """Stop the workers the plan no longer wants once every wanted worker is alive (make
-        before break: the old flow keeps the relation flowing while the new one starts), or
-        after ``RETIRE_S`` at the latest."""
+        """Send the held rewires and stop the workers the plan no longer wants once every
+        wanted worker is alive (make before break: the old flow keeps the relation flowing
+        while the new one starts), or after ``RETIRE_S`` at the latest."""
         all_alive = set(self.wanted) <= self.alive
         now = time.monotonic()
+        for instance, (command, deadline) in list(self._held.items()):
+            if instance not in self.running:
+                del self._held[instance]  # stopped meanwhile: nothing to rewire
+            elif all_alive or now > deadline:
+                del self._held[instance]
+                self._send_control(instance, command)
+                self.counters["held_rewires"] += 1
         for instance, deadline in list(self._retiring.items()):
             if all_alive or now > deadline:
                 del self._retiring[instance]
@@ -441,6 +499,80 @@ class Agent:
 
     def _send_control(self, instance: str, command: dict[str, Any]) -> None:
         put_command(self.session, self.keys.control(instance), json.dumps(command))
+
+    # -- one active agent per domain ----------------------------------------------------------
+
+    def _elect(self) -> None:
+        """Take over or step down as :mod:`.election` decides."""
+        active = self.election.should_be_active(self.active, self._settled(), time.monotonic())
+        if active and not self.active:
+            self._become_active()
+        elif self.active and not active:
+            self._step_down()
+
+    def _become_active(self) -> None:
+        """Declare the active agent's tokens and status; the next reconcile adopts what runs."""
+        liveliness = self.session.liveliness()
+        self._answers, self._answered = {}, None  # published afresh
+        self._declared_active = [
+            self._serve_status(self.keys.agent_status()),
+            self.session.declare_queryable(
+                self.keys.all_answers(),
+                lambda query: self._guard.call(
+                    "answer_query", self._reply_answers, query, default=None
+                ),
+            ),
+            liveliness.declare_token(self.keys.agent_active(self.id)),
+            liveliness.declare_token(self.keys.agent()),
+        ]
+        self.active = True
+        self.counters["became_active"] += 1
+        self.last_change_ns = time.time_ns()
+        log.warning("agent %s is the active agent of %s", self.id, self.keys.root)
+        if self._on_role is not None:
+            self._on_role(True)
+
+    def _step_down(self) -> None:
+        """Become a standby, leaving every worker running for the active agent to adopt."""
+        self._undeclare_active()
+        self.running.clear()
+        self._retiring.clear()
+        self._held.clear()
+        self._stopped.clear()
+        self._duplicate_stops.clear()
+        self._unwanted_since.clear()
+        self.counters["stepped_down"] += 1
+        log.warning(
+            "agent %s: another agent (%s) is active: standing by",
+            self.id,
+            ", ".join(sorted(self.election.actives - {self.id})),
+        )
+        if self._on_role is not None:
+            self._on_role(False)
+
+    def _publish_answers(self) -> None:
+        """Put the answer to each query that changed since the last plan (:mod:`.answers`)."""
+        if self.plan is None or self._answered is self.plan:
+            return
+        answers = query_answers(self.plan, self.queries, self.keys, self.wanted)
+        for key, answer in answers.items():
+            if self._answers.get(key) != answer:
+                self.session.put(key, answer, encoding=JSON)
+        self._answers, self._answered = answers, self.plan
+
+    def _reply_answers(self, query: Any) -> None:
+        """Reply with every published answer the query's key expression matches (on zenoh's
+        thread: reads one reference)."""
+        answers = self._answers
+        for key, answer in answers.items():
+            if query.key_expr.intersects(key):
+                query.reply(key, answer, encoding=JSON)
+
+    def _undeclare_active(self) -> None:
+        for declared in self._declared_active:
+            declared.undeclare()
+        self._declared_active = []
+        self.active = False
 
     # -- main loop and status -----------------------------------------------------------------
 
@@ -461,10 +593,13 @@ class Agent:
                 guard.periodic("hosts", self._reap_hosts, None)
                 if self._replan_due:
                     guard.periodic("replan", self._replan, None)
-                guard.periodic("reconcile", self._reconcile, None)
-                guard.periodic("retire", self._retire, None)
-                guard.periodic("resend_stops", self._resend_stops, None)
-                guard.periodic("duplicates", self._stop_duplicates, None)
+                guard.periodic("election", self._elect, None)
+                if self.active:  # a standby keeps its state current but changes nothing
+                    guard.periodic("answers", self._publish_answers, None)
+                    guard.periodic("reconcile", self._reconcile, None)
+                    guard.periodic("retire", self._retire, None)
+                    guard.periodic("resend_stops", self._resend_stops, None)
+                    guard.periodic("duplicates", self._stop_duplicates, None)
                 if batch or time.monotonic() > status_due:
                     guard.periodic("status", self._refresh_status, None)
                     status_due = time.monotonic() + STATUS_REFRESH_S
@@ -485,6 +620,7 @@ class Agent:
     def _reap_hosts(self) -> None:
         """Apply host managers' tokens and exit reports: forget the instances that ended."""
         for instance in self.hosts.reap(self.alive):
+            self._held.pop(instance, None)
             if self.running.pop(instance, None) is not None:
                 self.counters["restarts"] += 1
 
@@ -494,17 +630,30 @@ class Agent:
     def stop(self) -> None:
         self._stop.set()
 
+    def latest_status(self) -> dict[str, Any]:
+        """The status as last refreshed by the agent's thread (at most ``STATUS_REFRESH_S``
+        old): safe to read from any thread."""
+        return json.loads(self._status_json)
+
     def status(self) -> dict[str, Any]:
         """The agent's state: SRG, providers, queries, components, counters (JSON-ready)."""
         plan = self.plan
         placements = self.hosts.placements
         return {
             "key_prefix": self.keys.root,
+            "agent": self._roles(),
             "providers": {p: [e["id"] for e in entries] for p, entries in self.fragments.items()},
             "rejected_providers": dict(self.rejected),
             "stale_edges": sorted(self.stale),
             "srg": [
-                {"id": key, "from": u, "to": v, "type": d["type"], "static": d["static"]}
+                {
+                    "id": key,
+                    "from": u,
+                    "to": v,
+                    "type": d["type"],
+                    "static": d["static"],
+                    "rate": d["quality"].rate,
+                }
                 for u, v, key, d in self.srg.edges(keys=True, data=True)
             ],
             "queries": {str(r): sorted(apps) for r, apps in self.queries.items()},
@@ -529,28 +678,44 @@ class Agent:
             "last_change_ns": self.last_change_ns,
         }
 
-    def _serve_status(self) -> None:
-        for query in self._status:
-            with query:
-                self._guard.call("status_query", self._answer_status, query, default=None)
+    def _roles(self) -> dict[str, Any]:
+        """This agent's id and role, and the ids of the active and standby agents it sees."""
+        active = (self.election.actives - {self.id}) | ({self.id} if self.active else set())
+        return {
+            "id": self.id,
+            "role": "active" if self.active else "standby",
+            "active": sorted(active),
+            "standby": sorted(self.election.members - active),
+        }
 
-    def _answer_status(self, query: Any) -> None:
-        query.reply(self.keys.agent_status(), self._status_json)
+    def _serve_status(self, key: str) -> Any:
+        """A queryable on ``key`` answering the latest status (on zenoh's thread)."""
+        return self.session.declare_queryable(
+            key,
+            lambda query: self._guard.call(
+                "status_query", self._reply_status, query, key, default=None
+            ),
+        )
+
+    def _reply_status(self, query: Any, key: str) -> None:
+        query.reply(key, self._status_json, encoding=JSON)
 
     def _close(self, stop_workers: bool) -> None:
-        """Stop every worker this agent runs if ``stop_workers`` (a clean stop; otherwise they
-        keep running for a restarted agent to adopt), then leave the network."""
-        self._token.undeclare()
-        for watch in self._watches:
-            watch.undeclare()
-        self._status.undeclare()
-        self._status_thread.join(timeout=1.0)
-        for watch in self._data_watches.values():
-            watch.undeclare()
-        if stop_workers:
+        """Leave the network after a clean stop (``stop_workers``) or a failure of the loop.
+        A clean stop of the active agent stops every worker it runs, unless a standby agent is
+        alive to adopt them (then it hands over: they keep running, as after a failure)."""
+        standby = bool(set(self.election.standbys) - {self.id})
+        self.handed_over = stop_workers and self.active and standby
+        was_active = self.active
+        self._undeclare_active()
+        for declared in (*self._declared, *self._watches, *self._data_watches.values()):
+            declared.undeclare()
+        if stop_workers and was_active and not standby:
             for instance in sorted({*self.running, *self._retiring}):
                 self.hosts.stop(instance)
-        else:
+        elif self.handed_over:
+            log.warning("handing over to the standby agent: the workers keep running")
+        elif not stop_workers:
             log.error("the agent failed: its workers keep running for a restarted agent")
         self.hosts.close()
         self.session.close()

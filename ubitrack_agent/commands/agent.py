@@ -9,10 +9,12 @@ import subprocess
 import sys
 import threading
 from collections.abc import Callable
+from typing import Any
 
 from services.host import DEFAULT_POOL_SIZE
 from ubitrack_agent.net import config
 from ubitrack_agent.net.lifecycle import on_termination
+from ubitrack_agent.net.status_line import periodic_status
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -32,8 +34,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Watch providers and application queries on zenoh, plan every queried "
         "relation with the pattern templates, and have host managers start, stop and rewire "
         "pattern workers so that each relation flows on its stable key. Starts a host manager "
-        "for this machine (python -m services.host) unless --no-host. Ends cleanly on SIGTERM "
-        "or Ctrl-C, stopping every worker it runs.",
+        "for this machine (python -m services.host) unless --no-host. One agent of a domain is "
+        "active; another one started on the domain (on its own endpoint) stands by, changing "
+        "nothing and starting no host manager, and takes over, adopting every worker, when the "
+        "active one ends. Ends cleanly on SIGTERM or Ctrl-C, stopping every worker it runs, "
+        "or, with a standby alive, handing them over.",
     )
     parser.add_argument(
         "--templates", metavar="DIR", help="template directory (default: the shipped templates/)"
@@ -44,6 +49,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=DEFAULT_POOL_SIZE,
         help="idle pre-started workers the host manager keeps ready for fast reconfiguration; "
         "each holds about 100 MB (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no status line (every 10 s: role, queries, workers alive, reconfigurations, the "
+        "kinds of problem seen)",
     )
     parser.add_argument(
         "--no-host",
@@ -66,6 +77,7 @@ class EmbeddedHost:
             "-m",
             "services.host",
             "--exit-when-stdin-closes",
+            "--quiet",  # the agent's status line counts its workers
             "--pool-size",
             str(pool_size),
             "--log-level",
@@ -120,6 +132,53 @@ class EmbeddedHost:
             process.wait()
 
 
+def status_line(status: dict[str, Any]) -> str:
+    """The agent's one-line status (``net.status_line``) from its status."""
+    if not status:
+        return "agent: starting"
+    counters = status["counters"]
+    components = status["components"].values()
+    problems = sorted(status.get("problems", {}))
+    seen = f"; problems: {', '.join(problems)} (ubitrack status)" if problems else ""
+    return (
+        f"agent {status['agent']['id']} {status['agent']['role']}: "
+        f"{len(status['queries'])} queries, {len(status['unsolved'])} unsolved; "
+        f"{sum(c['alive'] for c in components)} of {len(components)} workers alive; "
+        f"{len(status['providers'])} providers, {len(status['stale_edges'])} stale edges; "
+        f"{counters.get('reconfigurations', 0)} reconfigurations, "
+        f"{counters.get('restarts', 0)} restarts{seen}"
+    )
+
+
+class HostWhileActive:
+    """The agent's :class:`EmbeddedHost`, run while the agent is the active one of its domain
+    (``agent.election``): a standby's host manager would answer the active agent's requests
+    under the same host name. Stepping down abandons it (the workers keep running)."""
+
+    def __init__(self, settings: config.Settings, pool_size: int, log_level: str) -> None:
+        self._options = (settings, pool_size, log_level)
+        self._stopping = False
+        self.host: EmbeddedHost | None = None
+
+    def on_role(self, active: bool) -> None:
+        if active and self.host is None and not self._stopping:
+            self.host = EmbeddedHost(*self._options)
+        elif not active and self.host is not None:
+            self.host.abandon()
+            self.host = None
+
+    def stop_restarting(self) -> None:
+        """Safe in a signal handler (see :meth:`EmbeddedHost.stop_restarting`)."""
+        self._stopping = True
+        if self.host is not None:
+            self.host.stop_restarting()
+
+    def end(self, keep_workers: bool) -> None:
+        """End the host manager: its workers keep running if ``keep_workers``."""
+        if self.host is not None:
+            self.host.abandon() if keep_workers else self.host.stop()
+
+
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
@@ -135,12 +194,12 @@ def run(args: argparse.Namespace) -> int:
     if args.pool_size < 0:
         print("ubitrack agent: --pool-size must be >= 0", file=sys.stderr)
         return 2
+    host = None if args.no_host else HostWhileActive(settings, args.pool_size, args.log_level)
     try:
-        agent = Agent(settings, templates)
+        agent = Agent(settings, templates, on_role=host.on_role if host else None)
     except zenoh.ZError as exc:
         print(f"ubitrack agent: cannot open zenoh on {settings.listen}: {exc}", file=sys.stderr)
         return 2
-    host = None if args.no_host else EmbeddedHost(settings, args.pool_size, args.log_level)
 
     def stop() -> None:
         if host is not None:
@@ -148,14 +207,19 @@ def run(args: argparse.Namespace) -> int:
         agent.stop()
 
     on_termination(stop)
-    print(f"ubitrack agent: serving {agent.keys.root} on {', '.join(settings.listen)}", flush=True)
+    print(
+        f"ubitrack agent: agent {agent.id} of {agent.keys.root} on {', '.join(settings.listen)} "
+        "(active unless another agent of the domain is)",
+        flush=True,
+    )
     try:
-        agent.run()
+        with periodic_status(lambda: status_line(agent.latest_status()), not args.quiet):
+            agent.run()
     except Exception:
         log.exception("the agent failed; its workers keep running for a restarted agent")
         if host is not None:
-            host.abandon()
+            host.end(keep_workers=True)
         return 1
     if host is not None:
-        host.stop()
+        host.end(keep_workers=agent.handed_over)
     return 0

@@ -31,7 +31,6 @@ import math
 import sys
 from typing import Any
 
-from ubitrack_agent.commands.agent_status import unsolved_reason
 from ubitrack_agent.net import config
 
 TYPES = ("6D", "3D", "3R")
@@ -156,9 +155,11 @@ def run(args: argparse.Namespace) -> int:
             say({"event": "not_static", "message": message, **vars(outcome.progress)}, message)
             return 1
         if outcome.kind == "timeout":
+            silence = relation.silence(args.timeout)
+            cause = getattr(silence, "cause", None)
             print(
                 f"{prog}: {relation_id} did not converge within {args.timeout:.0f} s"
-                f"{unsolved_reason(session, keys, relation_id)}",
+                + (f": {cause}" if cause else ""),
                 file=sys.stderr,
             )
             return 1

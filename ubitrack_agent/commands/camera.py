@@ -11,7 +11,7 @@ camera` does; with --pose and --marker-length, also each marker's pose as a 6D e
 FRAME (OpenCV's solvePnP, IPPE_SQUARE). Unmapped ids are ignored and counted.
 
 The intrinsics come from the intrinsics edge CAMERA -> IMAGE_PLANE of the static-edges file
---intrinsics (docs/camera.md shows one; a ChArUco calibration command is planned). Every 5 s
+--intrinsics (`ubitrack intrinsics` writes one from a ChArUco board; docs/camera.md). Every 5 s
 and at the end it prints a status line: frames per second and markers seen (--quiet: none).
 Runs until SIGINT/SIGTERM, --duration seconds or the end of a file, then logs its counters
 and exits 0; a bad option, file or source exits 2 with the reason.

@@ -171,9 +171,10 @@ def simulator_arguments(scenario_flag: list[str], art_port: int, seed: int) -> d
     seed: 0.033-0.037 degrees about the camera's optical axis, NEES 13-15 three times), and
     repeated runs do not sample the calibration's error distribution. The sample mean of the
     first seconds of the live stream with that seed, replayed offline, has that error too."""
+    quiet, port = "--quiet", str(art_port)  # quiet: the demo prints its own lines
     return {
-        "sim camera": ["sim", "camera", "--seed", str(seed + 1), *scenario_flag],
-        "sim art": ["sim", "art", "--port", str(art_port), "--seed", str(seed), *scenario_flag],
+        "sim camera": ["sim", "camera", quiet, "--seed", str(seed + 1), *scenario_flag],
+        "sim art": ["sim", "art", quiet, "--port", port, "--seed", str(seed), *scenario_flag],
     }
 
 
@@ -212,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
     seed = fresh_seed() if args.seed is None else args.seed
     simulators = simulator_arguments(scenario_flag, art_port, seed)
     art = {
-        "dtrack": ["dtrack", *dtrack_flags(scenario.art, art_port), *member],
+        "dtrack": ["dtrack", "--quiet", *dtrack_flags(scenario.art, art_port), *member],
         "sim art": simulators["sim art"],
     }
     keys = KeySpace(hub.key_prefix)
@@ -227,6 +228,7 @@ def run(args: argparse.Namespace) -> int:
                 "--log-level",
                 args.log_level,
                 "agent",
+                "--quiet",  # the demo prints its own lines
                 *config.as_flags(hub),
             ],
         )
@@ -246,9 +248,9 @@ def run(args: argparse.Namespace) -> int:
                 keys.provider(scenario.art.provider),
                 lambda s: events.put((str(s.kind), time.time_ns())),
             )
-            children.start("sim database", ["sim", "database", *scenario_flag, *member])
+            children.start("sim database", ["sim", "database", "--quiet", *scenario_flag, *member])
             children.start("sim camera", [*simulators["sim camera"], *member])
-            children.start("store", ["store", calibration_file, *member])
+            children.start("store", ["store", "--quiet", calibration_file, *member])
             for name, arguments in art.items():
                 children.start(name, arguments)
             say(

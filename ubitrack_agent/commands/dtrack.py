@@ -21,7 +21,8 @@ receive time minus its latency) or DTrack's ts line, which needs the controller'
 synchronised with this host's (NTP or PTP).
 
 Example, the paper's figure-1 setup: ubitrack dtrack --body 0=WT --body 1=HT --static WT.
-Runs until SIGINT/SIGTERM or --duration seconds, then logs its counters and exits 0; a bad
+Every 10 s it prints a status line (datagrams and measurements per second, rejections; --quiet:
+none). Runs until SIGINT/SIGTERM or --duration seconds, then logs its counters and exits 0; a bad
 option exits 2 with the reason.
 """
 
@@ -30,9 +31,12 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from collections.abc import Callable
+from typing import Any
 
 from ubitrack_agent.io.dtrack import adapter as dtrack
 from ubitrack_agent.net import config
+from ubitrack_agent.net.status_line import periodic_status
 
 log = logging.getLogger("ubitrack.dtrack")
 
@@ -143,6 +147,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "day, for a synchronised controller (default: %(default)s)",
     )
     parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no status line (every 10 s: datagrams and measurements per second, rejections)",
+    )
+    parser.add_argument(
         "--duration",
         type=float,
         metavar="SECONDS",
@@ -160,6 +169,29 @@ def _id_map(pairs: list[tuple[int, str]], option: str) -> dict[int, str]:
             raise ValueError(f"{option} {ident} is given twice ({mapping[ident]}, {frame})")
         mapping[ident] = frame
     return mapping
+
+
+def _status_line(adapter: Any, args: argparse.Namespace) -> Callable[[], str]:
+    """The adapter's one-line status (``net.status_line``): datagrams and measurements per
+    second since the last line, rejections so far, and a hint when nothing arrives."""
+    from ubitrack_agent.net.status_line import Rate
+
+    datagrams = Rate(lambda: adapter.counters["received"])
+    published = Rate(lambda: adapter.counters["published"])
+
+    def line() -> str:
+        received = datagrams.per_second()
+        silent = (
+            f"; nothing arrives on UDP {args.bind}:{args.port}: is DTrack sending there?"
+            if received == 0
+            else ""
+        )
+        return (
+            f"dtrack: {received:.1f} datagrams/s, {published.per_second():.1f} measurements/s "
+            f"published; {adapter.counters['rejected']} datagrams rejected{silent}"
+        )
+
+    return line
 
 
 def run(args: argparse.Namespace) -> int:
@@ -207,6 +239,7 @@ def run(args: argparse.Namespace) -> int:
         sock,
         open_session(settings) as session,
         Provider(session, KeySpace(settings.key_prefix), args.provider, adapter.edges) as provider,
+        periodic_status(_status_line(adapter, args), not args.quiet),
     ):
         serve_udp(sock, adapter, provider, stop, args.duration)
     log.info("dtrack counters: %s", dict(adapter.counters))

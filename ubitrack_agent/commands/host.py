@@ -29,4 +29,4 @@ def run(args: argparse.Namespace) -> int:
     except config.ConfigError as exc:
         print(f"ubitrack host: {exc}", file=sys.stderr)
         return 2
-    return host.serve(settings, args.name, args.pool_size)
+    return host.serve(settings, args.name, args.pool_size, quiet=args.quiet)

@@ -10,10 +10,12 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
 from ubitrack_agent.net import config
+from ubitrack_agent.net.status_line import Rate, periodic_status
 
 log = logging.getLogger("ubitrack.sim")
 
@@ -26,6 +28,7 @@ def add_common_arguments(parser: argparse.ArgumentParser, zenoh: bool = True) ->
     parser.add_argument(
         "--duration", type=float, help="stop after this many seconds (default: run until stopped)"
     )
+    parser.add_argument("--quiet", action="store_true", help="no status line (every 10 s)")
     if zenoh:
         config.add_arguments(parser)
 
@@ -120,8 +123,13 @@ def _run_world(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     with open_session(settings) as session:
         server = TruthServer(session, KeySpace(settings.key_prefix), scenario.world)
+
+        def line() -> str:
+            return f"sim world: {server.answered} truth queries answered, {server.failed} failed"
+
         try:
-            stop.wait(args.duration)
+            with periodic_status(line, not args.quiet):
+                stop.wait(args.duration)
         finally:
             server.close()
     log.info("answered %d truth queries, %d failed", server.answered, server.failed)
@@ -143,8 +151,20 @@ def _run_art(args: argparse.Namespace) -> int:
     port = scenario.art.port if args.port is None else args.port
     seed = scenario.seed if args.seed is None else args.seed
     simulator = sim_art.ArtSimulator(scenario.world, scenario.art, np.random.default_rng(seed))
+    counters: Counter[str] = Counter()
+    sent = Rate(lambda: counters["sent"])
+
+    def line() -> str:
+        return (
+            f"sim art: {sent.per_second():.1f} datagrams/s to {args.host}:{port}, "
+            f"{counters['send_failed']} sends failed"
+        )
+
     try:
-        sim_art.run(simulator, (args.host, port), rate, stop_on_signals(), args.duration)
+        with periodic_status(line, not args.quiet):
+            sim_art.run(
+                simulator, (args.host, port), rate, stop_on_signals(), args.duration, counters
+            )
     except OSError as exc:
         print(f"{prog}: cannot send to {args.host}:{port}: {exc}", file=sys.stderr)
         return 2
@@ -169,12 +189,24 @@ def _run_camera(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     edges = announcements(scenario.camera, scenario.world)
     with provider_session(settings, scenario.camera.provider, edges) as provider:
+        counters: Counter[str] = Counter()
+        published = Rate(lambda: counters["frames"])
 
         def publish(now_ns: int) -> None:
-            for edge, measurement in simulator.measure(now_ns).items():
+            measurements = simulator.measure(now_ns)
+            for edge, measurement in measurements.items():
                 provider.publish(edge, measurement)
+            counters["frames"] += 1
+            counters["features"] += len(measurements)
 
-        frames = run_periodic(rate, publish, stop, args.duration)
+        def line() -> str:
+            return (
+                f"sim camera: {published.per_second():.1f} frames/s, {counters['features']} "
+                f"features in {counters['frames']} frames"
+            )
+
+        with periodic_status(line, not args.quiet):
+            frames = run_periodic(rate, publish, stop, args.duration)
     log.info("published %d camera frames", frames)
     return 0
 
@@ -216,5 +248,7 @@ def _run_database(args: argparse.Namespace) -> int:
     with provider_session(settings, provider_id, announced) as provider:
         for edge in edges:
             provider.publish(edge.announcement.name, edge.value)
-        stop.wait(args.duration)
+        line = f"sim database: serving {len(edges)} static edges as provider {provider_id}"
+        with periodic_status(lambda: line, not args.quiet):
+            stop.wait(args.duration)
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -17,14 +19,81 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "status",
         help="show the agent's live SRG, queries, workers and counters",
         description="Ask the agent for its state and every worker for its counters; print a "
-        "summary (or --json). --dot FILE writes the live SRG with the running data flow "
-        "(measured edges solid, derived edges dashed) in Graphviz DOT.",
+        "summary (or --json). --dot FILE writes the live data flow in Graphviz DOT in the "
+        "style of the paper's figure 6: providers (sources), components (boxes: pattern, "
+        "instance, host), applications (sinks), wires labelled with type and rate (announced "
+        "for a provider's edge, measured over --rate-window seconds for a component's output); "
+        "--svg FILE the same drawn by Graphviz's dot; --srg-dot FILE the live SRG with the "
+        "edges the components derive (dashed).",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--dot", metavar="FILE", help="write the live SRG and data flow as DOT")
+    parser.add_argument("--dot", metavar="FILE", help="write the live data flow as DOT")
+    parser.add_argument("--svg", metavar="FILE", help="draw the live data flow as SVG (Graphviz)")
+    parser.add_argument("--srg-dot", metavar="FILE", help="write the live SRG as DOT")
+    parser.add_argument(
+        "--rate-window",
+        type=float,
+        default=1.0,
+        help="seconds over which --dot/--svg measure the components' output rates (default 1)",
+    )
     parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for answers")
     config.add_arguments(parser)
     parser.set_defaults(func=run)
+
+
+def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> str:
+    """DOT of the live data flow in the style of the paper's figure 6: providers (sources),
+    components (boxes: pattern, instance, host; grey while starting), applications (sinks);
+    each wire labelled with the type it carries and its rate (a provider edge's announced rate,
+    a component's measured output rate from ``rates``, by instance, in Hz)."""
+    from ubitrack_agent.graph.dot import quote
+
+    rates = rates or {}
+    data = f"{status['key_prefix']}/data/"
+    edges = {edge["id"]: edge for edge in status.get("srg", [])}
+    lines = [f"digraph {quote(status['key_prefix'])} {{", "  rankdir=LR;"]
+    producers: dict[str, tuple[str, str]] = {}  # key -> (node, wire label)
+    for provider, edge_ids in status.get("providers", {}).items():
+        node = f"provider {provider}"
+        lines.append(f"  {quote(node)} [shape=house, label={quote(provider)}];")
+        for edge_id in edge_ids:
+            edge = edges.get(edge_id, {})
+            rate = edge.get("rate") or 0.0
+            label = edge.get("type", "?") + (" static" if edge.get("static") else "")
+            label += f", {rate:g} Hz" if rate else ""
+            producers[data + edge_id] = (node, label)
+    components = status.get("components", {})
+    for instance, component in components.items():
+        where = f"\non {component['host']}" if component.get("host") else ""
+        colour = "black" if component.get("alive") else "grey"
+        label = f"{component['service']}\n{instance}{where}"
+        lines.append(
+            f"  {quote(instance)} [shape=box, color={colour}, fontcolor={colour}, "
+            f"label={quote(label)}];"
+        )
+        kinds = {typ for _, _, typ in component.get("derives", [])}
+        kind = kinds.pop() if len(kinds) == 1 else "?"
+        rate = f", {rates[instance]:.0f} Hz" if instance in rates else ""
+        for key in component.get("outputs", {}).values():
+            producers[key] = (instance, kind + rate)
+    for instance, component in components.items():
+        for binding in component.get("inputs", []):
+            node, label = producers.get(binding["key"], (binding["key"], "?"))
+            if binding["key"] not in producers:
+                lines.append(f"  {quote(node)} [shape=plaintext];")
+            lines.append(f"  {quote(node)} -> {quote(instance)} [label={quote(label)}];")
+    for name, relation in status.get("relations", {}).items():
+        apps = status.get("queries", {}).get(name, [])
+        sink = f"application {name}"
+        label = "\n".join([*apps, name])
+        lines.append(f"  {quote(sink)} [shape=invhouse, label={quote(label)}];")
+        for instance, component in components.items():
+            routes = component.get("relations", {}).values()
+            if any(relation["key"] in keys for keys in routes):
+                _, wire = producers.get(next(iter(component["outputs"].values()), ""), ("", ""))
+                lines.append(f"  {quote(instance)} -> {quote(sink)} [label={quote(wire)}];")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
 
 
 def live_dot(status: dict[str, Any]) -> str:
@@ -45,6 +114,27 @@ def live_dot(status: dict[str, Any]) -> str:
             )
     lines.append("}")
     return "\n".join(lines) + "\n"
+
+
+def worker_counters(session: Any, keys: Any, timeout: float) -> dict[str, dict[str, int]]:
+    """Every worker's counters, by instance."""
+    from ubitrack_agent.net.transport import fetch_latest
+
+    workers = {}
+    for payload in fetch_latest(session, keys.all_statuses(), timeout=timeout):
+        answer = json.loads(payload)
+        workers[answer["instance"]] = answer["counters"]
+    return workers
+
+
+def draw_svg(dot: str, path: str) -> str | None:
+    """Draw ``dot`` into the SVG file ``path`` with Graphviz's ``dot``; why not, if it fails."""
+    if shutil.which("dot") is None:
+        return "Graphviz's dot is not installed (Debian: apt install graphviz); use --dot"
+    drawn = subprocess.run(
+        ["dot", "-Tsvg", "-o", path], input=dot, text=True, capture_output=True, check=False
+    )
+    return None if drawn.returncode == 0 else drawn.stderr.strip()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,23 +158,41 @@ def run(args: argparse.Namespace) -> int:
             else:
                 time.sleep(0.05)  # links come up in the background after opening
         if status is None:
-            print(f"ubitrack status: no agent answers on {keys.agent_status()}", file=sys.stderr)
+            standbys = fetch_latest(session, keys.all_agent_statuses(), timeout=0.2)
+            waiting = f" ({len(standbys)} agent(s) standing by or settling)" if standbys else ""
+            print(
+                f"ubitrack status: no active agent answers on {keys.agent_status()}{waiting}",
+                file=sys.stderr,
+            )
             return 1
-        workers = {}
-        for payload in fetch_latest(session, keys.all_statuses(), timeout=args.timeout):
-            answer = json.loads(payload)
-            workers[answer["instance"]] = answer["counters"]
+        workers = worker_counters(session, keys, args.timeout)
+        rates: dict[str, float] = {}
+        if args.dot or args.svg:  # output rates: published samples over the window
+            began = time.monotonic()
+            time.sleep(args.rate_window)
+            later = worker_counters(session, keys, args.timeout)
+            window = time.monotonic() - began
+            for instance, counters in later.items():
+                before = workers.get(instance, {}).get("published", 0)
+                rates[instance] = (counters.get("published", 0) - before) / window
     for instance, component in status["components"].items():
         component["counters"] = workers.get(instance)
+    if args.srg_dot:
+        Path(args.srg_dot).write_text(live_dot(status), encoding="utf-8")
     if args.dot:
-        Path(args.dot).write_text(live_dot(status), encoding="utf-8")
+        Path(args.dot).write_text(flow_dot(status, rates), encoding="utf-8")
+    if args.svg and (failed := draw_svg(flow_dot(status, rates), args.svg)):
+        print(f"ubitrack status: --svg: {failed}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(status, indent=2))
         return 0
     print(
-        f"agent on {status['key_prefix']}: {len(status['srg'])} SRG edges from "
-        f"{len(status['providers'])} providers"
+        f"agent {status['agent']['id']} (active) on {status['key_prefix']}: "
+        f"{len(status['srg'])} SRG edges from {len(status['providers'])} providers"
     )
+    for standby in status["agent"]["standby"]:
+        print(f"  standby agent {standby}: takes over if this one ends")
     for provider, reason in status["rejected_providers"].items():
         print(f"  rejected provider {provider}: {reason}")
     for edge_id in status.get("stale_edges", []):

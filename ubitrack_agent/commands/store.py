@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from ubitrack_agent.net import config
+from ubitrack_agent.net.status_line import periodic_status
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,6 +25,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--name",
         default="store",
         help="the store's name in keys and provider ids (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--quiet", action="store_true", help="no status line (every 10 s: edges, saves)"
     )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
@@ -57,5 +61,12 @@ def run(args: argparse.Namespace) -> int:
                 f"{keys.store(args.name)}",
                 flush=True,
             )
-            stop.wait()
+            with periodic_status(
+                lambda: (
+                    f"store {args.name}: serving {len(store.edges)} edge(s); "
+                    f"{store.counters['saved']} saved, {store.counters['refused']} refused"
+                ),
+                not args.quiet,
+            ):
+                stop.wait()
     return 0

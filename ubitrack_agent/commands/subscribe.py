@@ -8,7 +8,6 @@ import math
 import sys
 import time
 
-from ubitrack_agent.commands.agent_status import unsolved_reason
 from ubitrack_agent.net import config
 
 DEFAULT_TIMEOUT_S = 10.0
@@ -77,8 +76,7 @@ def run(args: argparse.Namespace) -> int:
                 line = {**to_json(sample), "latency_ms": round(latency_ms, 3)}
                 print(json.dumps(line), flush=True)
                 printed += 1
-        except TimeoutError as exc:
-            reason = unsolved_reason(session, keys, relation_id)
-            print(f"ubitrack subscribe: {exc}{reason}", file=sys.stderr)
+        except TimeoutError as exc:  # with the agent's reason (UnsolvedRelation, NoAgent)
+            print(f"ubitrack subscribe: {exc}", file=sys.stderr)
             return 1
     return 0

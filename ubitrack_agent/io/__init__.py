@@ -4,7 +4,7 @@ adapter base (:mod:`.adapter`), the A.R.T. DTrack2 format and adapter (:mod:`.dt
 camera's ArUco detection and adapter (:mod:`.camera`, the one package here that loads OpenCV)
 and the static-edges file of calibration results (:mod:`.static_edges`)."""
 
-from ubitrack_agent.io.application import NotStatic, Relation
+from ubitrack_agent.io.application import NoAgent, NotStatic, Relation, UnsolvedRelation
 from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
 
-__all__ = ["EdgeAnnouncement", "NotStatic", "Provider", "Relation"]
+__all__ = ["EdgeAnnouncement", "NoAgent", "NotStatic", "Provider", "Relation", "UnsolvedRelation"]

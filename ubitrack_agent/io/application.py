@@ -37,6 +37,12 @@ producer answering), ``ExtrapolationError`` (a time it cannot answer), ``Timeout
 measured static edges between its two frames (a stored calibration), on relation and progress
 keys of its own, while the plain static relation keeps serving the stored value.
 
+Why nothing arrives: the active agent answers each query (``net.answer``: the flow serving
+it, or why none can), kept in :attr:`Relation.answer`. When no sample comes within a timeout,
+:meth:`Relation.wait_for` and :meth:`Relation.get` raise :class:`UnsolvedRelation` with the
+planner's reason if the agent cannot serve the relation, :class:`NoAgent` if no agent is
+active on the domain, and a plain ``TimeoutError`` otherwise (the two are subclasses of it).
+
 A static relation computed from dynamic inputs (a calibration) also reports its progress
 (``ubitrack_agent.net.progress``): :attr:`Relation.progress` is the latest report, and
 :meth:`Relation.wait_for` raises :class:`NotStatic` when the inputs show that the relation
@@ -61,6 +67,7 @@ from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.answer import Answer, AnswerError, parse_answer
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
@@ -85,6 +92,28 @@ class NotStatic(RuntimeError):
             f"{_describe_motion(moved)} more than the measurements' noise explains"
         )
         self.progress = progress
+
+
+class UnsolvedRelation(TimeoutError):
+    """No sample came because the agent cannot serve the relation; ``reason`` is the planner's
+    explanation (``"no provider announces frame(s) X"``, ...), ``cause`` says it in a clause."""
+
+    def __init__(self, relation: RelationId, timeout: float | None, reason: str) -> None:
+        self.reason = reason
+        self.cause = f"the agent cannot serve it: {reason}"
+        super().__init__(f"no sample of {relation} within {timeout} s: {self.cause}")
+
+
+class NoAgent(TimeoutError):
+    """No sample came and no agent is active on the domain to plan the relation; ``cause``
+    says it in a clause."""
+
+    def __init__(self, relation: RelationId, timeout: float | None, root: str) -> None:
+        self.cause = (
+            f"no agent is active on {root} (is `ubitrack agent` running, with the same "
+            "--domain and network settings?)"
+        )
+        super().__init__(f"no sample of {relation} within {timeout} s: {self.cause}")
 
 
 def _describe_motion(motion: dict[str, Any]) -> str:
@@ -141,7 +170,22 @@ class Relation(Closing):
         self.progress_at: float | None = None
         """When (``time.monotonic()``) it arrived: a report that stops coming is from a flow
         the agent has replaced (by a stored value, say)."""
-        wanted = [(self.key, receive, lambda: self._received > 0)]
+        self.answer: Answer | None = None
+        """The active agent's latest answer to this query (``net.answer``), or None."""
+        self._root = keys.root
+        self._agents: set[str] = set()
+        answer_key = keys.answer(relation)
+        receive_answer = self._guarded(self._receive_answer)
+        self._answer_subscriber = session.declare_subscriber(
+            answer_key, lambda sample: receive_answer(sample.payload.to_bytes())
+        )
+        self._agent_watch = session.liveliness().declare_subscriber(
+            keys.all_active_agents(), self._on_agent, history=True
+        )
+        wanted = [
+            (self.key, receive, lambda: self._received > 0),
+            (answer_key, receive_answer, lambda: self.answer is not None),
+        ]
         self._progress_subscriber = None
         if relation.static:
             progress_key = keys.progress(relation)
@@ -181,6 +225,34 @@ class Relation(Closing):
         with self._lock:
             self.progress, self.progress_at = progress, time.monotonic()
             self._lock.notify_all()
+
+    def _receive_answer(self, payload: bytes) -> None:
+        """Runs on zenoh's thread: keep the latest valid answer (waiters still wait for their
+        timeout: a relation unsolved now may be served once its sensors announce)."""
+        try:
+            answer = parse_answer(payload)
+        except AnswerError as exc:
+            self._count("rejected", "rejected answer: %s", exc)
+            return
+        self.answer = answer
+
+    def _on_agent(self, sample: Any) -> None:
+        """Runs on zenoh's thread: an active agent's token appeared or went."""
+        key = str(sample.key_expr)
+        if str(sample.kind) == "SampleKind.PUT":
+            self._agents.add(key)
+        else:
+            self._agents.discard(key)
+
+    def silence(self, timeout: float | None) -> TimeoutError:
+        """Why no sample came within ``timeout``, as the exception to raise: the agent's
+        reason (:class:`UnsolvedRelation`), no agent (:class:`NoAgent`), or neither."""
+        answer = self.answer
+        if answer is not None and not answer.served:
+            return UnsolvedRelation(self.relation, timeout, answer.reason or "")
+        if not self._agents:
+            return NoAgent(self.relation, timeout, self._root)
+        return TimeoutError(f"no sample of {self.relation} within {timeout} s")
 
     def _receive(self, payload: bytes) -> None:
         """Runs on zenoh's thread: validate, store, notify; no zenoh calls, no blocking."""
@@ -261,7 +333,7 @@ class Relation(Closing):
                 return self._received > seen or self._moving()
 
             if not self._lock.wait_for(done, timeout=timeout):
-                raise TimeoutError(f"no sample of {self.relation} within {timeout} s")
+                raise self.silence(timeout)
             if self._received == seen and self.progress is not None:
                 raise NotStatic(self.relation, self.progress)
             return self._buffer.latest()
@@ -279,7 +351,7 @@ class Relation(Closing):
         try:
             return self._queue.get(timeout=timeout)
         except queue.Empty:
-            raise TimeoutError(f"no sample of {self.relation} within {timeout} s") from None
+            raise self.silence(timeout) from None
 
     def close(self) -> None:
         """Withdraw the query; the agent stops what only this application needed. A second
@@ -290,5 +362,7 @@ class Relation(Closing):
         self._fetcher.join(timeout=1.0)
         self._token.undeclare()
         self._subscriber.undeclare()
+        self._answer_subscriber.undeclare()
+        self._agent_watch.undeclare()
         if self._progress_subscriber is not None:
             self._progress_subscriber.undeclare()

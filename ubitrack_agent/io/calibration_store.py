@@ -49,6 +49,7 @@ from ubitrack_agent.io.static_edges import (
     write_static_edges,
 )
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.json_messages import MessageError, field, load_object
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.lifecycle import Closing
@@ -141,7 +142,7 @@ class CalibrationStore(Closing):
                     "edge": edge.announcement.name,
                     "provider": self.provider_id(edge),
                 }
-                query.reply(query.key_expr, json.dumps(answer))
+                query.reply(query.key_expr, json.dumps(answer), encoding=JSON)
 
     def close(self) -> None:
         """Stop taking requests and withdraw every edge; a second call does nothing."""

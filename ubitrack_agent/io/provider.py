@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, encode
+from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.transport import LatestValuePublisher
@@ -127,7 +128,7 @@ class Provider(Closing):
     def _serve_fragment(self) -> None:
         for query in self._queryable:
             with query:
-                query.reply(query.key_expr, self._fragment)
+                query.reply(query.key_expr, self._fragment, encoding=JSON)
 
     def close(self) -> None:
         """Withdraw the announcement (token first, so the agent replans at once); a second

@@ -68,8 +68,10 @@ def _common_rules(keys: KeySpace) -> list[dict[str, Any]]:
     """Granted to every known role: receiving anything, and reading."""
     readable = [
         keys.agent_status(),
+        keys.all_agent_statuses(),
         keys.all_statuses(),
         *(keys.pattern(kind, "**") for kind in ("relation", "data", "progress", "truth")),
+        keys.all_answers(),
         keys.pattern("fragment", "*"),
     ]
     return [
@@ -93,9 +95,10 @@ def _role_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]
         _rule("host-token", ["liveliness_token"], [keys.all_hosts()]),
         _rule("host-requests", SERVES, [host_requests]),
         _rule("host-writes", WRITES, [keys.all_host_exits(), keys.all_pools(), controls]),
-        _rule("agent-token", ["liveliness_token"], [keys.agent()]),
-        _rule("agent-status", SERVES, [keys.agent_status()]),
+        _rule("agent-token", ["liveliness_token"], [keys.agent(), keys.pattern("agents", "**")]),
+        _rule("agent-status", SERVES, [keys.agent_status(), keys.all_agent_statuses()]),
         _rule("agent-requests", ["query"], [host_requests]),
+        _rule("agent-answers", [*WRITES, *SERVES], [keys.all_answers()]),
         _rule("application-queries", ["liveliness_token"], [keys.all_queries()]),
         _rule("store-requests", ["query"], [keys.pattern("store", "*")]),
     ]
@@ -113,6 +116,7 @@ ROLE_RULES: dict[str, tuple[str, ...]] = {
         "agent-token",
         "agent-status",
         "agent-requests",
+        "agent-answers",
     ),
     HOST: (
         "worker-tokens",

@@ -125,13 +125,18 @@ def defaults(role: Role) -> Settings:
 
 def member_of(hub: Settings) -> Settings:
     """Settings of a process joining ``hub``'s network and domain, with the hub's TLS files:
-    it connects where the hub connects (a router) or else where it listens (a wildcard address
-    as loopback). It is a client, listening nowhere, when the hub enforces access control (so
-    that every message passes the hub) or is itself a client; else a peer, even when the hub
-    is a router, listening on a random loopback port."""
-    connect = hub.connect or tuple(
-        endpoint.replace("0.0.0.0", "127.0.0.1") for endpoint in hub.listen
+    it connects where the hub listens (a wildcard address as loopback; not a random port),
+    then where the hub connects (a router, or the other agents: the child of a standby agent
+    must not depend on the agent it connects to, which may be the one that died). It is a
+    client, listening nowhere, when the hub enforces access control (so that every message
+    passes the hub) or is itself a client; else a peer, even when the hub is a router,
+    listening on a random loopback port."""
+    own = tuple(
+        endpoint.replace("0.0.0.0", "127.0.0.1")
+        for endpoint in hub.listen
+        if not endpoint.endswith(":0")  # a random port: nobody can be told where
     )
+    connect = tuple(dict.fromkeys((*own, *hub.connect)))
     client = hub.access_control is not None or hub.mode == "client"
     return replace(
         hub,

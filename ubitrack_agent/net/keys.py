@@ -13,8 +13,16 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
                                      <kind> is static, dynamic or recalibrate (below)
     <root>/relation/<from>/<to>/<type>/<kind>
                                      the stable key on which a queried relation is delivered
-    <root>/agent                     liveliness token of the agent
-    <root>/agent/status              queryable: the agent's state (JSON)
+    <root>/answer/<from>/<to>/<type>/<kind>
+                                     the active agent's answer to the query: the flow that
+                                     serves it, or why none can (JSON, agent.answers); also a
+                                     queryable answering the latest
+    <root>/agent                     liveliness token of the active agent
+    <root>/agent/status              queryable: the active agent's state (JSON)
+    <root>/agents/<id>               liveliness token of every agent process, active or
+                                     standby (agent.election: one active agent per domain)
+    <root>/agents/<id>/active        liveliness token the active agent adds to its own
+    <root>/agents/<id>/status        queryable: that agent's state, a standby's too (JSON)
     <root>/host/<name>               liveliness token of a host manager (services.host)
     <root>/host/<name>/request       queryable: start, stop, status requests (JSON)
     <root>/host/<name>/exited        a worker that ended without being asked (JSON, put)
@@ -78,7 +86,16 @@ def validate_key_chunks(text: str, single_chunk: bool = False) -> str:
     return text
 
 
-TOKEN_KINDS = ("provider", "query", "worker", "pool", "host", "host_exited")
+TOKEN_KINDS = (
+    "provider",
+    "query",
+    "worker",
+    "pool",
+    "host",
+    "host_exited",
+    "agent",
+    "active_agent",
+)
 """The kinds of key :meth:`KeySpace.parse_token` reads."""
 
 KINDS: dict[str, tuple[bool, bool]] = {
@@ -225,6 +242,14 @@ class KeySpace:
         """The stable key on which ``relation`` is delivered, whatever flow computes it."""
         return f"{self.root}/relation/{relation.chunks}"
 
+    def answer(self, relation: RelationId) -> str:
+        """Where the active agent says how it serves ``relation``, or why it cannot."""
+        return f"{self.root}/answer/{relation.chunks}"
+
+    def all_answers(self) -> str:
+        """Selector of every answer key."""
+        return f"{self.root}/answer/**"
+
     def parse_relation(self, key: str) -> RelationId:
         """The relation of a relation key; ``ValueError`` if malformed."""
         prefix = f"{self.root}/relation/"
@@ -264,8 +289,44 @@ class KeySpace:
         return f"{self.root}/agent"
 
     def agent_status(self) -> str:
-        """Queryable answering the agent's state."""
+        """Queryable answering the active agent's state."""
         return f"{self.root}/agent/status"
+
+    def agent_member(self, agent: str) -> str:
+        """Liveliness token of the agent process ``agent``, active or standby."""
+        return f"{self.root}/agents/{validate_key_chunks(agent, single_chunk=True)}"
+
+    def agent_active(self, agent: str) -> str:
+        """Liveliness token the active agent ``agent`` adds to its own."""
+        return f"{self.agent_member(agent)}/active"
+
+    def agent_member_status(self, agent: str) -> str:
+        """Queryable answering the state of the agent process ``agent``."""
+        return f"{self.agent_member(agent)}/status"
+
+    def all_agent_statuses(self) -> str:
+        """Selector reaching every agent process's status queryable."""
+        return f"{self.root}/agents/*/status"
+
+    def all_agents(self) -> str:
+        """Selector of every agent process's token."""
+        return f"{self.root}/agents/*"
+
+    def all_active_agents(self) -> str:
+        """Selector of every active agent's token (one, but for a moment after a split
+        network joins again)."""
+        return f"{self.root}/agents/*/active"
+
+    def parse_agent(self, key: str) -> str:
+        """The agent id of an agent token key; ``ValueError`` if malformed."""
+        return self._parse_name(key, "agents")
+
+    def parse_active_agent(self, key: str) -> str:
+        """The agent id of an active agent's token key; ``ValueError`` if malformed."""
+        suffix = "/active"
+        if not key.endswith(suffix):
+            raise ValueError(f"{key!r} is not an active agent key (<root>/agents/<id>/active)")
+        return self.parse_agent(key[: -len(suffix)])
 
     def pool(self, worker: str) -> str:
         """Token of an idle pre-started worker, and the key its specification is sent on."""

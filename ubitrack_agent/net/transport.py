@@ -22,6 +22,7 @@ import zenoh
 
 from ubitrack_agent.core.errors import ExtrapolationError, NoMotionModel
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.time_queries import error_payload, requested_time
 
 log = logging.getLogger("ubitrack.transport")
@@ -107,6 +108,7 @@ def put_command(session: Any, key: str, payload: str | bytes) -> None:
     session.put(
         key,
         payload,
+        encoding=JSON,
         congestion_control=zenoh.CongestionControl.BLOCK,
         priority=zenoh.Priority.INTERACTIVE_HIGH,
     )

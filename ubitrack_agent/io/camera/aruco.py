@@ -51,14 +51,21 @@ class DetectedMarker(NamedTuple):
     corners: np.ndarray
 
 
+def dictionary_by_name(dictionary: str) -> cv2.aruco.Dictionary:
+    """OpenCV's predefined dictionary ``dictionary`` (named without ``DICT_``); ``ValueError``
+    for an unknown one."""
+    if dictionary not in DICTIONARIES:
+        raise ValueError(f"unknown ArUco dictionary {dictionary!r}; known: {sorted(DICTIONARIES)}")
+    return cv2.aruco.getPredefinedDictionary(DICTIONARIES[dictionary])
+
+
 def make_detector(
     dictionary: str = DEFAULT_DICTIONARY, parameters: Mapping[str, float] | None = None
 ) -> cv2.aruco.ArucoDetector:
     """An ``ArucoDetector`` for the named dictionary, with sub-pixel corner refinement and the
     ``DetectorParameters`` fields in ``parameters`` set (e.g. ``{"cornerRefinementWinSize":
     3}``); ``ValueError`` for an unknown dictionary or field, or a value OpenCV refuses."""
-    if dictionary not in DICTIONARIES:
-        raise ValueError(f"unknown ArUco dictionary {dictionary!r}; known: {sorted(DICTIONARIES)}")
+    known = dictionary_by_name(dictionary)
     settings = cv2.aruco.DetectorParameters()
     settings.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     for name, value in (parameters or {}).items():
@@ -71,9 +78,7 @@ def make_detector(
             setattr(settings, name, kind(value))
         except (TypeError, ValueError, cv2.error) as exc:
             raise ValueError(f"DetectorParameters.{name} = {value!r}: {exc}") from None
-    return cv2.aruco.ArucoDetector(
-        cv2.aruco.getPredefinedDictionary(DICTIONARIES[dictionary]), settings
-    )
+    return cv2.aruco.ArucoDetector(known, settings)
 
 
 def detect_markers(image: np.ndarray, detector: cv2.aruco.ArucoDetector) -> list[DetectedMarker]:

@@ -1,6 +1,6 @@
 """The camera's intrinsics, read from the ``intrinsics`` edge of a static-edges file
 (:mod:`ubitrack_agent.io.static_edges`): the same file a calibration store or the database
-serves, and the one a ChArUco calibration command is planned to write."""
+serves, and the one ``ubitrack intrinsics`` writes (:mod:`.charuco`)."""
 
 from __future__ import annotations
 

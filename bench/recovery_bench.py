@@ -1,0 +1,237 @@
+"""Time to recovery per kind of event (issue 11), one event at a time.
+
+Run: ``python -m bench.recovery_bench [--trials 5] [--seed 11]``. The live system of
+``bench.churn_bench`` (an agent with its host manager, two noise-free trackers, the
+applications ``WT->HT`` and ``HT->WT`` fused from both; real processes and zenoh on loopback),
+steady before every trial (whole, warm pool full, every application fresh). Each trial is one
+event of a kind, made by the chaos test's faults (``tests/integration/chaos_faults.py``):
+
+* ``tracker SIGKILL``: a tracker (ART and IR in turn) killed and started again at once;
+* ``worker SIGKILL, warm pool``: a process running a wanted component, drawn (seeded), killed;
+  the agent starts the component again from its host manager's warm pool of 3;
+* ``agent SIGKILL and restart``: the agent killed and started again at once (its workers keep
+  running and are adopted);
+* ``query open``: an application opens ``HT->ART``, which nothing else asks for (its first
+  samples can come from the inversion of ``ART->HT`` that the ``HT->WT`` flow runs; a fusion of
+  both trackers then takes over): the time to its first fresh, correct sample (and, as
+  ``settled_s``, until it is fresh for good); it is closed after the trial;
+* ``worker SIGKILL, no pool``: as above, on a second system whose agent has ``--pool-size 0``,
+  so the component starts in a new process (cold).
+
+Recovery is the time from the event until every application's data is fresh and correct again
+for good: the end of its last outage after the event (``bench.availability.recovery``; fresh
+and correct as in ``bench.churn_bench``: stamped within 0.25 s, within 3 mm of the truth), 0
+when it never lapsed. The largest over the applications is the trial's figure. A trial ends
+once the agent serves again every component it served before (``restored_s``: the killed
+tracker's flows stopped and started again, the killed worker started again, or every
+component adopted by the restarted agent, as ``bench.agent_restart_bench`` measures it) and
+every application has then been fresh for ``HOLD_S`` (at most ``TIMEOUT_S``). Printed per
+trial (with the time, the machine's load average, what arrived: samples, those not correct,
+the longest silence, each outage's start after the event and length), with the median,
+minimum and maximum per kind, and written to ``bench/results/recovery.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import signal
+import statistics
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from bench.agent_restart_bench import agent_status, recovered, serving
+from bench.availability import first_fresh, outages, recovery
+from bench.churn_bench import APPLICATIONS, FRESH_S, Applications, machine, steady, system
+from tests.integration.chaos_faults import FLAPPING, POOL_SIZE, TRACKERS, TRUE_WITHIN_M, Chaos
+from ubitrack_agent.net.keys import RelationId
+
+RESULTS = Path(__file__).with_name("results") / "recovery.json"
+HOLD_S = 2.0
+"""A trial ends once every application has been fresh this long."""
+TIMEOUT_S = 60.0
+POLL_S = 0.05
+QUERY = FLAPPING
+"""The relation a new application opens (``HT->ART``: nothing else asks for it)."""
+
+
+def observe(
+    apps: Applications,
+    relations: tuple[RelationId, ...],
+    event: float,
+    restored: Callable[[], bool] | None = None,
+) -> dict[str, Any]:
+    """Wait until ``restored`` (if given) has held and every one of ``relations`` has then been
+    fresh for ``HOLD_S`` (at most ``TIMEOUT_S`` after ``event``, wall clock); the recovery of
+    each (None: still down at the end), the largest, when ``restored`` first held, and what
+    arrived."""
+    held = None
+    while (now := time.time()) - event < TIMEOUT_S:
+        if restored is not None and held is None and restored():
+            held = round(time.time() - event, 3)
+        settled = restored is None or held is not None
+        since = event + (held or 0.0)
+        fresh = all(apps.fresh_since(relation, now - HOLD_S) for relation in relations)
+        if settled and fresh and now - since >= HOLD_S:
+            break
+        time.sleep(POLL_S)
+    end = time.time()
+    each = {str(r): recovery(apps.intervals(r, event - 1.0), event, end) for r in relations}
+    worst = None if None in each.values() else round(max(each.values()), 3)
+    seen = {str(r): arrivals(apps, r, event, end) for r in relations}
+    for relation in relations:  # when each outage began after the event, and how long it was
+        gaps = outages(apps.intervals(relation, event - 1.0), event, end)
+        seen[str(relation)]["outages"] = [[round(b - event, 2), round(e - b, 2)] for b, e in gaps]
+    return {"recovery_s": worst, "applications": each, "restored_s": held, "arrivals": seen}
+
+
+def back(chaos: Chaos, reconfigurations: int) -> Callable[[], bool]:
+    """A condition, made before an event: the agent serves the components it serves now again
+    (every one alive, nothing unsolved), after at least ``reconfigurations`` more
+    reconfigurations (the event's stops and starts)."""
+    now = chaos.setup.status() or {"components": {}, "counters": {}}
+    before, base = set(now["components"]), now["counters"].get("reconfigurations", 0)
+
+    def done() -> bool:
+        status = agent_status(chaos.setup)
+        return (
+            serving(status)
+            and set(status["components"]) == before
+            and status["counters"].get("reconfigurations", 0) >= base + reconfigurations
+        )
+
+    return done
+
+
+def arrivals(apps: Applications, relation: RelationId, start: float, end: float) -> dict:
+    """What arrived in ``[start, end)``: samples, those not correct, the longest silence (s)
+    before each arrival, since ``start``."""
+    noted = [(a, error) for a, _, error in apps.samples[relation] if start <= a < end]
+    times = [start] + [a for a, _ in noted]
+    return {
+        "samples": len(noted),
+        "incorrect": sum(error > TRUE_WITHIN_M for _, error in noted),
+        "longest_silence_s": round(max(b - a for a, b in itertools.pairwise(times)), 3)
+        if noted
+        else None,
+    }
+
+
+def tracker_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
+    name = sorted(TRACKERS)[trial % len(TRACKERS)]
+    restored = back(chaos, 2)  # its flows stopped, started again
+    event = time.time()
+    chaos.kill_tracker(name, signal.SIGKILL).action()  # started again at once
+    return observe(apps, APPLICATIONS, event, restored)
+
+
+def worker_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
+    restored = back(chaos, 1)  # the worker started again
+    event = time.time()
+    chaos.kill_worker(signal.SIGKILL)
+    return observe(apps, APPLICATIONS, event, restored)
+
+
+def agent_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
+    before = set((chaos.setup.status() or {"components": {}})["components"])
+    event = time.time()
+    chaos.kill_agent(signal.SIGKILL)
+    return observe(apps, APPLICATIONS, event, lambda: recovered(agent_status(chaos.setup), before))
+
+
+def query_open(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
+    """Recovery here is the time to the first fresh, correct sample; the time until the data
+    is fresh for good is ``settled_s``."""
+    event = time.time()
+    relation = apps.open(QUERY, f"probe{trial}")
+    try:
+        result = observe(apps, (QUERY,), event)
+    finally:
+        relation.close()
+    first = first_fresh(apps.intervals(QUERY, event + FRESH_S), event)  # samples after event
+    settled = result["recovery_s"]
+    return result | {"recovery_s": None if first is None else round(first, 3), "settled_s": settled}
+
+
+Trial = Callable[[Chaos, Applications, int], dict[str, Any]]
+WARM: dict[str, Trial] = {
+    "tracker SIGKILL": tracker_kill,
+    "worker SIGKILL, warm pool": worker_kill,
+    "agent SIGKILL and restart": agent_kill,
+    "query open": query_open,
+}
+COLD: dict[str, Trial] = {"worker SIGKILL, no pool": worker_kill}
+
+
+def trials(chaos: Chaos, apps: Applications, kinds: dict[str, Trial], count: int) -> list[dict]:
+    """``count`` trials of each kind, each from a steady system."""
+    rows = []
+    for kind, trial in kinds.items():
+        for index in range(count):
+            problem = steady(chaos, apps)
+            if problem is not None:
+                raise RuntimeError(f"not steady before {kind} trial {index + 1}: {problem}")
+            logged = len(chaos.log)
+            at = datetime.now(UTC).strftime("%H:%M:%S")
+            row = {"kind": kind, "trial": index + 1, "at": at, "load_1min": os.getloadavg()[0]}
+            row |= trial(chaos, apps, index)
+            row["event"] = chaos.log[-1] if len(chaos.log) > logged else "query opened"
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    return rows
+
+
+def summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Median, minimum and maximum recovery per kind (and of ``restored_s``, where measured)."""
+    kinds: dict[str, dict[str, Any]] = {}
+    for kind in dict.fromkeys(row["kind"] for row in rows):
+        mine = [row for row in rows if row["kind"] == kind]
+        done = [row["recovery_s"] for row in mine if row["recovery_s"] is not None]
+        figures: dict[str, Any] = {"trials": len(mine), "not_recovered": len(mine) - len(done)}
+        figures |= spread("recovery", done)
+        figures |= spread("restored", [r["restored_s"] for r in mine if r["restored_s"]])
+        kinds[kind] = figures
+    return kinds
+
+
+def spread(name: str, values: list[float]) -> dict[str, float]:
+    if not values:
+        return {}
+    return {
+        f"{name}_median_s": round(statistics.median(values), 3),
+        f"{name}_min_s": min(values),
+        f"{name}_max_s": max(values),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.recovery_bench", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument("--trials", type=int, default=5, help="trials per kind (default 5)")
+    parser.add_argument("--seed", type=int, default=11, help="seed of the faults (default 11)")
+    args = parser.parse_args(argv)
+    with system(POOL_SIZE, args.seed) as (chaos, apps):
+        rows = trials(chaos, apps, WARM, args.trials)
+    with system(0, args.seed) as (chaos, apps):
+        rows += trials(chaos, apps, COLD, args.trials)
+    results = {
+        "command": f"python -m bench.recovery_bench --trials {args.trials} --seed {args.seed}",
+        "date": datetime.now(UTC).strftime("%Y-%m-%d"),
+        "machine": machine(),
+        "summary": summary(rows),
+        "trials": rows,
+    }
+    RESULTS.parent.mkdir(exist_ok=True)
+    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
+    print(json.dumps(results["summary"], indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,239 @@
+"""Faults against a live system and the checks after them, shared by the chaos test
+(``test_chaos.py``) and the churn and recovery benchmarks (``bench/churn_bench.py``,
+``bench/recovery_bench.py``).
+
+The system: an agent with its host manager (warm pool of ``pool_size``), two noise-free
+trackers (``sim_trackers.exact_tracker``, :data:`TRACKERS`) and the applications a caller opens.
+The faults (:class:`Chaos`), each drawing what it needs from a seeded ``random.Random``:
+
+* a tracker killed (SIGKILL or SIGTERM) and started again after 0-1.5 s;
+* a worker killed (SIGKILL or SIGTERM; the agent starts it again);
+* the agent killed (SIGKILL: its workers keep running and the restarted agent adopts them;
+  or SIGTERM: a clean stop ends every worker) and started again at once;
+* a flapping application: a query (:data:`FLAPPING`) opened and closed again within
+  0.05-0.4 s, so workers are told to stop while they are starting.
+
+A fault that leaves something to do later (a tracker's restart, a query's close) returns it as
+a :class:`FollowUp`, so a caller may run other faults meanwhile; :meth:`Chaos.run` runs them in
+turn, each follow-up in its time. :func:`whole` tells whether the system is whole again: the
+agent serving, each wanted component in exactly one process, no worker that nothing wants,
+no leaked pool worker. :func:`truth_error` compares a sample with the trackers' truth.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim_trackers.exact_tracker import tracker_pose, true_wt_ht
+from tests.integration.test_agent import Setup
+from ubitrack_agent.core import se3
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net.host_protocol import Status, encode_request
+from ubitrack_agent.net.keys import RelationId
+
+POOL_SIZE = 3
+WT_HT = RelationId("WT", "HT", "6D")
+HT_WT = RelationId("HT", "WT", "6D")
+FLAPPING = RelationId("HT", "ART", "6D")
+TRACKERS = {"art": ("ART", 30.0, 2.0), "ir": ("IR", 100.0, -1.0)}
+"""Provider: tracker frame, yaw (degrees) and x offset (m) of ``exact_tracker``."""
+TRUE_WITHIN_M = 3e-3
+"""The tolerance of ``test_agent.assert_true_pose`` (fusing unsynchronised trackers), on the
+largest element difference of the pose matrices."""
+
+
+@dataclass(frozen=True)
+class FollowUp:
+    """What a fault leaves to do: ``action`` after ``delay`` seconds."""
+
+    delay: float
+    action: Callable[[], None]
+
+
+class Chaos:
+    """The system under faults: the processes it runs, and the faults."""
+
+    def __init__(self, setup: Setup, rng: random.Random, pool_size: int = POOL_SIZE) -> None:
+        self.setup = setup
+        self.rng = rng
+        self.pool_size = pool_size
+        self.agent = self.start_agent(wait=True)
+        self.trackers = {name: self.start_tracker(name) for name in TRACKERS}
+        self.log: list[str] = []
+        """The faults done, e.g. ``tracker ir SIGKILL``, ``worker 1234 SIGTERM``."""
+
+    def start_agent(self, wait: bool = False) -> subprocess.Popen:
+        """The agent; a restart does not wait for it (the faults go on meanwhile)."""
+        return self.setup.start_agent("--pool-size", str(self.pool_size), wait=wait)
+
+    def start_tracker(self, name: str) -> subprocess.Popen:
+        return self.setup.tracker(name, *TRACKERS[name])
+
+    def signal(self) -> signal.Signals:
+        return self.rng.choice([signal.SIGKILL, signal.SIGTERM])
+
+    def kill_tracker(
+        self, name: str | None = None, how: signal.Signals | None = None
+    ) -> FollowUp | None:
+        """Kill a running tracker (``name``, else drawn); its restart is the follow-up. None if
+        every tracker is down (waiting for its restart)."""
+        running = sorted(n for n, process in self.trackers.items() if process.poll() is None)
+        if not running:
+            return None
+        name = name or self.rng.choice(running)
+        how = how or self.signal()
+        self.trackers[name].send_signal(how)
+        self.trackers[name].wait()
+        self.log.append(f"tracker {name} {how.name}")
+
+        def restart() -> None:
+            self.trackers[name] = self.start_tracker(name)
+
+        return FollowUp(self.rng.uniform(0.0, 1.5), restart)
+
+    def kill_worker(self, how: signal.Signals | None = None) -> None:
+        """Kill a process running a wanted component, drawn; nothing if the agent does not
+        answer or no worker runs."""
+        alive = sorted((self.setup.status() or {"components": {}})["components"])
+        pids = {pid for instance in alive for pid in worker_pids(self.setup, instance)}
+        if not pids:
+            return
+        pid, how = self.rng.choice(sorted(pids)), how or self.signal()
+        try:
+            os.kill(pid, how)
+        except ProcessLookupError:
+            return
+        self.log.append(f"worker {pid} {how.name}")
+
+    def kill_agent(self, how: signal.Signals | None = None) -> None:
+        how = how or self.signal()
+        self.agent.send_signal(how)
+        self.agent.wait()
+        self.agent = self.start_agent()
+        self.log.append(f"agent {how.name}")
+
+    def flap_application(self) -> FollowUp:
+        """Open the flapping query; closing it is the follow-up."""
+        relation = Relation(self.setup.session, self.setup.keys, FLAPPING, application="flap")
+        self.log.append("flapping application")
+        return FollowUp(self.rng.uniform(0.05, 0.4), relation.close)
+
+    def kinds(self) -> list[Callable[[], FollowUp | None]]:
+        """The faults, one per kind."""
+        return [self.kill_tracker, self.kill_worker, self.kill_agent, self.flap_application]
+
+    def run(self, events: int) -> None:
+        """``events`` faults one after the other, each kind at least ``events // 4`` times, in a
+        seeded order, each followed up in its time, 1.0-2.5 s apart."""
+        kinds = self.kinds()
+        faults = kinds * (events // len(kinds))
+        faults += [self.rng.choice(kinds) for _ in range(events - len(faults))]
+        self.rng.shuffle(faults)
+        for fault in faults:
+            follow = fault()
+            if follow is not None:
+                time.sleep(follow.delay)
+                follow.action()
+            time.sleep(self.rng.uniform(1.0, 2.5))
+
+
+def worker_pids(setup: Setup, instance: str) -> set[int]:
+    """The pids answering ``instance``'s status (one per process running it)."""
+    replies = setup.session.get(setup.keys.status(instance), timeout=0.5)
+    return {json.loads(r.ok.payload.to_bytes())["pid"] for r in replies if r.ok is not None}
+
+
+def incarnations(setup: Setup) -> dict[str, list[str]]:
+    """The worker token incarnations alive now, by instance."""
+    found: dict[str, list[str]] = {}
+    for reply in setup.session.liveliness().get(setup.keys.all_workers(), timeout=0.5):
+        if reply.ok is not None:
+            instance, incarnation = setup.keys.parse_worker(str(reply.ok.key_expr))
+            found.setdefault(instance, []).append(incarnation)
+    return found
+
+
+def host_status(setup: Setup) -> dict | None:
+    """The agent's host manager's status (it is named after the machine)."""
+    status = setup.status()
+    if not status or len(status["hosts"]) != 1:
+        return None
+    key = setup.keys.host_request(status["hosts"][0])
+    replies = list(setup.session.get(key, payload=encode_request(Status()), timeout=1.0))
+    ok = [r.ok for r in replies if r.ok is not None]
+    return json.loads(ok[0].payload.to_bytes()) if ok else None
+
+
+def worker_processes(domain: str) -> set[int]:
+    """Every worker process of the domain, from ``ps``."""
+    command = ["ps", "-ww", "-eo", "pid=,args="]  # -ww: whole lines, whatever COLUMNS says
+    lines = subprocess.run(command, capture_output=True, text=True).stdout
+    return {
+        int(line.split()[0])
+        for line in lines.splitlines()
+        if "services.worker" in line and domain in line
+    }
+
+
+def whole(setup: Setup, pool_size: int = POOL_SIZE) -> str | None:
+    """None if the system is whole (see the module docstring), else what is wrong."""
+    status = setup.status()
+    if not status or status["unsolved"]:
+        return f"agent not serving: {status and status['unsolved']}"
+    wanted = set(status["components"])
+    tokens = incarnations(setup)
+    if set(tokens) != wanted:
+        return f"tokens {sorted(tokens)} but wanted {sorted(wanted)}"
+    doubled = {i: t for i, t in tokens.items() if len(t) != 1}
+    if doubled:
+        return f"instances with several processes: {doubled}"
+    pids = {instance: worker_pids(setup, instance) for instance in wanted}
+    if any(len(p) != 1 for p in pids.values()):
+        return f"status pids per instance: {pids}"
+    host = host_status(setup)
+    if host is None or host["releasing"] or host["stopping"] or host["pool_starting"]:
+        return f"host manager busy: {host and {k: host[k] for k in ('releasing', 'stopping')}}"
+    running = worker_processes(setup.domain)
+    idle = running - {pid for p in pids.values() for pid in p}
+    if len(idle) != host["pool_ready"] or len(idle) > pool_size:
+        return f"worker processes {sorted(running)}, components' {pids}, host {host}"
+    return None
+
+
+def wait_whole(setup: Setup, timeout: float, pool_size: int = POOL_SIZE) -> str | None:
+    """None once :func:`whole` holds within ``timeout`` seconds, else its last complaint."""
+    deadline = time.monotonic() + timeout
+    problem = whole(setup, pool_size)
+    while problem is not None and time.monotonic() < deadline:
+        time.sleep(0.5)
+        problem = whole(setup, pool_size)
+    return problem
+
+
+def world_to(frame: str, timestamp_ns: int) -> se3.Transform:
+    """The true pose ``WT -> frame``: the head target's path, or a tracker's fixed stand."""
+    if frame == "WT":
+        return np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3)
+    if frame == "HT":
+        return true_wt_ht(timestamp_ns)
+    stands = {tracker: (yaw, x) for tracker, yaw, x in TRACKERS.values()}
+    return se3.invert(*tracker_pose(*stands[frame]))
+
+
+def truth_error(relation: RelationId, sample) -> float:
+    """How far a 6D ``sample`` of ``relation`` (between WT, HT and the trackers' frames) is
+    from the truth at its time: the largest element difference of the pose matrices, the
+    measure of ``test_agent.assert_true_pose`` (:data:`TRUE_WITHIN_M`)."""
+    source = se3.invert(*world_to(relation.source, sample.timestamp_ns))
+    true = se3.compose(*source, *world_to(relation.target, sample.timestamp_ns))
+    measured = se3.to_matrix(sample.rotation, sample.translation)
+    return float(np.abs(measured - se3.to_matrix(*true)).max())
