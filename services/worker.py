@@ -52,6 +52,7 @@ from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError, NoMotionModel
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import config, logs
+from ubitrack_agent.net.encodings import JSON, MSGPACK
 from ubitrack_agent.net.json_messages import load_object
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.lifecycle import on_termination
@@ -293,7 +294,10 @@ class Worker:
         for key in wanted - set(self._publishers):
             port = answers.get(key)
             at = None if port is None else (lambda t, port=port: self._ask(port, t))
-            self._publishers[key] = LatestValuePublisher(self._session, key, at, self.counters)
+            encoding = JSON if port is None else MSGPACK  # progress, or a measurement
+            self._publishers[key] = LatestValuePublisher(
+                self._session, key, at, self.counters, encoding
+            )
         self._routes = routes
         self._progress_routes = progress_routes
 
@@ -598,7 +602,7 @@ class Worker:
                 reply(query)
 
     def _reply_status(self, query: Any) -> None:
-        query.reply(self.keys.status(self.spec.instance), json.dumps(self.status()))
+        query.reply(self.keys.status(self.spec.instance), json.dumps(self.status()), encoding=JSON)
 
     def stop(self) -> None:
         self._stop.set()

@@ -48,12 +48,15 @@ def test_a_plain_zenoh_application_decodes_a_relation_as_documented(setup: Setup
     config.insert_json5("scouting/multicast/enabled", "false")
     root = f"ubitrack/{setup.domain}"
     samples: queue.Queue[bytes] = queue.Queue()
+    encodings: set[str] = set()
     with zenoh.open(config) as session:
         token = session.liveliness().declare_token(f"{root}/query/WT/HT/6D/dynamic/plain-app")
         subscriber = session.declare_subscriber(
-            f"{root}/relation/WT/HT/6D/dynamic", lambda s: samples.put(s.payload.to_bytes())
+            f"{root}/relation/WT/HT/6D/dynamic",
+            lambda s: (encodings.add(str(s.encoding)), samples.put(s.payload.to_bytes())),
         )
         received = [decode(samples.get(timeout=30)) for _ in range(20)]
+        assert encodings == {"application/msgpack"}
         for key in (f"{root}/agent/status", f"{root}/answer/WT/HT/6D/dynamic"):
             (reply,) = list(session.get(key, timeout=5.0))
             assert str(reply.ok.encoding) == "application/json"

@@ -10,6 +10,7 @@ import pytest
 import zenoh
 
 from services.host_manager import HostManager
+from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import KeySpace
 
@@ -24,6 +25,7 @@ class FakeQueryable(list):
 class FakeSession:
     def __init__(self) -> None:
         self.puts: list[tuple[str, str]] = []
+        self.encodings: dict[str, object] = {}
 
     def liveliness(self):
         return SimpleNamespace(
@@ -31,7 +33,8 @@ class FakeSession:
             declare_token=lambda key: SimpleNamespace(undeclare=lambda: None),
         )
 
-    def declare_publisher(self, key):
+    def declare_publisher(self, key, encoding=None):
+        self.encodings[key] = encoding
         return SimpleNamespace(
             put=lambda data: self.puts.append((key, data)), undeclare=lambda: None
         )
@@ -52,7 +55,8 @@ class FakeQuery:
     def __exit__(self, *exc):
         return False
 
-    def reply(self, key, data):
+    def reply(self, key, data, encoding=None):
+        assert encoding == JSON  # every reply is a JSON document
         self._send(True, data)
 
     def reply_err(self, data):
@@ -66,7 +70,10 @@ class FakeQuery:
 
 @pytest.fixture
 def manager():
-    return HostManager(FakeSession(), KEYS, "lab", [], pool_size=0)
+    session = FakeSession()
+    manager = HostManager(session, KEYS, "lab", [], pool_size=0)
+    assert session.encodings[KEYS.host_exited("lab")] == JSON  # exit reports are JSON
+    return manager
 
 
 def answer(manager: HostManager, data: bytes | None, **options) -> tuple[bool, dict]:

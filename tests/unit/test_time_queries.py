@@ -10,6 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError, NoMotionModel
+from ubitrack_agent.net.encodings import MSGPACK
 from ubitrack_agent.net.time_queries import (
     error_payload,
     raise_error,
@@ -65,7 +66,8 @@ class FakeQuery:
         self.replies: list[bytes] = []
         self.errors: list[bytes] = []
 
-    def reply(self, key: str, payload: bytes) -> None:
+    def reply(self, key: str, payload: bytes, encoding: object = None) -> None:
+        assert encoding == MSGPACK  # a measurement
         self.replies.append(payload)
 
     def reply_err(self, payload: bytes) -> None:
@@ -74,7 +76,7 @@ class FakeQuery:
 
 def publisher(at=None) -> LatestValuePublisher:
     session = SimpleNamespace(
-        declare_publisher=lambda key: SimpleNamespace(
+        declare_publisher=lambda key, encoding: SimpleNamespace(
             put=lambda data: None, undeclare=lambda: None
         ),
         declare_queryable=lambda key: SimpleNamespace(__iter__=None),

@@ -36,12 +36,14 @@ class FakeSession:
     def __init__(self) -> None:
         self.callbacks: dict[str, object] = {}
         self.puts: list[tuple[str, bytes]] = []
+        self.encodings: dict[str, object] = {}
 
     def declare_subscriber(self, key, callback):
         self.callbacks[key] = callback
         return SimpleNamespace(undeclare=lambda: self.callbacks.pop(key, None))
 
-    def declare_publisher(self, key):
+    def declare_publisher(self, key, encoding=None):
+        self.encodings[key] = encoding
         return SimpleNamespace(
             put=lambda data: self.puts.append((key, data)), undeclare=lambda: None
         )
@@ -263,7 +265,7 @@ def test_asynchronous_fusion_counts_every_sample_and_answers_a_time():
     replies: list[bytes] = []
     query = SimpleNamespace(
         parameters={"t": str(now + 3 * 10**7)},
-        reply=lambda key, payload: replies.append(payload),
+        reply=lambda key, payload, encoding: replies.append(payload),
         reply_err=lambda payload: replies.append(b"error " + payload),
     )
     asking = threading.Thread(target=publisher._reply, args=(query,))

@@ -22,7 +22,7 @@ import zenoh
 
 from ubitrack_agent.core.errors import ExtrapolationError, NoMotionModel
 from ubitrack_agent.net import logs
-from ubitrack_agent.net.encodings import JSON
+from ubitrack_agent.net.encodings import JSON, MSGPACK
 from ubitrack_agent.net.time_queries import error_payload, requested_time
 
 log = logging.getLogger("ubitrack.transport")
@@ -42,8 +42,11 @@ class LatestValuePublisher:
         key: str,
         at: Callable[[int], bytes] | None = None,
         counters: Counter[str] | None = None,
+        encoding: zenoh.Encoding = MSGPACK,
     ) -> None:
         self.key = key
+        self._encoding = encoding
+        """What the payloads are (``net.encodings``): measurements unless told otherwise."""
         self._at = at
         """The encoded value at a given time, or a typed error (``net.time_queries.ERRORS``)."""
         self.counters: Counter[str] = Counter() if counters is None else counters
@@ -51,7 +54,7 @@ class LatestValuePublisher:
         ``rejected_queries``: queries for a time that is no timestamp. Given ``counters`` (a
         worker's), it counts there."""
         self._latest: bytes | None = None
-        self._publisher = session.declare_publisher(key)
+        self._publisher = session.declare_publisher(key, encoding=encoding)
         self._queryable = session.declare_queryable(key)
         self._thread = threading.Thread(target=self._serve, daemon=True, name=f"latest:{key}")
         self._thread.start()
@@ -86,14 +89,14 @@ class LatestValuePublisher:
         if timestamp_ns is None:
             latest = self._latest
             if latest is not None:
-                query.reply(self.key, latest)
+                query.reply(self.key, latest, encoding=self._encoding)
             return
         try:
             payload = self._at(timestamp_ns)
         except (ValueError, LookupError, TimeoutError) as exc:
             query.reply_err(error_payload(exc))
             return
-        query.reply(self.key, payload)
+        query.reply(self.key, payload, encoding=self._encoding)
 
     def undeclare(self) -> None:
         self._queryable.undeclare()
