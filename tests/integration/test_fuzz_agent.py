@@ -41,6 +41,7 @@ COUNTERS = (
     "rejected_query_keys",
     "rejected_worker_keys",
     "rejected_host_keys",
+    "rejected_agent_keys",
     "rejected_host_exited_keys",
     "rejected_host_reports",
     "rejected_announcements",
@@ -74,6 +75,9 @@ def test_hostile_input_on_every_entry_point_leaves_the_agent_serving(setup):  # 
         wait_until(lambda: "fusion" in setup.alive_services().values(), timeout=30)
         before = setup.status()["counters"]
         rss_before = rss_mb(agent.pid)
+
+        for kind in ("provider", "worker", "host", "agents"):  # one of each kind for sure
+            declare(f"{root}/{kind}/a b")
 
         @FUZZ
         @given(kind=TOKEN_KINDS, name=HOSTILE_NAMES)
