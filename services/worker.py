@@ -49,7 +49,12 @@ from services.registry import Pushed, Service, lookup
 from services.spec import check_bindings, check_parameters, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
-from ubitrack_agent.core.errors import ExtrapolationError, NoDataError, NoMotionModel
+from ubitrack_agent.core.errors import (
+    ExtrapolationError,
+    NoDataError,
+    NoMotionModel,
+    TooFewCorrespondences,
+)
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.encodings import JSON, MSGPACK
@@ -92,6 +97,8 @@ COUNTERS = {
     "accumulating": "time expansion: fewer correspondences kept than the pattern needs",
     "no_output": "computations that published nothing (an estimate not yet ready)",
     "failed": "computations that failed (degenerate input)",
+    "too_few_correspondences": "instants with fewer complete correspondences than the pattern "
+    "needs (a feature hidden): expected, logged as a summary every SUMMARY_S",
     "overflow": "samples and commands dropped because the inbox was full",
     "rejected_commands": "control commands refused",
     "rewired": "control commands applied",
@@ -117,6 +124,8 @@ NO_MODEL_S = 1.0
 """How long an input whose producer answered ``no_model`` (a measured edge) or nothing is not
 asked again: a renderer asking every frame must not cost the flow a round trip (or a
 time-out) per input each time."""
+SUMMARY_S = 10.0
+"""Seconds between two summaries of the expected conditions counted (``_summarise``)."""
 
 
 @dataclass(frozen=True)
@@ -199,6 +208,7 @@ class Worker:
         self._service: Service = self._service_class(spec.parameters)
         self._accumulator = self._new_accumulator()
         self._pending = PendingTriggers()
+        self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
         self._stop = threading.Event()
         self.released = False
@@ -472,6 +482,9 @@ class Worker:
     def _compute(self, values: dict[str, Any], timestamp_ns: int) -> None:
         try:
             outputs = self._service.compute(values, timestamp_ns)
+        except TooFewCorrespondences:
+            self.counters["too_few_correspondences"] += 1  # expected: summarised
+            return
         except (ValueError, MeasurementError, ArithmeticError) as exc:
             self._count("failed", "computation failed: %s", exc)
             return
@@ -620,6 +633,24 @@ class Worker:
         elif item is not None:
             self._guarded(self._apply_control)(item[1])
         self._guarded(self._process_due_triggers)()
+        self._summarise(time.monotonic())
+
+    def _summarise(self, now: float) -> None:
+        """Every ``SUMMARY_S``, one warning for the expected conditions counted meanwhile
+        (instants with too few correspondences), instead of one per instant."""
+        if now < self._summary_due:
+            return
+        counted = self.counters["too_few_correspondences"]
+        if counted > self._summarised:
+            log.warning(
+                "%s: %d instant(s) with too few correspondences in the last %.0f s "
+                "(a feature hidden; %d in all)",
+                self.spec.instance,
+                counted - self._summarised,
+                SUMMARY_S,
+                counted,
+            )
+        self._summarised, self._summary_due = counted, now + SUMMARY_S
 
     def run(self) -> None:
         """Process the inbox until :meth:`stop`; then undeclare everything."""

@@ -30,6 +30,7 @@ from ubitrack_agent.core import (
     Projection,
     se3,
 )
+from ubitrack_agent.core.errors import TooFewCorrespondences
 from ubitrack_agent.core.uncertainty import compose_covariance
 
 POSES = (Pose, ErrorPose)
@@ -38,7 +39,7 @@ POSES = (Pose, ErrorPose)
 def _rows(values: Inputs, ports: tuple[str, ...], minimum: int) -> list[tuple]:
     rows = complete_correspondences(values, ports)
     if len(rows) < minimum:
-        raise ValueError(f"{len(rows)} complete correspondences, need {minimum}")
+        raise TooFewCorrespondences(f"{len(rows)} complete correspondences, need {minimum}")
     return rows
 
 

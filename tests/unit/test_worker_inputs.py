@@ -5,6 +5,7 @@ named counter, and nothing raises out of a handler."""
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import time
 from types import SimpleNamespace
@@ -276,3 +277,15 @@ def test_asynchronous_fusion_counts_every_sample_and_answers_a_time():
     assert decode(reply).timestamp_ns == now + 3 * 10**7
     assert counters["time_queries"] == 1
     w.stop()
+
+
+def test_instants_with_too_few_correspondences_are_summarised_not_warned_each(caplog):
+    """Issue 14: a hidden feature made a warning per frame; now one summary per SUMMARY_S."""
+    w = Worker(SPEC, FakeSession(), KEYS)
+    w.counters["too_few_correspondences"] += 5
+    with caplog.at_level(logging.WARNING, logger="ubitrack.worker"):
+        w._summarise(w._summary_due - 1.0)  # not due yet
+        w._summarise(w._summary_due)
+        w._summarise(w._summary_due)  # nothing new
+    (record,) = caplog.records
+    assert "5 instant(s) with too few correspondences in the last 10 s" in record.getMessage()

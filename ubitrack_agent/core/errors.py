@@ -21,3 +21,9 @@ class NoMotionModel(ExtrapolationError):
 
 class NoDataError(LookupError):
     """A value was asked for before any sample arrived."""
+
+
+class TooFewCorrespondences(ValueError):
+    """An instant carries fewer complete correspondences than the algorithm needs (a feature
+    hidden in a frame): expected in normal operation, so a worker counts and summarises it
+    rather than warning each time."""
