@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> None:
         simulators = simulator_arguments(scenario_flag, art_port, args.seed)
         arrivals: queue.SimpleQueue = queue.SimpleQueue()
         try:
-            children.start("agent", ["agent", *config.as_flags(hub)])
+            children.start("agent", ["agent", "--quiet", *config.as_flags(hub)])
             with (
                 open_session(config.member_of(hub)) as session,
                 Relation(
@@ -260,10 +260,12 @@ def main(argv: list[str] | None = None) -> None:
                     keys.data(scenario.art.provider) + "/**",
                     lambda sample: art_times.add(decode(sample.payload.to_bytes()).timestamp_ns),
                 )
-                children.start("sim database", ["sim", "database", *scenario_flag, *member])
+                quiet = "--quiet"  # the bench prints its own figures
+                children.start("sim database", ["sim", "database", quiet, *scenario_flag, *member])
                 children.start("sim camera", [*simulators["sim camera"], *member])
                 children.start("sim art", simulators["sim art"])
-                children.start("dtrack", ["dtrack", *dtrack_flags(scenario.art, art_port), *member])
+                art = dtrack_flags(scenario.art, art_port)
+                children.start("dtrack", ["dtrack", quiet, *art, *member])
                 relation.wait_for(timeout=90)
                 wait_for_services(session, keys, present=True)
                 world = scenario.world

@@ -22,7 +22,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.integration.chaos_faults import host_status
+from tests.integration.chaos_faults import host_status, incarnations
 from tests.integration.test_agent import WT_HT, Setup, assert_true_pose, fresh_samples, opened
 from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.io.application import Relation
@@ -85,16 +85,6 @@ def by_pid(setup: Setup) -> dict[int, dict]:
 def roles(setup: Setup) -> dict[int, str]:
     """Each agent's role, by the pid in its id."""
     return {pid: status["agent"]["role"] for pid, status in by_pid(setup).items()}
-
-
-def worker_processes(setup: Setup) -> dict[str, list[str]]:
-    """The worker token incarnations alive, by instance."""
-    found: dict[str, list[str]] = {}
-    for reply in setup.session.liveliness().get(setup.keys.all_workers(), timeout=0.5):
-        if reply.ok is not None:
-            instance, incarnation = setup.keys.parse_worker(str(reply.ok.key_expr))
-            found.setdefault(instance, []).append(incarnation)
-    return found
 
 
 def one_active_one_standby(setup: Setup) -> dict[int, str] | None:
@@ -169,7 +159,7 @@ def test_a_standby_takes_over_without_gap_or_duplicate_and_a_clean_stop_hands_ov
     took_over = time.monotonic() - killed_at
     assert setup.status()["counters"]["adopted"] == len(instances)
     assert {i: setup.worker_pid(i) for i in instances} == pids  # adopted, not restarted
-    assert all(len(seen) == 1 for seen in worker_processes(setup).values())
+    assert all(len(seen) == 1 for seen in incarnations(setup).values())
     for sample in fresh_samples(relation, 10):
         assert_true_pose(sample)
     during = stream.between(killed_at - 0.5, killed_at + took_over + 0.5)
@@ -197,4 +187,4 @@ def test_a_standby_takes_over_without_gap_or_duplicate_and_a_clean_stop_hands_ov
         assert_true_pose(sample)
 
     relation.close()  # the active agent stops what nothing wants any more
-    wait_until(lambda: not worker_processes(setup), timeout=15)
+    wait_until(lambda: not incarnations(setup), timeout=15)
