@@ -62,6 +62,9 @@ def test_pose_predicted_for_display_beats_the_latest_sample(processes, tmp_path:
             return True
 
         wait_until(fused, timeout=60, interval=0.2)
+        # A renderer in steady state: the flow the agent first planned may still be rewired,
+        # and a just-started constant-velocity filter has no velocity to predict with yet.
+        time.sleep(3.0)
         predicted, held = [], []
         for _ in range(400):  # 40 answers; a loaded machine may refuse some
             if len(predicted) == 40:
