@@ -87,6 +87,13 @@ def roles(setup: Setup) -> dict[int, str]:
     return {pid: status["agent"]["role"] for pid, status in by_pid(setup).items()}
 
 
+def known_pids(setup: Setup, instances: set[str]) -> dict[str, int] | None:
+    """Each instance's worker pid, once every one has answered (a status query may time out
+    on a loaded machine, and a missing pid is no evidence of anything)."""
+    pids = {instance: setup.worker_pid(instance) for instance in instances}
+    return pids if None not in pids.values() else None
+
+
 def one_active_one_standby(setup: Setup) -> dict[int, str] | None:
     """The agents' roles by pid, once one is active and one stands by."""
     seen = roles(setup)
@@ -142,7 +149,7 @@ def test_a_standby_takes_over_without_gap_or_duplicate_and_a_clean_stop_hands_ov
     active = next(p for p in agents if seen[p.pid] == "active")
     standby = next(p for p in agents if p is not active)
     instances = wait_until(lambda: all_alive(setup), timeout=30)
-    pids = {instance: setup.worker_pid(instance) for instance in instances}
+    pids = wait_until(lambda: known_pids(setup, instances), timeout=10)
     # The standby plans what runs (its plan follows the worker tokens)...
     wait_until(lambda: set(by_pid(setup)[standby.pid]["components"]) == instances, timeout=10)
     standby_counters = by_pid(setup)[standby.pid]["counters"]
