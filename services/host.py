@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import sys
 import threading
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from ubitrack_agent.net import config, logs
@@ -42,9 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ``ubitrack host``)."""
     parser.add_argument(
         "--name",
-        default=socket.gethostname(),
-        help="this host manager's name, unique in the domain (default: the machine's host "
-        "name, %(default)s)",
+        help="this host manager's name, unique in the domain; its workers run under it "
+        "(default: the --host-name setting, i.e. the machine's host name)",
     )
     parser.add_argument(
         "--quiet",
@@ -79,13 +78,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def serve(
     settings: Settings,
-    name: str,
+    name: str | None,
     pool_size: int,
     exit_when_stdin_closes: bool = False,
     quiet: bool = False,
 ) -> int:
     """Run a host manager until SIGTERM or SIGINT (or, if asked, until standard input closes);
-    the exit status (2 for invalid options)."""
+    the exit status (2 for invalid options). ``name`` (default: the ``host_name`` setting)
+    is also the host name its workers are started with."""
+    if name is None:
+        name = settings.host_name
+    settings = replace(settings, host_name=name)
     try:
         validate_key_chunks(name, single_chunk=True)
     except ValueError as exc:

@@ -195,3 +195,30 @@ def test_inconsistent_security_settings_are_refused(tmp_path, content, fragment)
     path.write_text(content)
     with pytest.raises(config.ConfigError, match=fragment):
         config.resolve("hub", config_file=path, env={})
+
+
+def test_host_name_and_clock_offset_reach_child_processes():
+    settings = config.resolve(
+        "hub", env={"UBITRACK_HOST_NAME": "room", "UBITRACK_CLOCK_OFFSET_MS": "-250.5"}
+    )
+    assert (settings.host_name, settings.clock_offset_ms) == ("room", -250.5)
+    parser = argparse.ArgumentParser()
+    config.add_arguments(parser)
+    child = config.from_arguments(parser.parse_args(config.member_flags(settings)), "member")
+    assert (child.host_name, child.clock_offset_ms) == ("room", -250.5)
+    assert validate_key_chunks(config.resolve("member", env={}).host_name, single_chunk=True)
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "fragment"),
+    [
+        ("UBITRACK_HOST_NAME", "a/b", "host_name"),
+        ("UBITRACK_HOST_NAME", "*", "host_name"),
+        ("UBITRACK_CLOCK_OFFSET_MS", "nan", "clock_offset_ms"),
+        ("UBITRACK_CLOCK_OFFSET_MS", "1e300", "clock_offset_ms"),
+        ("UBITRACK_CLOCK_OFFSET_MS", "soon", "clock_offset_ms"),
+    ],
+)
+def test_bad_host_name_or_clock_offset_is_refused(name, value, fragment):
+    with pytest.raises(config.ConfigError, match=fragment):
+        config.resolve("member", env={name: value})

@@ -16,16 +16,23 @@ make every link TLS with client certificates (mutual TLS); ``access_control`` na
 holding zenoh's ``access_control`` block (``net.access`` builds it), for the hub, a router
 that every member reaches as a client, so that it sees every message.
 
+``host_name`` says which machine a process runs on (default: the machine's host name): the
+agent places workers near the data they read (``agent/placement.py``). ``clock_offset_ms`` is
+for tests only: it makes a process's clock read that much ahead, as on a host whose clock is
+off (``net/clock.py``).
+
 This module is pure; :mod:`ubitrack_agent.net.session` turns :class:`Settings` into a session.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
+import socket
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -60,6 +67,8 @@ class Settings:
     tls_certificate: str | None = None
     tls_key: str | None = None
     access_control: str | None = None
+    host_name: str = field(default_factory=lambda: default_host_name())
+    clock_offset_ms: float = 0.0
 
     @property
     def tls(self) -> bool:
@@ -111,6 +120,23 @@ class Settings:
         return options
 
 
+MAX_CLOCK_OFFSET_MS = 86_400_000.0
+"""Largest ``clock_offset_ms`` accepted (a day)."""
+
+
+def default_host_name() -> str:
+    """The machine's host name as a key chunk: its first label if the whole name breaks the
+    name rule (a host name is letters, digits, ``-`` and ``.``, so this is rare), else
+    ``host``."""
+    name = socket.gethostname()
+    for candidate in (name, name.split(".", 1)[0]):
+        try:
+            return validate_key_chunks(candidate, single_chunk=True)
+        except ValueError:
+            continue
+    return "host"
+
+
 MEMBER_LISTEN = ("tcp/127.0.0.1:0",)
 """Where a member peer listens by default: a random loopback port."""
 
@@ -151,6 +177,9 @@ def as_flags(settings: Settings) -> list[str]:
     """The command-line flags (:func:`add_arguments`) that resolve to ``settings``; how a
     process hands its network to a child process."""
     flags = ["--mode", settings.mode, "--prefix", settings.prefix, "--domain", settings.domain]
+    flags += ["--host-name", settings.host_name]
+    if settings.clock_offset_ms:
+        flags += ["--clock-offset-ms", repr(settings.clock_offset_ms)]
     for endpoint in settings.connect:
         flags += ["--connect", endpoint]
     for endpoint in settings.listen:
@@ -194,6 +223,19 @@ def _boolean(source: str, value: Any) -> bool:
     raise ConfigError(f"{source}: expected true or false, got {value!r}")
 
 
+def _clock_offset(where: str, value: Any) -> float:
+    try:
+        offset = float(value) if not isinstance(value, bool) else math.nan
+    except (TypeError, ValueError):
+        offset = math.nan
+    if not math.isfinite(offset) or abs(offset) > MAX_CLOCK_OFFSET_MS:
+        raise ConfigError(
+            f"{where}: expected a number of milliseconds within +-{MAX_CLOCK_OFFSET_MS:.0f}, "
+            f"got {value!r}"
+        )
+    return offset
+
+
 PATH_SETTINGS = ("tls_root_ca", "tls_certificate", "tls_key", "access_control")
 """Settings naming a file; a relative path is relative to the settings file naming it (else to
 the working directory), and becomes absolute, so child processes can be handed it."""
@@ -231,10 +273,12 @@ def _parse(source: str, name: str, value: Any, base: Path) -> Any:
         return _endpoints(where, value)
     if name == "multicast":
         return _boolean(where, value)
+    if name == "clock_offset_ms":
+        return _clock_offset(where, value)
     if not isinstance(value, str):
         raise ConfigError(f"{where}: expected a string, got {type(value).__name__}")
     try:
-        validate_key_chunks(value, single_chunk=(name == "domain"))
+        validate_key_chunks(value, single_chunk=(name in ("domain", "host_name")))
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     return value
@@ -341,6 +385,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--domain", help="key domain, ubitrack/<domain>/... (default: default)")
     group.add_argument("--prefix", help="key prefix (default: ubitrack)")
+    group.add_argument(
+        "--host-name",
+        metavar="NAME",
+        help="the host this process runs on, for placing workers near their data "
+        "(default: the machine's host name)",
+    )
+    group.add_argument(
+        "--clock-offset-ms",
+        metavar="MS",
+        help="for tests: this process's clock reads this much ahead of the real one "
+        "(a host whose clock is off; default: 0)",
+    )
     group.add_argument("--tls-root-ca", metavar="FILE", help="CA certificate (PEM): mutual TLS")
     group.add_argument("--tls-certificate", metavar="FILE", help="this process's certificate")
     group.add_argument("--tls-key", metavar="FILE", help="this process's private key")
