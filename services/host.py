@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.config import Settings
+from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY, MAX_LABELS, HostInfo
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.status_line import periodic_status
@@ -46,6 +47,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default: the --host-name setting, i.e. the machine's host name)",
     )
     parser.add_argument(
+        "--labels",
+        type=labels,
+        default=frozenset(),
+        help="comma-separated labels of this machine that templates may require, such as "
+        "camera,gpu,hmd (default: none)",
+    )
+    parser.add_argument(
+        "--capacity",
+        type=int,
+        default=DEFAULT_CAPACITY,
+        help="workers this host manager runs at most; further starts are refused "
+        f"(default: %(default)s, 1 to {MAX_CAPACITY})",
+    )
+    parser.add_argument(
         "--quiet",
         action="store_true",
         help="no status line (every 10 s: workers running, pool ready, requests)",
@@ -57,6 +72,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="idle pre-started workers kept ready for fast reconfiguration; each holds about "
         "100 MB (default: %(default)s)",
     )
+
+
+def labels(text: str) -> frozenset[str]:
+    """The ``--labels`` option: comma-separated names."""
+    names = frozenset(part.strip() for part in text.split(",") if part.strip())
+    for name in names:
+        try:
+            validate_key_chunks(name, single_chunk=True)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"label {name!r}: {exc}") from None
+    if len(names) > MAX_LABELS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_LABELS} labels")
+    return names
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -82,6 +110,8 @@ def serve(
     pool_size: int,
     exit_when_stdin_closes: bool = False,
     quiet: bool = False,
+    labels: frozenset[str] = frozenset(),
+    capacity: int = DEFAULT_CAPACITY,
 ) -> int:
     """Run a host manager until SIGTERM or SIGINT (or, if asked, until standard input closes);
     the exit status (2 for invalid options). ``name`` (default: the ``host_name`` setting)
@@ -97,13 +127,17 @@ def serve(
     if pool_size < 0:
         print("host: --pool-size must be >= 0", file=sys.stderr)
         return 2
+    if not 1 <= capacity <= MAX_CAPACITY:
+        print(f"host: --capacity must be 1 to {MAX_CAPACITY}", file=sys.stderr)
+        return 2
     # Imported here: the registry and zenoh are heavy, and ``ubitrack --help`` reads this module.
     from services.host_manager import HostManager
     from ubitrack_agent.net.session import open_session
 
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
-        manager = HostManager(session, keys, name, config.member_flags(settings), pool_size)
+        info = HostInfo(name, labels, capacity)
+        manager = HostManager(session, keys, info, config.member_flags(settings), pool_size)
         on_termination(manager.stop)
         if exit_when_stdin_closes:
             threading.Thread(
@@ -141,7 +175,15 @@ def main(argv: list[str] | None = None) -> int:
     except config.ConfigError as exc:
         print(f"host: {exc}", file=sys.stderr)
         return 2
-    return serve(settings, args.name, args.pool_size, args.exit_when_stdin_closes, args.quiet)
+    return serve(
+        settings,
+        args.name,
+        args.pool_size,
+        args.exit_when_stdin_closes,
+        args.quiet,
+        args.labels,
+        args.capacity,
+    )
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ import queue
 import threading
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import zenoh
@@ -37,6 +38,7 @@ from services.supervisor import Supervisor
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import (
+    HostInfo,
     ProtocolError,
     Request,
     Start,
@@ -64,12 +66,13 @@ class HostManager:
         self,
         session: Any,
         keys: KeySpace,
-        name: str,
+        info: HostInfo,
         worker_flags: Sequence[str],
         pool_size: int,
     ) -> None:
         lookup("relay")  # import every registered service now, not on the first request
-        self.name = name
+        self.info = info
+        self.name = name = info.name
         self.keys = keys
         self.counters: Counter[str] = Counter()
         self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
@@ -188,16 +191,28 @@ class HostManager:
                     check_spec(spec)
                 except SpecError as exc:
                     raise ProtocolError("refused_spec", str(exc)) from None
+                self._check_capacity(spec.instance)
                 return self.supervisor.start(spec).to_json()
             case Stop(instance=instance):
                 return json.dumps({"instance": instance, "process": self.supervisor.stop(instance)})
             case Status():
                 return json.dumps(self.status())
 
+    def _check_capacity(self, instance: str) -> None:
+        """:class:`ProtocolError` if starting ``instance`` would exceed the capacity (a start
+        of a running instance replaces it: that is no more)."""
+        running = self.supervisor.assigned
+        if instance not in running and len(running) >= self.info.capacity:
+            raise ProtocolError(
+                "over_capacity", f"runs {len(running)} workers, its capacity {self.info.capacity}"
+            )
+
     def status(self) -> dict[str, Any]:
-        """Name, pid, pool, instances and counters (JSON-ready)."""
+        """Name, labels, capacity and CPU load (:class:`HostInfo`), pid, pool, instances and
+        counters (JSON-ready)."""
+        cpu_load = os.getloadavg()[0] / (os.cpu_count() or 1)
         return {
-            "name": self.name,
+            **replace(self.info, cpu_load=round(cpu_load, 3)).as_dict(),
             "pid": os.getpid(),
             **self.supervisor.status(),
             "counters": dict(self.counters),

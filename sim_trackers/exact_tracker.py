@@ -64,7 +64,9 @@ def main() -> int:
         )
     with (
         open_session(settings) as session,
-        Provider(session, KeySpace(settings.key_prefix), args.provider, edges) as provider,
+        Provider(
+            session, KeySpace(settings.key_prefix), args.provider, edges, settings.host_name
+        ) as provider,
     ):
         if not args.hide_world:
             provider.publish("WT", ErrorPose(time.time_ns(), q_wt, t_wt, cov))

@@ -46,6 +46,8 @@ def provider_session(
     both are closed on exit (the provider first, so the agent replans at once)."""
     with (
         open_session(settings) as session,
-        Provider(session, KeySpace(settings.key_prefix), provider_id, edges) as provider,
+        Provider(
+            session, KeySpace(settings.key_prefix), provider_id, edges, settings.host_name
+        ) as provider,
     ):
         yield provider

@@ -60,8 +60,14 @@ def test_fragment_entries_carry_ids_and_providers():
             "sigma": 0.001,
             "id": "art/HT",
             "provider": "art",
+            "host": "",
         }
     ]
+    hosted = json.dumps({"provider": "art", "host": "room", "edges": [edge("HT", "ART", "HT")]})
+    (entry,) = fragment_entries("art", hosted.encode())
+    assert entry["host"] == "room"
+    srg = build_srg({"art": [entry]})
+    assert srg.edges["ART", "HT", "art/HT"]["host"] == "room"
 
 
 @pytest.mark.parametrize(
@@ -78,6 +84,10 @@ def test_fragment_entries_carry_ids_and_providers():
         (fragment("art", edge("HT", "ART", "HT", rate=-1)), "in [0, 100000], got -1"),
         (fragment("art", edge("HT", "ART", "HT"), edge("HT", "ART", "WT")), "duplicate"),
         (b"x" * (2 << 20), "at most 1048576"),
+        (b'{"provider": "art", "host": "a/b", "edges": []}', "host: "),
+        (b'{"provider": "art", "host": "", "edges": []}', "host: "),
+        (b'{"provider": "art", "host": ["room"], "edges": []}', "host: "),
+        (b'{"provider": "art", "room": "x", "edges": []}', "host"),
     ],
 )
 def test_malformed_fragments_are_rejected_with_the_reason(payload, fragment_text):

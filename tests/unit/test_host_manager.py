@@ -11,8 +11,9 @@ import zenoh
 
 from services.host_manager import HostManager
 from ubitrack_agent.net.encodings import JSON
-from ubitrack_agent.net.host_protocol import Status, encode_request
+from ubitrack_agent.net.host_protocol import HostInfo, Start, Status, encode_request
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
 KEYS = KeySpace("ubitrack/test")
 
@@ -71,7 +72,8 @@ class FakeQuery:
 @pytest.fixture
 def manager():
     session = FakeSession()
-    manager = HostManager(session, KEYS, "lab", [], pool_size=0)
+    info = HostInfo("lab", frozenset({"camera", "hmd"}), capacity=1)
+    manager = HostManager(session, KEYS, info, [], pool_size=0)
     assert session.encodings[KEYS.host_exited("lab")] == JSON  # exit reports are JSON
     return manager
 
@@ -86,6 +88,22 @@ def test_status_is_answered(manager):
     ok, status = answer(manager, encode_request(Status()).encode())
     assert ok and status["name"] == "lab" and status["pool_size"] == 0
     assert status["counters"] == {"requests": 1}
+    info = HostInfo.parse(json.dumps(status).encode())
+    assert (info.name, info.labels, info.capacity) == ("lab", {"camera", "hmd"}, 1)
+    assert info.cpu_load >= 0
+
+
+def test_a_start_beyond_the_capacity_is_refused(manager, monkeypatch):
+    monkeypatch.setattr(manager.supervisor, "assigned", {"relay-a": object()})
+    spec = ComponentSpec(
+        "relay-b",
+        "relay",
+        (InputBinding("in", "ubitrack/test/data/p/e", trigger=True),),
+        {"out": "ubitrack/test/data/relay-b/out"},
+    )
+    ok, refusal = answer(manager, encode_request(Start(spec)).encode())
+    assert not ok and refusal["error"] == "over_capacity", refusal
+    assert "capacity 1" in refusal["reason"]
 
 
 def test_a_fault_of_the_host_manager_is_an_internal_error_reply(manager, monkeypatch):

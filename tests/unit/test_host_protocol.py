@@ -11,6 +11,7 @@ from ubitrack_agent.net.host_protocol import (
     ERRORS,
     MAX_MESSAGE_BYTES,
     Exited,
+    HostInfo,
     ProtocolError,
     Start,
     Started,
@@ -158,3 +159,49 @@ def test_malformed_exit_keys_are_rejected(key):
 def test_hostile_host_names_are_rejected(name):
     with pytest.raises(ValueError):
         KEYS.host(name)
+
+
+def test_host_information_round_trips_through_the_status_reply():
+    info = HostInfo("hmd", frozenset({"camera", "hmd"}), 12, 0.25)
+    status = {**info.as_dict(), "pid": 7, "instances": {}, "counters": {}, "clock": None}
+    assert HostInfo.parse(json.dumps(status).encode()) == info
+
+
+GOOD_INFO = {"name": "hmd", "labels": ["camera"], "capacity": 4, "cpu_load": 0.5}
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"labels": "camera"},
+        {"labels": ["a b"]},
+        {"labels": [f"l{i}" for i in range(33)]},
+        {"labels": [["camera"]]},
+        {"capacity": 0},
+        {"capacity": 10**30},
+        {"capacity": 4.0},
+        {"capacity": True},
+        {"cpu_load": -1},
+        {"cpu_load": "high"},
+        {"cpu_load": None},
+        {"cpu_load": float("inf")},
+        {"cpu_load": float("nan")},
+        {"name": "*"},
+    ],
+)
+def test_malformed_host_information_is_refused(change):
+    with pytest.raises(ProtocolError):
+        HostInfo.parse(json.dumps({**GOOD_INFO, **change}).encode())
+
+
+@given(
+    st.dictionaries(
+        st.sampled_from(["name", "labels", "capacity", "cpu_load"]) | st.text(max_size=5),
+        json_values,
+    )
+)
+def test_parsing_host_information_raises_nothing_but_protocol_errors(data):
+    try:
+        HostInfo.parse(json.dumps({**GOOD_INFO, **data}).encode())
+    except ProtocolError as refusal:
+        assert refusal.error in ERRORS

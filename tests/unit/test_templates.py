@@ -113,6 +113,11 @@ def test_parse_and_load_round_trip(tmp_path):
     assert template.name == "pose"
     assert template.service == "pose_estimation_2d3d"
     assert template.inputs[0].static is None
+    assert template.host_labels == frozenset()
+    assert parse_template({**POSE_2D3D, "host_labels": ["gpu", "camera"]}).host_labels == {
+        "gpu",
+        "camera",
+    }
 
 
 @pytest.mark.parametrize(
@@ -162,6 +167,9 @@ def _broken(path: str, value):
         ("correspondence.expand_roles", ["C"], "must not use a role of expand_roles"),
         ("cost", {"rule": "magic"}, "cost.rule"),
         ("roles", ["C", "C"], "duplicate entries"),
+        ("host_labels", "gpu", "field 'host_labels': must be a list"),
+        ("host_labels", ["gpu", "a b"], "field 'host_labels'[1]: 'a b' is not well-formed"),
+        ("host_labels", ["gpu", "gpu"], "duplicate entries"),
     ],
 )
 def test_invalid_templates_name_file_entry_and_field(path, value, message):

@@ -1,7 +1,9 @@
 """Providers' SRG fragments (``docs/protocol.md``) turned into validated SRG edges.
 
-A fragment is JSON ``{"provider": "<id>", "edges": [{"name", "from", "to", "type", "static",
-"mode", "sigma", "rate", "latency"}, ...]}`` (see :class:`ubitrack_agent.io.provider.Provider`).
+A fragment is JSON ``{"provider": "<id>", "host": "<machine>", "edges": [{"name", "from", "to",
+"type", "static", "mode", "sigma", "rate", "latency"}, ...]}`` (see
+:class:`ubitrack_agent.io.provider.Provider`; ``host``, the machine the provider runs on, is
+optional and becomes every edge's ``host``, for placement).
 Each edge becomes a measured SRG edge with id ``<provider>/<name>``, which is also the tail of
 its data key. Anything malformed raises :class:`AnnouncementError` naming the provider and the
 field, and nothing else, whatever the bytes: the fragment is read by
@@ -45,20 +47,27 @@ def fragment_entries(provider: str, payload: bytes) -> list[dict[str, Any]]:
     except MessageError as exc:
         raise AnnouncementError(f"{where}: fragment {exc.reason}") from None
     _check(
-        set(data) == {"provider", "edges"},
+        {"provider", "edges"} <= set(data) <= {"provider", "host", "edges"},
         where,
-        'fragment must be {"provider": ..., "edges": [...]}',
+        'fragment must be {"provider": ..., "host": ... (optional), "edges": [...]}',
     )
     _check(
         data["provider"] == provider, where, f"fragment names provider {shown(data['provider'])}"
     )
-    return provider_entries(provider, data["edges"])
+    host = data.get("host", "")
+    if "host" in data:
+        try:
+            validate_key_chunks(host, single_chunk=True)
+        except ValueError as exc:
+            raise AnnouncementError(f"{where}: host: {exc}") from None
+    return provider_entries(provider, data["edges"], host)
 
 
-def provider_entries(provider: str, edges: Any) -> list[dict[str, Any]]:
+def provider_entries(provider: str, edges: Any, host: str = "") -> list[dict[str, Any]]:
     """The setup-file entries (``srg.parse_setup`` form) of the announced ``edges`` of
-    ``provider`` (``EdgeAnnouncement.as_json`` objects): ids ``<provider>/<name>``, the
-    provider set; :class:`AnnouncementError` naming the provider and the field if invalid."""
+    ``provider`` (``EdgeAnnouncement.as_json`` objects) running on ``host`` (empty: unknown):
+    ids ``<provider>/<name>``, the provider and host set; :class:`AnnouncementError` naming the
+    provider and the field if invalid."""
     where = f"provider {provider!r}"
     _check(
         isinstance(edges, list) and 0 < len(edges) <= MAX_EDGES,
@@ -80,7 +89,9 @@ def provider_entries(provider: str, edges: Any) -> list[dict[str, Any]]:
         _check(edge["name"] not in names, at, f"duplicate edge name {edge['name']}")
         names.add(edge["name"])
         entry = {k: v for k, v in edge.items() if k != "name"}
-        entries.append({**entry, "id": f"{provider}/{edge['name']}", "provider": provider})
+        entries.append(
+            {**entry, "id": f"{provider}/{edge['name']}", "provider": provider, "host": host}
+        )
     try:
         parse_setup({"edges": entries}, origin=where)  # types, modes, numbers, frames
     except SetupError as exc:

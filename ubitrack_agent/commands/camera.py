@@ -200,7 +200,9 @@ def _serve(
     stop = stop_on_signals()
     with (
         open_session(settings) as session,
-        Provider(session, KeySpace(settings.key_prefix), args.provider, adapter.edges) as out,
+        Provider(
+            session, KeySpace(settings.key_prefix), args.provider, adapter.edges, settings.host_name
+        ) as out,
     ):
         capture.serve_capture(
             source,

@@ -238,7 +238,9 @@ def run(args: argparse.Namespace) -> int:
     with (
         sock,
         open_session(settings) as session,
-        Provider(session, KeySpace(settings.key_prefix), args.provider, adapter.edges) as provider,
+        Provider(
+            session, KeySpace(settings.key_prefix), args.provider, adapter.edges, settings.host_name
+        ) as provider,
         periodic_status(_status_line(adapter, args), not args.quiet),
     ):
         serve_udp(sock, adapter, provider, stop, args.duration)

@@ -29,4 +29,11 @@ def run(args: argparse.Namespace) -> int:
     except config.ConfigError as exc:
         print(f"ubitrack host: {exc}", file=sys.stderr)
         return 2
-    return host.serve(settings, args.name, args.pool_size, quiet=args.quiet)
+    return host.serve(
+        settings,
+        args.name,
+        args.pool_size,
+        quiet=args.quiet,
+        labels=args.labels,
+        capacity=args.capacity,
+    )

@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
         try:
-            store = CalibrationStore(session, keys, args.file, args.name)
+            store = CalibrationStore(session, keys, args.file, args.name, settings.host_name)
         except StaticEdgesError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return 2

@@ -70,7 +70,9 @@ class EdgeAttrs:
 
     ``sources`` is the provenance used for bookkeeping (section 5.1): the ids of the measured
     edges the value depends on (a measured edge's sources are its own id). ``derivation`` is the
-    id of the pattern step that inferred the edge (``None`` when measured).
+    id of the pattern step that inferred the edge (``None`` when measured). ``host`` is the
+    machine a measured edge's provider runs on (empty: unknown), for placing the workers that
+    read it (``agent.placement``).
     """
 
     type: str
@@ -78,6 +80,7 @@ class EdgeAttrs:
     mode: str = "push"
     measured: bool = True
     provider: str = ""
+    host: str = ""
     quality: Quality = field(default_factory=Quality)
     sources: frozenset[str] = frozenset()
     derivation: str | None = None
@@ -103,6 +106,7 @@ def add_measured_edge(
     provider: str | None = None,
     quality: Quality | None = None,
     edge_id: str | None = None,
+    host: str = "",
 ) -> str:
     """Add a measured edge and return its id (default ``"A->B:6D"``, ``#2``... for parallels).
 
@@ -134,6 +138,7 @@ def add_measured_edge(
         mode=mode,
         measured=True,
         provider=provider if provider is not None else ("database" if static else source),
+        host=host,
         quality=quality or Quality(),
         sources=frozenset({edge_id}),
     )
@@ -188,6 +193,7 @@ _EDGE_KEYS: dict[str, type | tuple[type, ...]] = {
     "static": bool,
     "mode": str,
     "provider": str,
+    "host": str,
     "id": str,
     "sigma": (int, float),
     "rate": (int, float),
@@ -237,9 +243,20 @@ def add_setup_edge(srg: nx.MultiDiGraph, entry: Any, where: str) -> str:
             provider=entry.get("provider"),
             quality=quality,
             edge_id=entry.get("id"),
+            host=_host(where, entry.get("host", "")),
         )
     except SetupError as exc:
         raise SetupError(f"{where}: {exc}") from None
+
+
+def _host(where: str, name: str) -> str:
+    """The ``host`` of an edge entry: empty (unknown) or a name (``core.names``)."""
+    if not name:
+        return ""
+    try:
+        return check_name(name)
+    except ValueError as exc:
+        raise SetupError(f"{where}, field 'host': {exc}") from None
 
 
 def parse_setup(data: Any, origin: str = "<setup>") -> nx.MultiDiGraph:
@@ -247,7 +264,8 @@ def parse_setup(data: Any, origin: str = "<setup>") -> nx.MultiDiGraph:
 
     Format: a mapping with ``edges`` (a list of edge entries) and optional ``name`` and
     ``description``. Each edge entry has ``from``, ``to``, ``type`` and optional ``static``
-    (default false), ``mode`` (push/pull, default push), ``provider``, ``id``, ``sigma``
+    (default false), ``mode`` (push/pull, default push), ``provider``, ``host`` (the machine
+    its provider runs on, for placement), ``id``, ``sigma``
     (expected RMS error in metres), ``rate`` (Hz) and ``latency`` (s). Unknown keys are errors.
     """
     if not isinstance(data, dict):

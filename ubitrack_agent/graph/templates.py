@@ -36,6 +36,7 @@ SIGNATURES: frozenset[str] = frozenset({"step", "inverse", "chain"})
 _SERVICE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 _PATTERN_NAME = re.compile(r"^[A-Z][A-Za-z0-9]*$")
 _ROLE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_LABEL_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 _MULTIPLICITY = re.compile(r"^\s*(\d+)\s*(?:\.\.\s*(\d+|\*)\s*)?$")
 
 
@@ -122,6 +123,9 @@ class CostSpec:
 class Template:
     """One validated template service description.
 
+    ``host_labels`` are labels a host must have to run the service (``agent.placement``): a
+    service needing a GPU or a camera's local bus says so.
+
     ``signature`` says how the planner identifies the computation an output stands for, to drop
     derivations that differ only in how they were put together (section 5.1): ``step`` (its own
     step on its inputs), ``inverse`` (its single input read the other way round: the same
@@ -141,6 +145,7 @@ class Template:
     cost: CostSpec
     parameters: Mapping[str, Any] = field(default_factory=dict)
     signature: str = "step"
+    host_labels: frozenset[str] = frozenset()
 
     @property
     def time_only(self) -> bool:
@@ -174,6 +179,7 @@ _TOP = {
     "cost",
     "parameters",
     "signature",
+    "host_labels",
 }
 _REQUIRED_TOP = ("pattern", "service", "roles", "inputs", "outputs")
 _INPUT_KEYS = {"name", "from", "to", "type", "static", "mode", "measured", "not_from"}
@@ -369,6 +375,9 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
     signature = c.choice("field 'signature'", data.get("signature", "step"), SIGNATURES)
     if signature == "inverse" and len(inputs) != 1:
         raise c.fail("field 'signature'", "an inverse has exactly one input")
+    host_labels = frozenset(
+        c.string_list("field 'host_labels'", data.get("host_labels", []), _LABEL_NAME)
+    )
     template = Template(
         name=Path(origin).stem,
         pattern=pattern,
@@ -382,6 +391,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
         cost=cost,
         parameters=dict(parameters),
         signature=signature,
+        host_labels=host_labels,
     )
     if template.introduced and not template.time_only:
         raise c.fail(

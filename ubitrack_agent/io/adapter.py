@@ -34,7 +34,9 @@ Running one, for a device that sends UDP datagrams::
     with (
         open_udp_socket("0.0.0.0", 5000) as sock,
         open_session(settings) as session,
-        Provider(session, KeySpace(settings.key_prefix), "ART", adapter.edges) as provider,
+        Provider(
+            session, KeySpace(settings.key_prefix), "ART", adapter.edges, settings.host_name
+        ) as provider,
     ):
         serve_udp(sock, adapter, provider, stop)
 """

@@ -65,8 +65,16 @@ class CalibrationStore(Closing):
     ones to it (see the module docstring). A missing file is an empty store (created on the
     first save). Use as a context manager, or call :meth:`close`."""
 
-    def __init__(self, session: Any, keys: KeySpace, path: str | os.PathLike[str], name: str):
+    def __init__(
+        self,
+        session: Any,
+        keys: KeySpace,
+        path: str | os.PathLike[str],
+        name: str,
+        host: str | None = None,
+    ):
         self.path = Path(path)
+        self.host = host
         self.name = name
         self.counters: Counter[str] = Counter()
         self._session = session
@@ -94,7 +102,11 @@ class CalibrationStore(Closing):
         name = edge.announcement.name
         if name not in self._providers:
             self._providers[name] = Provider(
-                self._session, self._keys, self.provider_id(edge), [edge.served_announcement()]
+                self._session,
+                self._keys,
+                self.provider_id(edge),
+                [edge.served_announcement()],
+                self.host,
             )
         self._providers[name].publish(name, replace(edge.value, timestamp_ns=time.time_ns()))
 

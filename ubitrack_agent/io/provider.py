@@ -8,17 +8,19 @@ A few lines make a tracker, camera or calibration database part of the middlewar
     ]
     with (
         open_session(settings) as session,
-        Provider(session, KeySpace(settings.key_prefix), "art", edges) as provider,
+        Provider(session, KeySpace(settings.key_prefix), "art", edges, settings.host_name)
+        as provider,
     ):
         provider.publish("ART_HT", pose)      # edge names default to <from>_<to>
         ...                                   # leaving the block closes the provider
 
 The provider serves its SRG fragment (JSON, see ``docs/protocol.md``) on
-``<root>/fragment/<id>``, then declares its liveliness token ``<root>/provider/<id>``; the agent
-sees the token, fetches the fragment and adds the edges to the live SRG. Each edge's data key
-also answers queries with the latest value, so a worker started later still gets a static
-edge's value. Closing (leaving the ``with`` block, calling :meth:`Provider.close`, or the
-process dying) removes the token and the agent replans.
+``<root>/fragment/<id>``, naming the machine it runs on (``host``, default the machine's host
+name: the agent places the workers reading its edges near it), then declares its liveliness
+token ``<root>/provider/<id>``; the agent sees the token, fetches the fragment and adds the
+edges to the live SRG. Each edge's data key also answers queries with the latest value, so a
+worker started later still gets a static edge's value. Closing (leaving the ``with`` block,
+calling :meth:`Provider.close`, or the process dying) removes the token and the agent replans.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, encode
+from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
@@ -99,13 +102,19 @@ class Provider(Closing):
         keys: KeySpace,
         provider_id: str,
         edges: Iterable[EdgeAnnouncement],
+        host: str | None = None,
     ) -> None:
         self.id = validate_key_chunks(provider_id, single_chunk=True)
+        self.host = validate_key_chunks(host or default_host_name(), single_chunk=True)
         self.edges = {edge.name: edge for edge in edges}
         if not self.edges:
             raise ValueError("a provider needs at least one edge")
         self._fragment = json.dumps(
-            {"provider": self.id, "edges": [e.as_json() for e in self.edges.values()]}
+            {
+                "provider": self.id,
+                "host": self.host,
+                "edges": [e.as_json() for e in self.edges.values()],
+            }
         )
         self._publishers = {
             name: LatestValuePublisher(session, keys.measured(self.id, name)) for name in self.edges

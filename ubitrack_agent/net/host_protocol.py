@@ -20,6 +20,7 @@ Everything here is pure and total over its input: malformed bytes raise :class:`
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -36,12 +37,14 @@ ERRORS = (
     "oversized_request",
     "refused_spec",
     "failed_spawn",
+    "over_capacity",
     "internal_error",
 )
 """Error types of a refused request: not a well-formed request (bad UTF-8 or JSON, nesting too
 deep, wrong fields or types); larger than :data:`MAX_MESSAGE_BYTES`; a specification that is
-malformed or names no registered service; the worker process could not be started; a fault of
-the host manager itself (logged there)."""
+malformed or names no registered service; the worker process could not be started; the host
+manager already runs as many workers as its capacity; a fault of the host manager itself
+(logged there)."""
 
 EXIT_REASONS = ("exited", "released")
 """Why an instance ended without its host manager being asked: its process exited, or a stop
@@ -180,6 +183,62 @@ class Exited:
             returncode,
             reason,
         )
+
+
+MAX_LABELS = 32
+"""Labels a host manager may carry at most."""
+MAX_CAPACITY = 10_000
+"""Largest capacity (workers at most) a host manager may announce."""
+DEFAULT_CAPACITY = 64
+"""Workers a host manager runs at most unless told (each holds about 100 MB)."""
+
+
+@dataclass(frozen=True)
+class HostInfo:
+    """What a host manager says of itself in its status reply, and all placement uses
+    (``agent.placement``): its ``labels`` (``camera``, ``gpu``, ``hmd``...), how many workers
+    it runs at most (``capacity``), and its CPU load per core (``cpu_load``: the one-minute
+    load average over the cores; 1.0 is every core busy)."""
+
+    name: str
+    labels: frozenset[str] = frozenset()
+    capacity: int = DEFAULT_CAPACITY
+    cpu_load: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        """The fields as they appear in the status reply."""
+        return {
+            "name": self.name,
+            "labels": sorted(self.labels),
+            "capacity": self.capacity,
+            "cpu_load": self.cpu_load,
+        }
+
+    @classmethod
+    def parse(cls, payload: bytes) -> HostInfo:
+        """The host information in a status reply (other fields are ignored);
+        :class:`ProtocolError` naming the field if it is malformed."""
+        data = _json_object(payload)
+        labels = _field(data, "labels", list)
+        if len(labels) > MAX_LABELS:
+            raise ProtocolError("malformed_request", f"labels: more than {MAX_LABELS}")
+        names = frozenset(_label(label) for label in labels)
+        capacity = _field(data, "capacity", int)
+        if not 1 <= capacity <= MAX_CAPACITY:
+            raise ProtocolError("malformed_request", f"capacity: expected 1 to {MAX_CAPACITY}")
+        cpu_load = data.get("cpu_load")
+        if type(cpu_load) not in (int, float) or not 0 <= cpu_load < math.inf:
+            raise ProtocolError("malformed_request", "cpu_load: expected a finite number >= 0")
+        return cls(_name(data, "name"), names, capacity, float(cpu_load))
+
+
+def _label(value: Any) -> str:
+    if not isinstance(value, str):
+        raise ProtocolError("malformed_request", "labels: expected names")
+    try:
+        return validate_key_chunks(value, single_chunk=True)
+    except ValueError as exc:
+        raise ProtocolError("malformed_request", f"labels: {exc}") from None
 
 
 def _json_object(payload: bytes | None) -> dict[str, Any]:

@@ -1,0 +1,119 @@
+"""Placement of workers on hosts (``ubitrack_agent/agent/placement.py``): near their data, the
+last hop beside the application, labels and capacity respected, no flapping."""
+
+import pytest
+
+from ubitrack_agent.agent.placement import LOAD_WEIGHT, MOVE_MARGIN, place
+from ubitrack_agent.net.host_protocol import HostInfo
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+
+ROOM, HMD = HostInfo("room"), HostInfo("hmd")
+CAMERA_FEATURES, CAMERA_INTRINSICS = "d/cam/IF", "d/store/CI"
+ART_HT, MARKERS = "d/art/ART_HT", "d/store/OF"
+
+
+def spec(instance, *inputs, static=(), relations=()):
+    return ComponentSpec(
+        instance=instance,
+        service="x",
+        inputs=tuple(
+            InputBinding(f"p{i}", key, static=key in static) for i, key in enumerate(inputs)
+        ),
+        outputs={"out": f"d/{instance}/out"},
+        relations={"out": tuple(relations)} if relations else {},
+    )
+
+
+# The paper's figure 1 split over two machines: the camera on the HMD's computer, the A.R.T.
+# tracker and the calibration store on the room's.
+DATA_HOSTS = {CAMERA_FEATURES: "hmd", CAMERA_INTRINSICS: "room", ART_HT: "room", MARKERS: "room"}
+STATICS = (CAMERA_INTRINSICS, MARKERS)
+
+
+def figure1(relations=("rel/C/A",)):
+    pnp = spec("pnp", CAMERA_INTRINSICS, CAMERA_FEATURES, MARKERS, static=STATICS)
+    concat = spec("concat", "d/pnp/out", ART_HT, relations=relations)
+    return {"pnp": pnp, "concat": concat}
+
+
+def test_pose_estimation_runs_beside_its_camera():
+    placement = place(figure1(), {"room": ROOM, "hmd": HMD}, DATA_HOSTS, {})
+    assert placement.hosts["pnp"] == "hmd"  # features stream locally; two statics cross
+    assert placement.unplaced == {}
+
+
+@pytest.mark.parametrize(("application", "expected"), [("hmd", "hmd"), ("room", "room")])
+def test_the_last_hop_sits_beside_the_application(application, expected):
+    placement = place(figure1(), {"room": ROOM, "hmd": HMD}, DATA_HOSTS, {"rel/C/A": {application}})
+    assert placement.hosts["concat"] == expected
+
+
+def test_an_input_of_unknown_origin_costs_nothing_and_ties_go_by_name():
+    specs = {"relay": spec("relay", "d/unknown/E")}
+    assert place(specs, {"room": ROOM, "hmd": HMD}, {}, {}).hosts == {"relay": "hmd"}
+
+
+def test_labels_a_template_requires_are_respected():
+    hosts = {"room": ROOM, "gpu": HostInfo("gpu", frozenset({"gpu", "camera"}))}
+    placement = place(figure1(), hosts, DATA_HOSTS, {}, required_labels={"pnp": {"gpu"}})
+    assert placement.hosts["pnp"] == "gpu"
+    missing = place(figure1(), {"room": ROOM}, DATA_HOSTS, {}, required_labels={"pnp": {"gpu"}})
+    assert "pnp" not in missing.hosts
+    assert missing.unplaced["pnp"] == "no live host manager has the labels gpu"
+    assert missing.hosts["concat"] == "room"  # the rest is placed all the same
+
+
+def test_no_host_or_every_host_full_is_reported():
+    assert place(figure1(), {}, DATA_HOSTS, {}).unplaced == {
+        "pnp": "no host manager is alive",
+        "concat": "no host manager is alive",
+    }
+    full = place(figure1(), {"room": HostInfo("room", capacity=1)}, DATA_HOSTS, {})
+    assert full.hosts == {"pnp": "room"}
+    assert "capacity" in full.unplaced["concat"]
+
+
+def test_load_breaks_ties_between_hosts_equally_near():
+    specs = {f"relay{i}": spec(f"relay{i}", f"d/unknown/E{i}") for i in range(4)}
+    hosts = {"a": HostInfo("a", capacity=4), "b": HostInfo("b", capacity=4)}
+    placed = place(specs, hosts, {}, {}).hosts
+    assert sorted(placed.values()) == ["a", "a", "b", "b"]
+    busy = {"a": HostInfo("a", cpu_load=0.9), "b": HostInfo("b")}
+    assert set(place(specs, busy, {}, {}).hosts.values()) == {"b"}
+
+
+def test_load_never_outweighs_a_crossing():
+    busy_hmd = {"room": ROOM, "hmd": HostInfo("hmd", cpu_load=5.0)}
+    assert LOAD_WEIGHT < 1
+    assert place(figure1(), busy_hmd, DATA_HOSTS, {}).hosts["pnp"] == "hmd"
+
+
+def test_a_placed_component_stays_unless_a_move_saves_a_crossing():
+    hosts = {"room": ROOM, "hmd": HMD}
+    # Everything ran on the room host while the HMD's host manager was away.
+    current = {"pnp": "room", "concat": "room"}
+    moved = place(figure1(), hosts, DATA_HOSTS, {}, current)
+    assert moved.hosts["pnp"] == "hmd"  # saves the feature stream (1) for two statics (0.2)
+    # concat then reads pnp across (1) or ART across (1): no saving, it stays.
+    assert moved.hosts["concat"] == "room"
+    # A cheaper host by less than the margin (load) does not move anything.
+    assert LOAD_WEIGHT < MOVE_MARGIN
+    busy_room = {"room": HostInfo("room", cpu_load=1.0), "hmd": HMD}
+    specs = {"relay": spec("relay", "d/unknown/E")}
+    assert place(specs, busy_room, {}, {}, {"relay": "room"}).hosts == {"relay": "room"}
+    assert place(specs, busy_room, {}, {}).hosts == {"relay": "hmd"}
+
+
+def test_a_vanished_host_leaves_its_components_to_be_placed_again():
+    current = {"pnp": "hmd", "concat": "hmd"}
+    placement = place(figure1(), {"room": ROOM}, DATA_HOSTS, {"rel/C/A": {"hmd"}}, current)
+    assert placement.hosts == {"pnp": "room", "concat": "room"}
+
+
+def test_placement_is_deterministic_whatever_the_order_of_hosts():
+    forward = {"room": ROOM, "hmd": HMD}
+    backward = {"hmd": HMD, "room": ROOM}
+    assert (
+        place(figure1(), forward, DATA_HOSTS, {}).hosts
+        == place(figure1(), backward, DATA_HOSTS, {}).hosts
+    )

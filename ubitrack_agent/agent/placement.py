@@ -1,0 +1,133 @@
+"""Where each worker runs: near the data it reads (``docs/architecture.md``, "Placement").
+
+The paper's service managers run the pattern processes on the hosts the agent chooses
+(section 5.2.1); its example is a mobile setup whose camera and HMD have their own computer,
+walking into a room with a tracker PC. Every data stream that crosses from one host to another
+costs network latency and bandwidth, so the agent puts each component where its inputs are.
+The rule, pure and deterministic (:func:`place`):
+
+1. **Eligible hosts**: a live host manager that has every label the component's template asks
+   for (``host_labels``: ``camera``, ``gpu``, ...) and runs fewer workers of this plan than its
+   capacity. With none, the component is not placed and the reason is reported.
+2. **Cost of a host**: each input whose data comes from another host costs one crossing (a
+   static input :data:`STATIC_WEIGHT`: it is read once, not per frame); a queried relation the
+   component publishes costs one crossing per other host an application asking for it runs on
+   (so the last hop sits beside the application when that saves a crossing); plus
+   :data:`LOAD_WEIGHT` times the host's load (the larger of the share of its capacity this plan
+   uses and its CPU load per core, at most 1): between hosts equally near the data, the less
+   loaded one wins. An input of unknown origin costs nothing anywhere.
+3. **Order**: components are placed producers first, so a consumer sees where its producers
+   went; ties go to the host name first in order.
+4. **No flapping**: a component already placed stays where it is while that host is eligible,
+   unless another one is cheaper by at least :data:`MOVE_MARGIN` (a stream saved). A host
+   that joins therefore takes over only the components it brings a stream closer to; a host
+   that vanishes leaves its components to be placed again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Set
+from dataclasses import dataclass
+
+from ubitrack_agent.net.host_protocol import HostInfo
+from ubitrack_agent.net.spec import ComponentSpec
+
+STATIC_WEIGHT = 0.1
+"""The cost of a static input from another host, relative to a stream's."""
+LOAD_WEIGHT = 0.5
+"""The cost of a fully loaded host, relative to a stream crossing: less than one crossing, so
+being near the data always wins over balancing load."""
+MOVE_MARGIN = 0.6
+"""How much cheaper another host must be before a placed component moves there: more than load
+alone can make (:data:`LOAD_WEIGHT`), less than a stream brought onto the host even when two
+static inputs then cross (0.8)."""
+
+
+@dataclass(frozen=True)
+class Placement:
+    """The result of :func:`place`: a host for each placed instance, and why the others have
+    none (instance -> reason)."""
+
+    hosts: Mapping[str, str]
+    unplaced: Mapping[str, str]
+
+
+def place(
+    specs: Mapping[str, ComponentSpec],
+    hosts: Mapping[str, HostInfo],
+    data_hosts: Mapping[str, str],
+    application_hosts: Mapping[str, Set[str]],
+    current: Mapping[str, str] | None = None,
+    required_labels: Mapping[str, Set[str]] | None = None,
+) -> Placement:
+    """A host for every instance of ``specs`` (producers before consumers, as
+    ``agent.materialise.component_specs`` orders them), by the rule of the module docstring.
+
+    ``data_hosts`` maps a measured edge's data key to the host of its provider;
+    ``application_hosts`` a relation key to the hosts of the applications asking for it;
+    ``current`` an instance to the host it runs on now; ``required_labels`` an instance to the
+    labels its host must have.
+    """
+    current = current or {}
+    required_labels = required_labels or {}
+    origin = dict(data_hosts)  # data key -> host, the outputs of placed components added
+    planned = dict.fromkeys(hosts, 0)
+    placed: dict[str, str] = {}
+    unplaced: dict[str, str] = {}
+    for instance, spec in specs.items():
+        labels = frozenset(required_labels.get(instance, ()))
+        eligible = [
+            name
+            for name, info in sorted(hosts.items())
+            if labels <= info.labels and planned[name] < info.capacity
+        ]
+        if not eligible:
+            unplaced[instance] = _why_none(hosts, labels)
+            continue
+        costs = {
+            name: _crossings(spec, name, origin, application_hosts)
+            + LOAD_WEIGHT * _load(hosts[name], planned[name])
+            for name in eligible
+        }
+        best = min(eligible, key=lambda name: (costs[name], name))
+        here = current.get(instance)
+        if here in costs and costs[here] - costs[best] < MOVE_MARGIN:
+            best = here
+        placed[instance] = best
+        planned[best] += 1
+        for key in spec.outputs.values():
+            origin[key] = best
+    return Placement(placed, unplaced)
+
+
+def _crossings(
+    spec: ComponentSpec,
+    host: str,
+    origin: Mapping[str, str],
+    application_hosts: Mapping[str, Set[str]],
+) -> float:
+    """The streams that would cross between hosts were ``spec`` placed on ``host``."""
+    cost = 0.0
+    for binding in spec.inputs:
+        source = origin.get(binding.key)
+        if source is not None and source != host:
+            cost += STATIC_WEIGHT if binding.static else 1.0
+    for keys in spec.relations.values():
+        readers: set[str] = set()
+        for key in keys:
+            readers |= set(application_hosts.get(key, ()))
+        cost += len(readers - {host})
+    return cost
+
+
+def _load(info: HostInfo, planned: int) -> float:
+    """A host's load in [0, 1]: the share of its capacity taken, or its CPU load per core."""
+    return min(1.0, max(planned / info.capacity, info.cpu_load))
+
+
+def _why_none(hosts: Mapping[str, HostInfo], labels: frozenset[str]) -> str:
+    if not hosts:
+        return "no host manager is alive"
+    if labels and not any(labels <= info.labels for info in hosts.values()):
+        return f"no live host manager has the labels {', '.join(sorted(labels))}"
+    return "every eligible host manager runs as many workers as its capacity"
