@@ -93,8 +93,8 @@ def test_leaving_the_with_block_undeclares_provider_and_relation_even_on_error()
         wait_until(lambda: keys.provider("cam1") not in alive())
         provider.close()  # a second close does nothing
 
-        with Relation(client, keys, wanted, application="app2") as relation:
-            assert wait_until(alive) == {keys.query(wanted, "app2")}
+        with Relation(client, keys, wanted, application="app2", host="hmd") as relation:
+            assert wait_until(alive) == {keys.query(wanted, "app2", "hmd")}
         wait_until(lambda: not alive())
         relation.close()
 
@@ -122,7 +122,7 @@ def test_relation_announces_query_and_delivers_samples():
         seen = []
         with Relation(app_side, keys, wanted, application="app1", callback=seen.append) as relation:
             wait_until(lambda: queries)
-            assert keys.parse_query(queries[0]) == (wanted, "app1")
+            assert keys.parse_query(queries[0]) == (wanted, "app1", config.default_host_name())
             with pytest.raises(NoDataError):
                 relation.lookup(0)
             with pytest.raises(TimeoutError):

@@ -63,7 +63,7 @@ def allowed(subject: str, message: str, key: str, flow: str = "ingress") -> bool
         ("store", "liveliness_token", KEYS.provider("store.C_HT"), "ingress"),
         ("store", "put", KEYS.measured("store.C_HT", "C_HT"), "ingress"),
         ("store", "reply", KEYS.store("store"), "ingress"),
-        ("application", "liveliness_token", KEYS.query(RELATION, "app"), "ingress"),
+        ("application", "liveliness_token", KEYS.query(RELATION, "app", "hmd"), "ingress"),
         ("application", "query", KEYS.relation(RELATION), "ingress"),
         ("application", "declare_subscriber", KEYS.relation(RELATION), "ingress"),
         ("application", "query", KEYS.all_statuses(), "ingress"),

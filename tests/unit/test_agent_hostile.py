@@ -42,7 +42,7 @@ PREFIXES = {
     "pool": "pool/",
     "host": "host/",
     "agent": "agents/",
-    "query": "query/C/HT/6D/dynamic/",
+    "query": "query/C/HT/6D/dynamic/hmd/",
 }
 
 
@@ -70,7 +70,8 @@ def test_every_token_kind_reads_a_good_name(kind):
     token = KEYS.parse_token(kind, key_of(kind, "good-1"))
     relation = RelationId("C", "HT", "6D") if kind == "query" else None
     incarnation = "1.a" if kind == "worker" else ""
-    assert token == Token(kind, "good-1", relation, incarnation)
+    host = "hmd" if kind == "query" else ""
+    assert token == Token(kind, "good-1", relation, incarnation, host)
 
 
 @pytest.mark.parametrize("tail", ["concat-1", "concat-1/1.a/x", "concat-1/*", "concat-1/"])

@@ -13,7 +13,9 @@ from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
     ProtocolError,
+    HostInfo,
     Started,
+    Status,
     parse_request,
 )
 from ubitrack_agent.net.keys import KeySpace
@@ -36,6 +38,8 @@ class FakeSession:
         self.requests: list[tuple[str, object]] = []
         self.puts: list[tuple[str, str]] = []
         self.answers: dict[str, object] = {}
+        self.status_requests: list[str] = []
+        self.statuses: dict[str, object] = {}
 
     def liveliness(self):
         return SimpleNamespace(declare_subscriber=self._subscribe)
@@ -50,9 +54,15 @@ class FakeSession:
     def event(self, selector: str, kind: str, key: str, data: bytes = b"") -> None:
         self.callbacks[selector](SimpleNamespace(kind=kind, key_expr=key, payload=payload(data)))
 
-    def get(self, key, payload=None, timeout=None):
+    def get(self, key, payload=None, timeout=None, handler=None):
         host = KEYS.parse_host(key.removesuffix("/request"))
         request = parse_request(payload.encode())
+        if handler is not None:  # a status request: the reply comes through the handler
+            assert isinstance(request, Status)
+            self.status_requests.append(host)
+            if host in self.statuses:
+                handler(self.statuses[host])
+            return None
         self.requests.append((host, request))
         answer = self.answers.get(host)
         return [] if answer is None else [answer(request)]
@@ -104,34 +114,67 @@ def spec(instance: str) -> ComponentSpec:
     )
 
 
-def test_a_start_waits_for_a_host_manager_then_goes_to_the_first_by_name(world):
+def test_a_start_goes_to_the_chosen_live_host_manager(world):
     session, hosts, _counters = world
-    assert not hosts.start(spec("a"))
+    assert hosts.available() == {}
+    assert not hosts.start(spec("a"), "alpha")
     assert session.requests == []
     for name in ("zeta", "alpha"):
         session.answers[name] = started
         host_appears(session, hosts, name)
-    assert hosts.start(spec("a"))
-    assert [host for host, _ in session.requests] == ["alpha"]
-    assert hosts.placements["a"] == Placement("alpha", "run-a")
+    assert hosts.available() == {"alpha": HostInfo("alpha"), "zeta": HostInfo("zeta")}
+    assert not hosts.start(spec("a"), "nowhere")
+    assert hosts.start(spec("a"), "zeta")
+    assert [host for host, _ in session.requests] == ["zeta"]
+    assert hosts.placements["a"] == Placement("zeta", "run-a")
     assert hosts.reports_exit_of("a")
+
+
+def status_reply(data: dict) -> SimpleNamespace:
+    return SimpleNamespace(ok=SimpleNamespace(payload=payload(json.dumps(data).encode())))
+
+
+def test_host_information_is_asked_when_a_host_appears_and_then_now_and_then(world, clock):
+    session, hosts, counters = world
+    info = HostInfo("hmd", frozenset({"camera"}), 8, 0.5)
+    session.statuses["hmd"] = status_reply({**info.as_dict(), "pid": 1, "instances": {}})
+    host_appears(session, hosts, "hmd")
+    hosts.reap(set())  # the reply was queued by the handler
+    assert session.status_requests == ["hmd"]
+    assert hosts.available() == {"hmd": info}
+    assert hosts.reap(set()) == [] and session.status_requests == ["hmd"]  # not due yet
+    clock[0] += hosts_module.INFO_REFRESH_S + 0.1
+    session.statuses["hmd"] = status_reply({**info.as_dict(), "name": "room"})
+    hosts.reap(set())
+    hosts.reap(set())
+    assert session.status_requests == ["hmd", "hmd"]
+    assert counters["rejected_host_reports"] == 1  # it named another host: ignored
+    assert hosts.available() == {"hmd": info}  # the last good information is kept
+    clock[0] += hosts_module.INFO_REFRESH_S + 0.1
+    session.statuses["hmd"] = status_reply({"name": "hmd", "labels": "camera"})
+    hosts.reap(set())
+    hosts.reap(set())
+    assert counters["rejected_host_reports"] == 2
+    session.event(KEYS.all_hosts(), DELETE, KEYS.host("hmd"))
+    hosts.reap(set())
+    assert hosts.available() == {} and hosts.info == {}
 
 
 def test_refused_and_unanswered_starts_are_asked_again_later(world, clock):
     session, hosts, counters = world
     session.answers["lab"] = refused
     host_appears(session, hosts, "lab")
-    assert not hosts.start(spec("a"))
-    assert not hosts.start(spec("a"))  # not again at once
+    assert not hosts.start(spec("a"), "lab")
+    assert not hosts.start(spec("a"), "lab")  # not again at once
     assert len(session.requests) == 1
     clock[0] += hosts_module.START_RETRY_S + 0.1
     session.answers["lab"] = None  # silent
-    assert not hosts.start(spec("a"))
-    assert not hosts.start(spec("b"))  # a silent host manager is left alone for a while
+    assert not hosts.start(spec("a"), "lab")
+    assert not hosts.start(spec("b"), "lab")  # a silent host manager is left alone for a while
     assert len(session.requests) == 2
     clock[0] += hosts_module.START_RETRY_S + 0.1
     session.answers["lab"] = started
-    assert hosts.start(spec("a")) and hosts.start(spec("b"))
+    assert hosts.start(spec("a"), "lab") and hosts.start(spec("b"), "lab")
     assert counters["refused_starts"] == 2
 
 
@@ -139,7 +182,7 @@ def test_only_a_matching_exit_report_restarts(world):
     session, hosts, counters = world
     session.answers["lab"] = started
     host_appears(session, hosts, "lab")
-    hosts.start(spec("a"))
+    hosts.start(spec("a"), "lab")
     exits = KEYS.all_host_exits()
     for report in (
         Exited("a", "an-earlier-run", 1, 0, "exited"),  # stale
@@ -161,8 +204,8 @@ def test_a_vanished_host_manager_restarts_its_instances_that_are_not_alive(world
     session, hosts, _counters = world
     session.answers["lab"] = started
     host_appears(session, hosts, "lab")
-    hosts.start(spec("a"))
-    hosts.start(spec("b"))
+    hosts.start(spec("a"), "lab")
+    hosts.start(spec("b"), "lab")
     session.event(KEYS.all_hosts(), DELETE, KEYS.host("lab"))
     assert hosts.reap(alive={"a"}) == ["b"]
     assert hosts.placements == {}
@@ -173,7 +216,7 @@ def test_stops_go_through_the_host_manager_else_on_the_control_key(world):
     session, hosts, _counters = world
     session.answers["lab"] = started
     host_appears(session, hosts, "lab")
-    hosts.start(spec("a"))
+    hosts.start(spec("a"), "lab")
     session.answers["lab"] = stopped
     hosts.stop("a")
     assert session.requests[-1][0] == "lab" and session.puts == []

@@ -60,7 +60,6 @@ def test_fragment_entries_carry_ids_and_providers():
             "sigma": 0.001,
             "id": "art/HT",
             "provider": "art",
-            "host": "",
         }
     ]
     hosted = json.dumps({"provider": "art", "host": "room", "edges": [edge("HT", "ART", "HT")]})

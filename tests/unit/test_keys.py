@@ -16,7 +16,11 @@ def test_query_and_relation_keys_round_trip_every_kind(kind):
     assert relation.kind == kind
     assert KEYS.relation(relation) == f"ubitrack/test/relation/C/HT/6D/{kind}"
     assert KEYS.parse_relation(KEYS.relation(relation)) == relation
-    assert KEYS.parse_query(KEYS.query(relation, "app1")) == (relation, "app1")
+    key = KEYS.query(relation, "app1", "hmd")
+    assert key == f"ubitrack/test/query/C/HT/6D/{kind}/hmd/app1"
+    assert KEYS.parse_query(key) == (relation, "app1", "hmd")
+    token = KEYS.parse_token("query", key)
+    assert (token.name, token.relation, token.host) == ("app1", relation, "hmd")
 
 
 def test_a_recalibration_has_keys_apart_from_the_static_relation():
@@ -36,12 +40,13 @@ def test_a_recalibration_is_of_a_static_relation():
 @pytest.mark.parametrize(
     "key, message",
     [
-        ("ubitrack/test/query/C/HT/6D/recal/app", "kind 'recal'"),
-        ("ubitrack/test/query/C/HT/6D/Static/app", "kind 'Static'"),
-        ("ubitrack/test/query/C/HT/6D/recalibrate", "expected query/"),
-        ("ubitrack/test/query/C/HT/6D/recalibrate/app/x", "expected query/"),
-        ("ubitrack/test/query/C/C/6D/recalibrate/app", "two different frames"),
-        ("ubitrack/other/query/C/HT/6D/recalibrate/app", "not a query key"),
+        ("ubitrack/test/query/C/HT/6D/recal/h/app", "kind 'recal'"),
+        ("ubitrack/test/query/C/HT/6D/Static/h/app", "kind 'Static'"),
+        ("ubitrack/test/query/C/HT/6D/recalibrate/app", "expected query/"),
+        ("ubitrack/test/query/C/HT/6D/recalibrate/h/app/x", "expected query/"),
+        ("ubitrack/test/query/C/HT/6D/recalibrate/*/app", "may only contain"),
+        ("ubitrack/test/query/C/C/6D/recalibrate/h/app", "two different frames"),
+        ("ubitrack/other/query/C/HT/6D/recalibrate/h/app", "not a query key"),
     ],
 )
 def test_malformed_query_keys_are_rejected(key, message):

@@ -90,7 +90,12 @@ def provider_entries(provider: str, edges: Any, host: str = "") -> list[dict[str
         names.add(edge["name"])
         entry = {k: v for k, v in edge.items() if k != "name"}
         entries.append(
-            {**entry, "id": f"{provider}/{edge['name']}", "provider": provider, "host": host}
+            {
+                **entry,
+                "id": f"{provider}/{edge['name']}",
+                "provider": provider,
+                **({"host": host} if host else {}),
+            }
         )
     try:
         parse_setup({"edges": entries}, origin=where)  # types, modes, numbers, frames

@@ -2,7 +2,11 @@
 starting and stopping workers over zenoh only (``docs/protocol.md``).
 
 * Host managers are known from their liveliness tokens ``<root>/host/<name>`` (with history).
-  A start goes to a live one (the first by name: placement is for later) as a ``get`` on
+  What each says of itself (labels, capacity, CPU load: :class:`HostInfo`) is asked with a
+  status request when it appears and every ``INFO_REFRESH_S`` after, without waiting for the
+  reply (a host manager that does not answer holds up nothing); until it answers it counts as
+  a host without labels.
+* A start goes to the host manager :mod:`.placement` chose, as a ``get`` on
   ``<root>/host/<name>/request`` with a timeout; the reply names the run, remembered with the
   host as the instance's :class:`Placement`. With no host manager alive, or no answer, or a
   refusal, the start does not happen and the runtime asks again on a later pass (a refused or
@@ -36,10 +40,12 @@ from ubitrack_agent.agent.problems import Problems
 from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
+    HostInfo,
     ProtocolError,
     Request,
     Start,
     Started,
+    Status,
     Stop,
     encode_request,
 )
@@ -51,6 +57,8 @@ log = logging.getLogger("ubitrack.agent")
 
 REQUEST_TIMEOUT_S = 2.0
 """Longest wait for a host manager's reply (it answers in milliseconds)."""
+INFO_REFRESH_S = 5.0
+"""How often each host manager's information (its CPU load changes) is asked again."""
 START_RETRY_S = 1.0
 """After a refused or unanswered start, wait this long before asking again for the instance;
 a host manager that did not answer is not asked anything for as long."""
@@ -75,6 +83,9 @@ class Hosts:
         self._keys = keys
         self._problems = problems
         self.live: set[str] = set()
+        self.info: dict[str, HostInfo] = {}
+        """What each live host manager said of itself (its latest status reply)."""
+        self._info_due: dict[str, float] = {}
         self.placements: dict[str, Placement] = {}
         self._retry_at: dict[str, float] = {}
         self._silent_until: dict[str, float] = {}
@@ -97,16 +108,22 @@ class Hosts:
 
     # -- requests ---------------------------------------------------------------------------
 
-    def start(self, spec: ComponentSpec) -> bool:
-        """Have a live host manager run ``spec``; False if none did (ask again later)."""
-        instance = spec.instance
-        if time.monotonic() < self._retry_at.get(instance, 0.0):
-            return False
+    def available(self) -> dict[str, HostInfo]:
+        """The host managers to place instances on: live, answering, by name, with what they
+        said of themselves."""
         if not self.live and not self._waiting:
             log.info("no host manager alive yet: starting waits for one")
             self._waiting = True
-        host = next(iter(self._answering()), None)
-        if host is None:
+        return {host: self.info.get(host, HostInfo(host)) for host in self._answering()}
+
+    def start(self, spec: ComponentSpec, host: str) -> bool:
+        """Have ``host``'s manager run ``spec``; False if it did not (ask again later). An
+        instance running elsewhere is started there too: the agent keeps the new process
+        and stops the other (a move, make before break)."""
+        instance = spec.instance
+        if time.monotonic() < self._retry_at.get(instance, 0.0):
+            return False
+        if host not in self._answering():
             return False
         try:
             started = Started.parse(self._request(host, Start(spec)))
@@ -162,14 +179,38 @@ class Hosts:
             raise ProtocolError.parse(replies[0].err.payload.to_bytes())
         return replies[0].ok.payload.to_bytes()
 
+    def _ask_info(self) -> None:
+        """Ask every live host manager whose information is due for its status; the replies
+        arrive as events."""
+        now = time.monotonic()
+        for host in sorted(self.live):
+            if now < self._info_due.get(host, 0.0):
+                continue
+            self._info_due[host] = now + INFO_REFRESH_S
+            try:
+                self._session.get(
+                    self._keys.host_request(host),
+                    payload=encode_request(Status()),
+                    timeout=REQUEST_TIMEOUT_S,
+                    handler=lambda reply, host=host: self._events.put(
+                        ("info", host, _reply_bytes(reply))
+                    ),
+                )
+            except zenoh.ZError as exc:
+                log.warning("could not ask host manager %s for its status: %s", host, exc)
+
     # -- events -----------------------------------------------------------------------------
 
     def reap(self, alive: set[str]) -> list[str]:
-        """Apply host tokens and exit reports; the instances to start again (``alive``: the
-        instances whose worker token is up)."""
+        """Apply host tokens, exit reports and status replies, and ask for information that
+        is due; the instances to start again (``alive``: the instances whose worker token is
+        up)."""
         ended: list[str] = []
         while not self._events.empty():
             kind, key, payload = self._events.get_nowait()
+            if kind == "info":
+                self._on_info(key, payload)
+                continue
             token = self._keys.parse_token("host_exited" if kind == "exited" else "host", key)
             if isinstance(token, KeyRejection):
                 self._problems.report(
@@ -179,7 +220,25 @@ class Hosts:
                 ended += self._on_exited(token.name, payload)
             else:
                 ended += self._on_host(token.name, kind == PUT, alive)
+        self._ask_info()
         return ended
+
+    def _on_info(self, host: str, payload: bytes | None) -> None:
+        """Take a host manager's status reply (None: an error reply)."""
+        if host not in self.live or payload is None:
+            return
+        try:
+            info = HostInfo.parse(payload)
+            if info.name != host:
+                raise ProtocolError("malformed_request", f"name: {info.name!r}, not {host!r}")
+        except ProtocolError as exc:
+            self._problems.report(
+                "rejected_host_reports", "ignored status of host manager %s: %s", host, exc
+            )
+            return
+        if self.info.get(host, HostInfo(host)).labels != info.labels:
+            log.info("host manager %s has labels %s", host, ", ".join(sorted(info.labels)))
+        self.info[host] = info
 
     def _on_host(self, host: str, appeared: bool, alive: set[str]) -> list[str]:
         if appeared:
@@ -188,6 +247,8 @@ class Hosts:
             log.info("host manager %s is alive", host)
             return []
         self.live.discard(host)
+        self.info.pop(host, None)
+        self._info_due.pop(host, None)
         log.warning("host manager %s vanished", host)
         lost = sorted(i for i, p in self.placements.items() if p.host == host)
         for instance in lost:
@@ -211,3 +272,8 @@ class Hosts:
     def close(self) -> None:
         self._watch.undeclare()
         self._exits.undeclare()
+
+
+def _reply_bytes(reply: Any) -> bytes | None:
+    """A reply's payload; None for an error reply."""
+    return None if reply.ok is None else reply.ok.payload.to_bytes()

@@ -5,8 +5,9 @@ history, so a restarted agent rebuilds its whole state from them alone (``docs/p
 
 * providers (``<root>/provider/<id>``): on appearance their SRG fragment is fetched from
   ``<root>/fragment/<id>`` and validated; on disappearance their edges leave the SRG;
-* queries (``<root>/query/<from>/<to>/<type>/<kind>/<app>``): the relations applications
-  want; applications asking for the same relation share it;
+* queries (``<root>/query/<from>/<to>/<type>/<kind>/<host>/<app>``): the relations
+  applications want, and the hosts they run on; applications asking for the same relation
+  share it;
 * workers (``<root>/worker/<instance>/<incarnation>``): which components are alive, and in
   which processes; a token's removal affects only the incarnation that declared it, so a late
   removal of an earlier process's token never makes a running worker "vanish";
@@ -21,11 +22,15 @@ It also watches the arrival of data on the measured edges that announce a rate
 After each batch of events it replans every relation (:mod:`.flows`), turns the merged data
 flow into worker specifications (:mod:`.materialise`) and reconciles the running workers with
 them (:mod:`.reconcile`): start or stop (through a host manager, over zenoh only: :mod:`.hosts`),
-or rewire in place with a control command. A start no host manager took is tried again on a
-later pass. A worker that ends on its own is started again; a worker alive but not known (left
-by an earlier agent) is adopted if wanted, stopped otherwise, but only once it has been
-unwanted for ``ORPHAN_GRACE_S`` after start-up settled (``SETTLE_S``). Planning prefers the
-components that are alive, adopted or not, so a restarted agent replans onto what runs.
+or rewire in place with a control command. Each start goes to the host :mod:`.placement`
+chooses, near the data the component reads; a running component moves (started on the new
+host, then its old process stopped) only when another host is better by the placement's
+margin. A start no host manager took is tried again on a later pass. A worker that ends on
+its own (or whose host vanished with it) is started again where placement says; a worker
+alive but not known (left by an earlier agent) is adopted if wanted, stopped otherwise, but
+only once it has been unwanted for ``ORPHAN_GRACE_S`` after start-up settled (``SETTLE_S``).
+Planning prefers the components that are alive, adopted or not, so a restarted agent replans
+onto what runs.
 A stop the agent puts itself (for a worker no host manager owns) is put again every
 ``STOP_RESEND_S`` while the worker's token stays up and nothing wants it. Events are handled
 on the agent's own thread; zenoh callbacks only queue them.
@@ -62,6 +67,7 @@ from ubitrack_agent.agent.flows import Plan, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
 from ubitrack_agent.agent.liveness import DataLiveness
 from ubitrack_agent.agent.materialise import component_specs
+from ubitrack_agent.agent.placement import place
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
@@ -128,6 +134,14 @@ class Agent:
         self.fragments: dict[str, list[dict[str, Any]]] = {}
         self.rejected: dict[str, str] = {}
         self.queries: dict[RelationId, set[str]] = defaultdict(set)
+        self.application_hosts: dict[tuple[RelationId, str], str] = {}
+        """The host each application asking for a relation runs on."""
+        self._data_hosts: dict[str, str] = {}
+        """The host of each measured edge's provider, by data key (from the live SRG)."""
+        self._labels: dict[str, frozenset[str]] = {}
+        """The host labels each wanted component's template requires, by instance."""
+        self.unplaced: dict[str, str] = {}
+        """Why a wanted component has no host, by instance (the latest placement)."""
         self.alive: set[str] = set()
         self.incarnations: dict[str, dict[str, float]] = defaultdict(dict)
         """The incarnations (processes) whose token is up, by instance: when each appeared."""
@@ -190,7 +204,7 @@ class Agent:
             return False
         appeared = change == PUT
         if token.relation is not None:
-            return self._on_query(token.relation, token.name, appeared)
+            return self._on_query(token.relation, token.name, token.host, appeared)
         if kind == "provider":
             return self._on_provider(token.name, appeared)
         if kind == "agent":
@@ -209,10 +223,15 @@ class Agent:
         self.rejected.pop(provider, None)
         return self.fragments.pop(provider, None) is not None
 
-    def _on_query(self, relation: RelationId, application: str, appeared: bool) -> bool:
+    def _on_query(self, relation: RelationId, application: str, host: str, appeared: bool) -> bool:
         apps = self.queries[relation]
         before = bool(apps)
-        apps.add(application) if appeared else apps.discard(application)
+        if appeared:
+            apps.add(application)
+            self.application_hosts[relation, application] = host
+        else:
+            apps.discard(application)
+            self.application_hosts.pop((relation, application), None)
         if not apps:
             del self.queries[relation]
         return before != bool(apps)
@@ -352,6 +371,16 @@ class Agent:
         plan = plan_relations(srg, self.templates, self.queries, running, previous)
         wanted = component_specs(plan.flow, srg, self.keys, plan.relations)
         self.srg, self.plan, self.wanted = srg, plan, wanted
+        self._data_hosts = {
+            self.keys.data(edge_id): host
+            for *_, edge_id, host in srg.edges(keys=True, data="host")
+            if host
+        }
+        labels = {template.name: template.host_labels for template in self.templates}
+        self._labels = {
+            component.id: labels.get(component.template, frozenset())
+            for component in plan.flow.components.values()
+        }
         self._replan_due = False
         self.counters["replans"] += 1
         for name, reason in self.plan.unsolved.items():
@@ -405,7 +434,13 @@ class Agent:
                 self._stop_worker(instance)  # replaced by another specification at once
             else:
                 self._retiring[instance] = time.monotonic() + RETIRE_S
-        started = [spec for spec in actions.start if self.hosts.start(spec)]
+        placement = self._place()
+        started = [
+            spec
+            for spec in actions.start
+            if spec.instance in placement and self.hosts.start(spec, placement[spec.instance])
+        ]
+        self._move(placement, restarted)
         for spec in started:
             self.running[spec.instance] = spec
             self._stopped.pop(spec.instance, None)
@@ -423,6 +458,38 @@ class Agent:
                 len(actions.stop),
                 len(actions.update),
             )
+
+    def _place(self) -> dict[str, str]:
+        """The host for each wanted instance (:mod:`.placement`); why some have none is kept
+        in ``unplaced``."""
+        application_hosts: dict[str, set[str]] = defaultdict(set)
+        for (relation, _), host in self.application_hosts.items():
+            application_hosts[self.keys.relation(relation)].add(host)
+        current = {instance: placed.host for instance, placed in self.hosts.placements.items()}
+        placement = place(
+            self.wanted,
+            self.hosts.available(),
+            self._data_hosts,
+            application_hosts,
+            current,
+            self._labels,
+        )
+        for instance in sorted(placement.unplaced.keys() - self.unplaced.keys()):
+            log.warning("%s: cannot place it: %s", instance, placement.unplaced[instance])
+        self.unplaced = dict(placement.unplaced)
+        return dict(placement.hosts)
+
+    def _move(self, placement: dict[str, str], restarted: set[str]) -> None:
+        """Start each running instance that placement puts on another host there (its old
+        process is then stopped as a duplicate, :meth:`_stop_duplicates`: make before break)."""
+        for instance, spec in self.running.items():
+            placed = self.hosts.placements.get(instance)
+            target = placement.get(instance)
+            if instance in restarted or placed is None or target in (None, placed.host):
+                continue
+            if instance in self.alive and self.hosts.start(spec, target):
+                self.counters["moves"] += 1
+                log.info("%s: moved from host %s to %s", instance, placed.host, target)
 
     def _rewire(self, instance: str, command: dict[str, Any], wait: bool) -> None:
         """Send ``command`` to ``instance``, or, if ``wait``, hold it (merged with a command
@@ -657,6 +724,12 @@ class Agent:
                 for u, v, key, d in self.srg.edges(keys=True, data=True)
             ],
             "queries": {str(r): sorted(apps) for r, apps in self.queries.items()},
+            "application_hosts": {
+                str(relation): sorted(
+                    {host for (r, _), host in self.application_hosts.items() if r == relation}
+                )
+                for relation in self.queries
+            },
             "unsolved": dict(plan.unsolved) if plan else {},
             "relations": {
                 name: {"key": self.keys.relation(relation)}
@@ -673,6 +746,8 @@ class Agent:
                 for instance, spec in self.wanted.items()
             },
             "hosts": sorted(self.hosts.live),
+            "host_info": {name: info.as_dict() for name, info in sorted(self.hosts.info.items())},
+            "unplaced": dict(self.unplaced),
             "counters": dict(self.counters),
             "problems": dict(self.problems.last),
             "last_change_ns": self.last_change_ns,

@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     keys = KeySpace(settings.key_prefix)
     with (
         open_session(settings) as session,
-        Relation(session, keys, relation_id, application=None) as relation,
+        Relation(session, keys, relation_id, host=settings.host_name) as relation,
     ):
 
         def report(progress: Progress) -> None:

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     keys = KeySpace(settings.key_prefix)
     with (
         open_session(settings) as session,
-        Relation(session, keys, relation_id, args.app_id) as relation,
+        Relation(session, keys, relation_id, args.app_id, host=settings.host_name) as relation,
     ):
         printed = 0
         try:

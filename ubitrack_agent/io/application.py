@@ -68,6 +68,7 @@ from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.answer import Answer, AnswerError, parse_answer
+from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
@@ -144,8 +145,12 @@ class Relation(Closing):
         callback: Callable[[Measurement], None] | None = None,
         history: int = 256,
         queue_size: int = 1024,
+        host: str | None = None,
     ) -> None:
         self.relation = relation
+        self.host = validate_key_chunks(host or default_host_name(), single_chunk=True)
+        """The machine this application runs on (default: its host name), named in the query:
+        the agent places the relation's last hop near it when that saves a network crossing."""
         self.key = keys.relation(relation)
         self._session = session
         self.application = validate_key_chunks(
@@ -194,7 +199,9 @@ class Relation(Closing):
                 progress_key, lambda sample: receive_progress(sample.payload.to_bytes())
             )
             wanted.append((progress_key, receive_progress, lambda: bool(self.progress)))
-        self._token = session.liveliness().declare_token(keys.query(relation, self.application))
+        self._token = session.liveliness().declare_token(
+            keys.query(relation, self.application, self.host)
+        )
         self._closed = threading.Event()
         # A static result published before this application started: ask for it.
         self._fetcher = threading.Thread(

@@ -7,7 +7,7 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/data/<edge-id>            measurements of one SRG edge (msgpack, see core.codec);
                                      measured edges are <provider>/<edge-name>; the key is also
                                      a queryable answering the latest value
-    <root>/query/<from>/<to>/<type>/<kind>/<app>
+    <root>/query/<from>/<to>/<type>/<kind>/<host>/<app>
                                      liveliness token of an application's query: the key is
                                      the whole description, so liveliness alone rebuilds state;
                                      <kind> is static, dynamic or recalibrate (below)
@@ -147,12 +147,14 @@ class RelationId:
 class Token:
     """A key from the network, parsed: its ``kind`` (one of :data:`TOKEN_KINDS`), its ``name``
     (provider id, worker instance, pool id, host name; for a query the application), for a
-    query the ``relation`` asked for, and for a worker the ``incarnation`` of the process."""
+    query the ``relation`` asked for and the ``host`` the application runs on, and for a
+    worker the ``incarnation`` of the process."""
 
     kind: str
     name: str
     relation: RelationId | None = None
     incarnation: str = ""
+    host: str = ""
 
 
 @dataclass(frozen=True)
@@ -233,10 +235,12 @@ class KeySpace:
         validate_key_chunks(source, single_chunk=True)
         return f"{self.root}/truth/{source}/{validate_key_chunks(target, single_chunk=True)}"
 
-    def query(self, relation: RelationId, application: str) -> str:
-        """Liveliness token of ``application``'s query for ``relation``."""
+    def query(self, relation: RelationId, application: str, host: str) -> str:
+        """Liveliness token of the query for ``relation`` of ``application``, running on
+        ``host`` (the agent places the relation's last hop near it)."""
         app = validate_key_chunks(application, single_chunk=True)
-        return f"{self.root}/query/{relation.chunks}/{app}"
+        machine = validate_key_chunks(host, single_chunk=True)
+        return f"{self.root}/query/{relation.chunks}/{machine}/{app}"
 
     def relation(self, relation: RelationId) -> str:
         """The stable key on which ``relation`` is delivered, whatever flow computes it."""
@@ -269,16 +273,22 @@ class KeySpace:
         """Queryable of the calibration store ``name``: save requests (JSON)."""
         return f"{self.root}/store/{validate_key_chunks(name, single_chunk=True)}"
 
-    def parse_query(self, key: str) -> tuple[RelationId, str]:
-        """``(relation, application)`` from a query token key; ``ValueError`` if malformed."""
+    def parse_query(self, key: str) -> tuple[RelationId, str, str]:
+        """``(relation, application, host)`` from a query token key; ``ValueError`` if
+        malformed."""
         prefix = f"{self.root}/query/"
         if not key.startswith(prefix):
             raise ValueError(f"{key!r} is not a query key under {prefix!r}")
         parts = key[len(prefix) :].split("/")
-        if len(parts) != 5:
-            raise ValueError(f"{key!r}: expected query/<from>/<to>/<type>/<kind>/<app>")
-        *chunks, app = parts
-        return _relation(*chunks, key=key), validate_key_chunks(app, single_chunk=True)
+        if len(parts) != 6:
+            raise ValueError(f"{key!r}: expected query/<from>/<to>/<type>/<kind>/<host>/<app>")
+        *chunks, host, app = parts
+        relation = _relation(*chunks, key=key)
+        return (
+            relation,
+            validate_key_chunks(app, single_chunk=True),
+            validate_key_chunks(host, single_chunk=True),
+        )
 
     def parse_provider(self, key: str) -> str:
         """The provider id of a provider token key; ``ValueError`` if malformed."""
@@ -405,8 +415,8 @@ class KeySpace:
             return KeyRejection(kind, key[:MAX_KEY_CHARS], reason)
         try:
             if kind == "query":
-                relation, application = self.parse_query(key)
-                return Token(kind, application, relation)
+                relation, application, host = self.parse_query(key)
+                return Token(kind, application, relation, host=host)
             if kind == "worker":
                 instance, incarnation = self.parse_worker(key)
                 return Token(kind, instance, incarnation=incarnation)
