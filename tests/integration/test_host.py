@@ -49,9 +49,11 @@ class Network:
     processes: list
     watches: list = field(default_factory=list)
 
-    def start(self, *command: str) -> subprocess.Popen:
+    def start(self, *command: str, host_name: str | None = None) -> subprocess.Popen:
+        """A process joining the network, on host ``host_name`` (default this machine's)."""
+        named = [] if host_name is None else ["--host-name", host_name]
         process = subprocess.Popen(
-            [sys.executable, *command, *member_flags(self.port, self.domain)],
+            [sys.executable, *command, *member_flags(self.port, self.domain), *named],
             start_new_session=True,
         )
         self.processes.append(process)
@@ -112,10 +114,10 @@ class Network:
         wait_until(lambda: self.agent_status() is not None, timeout=20)
         return process
 
-    def tracker(self) -> subprocess.Popen:
-        """A noise-free tracker ART announcing ART->WT and ART->HT."""
+    def tracker(self, host_name: str | None = None) -> subprocess.Popen:
+        """A noise-free tracker ART announcing ART->WT and ART->HT, on host ``host_name``."""
         tracker = ("--provider", "art", "--tracker", "ART", "--yaw", "30", "--x", "2")
-        return self.start("-m", "sim_trackers.exact_tracker", *tracker)
+        return self.start("-m", "sim_trackers.exact_tracker", *tracker, host_name=host_name)
 
     def agent_status(self) -> dict | None:
         replies = fetch_latest(self.session, self.keys.agent_status(), timeout=0.5)

@@ -50,7 +50,8 @@ def test_a_plain_zenoh_application_decodes_a_relation_as_documented(setup: Setup
     samples: queue.Queue[bytes] = queue.Queue()
     encodings: set[str] = set()
     with zenoh.open(config) as session:
-        token = session.liveliness().declare_token(f"{root}/query/WT/HT/6D/dynamic/laptop/plain-app")
+        query = f"{root}/query/WT/HT/6D/dynamic/laptop/plain-app"
+        token = session.liveliness().declare_token(query)
         subscriber = session.declare_subscriber(
             f"{root}/relation/WT/HT/6D/dynamic",
             lambda s: (encodings.add(str(s.encoding)), samples.put(s.payload.to_bytes())),

@@ -12,8 +12,8 @@ from ubitrack_agent.agent.problems import Problems
 from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
-    ProtocolError,
     HostInfo,
+    ProtocolError,
     Started,
     Status,
     parse_request,

@@ -1,0 +1,63 @@
+"""Placement on loopback, with real processes (``ubitrack_agent/agent/placement.py``): host
+managers named as machines, a tracker and an application on one of them. The components go
+beside their data, move when that host vanishes with its workers, and come back when it
+returns. ``tests/integration/test_hosts_netns.py`` does the same across network namespaces."""
+
+from __future__ import annotations
+
+import os
+import signal
+from collections.abc import Iterator
+
+import pytest
+
+from tests.integration.test_host import Network, network
+from tests.integration.zenoh_helpers import wait_until
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net.keys import RelationId
+
+pytestmark = pytest.mark.integration
+
+WT_HT = RelationId("WT", "HT", "6D")
+
+
+@pytest.fixture
+def net(processes) -> Iterator[Network]:
+    yield from network(processes, as_hub=False)
+
+
+def hosts_of_components(net: Network) -> dict[str, str | None]:
+    status = net.agent_status() or {}
+    return {instance: c["host"] for instance, c in status.get("components", {}).items()}
+
+
+def test_components_run_beside_their_data_move_with_their_host_and_come_back(net):
+    net.agent("--no-host")
+    # "alpha" sorts first: before placement, every worker went to the first host by name.
+    net.host("alpha", 2)
+    room = net.host("room", 2)
+    net.tracker(host_name="room")
+    relation = Relation(net.session, net.keys, WT_HT, application="app", host="room")
+    wait_until(lambda: relation.latest() is not None, timeout=30)
+    placed = hosts_of_components(net)
+    assert placed and set(placed.values()) == {"room"}, placed
+    status = net.agent_status()
+    assert status["application_hosts"] == {str(WT_HT): ["room"]}
+    assert set(status["host_info"]) == {"alpha", "room"}
+
+    # The room's machine fails: its host manager and its workers (one process group) die.
+    os.killpg(room.pid, signal.SIGKILL)
+    wait_until(lambda: set(hosts_of_components(net).values()) == {"alpha"}, timeout=30)
+    before = relation.received
+    wait_until(lambda: relation.received > before + 10, timeout=30)  # flowing again
+
+    # It returns: the components move back (each saves the tracker's stream and the
+    # application's crossing), the old processes on alpha are stopped.
+    net.host("room", 2)
+    wait_until(lambda: set(hosts_of_components(net).values()) == {"room"}, timeout=30)
+    wait_until(lambda: net.status("alpha")["instances"] == {}, timeout=30)
+    moves = net.agent_status()["counters"].get("moves", 0)
+    assert moves == len(placed), net.agent_status()["counters"]
+    before = relation.received
+    wait_until(lambda: relation.received > before + 10, timeout=30)
+    relation.close()
