@@ -96,6 +96,53 @@ def test_dot_file_shows_the_chosen_data_flow(capsys, tmp_path, monkeypatch):
     assert "install graphviz" in capsys.readouterr().err
 
 
+def test_hosts_show_where_each_step_would_run(capsys, tmp_path, monkeypatch):
+    monkeypatch.setattr("shutil.which", lambda name: None)
+    query = [TRACKING, "--from", "C", "--to", "A", "--type", "6D"]
+    status, document = run_json(capsys, *query, "--host", "room", "--host", "hmd")
+    assert status == 0
+    (best,) = document["solutions"]
+    where = {
+        (step["pattern"], tuple(step["outputs"][0])): host
+        for step, host in zip(best["steps"], best["hosts"], strict=True)
+    }
+    assert where[("PoseEstimation2D3D", ("C", "WT", "6D"))] == "hmd"  # beside the camera
+    assert where[("Inversion", ("HT", "ART", "6D"))] == "room"  # beside the A.R.T.
+    # The last hop goes beside the application when that saves a crossing.
+    last = ("Concatenation", ("C", "A", "6D"))
+    _, beside_hmd = run_json(capsys, *query, "--host", "room", "--host", "hmd", "--app-host", "hmd")
+    _, beside_room = run_json(
+        capsys, *query, "--host", "room", "--host", "hmd", "--app-host", "room"
+    )
+    for document, host in ((beside_hmd, "hmd"), (beside_room, "room")):
+        steps = document["solutions"][0]
+        hosts = dict(
+            zip(
+                ((s["pattern"], tuple(s["outputs"][0])) for s in steps["steps"]),
+                steps["hosts"],
+                strict=True,
+            )
+        )
+        assert hosts[last] == host
+    dot = tmp_path / "plan.dot"
+    assert main(["plan", *query, "--host", "room", "--host", "hmd", "--dot", str(dot)]) == 0
+    assert "PoseEstimation2D3D (space) 6D\\non hmd" in dot.read_text()
+    # A template's required label no host has: the step has no host.
+    templates = tmp_path / "templates"
+    templates.mkdir()
+    for source in (ROOT / "templates").glob("*.yaml"):
+        text = source.read_text()
+        if source.name == "pose_estimation_2d3d.yaml":
+            text += "host_labels: [gpu]\n"
+        (templates / source.name).write_text(text)
+    capsys.readouterr()
+    assert main(["plan", *query, "--templates", str(templates), "--host", "room"]) == 0
+    assert "PoseEstimation2D3D (space)" in (out := capsys.readouterr().out)
+    assert "on (no host fits)" in out
+    assert main(["plan", *query, "--app-host", "hmd"]) == 1
+    assert "--app-host needs --host" in capsys.readouterr().err
+
+
 def test_help_lists_the_options(capsys):
     with pytest.raises(SystemExit) as info:
         main(["plan", "--help"])

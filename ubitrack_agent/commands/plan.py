@@ -13,8 +13,14 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ubitrack_agent.graph.srg import EDGE_TYPES
+
+if TYPE_CHECKING:
+    import networkx as nx
+
+    from ubitrack_agent.graph.planner import Query, Solution
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -68,11 +74,89 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="plan as if this provider's edges were gone (a sensor failing), repeatable",
     )
     parser.add_argument(
+        "--host",
+        dest="hosts",
+        action="append",
+        default=[],
+        type=host_option,
+        metavar="NAME[:LABEL,...]",
+        help="a host manager to place the components on, with its labels, repeatable: each "
+        "step is shown with the host it would run on (the edges' 'host' fields say where "
+        "their providers run; docs/architecture.md, 'Placement')",
+    )
+    parser.add_argument(
+        "--app-host",
+        metavar="NAME",
+        help="the host the application asking for the relationship runs on (with --host)",
+    )
+    parser.add_argument(
         "--templates",
         metavar="DIR",
         help="directory of template files (default: the templates shipped with the package)",
     )
     parser.set_defaults(func=run)
+
+
+def host_option(text: str) -> tuple[str, frozenset[str]]:
+    """``--host NAME[:LABEL,...]``."""
+    from ubitrack_agent.net.keys import validate_key_chunks
+
+    name, _, labels = text.partition(":")
+    names = [name, *(labels.split(",") if labels else [])]
+    try:
+        checked = [validate_key_chunks(part, single_chunk=True) for part in names]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+    return checked[0], frozenset(checked[1:])
+
+
+def step_hosts(
+    srg: nx.MultiDiGraph,
+    solution: Solution,
+    query: Query,
+    hosts: list[tuple[str, frozenset[str]]],
+    app_host: str | None,
+) -> list[str | None]:
+    """The host each step of ``solution`` would run on (:mod:`ubitrack_agent.agent.placement`),
+    None where none fits."""
+    from ubitrack_agent.agent.placement import place
+    from ubitrack_agent.graph.dataflow import Binding, from_solution, relation_name
+    from ubitrack_agent.graph.srg import edge_ids
+    from ubitrack_agent.net.host_protocol import HostInfo
+    from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+
+    # Setup files' edge ids need not be key names: the specifications placement reads are
+    # built here with the ids themselves as "keys" (placement only compares them).
+    flow = from_solution(solution, query)
+    ends = edge_ids(srg)
+
+    def read(port: str, binding: Binding) -> InputBinding:
+        if binding.component is None:
+            static = srg.edges[(*ends[binding.edge], binding.edge)]["static"]
+            return InputBinding(port, binding.edge, static=bool(static))
+        producer = flow.components[binding.component]
+        key = f"{producer.id}/{binding.edge}"
+        return InputBinding(port, key, static=binding.edge in producer.static_outputs)
+
+    final = flow.relations[relation_name(query)]
+    specs = {
+        c.id: ComponentSpec(
+            c.id,
+            c.service,
+            tuple(read(port, binding) for port, binding in c.inputs),
+            {name: f"{c.id}/{name}" for name, *_ in c.outputs},
+            {final.edge: ("relation",)} if final.component == c.id else {},
+        )
+        for c in flow.components.values()
+    }
+    data_hosts = {edge: host for *_, edge, host in srg.edges(keys=True, data="host") if host}
+    readers = {"relation": {app_host}} if app_host else {}
+    # The flow's components are the solution's steps, in order.
+    steps = zip(flow.components, solution.steps, strict=True)
+    labels = {cid: step.template.host_labels for cid, step in steps}
+    infos = {name: HostInfo(name, tags) for name, tags in hosts}
+    placement = place(specs, infos, data_hosts, readers, {}, labels)
+    return [placement.hosts.get(component) for component in flow.components]
 
 
 def _render(dot_path: Path) -> None:
@@ -113,6 +197,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"ubitrack plan: {exc}", file=sys.stderr)
         return 1
     shown = found if args.all else found[:1]
+    if args.app_host and not args.hosts:
+        print("ubitrack plan: --app-host needs --host", file=sys.stderr)
+        return 1
+    placed = [
+        step_hosts(srg, solution, query, args.hosts, args.app_host) if args.hosts else None
+        for solution in shown
+    ]
     if args.json:
         document = {
             "query": {
@@ -121,25 +212,30 @@ def run(args: argparse.Namespace) -> int:
                 "type": query.type,
                 "static": query.static,
             },
-            "solutions": [s.as_json() for s in shown],
+            "solutions": [
+                {**s.as_json(), **({"hosts": hosts} if hosts is not None else {})}
+                for s, hosts in zip(shown, placed, strict=True)
+            ],
         }
         print(json.dumps(document))
     else:
         kind = "static " if query.static else ""
         print(f"{kind}{query.type} {query.source}->{query.target}: {len(found)} solution(s)")
-        for n, solution in enumerate(shown, start=1):
+        for n, (solution, hosts) in enumerate(zip(shown, placed, strict=True), start=1):
             state = "static" if solution.static else "dynamic"
             print(f"\nsolution {n}: cost {solution.cost:.3f}, {state}")
             for k, step in enumerate(solution.as_json()["steps"], start=1):
                 ins = ", ".join(f"{a}->{b}:{t}" for a, b, t in step["inputs"])
                 outs = ", ".join(f"{a}->{b}:{t}" for a, b, t in step["outputs"])
-                print(f"  {k}. {step['pattern']} ({step['expansion']}): {ins}  =>  {outs}")
+                where = "" if hosts is None else f"  on {hosts[k - 1] or '(no host fits)'}"
+                print(f"  {k}. {step['pattern']} ({step['expansion']}): {ins}  =>  {outs}{where}")
             measured = (
                 f"{e.source}->{e.target}:{e.type} ({e.provider})" for e in solution.measured()
             )
             print(f"  measured: {', '.join(measured)}")
     if args.dot:
         path = Path(args.dot)
-        path.write_text(to_dot(srg, found[0], f"{query.source}->{query.target}"), encoding="utf-8")
+        title = f"{query.source}->{query.target}"
+        path.write_text(to_dot(srg, found[0], title, placed[0]), encoding="utf-8")
         _render(path)
     return 0

@@ -1,10 +1,13 @@
 """Graphviz DOT rendering of an SRG with a chosen solution (the design tool, section 5.2.2).
 
 Measured edges are solid (bold when the solution reads them), edges the solution infers are
-dashed and labelled with the step and pattern that derive them, like the paper's figures.
+dashed and labelled with the step and pattern that derive them, like the paper's figures, and
+with the host the step would run on when one is given.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import networkx as nx
 
@@ -18,8 +21,14 @@ def quote(text: str) -> str:
     return f'"{escaped}"'
 
 
-def to_dot(srg: nx.MultiDiGraph, solution: Solution | None = None, title: str = "SRG") -> str:
-    """DOT text of ``srg``, with the edges of ``solution`` highlighted when one is given."""
+def to_dot(
+    srg: nx.MultiDiGraph,
+    solution: Solution | None = None,
+    title: str = "SRG",
+    hosts: Sequence[str | None] | None = None,
+) -> str:
+    """DOT text of ``srg``, with the edges of ``solution`` highlighted when one is given, and
+    the host each of its steps runs on (``hosts``, in step order) when given."""
     graph = srg if solution is None else with_solution(srg, solution)
     used = set(solution.records) if solution is not None else set()
     steps = {} if solution is None else {s.id: (n, s) for n, s in enumerate(solution.steps, 1)}
@@ -33,6 +42,8 @@ def to_dot(srg: nx.MultiDiGraph, solution: Solution | None = None, title: str = 
         else:
             n, step = steps[data["derivation"]]
             label = f"{n}. {step.template.pattern} ({step.expansion}) {label}"
+            if hosts is not None:
+                label += f"\non {hosts[n - 1] or '(no host fits)'}"
             style = ', style=dashed, color="red", fontcolor="red"'
         lines.append(f"  {quote(u)} -> {quote(v)} [label={quote(label)}{style}];")
     lines.append("}")
