@@ -102,6 +102,10 @@ def test_a_placed_component_stays_unless_a_move_saves_a_crossing():
     specs = {"relay": spec("relay", "d/unknown/E")}
     assert place(specs, busy_room, {}, {}, {"relay": "room"}).hosts == {"relay": "room"}
     assert place(specs, busy_room, {}, {}).hosts == {"relay": "hmd"}
+    # Nor does a static input together with load (a host that just joined looks idle).
+    inversion = {"inv": spec("inv", MARKERS, static=(MARKERS,))}
+    busy_hmd = {"room": ROOM, "hmd": HostInfo("hmd", cpu_load=1.0)}
+    assert place(inversion, busy_hmd, DATA_HOSTS, {}, {"inv": "hmd"}).hosts == {"inv": "hmd"}
 
 
 def test_a_vanished_host_leaves_its_components_to_be_placed_again():

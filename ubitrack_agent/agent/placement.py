@@ -37,10 +37,10 @@ STATIC_WEIGHT = 0.1
 LOAD_WEIGHT = 0.5
 """The cost of a fully loaded host, relative to a stream crossing: less than one crossing, so
 being near the data always wins over balancing load."""
-MOVE_MARGIN = 0.6
+MOVE_MARGIN = 0.75
 """How much cheaper another host must be before a placed component moves there: more than load
-alone can make (:data:`LOAD_WEIGHT`), less than a stream brought onto the host even when two
-static inputs then cross (0.8)."""
+and a static input together can make (0.6), less than a stream brought onto the host even
+when two static inputs then cross (0.8)."""
 
 
 @dataclass(frozen=True)

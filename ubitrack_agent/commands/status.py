@@ -197,13 +197,23 @@ def run(args: argparse.Namespace) -> int:
         print(f"  rejected provider {provider}: {reason}")
     for edge_id in status.get("stale_edges", []):
         print(f"  stale edge {edge_id}: its data stopped, planned without it")
+    for name, info in status.get("host_info", {}).items():
+        labels = f", labels {', '.join(info['labels'])}" if info["labels"] else ""
+        print(f"host {name}: capacity {info['capacity']}, CPU load {info['cpu_load']:.2f}{labels}")
     for relation, apps in status["queries"].items():
-        print(f"query {relation} from {', '.join(apps)}")
+        hosts = status.get("application_hosts", {}).get(relation, [])
+        where = f" on {', '.join(hosts)}" if hosts else ""
+        print(f"query {relation} from {', '.join(apps)}{where}")
     for name, reason in status["unsolved"].items():
         print(f"  unsolved {name}: {reason}")
     for instance, component in status["components"].items():
         state = "alive" if component["alive"] else "starting"
-        print(f"worker {instance} ({component['service']}, {state}): {component['counters']}")
+        where = f" on {component['host']}" if component.get("host") else ""
+        print(
+            f"worker {instance} ({component['service']}, {state}{where}): {component['counters']}"
+        )
+    for instance, reason in status.get("unplaced", {}).items():
+        print(f"  unplaced {instance}: {reason}")
     print(f"counters: {status['counters']}")
     for counter, reason in status.get("problems", {}).items():
         print(f"  last {counter}: {reason}")
