@@ -93,12 +93,12 @@ class Network:
         self.watches.append(watch)
         return events
 
-    def agent(self, *extra: str) -> subprocess.Popen:
+    def agent(self, *extra: str, entry: tuple[str, ...] = ("-m", "ubitrack_agent.cli")):
+        """``ubitrack agent`` with ``extra`` options (``entry``: how Python runs the CLI)."""
         process = subprocess.Popen(
             [
                 sys.executable,
-                "-m",
-                "ubitrack_agent.cli",
+                *entry,
                 "--log-level",
                 "INFO",
                 "agent",

@@ -21,6 +21,12 @@ from ubitrack_agent.net.keys import RelationId
 pytestmark = pytest.mark.integration
 
 WT_HT = RelationId("WT", "HT", "6D")
+WITHOUT_OPENCV = (
+    "-c",
+    "import sys; sys.modules.update(cv2=None, scipy=None); "  # importing either now fails
+    "from ubitrack_agent.cli import main; sys.exit(main())",
+)
+"""Runs the CLI as on a small machine without OpenCV and SciPy: the agent needs neither."""
 
 
 @pytest.fixture
@@ -34,7 +40,7 @@ def hosts_of_components(net: Network) -> dict[str, str | None]:
 
 
 def test_components_run_beside_their_data_move_with_their_host_and_come_back(net):
-    net.agent("--no-host")
+    net.agent("--no-host", entry=WITHOUT_OPENCV)
     # "alpha" sorts first: before placement, every worker went to the first host by name.
     net.host("alpha", 2)
     room = net.host("room", 2)
