@@ -17,6 +17,7 @@ from ubitrack_agent.net import logs
 COMMAND_MODULES: tuple[str, ...] = (
     "agent",
     "host",
+    "router",
     "plan",
     "subscribe",
     "calibrate",

@@ -1,7 +1,8 @@
-"""deploy/systemd/ is right by construction: each unit restarts its process, runs it
-unprivileged with its settings file, and runs a command the CLI accepts; the agent's and the
+"""deploy/ is right by construction: each unit of deploy/systemd/ restarts its process, runs
+it unprivileged with its settings file, and runs a command the CLI accepts; the agent's and the
 host manager's units signal only their main process, so the workers outlive a restart and are
-adopted (docs/operations.md); and systemd-analyze (where installed) accepts every unit."""
+adopted (docs/operations.md); systemd-analyze (where installed) accepts every unit; and the
+settings files of a deployment with routers resolve to what docs/operations.md says."""
 
 import shlex
 import shutil
@@ -12,11 +13,19 @@ from pathlib import Path
 import pytest
 
 from ubitrack_agent.cli import build_parser
+from ubitrack_agent.commands.router import router_settings
+from ubitrack_agent.net import config
 
-SYSTEMD = Path(__file__).resolve().parents[2] / "deploy" / "systemd"
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
+SYSTEMD = DEPLOY / "systemd"
 INSTALLED = "/opt/ubitrack/bin/ubitrack"
 """Where docs/operations.md installs the command; every unit runs it."""
-UNITS = ("ubitrack-agent.service", "ubitrack-host.service", "ubitrack-dtrack@.service")
+UNITS = (
+    "ubitrack-agent.service",
+    "ubitrack-host.service",
+    "ubitrack-dtrack@.service",
+    "ubitrack-router.service",
+)
 PARENTS = ("ubitrack-agent.service", "ubitrack-host.service")
 """Units whose process starts workers."""
 INSTANCE = "ART"
@@ -94,3 +103,22 @@ def test_systemd_analyze_accepts_the_unit(unit, tmp_path):
         ["systemd-analyze", "verify", str(copy)], capture_output=True, text=True
     )
     assert result.returncode == 0 and not result.stderr.strip(), result.stderr
+
+
+def test_the_router_settings_files_make_linked_routers_and_their_members_clients():
+    """deploy/router.yaml: a router open to the site's machines; router-site2.yaml: a second
+    site's router linked to the first; member.yaml: every other process a client of its
+    site's router, listening nowhere."""
+    parser = build_parser("router")
+    first, second = (
+        router_settings(parser.parse_args(["router", "--config", str(DEPLOY / name)]))
+        for name in ("router.yaml", "router-site2.yaml")
+    )
+    port = config.DEFAULT_ROUTER_PORT
+    assert (first.mode, first.listen, first.connect) == ("router", (f"tcp/0.0.0.0:{port}",), ())
+    assert second.listen == first.listen and len(second.connect) == 1
+    assert second.connect[0].endswith(f":{port}")
+    for role in ("hub", "member"):  # the agent and every other process
+        member = config.resolve(role, config_file=DEPLOY / "member.yaml", env={})
+        assert (member.mode, member.listen, member.connect) == ("client", (), second.connect)
+        assert member.zenoh_options()["connect/timeout_ms"] == -1  # waits for its router

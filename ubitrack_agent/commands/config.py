@@ -19,18 +19,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--role",
-        choices=("hub", "member"),
+        choices=("hub", "member", "router"),
         default="member",
-        help="hub: the agent, listening on the well-known port; member: any other process "
-        "(default: %(default)s)",
+        help="hub: the agent, listening on the well-known port; router: ubitrack router (its "
+        "mode is always router); member: any other process (default: %(default)s)",
     )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ubitrack_agent.commands.router import router_settings
+
     try:
-        settings = config.from_arguments(args, role=args.role)
+        if args.role == "router":
+            settings = router_settings(args)  # as ubitrack router resolves them
+        else:
+            settings = config.from_arguments(args, role=args.role)
     except config.ConfigError as exc:
         print(f"ubitrack config: {exc}", file=sys.stderr)
         return 2

@@ -8,8 +8,8 @@ loopback with multicast scouting off. The agent (role ``hub``) listens on the we
 port :data:`DEFAULT_HUB_PORT`; every other process (role ``member``) listens on a random
 loopback port and connects to the hub, retrying in the background until it appears, so
 processes can start in any order. Gossip scouting then lets members connect to each other
-directly. A multi-host setup only changes ``connect``/``listen`` (or uses ``mode: client``
-towards a router).
+directly. A multi-host setup only changes ``connect``/``listen``; with zenoh routers (role
+``router``, ``ubitrack router``), every other process is a ``client`` of its site's router.
 
 Opt-in security (``docs/security.md``): ``tls_root_ca``, ``tls_certificate`` and ``tls_key``
 make every link TLS with client certificates (mutual TLS); ``access_control`` names a file
@@ -40,10 +40,12 @@ import yaml
 
 from ubitrack_agent.net.keys import validate_key_chunks
 
-Role = Literal["hub", "member"]
+Role = Literal["hub", "member", "router"]
 
 DEFAULT_HUB_PORT = 7448
-"""Loopback port the agent listens on by default (7447 is left to a zenohd router)."""
+"""Loopback port the agent listens on by default (7447 is left to a router)."""
+DEFAULT_ROUTER_PORT = 7447
+"""Port a router (``ubitrack router``, role ``router``) listens on by default: zenoh's own."""
 
 MODES = ("peer", "client", "router")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream|unixpipe|serial)/\S+$")
@@ -142,10 +144,13 @@ MEMBER_LISTEN = ("tcp/127.0.0.1:0",)
 
 
 def defaults(role: Role) -> Settings:
-    """The embedded default for a role (see the module docstring)."""
+    """The embedded default for a role (see the module docstring); a router's is a router on
+    loopback, port :data:`DEFAULT_ROUTER_PORT` (its settings file opens it to other machines)."""
     hub = f"tcp/127.0.0.1:{DEFAULT_HUB_PORT}"
     if role == "hub":
         return Settings(listen=(hub,))
+    if role == "router":
+        return Settings(mode="router", listen=(f"tcp/127.0.0.1:{DEFAULT_ROUTER_PORT}",))
     return Settings(connect=(hub,), listen=MEMBER_LISTEN)
 
 
