@@ -1,4 +1,5 @@
-"""Helpers for integration tests: free loopback ports and processes that never outlive a test."""
+"""Helpers for integration tests: free loopback ports, processes that never outlive a test, and
+(``netns``) machines in network namespaces."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import subprocess
 from collections.abc import Iterator
 
 import pytest
+
+from tests.integration.netns import netns  # noqa: F401  (a fixture: machines in namespaces)
 
 
 @pytest.fixture

@@ -123,18 +123,22 @@ class Network:
 
     # -- processes --------------------------------------------------------------------------
 
-    def spawn(self, machine: str, argv: Sequence[str], name: str) -> subprocess.Popen:
-        """Run ``argv`` on ``machine`` in a process group of its own, its output (stdout and
-        stderr) going to the log file :meth:`log` reads; ``name`` names it there (unique)."""
+    def spawn(
+        self, machine: str, argv: Sequence[str], name: str, pipes: bool = False
+    ) -> subprocess.Popen:
+        """Run ``argv`` on ``machine`` in a process group of its own, its output going to the
+        log file :meth:`log` reads (``name`` names it there); with ``pipes``, its standard input
+        and output are text pipes instead (its standard error still goes to the log)."""
         if name in self.processes and self.processes[name].poll() is None:
             raise ValueError(f"a process named {name!r} still runs")
         log = (self.log_dir / f"{name}.log").open("ab")
         try:
             process = subprocess.Popen(
                 ["ip", "netns", "exec", self.machines[machine].namespace, *argv],
-                stdin=subprocess.DEVNULL,
-                stdout=log,
-                stderr=subprocess.STDOUT,
+                stdin=subprocess.PIPE if pipes else subprocess.DEVNULL,
+                stdout=subprocess.PIPE if pipes else log,
+                stderr=log,
+                text=pipes,
                 start_new_session=True,
             )
         finally:
@@ -187,6 +191,9 @@ class Network:
         """End every process, then delete every namespace (twice is harmless)."""
         for process in self.processes.values():
             _end_group(process)
+            for pipe in (process.stdin, process.stdout):
+                if pipe is not None:
+                    pipe.close()
         for namespace in self._namespaces:
             for pid in _pids(namespace):  # what the processes started, and left behind
                 with contextlib.suppress(ProcessLookupError):
@@ -238,6 +245,8 @@ def netns(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[..., Ne
     if reason := unavailable_reason():
         pytest.skip(reason)
     made: list[Network] = []
+    # SIGTERM (a CI time-out, say) ends the tests through this fixture's clean-up too.
+    previous = signal.signal(signal.SIGTERM, _exit_on_sigterm)
 
     def make(lans: Mapping[str, Sequence[str]]) -> Network:
         try:
@@ -252,3 +261,8 @@ def netns(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[..., Ne
     finally:
         for network in made:
             network.close()
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _exit_on_sigterm(*_: object) -> None:
+    raise KeyboardInterrupt("SIGTERM")  # pytest stops, and runs the clean-up on its way out
