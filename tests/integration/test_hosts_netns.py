@@ -128,9 +128,12 @@ class Deployment:
         }
         return "agent status: " + json.dumps(seen, indent=1)
 
-    def explain(self, *names: str) -> str:
-        """What was seen: the status and the tails of the named logs (default: all)."""
-        return f"{self.summary()}\n{self.net.logs(*names, lines=25)}"
+    def explain(self) -> str:
+        """What was seen: the status, the tails of the logs, the application's last lines."""
+        logs = [name for name in self.net.processes if name != "application"]
+        return "\n".join(
+            (self.summary(), self.net.logs(*logs, lines=20), self.net.logs("application", lines=2))
+        )
 
     def new_samples(self) -> list[dict]:
         """The application's samples printed since the last call."""

@@ -1,5 +1,7 @@
 """docker/ is right by construction: every container runs a command the CLI accepts and is
-restarted when it exits, and docker-compose (where installed) accepts the file."""
+restarted when it exits, docker-compose (where installed) accepts the files, and the
+containers of the variant over several machines (compose.hosts.yaml) resolve their settings
+to clients of one router, each naming its machine."""
 
 import os
 import shutil
@@ -11,6 +13,7 @@ import yaml
 
 from ubitrack_agent import cli
 from ubitrack_agent.cli import build_parser
+from ubitrack_agent.commands.router import router_settings
 from ubitrack_agent.net import config
 
 DOCKER = Path(__file__).resolve().parents[2] / "docker"
@@ -46,8 +49,9 @@ RESTART = "unless-stopped"
 """Every container's restart policy: restarted whenever it exits, unless stopped by hand."""
 
 
-def test_every_service_is_restarted_when_it_exits():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+@pytest.mark.parametrize("file", ["compose.yaml", "compose.hosts.yaml"])
+def test_every_service_is_restarted_when_it_exits(file):
+    compose = yaml.safe_load((DOCKER / file).read_text())
     assert {name: service.get("restart") for name, service in compose["services"].items()} == (
         dict.fromkeys(compose["services"], RESTART)
     )
@@ -64,7 +68,9 @@ def resolved_services(*files: str) -> dict:
 
 
 @pytest.mark.skipif(shutil.which("docker-compose") is None, reason="docker-compose not installed")
-@pytest.mark.parametrize("files", [("compose.yaml",), ("compose.yaml", "compose.tls.yaml")])
+@pytest.mark.parametrize(
+    "files", [("compose.yaml",), ("compose.yaml", "compose.tls.yaml"), ("compose.hosts.yaml",)]
+)
 def test_docker_compose_accepts_the_files_and_keeps_the_restart_policy(files):
     services = resolved_services(*files)
     assert {name: service["restart"] for name, service in services.items()} == dict.fromkeys(
@@ -107,3 +113,45 @@ def test_the_tls_variant_hands_every_zenoh_service_valid_secure_settings(tmp_pat
                 ("tls/agent:7448",),
                 (),
             )
+
+
+HOSTS = {
+    "router": None,
+    "agent": "room",
+    "host-room": "room",
+    "database": "room",
+    "dtrack": "room",
+    "art": None,
+    "host-hmd": "hmd",
+    "camera": "hmd",
+    "application": "hmd",
+}
+"""compose.hosts.yaml's services and the machine each names (None: no zenoh client)."""
+
+
+def test_the_variant_over_two_machines_meets_at_one_router(monkeypatch):
+    """compose.hosts.yaml: the same image, valid commands; the router listens for every
+    machine; every other zenoh process is a client of it naming its machine, the host
+    managers named after theirs; the agent runs no host manager of its own."""
+    services = yaml.safe_load((DOCKER / "compose.hosts.yaml").read_text())["services"]
+    assert set(services) == set(HOSTS)
+    parser = build_parser()
+    for name, service in services.items():
+        assert service["image"] == "ubitrack-agent:latest", name
+        args = parser.parse_args(service["command"])
+        monkeypatch.setattr(os, "environ", dict(service.get("environment", {})))
+        if name == "router":
+            settings = router_settings(args)
+            assert settings.listen == ("tcp/0.0.0.0:7447",) and settings.connect == ()
+            assert "7447:7447" in service["ports"]
+        elif HOSTS[name] is not None:
+            settings = config.from_arguments(args, role="hub" if name == "agent" else "member")
+            assert (settings.mode, settings.connect, settings.listen) == (
+                "client",
+                ("tcp/router:7447",),
+                (),
+            ), name
+            assert (settings.domain, settings.host_name) == ("lab", HOSTS[name]), name
+        if args.command == "host":
+            assert args.name == HOSTS[name], name
+    assert parser.parse_args(services["agent"]["command"]).no_host
