@@ -207,8 +207,10 @@ def run(args: argparse.Namespace) -> int:
         agent.stop()
 
     on_termination(stop)
+    listening = f"on {', '.join(settings.listen)}" if settings.listen else ""
+    where = listening or f"as a client of {', '.join(settings.connect)}"
     print(
-        f"ubitrack agent: agent {agent.id} of {agent.keys.root} on {', '.join(settings.listen)} "
+        f"ubitrack agent: agent {agent.id} of {agent.keys.root} {where} "
         "(active unless another agent of the domain is)",
         flush=True,
     )
