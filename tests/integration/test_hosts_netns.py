@@ -257,16 +257,28 @@ def test_the_relation_flows_across_machines_and_is_true(deployment):
     deployment.assert_true(samples)
 
 
-def pose_estimation_hosts(status: dict) -> set[str]:
-    """Where the pose estimation runs, once every component is alive and placed."""
+def hosts_of(status: dict, service: str) -> set[str]:
+    """Where the components of ``service`` run, once every component is alive and placed."""
     where = placed(status)
     components = status["components"].items()
-    return {where[i] for i, c in components if where and c["service"] == POSE_ESTIMATION}
+    return {where[i] for i, c in components if where and c["service"] == service}
+
+
+def pose_estimation_hosts(status: dict) -> set[str]:
+    """Where the pose estimation runs, once every component is alive and placed."""
+    return hosts_of(status, POSE_ESTIMATION)
 
 
 def test_the_pose_estimation_runs_on_hmd_beside_the_camera(deployment):
-    hosts = deployment.wait_for(pose_estimation_hosts, RECOVERY_S, "pose estimation placed")
-    assert hosts == {"hmd"}, f"pose estimation on {hosts}\n{deployment.explain()}"
+    """Placement (docs/architecture.md): the pose estimation beside the camera whose features
+    it reads; as that section describes this split, the fusion beside the application (hmd),
+    the A.R.T. chain beside the tracker (room)."""
+    d = deployment
+    status = d.wait_for(lambda s: pose_estimation_hosts(s) and s, RECOVERY_S, "all placed")
+    hosts = pose_estimation_hosts(status)
+    assert hosts == {"hmd"}, f"pose estimation on {hosts}\n{d.explain()}"
+    assert hosts_of(status, "fusion") == {"hmd"}, d.explain()
+    assert "room" in placed(status).values(), d.explain()
 
 
 def test_a_killed_host_manager_leaves_its_workers_and_the_flow_running(deployment):
