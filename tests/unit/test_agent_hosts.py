@@ -178,6 +178,25 @@ def test_refused_and_unanswered_starts_are_asked_again_later(world, clock):
     assert counters["refused_starts"] == 2
 
 
+def zenoh_timeout(request) -> SimpleNamespace:
+    """What zenoh itself replies when a queryable does not answer in time."""
+    return SimpleNamespace(ok=None, err=SimpleNamespace(payload=payload(b"Timeout")))
+
+
+def test_a_zenoh_error_reply_is_no_answer_and_the_host_is_left_alone(world, clock):
+    session, hosts, counters = world
+    session.answers["lab"] = zenoh_timeout
+    host_appears(session, hosts, "lab")
+    assert not hosts.start(spec("a"), "lab")
+    assert hosts.available() == {}  # silent for a while: nothing else is sent to it
+    assert not hosts.start(spec("b"), "lab") and len(session.requests) == 1
+    assert counters["refused_starts"] == 1
+    assert hosts._problems.last["refused_starts"].endswith("no answer (Timeout)")
+    clock[0] += hosts_module.START_RETRY_S + 0.1
+    session.answers["lab"] = started
+    assert set(hosts.available()) == {"lab"} and hosts.start(spec("b"), "lab")
+
+
 def test_only_a_matching_exit_report_restarts(world):
     session, hosts, counters = world
     session.answers["lab"] = started

@@ -159,7 +159,10 @@ class Hosts:
 
     def _request(self, host: str, request: Request) -> bytes:
         """The payload of ``host``'s successful reply; :class:`ProtocolError` for a refusal, no
-        answer or a zenoh error (then ``host`` is left alone for ``START_RETRY_S``)."""
+        answer or a zenoh error (then ``host`` is left alone for ``START_RETRY_S``). An error
+        reply that is not a host manager's refusal is zenoh's own (``Timeout`` when the host
+        manager's token is up but its process does not answer, as across a cut link): no
+        answer."""
         try:
             replies = list(
                 self._session.get(
@@ -172,11 +175,17 @@ class Hosts:
             replies, reason = [], f"request failed: {exc}"
         else:
             reason = f"no answer within {REQUEST_TIMEOUT_S} s"
+        if replies and replies[0].ok is None:
+            error = replies[0].err.payload.to_bytes()
+            try:
+                refusal = ProtocolError.parse(error)
+            except ProtocolError:
+                replies, reason = [], f"no answer ({error[:80].decode(errors='replace')})"
+            else:
+                raise refusal
         if not replies:
             self._silent_until[host] = time.monotonic() + START_RETRY_S
             raise ProtocolError("internal_error", reason)
-        if replies[0].ok is None:
-            raise ProtocolError.parse(replies[0].err.payload.to_bytes())
         return replies[0].ok.payload.to_bytes()
 
     def _ask_info(self) -> None:
