@@ -77,6 +77,8 @@ function sparkline(times, values, unit) {
   return svg;
 }
 
+// A cell with the sparkline of one series and its latest value (the rate of the last
+// period; for latency and error the last period's that had one), or why there is none.
 function sparkCell(series, field, unit, digits, absent) {
   const cell = element("td");
   if (!series) {
@@ -84,7 +86,8 @@ function sparkCell(series, field, unit, digits, absent) {
     return cell;
   }
   const values = list(series[field]);
-  const latest = values.length > 0 ? values[values.length - 1] : null;
+  const known = field === "rate_hz" ? values.slice(-1) : values.filter(finite);
+  const latest = known.length > 0 ? known[known.length - 1] : null;
   cell.appendChild(sparkline(series.t_s, values, unit));
   const shown = finite(latest) ? `${latest.toFixed(digits)} ${unit}` : absent || "–";
   cell.appendChild(element("span", shown, finite(latest) ? "value" : "value none"));
