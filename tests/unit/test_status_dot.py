@@ -8,7 +8,13 @@ from types import SimpleNamespace
 
 import pytest
 
-from ubitrack_agent.commands.status import draw_svg, flow_dot, live_dot, worker_counters
+from ubitrack_agent.commands.status import (
+    draw_svg,
+    flow_dot,
+    live_dot,
+    query_name,
+    worker_counters,
+)
 from ubitrack_agent.graph.dot import quote
 
 
@@ -123,3 +129,14 @@ def test_a_component_is_named_by_its_pattern_when_the_status_has_one():
     status["components"]["inversion-1"]["pattern"] = "Inversion"
     assert 'label="Inversion\\ninversion-1\\non room"' in flow_dot(status)
     assert 'label="fusion\\nfusion-2"' in flow_dot(status)  # no pattern: its service
+
+
+def test_a_static_relation_is_drawn_with_its_applications():
+    """The status names a query ``C->HT:6D static`` and its relation ``C->HT:6D/static``."""
+    assert query_name("C->HT:6D/static") == "C->HT:6D static"
+    assert query_name("C->HT:6D/recalibrate") == "C->HT:6D recalibrate"
+    assert query_name("C->A:6D") == "C->A:6D"
+    status = flow_status()
+    status["relations"] = {"HT->ART:6D/static": status["relations"].pop("HT->ART:6D")}
+    status["queries"] = {"HT->ART:6D static": ["calibrate"]}
+    assert 'label="calibrate\\nHT->ART:6D/static"];' in flow_dot(status)

@@ -21,6 +21,7 @@ from ubitrack_agent.commands.view.snapshot import (
     output_rates,
     parse_status,
     pattern_names,
+    relation_rows,
     watched_relations,
 )
 from ubitrack_agent.graph.templates import load_templates
@@ -233,3 +234,38 @@ def test_any_status_gets_an_answer_on_every_path(status):
         if reply.content_type == "application/json":
             json.loads(reply.body)
     watched_relations(status, KEYS)
+    json.dumps(relation_rows(status, {}))
+
+
+def test_a_row_per_queried_relation_named_as_the_query_is():
+    """The status names queries ``C->HT:6D static`` but relations and unsolved ones
+    ``C->HT:6D/static``: the rows use the query's name, which the series use too."""
+    status = {
+        "queries": {"C->A:6D": ["app", 5], "C->HT:6D static": ["calibrate"], "X->Y:6D": "odd"},
+        "application_hosts": {"C->A:6D": ["hmd"]},
+        "unsolved": {"C->HT:6D/static": "no provider announces frame(s) HT"},
+        "relations": {"C->A:6D": {"key": "ubitrack/demo/relation/C/A/6D/dynamic"}},
+    }
+    series = {"C->A:6D": {"rate_hz": [30.0]}, "gone->away:6D": {"rate_hz": [0.0]}}
+    assert relation_rows(status, series) == {
+        "C->A:6D": {
+            "applications": ["app"],
+            "hosts": ["hmd"],
+            "unsolved": None,
+            "series": {"rate_hz": [30.0]},
+        },
+        "C->HT:6D static": {
+            "applications": ["calibrate"],
+            "hosts": [],
+            "unsolved": "no provider announces frame(s) HT",
+            "series": None,
+        },
+        "X->Y:6D": {"applications": [], "hosts": [], "unsolved": None, "series": None},
+        "gone->away:6D": {
+            "applications": [],
+            "hosts": [],
+            "unsolved": None,
+            "series": {"rate_hz": [0.0]},
+        },
+    }
+    assert list(relation_rows({"queries": [1], "unsolved": 3}, {})) == []

@@ -11,6 +11,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from ubitrack_agent.commands.status import query_name
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import KeySpace, RelationId
 
@@ -34,7 +35,7 @@ class Snapshot:
     rates: dict[str, float] = field(default_factory=dict)
     """Each component's measured output rate (Hz), by instance."""
     relations: dict[str, dict[str, Any]] = field(default_factory=dict)
-    """Each watched relation's description and series (``Series.as_json``), by name."""
+    """A row per queried or watched relation (:func:`relation_rows`), by query name."""
     counters: dict[str, int] = field(default_factory=dict)
     """The view's own problems: undecodable samples, failed polls."""
 
@@ -138,3 +139,33 @@ def watched_relations(status: Mapping[str, Any], keys: KeySpace) -> dict[str, Re
             continue
         watched[str(relation)] = relation
     return watched
+
+
+def relation_rows(
+    status: Mapping[str, Any], series: Mapping[str, dict[str, Any]]
+) -> dict[str, dict[str, Any]]:
+    """A row per queried relation, by the name the status gives the query (``C->A:6D``,
+    ``C->HT:6D static``; the relation's ``str``, as :func:`watched_relations` names them): its
+    ``applications``, the ``hosts`` they run on, why it is ``unsolved`` (None if it is not,
+    or not known) and its ``series`` (None if it is not watched). Relations watched but no
+    longer in the status's queries (no agent answers) keep their rows."""
+    queries = _mapping(status.get("queries"))
+    hosts = _mapping(status.get("application_hosts"))
+    unsolved = {query_name(n): str(why) for n, why in _mapping(status.get("unsolved")).items()}
+    return {
+        name: {
+            "applications": _strings(queries.get(name)),
+            "hosts": _strings(hosts.get(name)),
+            "unsolved": unsolved.get(name),
+            "series": series.get(name),
+        }
+        for name in sorted({*queries, *unsolved, *series})
+    }
+
+
+def _mapping(value: Any) -> Mapping[str, Any]:
+    return value if isinstance(value, dict) else {}
+
+
+def _strings(value: Any) -> list[str]:
+    return [item for item in value if isinstance(item, str)] if isinstance(value, list) else []

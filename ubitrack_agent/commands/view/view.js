@@ -151,45 +151,42 @@ function drawComponents(status) {
   );
 }
 
-function drawRelations(status, series) {
-  const queries = object(status.queries);
-  const unsolved = object(status.unsolved);
-  const watched = object(series.relations);
-  const names = [...new Set([...Object.keys(queries), ...Object.keys(watched)])].sort();
+// A row per queried relation (/series.json's rows): its applications, and its sparklines
+// or why it is unsolved.
+function drawRelations(rows) {
   fillRows(
     "relations",
-    names.map((name) => {
-      const relation = watched[name] ? object(watched[name]) : null;
-      const row = element("tr");
-      row.dataset.relation = name;
-      const reason = unsolved[name];
-      const noTruth = relation && relation.truth === false ? "no ground truth" : undefined;
-      const noLatency = relation && relation.kind !== "dynamic" ? "static" : undefined;
-      row.append(
-        element("td", name),
-        element("td", list(queries[name]).join(", ")),
-      );
-      if (reason !== undefined) {
-        const cell = element("td", `unsolved: ${reason}`, "problem");
-        cell.colSpan = 3;
-        row.append(cell);
-      } else {
+    Object.keys(rows)
+      .sort()
+      .map((name) => {
+        const entry = object(rows[name]);
+        const series = entry.series ? object(entry.series) : null;
+        const row = element("tr");
+        row.dataset.relation = name;
+        row.append(element("td", name), element("td", list(entry.applications).join(", ")));
+        if (typeof entry.unsolved === "string") {
+          const cell = element("td", `unsolved: ${entry.unsolved}`, "problem");
+          cell.colSpan = 3;
+          row.append(cell);
+          return row;
+        }
+        const noTruth = series && series.truth === false ? "no ground truth" : undefined;
+        const noLatency = series && series.kind !== "dynamic" ? "static" : undefined;
         row.append(
-          sparkCell(relation, "rate_hz", "Hz", 1),
-          sparkCell(relation, "latency_ms", "ms", 1, noLatency),
-          sparkCell(relation, "error_mm", "mm", 2, noTruth),
+          sparkCell(series, "rate_hz", "Hz", 1),
+          sparkCell(series, "latency_ms", "ms", 1, noLatency),
+          sparkCell(series, "error_mm", "mm", 2, noTruth),
         );
-      }
-      return row;
-    }),
+        return row;
+      }),
   );
 }
 
-function drawUnsolved(status, known) {
-  const unsolved = object(status.unsolved);
-  const items = Object.keys(unsolved)
+function drawUnsolved(rows, known) {
+  const items = Object.keys(rows)
+    .filter((name) => typeof object(rows[name]).unsolved === "string")
     .sort()
-    .map((name) => element("li", `${name}: ${unsolved[name]}`));
+    .map((name) => element("li", `${name}: ${rows[name].unsolved}`));
   if (items.length === 0) items.push(element("li", known ? "none" : "–", "none"));
   document.getElementById("unsolved").replaceChildren(...items);
 }
@@ -240,8 +237,9 @@ async function redraw() {
   const shown = status.ok ? status.body : {};
   drawHosts(shown);
   drawComponents(shown);
-  drawRelations(shown, series.body);
-  drawUnsolved(shown, status.ok);
+  const rows = object(series.body.relations);
+  drawRelations(rows);
+  drawUnsolved(rows, status.ok);
   drawCounters(series.body);
   await drawFlow();
   document.getElementById("updated").textContent = `updated ${new Date().toLocaleTimeString()}`;

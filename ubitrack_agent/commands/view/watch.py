@@ -27,6 +27,7 @@ from ubitrack_agent.commands.view.snapshot import (
     enrich,
     output_rates,
     parse_status,
+    relation_rows,
     watched_relations,
 )
 from ubitrack_agent.core.codec import decode
@@ -162,7 +163,9 @@ class Watcher:
             status=None if status is None else enrich(status, workers, rates, self.patterns),
             problem=problem,
             rates=rates,
-            relations={name: watch.as_json(now_ns) for name, watch in self._watches.items()},
+            relations=relation_rows(
+                status or {}, {name: watch.as_json(now_ns) for name, watch in self._watches.items()}
+            ),
             counters=dict(self.counters),
         )
 
