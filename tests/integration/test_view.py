@@ -143,11 +143,12 @@ def test_the_view_shows_the_running_flow_in_headless_chromium(processes, tmp_pat
                 return False
             components = read_json(url + "status.json")["components"].values()
             alive = {c["pattern"] for c in components if c["alive"]}
-            series = read_json(url + "series.json")["relations"].get("C->A:6D")
+            row = read_json(url + "series.json")["relations"].get("C->A:6D")
+            series = row and row["series"]
             return (
                 set(PATTERNS) <= alive
                 and all(c["alive"] for c in components)
-                and series is not None
+                and series
                 and series["error_mm"][-1:] not in ([], [None])
                 and series["latency_ms"][-1:] not in ([], [None])
             )
