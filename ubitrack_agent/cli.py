@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "calibrate",
     "store",
     "status",
+    "view",
     "sim",
     "dtrack",
     "camera",

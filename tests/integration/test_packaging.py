@@ -47,11 +47,14 @@ def wheel(tmp_path_factory) -> Path:
     return built
 
 
-def test_the_wheel_carries_every_template_and_scenario(wheel):
+def test_the_wheel_carries_every_template_scenario_and_page(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     templates = {p.name for p in (ROOT / "templates").glob("*.yaml")}
     assert templates and {f"templates/{name}" for name in templates} <= names
     assert "sim_trackers/scenarios/paper_figure1.yaml" in names
+    view = "ubitrack_agent/commands/view"
+    pages = {f"{view}/{p.name}" for p in (ROOT / view).glob("*.*") if p.suffix != ".py"}
+    assert pages and pages <= names  # ubitrack view's page, script and style
     assert not any(name.startswith(("tests/", "bench/")) for name in names)
 
 

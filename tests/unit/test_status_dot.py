@@ -4,10 +4,17 @@ says and shows no literal backslash-n (issue [surface])."""
 from __future__ import annotations
 
 import shutil
+from types import SimpleNamespace
 
 import pytest
 
-from ubitrack_agent.commands.status import draw_svg, flow_dot, live_dot
+from ubitrack_agent.commands.status import (
+    draw_svg,
+    flow_dot,
+    live_dot,
+    query_name,
+    worker_counters,
+)
 from ubitrack_agent.graph.dot import quote
 
 
@@ -87,3 +94,49 @@ def test_the_flow_picture_is_drawn_as_svg_by_graphviz(tmp_path):
     assert draw_svg(flow_dot(flow_status()), str(path)) is None
     assert "<svg" in path.read_text() and "inversion" in path.read_text()
     assert draw_svg("digraph {", str(tmp_path / "bad.svg"))  # Graphviz's complaint
+
+
+class _Reply:
+    def __init__(self, payload: bytes) -> None:
+        self.ok = SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
+
+
+class _Session:
+    """Answers a get with the given worker status payloads."""
+
+    def __init__(self, *payloads: bytes) -> None:
+        self.payloads = payloads
+
+    def get(self, key: str, timeout: float) -> list[_Reply]:
+        return [_Reply(payload) for payload in self.payloads]
+
+
+def test_worker_counters_leave_out_replies_that_are_no_worker_status():
+    session = _Session(
+        b'{"instance": "fusion-1", "counters": {"published": 3}}',
+        b"not json",
+        b"[" * 100_000,
+        b"[1]",
+        b'{"instance": 5, "counters": {}}',
+        b'{"instance": "x", "counters": 7}',
+    )
+    keys = SimpleNamespace(all_statuses=lambda: "ubitrack/demo/status/*")
+    assert worker_counters(session, keys, 0.1) == {"fusion-1": {"published": 3}}
+
+
+def test_a_component_is_named_by_its_pattern_when_the_status_has_one():
+    status = flow_status()
+    status["components"]["inversion-1"]["pattern"] = "Inversion"
+    assert 'label="Inversion\\ninversion-1\\non room"' in flow_dot(status)
+    assert 'label="fusion\\nfusion-2"' in flow_dot(status)  # no pattern: its service
+
+
+def test_a_static_relation_is_drawn_with_its_applications():
+    """The status names a query ``C->HT:6D static`` and its relation ``C->HT:6D/static``."""
+    assert query_name("C->HT:6D/static") == "C->HT:6D static"
+    assert query_name("C->HT:6D/recalibrate") == "C->HT:6D recalibrate"
+    assert query_name("C->A:6D") == "C->A:6D"
+    status = flow_status()
+    status["relations"] = {"HT->ART:6D/static": status["relations"].pop("HT->ART:6D")}
+    status["queries"] = {"HT->ART:6D static": ["calibrate"]}
+    assert 'label="calibrate\\nHT->ART:6D/static"];' in flow_dot(status)

@@ -41,11 +41,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def query_name(relation_name: str) -> str:
+    """The name the agent's status gives a query (in ``queries``, ``application_hosts``: the
+    relation's ``str``, ``C->HT:6D static``) for the name it gives the query's relation (in
+    ``relations``, ``unsolved``: the data flow's, ``C->HT:6D/static``, ``C->HT:6D/recalibrate``);
+    the two are the same for a dynamic relation (``C->A:6D``)."""
+    head, slash, kind = relation_name.rpartition("/")
+    return f"{head} {kind}" if slash and kind in ("static", "recalibrate") else relation_name
+
+
 def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> str:
     """DOT of the live data flow in the style of the paper's figure 6: providers (sources),
     components (boxes: pattern, instance, host; grey while starting), applications (sinks);
     each wire labelled with the type it carries and its rate (a provider edge's announced rate,
-    a component's measured output rate from ``rates``, by instance, in Hz)."""
+    a component's measured output rate from ``rates``, by instance, in Hz). A component is
+    named by its ``pattern`` when the status has one (``ubitrack view`` adds it), else by its
+    service."""
     from ubitrack_agent.graph.dot import quote
 
     rates = rates or {}
@@ -66,7 +77,8 @@ def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> s
     for instance, component in components.items():
         where = f"\non {component['host']}" if component.get("host") else ""
         colour = "black" if component.get("alive") else "grey"
-        label = f"{component['service']}\n{instance}{where}"
+        name = component.get("pattern") or component["service"]
+        label = f"{name}\n{instance}{where}"
         lines.append(
             f"  {quote(instance)} [shape=box, color={colour}, fontcolor={colour}, "
             f"label={quote(label)}];"
@@ -83,7 +95,7 @@ def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> s
                 lines.append(f"  {quote(node)} [shape=plaintext];")
             lines.append(f"  {quote(node)} -> {quote(instance)} [label={quote(label)}];")
     for name, relation in status.get("relations", {}).items():
-        apps = status.get("queries", {}).get(name, [])
+        apps = status.get("queries", {}).get(query_name(name), [])
         sink = f"application {name}"
         label = "\n".join([*apps, name])
         lines.append(f"  {quote(sink)} [shape=invhouse, label={quote(label)}];")
@@ -117,24 +129,49 @@ def live_dot(status: dict[str, Any]) -> str:
 
 
 def worker_counters(session: Any, keys: Any, timeout: float) -> dict[str, dict[str, int]]:
-    """Every worker's counters, by instance."""
+    """Every worker's counters, by instance; a reply that is not a worker's status (malformed
+    JSON, no instance or counters) is left out."""
     from ubitrack_agent.net.transport import fetch_latest
 
     workers = {}
     for payload in fetch_latest(session, keys.all_statuses(), timeout=timeout):
-        answer = json.loads(payload)
-        workers[answer["instance"]] = answer["counters"]
+        try:
+            answer = json.loads(payload)
+        except (ValueError, RecursionError):  # not JSON, or nested too deep to parse
+            continue
+        if not isinstance(answer, dict):
+            continue
+        instance, counters = answer.get("instance"), answer.get("counters")
+        if isinstance(instance, str) and isinstance(counters, dict):
+            workers[instance] = counters
     return workers
+
+
+NO_GRAPHVIZ = "Graphviz's dot is not installed (Debian: apt install graphviz)"
+
+
+def render_svg(dot: str) -> tuple[str | None, str | None]:
+    """``dot`` drawn as SVG text by Graphviz's ``dot``, or None and why not."""
+    if shutil.which("dot") is None:
+        return None, NO_GRAPHVIZ
+    try:
+        drawn = subprocess.run(
+            ["dot", "-Tsvg"], input=dot, text=True, capture_output=True, check=False, timeout=10
+        )
+    except subprocess.TimeoutExpired:
+        return None, "Graphviz's dot took longer than 10 s"
+    if drawn.returncode != 0:
+        return None, drawn.stderr.strip() or f"dot exited with status {drawn.returncode}"
+    return drawn.stdout, None
 
 
 def draw_svg(dot: str, path: str) -> str | None:
     """Draw ``dot`` into the SVG file ``path`` with Graphviz's ``dot``; why not, if it fails."""
-    if shutil.which("dot") is None:
-        return "Graphviz's dot is not installed (Debian: apt install graphviz); use --dot"
-    drawn = subprocess.run(
-        ["dot", "-Tsvg", "-o", path], input=dot, text=True, capture_output=True, check=False
-    )
-    return None if drawn.returncode == 0 else drawn.stderr.strip()
+    svg, failed = render_svg(dot)
+    if svg is None:
+        return f"{failed}; use --dot" if failed == NO_GRAPHVIZ else failed
+    Path(path).write_text(svg, encoding="utf-8")
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
