@@ -12,7 +12,6 @@ from ubitrack_agent.commands.status import (
     draw_svg,
     flow_dot,
     live_dot,
-    query_name,
     worker_counters,
 )
 from ubitrack_agent.graph.dot import quote
@@ -132,11 +131,8 @@ def test_a_component_is_named_by_its_pattern_when_the_status_has_one():
 
 
 def test_a_static_relation_is_drawn_with_its_applications():
-    """The status names a query ``C->HT:6D static`` and its relation ``C->HT:6D/static``."""
-    assert query_name("C->HT:6D/static") == "C->HT:6D static"
-    assert query_name("C->HT:6D/recalibrate") == "C->HT:6D recalibrate"
-    assert query_name("C->A:6D") == "C->A:6D"
+    """The status names a static query and its relation alike: ``C->HT:6D/static``."""
     status = flow_status()
     status["relations"] = {"HT->ART:6D/static": status["relations"].pop("HT->ART:6D")}
-    status["queries"] = {"HT->ART:6D static": ["calibrate"]}
+    status["queries"] = {"HT->ART:6D/static": ["calibrate"]}
     assert 'label="calibrate\\nHT->ART:6D/static"];' in flow_dot(status)

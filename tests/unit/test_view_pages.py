@@ -195,7 +195,7 @@ def test_watched_relations_are_relation_keys_of_this_root_only():
     status = {
         "relations": {
             "C->A:6D": {"key": "ubitrack/demo/relation/C/A/6D/dynamic"},
-            "C->HT:6D static": {"key": "ubitrack/demo/relation/C/HT/6D/static"},
+            "C->HT:6D/static": {"key": "ubitrack/demo/relation/C/HT/6D/static"},
             "elsewhere": {"key": "ubitrack/other/relation/C/A/6D/dynamic"},
             "wild": {"key": "ubitrack/demo/relation/**/6D/dynamic"},
             "kind": {"key": "ubitrack/demo/relation/C/A/6D/sometimes"},
@@ -205,7 +205,7 @@ def test_watched_relations_are_relation_keys_of_this_root_only():
     }
     assert watched_relations(status, KEYS) == {
         "C->A:6D": RelationId("C", "A", "6D"),
-        "C->HT:6D static": RelationId("C", "HT", "6D", static=True),
+        "C->HT:6D/static": RelationId("C", "HT", "6D", static=True),
     }
     assert watched_relations({"relations": [1]}, KEYS) == {}
     many = {
@@ -237,11 +237,11 @@ def test_any_status_gets_an_answer_on_every_path(status):
     json.dumps(relation_rows(status, {}))
 
 
-def test_a_row_per_queried_relation_named_as_the_query_is():
-    """The status names queries ``C->HT:6D static`` but relations and unsolved ones
-    ``C->HT:6D/static``: the rows use the query's name, which the series use too."""
+def test_a_row_per_queried_relation_named_as_the_status_names_it():
+    """The status names queries, relations and unsolved ones alike (``C->HT:6D/static``);
+    the rows and the series use that name."""
     status = {
-        "queries": {"C->A:6D": ["app", 5], "C->HT:6D static": ["calibrate"], "X->Y:6D": "odd"},
+        "queries": {"C->A:6D": ["app", 5], "C->HT:6D/static": ["calibrate"], "X->Y:6D": "odd"},
         "application_hosts": {"C->A:6D": ["hmd"]},
         "unsolved": {"C->HT:6D/static": "no provider announces frame(s) HT"},
         "relations": {"C->A:6D": {"key": "ubitrack/demo/relation/C/A/6D/dynamic"}},
@@ -254,7 +254,7 @@ def test_a_row_per_queried_relation_named_as_the_query_is():
             "unsolved": None,
             "series": {"rate_hz": [30.0]},
         },
-        "C->HT:6D static": {
+        "C->HT:6D/static": {
             "applications": ["calibrate"],
             "hosts": [],
             "unsolved": "no provider announces frame(s) HT",

@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 
 from ubitrack_agent.agent.flows import Plan, plan_name
-from ubitrack_agent.graph.planner import PlanningError
 from ubitrack_agent.net.answer import Answer
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.spec import ComponentSpec
@@ -29,11 +28,8 @@ def query_answers(
     specifications of the plan), encoded, by answer key."""
     answers = {}
     for relation in relations:
-        try:
-            name = plan_name(relation)
-        except PlanningError:
-            name = str(relation)  # a type the planner refuses: the plan names it so
-        reason = plan.unsolved.get(name, plan.unsolved.get(str(relation)))
+        name = plan_name(relation)
+        reason = plan.unsolved.get(name)
         served = reason is None and name in plan.relations
         components = sorted(plan.serving.get(name, ())) if served else []
         answer = Answer(

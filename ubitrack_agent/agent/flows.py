@@ -122,8 +122,13 @@ def plan_name(relation: RelationId) -> str:
     """The name a plan (and the agent's status) gives ``relation``: the data flow's relation
     name (``"C->A:6D"``, ``"C->HT:6D/static"``), or for a recalibration
     ``"C->HT:6D/recalibrate"``, apart from the static relation other queries may be using
-    meanwhile. ``PlanningError`` for a type the planner does not know."""
-    name = relation_name(Query(relation.source, relation.target, relation.type, relation.static))
+    meanwhile; for a type the planner does not know, ``str(relation)`` (under which the plan
+    says why it is unsolved)."""
+    try:
+        query = Query(relation.source, relation.target, relation.type, relation.static)
+    except PlanningError:
+        return str(relation)
+    name = relation_name(query)
     return _recalibration_name(name) if relation.recalibrate else name
 
 

@@ -63,7 +63,7 @@ from ubitrack_agent.agent.announcements import (
 )
 from ubitrack_agent.agent.answers import query_answers
 from ubitrack_agent.agent.election import Election, new_agent_id
-from ubitrack_agent.agent.flows import Plan, plan_relations
+from ubitrack_agent.agent.flows import Plan, plan_name, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
 from ubitrack_agent.agent.liveness import DataLiveness
 from ubitrack_agent.agent.materialise import component_specs
@@ -723,9 +723,9 @@ class Agent:
                 }
                 for u, v, key, d in self.srg.edges(keys=True, data=True)
             ],
-            "queries": {str(r): sorted(apps) for r, apps in self.queries.items()},
+            "queries": {plan_name(r): sorted(apps) for r, apps in self.queries.items()},
             "application_hosts": {
-                str(relation): sorted(
+                plan_name(relation): sorted(
                     {host for (r, _), host in self.application_hosts.items() if r == relation}
                 )
                 for relation in self.queries

@@ -41,15 +41,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def query_name(relation_name: str) -> str:
-    """The name the agent's status gives a query (in ``queries``, ``application_hosts``: the
-    relation's ``str``, ``C->HT:6D static``) for the name it gives the query's relation (in
-    ``relations``, ``unsolved``: the data flow's, ``C->HT:6D/static``, ``C->HT:6D/recalibrate``);
-    the two are the same for a dynamic relation (``C->A:6D``)."""
-    head, slash, kind = relation_name.rpartition("/")
-    return f"{head} {kind}" if slash and kind in ("static", "recalibrate") else relation_name
-
-
 def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> str:
     """DOT of the live data flow in the style of the paper's figure 6: providers (sources),
     components (boxes: pattern, instance, host; grey while starting), applications (sinks);
@@ -95,7 +86,7 @@ def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> s
                 lines.append(f"  {quote(node)} [shape=plaintext];")
             lines.append(f"  {quote(node)} -> {quote(instance)} [label={quote(label)}];")
     for name, relation in status.get("relations", {}).items():
-        apps = status.get("queries", {}).get(query_name(name), [])
+        apps = status.get("queries", {}).get(name, [])
         sink = f"application {name}"
         label = "\n".join([*apps, name])
         lines.append(f"  {quote(sink)} [shape=invhouse, label={quote(label)}];")

@@ -11,7 +11,6 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from ubitrack_agent.commands.status import query_name
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import KeySpace, RelationId
 
@@ -129,7 +128,7 @@ def watched_relations(status: Mapping[str, Any], keys: KeySpace) -> dict[str, Re
     if not isinstance(served, dict):
         return {}
     watched: dict[str, RelationId] = {}
-    for entry in served.values():
+    for name, entry in served.items():
         key = entry.get("key") if isinstance(entry, dict) else None
         if not isinstance(key, str) or len(watched) >= MAX_RELATIONS:
             continue
@@ -137,21 +136,21 @@ def watched_relations(status: Mapping[str, Any], keys: KeySpace) -> dict[str, Re
             relation = keys.parse_relation(key)
         except ValueError:
             continue
-        watched[str(relation)] = relation
+        watched[name] = relation
     return watched
 
 
 def relation_rows(
     status: Mapping[str, Any], series: Mapping[str, dict[str, Any]]
 ) -> dict[str, dict[str, Any]]:
-    """A row per queried relation, by the name the status gives the query (``C->A:6D``,
-    ``C->HT:6D static``; the relation's ``str``, as :func:`watched_relations` names them): its
+    """A row per queried relation, by the name the status gives it (``C->A:6D``,
+    ``C->HT:6D/static``, as :func:`watched_relations` names them): its
     ``applications``, the ``hosts`` they run on, why it is ``unsolved`` (None if it is not,
     or not known) and its ``series`` (None if it is not watched). Relations watched but no
     longer in the status's queries (no agent answers) keep their rows."""
     queries = _mapping(status.get("queries"))
     hosts = _mapping(status.get("application_hosts"))
-    unsolved = {query_name(n): str(why) for n, why in _mapping(status.get("unsolved")).items()}
+    unsolved = {name: str(why) for name, why in _mapping(status.get("unsolved")).items()}
     return {
         name: {
             "applications": _strings(queries.get(name)),
