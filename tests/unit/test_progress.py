@@ -46,6 +46,7 @@ def test_round_trip_and_fraction_done():
         ({"colour": "red"}, "unknown fields ['colour']"),
         ({"value": [1, 2]}, "value: expected dict"),
         ({"timestamp_ns": 2**63}, "must be in [0, 2^63)"),
+        ({"std_rotation": 10**400}, "std_rotation: expected float"),  # beyond any float
     ],
 )
 def test_malformed_progress_names_the_field(change, message):
@@ -93,7 +94,12 @@ def test_load_object_is_total(payload, error):
 
 def test_field_checks_kinds_exactly():
     assert field({"n": 3}, "n", float) == 3.0
-    for data, kind in (({"n": True}, int), ({"n": float("inf")}, float), ({}, str)):
+    for data, kind in (
+        ({"n": True}, int),
+        ({"n": float("inf")}, float),
+        ({"n": 10**400}, float),
+        ({}, str),
+    ):
         with pytest.raises(MessageError):
             field(data, "n", kind)
     assert field({}, "n", str, optional=True) is None

@@ -77,7 +77,10 @@ def field(data: Mapping[str, Any], name: str, kind: type, optional: bool = False
     if value is None and optional:
         return None
     if kind is float and type(value) is int:
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:  # an integer literal beyond any float
+            raise MessageError("malformed_request", f"{name}: expected float") from None
     if type(value) is not kind or (kind is float and not math.isfinite(value)):
         raise MessageError("malformed_request", f"{name}: expected {kind.__name__}")
     return value
