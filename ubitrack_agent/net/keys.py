@@ -19,6 +19,8 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
                                      queryable answering the latest
     <root>/agent                     liveliness token of the active agent
     <root>/agent/status              queryable: the active agent's state (JSON)
+    <root>/agent/clock               queryable: the active agent's clock, the reference the
+                                     host managers measure their offsets to (net.clock)
     <root>/agents/<id>               liveliness token of every agent process, active or
                                      standby (agent.election: one active agent per domain)
     <root>/agents/<id>/active        liveliness token the active agent adds to its own
@@ -301,6 +303,10 @@ class KeySpace:
     def agent_status(self) -> str:
         """Queryable answering the active agent's state."""
         return f"{self.root}/agent/status"
+
+    def agent_clock(self) -> str:
+        """Queryable answering the active agent's clock (``net.clock``)."""
+        return f"{self.root}/agent/clock"
 
     def agent_member(self, agent: str) -> str:
         """Liveliness token of the agent process ``agent``, active or standby."""
