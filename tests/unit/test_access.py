@@ -40,6 +40,10 @@ def allowed(subject: str, message: str, key: str, flow: str = "ingress") -> bool
         ("agent", "query", KEYS.host_request("lab1"), "ingress"),
         ("agent", "liveliness_token", KEYS.agent(), "ingress"),
         ("agent", "declare_queryable", KEYS.agent_status(), "ingress"),
+        ("agent", "declare_queryable", KEYS.agent_clock(), "ingress"),
+        ("agent", "reply", KEYS.agent_clock(), "ingress"),
+        ("host", "query", KEYS.agent_clock(), "ingress"),  # a host manager's clock offset
+        ("agent", "query", KEYS.agent_clock(), "ingress"),  # the agent's own host manager
         ("agent", "liveliness_token", KEYS.agent_member("18ea.1"), "ingress"),
         ("agent", "liveliness_token", KEYS.agent_active("18ea.1"), "ingress"),
         ("agent", "declare_queryable", KEYS.agent_member_status("18ea.1"), "ingress"),
@@ -86,6 +90,8 @@ def test_each_role_may_do_its_job(subject, message, key, flow):
         ),  # workers never write a provider's data
         ("agent", "reply", KEYS.measured("store.C_HT", "C_HT"), "ingress"),
         ("host", "liveliness_token", KEYS.agent(), "ingress"),
+        ("host", "declare_queryable", KEYS.agent_clock(), "ingress"),  # no false reference
+        ("ART", "reply", KEYS.agent_clock(), "ingress"),
         ("host", "liveliness_token", KEYS.agent_active("18ea.1"), "ingress"),  # no takeover
         ("ART", "put", KEYS.answer(RELATION), "ingress"),  # only the agent answers queries
         ("application", "liveliness_token", KEYS.agent_member("18ea.1"), "ingress"),

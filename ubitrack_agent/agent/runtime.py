@@ -71,6 +71,7 @@ from ubitrack_agent.agent.placement import place
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
+from ubitrack_agent.net.clock import Clock, serve_clock
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
@@ -165,6 +166,8 @@ class Agent:
         self._stop = threading.Event()
         self._status_json = "{}"
         self.session = open_session(settings)
+        self.clock = Clock.of(settings)
+        """The reference clock the host managers measure their offsets to (``net.clock``)."""
         self.hosts = Hosts(self.session, self.keys, self.problems)
         liveliness = self.session.liveliness()
         self._watches = [
@@ -583,6 +586,7 @@ class Agent:
         self._answers, self._answered = {}, None  # published afresh
         self._declared_active = [
             self._serve_status(self.keys.agent_status()),
+            serve_clock(self.session, self.keys.agent_clock(), self.clock),
             self.session.declare_queryable(
                 self.keys.all_answers(),
                 lambda query: self._guard.call(

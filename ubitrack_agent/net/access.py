@@ -16,9 +16,9 @@ Roles, by certificate common name:
 * any other name is a provider id (sensor, database, calibration store): it may announce that
   provider and ``<id>.<suffix>`` ones (a store's ``store.C_HT``) and write their data only.
 
-Reading (subscriptions, liveliness, queries on data, relations, fragments, statuses,
-progress, truth) is granted to every known role; writes are granted per role (see the
-tables in ``docs/security.md``). Worker writes on data keys exclude every provider's data.
+Reading (subscriptions, liveliness, queries on data, relations, fragments, statuses, the
+agent's clock, progress, truth) is granted to every known role; writes are granted per role
+(see the tables in ``docs/security.md``). Worker writes on data keys exclude every provider's data.
 """
 
 from __future__ import annotations
@@ -68,6 +68,7 @@ def _common_rules(keys: KeySpace) -> list[dict[str, Any]]:
     """Granted to every known role: receiving anything, and reading."""
     readable = [
         keys.agent_status(),
+        keys.agent_clock(),
         keys.all_agent_statuses(),
         keys.all_statuses(),
         *(keys.pattern(kind, "**") for kind in ("relation", "data", "progress", "truth")),
@@ -96,7 +97,11 @@ def _role_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]
         _rule("host-requests", SERVES, [host_requests]),
         _rule("host-writes", WRITES, [keys.all_host_exits(), keys.all_pools(), controls]),
         _rule("agent-token", ["liveliness_token"], [keys.agent(), keys.pattern("agents", "**")]),
-        _rule("agent-status", SERVES, [keys.agent_status(), keys.all_agent_statuses()]),
+        _rule(
+            "agent-status",
+            SERVES,
+            [keys.agent_status(), keys.agent_clock(), keys.all_agent_statuses()],
+        ),
         _rule("agent-requests", ["query"], [host_requests]),
         _rule("agent-answers", [*WRITES, *SERVES], [keys.all_answers()]),
         _rule("application-queries", ["liveliness_token"], [keys.all_queries()]),
