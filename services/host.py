@@ -63,7 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quiet",
         action="store_true",
-        help="no status line (every 10 s: workers running, pool ready, requests)",
+        help="no status line (every 10 s: workers running, pool ready, requests, the clock's "
+        "offset to the agent's)",
     )
     parser.add_argument(
         "--pool-size",
@@ -132,12 +133,14 @@ def serve(
         return 2
     # Imported here: the registry and zenoh are heavy, and ``ubitrack --help`` reads this module.
     from services.host_manager import HostManager
+    from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.session import open_session
 
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
         info = HostInfo(name, labels, capacity)
-        manager = HostManager(session, keys, info, config.member_flags(settings), pool_size)
+        flags = config.member_flags(settings)
+        manager = HostManager(session, keys, info, flags, pool_size, Clock.of(settings))
         on_termination(manager.stop)
         if exit_when_stdin_closes:
             threading.Thread(
@@ -152,10 +155,17 @@ def serve(
 def status_line(status: dict[str, Any]) -> str:
     """The host manager's one-line status (``net.status_line``)."""
     counters = status["counters"]
+    clock = status["clock"]
+    offset = (
+        "no clock offset to the agent yet"
+        if clock is None
+        else f"clock {clock['offset_ns'] / 1e6:+.3f} ms to the agent's "
+        f"(+-{clock['uncertainty_ns'] / 1e6:.3f})"
+    )
     return (
         f"host {status['name']}: {len(status['instances'])} workers running, pool "
         f"{status['pool_ready']} of {status['pool_size']} ready; {counters.get('requests', 0)} "
-        f"requests, {counters.get('exits_reported', 0)} workers ended on their own"
+        f"requests, {counters.get('exits_reported', 0)} workers ended on their own; {offset}"
     )
 
 

@@ -12,6 +12,9 @@ worker processes through a :class:`services.supervisor.Supervisor`. It declares
   instance that ended without being asked (its process exited, even before declaring its
   worker token, or a stop command from elsewhere released it), so the agent starts it again.
 
+While it runs it estimates its host's clock offset to the active agent's
+(:mod:`services.clock_sync`), shown in its status as ``clock``.
+
 Zenoh callbacks and the request thread only queue; one thread handles every event, request
 and process. Handling is total: a malformed request gets an error reply of its type, is
 counted and logged (rate-limited, :func:`ubitrack_agent.net.logs.rate_limited`), and never
@@ -32,10 +35,12 @@ from typing import Any
 
 import zenoh
 
+from services.clock_sync import ClockSync
 from services.registry import lookup
 from services.spec import check_spec
 from services.supervisor import Supervisor
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import (
     HostInfo,
@@ -69,12 +74,16 @@ class HostManager:
         info: HostInfo,
         worker_flags: Sequence[str],
         pool_size: int,
+        clock: Clock | None = None,
     ) -> None:
         lookup("relay")  # import every registered service now, not on the first request
         self.info = info
         self.name = name = info.name
         self.keys = keys
         self.counters: Counter[str] = Counter()
+        self.clock_sync = ClockSync(session, keys, clock or Clock(), self.counters)
+        """This host's clock (the process's, ``Settings.clock_offset_ms`` applied) against
+        the agent's."""
         self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
         self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
@@ -109,6 +118,7 @@ class HostManager:
     def run(self) -> None:
         """Handle requests and pool tokens, reap and refill, until :meth:`stop`."""
         handle = logs.guarded(self._handle, self.counters, log, "host event")
+        self.clock_sync.start()
         try:
             while not self._stop.is_set():
                 try:
@@ -208,19 +218,21 @@ class HostManager:
             )
 
     def status(self) -> dict[str, Any]:
-        """Name, labels, capacity and CPU load (:class:`HostInfo`), pid, pool, instances and
-        counters (JSON-ready)."""
+        """Name, labels, capacity and CPU load (:class:`HostInfo`), pid, pool, instances, clock
+        offset and counters (JSON-ready)."""
         cpu_load = os.getloadavg()[0] / (os.cpu_count() or 1)
         return {
             **replace(self.info, cpu_load=round(cpu_load, 3)).as_dict(),
             "pid": os.getpid(),
             **self.supervisor.status(),
+            "clock": self.clock_sync.status(),
             "counters": dict(self.counters),
         }
 
     # -- end ----------------------------------------------------------------------------------
 
     def _close(self) -> None:
+        self.clock_sync.stop()
         self._token.undeclare()
         self._requests.undeclare()
         self._request_thread.join(timeout=1.0)

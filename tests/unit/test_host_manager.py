@@ -43,6 +43,9 @@ class FakeSession:
     def declare_queryable(self, key):
         return FakeQueryable()  # no request arrives through zenoh: the tests hand them over
 
+    def get(self, key, timeout=None):
+        return []  # no agent answers its clock
+
 
 class FakeQuery:
     def __init__(self, data: bytes | None, reply_fails: bool = False) -> None:
@@ -87,6 +90,7 @@ def answer(manager: HostManager, data: bytes | None, **options) -> tuple[bool, d
 def test_status_is_answered(manager):
     ok, status = answer(manager, encode_request(Status()).encode())
     assert ok and status["name"] == "lab" and status["pool_size"] == 0
+    assert status["clock"] is None  # no offset to an agent yet
     assert status["counters"] == {"requests": 1}
     info = HostInfo.parse(json.dumps(status).encode())
     assert (info.name, info.labels, info.capacity) == ("lab", {"camera", "hmd"}, 1)

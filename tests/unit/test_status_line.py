@@ -62,7 +62,11 @@ def test_the_agent_and_host_lines_summarise_their_status():
         "pool_ready": 7,
         "pool_size": 8,
         "counters": {"requests": 3},
+        "clock": None,
     }
     assert host_line(host) == (
-        "host vm: 1 workers running, pool 7 of 8 ready; 3 requests, 0 workers ended on their own"
+        "host vm: 1 workers running, pool 7 of 8 ready; 3 requests, 0 workers ended on their "
+        "own; no clock offset to the agent yet"
     )
+    host["clock"] = {"offset_ns": -300_012_345, "uncertainty_ns": 61_000}
+    assert host_line(host).endswith("; clock -300.012 ms to the agent's (+-0.061)")
