@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubitrack_agent.net import logs
-from ubitrack_agent.net.config import MAX_CLOCK_OFFSET_MS, Settings
+from ubitrack_agent.net.config import MAX_CLOCK_OFFSET_NS, Settings
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.json_messages import MessageError, field, load_object
 
@@ -50,7 +50,7 @@ log = logging.getLogger("ubitrack.clock")
 PHI = 15e-6
 """Frequency tolerance (s/s) by which an estimate's uncertainty grows with its age (RFC 5905,
 section 7.3, ``PHI``)."""
-MAX_OFFSET_NS = round(MAX_CLOCK_OFFSET_MS * 1e6)
+MAX_OFFSET_NS = MAX_CLOCK_OFFSET_NS
 """Largest clock offset the middleware handles (a day): an estimate beyond it is refused."""
 MAX_REPLY_BYTES = 1024
 """Largest clock reply read (one takes about 60 bytes)."""

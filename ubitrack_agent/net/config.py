@@ -124,6 +124,9 @@ class Settings:
 
 MAX_CLOCK_OFFSET_MS = 86_400_000.0
 """Largest ``clock_offset_ms`` accepted (a day)."""
+MAX_CLOCK_OFFSET_NS = 86_400 * 10**9
+"""The same in nanoseconds: the largest clock offset the middleware handles (``net.clock``,
+an input's ``clock_offset_ns`` in ``net.spec``)."""
 
 
 def default_host_name() -> str:

@@ -5,14 +5,19 @@ JSON form::
 
     {"instance": "concat-1", "service": "concatenation", "parameters": {},
       "inputs": [{"port": "AB", "key": "ubitrack/default/data/art/ART_WT", "static": true},
-                {"port": "BC", "key": "ubitrack/default/data/art/ART_HT", "trigger": true}],
+                {"port": "BC", "key": "ubitrack/default/data/art/ART_HT", "trigger": true,
+                 "clock_offset_ns": -300000000}],
      "outputs": {"AC": "ubitrack/default/data/concat-1/AC"},
      "relations": {"AC": ["ubitrack/default/relation/C/A/6D/dynamic"]},
      "expansion": "none", "tolerance_ms": 20}
 
 ``relations`` lists, per output port, the stable relation keys (``docs/protocol.md``) the output
 is also published on, for the applications that asked for it. ``trigger`` marks the push inputs
-whose samples cause a computation; ``static`` inputs answer their latest value. ``expansion``
+whose samples cause a computation; ``static`` inputs answer their latest value.
+``clock_offset_ns`` (an integer within a day either way, default 0, omitted when 0) is added
+to the timestamp of every sample arriving on the input before it is used: the agent sets it to
+the offset of the sensor host's clock to the agent's (``agent.clocks``) when a component reads
+inputs from hosts whose clocks differ by more than its tolerance. ``expansion``
 (``none``, ``space`` or ``time``, default ``none``) says how the pattern's correspondence is
 expanded (paper section 3.3): under ``space`` each correspondence port takes several bindings,
 in correspondence order; under ``time`` one, and the worker accumulates samples (options in
@@ -30,6 +35,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from ubitrack_agent.net.config import MAX_CLOCK_OFFSET_NS
 from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import validate_key_chunks
 
@@ -59,6 +65,14 @@ class InputBinding:
     key: str
     trigger: bool = False
     static: bool = False
+    clock_offset_ns: int = 0
+    """Added to each sample's timestamp: from its host's clock to the agent's (``net.clock``)."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON-ready form :func:`parse_bindings` reads (``clock_offset_ns`` only when
+        set)."""
+        data = {"port": self.port, "key": self.key, "trigger": self.trigger, "static": self.static}
+        return {**data, "clock_offset_ns": self.clock_offset_ns} if self.clock_offset_ns else data
 
 
 @dataclass(frozen=True)
@@ -86,7 +100,7 @@ class ComponentSpec:
             "instance": self.instance,
             "service": self.service,
             "parameters": self.parameters,
-            "inputs": [vars(binding) for binding in self.inputs],
+            "inputs": [binding.as_dict() for binding in self.inputs],
             "outputs": self.outputs,
             "relations": {port: list(keys) for port, keys in self.relations.items()},
             "expansion": self.expansion,
@@ -125,14 +139,20 @@ def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, 
         at = f"{where}[{index}]"
         if not isinstance(item, dict):
             raise SpecError(f"{at}: expected an object")
-        unknown = sorted(set(item) - {"port", "key", "trigger", "static"})
+        unknown = sorted(set(item) - {"port", "key", "trigger", "static", "clock_offset_ns"})
         if unknown:
             raise SpecError(f"{at}: unknown fields {unknown}")
         port = _require(item, "port", str, at)
         trigger, static = item.get("trigger", False), item.get("static", False)
         if not isinstance(trigger, bool) or not isinstance(static, bool):
             raise SpecError(f"{at}: trigger and static must be true or false")
-        bindings.append(InputBinding(port, _key(item.get("key"), f"{at}.key"), trigger, static))
+        offset = item.get("clock_offset_ns", 0)
+        if type(offset) is not int or abs(offset) > MAX_CLOCK_OFFSET_NS:
+            raise SpecError(
+                f"{at}.clock_offset_ns: expected integer nanoseconds within +-{MAX_CLOCK_OFFSET_NS}"
+            )
+        key = _key(item.get("key"), f"{at}.key")
+        bindings.append(InputBinding(port, key, trigger, static, offset))
     if not any(binding.trigger for binding in bindings):
         raise SpecError(f"{where}: no binding is marked trigger")
     return tuple(bindings)
