@@ -8,13 +8,19 @@ declared), subscribes to its input keys, publishes its outputs, answers its
 counters on ``<root>/status/<instance>`` and, last, declares the liveliness token
 ``<root>/worker/<instance>/<incarnation>`` (``<pid>.<nonce>``, new for every run):
 
-* ``{"inputs": [<bindings>]}`` rewires: bindings whose key is unchanged keep their history;
+* ``{"inputs": [<bindings>]}`` rewires: bindings whose key is unchanged keep their history
+  (moved by the change of their ``clock_offset_ns``, if any);
 * ``{"parameters": {...}}`` rebuilds the service with new parameters;
 * ``{"relations": {"<output port>": ["<relation key>", ...]}}`` also publishes an output on the
   stable relation keys of the applications it serves (replacing the previous ones);
 * ``{"stop": true}`` ends the run: the agent (directly, or through the host manager that
   started the worker) stops every worker with it; a pool member then rejoins its pool (or
   exits, if its host manager is gone).
+
+An input's ``clock_offset_ns`` (``net.spec``) is added to the timestamp of each of its samples
+as it is decoded, before anything else uses it: the agent sets it when the component's inputs
+come from hosts whose clocks differ (``agent.clocks``), so they are synchronised on the agent's
+clock. A query for an input's value at a given time goes upstream at the input's own time.
 
 Zenoh callbacks only append to a bounded inbox (never calling zenoh, never blocking the
 receive path); one thread decodes, synchronises (:mod:`ubitrack_agent.core.timeline`), computes and
@@ -55,8 +61,10 @@ from ubitrack_agent.core.errors import (
     NoMotionModel,
     TooFewCorrespondences,
 )
+from ubitrack_agent.core.measurements import MAX_TIMESTAMP_NS
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import config, logs
+from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON, MSGPACK
 from ubitrack_agent.net.json_messages import load_object
 from ubitrack_agent.net.keys import KeySpace, RelationId
@@ -88,6 +96,8 @@ COUNTERS = {
     "published": "outputs published",
     "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
     "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
+    "rejected_clock": "samples whose timestamp moved by their input's clock offset leaves the "
+    "timestamp range",
     "dropped_stale": "samples older than everything their input's buffer holds",
     "superseded": "samples from a subscription that a rewire replaced",
     "buffered": "samples of inputs that do not trigger, kept for the next trigger",
@@ -110,9 +120,10 @@ COUNTERS = {
     "rejected_queries": "queries for a time that is no timestamp (net.time_queries)",
 }
 """The worker's counters (its status), each with what it counts. Every sample received is
-``rejected``, ``rejected_future``, ``dropped_stale``, ``superseded``, ``buffered`` or a trigger;
-every trigger is ``stale_triggers``, ``dropped``, ``not_distinct``, ``accumulating``,
-``failed``, ``no_output`` or publishes: a worker that receives but does not publish shows why.
+``rejected``, ``rejected_future``, ``rejected_clock``, ``dropped_stale``, ``superseded``,
+``buffered`` or a trigger; every trigger is ``stale_triggers``, ``dropped``, ``not_distinct``,
+``accumulating``, ``failed``, ``no_output`` or publishes: a worker that receives but does not
+publish shows why.
 For an asynchronous service every sample is a trigger and ends ``gated``, ``late``,
 ``dropped_stale``, ``failed`` or publishes."""
 
@@ -197,8 +208,12 @@ class Worker:
         session: Any,
         keys: KeySpace,
         pool_counters: Counter[str] | None = None,
+        clock: Clock | None = None,
     ) -> None:
         self.spec = spec
+        self.clock = clock or Clock()
+        """This host's clock (``Settings.clock_offset_ms`` applied), for samples stamped
+        ahead of it."""
         self.pool_counters = pool_counters
         """The counters of the pool this process belongs to, if any (shown in status)."""
         self.keys = keys
@@ -260,7 +275,10 @@ class Worker:
         inputs = []
         for index, binding in enumerate(bindings):
             kept = old.pop((binding.key, binding.static), None)
-            buffer = kept.buffer if kept else SampleBuffer(binding.static)
+            buffer = SampleBuffer(binding.static)
+            if kept is not None:
+                moved = binding.clock_offset_ns - kept.binding.clock_offset_ns
+                buffer = kept.buffer.shifted(moved) if moved else kept.buffer
             if kept:
                 kept.subscriber.undeclare()
             subscriber = self._session.declare_subscriber(
@@ -402,9 +420,16 @@ class Worker:
             self._count("rejected", "rejected sample on %s: %s", key, exc)
             return
         t = sample.timestamp_ns
-        if ahead_of_clock(t, time.time_ns()):
+        if ahead_of_clock(t, self.clock.now_ns()):  # on the sensor's clock: before correction
             self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
             return
+        if item.binding.clock_offset_ns:
+            try:
+                sample = sample.restamped(t + item.binding.clock_offset_ns)
+            except MeasurementError as exc:
+                self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
+                return
+            t = sample.timestamp_ns
         if self._service.asynchronous():
             self._push(item.binding.port, sample)
             return
@@ -584,15 +609,18 @@ class Worker:
             return buffer.lookup(t)
         if time.monotonic() < self._no_model.get(item.binding.key, 0.0):
             raise NoMotionModel(f"{item.binding.key} has no motion model")
+        upstream_t = t - item.binding.clock_offset_ns  # the time on the producer's clock
+        if not 0 <= upstream_t <= MAX_TIMESTAMP_NS:
+            raise ExtrapolationError(f"{upstream_t} is no time on {item.binding.key}'s clock")
         try:
-            payload = fetch_at(self._session, item.binding.key, t, UPSTREAM_TIMEOUT_S)
+            payload = fetch_at(self._session, item.binding.key, upstream_t, UPSTREAM_TIMEOUT_S)
         except (NoMotionModel, NoDataError) as exc:  # nothing to predict, or nobody answers
             self._no_model[item.binding.key] = time.monotonic() + NO_MODEL_S
             raise NoMotionModel(f"{item.binding.key}: {exc}") from None
         value = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
-        if value.timestamp_ns != t:
+        if value.timestamp_ns != upstream_t:
             raise ExtrapolationError(f"{item.binding.key} answered for another time")
-        return value
+        return value.restamped(t)
 
     # -- status and life cycle ----------------------------------------------------------------
 
@@ -757,9 +785,11 @@ class Pool:
         return spec
 
 
-def run_worker(session: Any, keys: KeySpace, spec: ComponentSpec, pool: Pool | None = None) -> bool:
+def run_worker(
+    session: Any, keys: KeySpace, spec: ComponentSpec, clock: Clock, pool: Pool | None = None
+) -> bool:
     """Run one component until stopped; True if the agent released it (it may be reused)."""
-    worker = Worker(spec, session, keys, None if pool is None else pool.counters)
+    worker = Worker(spec, session, keys, None if pool is None else pool.counters, clock)
     on_termination(worker.stop)
     log.info("%s: running %s", spec.instance, spec.service)
     worker.run()
@@ -794,7 +824,7 @@ def main(argv: list[str] | None = None) -> int:
                 spec = pool.wait() if pool is not None else None
                 if spec is None:
                     return 0
-            released = run_worker(session, keys, spec, pool)
+            released = run_worker(session, keys, spec, Clock.of(settings), pool)
             if not (released and pool is not None):
                 return 0
             spec = None  # back to the pool

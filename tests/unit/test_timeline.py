@@ -129,3 +129,15 @@ def test_ahead_of_clock_bound():
     assert not ahead_of_clock(now + MAX_FUTURE_NS, now)
     assert ahead_of_clock(now + MAX_FUTURE_NS + 1, now)
     assert not ahead_of_clock(0, now)  # the past is accepted: replayed recordings
+
+
+def test_a_shifted_buffer_holds_the_same_values_later_and_leaves_out_what_leaves_the_range():
+    buffer = SampleBuffer(static=False, history=3)
+    for t_ms, x in ((10, 1.0), (20, 2.0), (30, 3.0)):
+        buffer.add(pose(t_ms, x))
+    moved = buffer.shifted(-15_000_000)  # 15 ms earlier: the first sample leaves the range
+    assert len(moved) == 2 and moved.newest_time() == 15_000_000
+    assert moved.lookup(10_000_000).translation[0] == pytest.approx(2.5)
+    assert buffer.newest_time() == 30_000_000  # the original is unchanged
+    assert moved.add(pose(1, 0.0)) and len(moved) == 3  # room for its whole history
+    assert not moved.add(pose(0, 0.0))  # full again: its horizon holds

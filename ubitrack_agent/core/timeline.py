@@ -35,7 +35,7 @@ import itertools
 from collections import deque
 
 from ubitrack_agent.core import quaternions
-from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
+from ubitrack_agent.core.errors import ExtrapolationError, MeasurementError, NoDataError
 from ubitrack_agent.core.measurements import ErrorPose, Measurement, Pose, Position3D, Rotation3D
 from ubitrack_agent.core.poses import interpolate_pose
 from ubitrack_agent.core.uncertainty import interpolate_covariance
@@ -117,6 +117,18 @@ class SampleBuffer:
         self._samples.insert(index, sample)
         self._times.insert(index, t)
         return True
+
+    def shifted(self, delta_ns: int) -> SampleBuffer:
+        """A buffer of the same kind holding these samples ``delta_ns`` later (an input whose
+        clock offset changed, ``net.spec``); a sample the shift would take out of the
+        timestamp range is left out."""
+        moved = SampleBuffer(self.static, self._samples.maxlen or DEFAULT_HISTORY)
+        for sample in self._samples:
+            try:
+                moved.add(sample.restamped(sample.timestamp_ns + delta_ns))
+            except MeasurementError:
+                continue
+        return moved
 
     def latest(self) -> Measurement | None:
         return self._samples[-1] if self._samples else None
