@@ -2,7 +2,9 @@
 ``--hide-world``) and ``T->HT`` (dynamic) through the sensor API and publishes them from
 ground truth, so a test knows the true ``WT->HT`` at any time (:func:`true_wt_ht`). The
 published covariance is the announced accuracy ``sigma`` on every axis, so two trackers are
-told apart by it.
+told apart by it. The truth is a function of real time; samples are stamped on the process's
+clock (``--clock-offset-ms``: a tracker whose host's clock is off), so ``true_wt_ht`` of a
+sample's timestamp is the truth only once the timestamp is corrected to real time.
 
 Run: ``python -m sim_trackers.exact_tracker --provider art --tracker ART --yaw 30 ...``.
 """
@@ -19,6 +21,7 @@ from sim_trackers.trajectories import LissajousPath
 from ubitrack_agent.core import ErrorPose, se3
 from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
 from ubitrack_agent.net import config
+from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.lifecycle import stop_on_signals
 from ubitrack_agent.net.session import open_session
@@ -52,6 +55,7 @@ def main() -> int:
     config.add_arguments(parser)
     args = parser.parse_args()
     settings = config.from_arguments(args, role="member")
+    clock = Clock.of(settings)
     stop = stop_on_signals()
     cov = np.diag([args.sigma**2] * 6)
     q_wt, t_wt = tracker_pose(args.yaw, args.x)
@@ -69,11 +73,11 @@ def main() -> int:
         ) as provider,
     ):
         if not args.hide_world:
-            provider.publish("WT", ErrorPose(time.time_ns(), q_wt, t_wt, cov))
+            provider.publish("WT", ErrorPose(clock.now_ns(), q_wt, t_wt, cov))
         while not stop.wait(1.0 / args.rate):
             now = time.time_ns()
             q, t = se3.compose(q_wt, t_wt, *true_wt_ht(now))
-            provider.publish("HT", ErrorPose(now, q, t, cov))
+            provider.publish("HT", ErrorPose(clock.reading(now), q, t, cov))
     return 0
 
 

@@ -28,6 +28,7 @@ from ubitrack_agent.core import ErrorPose
 from ubitrack_agent.core.uncertainty import in_place_covariance, isotropic_pose_covariance
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.net import config
+from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.lifecycle import stop_on_signals
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
@@ -86,11 +87,13 @@ def main() -> int:
     sigma_m = args.sigma_mm / 1000.0
     noise = isotropic_pose_covariance(np.radians(args.sigma_deg), sigma_m)
     edge = EdgeAnnouncement(args.tracker, args.marker, "6D", rate=args.rate, sigma=sigma_m)
+    clock = Clock.of(settings)
     with provider_session(settings, args.provider, [edge]) as provider:
 
         def step(now_ns: int) -> None:
             q, t = perturb_in_place(rng, *motion.pose(now_ns * 1e-9), noise)
-            provider.publish(edge.name, ErrorPose(now_ns, q, t, in_place_covariance(t, noise)))
+            stamp = clock.reading(now_ns)
+            provider.publish(edge.name, ErrorPose(stamp, q, t, in_place_covariance(t, noise)))
 
         run_periodic(args.rate, step, stop)
     return 0

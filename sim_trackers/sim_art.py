@@ -7,7 +7,9 @@ behave: :func:`sim_trackers.noise.perturb_in_place`), drops each body with proba
 ``6dcal`` still counts it) and sends ``fr``/``ts``/``6dcal``/``6d``/``3d`` lines
 (:mod:`ubitrack_agent.io.dtrack.format`). ``ts`` is the sample time in seconds since 00:00 UTC
 with microseconds, so sample times are whole microseconds: the DTrack adapter maps ``ts`` back
-to exactly the nanosecond timestamp the ground truth was evaluated at.
+to exactly the nanosecond timestamp the ground truth was evaluated at, on the controller's
+clock (:class:`~ubitrack_agent.net.clock.Clock`, ``--clock-offset-ms``: a controller, and the
+host its adapter runs on, whose clock is off; the world moves on real time).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from ubitrack_agent.io.dtrack.format import (
     encode_frame,
     seconds_of_day,
 )
+from ubitrack_agent.net.clock import Clock
 
 log = logging.getLogger("ubitrack.sim.art")
 
@@ -57,10 +60,19 @@ def dtrack_adapter(art: ArtSettings, timestamps: TimestampPolicy = "receive") ->
 class ArtSimulator:
     """Makes the DTrack frames an A.R.T. system would see in ``world``."""
 
-    def __init__(self, world: World, settings: ArtSettings, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        world: World,
+        settings: ArtSettings,
+        rng: np.random.Generator,
+        clock: Clock | None = None,
+    ) -> None:
         self.world = world
         self.settings = settings
         self.rng = rng
+        offset_ns = 0 if clock is None else clock.offset_ns
+        self.clock = Clock(offset_ns - offset_ns % 1000)
+        """The controller's clock, which stamps the frames (whole microseconds, as ``ts``)."""
         self.covariance = isotropic_pose_covariance(
             np.radians(settings.noise.rotation_deg), settings.noise.position_mm / 1000.0
         )
@@ -70,7 +82,8 @@ class ArtSimulator:
         return self.rng.random() >= self.settings.dropout
 
     def frame(self, timestamp_ns: int) -> DTrackFrame:
-        """The frame at ``timestamp_ns``, which must be a whole number of microseconds."""
+        """The frame at the real time ``timestamp_ns``, a whole number of microseconds
+        (stamped on :attr:`clock`)."""
         if timestamp_ns % 1000:
             raise ValueError("DTrack timestamps carry microseconds: round timestamp_ns to them")
         tracker = self.settings.frame
@@ -96,7 +109,7 @@ class ArtSimulator:
         self.frame_counter += 1
         return DTrackFrame(
             frame=self.frame_counter,
-            timestamp_s=seconds_of_day(timestamp_ns),
+            timestamp_s=seconds_of_day(self.clock.reading(timestamp_ns)),
             calibrated_bodies=len(self.settings.bodies),
             bodies=tuple(bodies),
             markers=tuple(markers),

@@ -7,6 +7,10 @@ field of view and points behind the camera), hides each visible feature with pro
 Gaussian pixel noise ``camera.noise_px`` per axis. Each remaining feature ``F`` is one
 :class:`~ubitrack_agent.core.Position2D` on the 2D edge ``<image plane> -> F`` (the paper's
 ``IP -> F1..F5``), all with the frame's timestamp and the covariance ``noise_px^2 I``.
+
+The world moves on real time; a frame shows it at the real time it is taken and is stamped on
+the simulated host's clock (:class:`~ubitrack_agent.net.clock.Clock`: ``--clock-offset-ms``
+makes a camera whose host's clock is off).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from sim_trackers.scenario import CameraSettings
 from sim_trackers.world import World
 from ubitrack_agent.core import Position2D
 from ubitrack_agent.io.provider import EdgeAnnouncement
+from ubitrack_agent.net.clock import Clock
 
 METRIC_SAMPLES = 20
 """Instants (one every 3 s) at which :func:`metric_sigma` measures the features' depth."""
@@ -48,21 +53,31 @@ def announcements(settings: CameraSettings, world: World) -> list[EdgeAnnounceme
 class CameraSimulator:
     """Makes the 2D measurements the scenario's camera would take."""
 
-    def __init__(self, world: World, settings: CameraSettings, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        world: World,
+        settings: CameraSettings,
+        rng: np.random.Generator,
+        clock: Clock | None = None,
+    ) -> None:
         self.world = world
         self.settings = settings
         self.rng = rng
+        self.clock = clock or Clock()
+        """The simulated host's clock, which stamps the measurements."""
         self.covariance = np.eye(2) * settings.noise_px**2
 
     def measure(self, timestamp_ns: int) -> dict[str, Position2D]:
-        """Edge name -> measurement of every feature seen at ``timestamp_ns``."""
+        """Edge name -> measurement of every feature seen at the real time ``timestamp_ns``
+        (stamped on :attr:`clock`)."""
         settings = self.settings
         if self.rng.random() < settings.dropout:
             return {}
         seen = self.world.project(settings.image_plane, settings.features, timestamp_ns)
+        stamp = self.clock.reading(timestamp_ns)
         return {
             f"{settings.image_plane}_{feature}": Position2D(
-                timestamp_ns,
+                stamp,
                 pixel + self.rng.normal(0.0, settings.noise_px, 2),
                 self.covariance,
             )

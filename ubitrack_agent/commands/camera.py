@@ -192,6 +192,7 @@ def _serve(
     file is read at its frame rate ``source_rate``."""
     from ubitrack_agent.io.camera import capture
     from ubitrack_agent.io.provider import Provider
+    from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.keys import KeySpace
     from ubitrack_agent.net.lifecycle import stop_on_signals
     from ubitrack_agent.net.session import open_session
@@ -213,6 +214,7 @@ def _serve(
             duration_s=args.duration,
             report=None if args.quiet else _print_status,
             pace_hz=None if from_device else source_rate,
+            clock=Clock.of(settings),
         )
 
 

@@ -197,6 +197,7 @@ def _status_line(adapter: Any, args: argparse.Namespace) -> Callable[[], str]:
 def run(args: argparse.Namespace) -> int:
     from ubitrack_agent.io.adapter import open_udp_socket, serve_udp
     from ubitrack_agent.io.provider import Provider
+    from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
     from ubitrack_agent.net.lifecycle import stop_on_signals
     from ubitrack_agent.net.session import open_session
@@ -243,6 +244,6 @@ def run(args: argparse.Namespace) -> int:
         ) as provider,
         periodic_status(_status_line(adapter, args), not args.quiet),
     ):
-        serve_udp(sock, adapter, provider, stop, args.duration)
+        serve_udp(sock, adapter, provider, stop, args.duration, Clock.of(settings))
     log.info("dtrack counters: %s", dict(adapter.counters))
     return 0

@@ -80,6 +80,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     art.add_argument("--port", type=int, help="destination UDP port (default: scenario art.port)")
     art.add_argument("--rate", type=float, help="frames per second (default: scenario art.rate)")
     art.add_argument("--seed", type=int, help="noise seed (default: scenario seed)")
+    art.add_argument(
+        "--clock-offset-ms",
+        metavar="MS",
+        default=0.0,
+        help="for tests: the simulated controller's clock (its ts lines) reads this much ahead "
+        "(a host whose clock is off; give its DTrack adapter the same; default: 0)",
+    )
     camera = _add(commands, "camera", _run_camera, "publish 2D marker features (IP->Fi)")
     camera.add_argument("--rate", type=float, help="frames per second (default: scenario)")
     camera.add_argument("--seed", type=int, help="noise seed (default: scenario seed)")
@@ -140,6 +147,7 @@ def _run_art(args: argparse.Namespace) -> int:
     import numpy as np
 
     from sim_trackers import sim_art
+    from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.lifecycle import stop_on_signals
 
     prog = "ubitrack sim art"
@@ -150,7 +158,17 @@ def _run_art(args: argparse.Namespace) -> int:
         return 2
     port = scenario.art.port if args.port is None else args.port
     seed = scenario.seed if args.seed is None else args.seed
-    simulator = sim_art.ArtSimulator(scenario.world, scenario.art, np.random.default_rng(seed))
+    try:
+        offset_ms = config.parse_clock_offset("--clock-offset-ms", args.clock_offset_ms)
+    except config.ConfigError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    simulator = sim_art.ArtSimulator(
+        scenario.world,
+        scenario.art,
+        np.random.default_rng(seed),
+        Clock(round(offset_ms * 1e6)),
+    )
     counters: Counter[str] = Counter()
     sent = Rate(lambda: counters["sent"])
 
@@ -176,6 +194,7 @@ def _run_camera(args: argparse.Namespace) -> int:
 
     from sim_trackers.runtime import provider_session, run_periodic
     from sim_trackers.sim_camera import CameraSimulator, announcements
+    from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.lifecycle import stop_on_signals
 
     prog = "ubitrack sim camera"
@@ -185,7 +204,9 @@ def _run_camera(args: argparse.Namespace) -> int:
     if (rate := _rate(args.rate, scenario.camera.rate, prog)) is None:
         return 2
     seed = scenario.seed + 1 if args.seed is None else args.seed
-    simulator = CameraSimulator(scenario.world, scenario.camera, np.random.default_rng(seed))
+    simulator = CameraSimulator(
+        scenario.world, scenario.camera, np.random.default_rng(seed), Clock.of(settings)
+    )
     stop = stop_on_signals()
     edges = announcements(scenario.camera, scenario.world)
     with provider_session(settings, scenario.camera.provider, edges) as provider:

@@ -17,8 +17,8 @@ jobs, following the conventions of :mod:`ubitrack_agent.core.measurements`:
 3. **Timestamp** through :meth:`SensorAdapter.stamp`, by the adapter's policy:
 
    * ``"receive"`` (the default): the host's clock when the input arrived
-     (``time.time_ns()``), which includes the transport's latency but needs no clock
-     synchronisation;
+     (the process's clock, ``net.clock``), which includes the transport's latency but needs no
+     synchronisation with the device's clock;
    * ``"device"``: the device's own time of measurement, converted by the subclass to Unix
      nanoseconds, for a device whose clock is synchronised with the host's (NTP, PTP); an
      input without one gets the receive time.
@@ -54,6 +54,7 @@ from typing import ClassVar, Generic, Literal, Protocol, TypeVar, get_args
 
 from ubitrack_agent.core import Measurement
 from ubitrack_agent.io.provider import EdgeAnnouncement
+from ubitrack_agent.net.clock import Clock
 
 log = logging.getLogger("ubitrack.adapter")
 
@@ -154,13 +155,16 @@ def serve_udp(
     publisher: Publisher,
     stop: threading.Event,
     duration_s: float | None = None,
+    clock: Clock | None = None,
 ) -> None:
-    """Hand each datagram arriving on ``sock`` to ``adapter`` (stamped with the receive time)
-    until ``stop`` is set or ``duration_s`` seconds have passed."""
+    """Hand each datagram arriving on ``sock`` to ``adapter`` (stamped with the receive time on
+    ``clock``, the process's: ``net.clock``) until ``stop`` is set or ``duration_s`` seconds
+    have passed."""
+    clock = clock or Clock()
     end = None if duration_s is None else time.monotonic() + duration_s
     while not stop.is_set() and (end is None or time.monotonic() < end):
         try:
             datagram = sock.recv(MAX_DATAGRAM)
         except TimeoutError:
             continue
-        adapter.handle(datagram, time.time_ns(), publisher)
+        adapter.handle(datagram, clock.now_ns(), publisher)

@@ -231,7 +231,9 @@ def _boolean(source: str, value: Any) -> bool:
     raise ConfigError(f"{source}: expected true or false, got {value!r}")
 
 
-def _clock_offset(where: str, value: Any) -> float:
+def parse_clock_offset(where: str, value: Any) -> float:
+    """A clock offset in milliseconds (a number within a day either way, text included), or
+    ``ConfigError`` naming ``where``."""
     try:
         offset = float(value) if not isinstance(value, bool) else math.nan
     except (TypeError, ValueError):
@@ -282,7 +284,7 @@ def _parse(source: str, name: str, value: Any, base: Path) -> Any:
     if name == "multicast":
         return _boolean(where, value)
     if name == "clock_offset_ms":
-        return _clock_offset(where, value)
+        return parse_clock_offset(where, value)
     if not isinstance(value, str):
         raise ConfigError(f"{where}: expected a string, got {type(value).__name__}")
     try:

@@ -26,6 +26,7 @@ import numpy as np
 from ubitrack_agent.core import CameraIntrinsics
 from ubitrack_agent.io.adapter import Publisher
 from ubitrack_agent.io.camera.adapter import CameraAdapter
+from ubitrack_agent.net.clock import Clock
 
 log = logging.getLogger("ubitrack.camera")
 
@@ -107,11 +108,14 @@ def serve_capture(
     report: Callable[[str], None] | None = None,
     status_every_s: float = STATUS_INTERVAL_S,
     pace_hz: float | None = None,
+    clock: Clock | None = None,
 ) -> None:
     """Read frames from ``capture`` and hand each to ``adapter`` until ``stop`` is set,
     ``duration_s`` has passed, a file ends or a device is gone (see the module docstring),
     at most ``pace_hz`` a second if given (a file's frame rate); pass a :class:`StatusLine`
-    to ``report`` every ``status_every_s`` seconds and at the end (``None``: no status)."""
+    to ``report`` every ``status_every_s`` seconds and at the end (``None``: no status). A
+    frame is stamped with the time it was read on ``clock`` (the process's: ``net.clock``)."""
+    clock = clock or Clock()
     start = time.monotonic()
     status = StatusLine(adapter, start)
     failed_in_a_row = reads = 0
@@ -120,7 +124,7 @@ def serve_capture(
             break
         reads += 1
         ok, image = capture.read()
-        received_ns = time.time_ns()
+        received_ns = clock.now_ns()
         if ok and image is not None:
             failed_in_a_row = 0
             adapter.handle(image, received_ns, publisher)
