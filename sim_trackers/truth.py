@@ -1,8 +1,11 @@
 """Ground truth on zenoh: the simulated world answers queries for any relation.
 
 Key ``<root>/truth/<from>/<to>`` (:meth:`ubitrack_agent.net.keys.KeySpace.truth`), optional
-parameter ``t=<ns>`` (default: the time of the query's arrival). The reply is one encoded
-measurement (``ubitrack_agent.core.codec``):
+parameter ``t=<ns>`` (default: the time of the query's arrival), on real time: the world
+moves on the real clock, whatever ``--clock-offset-ms`` says (a simulated host whose clock is
+off stamps its measurements on its own clock; corrected to the agent's clock they compare with
+the truth, unless the agent runs with an offset too, ``docs/protocol.md``, "Clocks"). The
+reply is one encoded measurement (``ubitrack_agent.core.codec``):
 
 * between two frames: :class:`~ubitrack_agent.core.Pose` of ``<to>`` in ``<from>``;
 * camera frame to its image plane: the :class:`~ubitrack_agent.core.Projection` ``K [I | 0]``;
