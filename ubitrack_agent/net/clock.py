@@ -203,7 +203,7 @@ def parse_clock_status(value: Any) -> ClockEstimate | ClockRejection | None:
         estimate = ClockEstimate(
             _integer(value, "offset_ns", -MAX_OFFSET_NS, MAX_OFFSET_NS),
             _integer(value, "uncertainty_ns", 0, MAX_OFFSET_NS),
-            _integer(value, "rtt_ns", 0, 2 * MAX_OFFSET_NS),
+            _integer(value, "rtt_ns", 0, MAX_OFFSET_NS),
             _integer(value, "samples", 1, 1_000_000),
         )
         age_s = field(value, "age_s", float)
