@@ -207,6 +207,7 @@ def test_the_checker_accepts_downward_imports(tmp_path):
         ("ubitrack_agent.agent.runtime", ("cv2", "services", "sim_trackers")),
         # The agent's command runs on a small machine without OpenCV or SciPy (--no-host).
         ("ubitrack_agent.commands.agent", ("cv2", "scipy", "services.host_manager")),
+        ("ubitrack_agent.agent.clocks", ("cv2", "scipy", "services")),  # for the runtime
     ],
 )
 def test_importing_a_layer_loads_nothing_above_it(modules, absent):

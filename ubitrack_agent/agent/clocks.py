@@ -18,7 +18,7 @@ adds to every sample (``services.worker``). What cannot be done well is reported
   or an edge whose host is not known): the inputs are left as they are;
 * estimates too uncertain: corrected, but two inputs may still be apart by the sum of their
   domains' uncertainties, more than the tolerance;
-* a domain whose clock reads more than ``core.timeline.MAX_FUTURE_NS`` ahead of the clock of
+* a domain whose clock reads more than ``core.measurements.MAX_FUTURE_NS`` ahead of the clock of
   the host the component runs on (``placement``): the worker refuses its samples as stamped in
   the future, before any correction.
 
@@ -33,7 +33,7 @@ from collections.abc import Mapping
 from dataclasses import replace
 from itertools import combinations
 
-from ubitrack_agent.core.timeline import MAX_FUTURE_NS
+from ubitrack_agent.core.measurements import MAX_FUTURE_NS
 from ubitrack_agent.net.clock import ClockEstimate
 from ubitrack_agent.net.config import MAX_CLOCK_OFFSET_NS
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
@@ -180,7 +180,7 @@ class _Corrector:
 
     def _check_ahead(self, instance: str, domains: set[Domain]) -> None:
         """Report input clocks so far ahead of the clock where ``instance`` runs that the
-        worker refuses their samples (``core.timeline.MAX_FUTURE_NS``)."""
+        worker refuses their samples (``core.measurements.MAX_FUTURE_NS``)."""
         host = self.placement.get(instance)
         runs_on = self._estimate(host)
         if runs_on is None:

@@ -53,6 +53,13 @@ off by up to about 1e-4. The wire codec keeps :data:`UNIT_QUATERNION_TOLERANCE`.
 MAX_TIMESTAMP_NS = 2**63 - 1
 """Timestamps are non-negative signed 64-bit nanoseconds (until the year 2262)."""
 
+MAX_FUTURE_NS = 10 * 10**9
+"""How far ahead of the receiving host's clock a sample's timestamp may be (10 s: clocks kept
+by NTP agree within milliseconds; an unsynchronised host seconds off still works). A sample
+accepted just within it can hold back newer instants by at most this long
+(``core.timeline.ahead_of_clock``; defined here, as the agent, which has no SciPy, reads it
+too: ``agent.clocks``)."""
+
 MAX_LIST_LENGTH = 1_000_000
 """Largest accepted number of points in a position list."""
 

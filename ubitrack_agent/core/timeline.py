@@ -36,17 +36,19 @@ from collections import deque
 
 from ubitrack_agent.core import quaternions
 from ubitrack_agent.core.errors import ExtrapolationError, MeasurementError, NoDataError
-from ubitrack_agent.core.measurements import ErrorPose, Measurement, Pose, Position3D, Rotation3D
+from ubitrack_agent.core.measurements import (
+    MAX_FUTURE_NS,
+    ErrorPose,
+    Measurement,
+    Pose,
+    Position3D,
+    Rotation3D,
+)
 from ubitrack_agent.core.poses import interpolate_pose
 from ubitrack_agent.core.uncertainty import interpolate_covariance
 
 DEFAULT_HISTORY = 64
 """Samples a dynamic input keeps: a second of a 60 Hz tracker."""
-
-MAX_FUTURE_NS = 10 * 10**9
-"""How far ahead of the receiving host's clock a sample's timestamp may be (10 s: clocks kept
-by NTP agree within milliseconds; an unsynchronised host seconds off still works). A sample
-accepted just within it can hold back newer instants by at most this long."""
 
 MAX_AHEAD_NS = 100 * 10**6
 """How far after its newest measurement a producer predicts a value when asked for one at a
