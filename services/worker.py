@@ -275,11 +275,11 @@ class Worker:
         inputs = []
         for index, binding in enumerate(bindings):
             kept = old.pop((binding.key, binding.static), None)
-            buffer = SampleBuffer(binding.static)
-            if kept is not None:
+            if kept is None:
+                buffer = SampleBuffer(binding.static)
+            else:
                 moved = binding.clock_offset_ns - kept.binding.clock_offset_ns
                 buffer = kept.buffer.shifted(moved) if moved else kept.buffer
-            if kept:
                 kept.subscriber.undeclare()
             subscriber = self._session.declare_subscriber(
                 binding.key,
