@@ -24,7 +24,8 @@ from tests.integration.zenoh_helpers import (
     wait_until,
 )
 from ubitrack_agent.core import ErrorPose, decode, se3
-from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
 pytestmark = pytest.mark.integration
@@ -120,3 +121,51 @@ def test_a_fusion_reading_a_clock_300_ms_ahead_lines_up_with_its_offset(processe
         # The same flow pairing poses 300 ms apart: centimetres off (the head moves at
         # 0.15 to 0.45 m/s, and fusion weighs both trackers alike).
         assert np.median(uncorrected) > 1e-2, uncorrected
+
+
+def test_the_agent_aligns_the_clocks_of_a_fusion_across_hosts(net: Network):
+    """Two trackers of ART->HT, one on a host whose clock reads 300 ms ahead (its host
+    manager measures that), fused by the agent's plan: the agent sets the offset on that input
+    from the estimate, and the fused relation matches the truth."""
+    agent_host, ahead_host = f"agent{net.port}", f"ahead{net.port}"
+    net.agent("--pool-size", "1", "--host-name", agent_host)
+    net.host(ahead_host, 1, "-m", "services.host", "--clock-offset-ms", str(AHEAD_MS))
+    wait_until(lambda: clock_of(net, ahead_host), timeout=30)
+    tracker = ("--tracker", "ART", "--yaw", "30", "--x", "2", "--hide-world")
+    net.start(
+        "-m", "sim_trackers.exact_tracker", "--provider", "onTime", *tracker, host_name=agent_host
+    )
+    net.start(
+        "-m",
+        "sim_trackers.exact_tracker",
+        "--provider",
+        "ahead",
+        *tracker,
+        "--clock-offset-ms",
+        str(AHEAD_MS),
+        host_name=ahead_host,
+    )
+    relation = RelationId("ART", "HT", "6D")
+    fused = Collector(net.session, net.keys.relation(relation))
+    with Relation(net.session, net.keys, relation, application="app", host=agent_host):
+
+        def corrected() -> dict | None:
+            status = net.agent_status() or {}
+            for component in status.get("components", {}).values():
+                offsets = {
+                    b["key"].split("/")[-2]: b.get("clock_offset_ns", 0)
+                    for b in component["inputs"]
+                }
+                if component["service"] == "fusion" and component["alive"] and offsets.get("ahead"):
+                    return {"offsets": offsets, "problems": status["clock_problems"]}
+            return None
+
+        seen = wait_until(corrected, timeout=60)
+        estimate = clock_of(net, ahead_host)
+        assert seen["offsets"]["onTime"] == 0
+        assert abs(seen["offsets"]["ahead"] + AHEAD_MS * MS) <= 2 * estimate["uncertainty_ns"]
+        assert seen["problems"] == {}
+        errors = _errors_m(fused, 100, time.time_ns() + 500 * MS)
+        # Both trackers noise-free and aligned: the filter's error stays far below the
+        # centimetres a 300 ms misalignment makes (the previous test).
+        assert np.median(errors) < 2e-3, errors

@@ -62,6 +62,7 @@ from ubitrack_agent.agent.announcements import (
     fragment_entries,
 )
 from ubitrack_agent.agent.answers import query_answers
+from ubitrack_agent.agent.clocks import EXACT, correct_clocks
 from ubitrack_agent.agent.election import Election, new_agent_id
 from ubitrack_agent.agent.flows import Plan, plan_name, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
@@ -150,6 +151,13 @@ class Agent:
         """Duplicate processes told to stop, (instance, incarnation): when to tell again."""
         self.running: dict[str, ComponentSpec] = {}
         self.wanted: dict[str, ComponentSpec] = {}
+        """The specifications the plan wants, their inputs' clocks corrected (:mod:`.clocks`)
+        once placed."""
+        self._planned: dict[str, ComponentSpec] = {}
+        """The specifications as the plan made them, before clock correction."""
+        self.clock_problems: dict[str, str] = {}
+        """Why a component's input clocks cannot be aligned within its tolerance."""
+        self._host_name = settings.host_name
         self.plan: Plan | None = None
         self.srg = build_srg({})
         self.last_change_ns: int | None = None
@@ -373,7 +381,7 @@ class Agent:
         previous = self.plan if self.active else None
         plan = plan_relations(srg, self.templates, self.queries, running, previous)
         wanted = component_specs(plan.flow, srg, self.keys, plan.relations)
-        self.srg, self.plan, self.wanted = srg, plan, wanted
+        self.srg, self.plan, self.wanted, self._planned = srg, plan, wanted, wanted
         self._data_hosts = {
             self.keys.data(edge_id): host
             for *_, edge_id, host in srg.edges(keys=True, data="host")
@@ -428,6 +436,8 @@ class Agent:
         self._claim_unknown_workers()
         if not self._settled():
             return  # start nothing a worker of an earlier agent may still be doing
+        placement = self._place()
+        self.wanted = self._correct_clocks(placement)
         actions = reconcile(self.running, self.wanted)
         restarted = {spec.instance for spec in actions.start}
         for instance in actions.stop:
@@ -437,7 +447,6 @@ class Agent:
                 self._stop_worker(instance)  # replaced by another specification at once
             else:
                 self._retiring[instance] = time.monotonic() + RETIRE_S
-        placement = self._place()
         started = [
             spec
             for spec in actions.start
@@ -470,7 +479,7 @@ class Agent:
             application_hosts[self.keys.relation(relation)].add(host)
         current = {instance: placed.host for instance, placed in self.hosts.placements.items()}
         placement = place(
-            self.wanted,
+            self._planned,
             self.hosts.available(),
             self._data_hosts,
             application_hosts,
@@ -481,6 +490,21 @@ class Agent:
             log.warning("%s: cannot place it: %s", instance, placement.unplaced[instance])
         self.unplaced = dict(placement.unplaced)
         return dict(placement.hosts)
+
+    def _correct_clocks(self, placement: dict[str, str]) -> dict[str, ComponentSpec]:
+        """The planned specifications with their inputs' clocks aligned (:mod:`.clocks`, from
+        the host managers' estimates; this agent's own host is the reference); why some
+        cannot be is kept in ``clock_problems``."""
+        estimates = {host: info.clock for host, info in self.hosts.info.items()}
+        estimates[self._host_name] = EXACT
+        placed = {i: p.host for i, p in self.hosts.placements.items()} | placement
+        wanted, problems = correct_clocks(
+            self._planned, self._data_hosts, placed, estimates, self.running
+        )
+        for instance in sorted(problems.keys() - self.clock_problems.keys()):
+            log.warning("%s: %s", instance, problems[instance])
+        self.clock_problems = problems
+        return wanted
 
     def _move(self, placement: dict[str, str], restarted: set[str]) -> None:
         """Start each running instance that placement puts on another host there (its old
@@ -752,6 +776,7 @@ class Agent:
             "hosts": sorted(self.hosts.live),
             "host_info": {name: info.as_dict() for name, info in sorted(self.hosts.info.items())},
             "unplaced": dict(self.unplaced),
+            "clock_problems": dict(self.clock_problems),
             "counters": dict(self.counters),
             "problems": dict(self.problems.last),
             "last_change_ns": self.last_change_ns,

@@ -227,7 +227,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"  stale edge {edge_id}: its data stopped, planned without it")
     for name, info in status.get("host_info", {}).items():
         labels = f", labels {', '.join(info['labels'])}" if info["labels"] else ""
-        print(f"host {name}: capacity {info['capacity']}, CPU load {info['cpu_load']:.2f}{labels}")
+        clock = info.get("clock")
+        offset = (
+            f", clock {clock['offset_ns'] / 1e6:+.3f} ms (+-{clock['uncertainty_ns'] / 1e6:.3f})"
+            if clock
+            else ", clock not measured yet"
+        )
+        print(
+            f"host {name}: capacity {info['capacity']}, CPU load {info['cpu_load']:.2f}"
+            f"{labels}{offset}"
+        )
     for relation, apps in status["queries"].items():
         hosts = status.get("application_hosts", {}).get(relation, [])
         where = f" on {', '.join(hosts)}" if hosts else ""
@@ -242,6 +251,8 @@ def run(args: argparse.Namespace) -> int:
         )
     for instance, reason in status.get("unplaced", {}).items():
         print(f"  unplaced {instance}: {reason}")
+    for instance, reason in status.get("clock_problems", {}).items():
+        print(f"  clocks of {instance}: {reason}")
     print(f"counters: {status['counters']}")
     for counter, reason in status.get("problems", {}).items():
         print(f"  last {counter}: {reason}")

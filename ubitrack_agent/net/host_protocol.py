@@ -25,6 +25,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from ubitrack_agent.net.clock import ClockEstimate, ClockRejection, parse_clock_status
 from ubitrack_agent.net.json_messages import MessageError, field, load_object
 from ubitrack_agent.net.keys import validate_key_chunks
 from ubitrack_agent.net.spec import ComponentSpec, SpecError, parse_spec
@@ -195,29 +196,32 @@ DEFAULT_CAPACITY = 64
 
 @dataclass(frozen=True)
 class HostInfo:
-    """What a host manager says of itself in its status reply, and all placement uses
-    (``agent.placement``): its ``labels`` (``camera``, ``gpu``, ``hmd``...), how many workers
-    it runs at most (``capacity``), and its CPU load per core (``cpu_load``: the one-minute
-    load average over the cores; 1.0 is every core busy)."""
+    """What a host manager says of itself in its status reply, and all placement and clock
+    correction use (``agent.placement``, ``agent.clocks``): its ``labels`` (``camera``,
+    ``gpu``, ``hmd``...), how many workers it runs at most (``capacity``), its CPU load per
+    core (``cpu_load``: the one-minute load average over the cores; 1.0 is every core busy),
+    and its clock's offset to the agent's (``clock``, None until measured)."""
 
     name: str
     labels: frozenset[str] = frozenset()
     capacity: int = DEFAULT_CAPACITY
     cpu_load: float = 0.0
+    clock: ClockEstimate | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        """The fields as they appear in the status reply."""
+        """The fields as they appear in the status reply (the clock as of now: age 0)."""
         return {
             "name": self.name,
             "labels": sorted(self.labels),
             "capacity": self.capacity,
             "cpu_load": self.cpu_load,
+            "clock": None if self.clock is None else self.clock.as_status(0.0),
         }
 
     @classmethod
     def parse(cls, payload: bytes) -> HostInfo:
-        """The host information in a status reply (other fields are ignored);
-        :class:`ProtocolError` naming the field if it is malformed."""
+        """The host information in a status reply (other fields are ignored; a missing
+        ``clock`` is None); :class:`ProtocolError` naming the field if it is malformed."""
         data = _json_object(payload)
         labels = _field(data, "labels", list)
         if len(labels) > MAX_LABELS:
@@ -229,7 +233,10 @@ class HostInfo:
         cpu_load = data.get("cpu_load")
         if type(cpu_load) not in (int, float) or not 0 <= cpu_load < math.inf:
             raise ProtocolError("malformed_request", "cpu_load: expected a finite number >= 0")
-        return cls(_name(data, "name"), names, capacity, float(cpu_load))
+        clock = parse_clock_status(data.get("clock"))
+        if isinstance(clock, ClockRejection):
+            raise ProtocolError("malformed_request", clock.reason)
+        return cls(_name(data, "name"), names, capacity, float(cpu_load), clock)
 
 
 def _label(value: Any) -> str:
