@@ -7,7 +7,9 @@ namespace (``tests/integration/netns.py``) on one LAN, every process a zenoh cli
   systemd units, so a machine's workers can fail without the agent), ``ubitrack host --name
   room``, the calibration database (the scenario's static edges, ``C->HT`` included, so that
   nothing is calibrated first), the simulated A.R.T. tracker and its DTrack adapter.
-* ``hmd``: ``ubitrack host --name hmd``, the simulated camera, and the application,
+* ``hmd``, whose clock reads 200 ms ahead (``--clock-offset-ms``; its host manager measures
+  that, and the agent aligns the camera's timestamps with the A.R.T.'s where they meet):
+  ``ubitrack host --name hmd``, the simulated camera, and the application,
   ``ubitrack subscribe C A --type 6D``, whose samples the test compares with the scenario's
   ground truth at their timestamps (the demo's bound: 30 mm RMS).
 * ``extra``: empty until a host manager joins later.
@@ -74,6 +76,9 @@ FIRST_FLOW_S = 120.0
 """Longest wait for the first sample: every process starts cold on a shared machine."""
 RECOVERY_S = 60.0
 """Longest wait for the flow to return after an event."""
+HMD_CLOCK_AHEAD_MS = 200.0
+"""The HMD computer's clock reads this much ahead of the room's (the agent's): its camera
+stamps features on it, so the fusion of its pose with the A.R.T.'s must be aligned."""
 CUT_S = 4.0
 """How long hmd's cable stays out: shorter than zenoh's lease (10 s), so links survive."""
 
@@ -230,7 +235,11 @@ def deployment(netns, tmp_path_factory) -> Iterator[Deployment]:
     domain = f"hosts{net.tag}"
 
     def flags(machine: str) -> list[str]:
-        return ["--mode", "client", "--connect", router, "--domain", domain, "--host-name", machine]
+        clock = ["--clock-offset-ms", str(HMD_CLOCK_AHEAD_MS)] if machine == "hmd" else []
+        return [
+            *("--mode", "client", "--connect", router, "--domain", domain),
+            *("--host-name", machine, *clock),
+        ]
 
     net.spawn("router", [*UBITRACK, "router", "--listen", f"tcp/0.0.0.0:{ROUTER_PORT}"], "router")
     probe_command = [sys.executable, "-m", "tests.integration.zenoh_probe", *flags("router")]
@@ -278,12 +287,20 @@ def live(deployment) -> Deployment:
 
 
 def test_the_relation_flows_across_machines_and_is_true(deployment):
+    """The relation flows; once hmd's clock is measured and the agent has aligned the
+    camera's stream with the A.R.T.'s (until then the fusion mixes times 200 ms apart, and the
+    agent says so in its status), it is true."""
     try:
-        samples = deployment.fresh_samples(FIRST_FLOW_S)
+        deployment.fresh_samples(FIRST_FLOW_S)
     except AssertionError:
         deployment.never_flowed = True
         raise
-    deployment.assert_true(samples)
+    deployment.wait_for(
+        lambda s: not s["clock_problems"] and s["host_info"].get("hmd", {}).get("clock"),
+        RECOVERY_S,
+        "hmd's clock measured and no clock problem",
+    )
+    deployment.assert_true(deployment.fresh_samples(RECOVERY_S))
 
 
 def hosts_of(status: dict, service: str) -> set[str]:
@@ -308,6 +325,27 @@ def test_the_pose_estimation_runs_on_hmd_beside_the_camera(live):
     assert hosts == {"hmd"}, f"pose estimation on {hosts}\n{d.explain()}"
     assert hosts_of(status, "fusion") == {"hmd"}, d.explain()
     assert "room" in placed(status).values(), d.explain()
+
+
+def test_the_camera_clock_ahead_is_measured_and_aligned_where_it_meets_the_art(live):
+    """hmd's host manager measures its clock 200 ms ahead; the fusion, where the camera's
+    stream (hmd's clock) meets the A.R.T.'s (room's, the agent's), carries that offset on the
+    camera's input, and the relation stays true (the first test's bounds, checked again)."""
+    d = live
+
+    def aligned(status: dict) -> dict | None:
+        clock = (status.get("host_info", {}).get("hmd") or {}).get("clock")
+        fusions = [c for c in status["components"].values() if c["service"] == "fusion"]
+        offsets = [b.get("clock_offset_ns", 0) for f in fusions for b in f["inputs"]]
+        return {"clock": clock, "offsets": offsets} if clock and any(offsets) else None
+
+    seen = d.wait_for(aligned, RECOVERY_S, "hmd's clock measured and the fusion aligned")
+    ahead_ns = HMD_CLOCK_AHEAD_MS * 1e6
+    assert abs(seen["clock"]["offset_ns"] + ahead_ns) <= seen["clock"]["uncertainty_ns"], seen
+    tolerance = seen["clock"]["uncertainty_ns"] * 2
+    assert sorted(abs(o + ahead_ns) <= tolerance for o in seen["offsets"]) == [False, True], seen
+    assert d.status()["clock_problems"] == {}, d.explain()
+    d.assert_true(d.fresh_samples(RECOVERY_S))
 
 
 def test_a_killed_host_manager_leaves_its_workers_and_the_flow_running(live):

@@ -9,6 +9,7 @@ import pytest
 from ubitrack_agent.agent import hosts as hosts_module
 from ubitrack_agent.agent.hosts import Hosts, Placement
 from ubitrack_agent.agent.problems import Problems
+from ubitrack_agent.net.clock import ClockEstimate
 from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
@@ -136,7 +137,8 @@ def status_reply(data: dict) -> SimpleNamespace:
 
 def test_host_information_is_asked_when_a_host_appears_and_then_now_and_then(world, clock):
     session, hosts, counters = world
-    info = HostInfo("hmd", frozenset({"camera"}), 8, 0.5)
+    estimate = ClockEstimate(-200_000_000, 100_000, 200_000, 8)
+    info = HostInfo("hmd", frozenset({"camera"}), 8, 0.5, estimate)
     session.statuses["hmd"] = status_reply({**info.as_dict(), "pid": 1, "instances": {}})
     host_appears(session, hosts, "hmd")
     hosts.reap(set())  # the reply was queued by the handler
@@ -158,6 +160,10 @@ def test_host_information_is_asked_when_a_host_appears_and_then_now_and_then(wor
     session.event(KEYS.all_hosts(), DELETE, KEYS.host("hmd"))
     hosts.reap(set())
     assert hosts.available() == {} and hosts.info == {}
+    # Its clock is kept (the machine may still run its sensors), less certain as it ages.
+    kept = hosts.clocks()["hmd"]
+    assert kept.offset_ns == estimate.offset_ns
+    assert kept.uncertainty_ns > estimate.uncertainty_ns
 
 
 def test_refused_and_unanswered_starts_are_asked_again_later(world, clock):

@@ -37,6 +37,7 @@ from typing import Any
 import zenoh
 
 from ubitrack_agent.agent.problems import Problems
+from ubitrack_agent.net.clock import ClockEstimate
 from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
@@ -85,6 +86,10 @@ class Hosts:
         self.live: set[str] = set()
         self.info: dict[str, HostInfo] = {}
         """What each live host manager said of itself (its latest status reply)."""
+        self._clocks: dict[str, tuple[ClockEstimate, float]] = {}
+        """Each host's latest clock estimate and when it came (``time.monotonic``), kept when
+        its host manager vanishes: the machine's clock, its sensors and workers may well
+        still run."""
         self._info_due: dict[str, float] = {}
         self.placements: dict[str, Placement] = {}
         self._retry_at: dict[str, float] = {}
@@ -248,6 +253,14 @@ class Hosts:
         if self.info.get(host, HostInfo(host)).labels != info.labels:
             log.info("host manager %s has labels %s", host, ", ".join(sorted(info.labels)))
         self.info[host] = info
+        if info.clock is not None:
+            self._clocks[host] = (info.clock, time.monotonic())
+
+    def clocks(self) -> dict[str, ClockEstimate]:
+        """Each host's latest clock estimate, aged since it came (its uncertainty grows with the
+        drift the clocks may have had: ``ClockEstimate.aged``)."""
+        now = time.monotonic()
+        return {host: clock.aged(now - at) for host, (clock, at) in self._clocks.items()}
 
     def _on_host(self, host: str, appeared: bool, alive: set[str]) -> list[str]:
         if appeared:

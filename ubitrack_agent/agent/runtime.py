@@ -72,7 +72,7 @@ from ubitrack_agent.agent.placement import place
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
-from ubitrack_agent.net.clock import Clock, serve_clock
+from ubitrack_agent.net.clock import Clock, ClockEstimate, serve_clock
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
@@ -493,9 +493,9 @@ class Agent:
 
     def _correct_clocks(self, placement: dict[str, str]) -> dict[str, ComponentSpec]:
         """The planned specifications with their inputs' clocks aligned (:mod:`.clocks`, from
-        the host managers' estimates; this agent's own host is the reference); why some
-        cannot be is kept in ``clock_problems``."""
-        estimates = {host: info.clock for host, info in self.hosts.info.items()}
+        the host managers' latest estimates, kept while a host manager is away; this agent's
+        own host is the reference); why some cannot be is kept in ``clock_problems``."""
+        estimates: dict[str, ClockEstimate | None] = dict(self.hosts.clocks())
         estimates[self._host_name] = EXACT
         placed = {i: p.host for i, p in self.hosts.placements.items()} | placement
         wanted, problems = correct_clocks(
@@ -521,10 +521,11 @@ class Agent:
     def _rewire(self, instance: str, command: dict[str, Any], wait: bool) -> None:
         """Send ``command`` to ``instance``, or, if ``wait``, hold it (merged with a command
         still held) until the workers being started are alive: a relation's old producer keeps
-        publishing until the new one can (make before break, as :meth:`_retire`)."""
+        publishing until the new one can (make before break, as :meth:`_retire`). A command to
+        a worker not alive yet (still starting: it would not hear it) is held until it is."""
         held, _ = self._held.pop(instance, ({}, 0.0))
         command = {**held, **command}
-        if wait or held:
+        if wait or held or instance not in self.alive:
             self._held[instance] = (command, time.monotonic() + RETIRE_S)
         else:
             self._send_control(instance, command)
@@ -576,13 +577,14 @@ class Agent:
     def _retire(self) -> None:
         """Send the held rewires and stop the workers the plan no longer wants once every
         wanted worker is alive (make before break: the old flow keeps the relation flowing
-        while the new one starts), or after ``RETIRE_S`` at the latest."""
+        while the new one starts), or after ``RETIRE_S`` at the latest; a rewire goes only to
+        a worker that is alive."""
         all_alive = set(self.wanted) <= self.alive
         now = time.monotonic()
         for instance, (command, deadline) in list(self._held.items()):
             if instance not in self.running:
                 del self._held[instance]  # stopped meanwhile: nothing to rewire
-            elif all_alive or now > deadline:
+            elif instance in self.alive and (all_alive or now > deadline):
                 del self._held[instance]
                 self._send_control(instance, command)
                 self.counters["held_rewires"] += 1
