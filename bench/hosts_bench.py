@@ -24,13 +24,16 @@ Every namespace shares the kernel's clock, so arrival times and timestamps compa
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
+import queue
 import signal
 import statistics
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -67,22 +70,21 @@ class Stack:
     keys: KeySpace
     flags: Callable[[str], list[str]]
     observer: subprocess.Popen
+    lines: queue.SimpleQueue[str] = field(default_factory=queue.SimpleQueue)
+    """The observer's output lines, read by a thread of their own."""
     keep: list[int] = field(default_factory=list)
     """Pids on ``hmd`` that are devices, not workers (the camera, the application)."""
     events: list[dict[str, Any]] = field(default_factory=list)
 
     def read(self, until: Callable[[list[dict[str, Any]]], bool], timeout: float) -> None:
-        """Read the observer's lines into :attr:`events` until ``until(events)``."""
+        """Take the observer's lines into :attr:`events` until ``until(events)``."""
         deadline = time.monotonic() + timeout
-        os.set_blocking(self.observer.stdout.fileno(), False)
         while not until(self.events):
-            if time.monotonic() > deadline:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
                 raise RuntimeError(f"not within {timeout:.0f} s\n{self.net.logs(lines=15)}")
-            line = self.observer.stdout.readline()
-            if line:
-                self.events.append(json.loads(line))
-            else:
-                time.sleep(0.01)
+            with contextlib.suppress(queue.Empty):
+                self.events.append(json.loads(self.lines.get(timeout=min(remaining, 0.1))))
 
     def samples_after(self, t_ns: int) -> list[dict[str, Any]]:
         return [e for e in self.events if "sample" in e and e["arrival"] > t_ns]
@@ -97,6 +99,12 @@ class Stack:
                 return result
             time.sleep(0.3)
         raise RuntimeError(f"not within {SETTLE_S:.0f} s: {what}\n{self.net.logs(lines=15)}")
+
+
+def _forward(process: subprocess.Popen, lines: queue.SimpleQueue[str]) -> None:
+    """Put each line ``process`` prints into ``lines``."""
+    for line in process.stdout:
+        lines.put(line)
 
 
 def deploy(net: Network, split: bool, scenario_dir: Path) -> Stack:
@@ -130,6 +138,9 @@ def deploy(net: Network, split: bool, scenario_dir: Path) -> Stack:
     observer_command = [sys.executable, "-m", "bench.hosts_observer", "C", "A", "6D"]
     observer = net.spawn(mobile, [*observer_command, *flags(mobile)], "observer", pipes=True)
     stack = Stack(net, probe, KeySpace(f"ubitrack/{domain}"), flags, observer)
+    threading.Thread(
+        target=lambda: [stack.lines.put(line) for line in observer.stdout], daemon=True
+    ).start()
     stack.keep = [camera.pid, observer.pid]
     stack.read(lambda events: len(stack.samples_after(0)) >= 50, timeout=180)
     return stack
@@ -143,9 +154,11 @@ def latency_ms(stack: Stack, count: int) -> list[float]:
 
 
 def placement(stack: Stack) -> dict[str, str]:
-    """Where each component runs, once every one is alive and placed (else empty)."""
+    """Where each component runs, once every one is alive in one process and placed (not in
+    the middle of a move: else empty)."""
     components = stack.status().get("components", {})
-    if not components or not all(c["alive"] and c["host"] for c in components.values()):
+    settled = [c["alive"] and c["host"] and len(c["processes"]) == 1 for c in components.values()]
+    if not components or not all(settled):
         return {}
     return {instance: c["host"] for instance, c in components.items()}
 

@@ -139,11 +139,14 @@ def test_host_information_is_asked_when_a_host_appears_and_then_now_and_then(wor
     session, hosts, counters = world
     estimate = ClockEstimate(-200_000_000, 100_000, 200_000, 8)
     info = HostInfo("hmd", frozenset({"camera"}), 8, 0.5, estimate)
-    session.statuses["hmd"] = status_reply({**info.as_dict(), "pid": 1, "instances": {}})
+    running = {"relay-x": {"service": "relay", "run": "r1", "pid": 9, "pool_id": None}}
+    session.statuses["hmd"] = status_reply({**info.as_dict(), "pid": 1, "instances": running})
     host_appears(session, hosts, "hmd")
     hosts.reap(set())  # the reply was queued by the handler
     assert session.status_requests == ["hmd"]
     assert hosts.available() == {"hmd": info}
+    # A worker it runs that the agent had no placement for (adopted, say) now has one.
+    assert hosts.placements == {"relay-x": Placement("hmd", "r1", 9)}
     assert hosts.reap(set()) == [] and session.status_requests == ["hmd"]  # not due yet
     clock[0] += hosts_module.INFO_REFRESH_S + 0.1
     session.statuses["hmd"] = status_reply({**info.as_dict(), "name": "room"})

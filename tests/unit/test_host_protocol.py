@@ -187,6 +187,11 @@ GOOD_INFO = {"name": "hmd", "labels": ["camera"], "capacity": 4, "cpu_load": 0.5
         {"cpu_load": float("inf")},
         {"cpu_load": float("nan")},
         {"name": "*"},
+        {"instances": []},
+        {"instances": {"a b": {"run": "r", "pid": 1}}},
+        {"instances": {"a": {"run": "r"}}},
+        {"instances": {"a": {"run": "r/*", "pid": 1}}},
+        {"instances": {"a": 5}},
     ],
 )
 def test_malformed_host_information_is_refused(change):

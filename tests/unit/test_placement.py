@@ -121,3 +121,21 @@ def test_placement_is_deterministic_whatever_the_order_of_hosts():
         place(figure1(), forward, DATA_HOSTS, {}).hosts
         == place(figure1(), backward, DATA_HOSTS, {}).hosts
     )
+
+
+def test_a_chain_moves_together_when_that_saves_a_crossing():
+    """The fusion and the last hop ran beside the A.R.T. while the HMD's host manager was
+    away: moving either alone saves nothing, moving both saves the camera's crossing."""
+    specs = {
+        "pnp": spec("pnp", CAMERA_INTRINSICS, CAMERA_FEATURES, MARKERS, static=STATICS),
+        "art": spec("art", ART_HT),
+        "fusion": spec("fusion", "d/pnp/out", "d/art/out"),
+        "last": spec("last", "d/fusion/out", "d/store/WT_A", relations=("rel/C/A",)),
+    }
+    hosts = {"room": ROOM, "hmd": HMD}
+    readers = {"rel/C/A": {"hmd"}}
+    current = {"pnp": "hmd", "art": "room", "fusion": "room", "last": "room"}
+    moved = place(specs, hosts, DATA_HOSTS, readers, current).hosts
+    assert moved == {"pnp": "hmd", "art": "room", "fusion": "hmd", "last": "hmd"}
+    # Placed so from the start, it stays so (no flapping back and forth).
+    assert place(specs, hosts, DATA_HOSTS, readers, moved).hosts == moved

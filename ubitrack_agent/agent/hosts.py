@@ -5,7 +5,8 @@ starting and stopping workers over zenoh only (``docs/protocol.md``).
   What each says of itself (labels, capacity, CPU load: :class:`HostInfo`) is asked with a
   status request when it appears and every ``INFO_REFRESH_S`` after, without waiting for the
   reply (a host manager that does not answer holds up nothing); until it answers it counts as
-  a host without labels.
+  a host without labels. An instance it runs that has no placement (a worker adopted from an
+  earlier agent, or the old process of a move whose new host vanished) gets it from there.
 * A start goes to the host manager :mod:`.placement` chose, as a ``get`` on
   ``<root>/host/<name>/request`` with a timeout; the reply names the run, remembered with the
   host as the instance's :class:`Placement`. With no host manager alive, or no answer, or a
@@ -253,6 +254,10 @@ class Hosts:
         if self.info.get(host, HostInfo(host)).labels != info.labels:
             log.info("host manager %s has labels %s", host, ", ".join(sorted(info.labels)))
         self.info[host] = info
+        for instance, (run, pid) in sorted(info.runs.items()):
+            if instance not in self.placements:  # adopted, or a move failed half-way
+                self.placements[instance] = Placement(host, run, pid)
+                log.info("%s: runs on host %s (run %s)", instance, host, run)
         if info.clock is not None:
             self._clocks[host] = (info.clock, time.monotonic())
 

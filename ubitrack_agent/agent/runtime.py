@@ -770,6 +770,7 @@ class Agent:
                 instance: {
                     **spec.as_dict(),
                     "alive": instance in self.alive,
+                    "processes": sorted(self.incarnations.get(instance, ())),
                     "host": placement.host if (placement := placements.get(instance)) else None,
                     "derives": _derived_edges(plan, instance),
                 }

@@ -23,6 +23,7 @@ import json
 import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from dataclasses import field as dataclass_field
 from typing import Any
 
 from ubitrack_agent.net.clock import ClockEstimate, ClockRejection, parse_clock_status
@@ -207,6 +208,10 @@ class HostInfo:
     capacity: int = DEFAULT_CAPACITY
     cpu_load: float = 0.0
     clock: ClockEstimate | None = None
+    runs: Mapping[str, tuple[str, int]] = dataclass_field(default_factory=dict, compare=False)
+    """The instances it runs, with their run and pid (its status's ``instances``): how the
+    agent finds where a worker runs that it has no placement for (adopted, or left alone by
+    a move that failed half-way)."""
 
     def as_dict(self) -> dict[str, Any]:
         """The fields as they appear in the status reply (the clock as of now: age 0)."""
@@ -236,7 +241,24 @@ class HostInfo:
         clock = parse_clock_status(data.get("clock"))
         if isinstance(clock, ClockRejection):
             raise ProtocolError("malformed_request", clock.reason)
-        return cls(_name(data, "name"), names, capacity, float(cpu_load), clock)
+        runs = _runs(data.get("instances", {}))
+        return cls(_name(data, "name"), names, capacity, float(cpu_load), clock, runs)
+
+
+def _runs(value: Any) -> dict[str, tuple[str, int]]:
+    """The ``instances`` of a status reply: instance -> (run, pid)."""
+    if not isinstance(value, dict):
+        raise ProtocolError("malformed_request", "instances: expected an object")
+    runs = {}
+    for instance, entry in value.items():
+        if not isinstance(entry, dict):
+            raise ProtocolError("malformed_request", "instances: expected objects")
+        try:
+            name = validate_key_chunks(instance, single_chunk=True)
+        except ValueError as exc:
+            raise ProtocolError("malformed_request", f"instances: {exc}") from None
+        runs[name] = (_name(entry, "run"), _field(entry, "pid", int))
+    return runs
 
 
 def _label(value: Any) -> str:
