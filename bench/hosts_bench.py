@@ -154,10 +154,15 @@ def latency_ms(stack: Stack, count: int) -> list[float]:
 
 
 def placement(stack: Stack) -> dict[str, str]:
-    """Where each component runs, once every one is alive in one process and placed (not in
-    the middle of a move: else empty)."""
+    """Where each component runs, once every one is alive in one process, the one its host
+    manager started (not in the middle of a move: else empty)."""
     components = stack.status().get("components", {})
-    settled = [c["alive"] and c["host"] and len(c["processes"]) == 1 for c in components.values()]
+    settled = [
+        c["alive"]
+        and c["host"]
+        and [p.partition(".")[0] for p in c["processes"]] == [str(c["pid"])]
+        for c in components.values()
+    ]
     if not components or not all(settled):
         return {}
     return {instance: c["host"] for instance, c in components.items()}

@@ -280,6 +280,8 @@ class Hosts:
         lost = sorted(i for i, p in self.placements.items() if p.host == host)
         for instance in lost:
             del self.placements[instance]
+        if lost:  # those still alive run elsewhere (a move's old process): ask where now
+            self._info_due.clear()
         return [instance for instance in lost if instance not in alive]
 
     def _on_exited(self, host: str, payload: bytes) -> list[str]:

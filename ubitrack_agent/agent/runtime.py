@@ -772,6 +772,7 @@ class Agent:
                     "alive": instance in self.alive,
                     "processes": sorted(self.incarnations.get(instance, ())),
                     "host": placement.host if (placement := placements.get(instance)) else None,
+                    "pid": placement.pid if placement else None,
                     "derives": _derived_edges(plan, instance),
                 }
                 for instance, spec in self.wanted.items()
