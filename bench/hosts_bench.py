@@ -1,8 +1,8 @@
 """Several machines for real (issue 13): network namespaces, one ``ubitrack router``, the
 paper's figure-1 simulators split as in a real room (``tests/integration/test_hosts_netns.py``).
 
-Run as root: ``python -m bench.hosts_bench [--trials N] [--samples N]``. Figures printed and
-written to ``bench/results/hosts.json``:
+Run as root (elsewhere it says why and skips): ``python -m bench.hosts_bench [--trials N]
+[--samples N]``. Figures printed and written to ``bench/results/hosts.json``:
 
 * ``reconfiguration``: the machine ``hmd``'s host manager and workers are SIGKILLed (its camera
   and the application stay); from the application seeing the host manager's token vanish to
@@ -251,8 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     reason = unavailable_reason()
     if reason:
-        print(f"hosts_bench: {reason}", file=sys.stderr)
-        return 2
+        print(f"hosts_bench: skipped: {reason}", file=sys.stderr)
+        return 0
     results: dict[str, Any] = {"machine": platform.node(), "load": os.getloadavg()}
     with Network({"site": ["router", "room", "hmd", "extra"]}) as net:
         stack = deploy(net, split=True, scenario_dir=Path(net.log_dir))
