@@ -25,6 +25,7 @@ import threading
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
+from ubitrack_agent.core.names import parse_labels
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY, MAX_LABELS, HostInfo
@@ -76,13 +77,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def labels(text: str) -> frozenset[str]:
-    """The ``--labels`` option: comma-separated names."""
-    names = frozenset(part.strip() for part in text.split(",") if part.strip())
-    for name in names:
-        try:
-            validate_key_chunks(name, single_chunk=True)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(f"label {name!r}: {exc}") from None
+    """The ``--labels`` option: comma-separated labels."""
+    try:
+        names = parse_labels(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     if len(names) > MAX_LABELS:
         raise argparse.ArgumentTypeError(f"at most {MAX_LABELS} labels")
     return names

@@ -122,7 +122,8 @@ def test_relation_announces_query_and_delivers_samples():
         seen = []
         with Relation(app_side, keys, wanted, application="app1", callback=seen.append) as relation:
             wait_until(lambda: queries)
-            assert keys.parse_query(queries[0]) == (wanted, "app1", config.default_host_name())
+            host = config.default_host_name()
+            assert keys.parse_query(queries[0]) == (wanted, "app1", host, frozenset())
             with pytest.raises(NoDataError):
                 relation.lookup(0)
             with pytest.raises(TimeoutError):

@@ -78,3 +78,29 @@ def test_components_run_beside_their_data_move_with_their_host_and_come_back(net
     before = relation.received
     wait_until(lambda: relation.received > before + 10, timeout=30)
     relation.close()
+
+
+def test_a_query_may_require_labels_of_the_host_running_its_last_hop(net):
+    net.agent("--no-host")
+    net.host("room", 2)
+    net.host("screen", 2, "-m", "services.host", "--labels", "display,gpu")
+    net.tracker(host_name="room")
+    relation = Relation(
+        net.session, net.keys, WT_HT, application="app", host="room", host_labels={"display"}
+    )
+    wait_until(lambda: relation.latest() is not None, timeout=30)
+    status = net.agent_status()
+    (producer,) = [i for i, c in status["components"].items() if c["relations"]]
+    placed = hosts_of_components(net)
+    assert placed[producer] == "screen", placed  # the label, though the data is in the room
+    assert set(placed.values()) == {"room", "screen"}, placed  # the rest beside the tracker
+    assert status["host_info"]["screen"]["labels"] == ["display", "gpu"]
+    relation.close()
+
+    # Nobody has the label: the producer waits, and the status says why.
+    with Relation(
+        net.session, net.keys, WT_HT, application="app2", host="room", host_labels={"vr"}
+    ):
+        wait_until(lambda: net.agent_status()["unplaced"], timeout=30)
+        (reason,) = set(net.agent_status()["unplaced"].values())
+        assert reason == "no live host manager has the labels vr"

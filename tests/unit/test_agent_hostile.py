@@ -59,7 +59,9 @@ def key_of(kind: str, name: str) -> str:
 @pytest.mark.parametrize("kind", TOKEN_KINDS)
 @pytest.mark.parametrize("name", HOSTILE_NAMES)
 def test_every_token_kind_rejects_hostile_names(kind, name):
-    rejected = KEYS.parse_token(kind, key_of(kind, name))
+    # A query key may end in a chunk of labels: there, "a/b" is one chunk too many.
+    key = f"{KEYS.root}/query/C/HT/6D/dynamic/hmd/app/{name}" if kind == "query" else None
+    rejected = KEYS.parse_token(kind, key or key_of(kind, name))
     assert isinstance(rejected, KeyRejection)
     assert rejected.counter == f"rejected_{kind}_keys"
     assert len(rejected.key) <= 1024

@@ -18,7 +18,10 @@ def test_query_and_relation_keys_round_trip_every_kind(kind):
     assert KEYS.parse_relation(KEYS.relation(relation)) == relation
     key = KEYS.query(relation, "app1", "hmd")
     assert key == f"ubitrack/test/query/C/HT/6D/{kind}/hmd/app1"
-    assert KEYS.parse_query(key) == (relation, "app1", "hmd")
+    assert KEYS.parse_query(key) == (relation, "app1", "hmd", frozenset())
+    labelled = KEYS.query(relation, "app1", "hmd", frozenset({"gpu", "display"}))
+    assert labelled == f"ubitrack/test/query/C/HT/6D/{kind}/hmd/app1/display+gpu"
+    assert KEYS.parse_query(labelled) == (relation, "app1", "hmd", {"gpu", "display"})
     token = KEYS.parse_token("query", key)
     assert (token.name, token.relation, token.host) == ("app1", relation, "hmd")
 
@@ -43,7 +46,9 @@ def test_a_recalibration_is_of_a_static_relation():
         ("ubitrack/test/query/C/HT/6D/recal/h/app", "kind 'recal'"),
         ("ubitrack/test/query/C/HT/6D/Static/h/app", "kind 'Static'"),
         ("ubitrack/test/query/C/HT/6D/recalibrate/app", "expected query/"),
-        ("ubitrack/test/query/C/HT/6D/recalibrate/h/app/x", "expected query/"),
+        ("ubitrack/test/query/C/HT/6D/recalibrate/h/app/x/y", "expected query/"),
+        ("ubitrack/test/query/C/HT/6D/recalibrate/h/app/a++b", "no label"),
+        ("ubitrack/test/query/C/HT/6D/recalibrate/h/app/a:b", "no label"),
         ("ubitrack/test/query/C/HT/6D/recalibrate/*/app", "may only contain"),
         ("ubitrack/test/query/C/C/6D/recalibrate/h/app", "two different frames"),
         ("ubitrack/other/query/C/HT/6D/recalibrate/h/app", "not a query key"),

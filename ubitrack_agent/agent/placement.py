@@ -6,9 +6,10 @@ walking into a room with a tracker PC. Every data stream that crosses from one h
 costs network latency and bandwidth, so the agent puts each component where its inputs are.
 The rule, pure and deterministic (:func:`place`):
 
-1. **Eligible hosts**: a live host manager that has every label the component's template asks
-   for (``host_labels``: ``camera``, ``gpu``, ...) and runs fewer workers of this plan than its
-   capacity. With none, the component is not placed and the reason is reported.
+1. **Eligible hosts**: a live host manager that has every label required of the component
+   (its template's ``host_labels``: ``camera``, ``gpu``, ...; for the producer of a queried
+   relation also the labels its applications ask for) and runs fewer workers of this plan than
+   its capacity. With none, the component is not placed and the reason is reported.
 2. **Cost of a host**: each input whose data comes from another host costs one crossing (a
    static input :data:`STATIC_WEIGHT`: it is read once, not per frame); a queried relation the
    component publishes costs one crossing per other host an application asking for it runs on

@@ -138,6 +138,8 @@ class Agent:
         self.queries: dict[RelationId, set[str]] = defaultdict(set)
         self.application_hosts: dict[tuple[RelationId, str], str] = {}
         """The host each application asking for a relation runs on."""
+        self.application_labels: dict[tuple[RelationId, str], frozenset[str]] = {}
+        """The labels each application requires of the host running its relation's last hop."""
         self._data_hosts: dict[str, str] = {}
         """The host of each measured edge's provider, by data key (from the live SRG)."""
         self._labels: dict[str, frozenset[str]] = {}
@@ -215,7 +217,7 @@ class Agent:
             return False
         appeared = change == PUT
         if token.relation is not None:
-            return self._on_query(token.relation, token.name, token.host, appeared)
+            return self._on_query(token.relation, token.name, token.host, token.labels, appeared)
         if kind == "provider":
             return self._on_provider(token.name, appeared)
         if kind == "agent":
@@ -234,15 +236,24 @@ class Agent:
         self.rejected.pop(provider, None)
         return self.fragments.pop(provider, None) is not None
 
-    def _on_query(self, relation: RelationId, application: str, host: str, appeared: bool) -> bool:
+    def _on_query(
+        self,
+        relation: RelationId,
+        application: str,
+        host: str,
+        labels: frozenset[str],
+        appeared: bool,
+    ) -> bool:
         apps = self.queries[relation]
         before = bool(apps)
         if appeared:
             apps.add(application)
             self.application_hosts[relation, application] = host
+            self.application_labels[relation, application] = labels
         else:
             apps.discard(application)
             self.application_hosts.pop((relation, application), None)
+            self.application_labels.pop((relation, application), None)
         if not apps:
             del self.queries[relation]
         return before != bool(apps)
@@ -472,11 +483,21 @@ class Agent:
             )
 
     def _place(self) -> dict[str, str]:
-        """The host for each wanted instance (:mod:`.placement`); why some have none is kept
-        in ``unplaced``."""
+        """The host for each wanted instance (:mod:`.placement`): one with the labels its
+        template requires and, for the producer of a queried relation, those its applications
+        require; why some have none is kept in ``unplaced``."""
         application_hosts: dict[str, set[str]] = defaultdict(set)
         for (relation, _), host in self.application_hosts.items():
             application_hosts[self.keys.relation(relation)].add(host)
+        asked: dict[str, set[str]] = defaultdict(set)  # relation key -> labels its readers ask
+        for (relation, _), labels in self.application_labels.items():
+            asked[self.keys.relation(relation)] |= labels
+        required = {
+            instance: self._labels.get(instance, frozenset()).union(
+                *(asked.get(key, ()) for keys in spec.relations.values() for key in keys)
+            )
+            for instance, spec in self._planned.items()
+        }
         current = {instance: placed.host for instance, placed in self.hosts.placements.items()}
         placement = place(
             self._planned,
@@ -484,7 +505,7 @@ class Agent:
             self._data_hosts,
             application_hosts,
             current,
-            self._labels,
+            required,
         )
         for instance in sorted(placement.unplaced.keys() - self.unplaced.keys()):
             log.warning("%s: cannot place it: %s", instance, placement.unplaced[instance])

@@ -8,11 +8,20 @@ import math
 import sys
 import time
 
+from ubitrack_agent.core.names import parse_labels
 from ubitrack_agent.net import config
 
 DEFAULT_TIMEOUT_S = 10.0
 """Seconds ``subscribe`` waits for a sample: a flow starts within about a second once its
 sensors are there (docs/performance.md), so ten seconds of silence means something is wrong."""
+
+
+def labels(text: str) -> frozenset[str]:
+    """``--host-labels``: comma-separated labels."""
+    try:
+        return parse_labels(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,6 +48,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "has no sample until it converges: `ubitrack calibrate` shows its progress)",
     )
     parser.add_argument("--app-id", help="application id in the query key (default: generated)")
+    parser.add_argument(
+        "--host-labels",
+        type=labels,
+        default=frozenset(),
+        metavar="L1,L2",
+        help="labels the host computing the relation's last hop must have (ubitrack host "
+        "--labels), e.g. display (default: any host)",
+    )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
 
@@ -66,7 +83,14 @@ def run(args: argparse.Namespace) -> int:
     keys = KeySpace(settings.key_prefix)
     with (
         open_session(settings) as session,
-        Relation(session, keys, relation_id, args.app_id, host=settings.host_name) as relation,
+        Relation(
+            session,
+            keys,
+            relation_id,
+            args.app_id,
+            host=settings.host_name,
+            host_labels=args.host_labels,
+        ) as relation,
     ):
         printed = 0
         try:

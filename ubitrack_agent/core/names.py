@@ -40,3 +40,23 @@ def check_name(name: Any) -> str:
     if not _NAME.match(name):
         raise ValueError(f"{shown(name)} may only contain {ALLOWED}")
     return name
+
+
+LABEL_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+"""A host label (``camera``, ``gpu``, ``hmd``): a name without ``+``, which joins labels in a
+query key (``net.keys``)."""
+
+
+def check_label(label: Any) -> str:
+    """Return ``label`` if it is a host label (:data:`LABEL_PATTERN`), else ``ValueError``."""
+    if not isinstance(label, str) or not LABEL_PATTERN.match(label):
+        raise ValueError(
+            f"{shown(label)} is no label (letters, digits and _.- , at most 64 characters)"
+        )
+    return label
+
+
+def parse_labels(text: str) -> frozenset[str]:
+    """Comma-separated labels (a command-line option), each checked; ``ValueError`` naming the
+    first that is no label."""
+    return frozenset(check_label(part.strip()) for part in text.split(",") if part.strip())

@@ -25,6 +25,7 @@ from typing import Any
 
 import yaml
 
+from ubitrack_agent.core.names import LABEL_PATTERN
 from ubitrack_agent.graph.srg import EDGE_TYPES, MODES
 
 EXPANSIONS: frozenset[str] = frozenset({"space", "time"})
@@ -36,7 +37,6 @@ SIGNATURES: frozenset[str] = frozenset({"step", "inverse", "chain"})
 _SERVICE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 _PATTERN_NAME = re.compile(r"^[A-Z][A-Za-z0-9]*$")
 _ROLE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
-_LABEL_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 _MULTIPLICITY = re.compile(r"^\s*(\d+)\s*(?:\.\.\s*(\d+|\*)\s*)?$")
 
 
@@ -376,7 +376,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
     if signature == "inverse" and len(inputs) != 1:
         raise c.fail("field 'signature'", "an inverse has exactly one input")
     host_labels = frozenset(
-        c.string_list("field 'host_labels'", data.get("host_labels", []), _LABEL_NAME)
+        c.string_list("field 'host_labels'", data.get("host_labels", []), LABEL_PATTERN)
     )
     template = Template(
         name=Path(origin).stem,

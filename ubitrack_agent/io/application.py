@@ -146,11 +146,13 @@ class Relation(Closing):
         history: int = 256,
         queue_size: int = 1024,
         host: str | None = None,
+        host_labels: frozenset[str] = frozenset(),
     ) -> None:
         self.relation = relation
         self.host = validate_key_chunks(host or default_host_name(), single_chunk=True)
         """The machine this application runs on (default: its host name), named in the query:
-        the agent places the relation's last hop near it when that saves a network crossing."""
+        the agent places the relation's last hop near it when that saves a network crossing
+        (on a host with every one of ``host_labels``, if given)."""
         self.key = keys.relation(relation)
         self._session = session
         self.application = validate_key_chunks(
@@ -200,7 +202,7 @@ class Relation(Closing):
             )
             wanted.append((progress_key, receive_progress, lambda: bool(self.progress)))
         self._token = session.liveliness().declare_token(
-            keys.query(relation, self.application, self.host)
+            keys.query(relation, self.application, self.host, host_labels)
         )
         self._closed = threading.Event()
         # A static result published before this application started: ask for it.

@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass
 from dataclasses import field as dataclass_field
 from typing import Any
 
+from ubitrack_agent.core.names import check_label
 from ubitrack_agent.net.clock import ClockEstimate, ClockRejection, parse_clock_status
 from ubitrack_agent.net.json_messages import MessageError, field, load_object
 from ubitrack_agent.net.keys import validate_key_chunks
@@ -262,10 +263,8 @@ def _runs(value: Any) -> dict[str, tuple[str, int]]:
 
 
 def _label(value: Any) -> str:
-    if not isinstance(value, str):
-        raise ProtocolError("malformed_request", "labels: expected names")
     try:
-        return validate_key_chunks(value, single_chunk=True)
+        return check_label(value)
     except ValueError as exc:
         raise ProtocolError("malformed_request", f"labels: {exc}") from None
 

@@ -7,7 +7,7 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/data/<edge-id>            measurements of one SRG edge (msgpack, see core.codec);
                                      measured edges are <provider>/<edge-name>; the key is also
                                      a queryable answering the latest value
-    <root>/query/<from>/<to>/<type>/<kind>/<host>/<app>
+    <root>/query/<from>/<to>/<type>/<kind>/<host>/<app>[/<label>+<label>...]
                                      liveliness token of an application's query: the key is
                                      the whole description, so liveliness alone rebuilds state;
                                      <kind> is static, dynamic or recalibrate (below)
@@ -66,7 +66,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ubitrack_agent.core.names import check_name, shown
+from ubitrack_agent.core.names import check_label, check_name, shown
 
 MAX_KEY_CHARS = 1024
 """Longest key read from the network; a longer one is rejected unread."""
@@ -149,7 +149,8 @@ class RelationId:
 class Token:
     """A key from the network, parsed: its ``kind`` (one of :data:`TOKEN_KINDS`), its ``name``
     (provider id, worker instance, pool id, host name; for a query the application), for a
-    query the ``relation`` asked for and the ``host`` the application runs on, and for a
+    query the ``relation`` asked for, the ``host`` the application runs on and the ``labels``
+    it requires of the host running the relation's last hop, and for a
     worker the ``incarnation`` of the process."""
 
     kind: str
@@ -157,6 +158,7 @@ class Token:
     relation: RelationId | None = None
     incarnation: str = ""
     host: str = ""
+    labels: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True)
@@ -237,12 +239,20 @@ class KeySpace:
         validate_key_chunks(source, single_chunk=True)
         return f"{self.root}/truth/{source}/{validate_key_chunks(target, single_chunk=True)}"
 
-    def query(self, relation: RelationId, application: str, host: str) -> str:
+    def query(
+        self,
+        relation: RelationId,
+        application: str,
+        host: str,
+        labels: frozenset[str] = frozenset(),
+    ) -> str:
         """Liveliness token of the query for ``relation`` of ``application``, running on
-        ``host`` (the agent places the relation's last hop near it)."""
+        ``host`` (the agent places the relation's last hop near it), which may require
+        ``labels`` of the host running that last hop (an extra chunk, joined with ``+``)."""
         app = validate_key_chunks(application, single_chunk=True)
         machine = validate_key_chunks(host, single_chunk=True)
-        return f"{self.root}/query/{relation.chunks}/{machine}/{app}"
+        required = "/" + "+".join(sorted(map(check_label, labels))) if labels else ""
+        return f"{self.root}/query/{relation.chunks}/{machine}/{app}{required}"
 
     def relation(self, relation: RelationId) -> str:
         """The stable key on which ``relation`` is delivered, whatever flow computes it."""
@@ -275,21 +285,25 @@ class KeySpace:
         """Queryable of the calibration store ``name``: save requests (JSON)."""
         return f"{self.root}/store/{validate_key_chunks(name, single_chunk=True)}"
 
-    def parse_query(self, key: str) -> tuple[RelationId, str, str]:
-        """``(relation, application, host)`` from a query token key; ``ValueError`` if
-        malformed."""
+    def parse_query(self, key: str) -> tuple[RelationId, str, str, frozenset[str]]:
+        """``(relation, application, host, labels)`` from a query token key; ``ValueError``
+        if malformed."""
         prefix = f"{self.root}/query/"
         if not key.startswith(prefix):
             raise ValueError(f"{key!r} is not a query key under {prefix!r}")
         parts = key[len(prefix) :].split("/")
-        if len(parts) != 6:
-            raise ValueError(f"{key!r}: expected query/<from>/<to>/<type>/<kind>/<host>/<app>")
-        *chunks, host, app = parts
+        if len(parts) not in (6, 7):
+            raise ValueError(
+                f"{key!r}: expected query/<from>/<to>/<type>/<kind>/<host>/<app>[/<labels>]"
+            )
+        *chunks, host, app = parts[:6]
+        labels = frozenset(map(check_label, parts[6].split("+"))) if parts[6:] else frozenset()
         relation = _relation(*chunks, key=key)
         return (
             relation,
             validate_key_chunks(app, single_chunk=True),
             validate_key_chunks(host, single_chunk=True),
+            labels,
         )
 
     def parse_provider(self, key: str) -> str:
@@ -421,8 +435,8 @@ class KeySpace:
             return KeyRejection(kind, key[:MAX_KEY_CHARS], reason)
         try:
             if kind == "query":
-                relation, application, host = self.parse_query(key)
-                return Token(kind, application, relation, host=host)
+                relation, application, host, labels = self.parse_query(key)
+                return Token(kind, application, relation, host=host, labels=labels)
             if kind == "worker":
                 instance, incarnation = self.parse_worker(key)
                 return Token(kind, instance, incarnation=incarnation)
