@@ -41,6 +41,7 @@ import json
 import logging
 import os
 import queue
+import statistics
 import sys
 import threading
 import time
@@ -135,6 +136,8 @@ NO_MODEL_S = 1.0
 """How long an input whose producer answered ``no_model`` (a measured edge) or nothing is not
 asked again: a renderer asking every frame must not cost the flow a round trip (or a
 time-out) per input each time."""
+LATENCY_SAMPLES = 64
+"""Samples per input whose latency the status's median covers."""
 SUMMARY_S = 10.0
 """Seconds between two summaries of the expected conditions counted (``_summarise``)."""
 
@@ -236,6 +239,9 @@ class Worker:
         self._routes: dict[str, list[str]] = {}
         self._progress_routes: dict[str, list[str]] = {}
         self.progress: dict[str, Progress] = {}
+        self._latency: dict[str, deque[float]] = {}
+        """Per input key, the latest samples' latency (ms): this host's clock when the worker
+        takes the sample minus its timestamp (after the input's clock offset)."""
         """The latest progress of each static estimate, by output port (shown in status)."""
         self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
         """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
@@ -430,6 +436,8 @@ class Worker:
                 self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
                 return
             t = sample.timestamp_ns
+        latency = self._latency.setdefault(key, deque(maxlen=LATENCY_SAMPLES))
+        latency.append((self.clock.now_ns() - t) / 1e6)
         if self._service.asynchronous():
             self._push(item.binding.port, sample)
             return
@@ -633,7 +641,17 @@ class Worker:
             "counters": dict(self.counters),
             **({"pool": dict(self.pool_counters)} if self.pool_counters is not None else {}),
             "progress": {port: asdict(progress) for port, progress in self.progress.items()},
+            "latency_ms": self._latencies(),
             "spec": self.spec.as_dict(),
+        }
+
+    def _latencies(self) -> dict[str, float]:
+        """The median latency (ms) of each dynamic input's latest samples (see ``_latency``)."""
+        keys = {item.binding.key for item in self._inputs if not item.binding.static}
+        return {
+            key: round(statistics.median(list(values)), 3)
+            for key, values in list(self._latency.items())
+            if key in keys and values
         }
 
     def _serve_status(self) -> None:

@@ -12,7 +12,7 @@ from ubitrack_agent.commands.status import (
     draw_svg,
     flow_dot,
     live_dot,
-    worker_counters,
+    worker_statuses,
 )
 from ubitrack_agent.graph.dot import quote
 
@@ -110,9 +110,11 @@ class _Session:
         return [_Reply(payload) for payload in self.payloads]
 
 
-def test_worker_counters_leave_out_replies_that_are_no_worker_status():
+def test_worker_statuses_leave_out_replies_that_are_no_worker_status():
     session = _Session(
-        b'{"instance": "fusion-1", "counters": {"published": 3}}',
+        b'{"instance": "fusion-1", "counters": {"published": 3}, '
+        b'"latency_ms": {"k": 4.5, "nan": NaN, "s": "x", "big": 1e999}}',
+        b'{"instance": "relay-1", "counters": {}, "latency_ms": [1]}',
         b"not json",
         b"[" * 100_000,
         b"[1]",
@@ -120,7 +122,26 @@ def test_worker_counters_leave_out_replies_that_are_no_worker_status():
         b'{"instance": "x", "counters": 7}',
     )
     keys = SimpleNamespace(all_statuses=lambda: "ubitrack/demo/status/*")
-    assert worker_counters(session, keys, 0.1) == {"fusion-1": {"published": 3}}
+    assert worker_statuses(session, keys, 0.1) == {
+        "fusion-1": {"counters": {"published": 3}, "latency_ms": {"k": 4.5}},
+        "relay-1": {"counters": {}, "latency_ms": {}},
+    }
+
+
+def test_wires_carry_the_latency_their_consumer_measures_on_the_agents_clock():
+    status = flow_status()
+    inversion, fusion = status["components"]["inversion-1"], status["components"]["fusion-2"]
+    inversion["latency_ms"] = {f"{ROOT}/data/art/HT": 6.4}
+    assert '"provider art" -> "inversion-1" [label="6D, 60 Hz, 6 ms"];' in flow_dot(status)
+    # A fusion on a host 200 ms ahead, its first input put on the agent's clock: the worker
+    # measured 205 ms on its own clock; the host's offset (-200 ms) brings it to 5 ms.
+    fusion["host"] = "hmd"
+    fusion["inputs"][0]["clock_offset_ns"] = -200_000_000
+    fusion["latency_ms"] = {f"{ROOT}/data/inversion-1/BA": 205.0}
+    status["host_info"] = {"hmd": {"clock": {"offset_ns": -200_000_000}}}
+    assert '"inversion-1" -> "fusion-2" [label="6D, 5 ms"];' in flow_dot(status)
+    status["host_info"] = {}  # the offset not known: no figure rather than a wrong one
+    assert '"inversion-1" -> "fusion-2" [label="6D"];' in flow_dot(status)
 
 
 def test_a_component_is_named_by_its_pattern_when_the_status_has_one():

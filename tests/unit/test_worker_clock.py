@@ -178,3 +178,19 @@ def test_the_spec_it_runs_shows_the_offset():
     worker = Worker(concatenation(-AHEAD), FakeSession(), KEYS)
     assert worker.status()["spec"]["inputs"][0]["clock_offset_ns"] == -AHEAD
     worker.stop()
+
+
+def test_the_status_shows_each_dynamic_inputs_latency_on_the_workers_clock():
+    """Samples 40 ms old when the worker takes them (B's, once corrected, on the agent's
+    clock, which is this worker's here): the status's median latency per input says so."""
+    session = FakeSession()
+    worker = Worker(concatenation(-AHEAD), session, KEYS)
+    for _ in range(5):
+        now = time.time_ns()
+        feed(worker, session, KEYS.data("B/AB"), pose(now - 40 * MS + AHEAD))
+        feed(worker, session, KEYS.data("ref/BC"), pose(now - 40 * MS))
+    latency = worker.status()["latency_ms"]
+    assert set(latency) == {KEYS.data("B/AB"), KEYS.data("ref/BC")}
+    for value in latency.values():
+        assert 40.0 <= value < 40.0 + 10_000.0  # plus however long the feeding took (ms)
+    worker.stop()

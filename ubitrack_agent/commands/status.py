@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -44,8 +45,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> str:
     """DOT of the live data flow in the style of the paper's figure 6: providers (sources),
     components (boxes: pattern, instance, host; grey while starting), applications (sinks);
-    each wire labelled with the type it carries and its rate (a provider edge's announced rate,
-    a component's measured output rate from ``rates``, by instance, in Hz). A component is
+    each wire labelled with the type it carries, its rate (a provider edge's announced rate,
+    a component's measured output rate from ``rates``, by instance, in Hz) and the latency its
+    consumer measures (:func:`wire_latency_ms`). A component is
     named by its ``pattern`` when the status has one (``ubitrack view`` adds it), else by its
     service."""
     from ubitrack_agent.graph.dot import quote
@@ -84,6 +86,8 @@ def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> s
             node, label = producers.get(binding["key"], (binding["key"], "?"))
             if binding["key"] not in producers:
                 lines.append(f"  {quote(node)} [shape=plaintext];")
+            latency = wire_latency_ms(status, component, binding)
+            label += f", {latency:.0f} ms" if latency is not None else ""
             lines.append(f"  {quote(node)} -> {quote(instance)} [label={quote(label)}];")
     for name, relation in status.get("relations", {}).items():
         apps = status.get("queries", {}).get(name, [])
@@ -97,6 +101,25 @@ def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> s
                 lines.append(f"  {quote(instance)} -> {quote(sink)} [label={quote(wire)}];")
     lines.append("}")
     return "\n".join(lines) + "\n"
+
+
+def wire_latency_ms(
+    status: dict[str, Any], component: dict[str, Any], binding: dict[str, Any]
+) -> float | None:
+    """The latency (ms) of the samples ``component`` takes on its input ``binding``, as its
+    worker measures it (``latency_ms``: its host's clock minus the samples' timestamps), put
+    on the agent's clock when the input's timestamps are (a ``clock_offset_ns`` set: add the
+    worker's host's offset, ``host_info``); None if not known."""
+    latency = component.get("latency_ms", {}).get(binding["key"])
+    if latency is None:
+        return None
+    if binding.get("clock_offset_ns"):
+        info = status.get("host_info", {}).get(component.get("host")) or {}
+        clock = info.get("clock")
+        if not clock:
+            return None  # on another clock than its worker's, by an offset not known here
+        latency += clock["offset_ns"] / 1e6
+    return latency
 
 
 def live_dot(status: dict[str, Any]) -> str:
@@ -119,9 +142,10 @@ def live_dot(status: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def worker_counters(session: Any, keys: Any, timeout: float) -> dict[str, dict[str, int]]:
-    """Every worker's counters, by instance; a reply that is not a worker's status (malformed
-    JSON, no instance or counters) is left out."""
+def worker_statuses(session: Any, keys: Any, timeout: float) -> dict[str, dict[str, Any]]:
+    """Every worker's status, by instance: its ``counters`` and its inputs' ``latency_ms``
+    (empty if malformed); a reply that is not a worker's status (malformed JSON, no instance
+    or counters) is left out."""
     from ubitrack_agent.net.transport import fetch_latest
 
     workers = {}
@@ -134,7 +158,16 @@ def worker_counters(session: Any, keys: Any, timeout: float) -> dict[str, dict[s
             continue
         instance, counters = answer.get("instance"), answer.get("counters")
         if isinstance(instance, str) and isinstance(counters, dict):
-            workers[instance] = counters
+            latency = answer.get("latency_ms")
+            latency = latency if isinstance(latency, dict) else {}
+            workers[instance] = {
+                "counters": counters,
+                "latency_ms": {
+                    key: value
+                    for key, value in latency.items()
+                    if type(value) in (int, float) and math.isfinite(value)
+                },
+            }
     return workers
 
 
@@ -193,18 +226,21 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 1
-        workers = worker_counters(session, keys, args.timeout)
+        workers = worker_statuses(session, keys, args.timeout)
         rates: dict[str, float] = {}
         if args.dot or args.svg:  # output rates: published samples over the window
             began = time.monotonic()
             time.sleep(args.rate_window)
-            later = worker_counters(session, keys, args.timeout)
+            later = worker_statuses(session, keys, args.timeout)
             window = time.monotonic() - began
-            for instance, counters in later.items():
-                before = workers.get(instance, {}).get("published", 0)
-                rates[instance] = (counters.get("published", 0) - before) / window
+            for instance, worker in later.items():
+                before = workers.get(instance, {}).get("counters", {}).get("published", 0)
+                rates[instance] = (worker["counters"].get("published", 0) - before) / window
+            workers.update(later)
     for instance, component in status["components"].items():
-        component["counters"] = workers.get(instance)
+        worker = workers.get(instance, {})
+        component["counters"] = worker.get("counters")
+        component["latency_ms"] = worker.get("latency_ms", {})
     if args.srg_dot:
         Path(args.srg_dot).write_text(live_dot(status), encoding="utf-8")
     if args.dot:

@@ -19,7 +19,7 @@ import time
 from collections import Counter
 from typing import Any
 
-from ubitrack_agent.commands.status import worker_counters
+from ubitrack_agent.commands.status import worker_statuses
 from ubitrack_agent.commands.view.series import Period, Series, position_error_mm
 from ubitrack_agent.commands.view.snapshot import (
     Snapshot,
@@ -149,7 +149,12 @@ class Watcher:
         now = time.monotonic()
         seconds, self._last = now - self._last, now
         status, problem = self._status()
-        workers = worker_counters(self.session, self.keys, QUERY_TIMEOUT_S)
+        workers = {
+            instance: worker["counters"]
+            for instance, worker in worker_statuses(
+                self.session, self.keys, QUERY_TIMEOUT_S
+            ).items()
+        }
         rates = {} if self._workers is None else output_rates(self._workers, workers, seconds)
         self._workers = workers
         if status is not None:  # without one, keep watching what was served
