@@ -22,8 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Ask the agent for its state and every worker for its counters; print a "
         "summary (or --json). --dot FILE writes the live data flow in Graphviz DOT in the "
         "style of the paper's figure 6: providers (sources), components (boxes: pattern, "
-        "instance, host), applications (sinks), wires labelled with type and rate (announced "
-        "for a provider's edge, measured over --rate-window seconds for a component's output); "
+        "instance, host), applications (sinks), wires labelled with type, rate (announced "
+        "for a provider's edge, measured over --rate-window seconds for a component's output) "
+        "and the latency the consumer measures; "
         "--svg FILE the same drawn by Graphviz's dot; --srg-dot FILE the live SRG with the "
         "edges the components derive (dashed).",
     )
