@@ -61,7 +61,11 @@ def test_all_lists_the_calibration_alternatives_best_first(capsys):
 def test_text_output(capsys):
     assert main(["plan", TRACKING, "--from", "C", "--to", "A", "--type", "6D"]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("6D C->A: 4 solution(s)")
+    assert out.startswith("6D C->A: 4 solution(s), the best shown (--all for the other 3)\n")
+    assert out.count("\nsolution ") == 1
+    assert main(["plan", TRACKING, "--from", "C", "--to", "A", "--type", "6D", "--all"]) == 0
+    every = capsys.readouterr().out
+    assert every.startswith("6D C->A: 4 solution(s)\n") and every.count("\nsolution ") == 4
     assert "MultiTrackerFusion (space)" in out
 
 

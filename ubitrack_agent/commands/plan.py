@@ -220,7 +220,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(document))
     else:
         kind = "static " if query.static else ""
-        print(f"{kind}{query.type} {query.source}->{query.target}: {len(found)} solution(s)")
+        hidden = len(found) - len(shown)
+        more = f", the best shown (--all for the other {hidden})" if hidden else ""
+        print(f"{kind}{query.type} {query.source}->{query.target}: {len(found)} solution(s){more}")
         for n, (solution, hosts) in enumerate(zip(shown, placed, strict=True), start=1):
             state = "static" if solution.static else "dynamic"
             print(f"\nsolution {n}: cost {solution.cost:.3f}, {state}")
