@@ -50,9 +50,9 @@ when two static inputs then cross (0.8)."""
 
 
 @dataclass(frozen=True)
-class Placement:
+class Assignment:
     """The result of :func:`place`: a host for each placed instance, and why the others have
-    none (instance -> reason)."""
+    none (instance -> reason). (Where an instance was started is ``agent.hosts.Placement``.)"""
 
     hosts: Mapping[str, str]
     unplaced: Mapping[str, str]
@@ -65,7 +65,7 @@ def place(
     application_hosts: Mapping[str, Set[str]],
     current: Mapping[str, str] | None = None,
     required_labels: Mapping[str, Set[str]] | None = None,
-) -> Placement:
+) -> Assignment:
     """A host for every instance of ``specs`` (producers before consumers, as
     ``agent.materialise.component_specs`` orders them), by the rule of the module docstring.
 
@@ -93,7 +93,7 @@ def _greedy(
     application_hosts: Mapping[str, Set[str]],
     current: Mapping[str, str],
     required_labels: Mapping[str, Set[str]],
-) -> Placement:
+) -> Assignment:
     """Rules 1 to 4 of the module docstring, one component at a time, producers first."""
     origin = dict(data_hosts)  # data key -> host, the outputs of placed components added
     planned = dict.fromkeys(hosts, 0)
@@ -122,12 +122,12 @@ def _greedy(
         planned[best] += 1
         for key in spec.outputs.values():
             origin[key] = best
-    return Placement(placed, unplaced)
+    return Assignment(placed, unplaced)
 
 
 def _total_crossings(
     specs: Mapping[str, ComponentSpec],
-    placement: Placement,
+    placement: Assignment,
     data_hosts: Mapping[str, str],
     application_hosts: Mapping[str, Set[str]],
 ) -> float:
