@@ -154,6 +154,8 @@ def test_the_view_shows_the_running_flow_in_headless_chromium(processes, tmp_pat
             )
 
         wait_until(fused_and_measured, timeout=90, interval=0.5)
+        # Wires into components carry the latency their worker measures (figure 6's labels).
+        wait_until(lambda: re.search(rb'label="6D, \d+ Hz, \d+ ms"', get(url + "flow.dot")[1]))
         dom = html.unescape(browse(processes, binary, url, tmp_path / "profile", "--dump-dom"))
         ARTIFACTS.mkdir(exist_ok=True)
         screenshot = ARTIFACTS / "live-view.png"

@@ -172,12 +172,13 @@ def test_enrich_adds_pattern_counters_and_rate_and_leaves_odd_components_alone()
     status = {"components": {"a": {"service": "fusion"}, "b": "odd", "c": {"service": 3}}}
     patterns = pattern_names(load_templates())
     counters = {"a": {"published": 5, "bogus": 1.5, "flag": True}}
-    enriched = enrich(status, counters, {"a": 30.0}, patterns)
+    enriched = enrich(status, counters, {"a": 30.0}, patterns, {"a": {"k": 7.5}})
     assert enriched["components"]["a"] == {
         "service": "fusion",
         "counters": {"published": 5},  # only integers from the network
         "pattern": "MultiTrackerFusion",
         "rate_hz": 30.0,
+        "latency_ms": {"k": 7.5},
     }
     assert enriched["components"]["b"] == "odd"
     assert enriched["components"]["c"]["pattern"] is None

@@ -73,10 +73,12 @@ def enrich(
     counters: Mapping[str, Mapping[str, Any]],
     rates: Mapping[str, float],
     patterns: Mapping[str, str],
+    latencies: Mapping[str, Mapping[str, float]] | None = None,
 ) -> dict[str, Any]:
-    """A copy of ``status`` whose components also carry their worker's ``counters`` (as
-    ``ubitrack status --json`` shows them), their ``pattern`` (the service's, where a template
-    names one) and their measured output rate ``rate_hz`` (None before it is measured).
+    """A copy of ``status`` whose components also carry their worker's ``counters`` and its
+    inputs' ``latency_ms`` (as ``ubitrack status --json`` shows them; the data flow's wires
+    show the latency), their ``pattern`` (the service's, where a template names one) and their
+    measured output rate ``rate_hz`` (None before it is measured).
     Components that are not JSON objects are left as they are; of a worker's counters, only
     integers are shown (they come from the network too)."""
     components = status.get("components")
@@ -91,6 +93,7 @@ def enrich(
                 "counters": _integers(counters.get(instance)),
                 "pattern": patterns.get(service) if isinstance(service, str) else None,
                 "rate_hz": rates.get(instance),
+                "latency_ms": dict((latencies or {}).get(instance, {})),
             }
         enriched[instance] = component
     return {**status, "components": enriched}

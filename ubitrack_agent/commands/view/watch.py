@@ -149,12 +149,9 @@ class Watcher:
         now = time.monotonic()
         seconds, self._last = now - self._last, now
         status, problem = self._status()
-        workers = {
-            instance: worker["counters"]
-            for instance, worker in worker_statuses(
-                self.session, self.keys, QUERY_TIMEOUT_S
-            ).items()
-        }
+        statuses = worker_statuses(self.session, self.keys, QUERY_TIMEOUT_S)
+        workers = {instance: worker["counters"] for instance, worker in statuses.items()}
+        latencies = {instance: worker["latency_ms"] for instance, worker in statuses.items()}
         rates = {} if self._workers is None else output_rates(self._workers, workers, seconds)
         self._workers = workers
         if status is not None:  # without one, keep watching what was served
@@ -165,7 +162,9 @@ class Watcher:
             watch.series.add(now_ns, period, seconds, self._error_mm(watch, period.latest))
         self.snapshot = Snapshot(
             taken_ns=now_ns,
-            status=None if status is None else enrich(status, workers, rates, self.patterns),
+            status=None
+            if status is None
+            else enrich(status, workers, rates, self.patterns, latencies),
             problem=problem,
             rates=rates,
             relations=relation_rows(
