@@ -426,7 +426,8 @@ class Worker:
             self._count("rejected", "rejected sample on %s: %s", key, exc)
             return
         t = sample.timestamp_ns
-        if ahead_of_clock(t, self.clock.now_ns()):  # on the sensor's clock: before correction
+        now = self.clock.now_ns()
+        if ahead_of_clock(t, now):  # on the sensor's clock: before correction
             self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
             return
         if item.binding.clock_offset_ns:
@@ -437,7 +438,7 @@ class Worker:
                 return
             t = sample.timestamp_ns
         latency = self._latency.setdefault(key, deque(maxlen=LATENCY_SAMPLES))
-        latency.append((self.clock.now_ns() - t) / 1e6)
+        latency.append((now - t) / 1e6)
         if self._service.asynchronous():
             self._push(item.binding.port, sample)
             return

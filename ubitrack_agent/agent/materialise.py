@@ -16,12 +16,13 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Mapping
 from dataclasses import replace
+from typing import Protocol
 
 import networkx as nx
 
 from ubitrack_agent.graph.dataflow import Binding, DataFlow
 from ubitrack_agent.graph.srg import edge_ids
-from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.keys import RelationId
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
 
@@ -34,10 +35,19 @@ def _measured_static(srg: nx.MultiDiGraph, edge_id: str) -> bool:
     return bool(srg.edges[source, target, edge_id]["static"])
 
 
+class Keys(Protocol):
+    """The keys a specification names: :class:`~ubitrack_agent.net.keys.KeySpace`'s, or, to
+    place a plan offline (``ubitrack plan --host``), any strings telling the streams apart."""
+
+    def data(self, edge_id: str) -> str: ...
+
+    def relation(self, relation: RelationId) -> str: ...
+
+
 def component_specs(
     flow: DataFlow,
     srg: nx.MultiDiGraph,
-    keys: KeySpace,
+    keys: Keys,
     relations: Mapping[str, RelationId],
 ) -> dict[str, ComponentSpec]:
     """The worker specification of every component of ``flow``, by instance id."""

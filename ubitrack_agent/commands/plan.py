@@ -119,36 +119,15 @@ def step_hosts(
 ) -> list[str | None]:
     """The host each step of ``solution`` would run on (:mod:`ubitrack_agent.agent.placement`),
     None where none fits."""
+    from ubitrack_agent.agent.materialise import component_specs
     from ubitrack_agent.agent.placement import place
-    from ubitrack_agent.graph.dataflow import Binding, from_solution, relation_name
-    from ubitrack_agent.graph.srg import edge_ids
+    from ubitrack_agent.graph.dataflow import from_solution, relation_name
     from ubitrack_agent.net.host_protocol import HostInfo
-    from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+    from ubitrack_agent.net.keys import RelationId
 
-    # Setup files' edge ids need not be key names: the specifications placement reads are
-    # built here with the ids themselves as "keys" (placement only compares them).
     flow = from_solution(solution, query)
-    ends = edge_ids(srg)
-
-    def read(port: str, binding: Binding) -> InputBinding:
-        if binding.component is None:
-            static = srg.edges[(*ends[binding.edge], binding.edge)]["static"]
-            return InputBinding(port, binding.edge, static=bool(static))
-        producer = flow.components[binding.component]
-        key = f"{producer.id}/{binding.edge}"
-        return InputBinding(port, key, static=binding.edge in producer.static_outputs)
-
-    final = flow.relations[relation_name(query)]
-    specs = {
-        c.id: ComponentSpec(
-            c.id,
-            c.service,
-            tuple(read(port, binding) for port, binding in c.inputs),
-            {name: f"{c.id}/{name}" for name, *_ in c.outputs},
-            {final.edge: ("relation",)} if final.component == c.id else {},
-        )
-        for c in flow.components.values()
-    }
+    relation = RelationId(query.source, query.target, query.type, query.static)
+    specs = component_specs(flow, srg, _EdgeIds(), {relation_name(query): relation})
     data_hosts = {edge: host for *_, edge, host in srg.edges(keys=True, data="host") if host}
     readers = {"relation": {app_host}} if app_host else {}
     # The flow's components are the solution's steps, in order.
@@ -157,6 +136,17 @@ def step_hosts(
     infos = {name: HostInfo(name, tags) for name, tags in hosts}
     placement = place(specs, infos, data_hosts, readers, {}, labels)
     return [placement.hosts.get(component) for component in flow.components]
+
+
+class _EdgeIds:
+    """Keys for placing a plan offline: a setup's edge ids need not be key names (``C->IP:3x4``),
+    and placement only tells streams apart."""
+
+    def data(self, edge_id: str) -> str:
+        return edge_id
+
+    def relation(self, relation: object) -> str:
+        return "relation"
 
 
 def _render(dot_path: Path) -> None:
