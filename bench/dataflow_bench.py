@@ -31,10 +31,12 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.core import ErrorPose, Pose, encode
@@ -92,104 +94,169 @@ def percentiles(values: list[float]) -> dict[str, float]:
     }
 
 
-def _concatenation_spec(keys: KeySpace) -> ComponentSpec:
+def _concatenation_spec(keys: KeySpace, name: str, from_worker: bool) -> ComponentSpec:
+    """A concatenation whose static input is ``bench/<name>/static`` and whose trigger is
+    ``bench/<name>/in``, published by this process standing in for a worker (``from_worker``,
+    the usual case inside a flow) or for a provider (validated in full)."""
     return ComponentSpec(
-        instance="bench-concat",
+        instance=f"bench-{name}",
         service="concatenation",
         inputs=(
-            InputBinding("AB", keys.data("bench/static"), static=True),
-            InputBinding("BC", keys.data("bench/in"), trigger=True),
+            InputBinding("AB", keys.data(f"{name}/static"), static=True),
+            InputBinding("BC", keys.data(f"{name}/in"), trigger=True, from_worker=from_worker),
         ),
-        outputs={"AC": keys.data("bench/out")},
+        outputs={"AC": keys.data(f"{name}/out")},
     )
 
 
+HOPS = {"raw": None, "worker": True, "provider": False}
+"""The hops timed side by side: a raw zenoh relay, a concatenation worker whose input comes from
+a worker, and one whose input comes from a provider."""
+
+STATIC = ErrorPose(1, [0, 0, 0, 1], [1.0, 0, 0], np.eye(6) * 1e-6)
+
+
 def hop_latency(samples: int) -> dict[str, Any]:
-    """(a): raw relay and concatenation worker, interleaved rounds, latencies in us."""
+    """(a): the hops of :data:`HOPS`, interleaved in rounds, latencies in us."""
     net = Network()
     try:
-        spec = _concatenation_spec(net.keys)
-        net.spawn("-m", "bench.raw_relay", net.keys.data("raw/in"), net.keys.data("raw/out"))
-        net.spawn("-m", "services.worker", "--spec", spec.to_json(), "--log-level", "WARNING")
+        for name, from_worker in HOPS.items():
+            if from_worker is None:
+                net.spawn(
+                    "-m", "bench.raw_relay", net.keys.data("raw/in"), net.keys.data("raw/out")
+                )
+            else:
+                spec = _concatenation_spec(net.keys, name, from_worker)
+                net.spawn(
+                    "-m", "services.worker", "--spec", spec.to_json(), "--log-level", "WARNING"
+                )
         received: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         subscribers = [
             net.session.declare_subscriber(
-                net.keys.data(f"{path}/out"),
-                lambda s, path=path: received.put((path, time.perf_counter_ns())),
+                net.keys.data(f"{name}/out"),
+                lambda s, name=name: received.put((name, time.perf_counter_ns())),
             )
-            for path in ("raw", "bench")
+            for name in HOPS
         ]
         publishers = {
-            p: net.session.declare_publisher(net.keys.data(f"{p}/in")) for p in ("raw", "bench")
+            name: net.session.declare_publisher(net.keys.data(f"{name}/in")) for name in HOPS
         }
-        static = net.session.declare_publisher(net.keys.data("bench/static"))
         wait_until(lambda: all(p.matching_status.matching for p in publishers.values()))
-        static.put(encode(ErrorPose(1, [0, 0, 0, 1], [1.0, 0, 0], np.eye(6) * 1e-6)))
+        for name, from_worker in HOPS.items():
+            if from_worker is not None:
+                net.session.put(net.keys.data(f"{name}/static"), encode(STATIC))
         time.sleep(0.5)
-        latencies: dict[str, list[float]] = {"raw": [], "bench": []}
+        latencies: dict[str, list[float]] = {name: [] for name in HOPS}
         pose = ErrorPose(0, [0, 0, 0, 1], [0.0, 1.0, 0], np.eye(6) * 1e-6)
+        order = list(HOPS)
         for i in range(samples):
-            for path in ("raw", "bench") if i % 2 else ("bench", "raw"):
+            for name in order[i % len(order) :] + order[: i % len(order)]:
                 payload = encode(
                     ErrorPose(time.time_ns(), pose.rotation, pose.translation, pose.covariance)
                 )
                 sent = time.perf_counter_ns()
-                publishers[path].put(payload)
+                publishers[name].put(payload)
                 try:
-                    got_path, at = received.get(timeout=1.0)
+                    got, at = received.get(timeout=1.0)
                 except queue.Empty:
                     continue
-                if got_path == path and i >= 20:  # the first rounds warm up
-                    latencies[path].append((at - sent) / 1000.0)
+                if got == name and i >= 20:  # the first rounds warm up
+                    latencies[name].append((at - sent) / 1000.0)
                 time.sleep(0.005)
         for subscriber in subscribers:
             subscriber.undeclare()
     finally:
         net.close()
-    raw, pattern = percentiles(latencies["raw"]), percentiles(latencies["bench"])
-    return {
-        "raw_hop_us": raw,
-        "pattern_hop_us": pattern,
-        "added_us_p50": round(pattern["p50"] - raw["p50"], 1),
-        "added_us_p99": round(pattern["p99"] - raw["p99"], 1),
-    }
+    figures = {f"{name}_hop_us": percentiles(values) for name, values in latencies.items()}
+    raw = figures["raw_hop_us"]
+    for name in ("worker", "provider"):
+        hop = figures[f"{name}_hop_us"]
+        figures[f"{name}_over_raw_p50"] = round(hop["p50"] / raw["p50"], 2)
+        figures[f"{name}_added_us_p50"] = round(hop["p50"] - raw["p50"], 1)
+        figures[f"{name}_added_us_p99"] = round(hop["p99"] - raw["p99"], 1)
+    return figures
 
 
-def throughput(seconds: float) -> dict[str, Any]:
-    """(b): poses per second through one concatenation worker."""
+def _payloads(kind: type[Pose] | type[ErrorPose], count: int) -> list[bytes]:
+    """``count`` encoded samples of ``kind`` 1 us apart (encoded before timing, so this
+    process's encoding does not limit the rate offered)."""
+    start = time.time_ns() - 10**9
+    rotation, translation = np.array([0, 0, 0, 1.0]), np.array([0.0, 1.0, 0.0])
+    if kind is ErrorPose:
+        covariance = np.eye(6) * 1e-6
+        return [
+            encode(ErrorPose(start + i * 1000, rotation, translation, covariance))
+            for i in range(count)
+        ]
+    return [encode(Pose(start + i * 1000, rotation, translation)) for i in range(count)]
+
+
+def _settled(counters: Callable[[], dict[str, int]]) -> dict[str, int]:
+    """The worker's counters once it has drained its backlog (``received`` unchanged for half
+    a second, at most 20 s)."""
+    last, deadline = counters(), time.monotonic() + 20.0
+    while time.monotonic() < deadline:
+        time.sleep(0.5)
+        now = counters()
+        if now["received"] == last["received"] and now["published"] == last["published"]:
+            return now
+        last = now
+    return last
+
+
+def throughput(seconds: float, rates: list[float | None]) -> dict[str, Any]:
+    """(b): ErrorPoses and Poses per second through one concatenation worker whose input
+    comes from a worker, at each offered rate (None: as fast as this process publishes, with
+    blocking congestion control so zenoh itself drops nothing). ``dropped`` is what was sent
+    but never published, whatever dropped it."""
     net = Network()
+    results: dict[str, Any] = {}
     try:
-        spec = _concatenation_spec(net.keys)
+        spec = _concatenation_spec(net.keys, "flood", from_worker=True)
         net.spawn("-m", "services.worker", "--spec", spec.to_json(), "--log-level", "WARNING")
-        publisher = net.session.declare_publisher(net.keys.data("bench/in"))
-        static = net.session.declare_publisher(net.keys.data("bench/static"))
+        publisher = net.session.declare_publisher(
+            net.keys.data("flood/in"), congestion_control=zenoh.CongestionControl.BLOCK
+        )
         wait_until(lambda: publisher.matching_status.matching)
-        static.put(encode(Pose(1, [0, 0, 0, 1], [1.0, 0, 0])))
+        net.session.put(net.keys.data("flood/static"), encode(STATIC))
         time.sleep(0.5)
 
         def counters() -> dict[str, int]:
-            replies = fetch_latest(net.session, net.keys.status(spec.instance), timeout=2.0)
-            return json.loads(replies[0])["counters"]
+            for _ in range(10):  # a worker draining a flood may answer late
+                replies = fetch_latest(net.session, net.keys.status(spec.instance), timeout=2.0)
+                if replies:
+                    return json.loads(replies[0])["counters"]
+            raise TimeoutError("the worker does not answer its status")
 
-        before, start = counters(), time.perf_counter()
-        sent, t = 0, 10**9
-        rotation, translation = np.array([0, 0, 0, 1.0]), np.array([0.0, 1.0, 0.0])
-        while time.perf_counter() - start < seconds:
-            for _ in range(100):
-                t += 1000
-                publisher.put(encode(Pose(t, rotation, translation)))
-                sent += 1
-        time.sleep(1.0)  # let the worker drain its inbox
-        after, elapsed = counters(), time.perf_counter() - start
+        for kind in (ErrorPose, Pose):
+            for rate in rates:
+                payloads = _payloads(kind, int(seconds * (rate or 60_000)))
+                before = counters()
+                start = time.perf_counter()
+                sent = 0
+                while sent < len(payloads):
+                    due = (
+                        len(payloads) if rate is None else int((time.perf_counter() - start) * rate)
+                    )
+                    if sent >= due:
+                        time.sleep(0.0005)
+                        continue
+                    for payload in payloads[sent : min(due, sent + 200)]:
+                        publisher.put(payload)
+                    sent = min(due, sent + 200)
+                elapsed = time.perf_counter() - start
+                after = _settled(counters)
+                published = after["published"] - before["published"]
+                results[f"{kind.__name__} at {'max' if rate is None else int(rate)}/s"] = {
+                    "sent_per_s": round(sent / elapsed),
+                    "published": published,
+                    "dropped": sent - published,
+                    "overflow": after["overflow"] - before["overflow"],
+                }
+                time.sleep(0.5)
     finally:
         net.close()
-    published = after["published"] - before["published"]
-    return {
-        "sent_per_s": round(sent / seconds),
-        "published_per_s": round(published / elapsed),
-        "overflow": after["overflow"] - before["overflow"],
-        "seconds": round(elapsed, 2),
-    }
+    return results
 
 
 def reconfiguration(trials: int) -> dict[str, Any]:
@@ -306,7 +373,18 @@ def main() -> int:
         prog="python -m bench.dataflow_bench", description=__doc__.split("\n")[0]
     )
     parser.add_argument("--samples", type=int, default=2000, help="latency rounds (default 2000)")
-    parser.add_argument("--seconds", type=float, default=3.0, help="throughput run (default 3 s)")
+    parser.add_argument(
+        "--seconds", type=float, default=3.0, help="throughput, per offered rate (default 3 s)"
+    )
+    parser.add_argument(
+        "--rates",
+        default="10000,20000,30000,max",
+        help="offered rates in samples/s, comma-separated, 'max' as fast as this process "
+        "publishes (default 10000,20000,30000,max)",
+    )
+    parser.add_argument(
+        "--skip-reconfiguration", action="store_true", help="leave out (c), the agent trials"
+    )
     parser.add_argument(
         "--trials", type=int, default=10, help="reconfiguration trials (default 10)"
     )
@@ -315,9 +393,12 @@ def main() -> int:
         "date": time.strftime("%Y-%m-%d"),
         "machine": f"{os.cpu_count()} CPU, Python {platform.python_version()}",
         "hop_latency": hop_latency(args.samples),
-        "throughput": throughput(args.seconds),
-        "reconfiguration": reconfiguration(args.trials),
+        "throughput": throughput(
+            args.seconds, [None if r == "max" else float(r) for r in args.rates.split(",")]
+        ),
     }
+    if not args.skip_reconfiguration:
+        results["reconfiguration"] = reconfiguration(args.trials)
     RESULTS.parent.mkdir(exist_ok=True)
     RESULTS.write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps(results, indent=2))

@@ -96,6 +96,14 @@ class PendingTriggers:
         self._deadlines[timestamp_ns] = now + wait_s
         return True
 
+    def finish(self, timestamp_ns: int) -> bool:
+        """Take a trigger that needs no wait as done at once (nothing is pending); False if
+        it is not newer than the last done."""
+        if self.last_done is not None and timestamp_ns <= self.last_done:
+            return False
+        self.last_done = timestamp_ns
+        return True
+
     def due(self, now: float, caught_up: Callable[[int], bool]) -> list[int]:
         """Remove and return, oldest first, the triggers whose inputs caught up or whose wait
         is over; stops at the first that must still wait, so instants stay in order."""

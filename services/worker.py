@@ -62,7 +62,7 @@ from ubitrack_agent.core.errors import (
     NoMotionModel,
     TooFewCorrespondences,
 )
-from ubitrack_agent.core.measurements import MAX_TIMESTAMP_NS
+from ubitrack_agent.core.measurements import FULL, MAX_TIMESTAMP_NS, WORKER
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.clock import Clock
@@ -154,25 +154,37 @@ class ControlCommand:
 
 
 class Inbox:
-    """A bounded, thread-safe queue that drops its oldest item when full."""
+    """A bounded queue from zenoh's callback threads to the worker thread that drops its oldest
+    item when full (counted as ``overflow``). The worker takes everything waiting at once
+    (:meth:`drain`): under load a backlog costs one wake-up, not one per sample. Written on
+    ``collections.deque``, whose append and popleft are atomic, and an ``Event`` set only
+    when the worker may be asleep: ``queue.Queue`` takes a lock and notifies a condition on
+    every put, several microseconds a sample (issue 12)."""
 
     def __init__(self, capacity: int, counters: Counter[str]) -> None:
         self._items: deque[tuple[Any, ...]] = deque(maxlen=capacity)
-        self._ready = threading.Condition()
+        self._wake = threading.Event()
         self._counters = counters
 
     def put(self, item: tuple[Any, ...]) -> None:
-        with self._ready:
-            if len(self._items) == self._items.maxlen:
-                self._counters["overflow"] += 1
-            self._items.append(item)
-            self._ready.notify()
+        if len(self._items) == self._items.maxlen:
+            self._counters["overflow"] += 1
+        self._items.append(item)
+        if not self._wake.is_set():
+            self._wake.set()
 
-    def get(self, timeout: float) -> tuple[Any, ...] | None:
-        with self._ready:
+    def drain(self, timeout: float) -> list[tuple[Any, ...]]:
+        """Every item waiting, oldest first; waits up to ``timeout`` for one if there is none."""
+        if not self._items:
+            self._wake.clear()  # cleared before looking again: a put in between sets it
             if not self._items:
-                self._ready.wait(timeout)
-            return self._items.popleft() if self._items else None
+                self._wake.wait(timeout)
+        items = []
+        try:
+            while True:
+                items.append(self._items.popleft())
+        except IndexError:
+            return items
 
 
 class _Answer:
@@ -228,6 +240,7 @@ class Worker:
         self._pending = PendingTriggers()
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
+        self._on_sample_guarded = self._guarded(self._on_sample)
         self._stop = threading.Event()
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
@@ -421,7 +434,11 @@ class Worker:
         item = self._inputs[index]
         key = item.binding.key
         try:
-            sample = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
+            sample = decode(
+                payload,
+                self._service_class.INPUTS[item.binding.port].types,
+                WORKER if item.binding.from_worker else FULL,
+            )
         except MeasurementError as exc:
             self._count("rejected", "rejected sample on %s: %s", key, exc)
             return
@@ -449,7 +466,12 @@ class Worker:
             self.counters["buffered"] += 1
         elif item.binding.static:
             self._evaluate(t)  # a new static value: recompute at once
-        elif not self._pending.add(t, time.monotonic(), self._wait_s(item, t), extend=True):
+        elif (wait_s := self._wait_s(item, t)) == 0.0 and not self._pending:
+            if self._pending.finish(t):  # nothing to wait for: at once
+                self._evaluate(t)
+            else:
+                self.counters["stale_triggers"] += 1
+        elif not self._pending.add(t, time.monotonic(), wait_s, extend=True):
             # Held until the other inputs catch up; an instant already computed is ignored.
             self.counters["stale_triggers"] += 1
 
@@ -463,6 +485,8 @@ class Worker:
         samples trickle in on a loaded machine is not computed from too few."""
         dynamic = self._dynamic_buffers()
         others = [b for b in dynamic if b is not trigger.buffer]
+        if not others:
+            return 0.0
         cap_ns = int(self.spec.wait_ms * 1e6)
         present = sum(b.has_sample_at(timestamp_ns) for b in dynamic)
         needed = (
@@ -668,18 +692,22 @@ class Worker:
         self._stop.set()
 
     def step(self, longest_s: float = 0.1) -> None:
-        """Handle the next inbox item (waiting at most ``longest_s`` or until the next trigger
-        is due), then the triggers due; never raises (:meth:`_guarded`)."""
+        """Handle every inbox item waiting (waiting at most ``longest_s`` or until the next
+        trigger is due for one), each followed by the triggers due; never raises
+        (:meth:`_guarded`)."""
         deadline = self._pending.next_deadline()
         timeout = longest_s if deadline is None else max(0.0, deadline - time.monotonic())
-        item = self._inbox.get(timeout=min(longest_s, timeout))
-        if item is not None and item[0] == "data":
-            self._guarded(self._on_sample)(*item[1:])
-        elif item is not None and item[0] == "at":
-            self._guarded(self._answer)(item[1])
-        elif item is not None:
-            self._guarded(self._apply_control)(item[1])
-        self._guarded(self._process_due_triggers)()
+        for item in self._inbox.drain(timeout=min(longest_s, timeout)) or [None]:
+            if self._stop.is_set():
+                return
+            if item is not None and item[0] == "data":
+                self._on_sample_guarded(*item[1:])
+            elif item is not None and item[0] == "at":
+                self._guarded(self._answer)(item[1])
+            elif item is not None:
+                self._guarded(self._apply_control)(item[1])
+            if self._pending:
+                self._guarded(self._process_due_triggers)()
         self._summarise(time.monotonic())
 
     def _summarise(self, now: float) -> None:

@@ -53,19 +53,26 @@ def component_specs(
     """The worker specification of every component of ``flow``, by instance id."""
     specs: dict[str, ComponentSpec] = {}
 
-    def source(binding: Binding) -> tuple[str, bool]:
+    def source(binding: Binding) -> tuple[str, bool, bool]:
+        """The key, whether it is static, and whether a worker produces it."""
         if binding.component is None:
-            return keys.data(binding.edge), _measured_static(srg, binding.edge)
+            return keys.data(binding.edge), _measured_static(srg, binding.edge), False
         producer = flow.components[binding.component]
-        return keys.data(f"{producer.id}/{binding.edge}"), binding.edge in producer.static_outputs
+        static = binding.edge in producer.static_outputs
+        return keys.data(f"{producer.id}/{binding.edge}"), static, True
 
     for component in flow.components.values():  # producers come before their consumers
         sources = [(port, *source(binding)) for port, binding in component.inputs]
-        statics = [static for _, _, static in sources]
-        dynamic = not all(statics)
+        dynamic = not all(static for _, _, static, _ in sources)
         bindings = tuple(
-            InputBinding(_port(port), key, trigger=not static or not dynamic, static=static)
-            for port, key, static in sources
+            InputBinding(
+                _port(port),
+                key,
+                trigger=not static or not dynamic,
+                static=static,
+                from_worker=from_worker,
+            )
+            for port, key, static, from_worker in sources
         )
         specs[component.id] = ComponentSpec(
             instance=component.id,
@@ -83,12 +90,12 @@ def component_specs(
             routes[binding.edge] = (*routes.get(binding.edge, ()), relation_key)
             specs[binding.component] = replace(spec, relations=routes)
             continue
-        key, static = source(binding)
+        key, static, from_worker = source(binding)
         instance = "relay-" + hashlib.sha1(binding.edge.encode()).hexdigest()[:10]
         specs[instance] = ComponentSpec(
             instance=instance,
             service="relay",
-            inputs=(InputBinding("in", key, trigger=True, static=static),),
+            inputs=(InputBinding("in", key, True, static, from_worker=from_worker),),
             outputs={"out": keys.data(f"{instance}/out")},
             relations={"out": (relation_key,)},
         )

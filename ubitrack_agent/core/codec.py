@@ -17,6 +17,7 @@ whatever bytes it is given.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, TypeVar
 
@@ -25,10 +26,10 @@ import numpy as np
 
 from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.core.measurements import (
+    FULL,
     MEASUREMENT_TYPES,
     CameraIntrinsics,
     Measurement,
-    check_timestamp,
 )
 
 WIRE_VERSION = 1
@@ -37,6 +38,7 @@ MAX_MESSAGE_BYTES = 32 * 1024 * 1024
 
 _FLOAT = np.dtype("<f8")
 _HEADER_KEYS = frozenset({"v", "type", "t"})
+_ABSENT = object()
 
 M = TypeVar("M", bound=Measurement)
 
@@ -72,21 +74,36 @@ def _unpack(data: Any) -> dict[str, Any]:
 
 
 def _array(where: str, raw: Any, shape: tuple[int | None, ...]) -> np.ndarray:
-    if not isinstance(raw, bytes):
+    if type(raw) is not bytes:
         raise MeasurementError(f"{where}: expected float64 bytes, got {type(raw).__name__}")
+    if None not in shape:  # a fixed shape takes exactly its size
+        if len(raw) == _FLOAT.itemsize * math.prod(shape):  # type: ignore[arg-type]
+            return np.frombuffer(raw, dtype=_FLOAT).reshape(shape)
+    elif len(raw) % _FLOAT.itemsize == 0:  # a list (one free dimension) any whole multiple
+        flat = np.frombuffer(raw, dtype=_FLOAT)
+        fixed = math.prod(d for d in shape if d is not None)
+        if fixed and flat.size % fixed == 0:
+            return flat.reshape([flat.size // fixed if d is None else d for d in shape])
     if len(raw) % _FLOAT.itemsize:
         raise MeasurementError(f"{where}: {len(raw)} bytes is not a whole number of float64")
-    flat = np.frombuffer(raw, dtype=_FLOAT)
-    fixed = math.prod(d for d in shape if d is not None)
-    free = None in shape
-    # A fixed shape takes exactly its size; a list (one free dimension) any whole multiple.
-    if fixed == 0 or flat.size % fixed or (not free and flat.size != fixed):
-        raise MeasurementError(f"{where}: {flat.size} values do not fit shape {shape}")
-    return flat.reshape([flat.size // fixed if d is None else d for d in shape])
+    raise MeasurementError(
+        f"{where}: {len(raw) // _FLOAT.itemsize} values do not fit shape {shape}"
+    )
 
 
-def decode(data: Any, expected: type[M] | tuple[type[M], ...] | None = None) -> M:
-    """Parse and validate one message; optionally require it to be of the ``expected`` type(s).
+@functools.cache
+def _known_keys(cls: type[Measurement]) -> frozenset[str]:
+    """The keys a message of type ``cls`` may hold."""
+    extra = {"image_size"} if cls is CameraIntrinsics else set()
+    return _HEADER_KEYS | {spec.name for spec in cls.ARRAY_FIELDS} | extra
+
+
+def decode(
+    data: Any, expected: type[M] | tuple[type[M], ...] | None = None, level: str = FULL
+) -> M:
+    """Parse one message and validate it at ``level`` (``core.measurements``: ``FULL`` for a
+    value from outside, ``WORKER`` for a known worker's output); optionally require it to be
+    of the ``expected`` type(s).
 
     Raises :class:`MeasurementError` naming the field at fault for anything else.
     """
@@ -103,23 +120,20 @@ def decode(data: Any, expected: type[M] | tuple[type[M], ...] | None = None) -> 
         raise MeasurementError(f"message.type: expected {' or '.join(names)}, got {tag}")
     if "t" not in message:
         raise MeasurementError(f"{tag}.timestamp_ns: missing key 't'")
-    kwargs: dict[str, Any] = {"timestamp_ns": check_timestamp(f"{tag}.timestamp_ns", message["t"])}
-    known = set(_HEADER_KEYS)
+    unknown = message.keys() - _known_keys(cls)
+    if unknown:
+        raise MeasurementError(f"{tag}: unknown keys {sorted(str(k)[:40] for k in unknown)}")
+    kwargs: dict[str, Any] = {"timestamp_ns": message["t"]}
     for spec in cls.ARRAY_FIELDS:
-        known.add(spec.name)
-        if spec.name in message:
-            kwargs[spec.name] = _array(f"{tag}.{spec.name}", message[spec.name], spec.shape)
+        raw = message.get(spec.name, _ABSENT)
+        if raw is not _ABSENT:
+            kwargs[spec.name] = _array(f"{tag}.{spec.name}", raw, spec.shape)
         elif not spec.optional:
             raise MeasurementError(f"{tag}.{spec.name}: missing")
-    if cls is CameraIntrinsics:
-        known.add("image_size")
-        if "image_size" in message:
-            size = message["image_size"]
-            kwargs["image_size"] = tuple(size) if isinstance(size, list) else size
-    unknown = sorted(str(k)[:40] for k in message if k not in known)
-    if unknown:
-        raise MeasurementError(f"{tag}: unknown keys {unknown}")
-    return cls(**kwargs)  # type: ignore[return-value]
+    if "image_size" in message:
+        size = message["image_size"]
+        kwargs["image_size"] = tuple(size) if isinstance(size, list) else size
+    return cls.checked(level, **kwargs)  # type: ignore[return-value]
 
 
 def to_json(measurement: Measurement) -> dict[str, Any]:

@@ -31,12 +31,12 @@ read-only float64 arrays, so a measurement that exists is a valid one.
 
 from __future__ import annotations
 
-import copy
+import functools
 import math
 import numbers
 from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
@@ -70,11 +70,23 @@ _SYMMETRY_TOLERANCE = 1e-9
 _PSD_TOLERANCE = 1e-9
 
 
+FULL, WORKER, DERIVED = "full", "worker", "derived"
+"""Validation levels (``Measurement.checked``). ``FULL``: a value from outside (a provider, a
+file, an unknown publisher, an application): every property. ``WORKER``: a sample from a known
+worker of this system, computed by this package's maths: shapes, finiteness and positive
+semi-definite covariances (by Cholesky), not the properties that hold by construction (unit
+quaternions, symmetric covariances, an intrinsic matrix's form). ``DERIVED``: a result of
+this process's own maths: shapes and finiteness only (degenerate maths must not pass NaN
+on)."""
+
+
 @dataclass(frozen=True)
 class ArrayField:
     """Describes one float64 array field of a measurement type.
 
-    ``shape`` uses ``None`` for a free dimension (the number of points of a list).
+    ``shape`` uses ``None`` for a free dimension (the number of points of a list). ``check``
+    validates the array's properties at level ``FULL``, ``worker_check`` (if any) at level
+    ``WORKER``.
     """
 
     name: str
@@ -82,6 +94,7 @@ class ArrayField:
     optional: bool = False
     allowed_lengths: tuple[int, ...] | None = None
     check: Callable[[str, np.ndarray], None] | None = None
+    worker_check: Callable[[str, np.ndarray], None] | None = None
 
 
 def _fail(where: str, what: str) -> MeasurementError:
@@ -90,6 +103,8 @@ def _fail(where: str, what: str) -> MeasurementError:
 
 def check_timestamp(where: str, value: Any) -> int:
     """Return ``value`` as an int nanosecond timestamp, or raise naming ``where``."""
+    if type(value) is int and 0 <= value <= MAX_TIMESTAMP_NS:  # the common case, at once
+        return value
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise _fail(where, f"must be an integer number of nanoseconds, got {type(value).__name__}")
     value = int(value)
@@ -98,13 +113,39 @@ def check_timestamp(where: str, value: Any) -> int:
     return value
 
 
-def _as_array(where: str, value: Any, spec: ArrayField, full: bool = True) -> np.ndarray:
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _as_array(where: str, value: Any, spec: ArrayField) -> np.ndarray:
+    """``value`` as a float64 array of ``spec``'s shape: itself if it already is one that
+    cannot change, else a copy (never aliasing a caller's array)."""
+    if type(value) is np.ndarray and value.dtype == _FLOAT64 and value.shape == spec.shape:
+        return value.copy() if value.flags.writeable else value
+    return _shaped(where, value, spec)
+
+
+def _check_finite(name: str, specs: list[ArrayField], arrays: list[np.ndarray]) -> None:
+    """Reject NaN or infinity in any of ``arrays``: one reduction over them all (a numpy call
+    costs a microsecond whatever its size), then, only on failure, the field at fault."""
+    if len(arrays) == 1:
+        if np.isfinite(arrays[0]).all():
+            return
+    elif np.isfinite(np.concatenate([array.ravel() for array in arrays])).all():
+        return
+    for spec, array in zip(specs, arrays, strict=True):
+        if not np.isfinite(array).all():
+            raise _fail(f"{name}.{spec.name}", "contains NaN or infinity")
+
+
+def _shaped(where: str, value: Any, spec: ArrayField) -> np.ndarray:
+    """``value`` as a float64 array (a copy if it could change) of ``spec``'s shape, or the
+    error naming what is wrong."""
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise _fail(where, f"not an array of numbers ({exc})") from None
     if array is value and array.flags.writeable:
-        array = array.copy()  # never alias an array the caller may still change
+        array = array.copy()
     if array.ndim != len(spec.shape) or not all(
         want is None or got == want for got, want in zip(array.shape, spec.shape, strict=True)
     ):
@@ -114,12 +155,6 @@ def _as_array(where: str, value: Any, spec: ArrayField, full: bool = True) -> np
         raise _fail(where, f"length must be one of {spec.allowed_lengths}, got {array.shape[0]}")
     if array.ndim and array.shape[0] > MAX_LIST_LENGTH:
         raise _fail(where, f"more than {MAX_LIST_LENGTH} entries")
-    if not np.isfinite(array).all():
-        raise _fail(where, "contains NaN or infinity")
-    if full and spec.check is not None:
-        spec.check(where, array)
-    if array.flags.writeable:
-        array.flags.writeable = False
     return array
 
 
@@ -132,12 +167,38 @@ def check_unit_quaternion(where: str, q: np.ndarray) -> None:
 
 def check_covariance(where: str, cov: np.ndarray) -> None:
     """Reject a matrix that is not symmetric positive semi-definite (within round-off)."""
-    scale = max(1.0, float(np.max(np.abs(cov))))
-    if np.max(np.abs(cov - cov.T)) > _SYMMETRY_TOLERANCE * scale:
+    scale = max(1.0, float(np.abs(cov).max()))
+    if np.abs(cov - cov.T).max() > _SYMMETRY_TOLERANCE * scale:
         raise _fail(where, "covariance is not symmetric")
-    smallest = float(np.linalg.eigvalsh(cov)[0])
-    if smallest < -_PSD_TOLERANCE * scale:
-        raise _fail(where, f"covariance is not positive semi-definite (eigenvalue {smallest:.3g})")
+    _check_semidefinite(where, cov, scale)
+
+
+def check_semidefinite(where: str, cov: np.ndarray) -> None:
+    """Reject a (symmetric) matrix that is not positive semi-definite within round-off: the
+    ``WORKER`` level's covariance check. A positive semi-definite matrix has no entry larger
+    than its trace, which therefore sets the tolerance's scale."""
+    _check_semidefinite(where, cov, max(1.0, float(cov.trace())))
+
+
+@functools.cache
+def _identity(size: int) -> np.ndarray:
+    identity = np.eye(size)
+    identity.flags.writeable = False
+    return identity
+
+
+def _check_semidefinite(where: str, cov: np.ndarray, scale: float) -> None:
+    """Whether the smallest eigenvalue of ``cov`` is at least ``-_PSD_TOLERANCE * scale``,
+    decided by a Cholesky factorisation of ``cov`` shifted by that much, which succeeds exactly
+    when it holds and costs a third of an eigendecomposition (Golub & Van Loan, Matrix
+    Computations, 4.2); the eigenvalues are computed only to name the failure."""
+    try:
+        np.linalg.cholesky(cov + (_PSD_TOLERANCE * scale) * _identity(len(cov)))
+    except np.linalg.LinAlgError:
+        smallest = float(np.linalg.eigvalsh(cov)[0])
+        raise _fail(
+            where, f"covariance is not positive semi-definite (eigenvalue {smallest:.3g})"
+        ) from None
 
 
 def check_intrinsic_matrix(where: str, k: np.ndarray) -> None:
@@ -155,6 +216,21 @@ def check_projection(where: str, p: np.ndarray) -> None:
         raise _fail(where, "left 3x3 block is singular")
 
 
+@functools.cache
+def _defaults(cls: type) -> tuple[tuple[str, Callable[[], Any] | Any], ...]:
+    """Each dataclass field of ``cls`` with a function making its default (``MISSING`` for a
+    required field): ``Measurement.checked`` builds values without the dataclass constructor."""
+    made = []
+    for f in fields(cls):
+        if f.default is not MISSING:
+            made.append((f.name, lambda value=f.default: value))
+        elif f.default_factory is not MISSING:
+            made.append((f.name, f.default_factory))
+        else:
+            made.append((f.name, MISSING))
+    return tuple(made)
+
+
 @dataclass(frozen=True, eq=False)
 class Measurement:
     """Base class: a timestamped value of one SRG edge type.
@@ -170,49 +246,58 @@ class Measurement:
     timestamp_ns: int
 
     def __post_init__(self) -> None:
-        self._validate(full=True)
+        self._validate(FULL)
 
-    def _validate(self, full: bool) -> None:
+    def _validate(self, level: str) -> None:
         name = type(self).__name__
-        object.__setattr__(
-            self, "timestamp_ns", check_timestamp(f"{name}.timestamp_ns", self.timestamp_ns)
-        )
+        values = self.__dict__  # a frozen dataclass: fields set here, once, before use
+        values["timestamp_ns"] = check_timestamp(f"{name}.timestamp_ns", self.timestamp_ns)
+        specs, arrays = [], []
         for spec in self.ARRAY_FIELDS:
-            value = getattr(self, spec.name)
-            where = f"{name}.{spec.name}"
+            value = values[spec.name]
             if value is None:
                 if not spec.optional:
-                    raise _fail(where, "is required")
+                    raise _fail(f"{name}.{spec.name}", "is required")
                 continue
-            object.__setattr__(self, spec.name, _as_array(where, value, spec, full))
+            specs.append(spec)
+            arrays.append(_as_array(f"{name}.{spec.name}", value, spec))
+        if arrays:
+            _check_finite(name, specs, arrays)
+        for spec, array in zip(specs, arrays, strict=True):
+            check = spec.check if level == FULL else spec.worker_check if level == WORKER else None
+            if check is not None:
+                check(f"{name}.{spec.name}", array)
+            array.flags.writeable = False
+            values[spec.name] = array
         self._check_extra()
 
     @classmethod
-    def derived(cls, **values: Any) -> Measurement:
-        """A measurement computed by this package's maths from valid measurements.
-
-        Checks the timestamp, shapes and finiteness (degenerate maths must not pass NaN on), but
-        not the properties that hold by construction and cost most per sample (unit
-        quaternions, positive semi-definite covariances); the data path uses it for results.
-        Anything from outside goes through the validating constructor or the decoder.
-        """
+    def checked(cls, level: str, **values: Any) -> Self:
+        """A measurement of ``values`` validated at ``level`` (``FULL``, ``WORKER`` or
+        ``DERIVED``; the constructor is ``FULL``)."""
         value = object.__new__(cls)
-        for f in fields(cls):
-            if f.name in values:
-                item = values[f.name]
-            elif f.default is not MISSING:
-                item = f.default
-            elif f.default_factory is not MISSING:
-                item = f.default_factory()
+        fields_of = value.__dict__  # a frozen dataclass: set here, once, before anyone uses it
+        for name, default in _defaults(cls):
+            if name in values:
+                fields_of[name] = values[name]
+            elif default is MISSING:
+                raise TypeError(f"{cls.__name__}: missing {name}")
             else:
-                raise TypeError(f"{cls.__name__}.derived: missing {f.name}")
-            object.__setattr__(value, f.name, item)
-        value._validate(full=False)
+                fields_of[name] = default()
+        value._validate(level)
         return value
 
-    def restamped(self, timestamp_ns: int) -> Measurement:
+    @classmethod
+    def derived(cls, **values: Any) -> Self:
+        """A measurement computed by this package's maths from valid measurements, validated at
+        level ``DERIVED``: the data path uses it for results. Anything from outside goes through
+        the validating constructor or the decoder."""
+        return cls.checked(DERIVED, **values)
+
+    def restamped(self, timestamp_ns: int) -> Self:
         """The same value at another time (no re-validation of the unchanged arrays)."""
-        value = copy.copy(self)
+        value = object.__new__(type(self))
+        value.__dict__.update(self.__dict__)
         object.__setattr__(value, "timestamp_ns", check_timestamp("timestamp_ns", timestamp_ns))
         return value
 
@@ -242,7 +327,9 @@ def normalise_typed_quaternion(where: str, value: Any) -> np.ndarray:
     within :data:`UNIT_QUATERNION_TOLERANCE` (so files round-trip exactly), else divided by its
     norm; raises :class:`MeasurementError` naming ``where`` if it is not four finite numbers or
     its norm is more than :data:`TYPED_QUATERNION_TOLERANCE` from 1."""
-    q = _as_array(where, value, _ROTATION, full=False)
+    q = _as_array(where, value, _ROTATION)
+    if not np.isfinite(q).all():
+        raise _fail(where, "contains NaN or infinity")
     deviation = abs(math.hypot(*q) - 1.0)
     if deviation > TYPED_QUATERNION_TOLERANCE:
         raise _fail(
@@ -277,7 +364,7 @@ class ErrorPose(Measurement):
     ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (
         _ROTATION,
         _TRANSLATION,
-        ArrayField("covariance", (6, 6), check=check_covariance),
+        ArrayField("covariance", (6, 6), check=check_covariance, worker_check=check_semidefinite),
     )
 
     rotation: np.ndarray
@@ -297,7 +384,13 @@ class Position3D(Measurement):
     SRG_TYPE: ClassVar[str] = "3D"
     ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (
         ArrayField("position", (3,)),
-        ArrayField("covariance", (3, 3), optional=True, check=check_covariance),
+        ArrayField(
+            "covariance",
+            (3, 3),
+            optional=True,
+            check=check_covariance,
+            worker_check=check_semidefinite,
+        ),
     )
 
     position: np.ndarray
@@ -312,7 +405,13 @@ class Position2D(Measurement):
     SRG_TYPE: ClassVar[str] = "2D"
     ARRAY_FIELDS: ClassVar[tuple[ArrayField, ...]] = (
         ArrayField("position", (2,)),
-        ArrayField("covariance", (2, 2), optional=True, check=check_covariance),
+        ArrayField(
+            "covariance",
+            (2, 2),
+            optional=True,
+            check=check_covariance,
+            worker_check=check_semidefinite,
+        ),
     )
 
     position: np.ndarray

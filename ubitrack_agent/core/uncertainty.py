@@ -23,6 +23,8 @@ estimation in robotics", arXiv:1812.01537; ``../shared/reference/field-notes.md`
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ubitrack_agent.core import quaternions
@@ -37,6 +39,9 @@ _IDENTITY_QUATERNION = np.array([0.0, 0.0, 0.0, 1.0])
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices ``[v]x`` (..., 3, 3) with ``[v]x w = v x w``."""
     v = np.asarray(v, dtype=float)
+    if v.shape == (3,):  # one vector, written out: a tenth of the indexed form's cost
+        x, y, z = v.tolist()
+        return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     result = np.zeros((*v.shape[:-1], 3, 3))
     # [v]x = [[0, -z, y], [z, 0, -x], [-y, x, 0]]: entry (r, c) = sign * v[component]
     result[..., _SKEW_ROWS, _SKEW_COLS] = v[..., _SKEW_COMPONENTS] * _SKEW_SIGNS
@@ -51,6 +56,23 @@ def adjoint(q: np.ndarray, t: np.ndarray) -> np.ndarray:
     result[..., 3:, 3:] = rotation
     result[..., 3:, :3] = skew(t) @ rotation
     return result
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_adjoint(q: bytes, t: bytes) -> np.ndarray:
+    result = adjoint(np.frombuffer(q), np.frombuffer(t))
+    result.flags.writeable = False
+    return result
+
+
+def pose_adjoint(q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The adjoint (6, 6, read-only) of one transform ``(q, t)``, cached by value: the
+    adjoint of a static input (a calibration that a concatenation composes every sample with)
+    is computed once, not per sample (issue 12)."""
+    return _cached_adjoint(
+        np.ascontiguousarray(q, dtype=float).tobytes(),
+        np.ascontiguousarray(t, dtype=float).tobytes(),
+    )
 
 
 def isotropic_pose_covariance(sigma_rotation_rad: float, sigma_translation_m: float) -> np.ndarray:
@@ -104,7 +126,10 @@ def compose_covariance(
     q1: np.ndarray, t1: np.ndarray, covariance1: np.ndarray, covariance2: np.ndarray
 ) -> np.ndarray:
     """Covariance of ``T1 T2`` for independent ``T1`` (mean ``(q1, t1)``) and ``T2``."""
-    return covariance1 + _transport(adjoint(q1, t1), covariance2)
+    single = np.shape(q1) == (4,) and np.shape(t1) == (3,)
+    return covariance1 + _transport(
+        pose_adjoint(q1, t1) if single else adjoint(q1, t1), covariance2
+    )
 
 
 def interpolate_covariance(

@@ -67,12 +67,29 @@ class InputBinding:
     static: bool = False
     clock_offset_ns: int = 0
     """Added to each sample's timestamp: from its host's clock to the agent's (``net.clock``)."""
+    from_worker: bool = False
+    """The key is another worker's output: its samples, computed by this package's maths, are
+    validated at level ``WORKER`` (``core.measurements``: shapes, finiteness, positive
+    semi-definite covariances), not ``FULL`` as a provider's are. A trust boundary only where
+    zenoh's access control lets only workers publish on workers' keys (``docs/security.md``);
+    without it, a hostile publisher's sample is still refused if it is malformed or could
+    break the maths, and the unchecked properties only change the value it carries, which a
+    publisher can do anyway."""
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON-ready form :func:`parse_bindings` reads (``clock_offset_ns`` only when
-        set)."""
-        data = {"port": self.port, "key": self.key, "trigger": self.trigger, "static": self.static}
-        return {**data, "clock_offset_ns": self.clock_offset_ns} if self.clock_offset_ns else data
+        """The JSON-ready form :func:`parse_bindings` reads (``clock_offset_ns`` and
+        ``from_worker`` only when set)."""
+        data: dict[str, Any] = {
+            "port": self.port,
+            "key": self.key,
+            "trigger": self.trigger,
+            "static": self.static,
+        }
+        if self.clock_offset_ns:
+            data["clock_offset_ns"] = self.clock_offset_ns
+        if self.from_worker:
+            data["from_worker"] = True
+        return data
 
 
 @dataclass(frozen=True)
@@ -129,6 +146,10 @@ def _key(value: Any, where: str) -> str:
         raise SpecError(f"{where}: {exc}") from None
 
 
+BINDING_FIELDS = frozenset({"port", "key", "trigger", "static", "clock_offset_ns", "from_worker"})
+"""The fields of an input binding on the wire (:meth:`InputBinding.as_dict`)."""
+
+
 def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, ...]:
     """The form of a list of input bindings (ports are checked against the service by
     ``services.spec.check_bindings``)."""
@@ -139,20 +160,21 @@ def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, 
         at = f"{where}[{index}]"
         if not isinstance(item, dict):
             raise SpecError(f"{at}: expected an object")
-        unknown = sorted(set(item) - {"port", "key", "trigger", "static", "clock_offset_ns"})
+        unknown = sorted(set(item) - BINDING_FIELDS)
         if unknown:
             raise SpecError(f"{at}: unknown fields {unknown}")
         port = _require(item, "port", str, at)
         trigger, static = item.get("trigger", False), item.get("static", False)
-        if not isinstance(trigger, bool) or not isinstance(static, bool):
-            raise SpecError(f"{at}: trigger and static must be true or false")
+        from_worker = item.get("from_worker", False)
+        if not all(isinstance(flag, bool) for flag in (trigger, static, from_worker)):
+            raise SpecError(f"{at}: trigger, static and from_worker must be true or false")
         offset = item.get("clock_offset_ns", 0)
         if type(offset) is not int or abs(offset) > MAX_CLOCK_OFFSET_NS:
             raise SpecError(
                 f"{at}.clock_offset_ns: expected integer nanoseconds within +-{MAX_CLOCK_OFFSET_NS}"
             )
         key = _key(item.get("key"), f"{at}.key")
-        bindings.append(InputBinding(port, key, trigger, static, offset))
+        bindings.append(InputBinding(port, key, trigger, static, offset, from_worker))
     if not any(binding.trigger for binding in bindings):
         raise SpecError(f"{where}: no binding is marked trigger")
     return tuple(bindings)
