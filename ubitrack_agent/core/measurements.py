@@ -177,28 +177,25 @@ def check_semidefinite(where: str, cov: np.ndarray) -> None:
     """Reject a (symmetric) matrix that is not positive semi-definite within round-off: the
     ``WORKER`` level's covariance check. A positive semi-definite matrix has no entry larger
     than its trace, which therefore sets the tolerance's scale."""
-    _check_semidefinite(where, cov, max(1.0, float(cov.trace())))
+    _check_semidefinite(where, cov, None)
 
 
-@functools.cache
-def _identity(size: int) -> np.ndarray:
-    identity = np.eye(size)
-    identity.flags.writeable = False
-    return identity
-
-
-def _check_semidefinite(where: str, cov: np.ndarray, scale: float) -> None:
-    """Whether the smallest eigenvalue of ``cov`` is at least ``-_PSD_TOLERANCE * scale``,
-    decided by a Cholesky factorisation of ``cov`` shifted by that much, which succeeds exactly
-    when it holds and costs a third of an eigendecomposition (Golub & Van Loan, Matrix
-    Computations, 4.2); the eigenvalues are computed only to name the failure."""
+def _check_semidefinite(where: str, cov: np.ndarray, scale: float | None) -> None:
+    """Whether the smallest eigenvalue of ``cov`` is at least ``-_PSD_TOLERANCE * scale``
+    (``scale`` None: the trace, at least 1). A Cholesky factorisation decides at once for a
+    positive definite matrix, every covariance a sensor or an estimate produces, at half an
+    eigendecomposition's cost (Golub & Van Loan, Matrix Computations, 4.2.5); only a
+    singular or indefinite one (an exact component, round-off) needs the eigenvalues."""
     try:
-        np.linalg.cholesky(cov + (_PSD_TOLERANCE * scale) * _identity(len(cov)))
+        np.linalg.cholesky(cov)
+        return
     except np.linalg.LinAlgError:
-        smallest = float(np.linalg.eigvalsh(cov)[0])
-        raise _fail(
-            where, f"covariance is not positive semi-definite (eigenvalue {smallest:.3g})"
-        ) from None
+        pass
+    if scale is None:
+        scale = max(1.0, float(cov.trace()))
+    smallest = float(np.linalg.eigvalsh(cov)[0])
+    if smallest < -_PSD_TOLERANCE * scale:
+        raise _fail(where, f"covariance is not positive semi-definite (eigenvalue {smallest:.3g})")
 
 
 def check_intrinsic_matrix(where: str, k: np.ndarray) -> None:

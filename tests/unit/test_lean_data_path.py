@@ -1,0 +1,226 @@
+"""The lean data path of issue 12: validation levels, the Cholesky test for positive
+semi-definite covariances, the cached adjoint and scalar quaternion paths, the inbox drained in
+one go, and samples handled on zenoh's thread while the worker is idle."""
+
+from __future__ import annotations
+
+import threading
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from services.worker import INLINE_S, Inbox, Worker
+from tests.unit.test_worker_inputs import IDENTITY, KEYS, SPEC, FakeSession, outputs, pose
+from ubitrack_agent.core import ErrorPose, MeasurementError, Pose, decode, encode, quaternions
+from ubitrack_agent.core.measurements import (
+    DERIVED,
+    FULL,
+    WORKER,
+    check_covariance,
+    check_semidefinite,
+)
+from ubitrack_agent.core.uncertainty import adjoint, pose_adjoint
+from ubitrack_agent.net.spec import InputBinding, SpecError, parse_bindings
+
+COVARIANCE = np.eye(6) * 1e-6
+
+
+def error_pose_message(**fields: object) -> bytes:
+    message = msgpack.unpackb(encode(ErrorPose(1, IDENTITY, [0.0, 1.0, 0.0], COVARIANCE)))
+    message.update(fields)
+    return msgpack.packb(message)
+
+
+# -- validation levels ------------------------------------------------------------------------
+
+
+def test_a_worker_sample_skips_what_holds_by_construction_only():
+    skewed = np.array(IDENTITY) * 1.01  # not a unit quaternion
+    payload = error_pose_message(rotation=skewed.tobytes())
+    with pytest.raises(MeasurementError, match="unit quaternion"):
+        decode(payload, ErrorPose, FULL)
+    assert decode(payload, ErrorPose, WORKER).rotation[3] == pytest.approx(1.01)
+
+
+@pytest.mark.parametrize("level", [FULL, WORKER, DERIVED])
+def test_every_level_refuses_nan_and_wrong_shapes(level):
+    nan = np.array([0.0, np.nan, 0.0])
+    with pytest.raises(MeasurementError, match="translation: contains NaN"):
+        decode(error_pose_message(translation=nan.tobytes()), ErrorPose, level)
+    with pytest.raises(MeasurementError, match="do not fit"):
+        decode(error_pose_message(translation=np.zeros(6).tobytes()), ErrorPose, level)
+
+
+@pytest.mark.parametrize("level", [FULL, WORKER])
+def test_an_indefinite_covariance_is_refused_from_a_worker_too(level):
+    indefinite = COVARIANCE.copy()
+    indefinite[0, 0] = -1e-3
+    with pytest.raises(MeasurementError, match="not positive semi-definite"):
+        decode(error_pose_message(covariance=indefinite.tobytes()), ErrorPose, level)
+
+
+def test_a_singular_covariance_passes_the_cholesky_test():
+    exact = np.zeros((6, 6))
+    exact[3:, 3:] = np.eye(3) * 1e-6  # an exact rotation: positive semi-definite, singular
+    assert decode(error_pose_message(covariance=exact.tobytes()), ErrorPose, WORKER)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6),
+    st.integers(0, 2**32 - 1),
+)
+def test_the_cholesky_test_decides_as_the_eigenvalues_do(eigenvalues, seed):
+    """Random symmetric matrices with eigenvalues around zero (some just below the
+    tolerance, some just above): refused exactly when the smallest eigenvalue is below
+    -1e-9 times the scale."""
+    basis = Rotation.random(rng=np.random.default_rng(seed)).as_matrix()
+    rotation = np.kron(np.eye(2), basis)  # orthonormal 6x6
+    values = np.array(eigenvalues) * np.array([1, 1e-6, 1e-9, 1e-10, 1e-12, 1e-3])
+    matrix = rotation @ np.diag(values) @ rotation.T
+    matrix = 0.5 * (matrix + matrix.T)
+    smallest = np.linalg.eigvalsh(matrix)[0]
+    for check, scale in (
+        (check_semidefinite, max(1.0, np.trace(matrix))),
+        (check_covariance, max(1.0, np.abs(matrix).max())),
+    ):
+        if abs(smallest + 1e-9 * scale) < 1e-12:
+            continue  # at the boundary round-off decides either way
+        if smallest < -1e-9 * scale:
+            with pytest.raises(MeasurementError):
+                check("c", matrix)
+        else:
+            check("c", matrix)
+
+
+def test_results_are_read_only_and_never_alias_the_callers_arrays():
+    rotation = np.array(IDENTITY)
+    result = ErrorPose.derived(
+        timestamp_ns=1, rotation=rotation, translation=np.zeros(3), covariance=COVARIANCE
+    )
+    rotation[0] = 5.0
+    assert result.rotation[0] == 0.0 and not result.covariance.flags.writeable
+
+
+# -- maths on single poses -------------------------------------------------------------------
+
+
+def test_scalar_quaternion_paths_equal_the_batched_ones():
+    q = Rotation.random(50, rng=np.random.default_rng(3)).as_quat()
+    batched_products = quaternions.multiply(q[:-1], q[1:])
+    batched_matrices = quaternions.to_matrix(q)
+    for i in range(49):
+        np.testing.assert_allclose(
+            quaternions.multiply(q[i], q[i + 1]), batched_products[i], atol=1e-15
+        )
+        np.testing.assert_allclose(quaternions.to_matrix(q[i]), batched_matrices[i], atol=1e-15)
+
+
+def test_the_adjoint_of_a_static_input_is_computed_once():
+    q = Rotation.random(rng=np.random.default_rng(4)).as_quat()
+    t = np.array([0.1, -2.0, 0.3])
+    first = pose_adjoint(q, t)
+    assert pose_adjoint(q.copy(), t.copy()) is first  # by value, not by identity
+    np.testing.assert_array_equal(first, adjoint(q, t))
+    assert not first.flags.writeable
+
+
+# -- input bindings ----------------------------------------------------------------------------
+
+
+def test_from_worker_is_written_when_set_and_reads_back():
+    binding = InputBinding("BC", KEYS.data("c1/AC"), trigger=True, from_worker=True)
+    assert binding.as_dict()["from_worker"] is True
+    assert "from_worker" not in InputBinding("BC", KEYS.data("p/e"), trigger=True).as_dict()
+    assert parse_bindings([binding.as_dict()]) == (binding,)
+
+
+@pytest.mark.parametrize("value", [1, "true", None, [True]])
+def test_from_worker_must_be_a_boolean(value):
+    raw = {"port": "BC", "key": KEYS.data("c1/AC"), "trigger": True, "from_worker": value}
+    with pytest.raises(SpecError, match="from_worker"):
+        parse_bindings([raw])
+
+
+# -- inbox and hand-off ------------------------------------------------------------------------
+
+
+def test_the_inbox_drains_in_order_and_counts_what_it_drops():
+    counters: dict[str, int] = {"overflow": 0}
+    inbox = Inbox(3, counters)  # type: ignore[arg-type]
+    for i in range(5):
+        inbox.put(("data", i))
+    assert inbox.drain() == [("data", 2), ("data", 3), ("data", 4)]
+    assert counters["overflow"] == 2 and inbox.drain() == []
+
+
+def test_the_inbox_wakes_its_reader_on_a_put():
+    inbox = Inbox(8, {"overflow": 0})  # type: ignore[arg-type]
+    threading.Timer(0.05, inbox.put, args=(("data", 1),)).start()
+    inbox.wait(timeout=5.0)
+    assert inbox.drain() == [("data", 1)]
+
+
+def worker_with_static(session: FakeSession, t: int) -> Worker:
+    worker = Worker(SPEC, session, KEYS)
+    session.deliver(KEYS.data("ART/WT"), pose(t, 0.5))
+    return worker
+
+
+def test_an_idle_worker_handles_a_sample_on_the_receiving_thread():
+    session = FakeSession()
+    worker = worker_with_static(session, 1_000)
+    session.deliver(KEYS.data("ART/HT"), pose(2_000))  # no step(): handled at once
+    assert [p.timestamp_ns for p in outputs(session)] == [2_000]
+    worker.stop()
+
+
+def test_a_busy_worker_gets_the_sample_in_order_on_its_own_thread():
+    session = FakeSession()
+    worker = worker_with_static(session, 1_000)
+    with worker._busy:  # the worker thread handling something else
+        for t in (2_000, 3_000):
+            session.deliver(KEYS.data("ART/HT"), pose(t))
+        assert outputs(session) == []
+    session.deliver(KEYS.data("ART/HT"), pose(4_000))  # queued behind the two waiting
+    worker.step(longest_s=0.0)
+    assert [p.timestamp_ns for p in outputs(session)] == [2_000, 3_000, 4_000]
+    worker.stop()
+
+
+def test_a_worker_whose_samples_take_long_hands_them_to_its_thread():
+    session = FakeSession()
+    worker = worker_with_static(session, 1_000)
+    worker._handling_s = 2 * INLINE_S  # as measured for a costly pattern
+    session.deliver(KEYS.data("ART/HT"), pose(2_000))
+    assert outputs(session) == []
+    worker.step(longest_s=0.0)
+    assert [p.timestamp_ns for p in outputs(session)] == [2_000]
+    worker.stop()
+
+
+def test_a_worker_output_is_decoded_at_the_worker_level_by_its_consumer():
+    """The consumer of a worker's output validates it at level WORKER, which does not check
+    unit norm again (the producer's maths keeps it): a sample off by more than the strict
+    tolerance, which a provider's input refuses, flows."""
+    session = FakeSession()
+    spec = SPEC.__class__(
+        instance="concat2",
+        service="concatenation",
+        inputs=(
+            InputBinding("AB", KEYS.data("ART/WT"), static=True),
+            InputBinding("BC", KEYS.data("c1/AC"), trigger=True, from_worker=True),
+        ),
+        outputs={"AC": KEYS.data("concat1/AC")},
+    )
+    worker = Worker(spec, session, KEYS)
+    session.deliver(KEYS.data("ART/WT"), pose(1_000))
+    message = msgpack.unpackb(encode(Pose(2_000, IDENTITY, [0.0, 1.0, 0.0])))
+    message["rotation"] = (np.array(IDENTITY) * (1 + 1e-5)).tobytes()
+    session.deliver(KEYS.data("c1/AC"), msgpack.packb(message))
+    assert (worker.counters["rejected"], worker.counters["published"]) == (0, 1)
+    worker.stop()
