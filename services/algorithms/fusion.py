@@ -7,7 +7,10 @@
 vanishes (Gauss-Newton on SE(3)). The fused covariance is ``(sum W_i)^-1``. Left perturbations
 all live in frame A, so the covariances need no transport to first order. Reference:
 Barfoot & Furgale, "Associating uncertainty with three-dimensional poses for use in
-estimation problems", IEEE T-RO 30(3), 2014, section IV (pose fusion).
+estimation problems", IEEE T-RO 30(3), 2014, section IV (pose fusion). The maps are the
+hand-written float closed forms of :mod:`services.algorithms.tangent` (a few microseconds per
+pose, where scipy's ``RigidTransform`` costs 150 us a call on one pose); two estimates of one
+edge converge in two or three steps.
 
 For trackers that measure at different times, :mod:`services.algorithms.pose_filter` fuses
 each measurement as it arrives instead.
@@ -18,15 +21,10 @@ from __future__ import annotations
 import numpy as np
 
 from services.algorithms._checks import as_covariances, as_points, as_quaternions, same_count
-from services.algorithms.estimate import (
-    PoseEstimate,
-    left_residuals,
-    perturb_left,
-    rigid,
-    symmetric,
-    to_estimate,
-)
+from services.algorithms.estimate import PoseEstimate, symmetric
+from services.algorithms.tangent import PoseSpace
 
+_POSES = PoseSpace()
 _CONVERGED = 1e-13
 
 
@@ -48,12 +46,15 @@ def fuse_poses(
     weights = np.linalg.inv(covs)
     information = weights.sum(axis=0)
     covariance = symmetric(np.linalg.inv(information))
-    poses = rigid(q, t)
-    reference = poses[int(np.argmin(np.trace(covs, axis1=1, axis2=2)))]
+    poses = np.concatenate((q, t), axis=1)
+    reference = tuple(poses[int(np.argmin(np.trace(covs, axis1=1, axis2=2)))].tolist())
     for _ in range(max_iterations):
-        xi = left_residuals(poses, reference)
+        xi = _POSES.logs(poses, reference)
         step = covariance @ np.einsum("mij,mj->i", weights, xi)
-        reference = perturb_left(step, reference)
+        reference = _POSES.exp(step.tolist(), reference)
         if np.linalg.norm(step) < _CONVERGED:
             break
-    return to_estimate(reference, covariance)
+    rotation = np.array(reference[:4])
+    return PoseEstimate(
+        rotation if rotation[3] >= 0 else -rotation, np.array(reference[4:]), covariance
+    )
