@@ -32,10 +32,19 @@ class PoseEstimate(NamedTuple):
         return Rotation.from_quat(self.rotation).as_matrix()
 
     def to_measurement(self, timestamp_ns: int) -> Pose | ErrorPose:
-        """The core measurement: an :class:`ErrorPose` if there is a covariance, else a ``Pose``."""
+        """The core measurement: an :class:`ErrorPose` if there is a covariance, else a ``Pose``;
+        a result of this package's maths, checked for shapes and finite numbers only
+        (``Measurement.derived``: the consumer validates at level ``WORKER``)."""
         if self.covariance is None:
-            return Pose(timestamp_ns, self.rotation, self.translation)
-        return ErrorPose(timestamp_ns, self.rotation, self.translation, self.covariance)
+            return Pose.derived(
+                timestamp_ns=timestamp_ns, rotation=self.rotation, translation=self.translation
+            )
+        return ErrorPose.derived(
+            timestamp_ns=timestamp_ns,
+            rotation=self.rotation,
+            translation=self.translation,
+            covariance=self.covariance,
+        )
 
 
 def from_rotation_matrix(
