@@ -51,7 +51,7 @@ import sys
 import threading
 import time
 import uuid
-from collections import Counter, deque
+from collections import Counter, defaultdict, deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any
@@ -274,7 +274,9 @@ class Worker:
         self._routes: dict[str, list[str]] = {}
         self._progress_routes: dict[str, list[str]] = {}
         self.progress: dict[str, Progress] = {}
-        self._latency: dict[str, deque[float]] = {}
+        self._latency: defaultdict[str, deque[float]] = defaultdict(
+            lambda: deque(maxlen=LATENCY_SAMPLES)
+        )
         """Per input key, the latest samples' latency (ms): this host's clock when the worker
         takes the sample minus its timestamp (after the input's clock offset)."""
         """The latest progress of each static estimate, by output port (shown in status)."""
@@ -474,8 +476,7 @@ class Worker:
                 self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
                 return
             t = sample.timestamp_ns
-        latency = self._latency.setdefault(key, deque(maxlen=LATENCY_SAMPLES))
-        latency.append((now - t) / 1e6)
+        self._latency[key].append((now - t) / 1e6)
         if self._service.asynchronous():
             self._push(item.binding.port, sample)
             return
