@@ -13,7 +13,8 @@ measures both; figures in ``docs/performance.md``, "Worker start-up").
 The process ends on SIGTERM or SIGINT, terminating every worker it started. With
 ``--exit-when-stdin-closes`` (how the agent starts it, with a pipe) it also ends when its
 standard input closes, i.e. when the agent dies; it then leaves the assigned workers running,
-so a restarted agent adopts them and the applications keep their data.
+so a restarted agent adopts them and the applications keep their data (those still starting,
+their token not up yet, exit by themselves: :mod:`services.parent`).
 """
 
 from __future__ import annotations

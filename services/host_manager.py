@@ -138,7 +138,8 @@ class HostManager:
     def stop(self, abandon_workers: bool = False) -> None:
         """End :meth:`run`: terminate every worker, or with ``abandon_workers`` (the agent that
         started this host manager died) leave the assigned ones running for a restarted agent
-        to adopt. The first reason given wins."""
+        to adopt (those still starting exit by themselves once this process has ended,
+        :mod:`services.parent`). The first reason given wins."""
         if not self._stop.is_set():
             self._abandon = abandon_workers
             self._stop.set()

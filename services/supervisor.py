@@ -26,8 +26,9 @@ so the supervisor keeps a **warm pool** of idle members (``python -m services.wo
   elsewhere released it: the instance ended (reported, like a process that exited).
 
 Only the worker module runs, without a shell, the specification as one argument; every member
-reads a pipe from this process as its standard input, so idle members exit with the host
-manager while assigned ones keep running (a restarted agent adopts them).
+reads a pipe from this process as its standard input, so idle members, and workers still
+starting (no worker token yet), exit with the host manager, while workers serving keep running
+(a restarted agent adopts them; :mod:`services.parent`).
 """
 
 from __future__ import annotations

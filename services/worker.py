@@ -17,6 +17,13 @@ counters on ``<root>/status/<instance>`` and, last, declares the liveliness toke
   started the worker) stops every worker with it; a pool member then rejoins its pool (or
   exits, if its host manager is gone).
 
+A process a host manager started (``--pool-id``; its standard input a pipe from the host
+manager) outlives the host manager only once its token is up: one still starting, from its
+spawn to its token (importing every service takes seconds on a loaded machine), exits as soon
+as the host manager is gone, which it watches from the start of :func:`main`, before any
+service is imported (:mod:`services.parent`); one serving keeps running, for a restarted agent
+to adopt.
+
 An input's ``clock_offset_ns`` (``net.spec``) is added to the timestamp of each of its samples
 as it is decoded, before anything else uses it: the agent sets it when the component's inputs
 come from hosts whose clocks differ (``agent.clocks``), so they are synchronised on the agent's
@@ -42,6 +49,7 @@ the session.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import os
@@ -57,6 +65,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from services.expansion import BatchProgress, TimeAccumulator
+from services.parent import Parent
 from services.registry import Pushed, Service, lookup
 from services.spec import check_bindings, check_parameters, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
@@ -242,6 +251,7 @@ class Worker:
         keys: KeySpace,
         pool_counters: Counter[str] | None = None,
         clock: Clock | None = None,
+        parent: Parent | None = None,
     ) -> None:
         self.spec = spec
         self.clock = clock or Clock()
@@ -294,9 +304,10 @@ class Worker:
         self._status = session.declare_queryable(keys.status(spec.instance))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
         self._bind(spec.inputs)
-        self._token = session.liveliness().declare_token(
-            keys.worker(spec.instance, self.incarnation)
+        declare = functools.partial(
+            session.liveliness().declare_token, keys.worker(spec.instance, self.incarnation)
         )
+        self._token = declare() if parent is None else parent.serve(declare)
 
     def _new_accumulator(self) -> TimeAccumulator | None:
         """The time expansion's accumulator, and for a batch estimate over it (not an
@@ -802,7 +813,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--pool-id",
         help="member of the host manager's warm pool: idle, fully imported, it runs the "
         "specification sent to <root>/pool/<ID> (or --spec first) and returns to the pool when "
-        "released; it stops idling when its standard input closes",
+        "released; when its standard input closes (the host manager is gone) it exits unless "
+        "its worker token is up, and then once released",
     )
     logs.add_log_level_argument(parser)
     config.add_arguments(parser)
@@ -814,31 +826,26 @@ class Pool:
     on ``<root>/pool/<id>``, runs it, and, when the agent releases it (a stop command),
     returns to the pool instead of exiting, so the process's imports are paid once.
 
-    The process idles only while its parent (the host manager) lives: when its standard
-    input closes it leaves the pool (an assigned worker keeps running: a restarted agent
-    adopts it). SIGTERM or SIGINT ends it. A specification that is not a bounded JSON object
+    The process lives on after its host manager (``parent``, :mod:`services.parent`) only while
+    it serves: idle, it leaves the pool when its host manager is gone, and it exits at once if
+    that happens while it starts (an assigned worker keeps running: a restarted agent adopts
+    it). SIGTERM or SIGINT ends it. A specification that is not a bounded JSON object
     (``net.json_messages``), is malformed, or names no registered service wired as it
     declares (``services.spec.check_spec``) is rejected, logged rate-limited and counted in
     :attr:`counters` (``rejected_specs``; shown in the status of the instances it runs); the
     member keeps waiting.
     """
 
-    def __init__(self, session: Any, keys: KeySpace, pool_id: str) -> None:
-        self.session, self.keys, self.pool_id = session, keys, pool_id
+    def __init__(self, session: Any, keys: KeySpace, pool_id: str, parent: Parent) -> None:
+        self.session, self.keys, self.pool_id, self.parent = session, keys, pool_id, parent
         self.counters: Counter[str] = Counter(rejected_specs=0, internal_errors=0)
-        self.orphaned = threading.Event()
         self._inbox: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
-        threading.Thread(target=self._watch_parent, daemon=True).start()
+        parent.when_gone(lambda: self._inbox.put(None))
         lookup("relay")  # imports every registered service and its maths
-
-    def _watch_parent(self) -> None:
-        sys.stdin.read()
-        self.orphaned.set()
-        self._inbox.put(None)
 
     def wait(self) -> ComponentSpec | None:
         """The next specification, or None when the process should end."""
-        if self.orphaned.is_set():
+        if not self.parent.idle():
             return None
         receive = logs.guarded(
             lambda sample: self._inbox.put(sample.payload.to_bytes()),
@@ -853,7 +860,7 @@ class Pool:
             while (payload := self._inbox.get()) is not None:
                 spec = self._read_spec(payload)
                 if spec is not None:
-                    return spec
+                    return spec if self.parent.start() else None
             return None
         finally:
             token.undeclare()
@@ -881,7 +888,8 @@ def run_worker(
     session: Any, keys: KeySpace, spec: ComponentSpec, clock: Clock, pool: Pool | None = None
 ) -> bool:
     """Run one component until stopped; True if the agent released it (it may be reused)."""
-    worker = Worker(spec, session, keys, None if pool is None else pool.counters, clock)
+    counters, parent = (None, None) if pool is None else (pool.counters, pool.parent)
+    worker = Worker(spec, session, keys, counters, clock, parent)
     on_termination(worker.stop)
     log.info("%s: running %s", spec.instance, spec.service)
     worker.run()
@@ -894,6 +902,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.spec is None and args.spec_file is None and args.pool_id is None:
         print("worker: give --spec, --spec-file or --pool-id", file=sys.stderr)
         return 2
+    # Watched first, before every service is imported: that takes seconds on a loaded machine.
+    parent = Parent() if args.pool_id else None
     try:
         spec = None
         if args.spec_file is not None:
@@ -910,7 +920,7 @@ def main(argv: list[str] | None = None) -> int:
 
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
-        pool = Pool(session, keys, args.pool_id) if args.pool_id else None
+        pool = Pool(session, keys, args.pool_id, parent) if parent is not None else None
         while True:
             if spec is None:
                 spec = pool.wait() if pool is not None else None

@@ -49,20 +49,36 @@ class Network:
     processes: list
     watches: list = field(default_factory=list)
 
-    def start(self, *command: str, host_name: str | None = None) -> subprocess.Popen:
-        """A process joining the network, on host ``host_name`` (default this machine's)."""
+    def start(
+        self, *command: str, host_name: str | None = None, stdin: int | None = None
+    ) -> subprocess.Popen:
+        """A process joining the network, on host ``host_name`` (default this machine's), with
+        ``stdin`` as its standard input (``subprocess.PIPE``: a pipe from the test)."""
         named = [] if host_name is None else ["--host-name", host_name]
         process = subprocess.Popen(
             [sys.executable, *command, *member_flags(self.port, self.domain), *named],
             start_new_session=True,
+            stdin=stdin,
         )
         self.processes.append(process)
         return process
 
-    def host(self, name: str, pool_size: int, *via: str) -> subprocess.Popen:
-        """A host manager (``python -m services.host``, or ``via`` another entry point)."""
+    def host(
+        self, name: str, pool_size: int, *via: str, as_the_agent_starts_it: bool = False
+    ) -> subprocess.Popen:
+        """A host manager (``python -m services.host``, or ``via`` another entry point); ``as
+        the agent starts it``: reading a pipe from the test, and ending when it closes."""
         entry = via or ("-m", "services.host")
-        process = self.start(*entry, "--name", name, "--pool-size", str(pool_size))
+        options = ("--exit-when-stdin-closes",) if as_the_agent_starts_it else ()
+        process = self.start(
+            *entry,
+            "--name",
+            name,
+            "--pool-size",
+            str(pool_size),
+            *options,
+            stdin=subprocess.PIPE if as_the_agent_starts_it else None,
+        )
         wait_until(lambda: self.ask(name, encode_request(Status()))[0], timeout=30)
         return process
 
@@ -220,6 +236,58 @@ def test_start_stop_status_and_exit_reports(hub):
     host.send_signal(signal.SIGTERM)
     assert host.wait(timeout=15) == 0
     wait_until(lambda: not tagged(hub.domain), timeout=10)
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` runs (neither gone nor a zombie nobody reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as file:
+            return file.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("death", ["agent_killed", "host_manager_killed"])
+def test_workers_still_starting_when_their_host_manager_dies_exit(hub, death):
+    """Chaos seed 210 (issue 11): the agent was SIGKILLed while its host manager started ten
+    workers cold on a loaded machine; its host manager ended with it, and those workers, starved
+    of CPU, were still importing 40 s later, never having declared their tokens, while the
+    restarted agent had started ten others. A worker still starting when its host manager dies
+    now exits; one already running keeps running, for a restarted agent to adopt.
+
+    The starving is made deterministic: each cold worker is stopped (SIGSTOP) as soon as the
+    host manager answers its start, long before it could declare its token (a cold start takes
+    hundreds of milliseconds), and continued once the host manager is gone."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    host = hub.host("lab", pool_size=0, as_the_agent_starts_it=True)
+    ok, kept = hub.ask("lab", encode_request(Start(relay(keys, "kept"))))
+    assert ok, kept
+    wait_until(lambda: (PUT, "kept") in [(k, i) for k, i, _ in tokens], timeout=30)
+
+    starting = []
+    for index in range(3):
+        ok, started = hub.ask("lab", encode_request(Start(relay(keys, f"starting{index}"))))
+        assert ok, started
+        os.kill(started["pid"], signal.SIGSTOP)
+        starting.append(started["pid"])
+    if death == "agent_killed":
+        host.stdin.close()  # as when the agent that started it dies
+    else:
+        host.kill()
+    host.wait(timeout=15)
+    host.stdin.close()
+    for pid in starting:
+        os.kill(pid, signal.SIGCONT)
+
+    wait_until(lambda: not any(running(pid) for pid in starting), timeout=30)
+    assert {i for _, i, _ in tokens} == {"kept"}, tokens  # none of them ever served
+    assert running(kept["pid"])  # the worker already running outlives its host manager
+    output = Collector(hub.session, keys.data("kept/out"))
+    source = hub.session.declare_publisher(keys.data("src/in"))
+    wait_until(lambda: source.matching_status.matching)
+    source.put(encode(Pose(2_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    assert decode(output.next(), expected=Pose).timestamp_ns == 2_000
 
 
 def test_unregistered_services_and_malformed_requests_are_refused(hub):

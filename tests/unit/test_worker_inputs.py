@@ -217,9 +217,8 @@ def test_an_unexpected_fault_is_counted_not_raised(worker, monkeypatch):
         json.dumps({**SPEC.as_dict(), "relations": {"AC": ["not/a/relation"]}})[:-1].encode(),
     ],
 )
-def test_an_idle_pool_worker_rejects_a_bad_specification_and_keeps_waiting(monkeypatch, payload):
-    monkeypatch.setattr(Pool, "_watch_parent", lambda self: None)
-    pool = Pool(FakeSession(), KEYS, "p1")
+def test_an_idle_pool_worker_rejects_a_bad_specification_and_keeps_waiting(payload):
+    pool = Pool(FakeSession(), KEYS, "p1", SimpleNamespace(when_gone=lambda wake: None))
     assert pool._read_spec(payload) is None
     assert pool.counters["rejected_specs"] == 1
     assert pool._read_spec(SPEC.to_json().encode()) == SPEC

@@ -556,10 +556,11 @@ class Agent:
         self._stopped[instance] = None if owned else time.monotonic() + STOP_RESEND_S
 
     def _stop_duplicates(self) -> None:
-        """An instance alive in several processes (say, one an earlier agent's host manager was
-        still starting when it died, and one started since) keeps the process its host manager
-        placed, else the one seen first; each other one is stopped alone, on its incarnation's
-        control key, again every ``STOP_RESEND_S`` while its token stays."""
+        """An instance alive in several processes (say, one whose token came up as an earlier
+        agent died, seen only after this agent started another; or one moving to another host)
+        keeps the process its host manager placed, else the one seen first; each other one is
+        stopped alone, on its incarnation's control key, again every ``STOP_RESEND_S`` while its
+        token stays."""
         now = time.monotonic()
         for instance, seen in self.incarnations.items():
             if len(seen) < 2:
