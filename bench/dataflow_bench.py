@@ -235,9 +235,9 @@ def throughput(seconds: float, rates: list[float | None]) -> dict[str, Any]:
                 start = time.perf_counter()
                 sent = 0
                 while sent < len(payloads):
-                    due = (
-                        len(payloads) if rate is None else int((time.perf_counter() - start) * rate)
-                    )
+                    due = len(payloads)
+                    if rate is not None:
+                        due = min(due, int((time.perf_counter() - start) * rate))
                     if sent >= due:
                         time.sleep(0.0005)
                         continue

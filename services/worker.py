@@ -303,7 +303,8 @@ class Worker:
         self._route_outputs(spec.relations)
         self._status = session.declare_queryable(keys.status(spec.instance))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
-        self._bind(spec.inputs)
+        with self._busy:  # a sample may arrive on zenoh's thread before the inputs are set
+            self._bind(spec.inputs)
         declare = functools.partial(
             session.liveliness().declare_token, keys.worker(spec.instance, self.incarnation)
         )
@@ -322,7 +323,8 @@ class Worker:
     # -- wiring ---------------------------------------------------------------------------
 
     def _bind(self, bindings: tuple[InputBinding, ...]) -> None:
-        """Subscribe to ``bindings``, keeping the buffers of keys already subscribed."""
+        """Subscribe to ``bindings``, keeping the buffers of keys already subscribed; holding
+        ``_busy``, so that no sample is handled until the inputs are set."""
         self._generation += 1
         generation = self._generation
         old = {(item.binding.key, item.binding.static): item for item in self._inputs}

@@ -224,3 +224,30 @@ def test_a_worker_output_is_decoded_at_the_worker_level_by_its_consumer():
     session.deliver(KEYS.data("c1/AC"), msgpack.packb(message))
     assert (worker.counters["rejected"], worker.counters["published"]) == (0, 1)
     worker.stop()
+
+
+class EagerSession(FakeSession):
+    """Delivers a sample on a key the moment it is subscribed, as zenoh may."""
+
+    def __init__(self, waiting: dict[str, bytes]) -> None:
+        super().__init__()
+        self.waiting = waiting
+
+    def declare_subscriber(self, key, callback):
+        subscriber = super().declare_subscriber(key, callback)
+        if key in self.waiting:
+            self.deliver(key, self.waiting.pop(key))
+        return subscriber
+
+
+def test_a_sample_arriving_while_the_inputs_are_bound_waits_for_them():
+    """Regression: handled on zenoh's thread while the worker was still binding its inputs,
+    it met an empty input list (IndexError, counted as an internal error) and was lost."""
+    session = EagerSession(
+        {KEYS.data("ART/WT"): pose(1_000, 0.5), KEYS.data("ART/HT"): pose(2_000)}
+    )
+    worker = Worker(SPEC, session, KEYS)
+    worker.step(longest_s=0.0)
+    assert worker.counters["internal_errors"] == 0
+    assert [p.timestamp_ns for p in outputs(session)] == [2_000]
+    worker.stop()
