@@ -225,17 +225,21 @@ class PoseKalmanFilter:
         rotation: np.ndarray,
         translation: np.ndarray,
         covariance: np.ndarray,
+        validated: bool = False,
     ) -> Outcome:
         """Fuse one pose measurement (quaternion, translation, 6x6 left covariance) taken at
         ``timestamp_ns``; returns what was done with it (:data:`Outcome`). ``ValueError`` for
-        invalid input."""
-        q = as_quaternions("rotation", np.reshape(rotation, (1, -1)))[0]
-        t = as_array("translation", translation, (3,))
-        cov = _checked_covariance(covariance)
+        invalid input. With ``validated`` the values are those of a measurement the codec has
+        validated (``core.measurements``: a fusion worker's input), not checked again."""
+        if validated:
+            q, t, cov = rotation, translation, covariance
+        else:
+            q = as_quaternions("rotation", np.reshape(rotation, (1, -1)))[0]
+            t = as_array("translation", translation, (3,))
+            cov = _checked_covariance(covariance)
+            timestamp_ns = check_timestamp("timestamp_ns", timestamp_ns)
         to_error = _to_error(t)
-        measurement = _Measurement(
-            check_timestamp("timestamp_ns", timestamp_ns), q, t, to_error @ cov @ to_error.T
-        )
+        measurement = _Measurement(timestamp_ns, q, t, to_error @ cov @ to_error.T)
         newest = self.timestamp_ns
         if newest is None or measurement.timestamp_ns - newest > self.settings.restart_ns:
             return self._restart(measurement)

@@ -78,7 +78,11 @@ class Fusion(Service):
                 "give 3D and 3R estimates the policy 'synchronised'"
             )
         outcome = self._filter.update(
-            sample.timestamp_ns, sample.rotation, sample.translation, self._covariance(sample)
+            sample.timestamp_ns,
+            sample.rotation,
+            sample.translation,
+            self._covariance(sample),
+            validated=True,
         )
         if outcome in _REASONS:
             return Pushed(reason=_REASONS[outcome])
