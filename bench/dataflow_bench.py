@@ -165,9 +165,19 @@ def hop_latency(samples: int) -> dict[str, Any]:
                 time.sleep(0.005)
         for subscriber in subscribers:
             subscriber.undeclare()
+        handling = {
+            name: json.loads(fetch_latest(net.session, net.keys.status(f"bench-{name}"))[0])[
+                "handling_us"
+            ]
+            for name, from_worker in HOPS.items()
+            if from_worker is not None
+        }
     finally:
         net.close()
-    figures = {f"{name}_hop_us": percentiles(values) for name, values in latencies.items()}
+    figures: dict[str, Any] = {
+        f"{name}_hop_us": percentiles(values) for name, values in latencies.items()
+    }
+    figures["handling_us"] = handling  # the workers' own time per sample, running mean
     raw = figures["raw_hop_us"]
     for name in ("worker", "provider"):
         hop = figures[f"{name}_hop_us"]

@@ -152,11 +152,12 @@ asked again: a renderer asking every frame must not cost the flow a round trip (
 time-out) per input each time."""
 LATENCY_SAMPLES = 64
 """Samples per input whose latency the status's median covers."""
-INLINE_S = 0.0005
+INLINE_S = 0.001
 """A sample is handled on zenoh's receiving thread only while handling one takes less than
-this on average (0.5 ms: a concatenation or a fusion update takes a tenth of it; a pose
-estimation or a time expansion's estimate more, and is handed to the worker thread so that
-zenoh's thread is never held up long)."""
+this on average (1 ms: a concatenation or a fusion update takes 0.1 ms on a busy CPU and 0.5 ms
+on one woken for each sample at 200 Hz, ``python -m bench.dataflow_bench``; a pose estimation
+or a time expansion's estimate takes more, and is handed to the worker thread so that zenoh's
+thread is never held up long)."""
 HANDLING_GAIN = 0.05
 """Weight of the latest sample in the running mean of the time to handle one."""
 SUMMARY_S = 10.0
@@ -701,6 +702,7 @@ class Worker:
             **({"pool": dict(self.pool_counters)} if self.pool_counters is not None else {}),
             "progress": {port: asdict(progress) for port, progress in self.progress.items()},
             "latency_ms": self._latencies(),
+            "handling_us": round(self._handling_s * 1e6, 1),
             "spec": self.spec.as_dict(),
         }
 
