@@ -121,7 +121,8 @@ COUNTERS = {
     "not_distinct": "time expansion: correspondence values too close to the last kept",
     "accumulating": "time expansion: fewer correspondences kept than the pattern needs",
     "no_output": "computations that published nothing (an estimate not yet ready)",
-    "failed": "computations that failed (degenerate input)",
+    "failed": "computations that failed (degenerate input), or whose result holds NaN or "
+    "infinity (not published)",
     "too_few_correspondences": "instants with fewer complete correspondences than the pattern "
     "needs (a feature hidden): expected, logged as a summary every SUMMARY_S",
     "overflow": "samples and commands dropped because the inbox was full",
@@ -587,7 +588,11 @@ class Worker:
 
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         for port, value in outputs.items():
-            payload = encode(value)
+            try:
+                payload = encode(value)  # where a result's numbers are checked
+            except MeasurementError as exc:
+                self._count("failed", "result not published: %s", exc)
+                continue
             for key in self._routes.get(port, ()):
                 self._publishers[key].put(payload)
             self.counters["published"] += 1

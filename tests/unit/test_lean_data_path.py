@@ -46,13 +46,44 @@ def test_a_worker_sample_skips_what_holds_by_construction_only():
     assert decode(payload, ErrorPose, WORKER).rotation[3] == pytest.approx(1.01)
 
 
-@pytest.mark.parametrize("level", [FULL, WORKER, DERIVED])
-def test_every_level_refuses_nan_and_wrong_shapes(level):
+@pytest.mark.parametrize("level", [FULL, WORKER])
+def test_samples_from_outside_or_a_worker_with_nan_are_refused(level):
     nan = np.array([0.0, np.nan, 0.0])
     with pytest.raises(MeasurementError, match="translation: contains NaN"):
         decode(error_pose_message(translation=nan.tobytes()), ErrorPose, level)
+
+
+@pytest.mark.parametrize("level", [FULL, WORKER, DERIVED])
+def test_every_level_refuses_wrong_shapes(level):
     with pytest.raises(MeasurementError, match="do not fit"):
         decode(error_pose_message(translation=np.zeros(6).tobytes()), ErrorPose, level)
+    with pytest.raises(MeasurementError, match="shape must be 3"):
+        ErrorPose.checked(
+            level, timestamp_ns=1, rotation=IDENTITY, translation=np.zeros(4), covariance=COVARIANCE
+        )
+
+
+def test_a_result_holding_nan_is_refused_where_it_leaves_the_process():
+    """The maths' results are checked by the encoder (level DERIVED checks shapes only)."""
+    degenerate = ErrorPose.derived(
+        timestamp_ns=1,
+        rotation=np.array(IDENTITY),
+        translation=np.array([np.inf, 0.0, 0.0]),
+        covariance=COVARIANCE.copy(),
+    )
+    with pytest.raises(MeasurementError, match="NaN or infinity"):
+        encode(degenerate)
+
+
+def test_a_worker_counts_a_result_it_cannot_publish():
+    session = FakeSession()
+    worker = worker_with_static(session, 1_000)
+    huge = 1.5e308  # finite, but the sum of two overflows to infinity
+    session.deliver(KEYS.data("ART/WT"), encode(Pose(1_500, IDENTITY, [huge, 0.0, 0.0])))
+    session.deliver(KEYS.data("ART/HT"), encode(Pose(2_000, IDENTITY, [huge, 0.0, 0.0])))
+    assert outputs(session) == []
+    assert worker.counters["failed"] == 1 and worker.counters["internal_errors"] == 0
+    worker.stop()
 
 
 @pytest.mark.parametrize("level", [FULL, WORKER])
@@ -97,13 +128,18 @@ def test_the_cholesky_test_decides_as_the_eigenvalues_do(eigenvalues, seed):
             check("c", matrix)
 
 
-def test_results_are_read_only_and_never_alias_the_callers_arrays():
-    rotation = np.array(IDENTITY)
+def test_a_result_keeps_the_maths_arrays_made_read_only():
+    """Level DERIVED takes the new arrays of the maths as they are (no copy) and freezes them;
+    the constructor (level FULL) copies a caller's arrays instead."""
+    rotation, covariance = np.array(IDENTITY), COVARIANCE.copy()
     result = ErrorPose.derived(
-        timestamp_ns=1, rotation=rotation, translation=np.zeros(3), covariance=COVARIANCE
+        timestamp_ns=1, rotation=rotation, translation=np.zeros(3), covariance=covariance
     )
-    rotation[0] = 5.0
-    assert result.rotation[0] == 0.0 and not result.covariance.flags.writeable
+    assert result.rotation is rotation and not rotation.flags.writeable
+    given = np.array(IDENTITY)
+    built = ErrorPose(1, given, np.zeros(3), COVARIANCE)
+    given[0] = 5.0
+    assert built.rotation[0] == 0.0 and not built.covariance.flags.writeable
 
 
 # -- maths on single poses -------------------------------------------------------------------

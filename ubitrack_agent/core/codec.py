@@ -37,6 +37,9 @@ MAX_MESSAGE_BYTES = 32 * 1024 * 1024
 """Largest message :func:`decode` looks at (a list of a million 3D points is 24 MB)."""
 
 _FLOAT = np.dtype("<f8")
+_NATIVE = np.dtype(np.float64) == _FLOAT
+"""Measurements hold native float64 arrays (C order): on a little-endian host their bytes are
+the wire's as they are."""
 _HEADER_KEYS = frozenset({"v", "type", "t"})
 _ABSENT = object()
 
@@ -44,16 +47,25 @@ M = TypeVar("M", bound=Measurement)
 
 
 def encode(measurement: Measurement) -> bytes:
-    """Serialise ``measurement`` to msgpack bytes (see the module docstring for the format)."""
+    """Serialise ``measurement`` to msgpack bytes (see the module docstring for the format).
+
+    Raises :class:`MeasurementError` if it holds NaN or infinity: a result of this package's
+    maths is checked here, once, where it leaves the process (``core.measurements.DERIVED``).
+    """
     message: dict[str, Any] = {
         "v": WIRE_VERSION,
         "type": measurement.TYPE_TAG,
         "t": measurement.timestamp_ns,
     }
+    parts = []
     for spec in measurement.ARRAY_FIELDS:
         value = getattr(measurement, spec.name)
         if value is not None:
-            message[spec.name] = np.ascontiguousarray(value, dtype=_FLOAT).tobytes()
+            data = value.tobytes() if _NATIVE else value.astype(_FLOAT).tobytes()
+            message[spec.name] = data
+            parts.append(data)
+    if parts and not np.isfinite(np.frombuffer(b"".join(parts), dtype=_FLOAT)).all():
+        raise MeasurementError(f"{measurement.TYPE_TAG}: contains NaN or infinity, not encoded")
     if isinstance(measurement, CameraIntrinsics) and measurement.image_size is not None:
         message["image_size"] = list(measurement.image_size)
     return msgpack.packb(message, use_bin_type=True)
@@ -78,7 +90,8 @@ def _array(where: str, raw: Any, shape: tuple[int | None, ...]) -> np.ndarray:
         raise MeasurementError(f"{where}: expected float64 bytes, got {type(raw).__name__}")
     if None not in shape:  # a fixed shape takes exactly its size
         if len(raw) == _FLOAT.itemsize * math.prod(shape):  # type: ignore[arg-type]
-            return np.frombuffer(raw, dtype=_FLOAT).reshape(shape)
+            flat = np.frombuffer(raw, dtype=_FLOAT)
+            return flat if len(shape) == 1 else flat.reshape(shape)
     elif len(raw) % _FLOAT.itemsize == 0:  # a list (one free dimension) any whole multiple
         flat = np.frombuffer(raw, dtype=_FLOAT)
         fixed = math.prod(d for d in shape if d is not None)
@@ -124,16 +137,21 @@ def decode(
     if unknown:
         raise MeasurementError(f"{tag}: unknown keys {sorted(str(k)[:40] for k in unknown)}")
     kwargs: dict[str, Any] = {"timestamp_ns": message["t"]}
+    raws = []
     for spec in cls.ARRAY_FIELDS:
         raw = message.get(spec.name, _ABSENT)
         if raw is not _ABSENT:
             kwargs[spec.name] = _array(f"{tag}.{spec.name}", raw, spec.shape)
+            raws.append(raw)
         elif not spec.optional:
             raise MeasurementError(f"{tag}.{spec.name}: missing")
     if "image_size" in message:
         size = message["image_size"]
         kwargs["image_size"] = tuple(size) if isinstance(size, list) else size
-    return cls.checked(level, **kwargs)  # type: ignore[return-value]
+    # Every number of the message checked at once (one numpy call per array costs more than
+    # the join); if one is not finite, the measurement's own check names the field.
+    finite = bool(np.isfinite(np.frombuffer(b"".join(raws), dtype=_FLOAT)).all())
+    return cls.checked(level, finite=finite, **kwargs)  # type: ignore[return-value]
 
 
 def to_json(measurement: Measurement) -> dict[str, Any]:

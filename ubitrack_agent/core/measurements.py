@@ -26,7 +26,10 @@ Conventions (also in ``docs/architecture.md``):
 
 Every type validates its fields on construction and raises
 :class:`~ubitrack_agent.core.errors.MeasurementError` naming the field; values are stored as
-read-only float64 arrays, so a measurement that exists is a valid one.
+read-only float64 arrays, so a measurement that exists is a valid one. The data path validates
+less where the checks would be repeated (:data:`FULL`, :data:`WORKER`, :data:`DERIVED`): a
+known worker's sample, and the results of this package's own maths, whose numbers the encoder
+checks before they leave the process.
 """
 
 from __future__ import annotations
@@ -76,8 +79,11 @@ file, an unknown publisher, an application): every property. ``WORKER``: a sampl
 worker of this system, computed by this package's maths: shapes, finiteness and positive
 semi-definite covariances (by Cholesky), not the properties that hold by construction (unit
 quaternions, symmetric covariances, an intrinsic matrix's form). ``DERIVED``: a result of
-this process's own maths: shapes and finiteness only (degenerate maths must not pass NaN
-on)."""
+this process's own maths: shapes only, its arrays kept (not copied) and made read-only; its
+numbers are checked where it leaves the process, by the encoder
+(``ubitrack_agent.core.codec.encode``), so degenerate maths never passes NaN on. Each numpy
+call costs a microsecond, and ten to twenty on a CPU woken for the sample, so a pattern hop
+pays for every check it repeats (``docs/performance.md``, "Data path")."""
 
 
 @dataclass(frozen=True)
@@ -116,10 +122,15 @@ def check_timestamp(where: str, value: Any) -> int:
 _FLOAT64 = np.dtype(np.float64)
 
 
+def _is_float_array(value: Any, spec: ArrayField) -> bool:
+    """Whether ``value`` already is a float64 array of ``spec``'s (fixed) shape."""
+    return type(value) is np.ndarray and value.dtype == _FLOAT64 and value.shape == spec.shape
+
+
 def _as_array(where: str, value: Any, spec: ArrayField) -> np.ndarray:
     """``value`` as a float64 array of ``spec``'s shape: itself if it already is one that
     cannot change, else a copy (never aliasing a caller's array)."""
-    if type(value) is np.ndarray and value.dtype == _FLOAT64 and value.shape == spec.shape:
+    if _is_float_array(value, spec):
         return value.copy() if value.flags.writeable else value
     return _shaped(where, value, spec)
 
@@ -245,7 +256,7 @@ class Measurement:
     def __post_init__(self) -> None:
         self._validate(FULL)
 
-    def _validate(self, level: str) -> None:
+    def _validate(self, level: str, finite: bool = False) -> None:
         name = type(self).__name__
         values = self.__dict__  # a frozen dataclass: fields set here, once, before use
         values["timestamp_ns"] = check_timestamp(f"{name}.timestamp_ns", self.timestamp_ns)
@@ -257,8 +268,11 @@ class Measurement:
                     raise _fail(f"{name}.{spec.name}", "is required")
                 continue
             specs.append(spec)
-            arrays.append(_as_array(f"{name}.{spec.name}", value, spec))
-        if arrays:
+            if level == DERIVED and _is_float_array(value, spec):
+                arrays.append(value)  # the maths' own new array: kept, made read-only below
+            else:
+                arrays.append(_as_array(f"{name}.{spec.name}", value, spec))
+        if arrays and level != DERIVED and not finite:  # a result's: checked by the encoder
             _check_finite(name, specs, arrays)
         for spec, array in zip(specs, arrays, strict=True):
             check = spec.check if level == FULL else spec.worker_check if level == WORKER else None
@@ -269,9 +283,10 @@ class Measurement:
         self._check_extra()
 
     @classmethod
-    def checked(cls, level: str, **values: Any) -> Self:
+    def checked(cls, level: str, *, finite: bool = False, **values: Any) -> Self:
         """A measurement of ``values`` validated at ``level`` (``FULL``, ``WORKER`` or
-        ``DERIVED``; the constructor is ``FULL``)."""
+        ``DERIVED``; the constructor is ``FULL``); ``finite``: the caller has checked that
+        every number is finite (the decoder, over a message's bytes at once)."""
         value = object.__new__(cls)
         fields_of = value.__dict__  # a frozen dataclass: set here, once, before anyone uses it
         for name, default in _defaults(cls):
@@ -281,7 +296,7 @@ class Measurement:
                 raise TypeError(f"{cls.__name__}: missing {name}")
             else:
                 fields_of[name] = default()
-        value._validate(level)
+        value._validate(level, finite)
         return value
 
     @classmethod
