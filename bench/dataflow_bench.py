@@ -1,17 +1,23 @@
 """Data path and reconfiguration benchmark (issue [agent], ``docs/performance.md``).
 
-Run: ``python -m bench.dataflow_bench [--samples N] [--trials N]``. Everything runs on loopback
-in separate processes with real zenoh; figures are printed and written to
-``bench/results/dataflow.json``.
+Run: ``python -m bench.dataflow_bench [--samples N] [--seconds S] [--rates R,...] [--trials N]
+[--skip-reconfiguration]``. Everything runs on loopback in separate processes with real zenoh;
+figures are printed and written to ``bench/results/dataflow.json``.
 
-(a) **Hop latency.** The bench publishes poses and receives them back through one other
-    process, either a raw zenoh relay (``bench.raw_relay``: receive, republish) or a
-    concatenation worker (decode, synchronise with a static input, compose with covariance,
-    encode, publish). Both run side by side, interleaved in rounds, at 200 Hz; latency is
-    receive time minus send time in the bench process (one clock). The difference is what a
-    pattern hop adds over a raw hop.
-(b) **Throughput.** Poses are published as fast as the bench can into the concatenation worker
-    for a few seconds; the worker's ``published`` counter over the elapsed time is its rate.
+(a) **Hop latency.** The bench publishes ErrorPoses and receives them back through one other
+    process: a raw zenoh relay (``bench.raw_relay``: receive, republish), a concatenation
+    worker whose input is declared a worker's output (validated at level ``WORKER``, the usual
+    case inside a flow), and one whose input is a provider's (validated in full). Each worker
+    decodes, synchronises with a static input, composes with covariance, encodes and publishes.
+    The three run side by side, interleaved in rounds, 200 samples a second each; latency is
+    receive time minus send time in the bench process (one clock). The difference from the raw
+    hop is what a pattern hop adds; each worker's own ``handling_us`` (status) is printed
+    beside it.
+(b) **Throughput.** ErrorPoses, then Poses, offered at each rate of ``--rates`` for
+    ``--seconds`` into the raw relay and then into a concatenation worker (input from a
+    worker), with blocking congestion control: a hop that cannot keep up slows the sender
+    (``sent_per_s`` below the rate offered) instead of zenoh dropping samples. ``dropped`` is
+    what was sent and never published.
 (c) **Reconfiguration.** An agent serves ``WT->HT`` for an application; trials start once its
     warm pool is full (steady state). Sensor appears: from
     the tracker's liveliness token appearing (seen by the bench) to the first sample on the
@@ -201,69 +207,91 @@ def _payloads(kind: type[Pose] | type[ErrorPose], count: int) -> list[bytes]:
     return [encode(Pose(start + i * 1000, rotation, translation)) for i in range(count)]
 
 
-def _settled(counters: Callable[[], dict[str, int]]) -> dict[str, int]:
-    """The worker's counters once it has drained its backlog (``received`` unchanged for half
-    a second, at most 20 s)."""
-    last, deadline = counters(), time.monotonic() + 20.0
+def _settled(count: Callable[[], tuple[int, int]]) -> tuple[int, int]:
+    """``(received, published)`` once the hop has drained its backlog (unchanged for half a
+    second, at most 20 s)."""
+    last, deadline = count(), time.monotonic() + 20.0
     while time.monotonic() < deadline:
         time.sleep(0.5)
-        now = counters()
-        if now["received"] == last["received"] and now["published"] == last["published"]:
+        now = count()
+        if now == last:
             return now
         last = now
     return last
 
 
+def _offer(publisher: Any, payloads: list[bytes], rate: float | None) -> tuple[int, float]:
+    """Publish ``payloads`` at ``rate`` per second (None: as fast as this process can); the
+    number sent and the seconds it took."""
+    start = time.perf_counter()
+    sent = 0
+    while sent < len(payloads):
+        due = len(payloads)
+        if rate is not None:
+            due = min(due, int((time.perf_counter() - start) * rate))
+        if sent >= due:
+            time.sleep(0.0005)
+            continue
+        for payload in payloads[sent : min(due, sent + 200)]:
+            publisher.put(payload)
+        sent = min(due, sent + 200)
+    return sent, time.perf_counter() - start
+
+
 def throughput(seconds: float, rates: list[float | None]) -> dict[str, Any]:
-    """(b): ErrorPoses and Poses per second through one concatenation worker whose input
-    comes from a worker, at each offered rate (None: as fast as this process publishes, with
-    blocking congestion control so zenoh itself drops nothing). ``dropped`` is what was sent
-    but never published, whatever dropped it."""
+    """(b): ErrorPoses and Poses per second through the raw relay and through a concatenation
+    worker whose input comes from a worker, side by side at each offered rate (None: as fast
+    as this process publishes). Blocking congestion control, so that zenoh drops nothing and a
+    hop that cannot keep up slows the sender (``sent_per_s`` below the rate offered).
+    ``dropped`` is what was sent but never published, whatever dropped it: the relay's outputs
+    are counted as this process receives them, the worker's by its ``published`` counter."""
     net = Network()
     results: dict[str, Any] = {}
     try:
         spec = _concatenation_spec(net.keys, "flood", from_worker=True)
         net.spawn("-m", "services.worker", "--spec", spec.to_json(), "--log-level", "WARNING")
-        publisher = net.session.declare_publisher(
-            net.keys.data("flood/in"), congestion_control=zenoh.CongestionControl.BLOCK
-        )
-        wait_until(lambda: publisher.matching_status.matching)
+        net.spawn("-m", "bench.raw_relay", net.keys.data("rawflood/in"), net.keys.data("raw/out"))
+        relayed = [0]
+
+        def count_relayed(_: Any) -> None:
+            relayed[0] += 1
+
+        subscriber = net.session.declare_subscriber(net.keys.data("raw/out"), count_relayed)
+        publishers = {
+            hop: net.session.declare_publisher(
+                net.keys.data(f"{hop}/in"), congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            for hop in ("rawflood", "flood")
+        }
+        wait_until(lambda: all(p.matching_status.matching for p in publishers.values()))
         net.session.put(net.keys.data("flood/static"), encode(STATIC))
         time.sleep(0.5)
 
-        def counters() -> dict[str, int]:
+        def worker_counts() -> tuple[int, int]:
             for _ in range(10):  # a worker draining a flood may answer late
                 replies = fetch_latest(net.session, net.keys.status(spec.instance), timeout=2.0)
                 if replies:
-                    return json.loads(replies[0])["counters"]
+                    counters = json.loads(replies[0])["counters"]
+                    return counters["received"], counters["published"]
             raise TimeoutError("the worker does not answer its status")
 
+        counts = {"rawflood": lambda: (relayed[0], relayed[0]), "flood": worker_counts}
         for kind in (ErrorPose, Pose):
             for rate in rates:
-                payloads = _payloads(kind, int(seconds * (rate or 60_000)))
-                before = counters()
-                start = time.perf_counter()
-                sent = 0
-                while sent < len(payloads):
-                    due = len(payloads)
-                    if rate is not None:
-                        due = min(due, int((time.perf_counter() - start) * rate))
-                    if sent >= due:
-                        time.sleep(0.0005)
-                        continue
-                    for payload in payloads[sent : min(due, sent + 200)]:
-                        publisher.put(payload)
-                    sent = min(due, sent + 200)
-                elapsed = time.perf_counter() - start
-                after = _settled(counters)
-                published = after["published"] - before["published"]
-                results[f"{kind.__name__} at {'max' if rate is None else int(rate)}/s"] = {
-                    "sent_per_s": round(sent / elapsed),
-                    "published": published,
-                    "dropped": sent - published,
-                    "overflow": after["overflow"] - before["overflow"],
-                }
-                time.sleep(0.5)
+                for hop, name in (("rawflood", "raw relay"), ("flood", "worker")):
+                    payloads = _payloads(kind, int(seconds * (rate or 60_000)))
+                    before = counts[hop]()
+                    sent, elapsed = _offer(publishers[hop], payloads, rate)
+                    after = _settled(counts[hop])
+                    published = after[1] - before[1]
+                    label = f"{kind.__name__} at {'max' if rate is None else int(rate)}/s"
+                    results.setdefault(label, {})[name] = {
+                        "sent_per_s": round(sent / elapsed),
+                        "published": published,
+                        "dropped": sent - published,
+                    }
+                    time.sleep(0.5)
+        subscriber.undeclare()
     finally:
         net.close()
     return results
