@@ -38,6 +38,7 @@ extrapolation from the newest, at most ``max_ahead_ns`` ahead.
 from __future__ import annotations
 
 import bisect
+import math
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
@@ -45,6 +46,7 @@ import numpy as np
 
 from services.algorithms._checks import as_array, as_quaternions, positive
 from services.algorithms.estimate import PoseEstimate, symmetric
+from services.algorithms.tangent import RotationSpace
 from ubitrack_agent.core import quaternions
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.measurements import check_timestamp
@@ -55,6 +57,8 @@ GATE_9999 = 27.856
 """Chi-square quantile of 6 degrees of freedom at 99.99 %: the default innovation gate."""
 
 _EYE3 = np.eye(3)
+_EYE12 = np.eye(12)
+_ROTATIONS = RotationSpace()
 
 Outcome = Literal["updated", "late", "gated", "restarted", "too_old"]
 """What :meth:`PoseKalmanFilter.update` did with a measurement: ``updated`` (in time order),
@@ -157,7 +161,10 @@ class PoseKalmanFilter:
         self._history: list[tuple[_Measurement, _State]] = []
         """The measurements of the kept window with the posterior after each, in time order."""
         self._gated_in_row = 0
-        self._noise = _process_noise(self.settings.angular_noise, self.settings.linear_noise)
+        self._noise = np.stack(
+            _process_noise(self.settings.angular_noise, self.settings.linear_noise)
+        ).reshape(3, 144)
+        """The three terms of the process noise, flat: one product gives it for a gap."""
 
     @property
     def timestamp_ns(self) -> int | None:
@@ -174,11 +181,11 @@ class PoseKalmanFilter:
         step = quaternions.from_rotvec(state.vector[3:6] * dt)
         vector = state.vector.copy()
         vector[:3] += dt * vector[6:9]
-        transition = np.eye(12)
+        transition = _EYE12.copy()
         transition[:3, :3] = quaternions.to_matrix(step)
         transition[:3, 6:9] = transition[3:6, 9:12] = dt * _EYE3
         gap = abs(dt)
-        noise = (gap**3 / 3) * self._noise[0] + (gap**2 / 2) * self._noise[1] + gap * self._noise[2]
+        noise = (np.array([gap**3 / 3, gap**2 / 2, gap]) @ self._noise).reshape(12, 12)
         covariance = transition @ state.covariance @ transition.T + noise
         rotation = quaternions.multiply(step, state.rotation)
         return _State(timestamp_ns, rotation, vector, covariance)
@@ -192,30 +199,28 @@ class PoseKalmanFilter:
 
     def _correct(self, prior: _State, measurement: _Measurement) -> _State | None:
         """The posterior after ``measurement`` at the prior's time; None if gated."""
-        residual = np.concatenate(
-            (
-                quaternions.to_rotvec(
-                    quaternions.multiply(
-                        measurement.rotation, quaternions.conjugate(prior.rotation)
-                    )
-                ),
-                measurement.translation - prior.vector[:3],
-            )
-        )
+        # On floats where the values are a few numbers (each numpy call costs 10-20 us on a
+        # CPU woken for the sample: docs/performance.md, "Data path").
+        reference = tuple(prior.rotation.tolist())
+        phi = _ROTATIONS.log(measurement.rotation.tolist(), reference)
+        mx, my, mz = measurement.translation.tolist()
+        px, py, pz = prior.vector[:3].tolist()
+        residual = np.array((*phi, mx - px, my - py, mz - pz))
         innovation = prior.covariance[:6, :6] + measurement.noise
         solved = np.linalg.solve(innovation, np.column_stack((residual, prior.covariance[:6, :])))
         if residual @ solved[:, 0] > self.settings.gate:
             return None
         gain = solved[:, 1:].T
         correction = gain @ residual
-        keep = np.eye(12)
+        keep = _EYE12.copy()
         keep[:, :6] -= gain
         covariance = keep @ prior.covariance @ keep.T + gain @ measurement.noise @ gain.T
-        rotation = quaternions.multiply(quaternions.from_rotvec(correction[:3]), prior.rotation)
-        rotation = rotation / np.linalg.norm(rotation)
-        return _State(
-            prior.timestamp_ns, rotation, prior.vector + correction[3:], symmetric(covariance)
-        )
+        correction_values = correction.tolist()
+        x, y, z, w = _ROTATIONS.exp(correction_values[:3], reference)
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        rotation = np.array((x / norm, y / norm, z / norm, w / norm))
+        vector = prior.vector + correction[3:]
+        return _State(prior.timestamp_ns, rotation, vector, symmetric(covariance))
 
     # -- measurements -------------------------------------------------------------------------
 
