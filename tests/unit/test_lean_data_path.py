@@ -20,6 +20,8 @@ from ubitrack_agent.core.measurements import (
     DERIVED,
     FULL,
     WORKER,
+    _positive_definite,
+    _positive_definite_by_numpy,
     check_covariance,
     check_semidefinite,
 )
@@ -126,6 +128,19 @@ def test_the_cholesky_test_decides_as_the_eigenvalues_do(eigenvalues, seed):
                 check("c", matrix)
         else:
             check("c", matrix)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6), st.integers(0, 2**32 - 1))
+def test_lapack_and_numpy_decide_positive_definiteness_alike(eigenvalues, seed):
+    """The worker's Cholesky (LAPACK's dpotrf, SciPy loaded) and the agent's (numpy's)."""
+    basis = np.kron(np.eye(2), Rotation.random(rng=np.random.default_rng(seed)).as_matrix())
+    matrix = basis @ np.diag(np.array(eigenvalues) * 1e-6) @ basis.T
+    matrix = 0.5 * (matrix + matrix.T)
+    if abs(np.linalg.eigvalsh(matrix)[0]) < 1e-18:
+        return  # at the boundary round-off decides either way
+    assert _positive_definite()(matrix) == _positive_definite_by_numpy(matrix)
+    assert _positive_definite_by_numpy(matrix) == (np.linalg.eigvalsh(matrix)[0] > 0)
 
 
 def test_a_result_keeps_the_maths_arrays_made_read_only():
