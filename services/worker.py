@@ -29,12 +29,12 @@ as it is decoded, before anything else uses it: the agent sets it when the compo
 come from hosts whose clocks differ (``agent.clocks``), so they are synchronised on the agent's
 clock. A query for an input's value at a given time goes upstream at the input's own time.
 
-A sample is decoded (validated in full, or at level ``WORKER`` for a binding ``from_worker``:
-``core.measurements``), synchronised (:mod:`ubitrack_agent.core.timeline`), computed and
-published on zenoh's receiving thread when the worker is idle and its samples are quick to
-handle (:meth:`Worker._receive`), else on the worker thread, which takes everything waiting in
-its bounded inbox in one go; one lock keeps them in order, and no callback ever waits for it.
-Control commands and queries for a value at a given time always go through the inbox.
+Zenoh callbacks only append to a bounded inbox (never calling zenoh, never blocking the
+receive path: a callback that called zenoh could wait for a lock that a thread waiting for
+Python's lock holds); one thread takes everything waiting at once, decodes each sample
+(validated in full, or at level ``WORKER`` for a binding ``from_worker``:
+``core.measurements``), synchronises (:mod:`ubitrack_agent.core.timeline`), computes and
+publishes.
 
 Handling is total (issue 11): bad input (a sample the codec refuses, one stamped too far ahead
 of this host's clock, a control command or specification that is not a bounded JSON object of
@@ -153,14 +153,9 @@ asked again: a renderer asking every frame must not cost the flow a round trip (
 time-out) per input each time."""
 LATENCY_SAMPLES = 64
 """Samples per input whose latency the status's median covers."""
-INLINE_S = 0.001
-"""A sample is handled on zenoh's receiving thread only while handling one takes less than
-this on average (1 ms: a concatenation or a fusion update takes 0.1 ms on a busy CPU and 0.5 ms
-on one woken for each sample at 200 Hz, ``python -m bench.dataflow_bench``; a pose estimation
-or a time expansion's estimate takes more, and is handed to the worker thread so that zenoh's
-thread is never held up long)."""
 HANDLING_GAIN = 0.05
-"""Weight of the latest sample in the running mean of the time to handle one."""
+"""Weight of the latest sample in the running mean of the time to handle one (``handling_us``
+in the status)."""
 SUMMARY_S = 10.0
 """Seconds between two summaries of the expected conditions counted (``_summarise``)."""
 
@@ -271,8 +266,6 @@ class Worker:
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
         self._on_sample_guarded = self._guarded(self._on_sample)
-        self._busy = threading.Lock()
-        """Held while a sample, command or trigger is handled, on either thread."""
         self._handling_s = 0.0
         """Running mean of the time to handle a sample (seconds)."""
         self._stop = threading.Event()
@@ -305,8 +298,7 @@ class Worker:
         self._route_outputs(spec.relations)
         self._status = session.declare_queryable(keys.status(spec.instance))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
-        with self._busy:  # a sample may arrive on zenoh's thread before the inputs are set
-            self._bind(spec.inputs)
+        self._bind(spec.inputs)
         declare = functools.partial(
             session.liveliness().declare_token, keys.worker(spec.instance, self.incarnation)
         )
@@ -325,8 +317,7 @@ class Worker:
     # -- wiring ---------------------------------------------------------------------------
 
     def _bind(self, bindings: tuple[InputBinding, ...]) -> None:
-        """Subscribe to ``bindings``, keeping the buffers of keys already subscribed; holding
-        ``_busy``, so that no sample is handled until the inputs are set."""
+        """Subscribe to ``bindings``, keeping the buffers of keys already subscribed."""
         self._generation += 1
         generation = self._generation
         old = {(item.binding.key, item.binding.static): item for item in self._inputs}
@@ -342,7 +333,9 @@ class Worker:
             subscriber = self._session.declare_subscriber(
                 binding.key,
                 self._guarded(
-                    lambda s, i=index: self._receive(generation, i, s.payload.to_bytes())
+                    lambda s, i=index: self._inbox.put(
+                        ("data", generation, i, s.payload.to_bytes())
+                    )
                 ),
             )
             inputs.append(_Input(binding, buffer, subscriber))
@@ -732,22 +725,8 @@ class Worker:
     def stop(self) -> None:
         self._stop.set()
 
-    def _receive(self, generation: int, index: int, payload: bytes) -> None:
-        """On zenoh's thread: a sample, handled at once if the worker is idle (nothing
-        waiting, no other sample being handled) and its samples take little time to handle
-        (:data:`INLINE_S`), else handed to the worker thread. Handling it here saves the
-        hand-off's wake-up, a tenth of a millisecond (issue 12); never blocks."""
-        if self._handling_s < INLINE_S and self._busy.acquire(blocking=False):
-            try:
-                if not self._inbox and not self._stop.is_set():
-                    self._handle_sample(generation, index, payload)
-                    return
-            finally:
-                self._busy.release()
-        self._inbox.put(("data", generation, index, payload))
-
     def _handle_sample(self, generation: int, index: int, payload: bytes) -> None:
-        """A sample and the triggers due after it, timed (``_handling_s``); holding ``_busy``."""
+        """A sample and the triggers due after it, timed (``_handling_s``)."""
         start = time.perf_counter()
         self._on_sample_guarded(generation, index, payload)
         if self._pending:
@@ -761,18 +740,17 @@ class Worker:
         deadline = self._pending.next_deadline()
         timeout = longest_s if deadline is None else max(0.0, deadline - time.monotonic())
         self._inbox.wait(min(longest_s, timeout))
-        with self._busy:  # drained and handled in order: no sample is handled inline meanwhile
-            for item in self._inbox.drain():
-                if self._stop.is_set():
-                    return
-                if item[0] == "data":
-                    self._handle_sample(*item[1:])
-                elif item[0] == "at":
-                    self._guarded(self._answer)(item[1])
-                else:
-                    self._guarded(self._apply_control)(item[1])
-            if self._pending:
-                self._guarded(self._process_due_triggers)()
+        for item in self._inbox.drain():
+            if self._stop.is_set():
+                return
+            if item[0] == "data":
+                self._handle_sample(*item[1:])
+            elif item[0] == "at":
+                self._guarded(self._answer)(item[1])
+            else:
+                self._guarded(self._apply_control)(item[1])
+        if self._pending:
+            self._guarded(self._process_due_triggers)()
         self._summarise(time.monotonic())
 
     def _summarise(self, now: float) -> None:
