@@ -191,9 +191,6 @@ class Inbox:
         if not self._wake.is_set():
             self._wake.set()
 
-    def __len__(self) -> int:
-        return len(self._items)
-
     def wait(self, timeout: float) -> None:
         """Return once an item waits, or after ``timeout``."""
         if not self._items:
