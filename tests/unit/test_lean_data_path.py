@@ -25,7 +25,7 @@ from ubitrack_agent.core.measurements import (
     check_covariance,
     check_semidefinite,
 )
-from ubitrack_agent.core.uncertainty import adjoint, pose_adjoint
+from ubitrack_agent.core.uncertainty import adjoint, cached_adjoint
 from ubitrack_agent.net.spec import InputBinding, SpecError, parse_bindings
 
 COVARIANCE = np.eye(6) * 1e-6
@@ -175,10 +175,11 @@ def test_scalar_quaternion_paths_equal_the_batched_ones():
 def test_the_adjoint_of_a_static_input_is_computed_once():
     q = Rotation.random(rng=np.random.default_rng(4)).as_quat()
     t = np.array([0.1, -2.0, 0.3])
-    first = pose_adjoint(q, t)
-    assert pose_adjoint(q.copy(), t.copy()) is first  # by value, not by identity
+    first, transposed = cached_adjoint(q, t)
+    assert cached_adjoint(q.copy(), t.copy())[0] is first  # by value, not by identity
     np.testing.assert_array_equal(first, adjoint(q, t))
-    assert not first.flags.writeable
+    np.testing.assert_array_equal(transposed, first.T)
+    assert not first.flags.writeable and not transposed.flags.writeable
 
 
 # -- input bindings ----------------------------------------------------------------------------

@@ -67,17 +67,13 @@ def _cached_adjoint(q: bytes, t: bytes) -> tuple[np.ndarray, np.ndarray]:
     return result, result.T
 
 
-def _pose_adjoints(q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def cached_adjoint(q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The adjoint (6, 6) of one transform ``(q, t)`` and its transpose, read-only, cached by
+    value: the adjoint of a static input (a calibration that a concatenation composes every
+    sample with) is computed once, not per sample (issue 12)."""
     if not (type(q) is type(t) is np.ndarray and q.dtype == t.dtype == np.float64):
         q, t = np.asarray(q, dtype=float), np.asarray(t, dtype=float)
     return _cached_adjoint(q.tobytes(), t.tobytes())
-
-
-def pose_adjoint(q: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The adjoint (6, 6, read-only) of one transform ``(q, t)``, cached by value: the
-    adjoint of a static input (a calibration that a concatenation composes every sample with)
-    is computed once, not per sample (issue 12)."""
-    return _pose_adjoints(q, t)[0]
 
 
 def isotropic_pose_covariance(sigma_rotation_rad: float, sigma_translation_m: float) -> np.ndarray:
@@ -132,7 +128,7 @@ def compose_covariance(
 ) -> np.ndarray:
     """Covariance of ``T1 T2`` for independent ``T1`` (mean ``(q1, t1)``) and ``T2``."""
     if np.shape(q1) == (4,) and np.shape(t1) == (3,):  # one transform: its adjoint cached
-        adj, adj_transposed = _pose_adjoints(q1, t1)
+        adj, adj_transposed = cached_adjoint(q1, t1)
         return covariance1 + adj @ covariance2 @ adj_transposed
     return covariance1 + _transport(adjoint(q1, t1), covariance2)
 
