@@ -332,3 +332,30 @@ def test_batch_progress_converges_on_precise_stable_results_only():
     assert all(moving.update(result, 10, 0).status == "averaging" for result in jumps)
     report = tracker.update(precise[0], 14, 5)
     assert report.value["position"] == [0.1, 0.0, 0.0] and report.std_translation < 1e-3
+
+
+class _FilterThatWentBack:
+    """A fusion filter whose newest measurement went back in time (a late measurement's replay
+    gated the newest ones), so it takes an older measurement as in order."""
+
+    def __init__(self) -> None:
+        self.real = make("fusion")._filter
+
+    def update(self, timestamp_ns, rotation, translation, covariance, validated=False):
+        self.real.update(timestamp_ns, rotation, translation, covariance, validated)
+        return "updated"
+
+    def estimate(self, timestamp_ns):
+        return self.real.estimate(timestamp_ns)
+
+
+def test_asynchronous_fusion_publishes_in_time_order_only():
+    fusion = make("fusion")
+    fusion._filter = _FilterThatWentBack()
+    pose = [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0], np.eye(6) * 1e-6
+    published = []
+    for t in (100, 200, 150, 200, 300):
+        pushed = fusion.push("AB", ErrorPose(T + t * 10**6, *pose))
+        published += [value.timestamp_ns - T for value in pushed.outputs.values()]
+        assert pushed.outputs or pushed.reason == "late"
+    assert published == [100 * 10**6, 200 * 10**6, 300 * 10**6]
