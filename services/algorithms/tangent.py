@@ -18,8 +18,9 @@ Why by hand, on plain floats: the static estimator maps one sample at a time. A 
 50 us (a microsecond per array operation); these float closed forms cost about 4 us. Batches
 are small (tens of summaries) and loop. The tests check every map against scipy's
 ``as_exp_coords`` / ``from_exp_coords`` / ``as_rotvec``. Closed forms: quaternion product and
-rotation, Sola, "Quaternion kinematics for the error-state Kalman filter", arXiv:1711.02508;
-left Jacobian ``J_l`` of SO(3), ``rho = J_l(phi)^-1 t`` and the adjoint: Barfoot, "State
+rotation on floats, :func:`ubitrack_agent.core.quaternions.multiply_floats` and
+``rotate_floats`` (Sola, "Quaternion kinematics for the error-state Kalman filter",
+arXiv:1711.02508); left Jacobian ``J_l`` of SO(3), ``rho = J_l(phi)^-1 t`` and the adjoint: Barfoot, "State
 Estimation for Robotics", 2017, chapter 7.
 """
 
@@ -31,31 +32,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from ubitrack_agent.core.quaternions import multiply_floats, rotate_floats
+
 Vector = tuple[float, ...]
-
-
-def _multiply(a: Sequence[float], b: Sequence[float]) -> Vector:
-    """Hamilton product ``a * b`` of quaternions (x, y, z, w)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    )
-
-
-def _rotate(q: Sequence[float], v: Sequence[float]) -> Vector:
-    """``R(q) v`` as ``v + 2 w (u x v) + 2 u x (u x v)`` for ``q = (u, w)``."""
-    x, y, z, w = q
-    vx, vy, vz = v
-    cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
-    return (
-        vx + 2.0 * (w * cx + y * cz - z * cy),
-        vy + 2.0 * (w * cy + z * cx - x * cz),
-        vz + 2.0 * (w * cz + x * cy - y * cx),
-    )
 
 
 def _jacobian_times(phi: Sequence[float], v: Sequence[float], a: float, b: float) -> Vector:
@@ -160,8 +139,8 @@ class PoseSpace(Space):
 
     def log(self, value: Sequence[float], reference: Sequence[float]) -> Vector:
         # T T_ref^-1 = (q q_ref^*, t - R(q q_ref^*) t_ref); rho = J_l(phi)^-1 t_rel.
-        q_rel = _multiply(value[:4], _conjugate(reference[:4]))
-        moved = _rotate(q_rel, reference[4:])
+        q_rel = multiply_floats(value[:4], _conjugate(reference[:4]))
+        moved = rotate_floats(q_rel, reference[4:])
         t_rel = (value[4] - moved[0], value[5] - moved[1], value[6] - moved[2])
         phi, coefficient = _rotation_log(q_rel)
         return phi + _jacobian_times(phi, t_rel, -0.5, coefficient)
@@ -170,9 +149,11 @@ class PoseSpace(Space):
         # Exp(xi) = (Exp(phi), J_l(phi) rho); Exp(xi) T_ref = (q q_ref, R(q) t_ref + J_l rho).
         phi = xi[:3]
         q, a, b = _rotation_exp(phi)
-        moved = _rotate(q, reference[4:])
+        moved = rotate_floats(q, reference[4:])
         shift = _jacobian_times(phi, xi[3:], a, b)
-        return _multiply(q, reference[:4]) + tuple(m + s for m, s in zip(moved, shift, strict=True))
+        return multiply_floats(q, reference[:4]) + tuple(
+            m + s for m, s in zip(moved, shift, strict=True)
+        )
 
     def translation_jacobian(self, reference: Sequence[float]) -> np.ndarray:
         # t' = Exp(phi) t + J_l(phi) rho = t + phi x t + rho + O(|xi|^2): [-[t]x, I].
@@ -223,10 +204,10 @@ class RotationSpace(Space):
     rotation_part = slice(0, 3)
 
     def log(self, value: Sequence[float], reference: Sequence[float]) -> Vector:
-        return _rotation_log(_multiply(value, _conjugate(reference)))[0]
+        return _rotation_log(multiply_floats(value, _conjugate(reference)))[0]
 
     def exp(self, xi: Sequence[float], reference: Sequence[float]) -> Vector:
-        return _multiply(_rotation_exp(xi)[0], reference)
+        return multiply_floats(_rotation_exp(xi)[0], reference)
 
     def translation_jacobian(self, reference: Sequence[float]) -> None:
         return None

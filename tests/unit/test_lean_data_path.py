@@ -170,6 +170,11 @@ def test_scalar_quaternion_paths_equal_the_batched_ones():
             quaternions.multiply(q[i], q[i + 1]), batched_products[i], atol=1e-15
         )
         np.testing.assert_allclose(quaternions.to_matrix(q[i]), batched_matrices[i], atol=1e-15)
+    v = np.random.default_rng(5).normal(size=(50, 3))
+    batched_rotated = quaternions.rotate(q, v)
+    for i in range(50):
+        rotated = quaternions.rotate_floats(q[i].tolist(), v[i].tolist())
+        np.testing.assert_allclose(rotated, batched_rotated[i], atol=1e-14)
 
 
 def test_the_adjoint_of_a_static_input_is_computed_once():

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ubitrack_agent.core import se3, uncertainty
+from ubitrack_agent.core import quaternions, se3, uncertainty
 from ubitrack_agent.core.errors import ExtrapolationError
 from ubitrack_agent.core.measurements import ErrorPose, Pose, Position3D
 
@@ -36,26 +36,12 @@ def _compose_means(first: AnyPose, second: AnyPose) -> tuple[np.ndarray, np.ndar
     """``(q1 q2, R(q1) t2 + t1)`` on plain floats: the means of a concatenation, which every
     pattern hop computes per sample. Why not :func:`se3.compose`: each numpy call on a
     four-vector costs a microsecond warm and ten on a CPU woken for the sample (``docs/
-    performance.md``, "Data path"); these are two. Rotation: ``v + 2 w (u x v) + 2 u x (u x v)``
-    for ``q = (u, w)`` (Sola, arXiv:1711.02508, eq. 115)."""
-    ax, ay, az, aw = first.rotation.tolist()
-    bx, by, bz, bw = second.rotation.tolist()
-    vx, vy, vz = second.translation.tolist()
-    tx, ty, tz = first.translation.tolist()
-    cx, cy, cz = ay * vz - az * vy, az * vx - ax * vz, ax * vy - ay * vx
-    dx, dy, dz = ay * cz - az * cy, az * cx - ax * cz, ax * cy - ay * cx
-    q = np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
-    t = np.array(
-        [vx + 2 * (aw * cx + dx) + tx, vy + 2 * (aw * cy + dy) + ty, vz + 2 * (aw * cz + dz) + tz]
-    )
-    return q, t
+    performance.md``, "Data path"); these are two."""
+    q1 = first.rotation.tolist()
+    moved = quaternions.rotate_floats(q1, second.translation.tolist())
+    t1 = first.translation.tolist()
+    q = np.array(quaternions.multiply_floats(q1, second.rotation.tolist()))
+    return q, np.array([moved[0] + t1[0], moved[1] + t1[1], moved[2] + t1[2]])
 
 
 def invert_pose(pose: AnyPose) -> AnyPose:

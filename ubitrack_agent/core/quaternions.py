@@ -15,6 +15,7 @@ SIGGRAPH 1985 (SLERP).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -63,20 +64,38 @@ def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a[..., :, None] * b[..., None, :]).reshape((*a.shape[:-1], 16))
 
 
+def multiply_floats(a: Sequence[float], b: Sequence[float]) -> tuple[float, ...]:
+    """Hamilton product ``a * b`` of one pair of quaternions (x, y, z, w) on plain floats: for
+    single poses on the data path, where each numpy call costs more than the whole product
+    (``docs/performance.md``, "Data path")."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    )
+
+
+def rotate_floats(q: Sequence[float], v: Sequence[float]) -> tuple[float, ...]:
+    """``R(q) v`` for one unit quaternion and one vector on plain floats, as
+    ``v + 2 w (u x v) + 2 u x (u x v)`` for ``q = (u, w)`` (Sola, arXiv:1711.02508, eq. 115)."""
+    x, y, z, w = q
+    vx, vy, vz = v
+    cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
+    return (
+        vx + 2.0 * (w * cx + y * cz - z * cy),
+        vy + 2.0 * (w * cy + z * cx - x * cz),
+        vz + 2.0 * (w * cz + x * cy - y * cx),
+    )
+
+
 def multiply(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Hamilton product ``q1 * q2`` (apply ``q2`` first, then ``q1``)."""
     q1, q2 = np.asarray(q1, dtype=float), np.asarray(q2, dtype=float)
-    if q1.shape == q2.shape == (4,):  # one product: scalar maths, a third of the table's cost
-        x1, y1, z1, w1 = q1.tolist()
-        x2, y2, z2, w2 = q2.tolist()
-        return np.array(
-            [
-                w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-                w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            ]
-        )
+    if q1.shape == q2.shape == (4,):  # one product: on floats, a third of the table's cost
+        return np.array(multiply_floats(q1.tolist(), q2.tolist()))
     return _outer(q1, q2) @ _PRODUCT
 
 
