@@ -20,8 +20,8 @@ are small (tens of summaries) and loop. The tests check every map against scipy'
 ``as_exp_coords`` / ``from_exp_coords`` / ``as_rotvec``. Closed forms: quaternion product and
 rotation on floats, :func:`ubitrack_agent.core.quaternions.multiply_floats` and
 ``rotate_floats`` (Sola, "Quaternion kinematics for the error-state Kalman filter",
-arXiv:1711.02508); left Jacobian ``J_l`` of SO(3), ``rho = J_l(phi)^-1 t`` and the adjoint: Barfoot, "State
-Estimation for Robotics", 2017, chapter 7.
+arXiv:1711.02508); left Jacobian ``J_l`` of SO(3), ``rho = J_l(phi)^-1 t`` and the adjoint:
+Barfoot, "State Estimation for Robotics", 2017, chapter 7.
 """
 
 from __future__ import annotations
