@@ -87,7 +87,7 @@ class PendingTriggers:
         it until ``now + wait_s`` instead: while the samples of one frame keep arriving, the
         wait for the frame's missing ones runs from the latest (and is the short one once
         enough of them are in)."""
-        if self.last_done is not None and timestamp_ns <= self.last_done:
+        if not self._after_last_done(timestamp_ns):
             return False
         if timestamp_ns in self._deadlines:
             if extend:
@@ -99,10 +99,13 @@ class PendingTriggers:
     def finish(self, timestamp_ns: int) -> bool:
         """Take a trigger that needs no wait as done at once (nothing is pending); False if
         it is not newer than the last done."""
-        if self.last_done is not None and timestamp_ns <= self.last_done:
+        if not self._after_last_done(timestamp_ns):
             return False
         self.last_done = timestamp_ns
         return True
+
+    def _after_last_done(self, timestamp_ns: int) -> bool:
+        return self.last_done is None or timestamp_ns > self.last_done
 
     def due(self, now: float, caught_up: Callable[[int], bool]) -> list[int]:
         """Remove and return, oldest first, the triggers whose inputs caught up or whose wait

@@ -33,8 +33,8 @@ class PoseEstimate(NamedTuple):
 
     def to_measurement(self, timestamp_ns: int) -> Pose | ErrorPose:
         """The core measurement: an :class:`ErrorPose` if there is a covariance, else a ``Pose``;
-        a result of this package's maths, checked for shapes and finite numbers only
-        (``Measurement.derived``: the consumer validates at level ``WORKER``)."""
+        a result of this package's maths, checked for shapes only (``Measurement.derived``:
+        the encoder checks its numbers, the consumer validates it at level ``WORKER``)."""
         if self.covariance is None:
             return Pose.derived(
                 timestamp_ns=timestamp_ns, rotation=self.rotation, translation=self.translation
