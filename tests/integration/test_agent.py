@@ -203,14 +203,20 @@ def test_a_killed_agent_is_restarted_and_rebuilds_everything(setup):
     relation = Relation(setup.session, setup.keys, WT_HT, application="app")
     wait_until(lambda: relation.latest() is not None, timeout=20)
     before = setup.alive_services()
+    pids = {instance: setup.worker_pid(instance) for instance in before}
 
     os.kill(agent.pid, signal.SIGKILL)  # the agent dies; its workers keep the data flowing
     agent.wait()
     fresh_samples(relation, 10)
 
     setup.start_agent()  # rebuilt from liveliness alone: adopts the running workers
-    wait_until(lambda: setup.alive_services() == before, timeout=20)
-    assert setup.status()["counters"].get("adopted", 0) == len(before)
+    wait_until(
+        lambda: (setup.status() or {}).get("counters", {}).get("adopted", 0) == len(before),
+        timeout=20,
+    )
+    status = setup.status()
+    assert {i: c["service"] for i, c in status["components"].items()} == before
+    assert {instance: setup.worker_pid(instance) for instance in before} == pids  # not restarted
     for sample in fresh_samples(relation, 10):
         assert_true_pose(sample)
     relation.close()

@@ -171,7 +171,6 @@ class Agent:
         self._retiring: dict[str, float] = {}
         self._held: dict[str, tuple[dict[str, Any], float]] = {}
         """Rewires waiting for the workers being started: command and deadline, by instance."""
-        self._started = time.monotonic()
         self._events: queue.SimpleQueue[tuple[str, str, str]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._status_json = "{}"
@@ -196,6 +195,8 @@ class Agent:
                 ("active_agent", self.keys.all_active_agents()),
             )
         ]
+        self._started = time.monotonic()
+        """When the watches were declared: their history arrives within ``SETTLE_S`` of it."""
         self._declared = [
             self._serve_status(self.keys.agent_member_status(self.id)),
             liveliness.declare_token(self.keys.agent_member(self.id)),
@@ -444,11 +445,11 @@ class Agent:
         return time.monotonic() - self._started > SETTLE_S
 
     def _reconcile(self) -> None:
-        self._claim_unknown_workers()
         if not self._settled():
             return  # start nothing a worker of an earlier agent may still be doing
         placement = self._place()
         self.wanted = self._correct_clocks(placement)
+        self._claim_unknown_workers()  # against this plan: what runs is adopted, not started
         actions = reconcile(self.running, self.wanted)
         restarted = {spec.instance for spec in actions.start}
         for instance in actions.stop:
@@ -647,6 +648,7 @@ class Agent:
         self.active = True
         self.counters["became_active"] += 1
         self.last_change_ns = time.time_ns()
+        self._refresh_status()  # the status key never answers with a standby's status
         log.warning("agent %s is the active agent of %s", self.id, self.keys.root)
         if self._on_role is not None:
             self._on_role(True)
