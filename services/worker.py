@@ -173,39 +173,37 @@ class ControlCommand:
 
 class Inbox:
     """A bounded queue from zenoh's callback threads to the worker thread that drops its oldest
-    item when full (counted as ``overflow``). The worker takes everything waiting at once
-    (:meth:`drain`): under load a backlog costs one wake-up, not one per sample. Written on
-    ``collections.deque``, whose append and popleft are atomic, and an ``Event`` set only
-    when the worker may be asleep: ``queue.Queue`` takes a lock and notifies a condition on
-    every put, several microseconds a sample (issue 12)."""
+    item when full (counted as ``overflow``; producers racing past the check may each add one
+    more). The worker takes everything waiting at once
+    (:meth:`take`): under load a backlog costs one wake-up, not one per sample. Written on
+    ``queue.SimpleQueue``, whose put and get are C calls that block without Python's lock:
+    ``threading.Event`` and ``queue.Queue`` run a condition's Python code on both threads for
+    every sample handed over (issue 12; ``docs/performance.md``, "Data path")."""
 
     def __init__(self, capacity: int, counters: Counter[str]) -> None:
-        self._items: deque[tuple[Any, ...]] = deque(maxlen=capacity)
-        self._wake = threading.Event()
+        self._items: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
+        self._capacity = capacity
         self._counters = counters
 
     def put(self, item: tuple[Any, ...]) -> None:
-        if len(self._items) == self._items.maxlen:
-            self._counters["overflow"] += 1
-        self._items.append(item)
-        if not self._wake.is_set():
-            self._wake.set()
+        if self._items.qsize() >= self._capacity:
+            try:
+                self._items.get_nowait()  # the oldest (the worker may have taken it meanwhile)
+            except queue.Empty:
+                pass
+            else:
+                self._counters["overflow"] += 1
+        self._items.put(item)
 
-    def wait(self, timeout: float) -> None:
-        """Return once an item waits, or after ``timeout``."""
-        if not self._items:
-            self._wake.clear()  # cleared before looking again: a put in between sets it
-            if not self._items:
-                self._wake.wait(timeout)
-
-    def drain(self) -> list[tuple[Any, ...]]:
-        """Every item waiting, oldest first."""
-        items = []
+    def take(self, timeout: float) -> list[tuple[Any, ...]]:
+        """Every item waiting, oldest first, once one waits or after ``timeout`` (then none)."""
         try:
-            while True:
-                items.append(self._items.popleft())
-        except IndexError:
-            return items
+            items = [self._items.get(timeout=timeout)]
+        except queue.Empty:
+            return []
+        get = self._items.get_nowait
+        items.extend(get() for _ in range(self._items.qsize()))  # only this thread takes
+        return items
 
 
 class _Answer:
@@ -233,6 +231,10 @@ class _Input:
     binding: InputBinding
     buffer: SampleBuffer
     subscriber: Any
+    expected: tuple[type[Measurement], ...]
+    """The measurement types its port takes."""
+    level: str
+    """Its samples' validation level: ``WORKER`` from a known worker, else ``FULL``."""
 
 
 class Worker:
@@ -335,7 +337,9 @@ class Worker:
                     )
                 ),
             )
-            inputs.append(_Input(binding, buffer, subscriber))
+            expected = self._service_class.INPUTS[binding.port].types
+            level = WORKER if binding.from_worker else FULL
+            inputs.append(_Input(binding, buffer, subscriber, expected, level))
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
@@ -461,11 +465,7 @@ class Worker:
         item = self._inputs[index]
         key = item.binding.key
         try:
-            sample = decode(
-                payload,
-                self._service_class.INPUTS[item.binding.port].types,
-                WORKER if item.binding.from_worker else FULL,
-            )
+            sample = decode(payload, item.expected, item.level)
         except MeasurementError as exc:
             self._count("rejected", "rejected sample on %s: %s", key, exc)
             return
@@ -532,9 +532,10 @@ class Worker:
         """Evaluate every input at ``t`` and compute (see :mod:`services.triggers`)."""
         values: dict[str, Any] = {}
         space = self.spec.expansion == "space"
+        tolerance_ns = self.spec.tolerance_ns
         for item in self._inputs:
             port = item.binding.port
-            value = item.buffer.value_at(t, self.spec.tolerance_ns)
+            value = item.buffer.value_at(t, tolerance_ns)
             if space and port in self._service_class.CORRESPONDENCE:
                 values.setdefault(port, []).append(value)
             elif value is None:
@@ -736,8 +737,7 @@ class Worker:
         (:meth:`_guarded`)."""
         deadline = self._pending.next_deadline()
         timeout = longest_s if deadline is None else max(0.0, deadline - time.monotonic())
-        self._inbox.wait(min(longest_s, timeout))
-        for item in self._inbox.drain():
+        for item in self._inbox.take(min(longest_s, timeout)):
             if self._stop.is_set():
                 return
             if item[0] == "data":

@@ -46,10 +46,20 @@ _ABSENT = object()
 M = TypeVar("M", bound=Measurement)
 
 
+SHORT_MESSAGE_FLOATS = 256
+"""Up to this many numbers, :func:`_all_finite` checks them as Python floats."""
+
+
 def _all_finite(arrays: list[bytes]) -> bool:
-    """Whether every float64 in the raw ``arrays`` of one message is finite: one check over
-    them all (a numpy call per array costs more than the join)."""
-    return bool(np.isfinite(np.frombuffer(b"".join(arrays), dtype=_FLOAT)).all())
+    """Whether every float64 in the raw ``arrays`` of one message is finite, over them all at
+    once. A short message's (a pose, its covariance) as Python floats: on a CPU woken for the
+    sample numpy's ``isfinite(...).all()`` costs 50-70 us and this about 20, because the
+    interpreter's code is warm and a ufunc and its reduction are not (``docs/performance.md``,
+    "Data path"); a long one's with numpy."""
+    joined = b"".join(arrays)
+    if _NATIVE and len(joined) <= SHORT_MESSAGE_FLOATS * _FLOAT.itemsize:
+        return all(map(math.isfinite, memoryview(joined).cast("d")))
+    return bool(np.isfinite(np.frombuffer(joined, dtype=_FLOAT)).all())
 
 
 def encode(measurement: Measurement) -> bytes:

@@ -279,7 +279,9 @@ class Measurement:
     def _validate(self, level: str, finite: bool = False) -> None:
         name = type(self).__name__
         values = self.__dict__  # a frozen dataclass: fields set here, once, before use
-        values["timestamp_ns"] = check_timestamp(f"{name}.timestamp_ns", self.timestamp_ns)
+        timestamp = values["timestamp_ns"]
+        if not (type(timestamp) is int and 0 <= timestamp <= MAX_TIMESTAMP_NS):
+            values["timestamp_ns"] = check_timestamp(f"{name}.timestamp_ns", timestamp)
         specs, arrays = [], []
         for spec in self.ARRAY_FIELDS:
             value = values[spec.name]
@@ -288,18 +290,23 @@ class Measurement:
                     raise _fail(f"{name}.{spec.name}", "is required")
                 continue
             specs.append(spec)
-            if level == DERIVED and _is_float_array(value, spec):
-                arrays.append(value)  # the maths' own new array: kept, made read-only below
-            else:
-                arrays.append(_as_array(f"{name}.{spec.name}", value, spec))
+            if not _is_float_array(value, spec):
+                value = _shaped(f"{name}.{spec.name}", value, spec)  # a copy if it could change
+                value.flags.writeable = False
+            elif value.flags.writeable:
+                # The maths' own new array is kept (DERIVED); anyone else's is copied. Either
+                # way it is made read-only; a decoded one (over the message's bytes) already is.
+                value = value if level == DERIVED else value.copy()
+                value.flags.writeable = False
+            values[spec.name] = value
+            arrays.append(value)
         if arrays and level != DERIVED and not finite:  # a result's: checked by the encoder
             _check_finite(name, specs, arrays)
-        for spec, array in zip(specs, arrays, strict=True):
-            check = spec.check if level == FULL else spec.worker_check if level == WORKER else None
-            if check is not None:
-                check(f"{name}.{spec.name}", array)
-            array.flags.writeable = False
-            values[spec.name] = array
+        if level != DERIVED:
+            for spec, array in zip(specs, arrays, strict=True):
+                check = spec.check if level == FULL else spec.worker_check
+                if check is not None:
+                    check(f"{name}.{spec.name}", array)
         self._check_extra()
 
     @classmethod

@@ -127,7 +127,8 @@ def compose_covariance(
     q1: np.ndarray, t1: np.ndarray, covariance1: np.ndarray, covariance2: np.ndarray
 ) -> np.ndarray:
     """Covariance of ``T1 T2`` for independent ``T1`` (mean ``(q1, t1)``) and ``T2``."""
-    if np.shape(q1) == (4,) and np.shape(t1) == (3,):  # one transform: its adjoint cached
+    if getattr(q1, "shape", None) == (4,) and getattr(t1, "shape", None) == (3,):
+        # One transform, its adjoint cached (read as an attribute: np.shape's dispatch costs)
         adj, adj_transposed = cached_adjoint(q1, t1)
         return covariance1 + adj @ covariance2 @ adj_transposed
     return covariance1 + _transport(adjoint(q1, t1), covariance2)
