@@ -320,9 +320,11 @@ class PoseKalmanFilter:
         measurement. The state is unchanged."""
         if not self._history:
             raise NoDataError("predict: the filter has no measurement yet")
-        times = [state.timestamp_ns for _, state in self._history]
-        index = max(bisect.bisect_right(times, timestamp_ns) - 1, 0)
-        state = self._propagate(self._history[index][1], timestamp_ns)
+        state = self._history[-1][1]
+        if timestamp_ns < state.timestamp_ns:  # else the newest, as after every update
+            times = [kept.timestamp_ns for _, kept in self._history]
+            state = self._history[max(bisect.bisect_right(times, timestamp_ns) - 1, 0)][1]
+        state = self._propagate(state, timestamp_ns)
         back = _to_left(state.vector[:3])
         covariance = symmetric(back @ state.covariance[:6, :6] @ back.T)
         rotation = state.rotation if state.rotation[3] >= 0 else -state.rotation

@@ -156,11 +156,16 @@ def decode(
     raws = []
     for spec in cls.ARRAY_FIELDS:
         raw = message.get(spec.name, _ABSENT)
-        if raw is not _ABSENT:
+        if raw is _ABSENT:
+            if not spec.optional:
+                raise MeasurementError(f"{tag}.{spec.name}: missing")
+            continue
+        if type(raw) is bytes and len(raw) == spec.fixed_bytes:  # the common case, at once
+            flat = np.frombuffer(raw, dtype=_FLOAT)
+            kwargs[spec.name] = flat if len(spec.shape) == 1 else flat.reshape(spec.shape)
+        else:
             kwargs[spec.name] = _array(f"{tag}.{spec.name}", raw, spec.shape)
-            raws.append(raw)
-        elif not spec.optional:
-            raise MeasurementError(f"{tag}.{spec.name}: missing")
+        raws.append(raw)
     if "image_size" in message:
         size = message["image_size"]
         kwargs["image_size"] = tuple(size) if isinstance(size, list) else size

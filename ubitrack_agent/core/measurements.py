@@ -103,6 +103,11 @@ class ArrayField:
     check: Callable[[str, np.ndarray], None] | None = None
     worker_check: Callable[[str, np.ndarray], None] | None = None
 
+    @functools.cached_property
+    def fixed_bytes(self) -> int | None:
+        """The size in bytes of an array of a fixed shape (float64), None for a list."""
+        return None if None in self.shape else 8 * math.prod(self.shape)  # type: ignore[misc]
+
 
 def _fail(where: str, what: str) -> MeasurementError:
     return MeasurementError(f"{where}: {what}")
@@ -282,28 +287,29 @@ class Measurement:
         timestamp = values["timestamp_ns"]
         if not (type(timestamp) is int and 0 <= timestamp <= MAX_TIMESTAMP_NS):
             values["timestamp_ns"] = check_timestamp(f"{name}.timestamp_ns", timestamp)
-        specs, arrays = [], []
+        present = []
         for spec in self.ARRAY_FIELDS:
             value = values[spec.name]
             if value is None:
                 if not spec.optional:
                     raise _fail(f"{name}.{spec.name}", "is required")
                 continue
-            specs.append(spec)
+            present.append(spec)
             if not _is_float_array(value, spec):
                 value = _shaped(f"{name}.{spec.name}", value, spec)  # a copy if it could change
                 value.flags.writeable = False
+                values[spec.name] = value
             elif value.flags.writeable:
                 # The maths' own new array is kept (DERIVED); anyone else's is copied. Either
                 # way it is made read-only; a decoded one (over the message's bytes) already is.
                 value = value if level == DERIVED else value.copy()
                 value.flags.writeable = False
-            values[spec.name] = value
-            arrays.append(value)
-        if arrays and level != DERIVED and not finite:  # a result's: checked by the encoder
-            _check_finite(name, specs, arrays)
-        if level != DERIVED:
-            for spec, array in zip(specs, arrays, strict=True):
+                values[spec.name] = value
+        if level != DERIVED:  # a result's numbers are checked by the encoder
+            arrays = [values[spec.name] for spec in present]
+            if arrays and not finite:
+                _check_finite(name, present, arrays)
+            for spec, array in zip(present, arrays, strict=True):
                 check = spec.check if level == FULL else spec.worker_check
                 if check is not None:
                     check(f"{name}.{spec.name}", array)
