@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from bench.steady_state import wait_for_warm_pool
 from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.core import ErrorPose, Pose, encode
 from ubitrack_agent.io.application import Relation
@@ -55,7 +56,6 @@ from ubitrack_agent.net.transport import fetch_latest
 
 RESULTS = Path(__file__).with_name("results") / "dataflow.json"
 SIGMA_GOOD, SIGMA_POOR = 1e-3, 3e-2
-POOL_SIZE = 8  # the agent's default --pool-size
 
 
 class Network:
@@ -332,17 +332,7 @@ def reconfiguration(trials: int) -> dict[str, Any]:
         callback=lambda sample: arrivals.put((time.perf_counter_ns(), sample)),
     )
     wait_until(lambda: fetch_latest(net.session, net.keys.agent_status(), timeout=0.5))
-    # Measure the steady state: the agent's warm pool full (it fills one process at a time).
-    pool = net.session.liveliness().declare_subscriber(f"{net.keys.root}/pool/*", history=True)
-    warm: set[str] = set()
-
-    def pool_full() -> bool:
-        while (token := pool.try_recv()) is not None:
-            (warm.add if str(token.kind).endswith("PUT") else warm.discard)(str(token.key_expr))
-        return len(warm) >= POOL_SIZE
-
-    wait_until(pool_full, timeout=120)
-    pool.undeclare()
+    wait_for_warm_pool(net.session, net.keys)  # measure the steady state
     poor = net.spawn(
         "-m",
         "sim_trackers.exact_tracker",

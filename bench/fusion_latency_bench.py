@@ -9,7 +9,8 @@ The processes of ``ubitrack demo`` (agent, simulated database, HMD camera, A.R.T
 its DTrack adapter; the same flags, :mod:`ubitrack_agent.commands.demo`), with ``C -> HT``
 served by the database from the scenario's truth (as ``bench.calibrated_tracking_bench``'s
 *true* runs) so no calibration runs first, and this process as the application asking for
-``C -> A``. Phases, in one run:
+``C -> A``. The phases start once the host manager's warm pool is full (``bench.steady_state``:
+before, its cold starts share the CPUs with the flow). Phases, in one run:
 
 1. **asynchronous**: the flow of the paper's figure 6 with the fusion template's default
    policy (``asynchronous``: each estimate updates the filter and is published at once);
@@ -54,6 +55,7 @@ from typing import Any
 import numpy as np
 
 from bench.calibrated_tracking_bench import scenario_with_true_calibration
+from bench.steady_state import wait_for_warm_pool
 from sim_trackers.scenario import load_scenario
 from ubitrack_agent.commands.demo import Processes, dtrack_flags, simulator_arguments
 from ubitrack_agent.core import decode, quaternions
@@ -268,6 +270,7 @@ def main(argv: list[str] | None = None) -> None:
                 children.start("dtrack", ["dtrack", quiet, *art, *member])
                 relation.wait_for(timeout=90)
                 wait_for_services(session, keys, present=True)
+                wait_for_warm_pool(session, keys)  # measure the steady state
                 world = scenario.world
                 measure = partial(
                     run_phase, args.phase_seconds, relation, arrivals, world, art_times

@@ -52,10 +52,9 @@ SHORT_MESSAGE_FLOATS = 256
 
 def _all_finite(arrays: list[bytes]) -> bool:
     """Whether every float64 in the raw ``arrays`` of one message is finite, over them all at
-    once. A short message's (a pose, its covariance) as Python floats: on a CPU woken for the
-    sample numpy's ``isfinite(...).all()`` costs 50-70 us and this about 20, because the
-    interpreter's code is warm and a ufunc and its reduction are not (``docs/performance.md``,
-    "Data path"); a long one's with numpy."""
+    once. A short message's (a pose, its covariance) as Python floats: numpy's ufunc and its
+    reduction would be two more code paths for a hop to run through with cold caches
+    (``docs/performance.md``, "Data path"); a long one's with numpy."""
     joined = b"".join(arrays)
     if _NATIVE and len(joined) <= SHORT_MESSAGE_FLOATS * _FLOAT.itemsize:
         return all(map(math.isfinite, memoryview(joined).cast("d")))
