@@ -271,6 +271,8 @@ class Worker:
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
         self._inputs: list[_Input] = []
+        self._dynamic: list[SampleBuffer] = []
+        """The buffers of the dynamic inputs, in binding order."""
         self._no_model: dict[str, float] = {}
         """Input keys whose producers answered ``no_model``, until when (monotonic)."""
         self._generation = 0
@@ -343,6 +345,7 @@ class Worker:
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
+        self._dynamic = [item.buffer for item in inputs if not item.binding.static]
         wanted = [
             (
                 item.binding.key,
@@ -501,18 +504,15 @@ class Worker:
             # Held until the other inputs catch up; an instant already computed is ignored.
             self.counters["stale_triggers"] += 1
 
-    def _dynamic_buffers(self) -> list[SampleBuffer]:
-        return [item.buffer for item in self._inputs if not item.binding.static]
-
     def _wait_s(self, trigger: _Input, timestamp_ns: int) -> float:
         """How long a trigger may wait for the other live dynamic inputs (services.triggers):
         briefly for the missing samples of its own instant only once enough of them are in to
         compute (the correspondences a space expansion needs, else all), so a frame whose
         samples trickle in on a loaded machine is not computed from too few."""
-        dynamic = self._dynamic_buffers()
+        dynamic = self._dynamic
+        if len(dynamic) < 2:
+            return 0.0  # the trigger is the one dynamic input: nothing to wait for
         others = [b for b in dynamic if b is not trigger.buffer]
-        if not others:
-            return 0.0
         cap_ns = int(self.spec.wait_ms * 1e6)
         present = sum(b.has_sample_at(timestamp_ns) for b in dynamic)
         needed = (
@@ -522,7 +522,7 @@ class Worker:
         return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, same_instant)
 
     def _caught_up(self, timestamp_ns: int) -> bool:
-        return not lagging(self._dynamic_buffers(), timestamp_ns, self.spec.tolerance_ns)
+        return not lagging(self._dynamic, timestamp_ns, self.spec.tolerance_ns)
 
     def _process_due_triggers(self) -> None:
         for timestamp_ns in self._pending.due(time.monotonic(), self._caught_up):
