@@ -287,18 +287,22 @@ def live(deployment) -> Deployment:
 
 
 def test_the_relation_flows_across_machines_and_is_true(deployment):
-    """The relation flows; once hmd's clock is measured and the agent has aligned the
-    camera's stream with the A.R.T.'s (until then the fusion mixes times 200 ms apart, and the
-    agent says so in its status), it is true."""
+    """The relation flows; once hmd's clock is measured, the agent has aligned the camera's
+    stream with the A.R.T.'s (until then the fusion mixes times 200 ms apart, and the agent
+    says so in its status) and every component of the flow runs, it is true."""
     try:
         deployment.fresh_samples(FIRST_FLOW_S)
     except AssertionError:
         deployment.never_flowed = True
         raise
     deployment.wait_for(
-        lambda s: not s["clock_problems"] and s["host_info"].get("hmd", {}).get("clock"),
+        lambda s: (
+            not s["clock_problems"]
+            and s["host_info"].get("hmd", {}).get("clock")
+            and all(c["alive"] for c in s["components"].values())
+        ),
         RECOVERY_S,
-        "hmd's clock measured and no clock problem",
+        "hmd's clock measured, no clock problem and every component alive",
     )
     deployment.assert_true(deployment.fresh_samples(RECOVERY_S))
 
