@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.dataflow_bench import Network, percentiles
+from bench.report import write_results
 from tests.integration.zenoh_helpers import wait_until
 from ubitrack_agent.net.clock import Clock, measure_offset
 
@@ -137,9 +138,7 @@ def main() -> int:
         }
     finally:
         net.close()
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
-    print(json.dumps(results, indent=2))
+    write_results(RESULTS, results)
     return 0
 
 

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from bench.report import write_results
 from bench.steady_state import wait_for_warm_pool
 from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.core import ErrorPose, Pose, encode
@@ -427,9 +428,7 @@ def main() -> int:
     }
     if not args.skip_reconfiguration:
         results["reconfiguration"] = reconfiguration(args.trials)
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
-    print(json.dumps(results, indent=2))
+    write_results(RESULTS, results)
     return 0
 
 

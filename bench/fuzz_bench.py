@@ -37,6 +37,7 @@ import zenoh
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
+from bench.report import write_results
 from sim_trackers.exact_tracker import true_wt_ht
 from tests.integration import fuzz_inputs as fuzz
 from tests.integration.conftest import end_groups
@@ -386,9 +387,7 @@ def main(argv: list[str] | None = None) -> int:
         "machine": f"{os.cpu_count()} CPU, Python {platform.python_version()}",
         **run(args.seconds, args.seed),
     }
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
-    print(json.dumps(results, indent=2))
+    write_results(RESULTS, results)
     return 0
 
 

@@ -24,7 +24,6 @@ The same three, back to back without a gap, show the warm cost.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -39,6 +38,7 @@ import numpy as np
 from scipy.linalg.lapack import dpotrf
 
 from bench.dataflow_bench import STATIC, _concatenation_spec
+from bench.report import write_results
 from services.worker import Worker
 from ubitrack_agent.core import ErrorPose, Pose, decode, encode, quaternions
 from ubitrack_agent.core.measurements import WORKER
@@ -155,9 +155,7 @@ def main() -> int:
         "after_a_gap": summary(cold),
         "back_to_back": summary(warm),
     }
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
-    print(json.dumps(results, indent=2))
+    write_results(RESULTS, results)
     return 0
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.dataflow_bench import Network, percentiles
+from bench.report import write_results
 from tests.integration.zenoh_helpers import wait_until
 from ubitrack_agent.net.host_protocol import Start, Status, Stop, encode_request
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
@@ -113,9 +114,7 @@ def main() -> int:
         "cold_start_ms": percentiles(cold(args.trials)),
         "pool_start_ms": percentiles(warm(args.trials)),
     }
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
-    print(json.dumps(results, indent=2))
+    write_results(RESULTS, results)
     return 0
 
 
