@@ -648,7 +648,7 @@ class Agent:
         self.active = True
         self.counters["became_active"] += 1
         self.last_change_ns = time.time_ns()
-        self._refresh_status()  # the status key never answers with a standby's status
+        self._refresh_status()  # at once: the status the active key serves is no standby's
         log.warning("agent %s is the active agent of %s", self.id, self.keys.root)
         if self._on_role is not None:
             self._on_role(True)
