@@ -28,6 +28,7 @@ from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.core.measurements import (
     FULL,
     MEASUREMENT_TYPES,
+    ArrayField,
     CameraIntrinsics,
     Measurement,
 )
@@ -100,14 +101,16 @@ def _unpack(data: Any) -> dict[str, Any]:
     return message
 
 
-def _array(where: str, raw: Any, shape: tuple[int | None, ...]) -> np.ndarray:
+def _array(tag: str, spec: ArrayField, raw: Any) -> np.ndarray:
+    """Field ``spec`` of a ``tag`` message from its ``raw`` value: a fixed shape's exact bytes
+    (the common case, first), or a list's whole number of rows; else the error naming it."""
+    if type(raw) is bytes and len(raw) == spec.fixed_bytes:
+        flat = np.frombuffer(raw, dtype=_FLOAT)
+        return flat if len(spec.shape) == 1 else flat.reshape(spec.shape)
+    where, shape = f"{tag}.{spec.name}", spec.shape
     if type(raw) is not bytes:
         raise MeasurementError(f"{where}: expected float64 bytes, got {type(raw).__name__}")
-    if None not in shape:  # a fixed shape takes exactly its size
-        if len(raw) == _FLOAT.itemsize * math.prod(shape):  # type: ignore[arg-type]
-            flat = np.frombuffer(raw, dtype=_FLOAT)
-            return flat if len(shape) == 1 else flat.reshape(shape)
-    elif len(raw) % _FLOAT.itemsize == 0:  # a list (one free dimension) any whole multiple
+    if None in shape and len(raw) % _FLOAT.itemsize == 0:  # a list: any whole multiple
         flat = np.frombuffer(raw, dtype=_FLOAT)
         fixed = math.prod(d for d in shape if d is not None)
         if fixed and flat.size % fixed == 0:
@@ -159,11 +162,7 @@ def decode(
             if not spec.optional:
                 raise MeasurementError(f"{tag}.{spec.name}: missing")
             continue
-        if type(raw) is bytes and len(raw) == spec.fixed_bytes:  # the common case, at once
-            flat = np.frombuffer(raw, dtype=_FLOAT)
-            kwargs[spec.name] = flat if len(spec.shape) == 1 else flat.reshape(spec.shape)
-        else:
-            kwargs[spec.name] = _array(f"{tag}.{spec.name}", raw, spec.shape)
+        kwargs[spec.name] = _array(tag, spec, raw)
         raws.append(raw)
     if "image_size" in message:
         size = message["image_size"]
