@@ -29,9 +29,9 @@ as it is decoded, before anything else uses it: the agent sets it when the compo
 come from hosts whose clocks differ (``agent.clocks``), so they are synchronised on the agent's
 clock. A query for an input's value at a given time goes upstream at the input's own time.
 
-Zenoh callbacks only append to a bounded inbox (never calling zenoh, never blocking the
-receive path: a callback that called zenoh could wait for a lock that a thread waiting for
-Python's lock holds); one thread takes everything waiting at once, decodes each sample
+Zenoh callbacks only append to a bounded inbox, so zenoh's receiving thread, which serves every
+subscription of the process, is never held up by a computation (``docs/services.md``,
+"Threads"); one thread takes everything waiting at once, decodes each sample
 (validated in full, or at level ``WORKER`` for a binding ``from_worker``:
 ``core.measurements``), synchronises (:mod:`ubitrack_agent.core.timeline`), computes and
 publishes.

@@ -248,9 +248,8 @@ def worker_with_static(session: FakeSession, t: int) -> Worker:
 
 
 def test_a_callback_only_hands_the_sample_over_and_the_worker_takes_them_in_order():
-    """Zenoh's callback never calls zenoh (it could wait for a lock that a thread waiting for
-    Python's lock holds): it appends to the inbox; the worker thread handles the backlog at
-    once, in order."""
+    """Zenoh's callback only appends to the inbox (zenoh's receiving thread is never held up
+    by a computation); the worker thread handles the backlog at once, in order."""
     session = FakeSession()
     worker = worker_with_static(session, 1_000)
     for t in (2_000, 3_000, 4_000):
