@@ -76,10 +76,9 @@ class PendingTriggers:
 
     def __init__(self) -> None:
         self.last_done: int | None = None
-        self._deadlines: dict[int, float] = {}
-
-    def __len__(self) -> int:
-        return len(self._deadlines)
+        self.deadlines: dict[int, float] = {}
+        """The deadline of each trigger held, by timestamp (read it to know whether any is
+        held: a worker asks before every sample, and a method call would cost a hop more)."""
 
     def add(self, timestamp_ns: int, now: float, wait_s: float, extend: bool = False) -> bool:
         """Hold a trigger for at most ``wait_s``; False if that instant is pending, done, or
@@ -89,11 +88,11 @@ class PendingTriggers:
         enough of them are in)."""
         if not self._after_last_done(timestamp_ns):
             return False
-        if timestamp_ns in self._deadlines:
+        if timestamp_ns in self.deadlines:
             if extend:
-                self._deadlines[timestamp_ns] = now + wait_s
+                self.deadlines[timestamp_ns] = now + wait_s
             return False
-        self._deadlines[timestamp_ns] = now + wait_s
+        self.deadlines[timestamp_ns] = now + wait_s
         return True
 
     def finish(self, timestamp_ns: int) -> bool:
@@ -111,16 +110,16 @@ class PendingTriggers:
         """Remove and return, oldest first, the triggers whose inputs caught up or whose wait
         is over; stops at the first that must still wait, so instants stay in order."""
         ready = []
-        for timestamp_ns in sorted(self._deadlines):
-            if not (caught_up(timestamp_ns) or now >= self._deadlines[timestamp_ns]):
+        for timestamp_ns in sorted(self.deadlines):
+            if not (caught_up(timestamp_ns) or now >= self.deadlines[timestamp_ns]):
                 break
-            del self._deadlines[timestamp_ns]
+            del self.deadlines[timestamp_ns]
             ready.append(timestamp_ns)
             self.last_done = timestamp_ns
         return ready
 
     def next_deadline(self) -> float | None:
-        return min(self._deadlines.values()) if self._deadlines else None
+        return min(self.deadlines.values()) if self.deadlines else None
 
     def clear(self) -> None:
-        self._deadlines.clear()
+        self.deadlines.clear()

@@ -235,6 +235,8 @@ class _Input:
     """The measurement types its port takes."""
     level: str
     """Its samples' validation level: ``WORKER`` from a known worker, else ``FULL``."""
+    alone: bool
+    """The one dynamic input, a trigger: each sample is computed at once, nothing to wait for."""
 
 
 class Worker:
@@ -260,6 +262,8 @@ class Worker:
         self._session = session
         self._service_class = lookup(spec.service)
         self._service: Service = self._service_class(spec.parameters)
+        self._asynchronous = self._service.asynchronous()
+        self._reports_progress = self._new_progress()
         self._accumulator = self._new_accumulator()
         self._pending = PendingTriggers()
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
@@ -305,6 +309,11 @@ class Worker:
         )
         self._token = declare() if parent is None else parent.serve(declare)
 
+    def _new_progress(self) -> bool:
+        """Whether the service reports progress (:meth:`Service.progress` overridden): only
+        then is it asked after each computation, which a pattern hop would pay for."""
+        return type(self._service).progress is not Service.progress
+
     def _new_accumulator(self) -> TimeAccumulator | None:
         """The time expansion's accumulator, and for a batch estimate over it (not an
         incremental service, which reports its own) the tracker of its progress."""
@@ -341,11 +350,14 @@ class Worker:
             )
             expected = self._service_class.INPUTS[binding.port].types
             level = WORKER if binding.from_worker else FULL
-            inputs.append(_Input(binding, buffer, subscriber, expected, level))
+            inputs.append(_Input(binding, buffer, subscriber, expected, level, alone=False))
         for item in old.values():
             item.subscriber.undeclare()
+        dynamic = [item for item in inputs if not item.binding.static]
+        if len(dynamic) == 1 and dynamic[0].binding.trigger:
+            dynamic[0].alone = True
         self._inputs = inputs
-        self._dynamic = [item.buffer for item in inputs if not item.binding.static]
+        self._dynamic = [item.buffer for item in dynamic]
         wanted = [
             (
                 item.binding.key,
@@ -438,6 +450,8 @@ class Worker:
         if command.service is not None:
             self.spec = replace(self.spec, parameters=command.parameters or {})
             self._service = command.service
+            self._asynchronous = self._service.asynchronous()
+            self._reports_progress = self._new_progress()
             self._accumulator = self._new_accumulator()
         if command.inputs is not None:
             self.spec = replace(self.spec, inputs=command.inputs)
@@ -485,7 +499,7 @@ class Worker:
                 return
             t = sample.timestamp_ns
         self._latency[key].append((now - t) / 1e6)
-        if self._service.asynchronous():
+        if self._asynchronous:
             self._push(item.binding.port, sample)
             return
         if not item.buffer.add(sample):
@@ -495,12 +509,12 @@ class Worker:
             self.counters["buffered"] += 1
         elif item.binding.static:
             self._evaluate(t)  # a new static value: recompute at once
-        elif (wait_s := self._wait_s(item, t)) == 0.0 and not self._pending:
+        elif (item.alone or self._wait_s(item, t) == 0.0) and not self._pending.deadlines:
             if self._pending.finish(t):  # nothing to wait for: at once
-                self._evaluate(t)
+                self._evaluate(t, item, sample)
             else:
                 self.counters["stale_triggers"] += 1
-        elif not self._pending.add(t, time.monotonic(), wait_s, extend=True):
+        elif not self._pending.add(t, time.monotonic(), self._wait_s(item, t), extend=True):
             # Held until the other inputs catch up; an instant already computed is ignored.
             self.counters["stale_triggers"] += 1
 
@@ -528,14 +542,17 @@ class Worker:
         for timestamp_ns in self._pending.due(time.monotonic(), self._caught_up):
             self._evaluate(timestamp_ns)
 
-    def _evaluate(self, t: int) -> None:
-        """Evaluate every input at ``t`` and compute (see :mod:`services.triggers`)."""
+    def _evaluate(
+        self, t: int, trigger: _Input | None = None, sample: Measurement | None = None
+    ) -> None:
+        """Evaluate every input at ``t`` and compute (see :mod:`services.triggers`); the
+        ``trigger`` input's value is its ``sample`` stamped ``t``, if given."""
         values: dict[str, Any] = {}
         space = self.spec.expansion == "space"
         tolerance_ns = self.spec.tolerance_ns
         for item in self._inputs:
             port = item.binding.port
-            value = item.buffer.value_at(t, tolerance_ns)
+            value = sample if item is trigger else item.buffer.value_at(t, tolerance_ns)
             if space and port in self._service_class.CORRESPONDENCE:
                 values.setdefault(port, []).append(value)
             elif value is None:
@@ -587,7 +604,8 @@ class Worker:
             for key in self._routes.get(port, ()):
                 self._publishers[key].put(payload)
             self.counters["published"] += 1
-        self._publish_progress(outputs, timestamp_ns)
+        if self._reports_progress or self._batch_progress is not None:
+            self._publish_progress(outputs, timestamp_ns)
 
     def _publish_progress(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         """The progress of each static estimate (``ubitrack_agent.net.progress``), also when
@@ -629,7 +647,7 @@ class Worker:
         its samples or, after them, asked of its producer in turn (a chain of such queries
         ends at a filter that predicts, or at a measured edge, which refuses). A time
         expansion's result is not a function of time and is not answered."""
-        if self._service.asynchronous():
+        if self._asynchronous:
             return self._service.value_at(port, t)
         if self.spec.expansion == "time":
             raise ExtrapolationError("a time-expanded estimate has no value at a given time")
@@ -727,7 +745,7 @@ class Worker:
         """A sample and the triggers due after it, timed (``_handling_s``)."""
         start = time.perf_counter()
         self._on_sample_guarded(generation, index, payload)
-        if self._pending:
+        if self._pending.deadlines:
             self._guarded(self._process_due_triggers)()
         self._handling_s += HANDLING_GAIN * (time.perf_counter() - start - self._handling_s)
 
@@ -746,7 +764,7 @@ class Worker:
                 self._guarded(self._answer)(item[1])
             else:
                 self._guarded(self._apply_control)(item[1])
-        if self._pending:
+        if self._pending.deadlines:
             self._guarded(self._process_due_triggers)()
         self._summarise(time.monotonic())
 

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import msgpack
@@ -27,10 +29,13 @@ import numpy as np
 from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.core.measurements import (
     FULL,
+    MAX_TIMESTAMP_NS,
     MEASUREMENT_TYPES,
+    WORKER,
     ArrayField,
     CameraIntrinsics,
     Measurement,
+    fixed_layout,
 )
 
 WIRE_VERSION = 1
@@ -129,6 +134,87 @@ def _known_keys(cls: type[Measurement]) -> frozenset[str]:
     return _HEADER_KEYS | {spec.name for spec in cls.ARRAY_FIELDS} | extra
 
 
+@dataclass(frozen=True)
+class _Canonical:
+    """How to read a message of a type whose arrays all have fixed shapes when it holds
+    exactly the header and every field, each the exact number of bytes: what every encoder of
+    this package sends. :func:`decode` reads such a message here, in one pass over
+    precomputed names and sizes; anything else (and any doubt) goes to the general reader,
+    which names what is wrong. Both accept the same messages and build the same values
+    (``tests/unit/test_codec.py``); this one exists because a pattern hop decodes every
+    sample and pays for each step on a CPU woken for it (``docs/performance.md``, "Data
+    path")."""
+
+    cls: type[Measurement]
+    keys: frozenset[str]
+    names: tuple[str, ...]
+    sizes: tuple[int, ...]
+    shapes: tuple[tuple[int, ...] | None, ...]
+    """Each field's shape, None for a vector (``np.frombuffer``'s own)."""
+    checks: dict[str, tuple[tuple[str, str, Callable[[str, np.ndarray], None]], ...]]
+    """By validation level: each field's check with the name it gives in an error."""
+
+    @classmethod
+    def of(cls, measurement: type[Measurement]) -> _Canonical | None:
+        """The reader for ``measurement``, None unless it has a :func:`fixed_layout`."""
+        layout = fixed_layout(measurement)
+        if layout is None:
+            return None
+        tag, specs = measurement.__name__, measurement.ARRAY_FIELDS
+        checks = {
+            level: tuple(
+                (spec.name, f"{tag}.{spec.name}", check)
+                for spec in specs
+                if (check := spec.check if level == FULL else spec.worker_check) is not None
+            )
+            for level in (FULL, WORKER)
+        }
+        return cls(
+            measurement,
+            _HEADER_KEYS | set(layout.names),
+            layout.names,
+            tuple(8 * math.prod(shape) for shape in layout.shapes),
+            tuple(None if len(shape) == 1 else shape for shape in layout.shapes),
+            checks,
+        )
+
+    def read(self, message: dict[str, Any], level: str) -> Measurement | None:
+        """The measurement in ``message`` (whose keys are :attr:`keys`) validated at ``level``;
+        None if anything is not exactly as expected; ``MeasurementError`` from a field's check
+        (the general reader's error: same check, same order, same name)."""
+        version, timestamp = message["v"], message["t"]
+        if not (
+            type(version) is int
+            and version == WIRE_VERSION
+            and type(timestamp) is int
+            and 0 <= timestamp <= MAX_TIMESTAMP_NS
+        ):
+            return None
+        raws = [message[name] for name in self.names]
+        for raw, size in zip(raws, self.sizes, strict=True):
+            if type(raw) is not bytes or len(raw) != size:
+                return None
+        if not _all_finite(raws):
+            return None
+        value = object.__new__(self.cls)
+        values = value.__dict__  # a frozen dataclass: set here, once, before anyone uses it
+        values["timestamp_ns"] = timestamp
+        for name, shape, raw in zip(self.names, self.shapes, raws, strict=True):
+            array = np.frombuffer(raw, dtype=_FLOAT)  # read-only, over the message's bytes
+            values[name] = array if shape is None else array.reshape(shape)
+        for name, where, check in self.checks.get(level, ()):
+            check(where, values[name])
+        return value
+
+
+_CANONICAL: dict[str, _Canonical] = (
+    {tag: reader for tag, cls in MEASUREMENT_TYPES.items() if (reader := _Canonical.of(cls))}
+    if _NATIVE
+    else {}
+)
+"""The canonical readers by type tag (none on a big-endian host, whose arrays are converted)."""
+
+
 def decode(
     data: Any, expected: type[M] | tuple[type[M], ...] | None = None, level: str = FULL
 ) -> M:
@@ -139,6 +225,21 @@ def decode(
     Raises :class:`MeasurementError` naming the field at fault for anything else.
     """
     message = _unpack(data)
+    tag = message.get("type")
+    canonical = _CANONICAL.get(tag) if type(tag) is str else None
+    if (
+        canonical is not None
+        and message.keys() == canonical.keys
+        and (expected is None or issubclass(canonical.cls, expected))
+    ):
+        value = canonical.read(message, level)
+        if value is not None:
+            return value  # type: ignore[return-value]
+    return _read(message, expected, level)
+
+
+def _read(message: dict[str, Any], expected: type[M] | tuple[type[M], ...] | None, level: str) -> M:
+    """The general reader of :func:`decode`: any message, each defect named."""
     version = message.get("v")
     if type(version) is not int or version != WIRE_VERSION:
         raise MeasurementError(f"message.v: unsupported wire version {str(version)[:40]!r}")

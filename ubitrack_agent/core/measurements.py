@@ -40,7 +40,7 @@ import numbers
 import sys
 from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
-from typing import Any, ClassVar, Self
+from typing import Any, ClassVar, NamedTuple, Self
 
 import numpy as np
 
@@ -249,6 +249,32 @@ def check_projection(where: str, p: np.ndarray) -> None:
         raise _fail(where, "left 3x3 block is singular")
 
 
+class FixedLayout(NamedTuple):
+    """The fields of a measurement type that holds only its timestamp and arrays of fixed
+    shapes (every type but the lists and the camera intrinsics): what the lean paths of the
+    decoder and of :meth:`Measurement.derived` rely on."""
+
+    names: tuple[str, ...]
+    """The array fields, in ``ARRAY_FIELDS`` order."""
+    shapes: tuple[tuple[int, ...], ...]
+    fields: frozenset[str]
+    """Every field's name, ``timestamp_ns`` included."""
+
+
+@functools.cache
+def fixed_layout(cls: type[Measurement]) -> FixedLayout | None:
+    """``cls``'s :class:`FixedLayout`, None if a field is a list or no array."""
+    specs = cls.ARRAY_FIELDS
+    names = tuple(spec.name for spec in specs)
+    if any(None in spec.shape for spec in specs) or {f.name for f in fields(cls)} != {
+        "timestamp_ns",
+        *names,
+    }:
+        return None
+    shapes = tuple(spec.shape for spec in specs)
+    return FixedLayout(names, shapes, frozenset({"timestamp_ns", *names}))  # type: ignore[arg-type]
+
+
 @functools.cache
 def _defaults(cls: type) -> tuple[tuple[str, Callable[[], Any] | Any], ...]:
     """Each dataclass field of ``cls`` with a function making its default (``MISSING`` for a
@@ -336,8 +362,27 @@ class Measurement:
     def derived(cls, **values: Any) -> Self:
         """A measurement computed by this package's maths from valid measurements, validated at
         level ``DERIVED``: the data path uses it for results. Anything from outside goes through
-        the validating constructor or the decoder."""
-        return cls.checked(DERIVED, **values)
+        the validating constructor or the decoder.
+
+        The maths' float64 arrays of the declared shapes are taken in one pass over the type's
+        :func:`fixed_layout` (a result is built on every hop, and a generic pass costs it 30 us
+        more on a CPU woken for the sample: ``docs/performance.md``, "Data path"); anything
+        else goes through :meth:`checked`, which converts it or names the fault."""
+        layout = fixed_layout(cls)
+        if layout is None or values.keys() != layout.fields:
+            return cls.checked(DERIVED, **values)
+        timestamp = values["timestamp_ns"]
+        if not (type(timestamp) is int and 0 <= timestamp <= MAX_TIMESTAMP_NS):
+            return cls.checked(DERIVED, **values)
+        for name, shape in zip(layout.names, layout.shapes, strict=True):
+            array = values[name]
+            if type(array) is not np.ndarray or array.dtype != _FLOAT64 or array.shape != shape:
+                return cls.checked(DERIVED, **values)
+        for name in layout.names:
+            values[name].setflags(write=False)
+        value = object.__new__(cls)
+        value.__dict__.update(values)  # a frozen dataclass: set here, once, before use
+        return value
 
     def restamped(self, timestamp_ns: int) -> Self:
         """The same value at another time (no re-validation of the unchanged arrays)."""
