@@ -20,13 +20,16 @@ from ubitrack_agent.core import (
     PositionList3D,
     Projection,
     Rotation3D,
+    codec,
     decode,
     encode,
 )
 from ubitrack_agent.core.measurements import (
+    FULL,
     MAX_TIMESTAMP_NS,
     MEASUREMENT_TYPES,
     OPENCV_DISTORTION_LENGTHS,
+    WORKER,
 )
 
 finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False)
@@ -350,3 +353,40 @@ def test_a_multiple_of_a_fixed_shape_is_rejected(tag, field_name, count):
     message[field_name] = np.zeros(count).tobytes()
     with pytest.raises(MeasurementError, match=f"{count} values do not fit"):
         decode(_packed(message))
+
+
+def _outcome(read, data: bytes) -> tuple[str, object]:
+    try:
+        return "value", read(data)
+    except MeasurementError as exc:
+        return "error", str(exc)
+
+
+@settings(max_examples=400)
+@given(st.one_of(measurements.map(encode), hostile_messages), st.sampled_from([FULL, WORKER]))
+def test_the_canonical_reader_decides_as_the_general_reader(data: bytes, level: str):
+    """``decode`` reads an encoder's message in one pass (``codec._Canonical``): it must
+    accept, build and refuse exactly what the general reader does, with the same error."""
+    canonical = _outcome(lambda d: decode(d, level=level), data)
+    general = _outcome(lambda d: codec._read(codec._unpack(d), None, level), data)
+    assert canonical[0] == general[0]
+    if canonical[0] == "value":
+        assert type(canonical[1]) is type(general[1]) and canonical[1] == general[1]
+    else:
+        assert canonical[1] == general[1]
+
+
+def test_an_encoders_message_takes_the_canonical_reader():
+    """The one-pass reader serves every fixed-shape type as the encoder writes it (else the
+    lean path would silently not be taken)."""
+    message = msgpack.unpackb(encode(ErrorPose(1, [0, 0, 0, 1], [1, 2, 3], np.eye(6))))
+    reader = codec._CANONICAL["ErrorPose"]
+    assert message.keys() == reader.keys and reader.read(message, WORKER) is not None
+    assert set(codec._CANONICAL) == {
+        "Pose",
+        "ErrorPose",
+        "Position3D",
+        "Position2D",
+        "Rotation3D",
+        "Projection",
+    }
