@@ -43,6 +43,7 @@ from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
 import numpy as np
+from scipy.linalg.lapack import dposv
 
 from services.algorithms._checks import as_array, as_quaternions, positive
 from services.algorithms.estimate import PoseEstimate, symmetric
@@ -56,8 +57,10 @@ from ubitrack_agent.core.uncertainty import skew
 GATE_9999 = 27.856
 """Chi-square quantile of 6 degrees of freedom at 99.99 %: the default innovation gate."""
 
-_EYE3 = np.eye(3)
+_EYE6 = np.eye(6)
 _EYE12 = np.eye(12)
+_VELOCITY_BLOCKS = (np.array([0, 1, 2, 3, 4, 5]), np.array([6, 7, 8, 9, 10, 11]))
+"""The diagonals of the transition's blocks (phi, omega) and (p, v), as one index."""
 _ROTATIONS = RotationSpace()
 
 Outcome = Literal["updated", "late", "gated", "restarted", "too_old"]
@@ -133,16 +136,26 @@ def _checked_covariance(value: np.ndarray) -> np.ndarray:
     return covariance
 
 
+def _solve_positive_definite(matrix: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, int]:
+    """``(matrix^-1 right, info)`` for a symmetric positive definite ``matrix`` by LAPACK's
+    ``dposv`` (Cholesky), called directly: one call, where ``numpy.linalg.solve``'s wrapper
+    (LU) runs a dozen Python-level checks on every filter update (issue 12, ``docs/
+    performance.md``, "Fusion"). ``info`` is LAPACK's: non-zero when the factorisation
+    fails."""
+    _, solution, info = dposv(matrix, right)
+    return solution, info
+
+
 def _to_error(translation: np.ndarray) -> np.ndarray:
     """``M`` with ``(dphi, dp) = M (phi, rho)``: ``dp = rho - [t]x phi`` to first order."""
-    matrix = np.eye(6)
+    matrix = _EYE6.copy()
     matrix[3:, :3] = -skew(translation)
     return matrix
 
 
 def _to_left(translation: np.ndarray) -> np.ndarray:
     """The inverse of :func:`_to_error`: ``rho = dp + [t]x phi``."""
-    matrix = np.eye(6)
+    matrix = _EYE6.copy()
     matrix[3:, :3] = skew(translation)
     return matrix
 
@@ -178,12 +191,13 @@ class PoseKalmanFilter:
         dt = (timestamp_ns - state.timestamp_ns) * 1e-9
         if dt == 0.0:
             return state
-        step = quaternions.from_rotvec(state.vector[3:6] * dt)
-        vector = state.vector.copy()
-        vector[:3] += dt * vector[6:9]
+        # The means on floats (numpy calls cost a hop most: docs/performance.md, "Fusion").
+        px, py, pz, wx, wy, wz, vx, vy, vz = state.vector.tolist()
+        step = quaternions.from_rotvec((wx * dt, wy * dt, wz * dt))
+        vector = np.array((px + dt * vx, py + dt * vy, pz + dt * vz, wx, wy, wz, vx, vy, vz))
         transition = _EYE12.copy()
         transition[:3, :3] = quaternions.to_matrix(step)
-        transition[:3, 6:9] = transition[3:6, 9:12] = dt * _EYE3
+        transition[_VELOCITY_BLOCKS] = dt  # d(phi)/d(omega) and d(p)/d(v): dt I
         gap = abs(dt)
         noise = (np.array([gap**3 / 3, gap**2 / 2, gap]) @ self._noise).reshape(12, 12)
         covariance = transition @ state.covariance @ transition.T + noise
@@ -206,8 +220,12 @@ class PoseKalmanFilter:
         mx, my, mz = measurement.translation.tolist()
         px, py, pz = prior.vector[:3].tolist()
         residual = np.array((*phi, mx - px, my - py, mz - pz))
-        innovation = prior.covariance[:6, :6] + measurement.noise
-        solved = np.linalg.solve(innovation, np.column_stack((residual, prior.covariance[:6, :])))
+        rows = np.empty((6, 13))  # [r | P H^T]: one solve with S for the NIS and the gain
+        rows[:, 0] = residual
+        rows[:, 1:] = prior.covariance[:6, :]
+        solved, info = _solve_positive_definite(prior.covariance[:6, :6] + measurement.noise, rows)
+        if info != 0:
+            raise ValueError("the innovation covariance is not positive definite")
         if residual @ solved[:, 0] > self.settings.gate:
             return None
         gain = solved[:, 1:].T
@@ -326,6 +344,8 @@ class PoseKalmanFilter:
             state = self._history[max(bisect.bisect_right(times, timestamp_ns) - 1, 0)][1]
         state = self._propagate(state, timestamp_ns)
         back = _to_left(state.vector[:3])
-        covariance = symmetric(back @ state.covariance[:6, :6] @ back.T)
+        # Symmetric to round-off (a congruence of the symmetrised posterior): not symmetrised
+        # again, as a result of core.poses is not.
+        covariance = back @ state.covariance[:6, :6] @ back.T
         rotation = state.rotation if state.rotation[3] >= 0 else -state.rotation
         return PoseEstimate(rotation, state.vector[:3].copy(), covariance)
