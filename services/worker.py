@@ -235,8 +235,6 @@ class _Input:
     """The measurement types its port takes."""
     level: str
     """Its samples' validation level: ``WORKER`` from a known worker, else ``FULL``."""
-    alone: bool
-    """The one dynamic input, a trigger: each sample is computed at once, nothing to wait for."""
 
 
 class Worker:
@@ -350,14 +348,11 @@ class Worker:
             )
             expected = self._service_class.INPUTS[binding.port].types
             level = WORKER if binding.from_worker else FULL
-            inputs.append(_Input(binding, buffer, subscriber, expected, level, alone=False))
+            inputs.append(_Input(binding, buffer, subscriber, expected, level))
         for item in old.values():
             item.subscriber.undeclare()
-        dynamic = [item for item in inputs if not item.binding.static]
-        if len(dynamic) == 1 and dynamic[0].binding.trigger:
-            dynamic[0].alone = True
         self._inputs = inputs
-        self._dynamic = [item.buffer for item in dynamic]
+        self._dynamic = [item.buffer for item in inputs if not item.binding.static]
         wanted = [
             (
                 item.binding.key,
@@ -509,12 +504,12 @@ class Worker:
             self.counters["buffered"] += 1
         elif item.binding.static:
             self._evaluate(t)  # a new static value: recompute at once
-        elif (item.alone or self._wait_s(item, t) == 0.0) and not self._pending.deadlines:
+        elif (wait_s := self._wait_s(item, t)) == 0.0 and not self._pending.deadlines:
             if self._pending.finish(t):  # nothing to wait for: at once
                 self._evaluate(t, item, sample)
             else:
                 self.counters["stale_triggers"] += 1
-        elif not self._pending.add(t, time.monotonic(), self._wait_s(item, t), extend=True):
+        elif not self._pending.add(t, time.monotonic(), wait_s, extend=True):
             # Held until the other inputs catch up; an instant already computed is ignored.
             self.counters["stale_triggers"] += 1
 
@@ -545,8 +540,8 @@ class Worker:
     def _evaluate(
         self, t: int, trigger: _Input | None = None, sample: Measurement | None = None
     ) -> None:
-        """Evaluate every input at ``t`` and compute (see :mod:`services.triggers`); the
-        ``trigger`` input's value is its ``sample`` stamped ``t``, if given."""
+        """Evaluate every input at ``t`` and compute (see :mod:`services.triggers`); the value
+        of the ``trigger`` input, if given, is its ``sample`` stamped ``t`` (just added)."""
         values: dict[str, Any] = {}
         space = self.spec.expansion == "space"
         tolerance_ns = self.spec.tolerance_ns
