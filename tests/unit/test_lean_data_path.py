@@ -1,6 +1,6 @@
-"""The lean data path of issue 12: validation levels, the Cholesky test for positive
-semi-definite covariances, the cached adjoint and scalar quaternion paths, the inbox drained in
-one go, and samples handled on zenoh's thread while the worker is idle."""
+"""The lean data path of issue 12: validation levels, results taken in one pass, the Cholesky
+test for positive semi-definite covariances, the cached adjoint and scalar quaternion paths,
+the inbox drained in one go, and callbacks that only hand samples over."""
 
 from __future__ import annotations
 
@@ -142,6 +142,28 @@ def test_lapack_and_numpy_decide_positive_definiteness_alike(eigenvalues, seed):
         return  # at the boundary round-off decides either way
     assert _positive_definite()(matrix) == _positive_definite_by_numpy(matrix)
     assert _positive_definite_by_numpy(matrix) == (np.linalg.eigvalsh(matrix)[0] > 0)
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        {"translation": np.zeros(4)},  # a wrong shape
+        {"translation": [0.0, 1.0]},  # no array, and a wrong length
+        {"covariance": None},  # a required field missing
+    ],
+)
+def test_a_result_that_is_not_the_maths_arrays_is_checked_in_full_at_its_level(fields):
+    """``derived`` takes only float64 arrays of the declared shapes in one pass; anything
+    else goes through ``checked`` at level DERIVED, which names what is wrong."""
+    values = {"rotation": np.array(IDENTITY), "translation": np.zeros(3), "covariance": COVARIANCE}
+    with pytest.raises(MeasurementError, match="ErrorPose"):
+        ErrorPose.derived(timestamp_ns=1, **{**values, **fields})
+
+
+def test_a_result_given_as_other_numbers_is_converted_to_float64_arrays():
+    result = Pose.derived(timestamp_ns=1, rotation=np.array([0, 0, 0, 1]), translation=[1, 2, 3])
+    assert result.rotation.dtype == np.float64 and result.translation.tolist() == [1.0, 2.0, 3.0]
+    assert not result.rotation.flags.writeable and not result.translation.flags.writeable
 
 
 def test_a_result_keeps_the_maths_arrays_made_read_only():
