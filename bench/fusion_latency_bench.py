@@ -9,8 +9,9 @@ The processes of ``ubitrack demo`` (agent, simulated database, HMD camera, A.R.T
 its DTrack adapter; the same flags, :mod:`ubitrack_agent.commands.demo`), with ``C -> HT``
 served by the database from the scenario's truth (as ``bench.calibrated_tracking_bench``'s
 *true* runs) so no calibration runs first, and this process as the application asking for
-``C -> A``. The phases start once the host manager's warm pool is full (``bench.steady_state``:
-before, its cold starts share the CPUs with the flow). Phases, in one run:
+``C -> A``. Each phase starts once the host manager's warm pool is full
+(``bench.steady_state``: the cold starts that refill it, after the flow took members, would
+share the CPUs with the flow). Phases, in one run:
 
 1. **asynchronous**: the flow of the paper's figure 6 with the fusion template's default
    policy (``asynchronous``: each estimate updates the filter and is published at once);
@@ -37,6 +38,10 @@ renderer drawing it at once shows). The first second of each phase (the rewiring
 out. Every 50 ms the application also asks for the pose 20 ms ahead of its clock
 (``Relation.predict``) and compares it, and the latest sample it holds, with the truth at
 that display time. The simulator's truth serves only to compute these errors.
+
+Each phase also reports the CPU its processes used (``bench.cpu_use``, Linux), in percent of
+one CPU, in all and by process: on a machine of few CPUs every path's latency depends on how
+busy they are.
 """
 
 from __future__ import annotations
@@ -55,6 +60,7 @@ from typing import Any
 import numpy as np
 
 from bench.calibrated_tracking_bench import scenario_with_true_calibration
+from bench.cpu_use import CpuUse, namer
 from bench.steady_state import wait_for_warm_pool
 from sim_trackers.scenario import load_scenario
 from ubitrack_agent.commands.demo import Processes, dtrack_flags, simulator_arguments
@@ -187,17 +193,33 @@ def fused_phase(
     return result
 
 
+def process_names(session: Any, keys: KeySpace, children: Processes) -> Callable[[int], str]:
+    """Names for the processes of the flow (``bench.cpu_use``): the children by role, the
+    workers by service and instance (their status tells their pid)."""
+    roles = {process.pid: role for role, process in children.running.items()}
+    workers = {}
+    for instance in components(session, keys):
+        replies = fetch_latest(session, keys.status(instance), timeout=0.5)
+        if replies:
+            status = json.loads(replies[0])
+            workers[status["pid"]] = f"{status['service']} {instance}"
+    return namer(roles, workers)
+
+
 def run_phase(
     seconds: float,
     relation: Relation,
     arrivals: queue.SimpleQueue,
     world: Any,
     art_times: set[int],
+    names: Callable[[], Callable[[int], str]],
     name: str,
 ) -> dict:
     time.sleep(SETTLE_S)
     while not arrivals.empty():
         arrivals.get_nowait()
+    cpu = CpuUse()
+    cpu.start(time.monotonic())
     ahead: dict[str, Any] = {"predicted": [], "latest": [], "refused": 0}
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -211,10 +233,11 @@ def run_phase(
             ahead["predicted"].append(errors(predicted, world, display)[0])
             ahead["latest"].append(errors(latest, world, display)[0])
         time.sleep(0.05)
+    used = cpu.stop(time.monotonic(), names())
     samples = []
     while not arrivals.empty():
         samples.append(arrivals.get_nowait())
-    return summarise(name, samples, world, ahead, art_times)
+    return summarise(name, samples, world, ahead, art_times) | {"cpu_percent": used}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -272,27 +295,32 @@ def main(argv: list[str] | None = None) -> None:
                 wait_for_services(session, keys, present=True)
                 wait_for_warm_pool(session, keys)  # measure the steady state
                 world = scenario.world
+                names = partial(process_names, session, keys, children)
                 measure = partial(
-                    run_phase, args.phase_seconds, relation, arrivals, world, art_times
+                    run_phase, args.phase_seconds, relation, arrivals, world, art_times, names
                 )
                 fused = partial(fused_phase, session, keys, measure, args.parameters, art_times)
                 phases.append(fused("asynchronous", {}))
                 phases.append(fused("synchronised", {"policy": "synchronised"}))
                 children.stop("sim camera")
                 wait_for_services(session, keys, present=False)
+                wait_for_warm_pool(session, keys)
                 phases.append(measure("A.R.T. only"))
                 print(json.dumps(phases[-1]), flush=True)
                 children.start("sim camera", [*simulators["sim camera"], *member])
                 wait_for_services(session, keys, present=True)
+                wait_for_warm_pool(session, keys)  # its refill's imports load the CPUs
                 phases.append(fused("asynchronous again", {}))
                 children.stop("sim art", "dtrack")
                 wait_for_services(session, keys, present=False)
+                wait_for_warm_pool(session, keys)
                 phases.append(measure("camera only"))
                 print(json.dumps(phases[-1]), flush=True)
                 watch.undeclare()
         finally:
             children.stop_all()
     print_table(phases)
+    print_cpu_table(phases)
     RESULTS.parent.mkdir(exist_ok=True)
     RESULTS.write_text(
         json.dumps(
@@ -340,6 +368,21 @@ def print_table(phases: list[dict]) -> None:
             f"{p['error_mm_rms']:.2f} / {p['error_deg_rms']:.3f} | "
             f"{p['error_at_arrival_mm_rms']:.2f} | {ahead} | {hop} |"
         )
+
+
+def print_cpu_table(phases: list[dict]) -> None:
+    """Each phase's CPU use (``bench.cpu_use``), in percent of one CPU: the total and the
+    largest users."""
+    print("\n| phase | CPU, % of one (all processes) | largest users (%) |")
+    print("|---|---|---|")
+    for p in phases:
+        used = p["cpu_percent"]
+        if isinstance(used, str):
+            print(f"| {p['phase']} | {used} | - |")
+            continue
+        users = [(label, percent) for label, percent in used.items() if label != "total"]
+        largest = ", ".join(f"{label} {percent:.0f}" for label, percent in users[:6])
+        print(f"| {p['phase']} | {used['total']:.0f} | {largest} |")
 
 
 def _cpus() -> int | None:
