@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from services.registry import Service, lookup
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError, parse_then_port
 
 
 def check_spec(spec: ComponentSpec) -> type[Service]:
@@ -50,10 +50,24 @@ def check_bindings(
     where: str = "spec.inputs",
 ) -> None:
     """Every binding names an input port; every port has one binding (several for a
-    correspondence port under space expansion)."""
+    correspondence port under space expansion). A binding of a static edge an output is
+    composed with (``net.spec.then_port``) names an output, is static and does not trigger;
+    an output's are numbered from 0 in turn."""
+    composed: dict[str, list[int]] = {}
     for index, binding in enumerate(bindings):
-        if binding.port not in service.INPUTS:
+        then = parse_then_port(binding.port)
+        if then is not None:
+            output, order, _ = then
+            if output not in service.OUTPUTS:
+                raise SpecError(f"{where}[{index}].port: {service.NAME} has no output {output!r}")
+            if not binding.static or binding.trigger:
+                raise SpecError(f"{where}[{index}]: a composed edge is static and no trigger")
+            composed.setdefault(output, []).append(order)
+        elif binding.port not in service.INPUTS:
             raise SpecError(f"{where}[{index}].port: {service.NAME} has no input {binding.port!r}")
+    for output, orders in composed.items():
+        if sorted(orders) != list(range(len(orders))):
+            raise SpecError(f"{where}: the edges composed with {output!r} are not numbered 0..n")
     for port in service.INPUTS:
         count = sum(binding.port == port for binding in bindings)
         listed = expansion == "space" and port in service.CORRESPONDENCE

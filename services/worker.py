@@ -64,6 +64,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from services.components.basic import Concatenation
 from services.expansion import BatchProgress, TimeAccumulator
 from services.parent import Parent
 from services.registry import Pushed, Service, lookup
@@ -92,11 +93,16 @@ from ubitrack_agent.net.spec import (
     parse_bindings,
     parse_relations,
     parse_spec,
+    parse_then_port,
 )
 from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.net.transport import LatestValuePublisher, fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.worker")
+
+_CONCATENATION = Concatenation({})
+"""Composes an output with the static edges of a folded concatenation (``net.spec.then_port``):
+the same service the folded component ran."""
 
 INBOX_CAPACITY = 4096
 """Samples waiting for the worker thread; beyond this the oldest are dropped and counted."""
@@ -235,6 +241,9 @@ class _Input:
     """The measurement types its port takes."""
     level: str
     """Its samples' validation level: ``WORKER`` from a known worker, else ``FULL``."""
+    composed: tuple[str, int, str] | None
+    """For a static edge an output is composed with (``net.spec.then_port``, no port of the
+    service): the output, its turn and the concatenation port it takes."""
 
 
 class Worker:
@@ -273,6 +282,11 @@ class Worker:
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
         self._inputs: list[_Input] = []
+        self._computed: list[_Input] = []
+        """The inputs of the service's ports (not the edges its outputs are composed with)."""
+        self._then: dict[str, list[tuple[str, _Input]]] = {}
+        """By output port, the static edges it is composed with in turn, each with the
+        concatenation port it takes (``net.spec.then_port``)."""
         self._dynamic: list[SampleBuffer] = []
         """The buffers of the dynamic inputs, in binding order."""
         self._no_model: dict[str, float] = {}
@@ -346,12 +360,20 @@ class Worker:
                     )
                 ),
             )
-            expected = self._service_class.INPUTS[binding.port].types
+            composed = parse_then_port(binding.port)
+            side = binding.port if composed is None else composed[2]
+            port = (self._service_class if composed is None else Concatenation).INPUTS[side]
             level = WORKER if binding.from_worker else FULL
-            inputs.append(_Input(binding, buffer, subscriber, expected, level))
+            inputs.append(_Input(binding, buffer, subscriber, port.types, level, composed))
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
+        self._computed = [item for item in inputs if item.composed is None]
+        self._then = {}
+        for item in sorted(self._inputs, key=lambda item: item.composed or ("", 0, "")):
+            if item.composed is not None:
+                output, _, side = item.composed
+                self._then.setdefault(output, []).append((side, item))
         self._dynamic = [item.buffer for item in inputs if not item.binding.static]
         wanted = [
             (
@@ -494,7 +516,7 @@ class Worker:
                 return
             t = sample.timestamp_ns
         self._latency[key].append((now - t) / 1e6)
-        if self._asynchronous:
+        if self._asynchronous and item.composed is None:
             self._push(item.binding.port, sample)
             return
         if not item.buffer.add(sample):
@@ -545,7 +567,7 @@ class Worker:
         values: dict[str, Any] = {}
         space = self.spec.expansion == "space"
         tolerance_ns = self.spec.tolerance_ns
-        for item in self._inputs:
+        for item in self._computed:
             port = item.binding.port
             value = sample if item is trigger else item.buffer.value_at(t, tolerance_ns)
             if space and port in self._service_class.CORRESPONDENCE:
@@ -591,6 +613,15 @@ class Worker:
 
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         for port, value in outputs.items():
+            if port in self._then:
+                try:
+                    value = self._composed(port, value, self._static_at)
+                except NoDataError as exc:
+                    self._count("dropped", "%s not published: %s", port, exc)
+                    continue
+                except (ValueError, MeasurementError, ArithmeticError) as exc:
+                    self._count("failed", "%s not composed: %s", port, exc)
+                    continue
             try:
                 payload = encode(value)  # where a result's numbers are checked
             except MeasurementError as exc:
@@ -601,6 +632,28 @@ class Worker:
             self.counters["published"] += 1
         if self._reports_progress or self._batch_progress is not None:
             self._publish_progress(outputs, timestamp_ns)
+
+    def _composed(
+        self, port: str, value: Measurement, edge_at: Callable[[_Input, int], Measurement]
+    ) -> Measurement:
+        """``value`` of output ``port`` concatenated in turn with the static edges it is
+        composed with (``net.spec.then_port``), each read by ``edge_at(input, time)``: the
+        concatenation a folded component did (``agent.materialise``), by its own service."""
+        t = value.timestamp_ns
+        for side, item in self._then[port]:
+            edge = edge_at(item, t)
+            pair = {"AB": edge, "BC": value} if side == "AB" else {"AB": value, "BC": edge}
+            value = _CONCATENATION.compute(pair, t)["AC"]
+        return value
+
+    @staticmethod
+    def _static_at(item: _Input, t: int) -> Measurement:
+        """A static edge's value at ``t`` (its latest, restamped); :class:`NoDataError` before
+        its first sample."""
+        value = item.buffer.value_at(t, tolerance_ns=0)
+        if value is None:
+            raise NoDataError(f"no value of {item.binding.key} yet")
+        return value
 
     def _publish_progress(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         """The progress of each static estimate (``ubitrack_agent.net.progress``), also when
@@ -642,6 +695,12 @@ class Worker:
         its samples or, after them, asked of its producer in turn (a chain of such queries
         ends at a filter that predicts, or at a measured edge, which refuses). A time
         expansion's result is not a function of time and is not answered."""
+        if port in self._then:
+            return self._composed(port, self._service_value_at(port, t), self._input_at)
+        return self._service_value_at(port, t)
+
+    def _service_value_at(self, port: str, t: int) -> Measurement:
+        """The service's own output ``port`` at ``t`` (see :meth:`_value_at`)."""
         if self._asynchronous:
             return self._service.value_at(port, t)
         if self.spec.expansion == "time":
@@ -649,7 +708,7 @@ class Worker:
         space = self.spec.expansion == "space"
         values: dict[str, Any] = {}
         no_model: list[NoMotionModel] = []
-        for item in self._inputs:
+        for item in self._computed:
             correspondence = space and item.binding.port in self._service_class.CORRESPONDENCE
             try:
                 value: Measurement | None = self._input_at(item, t)

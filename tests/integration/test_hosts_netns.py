@@ -340,7 +340,9 @@ def test_the_camera_clock_ahead_is_measured_and_aligned_where_it_meets_the_art(l
     def aligned(status: dict) -> dict | None:
         clock = (status.get("host_info", {}).get("hmd") or {}).get("clock")
         fusions = [c for c in status["components"].values() if c["service"] == "fusion"]
-        offsets = [b.get("clock_offset_ns", 0) for f in fusions for b in f["inputs"]]
+        offsets = [  # of the estimates fused (not the static edge its output is composed with)
+            b.get("clock_offset_ns", 0) for f in fusions for b in f["inputs"] if b["port"] == "AB"
+        ]
         return {"clock": clock, "offsets": offsets} if clock and any(offsets) else None
 
     seen = d.wait_for(aligned, RECOVERY_S, "hmd's clock measured and the fusion aligned")

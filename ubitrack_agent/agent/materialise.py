@@ -14,7 +14,7 @@
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Set
 from dataclasses import replace
 from typing import Protocol
 
@@ -23,7 +23,7 @@ import networkx as nx
 from ubitrack_agent.graph.dataflow import Binding, DataFlow
 from ubitrack_agent.graph.srg import edge_ids
 from ubitrack_agent.net.keys import RelationId
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding, parse_then_port, then_port
 
 
 def _port(name: str) -> str:
@@ -100,3 +100,72 @@ def component_specs(
             relations={"out": (relation_key,)},
         )
     return specs
+
+
+def fold_static_compositions(
+    specs: Mapping[str, ComponentSpec], keep: Set[str] = frozenset()
+) -> tuple[dict[str, ComponentSpec], dict[str, str]]:
+    """``specs`` with every concatenation of a static edge with a worker's output that nothing
+    else reads folded into that worker, and which component each folded one went into.
+
+    Such a concatenation costs the flow a hop (a process woken, a message decoded, composed,
+    encoded, published) for a product with a value that seldom changes: its producer composes
+    its output with the static edge before publishing instead (``net.spec.then_port``), on the
+    concatenation's own output key, so its consumers and relation routes are unchanged. A chain
+    folds into its first producer: the A.R.T. path of the paper's figure 6 (an inversion, then
+    two concatenations with calibrations) becomes one hop, and the last hop after the fusion
+    goes into the fusion. Folded: a concatenation (not in ``keep``) whose one input is static
+    and whose other is a dynamic worker output that no other component reads and no relation
+    is published on; specifications are taken in order, producers before their consumers
+    (so a folded concatenation's producer is never folded itself afterwards).
+    """
+    specs = dict(specs)
+    folded: dict[str, str] = {}
+    for instance in list(specs):
+        spec = specs[instance]
+        if instance in keep or spec.service != "concatenation" or len(spec.inputs) != 2:
+            continue
+        static = [binding for binding in spec.inputs if binding.static]
+        dynamic = [binding for binding in spec.inputs if not binding.static]
+        if len(static) != 1 or len(dynamic) != 1 or not dynamic[0].from_worker:
+            continue
+        if dynamic[0].clock_offset_ns:
+            continue  # its producer's output moved to another clock: not the producer's value
+        producer = _producer(specs, dynamic[0].key)
+        if producer is None or _readers(specs, dynamic[0].key) != 1:
+            continue
+        host, port = producer
+        into = specs[host]
+        if into.relations.get(port):
+            continue
+        order = sum(
+            (then := parse_then_port(binding.port)) is not None and then[0] == port
+            for binding in into.inputs
+        )
+        edge = replace(static[0], port=then_port(port, order, static[0].port), trigger=False)
+        routes = dict(into.relations)
+        if spec.relations.get("AC"):
+            routes[port] = spec.relations["AC"]
+        specs[host] = replace(
+            into,
+            inputs=(*into.inputs, edge),
+            outputs={**into.outputs, port: spec.outputs["AC"]},
+            relations=routes,
+        )
+        del specs[instance]
+        folded[instance] = host
+    return specs, folded
+
+
+def _producer(specs: Mapping[str, ComponentSpec], key: str) -> tuple[str, str] | None:
+    """The instance and output port publishing data on ``key``."""
+    for instance, spec in specs.items():
+        for port, output in spec.outputs.items():
+            if output == key:
+                return instance, port
+    return None
+
+
+def _readers(specs: Mapping[str, ComponentSpec], key: str) -> int:
+    """How many inputs read ``key``."""
+    return sum(binding.key == key for spec in specs.values() for binding in spec.inputs)

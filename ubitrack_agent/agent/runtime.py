@@ -52,7 +52,7 @@ import queue
 import threading
 import time
 from collections import Counter, defaultdict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from ubitrack_agent.agent.announcements import (
@@ -67,7 +67,7 @@ from ubitrack_agent.agent.election import Election, new_agent_id
 from ubitrack_agent.agent.flows import Plan, plan_name, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
 from ubitrack_agent.agent.liveness import DataLiveness
-from ubitrack_agent.agent.materialise import component_specs
+from ubitrack_agent.agent.materialise import component_specs, fold_static_compositions
 from ubitrack_agent.agent.placement import place
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
@@ -157,6 +157,9 @@ class Agent:
         once placed."""
         self._planned: dict[str, ComponentSpec] = {}
         """The specifications as the plan made them, before clock correction."""
+        self._folded: dict[str, str] = {}
+        """The plan's concatenations folded into their producers: the instance each went into
+        (``agent.materialise.fold_static_compositions``)."""
         self.clock_problems: dict[str, str] = {}
         """Why a component's input clocks cannot be aligned within its tolerance."""
         self._host_name = settings.host_name
@@ -392,17 +395,20 @@ class Agent:
         # does: every alive component counts), so that it adopts all of it when it takes over.
         previous = self.plan if self.active else None
         plan = plan_relations(srg, self.templates, self.queries, running, previous)
-        wanted = component_specs(plan.flow, srg, self.keys, plan.relations)
+        labels = {template.name: template.host_labels for template in self.templates}
+        self._labels = {
+            component.id: labels.get(component.template, frozenset())
+            for component in plan.flow.components.values()
+        }
+        wanted, self._folded = fold_static_compositions(
+            component_specs(plan.flow, srg, self.keys, plan.relations),
+            keep={instance for instance, required in self._labels.items() if required},
+        )
         self.srg, self.plan, self.wanted, self._planned = srg, plan, wanted, wanted
         self._data_hosts = {
             self.keys.data(edge_id): host
             for *_, edge_id, host in srg.edges(keys=True, data="host")
             if host
-        }
-        labels = {template.name: template.host_labels for template in self.templates}
-        self._labels = {
-            component.id: labels.get(component.template, frozenset())
-            for component in plan.flow.components.values()
         }
         self._replan_due = False
         self.counters["replans"] += 1
@@ -797,7 +803,7 @@ class Agent:
                     "processes": sorted(self.incarnations.get(instance, ())),
                     "host": placement.host if (placement := placements.get(instance)) else None,
                     "pid": placement.pid if placement else None,
-                    "derives": _derived_edges(plan, instance),
+                    "derives": _derived_edges(plan, instance, self._folded),
                 }
                 for instance, spec in self.wanted.items()
             },
@@ -853,7 +859,11 @@ class Agent:
         self.session.close()
 
 
-def _derived_edges(plan: Plan | None, instance: str) -> list[list[str]]:
-    """The SRG edges ``[from, to, type]`` a component derives (none for a relay)."""
-    component = plan.flow.components.get(instance) if plan else None
-    return [[src, dst, typ] for _, src, dst, typ in component.outputs] if component else []
+def _derived_edges(plan: Plan | None, instance: str, folded: Mapping[str, str]) -> list[list[str]]:
+    """The SRG edges ``[from, to, type]`` a component derives (none for a relay), with those
+    of the concatenations folded into it (``agent.materialise``)."""
+    if plan is None:
+        return []
+    ids = [instance, *(concatenation for concatenation, into in folded.items() if into == instance)]
+    components = [plan.flow.components[i] for i in ids if i in plan.flow.components]
+    return [[src, dst, typ] for c in components for _, src, dst, typ in c.outputs]

@@ -119,7 +119,7 @@ def step_hosts(
 ) -> list[str | None]:
     """The host each step of ``solution`` would run on (:mod:`ubitrack_agent.agent.placement`),
     None where none fits."""
-    from ubitrack_agent.agent.materialise import component_specs
+    from ubitrack_agent.agent.materialise import component_specs, fold_static_compositions
     from ubitrack_agent.agent.placement import place
     from ubitrack_agent.graph.dataflow import from_solution, relation_name
     from ubitrack_agent.net.host_protocol import HostInfo
@@ -127,7 +127,9 @@ def step_hosts(
 
     flow = from_solution(solution, query)
     relation = RelationId(query.source, query.target, query.type, query.static)
-    specs = component_specs(flow, srg, _EdgeIds(), {relation_name(query): relation})
+    specs, folded = fold_static_compositions(
+        component_specs(flow, srg, _EdgeIds(), {relation_name(query): relation})
+    )
     data_hosts = {edge: host for *_, edge, host in srg.edges(keys=True, data="host") if host}
     readers = {"relation": {app_host}} if app_host else {}
     # The flow's components are the solution's steps, in order.
@@ -135,7 +137,8 @@ def step_hosts(
     labels = {cid: step.template.host_labels for cid, step in steps}
     infos = {name: HostInfo(name, tags) for name, tags in hosts}
     placement = place(specs, infos, data_hosts, readers, {}, labels)
-    return [placement.hosts.get(component) for component in flow.components]
+    # A concatenation folded into its producer runs where that one does.
+    return [placement.hosts.get(folded.get(component, component)) for component in flow.components]
 
 
 class _EdgeIds:

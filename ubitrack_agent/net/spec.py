@@ -14,6 +14,12 @@ JSON form::
 ``relations`` lists, per output port, the stable relation keys (``docs/protocol.md``) the output
 is also published on, for the applications that asked for it. ``trigger`` marks the push inputs
 whose samples cause a computation; ``static`` inputs answer their latest value.
+An input whose port is ``then/<output>/<k>/<side>`` (:func:`then_port`) is no port of the
+service: it is a static edge the ``output`` is concatenated with before it is published, the
+``k``-th in turn (from 0), as the concatenation's ``side`` (``AB``: the static edge comes
+first, ``A->B`` before the output's ``B->C``; ``BC``: after it). The agent folds a
+concatenation with a static edge into the worker producing its other input this way
+(``agent.materialise.fold_static_compositions``), which saves a hop.
 ``clock_offset_ns`` (an integer within a day either way, default 0, omitted when 0) is added
 to the timestamp of every sample arriving on the input before it is used: the agent sets it to
 the offset of the sensor host's clock to the agent's (``agent.clocks``) when a component reads
@@ -55,6 +61,26 @@ translation (m, or px for 2D), least change of a rotation (degrees), the history
 
 class SpecError(ValueError):
     """A component specification is invalid."""
+
+
+THEN_SIDES = ("AB", "BC")
+"""The concatenation ports a static edge an output is composed with can take (see the module
+docstring)."""
+
+
+def then_port(output: str, index: int, side: str) -> str:
+    """The port of the ``index``-th static edge ``output`` is concatenated with, as ``side``."""
+    return f"then/{output}/{index}/{side}"
+
+
+def parse_then_port(port: str) -> tuple[str, int, str] | None:
+    """``(output, index, side)`` of a :func:`then_port`, None for any other port name."""
+    parts = port.split("/")
+    if len(parts) != 4 or parts[0] != "then" or parts[3] not in THEN_SIDES:
+        return None
+    if not parts[1] or not parts[2].isdigit() or len(parts[2]) > 3:
+        return None
+    return parts[1], int(parts[2]), parts[3]
 
 
 @dataclass(frozen=True)
