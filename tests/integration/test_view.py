@@ -39,8 +39,9 @@ pytestmark = pytest.mark.integration
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
 """Where the screenshot is kept (git-ignored)."""
 
-PATTERNS = ("PoseEstimation2D3D", "MultiTrackerFusion", "Concatenation")
-"""Patterns of the fused C->A flow (the paper's figure 6)."""
+PATTERNS = ("PoseEstimation2D3D", "MultiTrackerFusion + Concatenation")
+"""Patterns of the fused C->A flow's workers (the paper's figure 6; the last concatenation
+folded into the fusion, ``agent.materialise``)."""
 
 
 def chromium() -> str:

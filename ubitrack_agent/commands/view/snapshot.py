@@ -13,6 +13,7 @@ from typing import Any
 
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.spec import parse_then_port
 
 MAX_RELATIONS = 64
 """Most relations the view watches (one subscriber each), whatever a status lists."""
@@ -77,8 +78,9 @@ def enrich(
 ) -> dict[str, Any]:
     """A copy of ``status`` whose components also carry their worker's ``counters`` and its
     inputs' ``latency_ms`` (as ``ubitrack status --json`` shows them; the data flow's wires
-    show the latency), their ``pattern`` (the service's, where a template names one) and their
-    measured output rate ``rate_hz`` (None before it is measured).
+    show the latency), their ``pattern`` (the service's, where a template names one, followed by
+    `` + Concatenation`` for each concatenation folded into it: ``net.spec.then_port``) and
+    their measured output rate ``rate_hz`` (None before it is measured).
     Components that are not JSON objects are left as they are; of a worker's counters, only
     integers are shown (they come from the network too)."""
     components = status.get("components")
@@ -87,16 +89,26 @@ def enrich(
     enriched = {}
     for instance, component in components.items():
         if isinstance(component, dict):
-            service = component.get("service")
             component = {
                 **component,
                 "counters": _integers(counters.get(instance)),
-                "pattern": patterns.get(service) if isinstance(service, str) else None,
+                "pattern": _pattern(component, patterns),
                 "rate_hz": rates.get(instance),
                 "latency_ms": dict((latencies or {}).get(instance, {})),
             }
         enriched[instance] = component
     return {**status, "components": enriched}
+
+
+def _pattern(component: Mapping[str, Any], patterns: Mapping[str, str]) -> str | None:
+    """The pattern a component runs, with the concatenations folded into it."""
+    service, inputs = component.get("service"), component.get("inputs")
+    pattern = patterns.get(service) if isinstance(service, str) else None
+    if pattern is None or not isinstance(inputs, list):
+        return pattern
+    ports = [item.get("port") for item in inputs if isinstance(item, dict)]
+    folded = sum(isinstance(port, str) and parse_then_port(port) is not None for port in ports)
+    return " + ".join([pattern, *["Concatenation"] * folded])
 
 
 def _integers(counters: Mapping[str, Any] | None) -> dict[str, int] | None:
