@@ -115,10 +115,50 @@ def test_a_composed_edge_is_checked_against_the_service(binding, fault):
         check_bindings(bindings, lookup("inversion"), "none")
 
 
-@given(st.text(max_size=40))
+@given(
+    st.text(max_size=40)
+    | st.builds(
+        "then/{}/{}/{}".format,
+        st.sampled_from(["BA", "", "x/y"]),
+        st.sampled_from(["0", "1", "01", "1000", "-1", "\u0663", " 2"]),
+        st.sampled_from(["AB", "BC", "CD"]),
+    )
+)
 def test_any_port_name_is_a_composed_edge_or_not_without_error(port: str):
     parsed = parse_then_port(port)
-    assert parsed is None or then_port(*parsed) == port
+    assert parsed is None or then_port(*parsed) == port  # one spelling per edge
+
+
+composed_edges = st.lists(
+    st.builds(
+        InputBinding,
+        st.builds(
+            then_port,
+            st.sampled_from(["BA", "AB"]),
+            st.integers(0, 3),
+            st.sampled_from(["AB", "BC"]),
+        ),
+        st.sampled_from([KEYS.data("db/a"), KEYS.data("db/b")]),
+        st.booleans(),
+        st.booleans(),
+    ),
+    max_size=4,
+)
+
+
+@given(composed_edges)
+def test_a_worker_takes_any_composed_edges_that_pass_the_check_and_only_those(edges):
+    """Whatever composed edges a specification from the network holds, the check refuses it
+    with a ``SpecError`` or a worker runs it."""
+    bindings = (InputBinding("AB", KEYS.data("ART/HT"), trigger=True), *edges)
+    try:
+        check_bindings(bindings, lookup("inversion"), "none")
+    except SpecError:
+        return
+    spec = ComponentSpec("inv", "inversion", bindings, {"BA": KEYS.data("inv/BA")})
+    worker = Worker(spec, FakeSession(), KEYS)
+    assert sum(len(edges) for edges in worker._then.values()) == len(edges)
+    worker.stop()
 
 
 # -- the worker's composition -----------------------------------------------------------------

@@ -76,11 +76,12 @@ def then_port(output: str, index: int, side: str) -> str:
 def parse_then_port(port: str) -> tuple[str, int, str] | None:
     """``(output, index, side)`` of a :func:`then_port`, None for any other port name."""
     parts = port.split("/")
-    if len(parts) != 4 or parts[0] != "then" or parts[3] not in THEN_SIDES:
+    if len(parts) != 4 or parts[0] != "then" or not parts[1] or parts[3] not in THEN_SIDES:
         return None
-    if not parts[1] or not parts[2].isdigit() or len(parts[2]) > 3:
+    index = parts[2]  # written by then_port: ASCII digits, no leading zero, below 1000
+    if not (index.isascii() and index.isdigit() and len(index) <= 3 and str(int(index)) == index):
         return None
-    return parts[1], int(parts[2]), parts[3]
+    return parts[1], int(index), parts[3]
 
 
 @dataclass(frozen=True)
