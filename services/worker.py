@@ -123,7 +123,8 @@ COUNTERS = {
     "superseded": "samples from a subscription that a rewire replaced",
     "buffered": "samples of inputs that do not trigger, kept for the next trigger",
     "stale_triggers": "trigger samples at an instant pending, computed, or before the last",
-    "dropped": "triggers dropped: an input had no value at the trigger's time",
+    "dropped": "triggers dropped: an input had no value at the trigger's time, or a static edge "
+    "the output is composed with had none yet (net.spec.then_port)",
     "not_distinct": "time expansion: correspondence values too close to the last kept",
     "accumulating": "time expansion: fewer correspondences kept than the pattern needs",
     "no_output": "computations that published nothing (an estimate not yet ready)",
@@ -147,7 +148,8 @@ COUNTERS = {
 ``accumulating``, ``failed``, ``no_output`` or publishes: a worker that receives but does not
 publish shows why.
 For an asynchronous service every sample is a trigger and ends ``gated``, ``late``,
-``dropped_stale``, ``failed`` or publishes."""
+``dropped_stale``, ``dropped`` (a static edge its output is composed with has no value yet),
+``failed`` or publishes."""
 
 ANSWER_TIMEOUT_S = 0.15
 """Longest a query for the value at a given time waits for the worker thread's answer."""
