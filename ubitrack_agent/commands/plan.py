@@ -127,14 +127,15 @@ def step_hosts(
 
     flow = from_solution(solution, query)
     relation = RelationId(query.source, query.target, query.type, query.static)
-    specs, folded = fold_static_compositions(
-        component_specs(flow, srg, _EdgeIds(), {relation_name(query): relation})
-    )
-    data_hosts = {edge: host for *_, edge, host in srg.edges(keys=True, data="host") if host}
-    readers = {"relation": {app_host}} if app_host else {}
     # The flow's components are the solution's steps, in order.
     steps = zip(flow.components, solution.steps, strict=True)
     labels = {cid: step.template.host_labels for cid, step in steps}
+    specs, folded = fold_static_compositions(  # as the agent does (agent.runtime)
+        component_specs(flow, srg, _EdgeIds(), {relation_name(query): relation}),
+        keep={cid for cid, required in labels.items() if required},
+    )
+    data_hosts = {edge: host for *_, edge, host in srg.edges(keys=True, data="host") if host}
+    readers = {"relation": {app_host}} if app_host else {}
     infos = {name: HostInfo(name, tags) for name, tags in hosts}
     placement = place(specs, infos, data_hosts, readers, {}, labels)
     # A concatenation folded into its producer runs where that one does.
