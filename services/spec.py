@@ -23,9 +23,7 @@ def check_spec(spec: ComponentSpec) -> type[Service]:
         service = lookup(spec.service)
     except KeyError as exc:
         raise SpecError(f"spec.service: {exc.args[0]}") from None
-    for port in spec.outputs:
-        if port not in service.OUTPUTS:
-            raise SpecError(f"spec.outputs: {service.NAME} has no output {port!r}")
+    check_outputs(spec.outputs, service)
     if spec.expansion != "none" and not service.CORRESPONDENCE:
         raise SpecError(f"spec.expansion: {service.NAME} has no correspondence to expand")
     check_bindings(spec.inputs, service, spec.expansion)
@@ -74,6 +72,15 @@ def check_bindings(
         if count == 0 or (count > 1 and not listed):
             needed = "one or more bindings" if listed else "exactly one binding"
             raise SpecError(f"{where}: port {port!r} needs {needed}, got {count}")
+
+
+def check_outputs(
+    outputs: Mapping[str, str], service: type[Service], where: str = "spec.outputs"
+) -> None:
+    """Every output key is that of an output port of ``service``."""
+    for port in outputs:
+        if port not in service.OUTPUTS:
+            raise SpecError(f"{where}: {service.NAME} has no output {port!r}")
 
 
 def check_relations(

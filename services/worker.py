@@ -13,6 +13,8 @@ counters on ``<root>/status/<instance>`` and, last, declares the liveliness toke
 * ``{"parameters": {...}}`` rebuilds the service with new parameters;
 * ``{"relations": {"<output port>": ["<relation key>", ...]}}`` also publishes an output on the
   stable relation keys of the applications it serves (replacing the previous ones);
+* ``{"outputs": {"<output port>": "<data key>"}}`` publishes the outputs on other data keys
+  (a concatenation folded into the worker, or no longer: ``agent.materialise``);
 * ``{"stop": true}`` ends the run: the agent (directly, or through the host manager that
   started the worker) stops every worker with it; a pool member then rejoins its pool (or
   exits, if its host manager is gone).
@@ -68,7 +70,13 @@ from services.components.basic import Concatenation
 from services.expansion import BatchProgress, TimeAccumulator
 from services.parent import Parent
 from services.registry import Pushed, Service, lookup
-from services.spec import check_bindings, check_parameters, check_relations, check_spec
+from services.spec import (
+    check_bindings,
+    check_outputs,
+    check_parameters,
+    check_relations,
+    check_spec,
+)
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
 from ubitrack_agent.core.errors import (
@@ -91,6 +99,7 @@ from ubitrack_agent.net.spec import (
     InputBinding,
     SpecError,
     parse_bindings,
+    parse_outputs,
     parse_relations,
     parse_spec,
     parse_then_port,
@@ -107,7 +116,7 @@ the same service the folded component ran."""
 INBOX_CAPACITY = 4096
 """Samples waiting for the worker thread; beyond this the oldest are dropped and counted."""
 
-CONTROL_FIELDS = frozenset({"inputs", "parameters", "relations", "stop"})
+CONTROL_FIELDS = frozenset({"inputs", "outputs", "parameters", "relations", "stop"})
 """What a control command may change (see the module docstring)."""
 MAX_CONTROL_BYTES = 64 * 1024
 """Largest control command read (a rewire of a dozen bindings takes a kilobyte)."""
@@ -176,6 +185,7 @@ class ControlCommand:
     parameters: dict[str, Any] | None = None
     service: Service | None = None
     inputs: tuple[InputBinding, ...] | None = None
+    outputs: dict[str, str] | None = None
     relations: dict[str, tuple[str, ...]] | None = None
 
 
@@ -447,6 +457,10 @@ class Worker:
             bindings = parse_bindings(command["inputs"], "control.inputs")
             check_bindings(bindings, self._service_class, self.spec.expansion, "control.inputs")
             parsed = replace(parsed, inputs=bindings)
+        if "outputs" in command:
+            outputs = parse_outputs(command["outputs"], "control.outputs")
+            check_outputs(outputs, self._service_class, "control.outputs")
+            parsed = replace(parsed, outputs=outputs)
         if "relations" in command:
             relations = parse_relations(command["relations"], "control.relations")
             check_relations(relations, self._service_class, "control.relations")
@@ -475,9 +489,12 @@ class Worker:
         if command.inputs is not None:
             self.spec = replace(self.spec, inputs=command.inputs)
             self._bind(command.inputs)
+        if command.outputs is not None:
+            self.spec = replace(self.spec, outputs=command.outputs)
         if command.relations is not None:
             self.spec = replace(self.spec, relations=command.relations)
-            self._route_outputs(command.relations)
+        if command.outputs is not None or command.relations is not None:
+            self._route_outputs(self.spec.relations)
         self.counters["rewired"] += 1
         log.info("%s: reconfigured", self.spec.instance)
 

@@ -4,6 +4,7 @@ composition): the same values on the same keys, a hop fewer."""
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import replace
 
@@ -17,6 +18,7 @@ from services.spec import check_bindings
 from services.worker import Worker
 from tests.unit.test_worker_inputs import IDENTITY, KEYS, FakeSession
 from ubitrack_agent.agent.materialise import component_specs, fold_static_compositions
+from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.commands.plan import _EdgeIds
 from ubitrack_agent.commands.plan_inputs import load_plan_srg
 from ubitrack_agent.core import ErrorPose, Pose, decode, encode
@@ -234,4 +236,49 @@ def test_an_asynchronous_service_never_takes_a_composed_edge_for_an_estimate():
     expected = compose_poses(sample(t, 0.5), wt_a.restamped(t))
     np.testing.assert_allclose(published[0].translation, expected.translation, atol=1e-12)
     np.testing.assert_allclose(published[0].rotation, expected.rotation, atol=1e-12)
+    worker.stop()
+
+
+# -- a fold that comes or goes rewires in place ---------------------------------------------------
+
+
+def test_a_fold_coming_or_going_rewires_its_producer_in_place():
+    """A worker's output keys change in place (a control command), so a producer a
+    concatenation is folded into, or taken out of, keeps running: the transition costs a
+    rewire, not a new process."""
+    specs = figure6_specs()
+    folded, into = fold_static_compositions(specs)
+    for instance in set(into.values()):
+        actions = reconcile({instance: specs[instance]}, {instance: folded[instance]})
+        assert not actions.stop and not actions.start
+        (_, command), *_ = actions.update
+        assert set(command) <= {"inputs", "outputs", "relations"} and "outputs" in command
+
+
+def test_a_worker_moves_its_output_to_another_key_on_command():
+    session = FakeSession()
+    worker = folded_inversion_worker(session)
+    moved = KEYS.data("k9/AC")
+    command = {"outputs": {"BA": moved}}
+    session.deliver(KEYS.control("inv"), json.dumps(command).encode())
+    worker.step(longest_s=0.0)
+    assert worker.counters["rewired"] == 1 and worker.spec.outputs == {"BA": moved}
+    for key, value in (("db/ART_WT", sample(1, 0.4)), ("db/C_HT", sample(1, -0.7))):
+        session.deliver(KEYS.data(key), encode(value))
+    session.deliver(KEYS.data("ART/HT"), encode(sample(time.time_ns(), 1.1)))
+    worker.step(longest_s=0.0)
+    assert [key for key, _ in session.puts] == [moved]
+    worker.stop()
+
+
+@pytest.mark.parametrize(
+    "outputs", [{"nope": KEYS.data("k9/AC")}, {"BA": "ubitrack/test/data/*"}, {"BA": 3}, []]
+)
+def test_a_bad_output_command_is_refused_and_counted(outputs):
+    session = FakeSession()
+    worker = folded_inversion_worker(session)
+    before = worker.spec
+    session.deliver(KEYS.control("inv"), json.dumps({"outputs": outputs}).encode())
+    worker.step(longest_s=0.0)
+    assert worker.counters["rejected_commands"] == 1 and worker.spec == before
     worker.stop()

@@ -332,3 +332,12 @@ def test_a_sample_arriving_while_the_inputs_are_bound_waits_for_them():
     assert worker.counters["internal_errors"] == 0
     assert [p.timestamp_ns for p in outputs(session)] == [2_000]
     worker.stop()
+
+
+def test_huge_entries_cannot_widen_the_worker_level_tolerance():
+    """An indefinite covariance whose trace overflows is refused at level WORKER too (the
+    tolerance's scale was the trace: infinite, so anything passed)."""
+    covariance = np.diag([1.5e308] * 5 + [-1e300])  # far beyond round-off of 1.5e308
+    with pytest.raises(MeasurementError, match="not positive semi-definite"):
+        check_semidefinite("cov", covariance)
+    check_semidefinite("cov", np.diag([1.5e308] * 6))  # huge but positive definite

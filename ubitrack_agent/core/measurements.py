@@ -192,8 +192,9 @@ def check_covariance(where: str, cov: np.ndarray) -> None:
 
 def check_semidefinite(where: str, cov: np.ndarray) -> None:
     """Reject a (symmetric) matrix that is not positive semi-definite within round-off: the
-    ``WORKER`` level's covariance check. A positive semi-definite matrix has no entry larger
-    than its trace, which therefore sets the tolerance's scale."""
+    ``WORKER`` level's covariance check. The tolerance's scale is the largest absolute entry
+    (of a positive semi-definite matrix, its largest diagonal entry: within a factor n of its
+    trace, and, unlike the trace of huge entries, never overflowing)."""
     _check_semidefinite(where, cov, None)
 
 
@@ -221,16 +222,17 @@ def _positive_definite_by_numpy(matrix: np.ndarray) -> bool:
 
 def _check_semidefinite(where: str, cov: np.ndarray, scale: float | None) -> None:
     """Whether the smallest eigenvalue of ``cov`` is at least ``-_PSD_TOLERANCE * scale``
-    (``scale`` None: the trace, at least 1). A Cholesky factorisation decides at once for a
+    (``scale`` None: the largest absolute entry, at least 1), and finite (the eigenvalues of
+    huge entries may overflow). A Cholesky factorisation decides at once for a
     positive definite matrix, every covariance a sensor or an estimate produces, at half an
     eigendecomposition's cost (Golub & Van Loan, Matrix Computations, 4.2.5); only a
     singular or indefinite one (an exact component, round-off) needs the eigenvalues."""
     if _positive_definite()(cov):
         return
     if scale is None:
-        scale = max(1.0, float(cov.trace()))
+        scale = max(1.0, float(np.abs(cov).max()))
     smallest = float(np.linalg.eigvalsh(cov)[0])
-    if smallest < -_PSD_TOLERANCE * scale:
+    if not smallest >= -_PSD_TOLERANCE * scale:  # also NaN
         raise _fail(where, f"covariance is not positive semi-definite (eigenvalue {smallest:.3g})")
 
 

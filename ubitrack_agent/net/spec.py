@@ -207,6 +207,14 @@ def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, 
     return tuple(bindings)
 
 
+def parse_outputs(raw: Any, where: str = "spec.outputs") -> dict[str, str]:
+    """The form of ``{output port: data key}`` (ports are checked against the service by
+    ``services.spec.check_outputs``)."""
+    if not isinstance(raw, dict):
+        raise SpecError(f"{where}: expected an object")
+    return {port: _key(key, f"{where}.{port}") for port, key in raw.items()}
+
+
 def parse_relations(raw: Any, where: str = "spec.relations") -> dict[str, tuple[str, ...]]:
     """The form of ``{output port: [relation key, ...]}``."""
     if not isinstance(raw, dict):
@@ -284,9 +292,7 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
     parameters = data.get("parameters", {})
     if not isinstance(parameters, dict):
         raise SpecError("spec.parameters: expected an object")
-    outputs = _require(data, "outputs", dict, "spec")
-    for port, key in outputs.items():
-        _key(key, f"spec.outputs.{port}")
+    outputs = parse_outputs(_require(data, "outputs", dict, "spec"))
     expansion = data.get("expansion", "none")
     if expansion not in EXPANSIONS:
         raise SpecError(f"spec.expansion: must be one of {EXPANSIONS}, got {expansion!r}")
@@ -303,7 +309,7 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
         instance=instance,
         service=name,
         inputs=parse_bindings(data.get("inputs")),
-        outputs=dict(outputs),
+        outputs=outputs,
         relations=parse_relations(data.get("relations", {})),
         parameters=dict(parameters),
         expansion=expansion,
