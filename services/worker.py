@@ -382,10 +382,12 @@ class Worker:
         self._inputs = inputs
         self._computed = [item for item in inputs if item.composed is None]
         self._then = {}
-        for item in sorted(self._inputs, key=lambda item: item.composed or ("", 0, "")):
-            if item.composed is not None:
-                output, _, side = item.composed
-                self._then.setdefault(output, []).append((side, item))
+        for item in sorted(
+            (item for item in inputs if item.composed is not None),
+            key=lambda item: item.composed,
+        ):
+            output, _, side = item.composed
+            self._then.setdefault(output, []).append((side, item))
         self._dynamic = [item.buffer for item in inputs if not item.binding.static]
         wanted = [
             (
@@ -634,7 +636,7 @@ class Worker:
         for port, value in outputs.items():
             if port in self._then:
                 try:
-                    value = self._composed(port, value, self._static_at)
+                    value = self._composed(port, value)
                 except NoDataError as exc:
                     self._count("dropped", "%s not published: %s", port, exc)
                     continue
@@ -652,26 +654,16 @@ class Worker:
         if self._reports_progress or self._batch_progress is not None:
             self._publish_progress(outputs, timestamp_ns)
 
-    def _composed(
-        self, port: str, value: Measurement, edge_at: Callable[[_Input, int], Measurement]
-    ) -> Measurement:
+    def _composed(self, port: str, value: Measurement) -> Measurement:
         """``value`` of output ``port`` concatenated in turn with the static edges it is
-        composed with (``net.spec.then_port``), each read by ``edge_at(input, time)``: the
-        concatenation a folded component did (``agent.materialise``), by its own service."""
+        composed with (``net.spec.then_port``), each its latest value (:meth:`_input_at`:
+        :class:`NoDataError` before its first sample): the concatenation a folded component
+        did (``agent.materialise``), by its own service."""
         t = value.timestamp_ns
         for side, item in self._then[port]:
-            edge = edge_at(item, t)
+            edge = self._input_at(item, t)
             pair = {"AB": edge, "BC": value} if side == "AB" else {"AB": value, "BC": edge}
             value = _CONCATENATION.compute(pair, t)["AC"]
-        return value
-
-    @staticmethod
-    def _static_at(item: _Input, t: int) -> Measurement:
-        """A static edge's value at ``t`` (its latest, restamped); :class:`NoDataError` before
-        its first sample."""
-        value = item.buffer.value_at(t, tolerance_ns=0)
-        if value is None:
-            raise NoDataError(f"no value of {item.binding.key} yet")
         return value
 
     def _publish_progress(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
@@ -715,7 +707,7 @@ class Worker:
         ends at a filter that predicts, or at a measured edge, which refuses). A time
         expansion's result is not a function of time and is not answered."""
         if port in self._then:
-            return self._composed(port, self._service_value_at(port, t), self._input_at)
+            return self._composed(port, self._service_value_at(port, t))
         return self._service_value_at(port, t)
 
     def _service_value_at(self, port: str, t: int) -> Measurement:
