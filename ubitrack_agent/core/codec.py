@@ -29,13 +29,13 @@ import numpy as np
 from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.core.measurements import (
     FULL,
-    MAX_TIMESTAMP_NS,
     MEASUREMENT_TYPES,
     WORKER,
     ArrayField,
     CameraIntrinsics,
     Measurement,
     fixed_layout,
+    is_timestamp,
 )
 
 WIRE_VERSION = 1
@@ -165,7 +165,7 @@ class _Canonical:
             level: tuple(
                 (spec.name, f"{tag}.{spec.name}", check)
                 for spec in specs
-                if (check := spec.check if level == FULL else spec.worker_check) is not None
+                if (check := spec.check_at(level)) is not None
             )
             for level in (FULL, WORKER)
         }
@@ -173,7 +173,7 @@ class _Canonical:
             measurement,
             _HEADER_KEYS | set(layout.names),
             layout.names,
-            tuple(8 * math.prod(shape) for shape in layout.shapes),
+            tuple(spec.fixed_bytes for spec in specs),  # type: ignore[misc]
             tuple(None if len(shape) == 1 else shape for shape in layout.shapes),
             checks,
         )
@@ -183,12 +183,7 @@ class _Canonical:
         None if anything is not exactly as expected; ``MeasurementError`` from a field's check
         (the general reader's error: same check, same order, same name)."""
         version, timestamp = message["v"], message["t"]
-        if not (
-            type(version) is int
-            and version == WIRE_VERSION
-            and type(timestamp) is int
-            and 0 <= timestamp <= MAX_TIMESTAMP_NS
-        ):
+        if not (type(version) is int and version == WIRE_VERSION and is_timestamp(timestamp)):
             return None
         raws = [message[name] for name in self.names]
         for raw, size in zip(raws, self.sizes, strict=True):

@@ -103,6 +103,10 @@ class ArrayField:
     check: Callable[[str, np.ndarray], None] | None = None
     worker_check: Callable[[str, np.ndarray], None] | None = None
 
+    def check_at(self, level: str) -> Callable[[str, np.ndarray], None] | None:
+        """The check of an array of this field at validation ``level`` (none at ``DERIVED``)."""
+        return self.check if level == FULL else self.worker_check if level == WORKER else None
+
     @functools.cached_property
     def fixed_bytes(self) -> int | None:
         """The size in bytes of an array of a fixed shape (float64), None for a list."""
@@ -113,9 +117,15 @@ def _fail(where: str, what: str) -> MeasurementError:
     return MeasurementError(f"{where}: {what}")
 
 
+def is_timestamp(value: Any) -> bool:
+    """Whether ``value`` already is a timestamp as stored: a Python int in ``[0, 2**63)`` (the
+    common case, decided at once; :func:`check_timestamp` converts or names anything else)."""
+    return type(value) is int and 0 <= value <= MAX_TIMESTAMP_NS
+
+
 def check_timestamp(where: str, value: Any) -> int:
     """Return ``value`` as an int nanosecond timestamp, or raise naming ``where``."""
-    if type(value) is int and 0 <= value <= MAX_TIMESTAMP_NS:  # the common case, at once
+    if is_timestamp(value):
         return value
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise _fail(where, f"must be an integer number of nanoseconds, got {type(value).__name__}")
@@ -313,7 +323,7 @@ class Measurement:
         name = type(self).__name__
         values = self.__dict__  # a frozen dataclass: fields set here, once, before use
         timestamp = values["timestamp_ns"]
-        if not (type(timestamp) is int and 0 <= timestamp <= MAX_TIMESTAMP_NS):
+        if not is_timestamp(timestamp):
             values["timestamp_ns"] = check_timestamp(f"{name}.timestamp_ns", timestamp)
         present = []
         for spec in self.ARRAY_FIELDS:
@@ -338,7 +348,7 @@ class Measurement:
             if arrays and not finite:
                 _check_finite(name, present, arrays)
             for spec, array in zip(present, arrays, strict=True):
-                check = spec.check if level == FULL else spec.worker_check
+                check = spec.check_at(level)
                 if check is not None:
                     check(f"{name}.{spec.name}", array)
         self._check_extra()
@@ -373,13 +383,10 @@ class Measurement:
         layout = fixed_layout(cls)
         if layout is None or values.keys() != layout.fields:
             return cls.checked(DERIVED, **values)
-        timestamp = values["timestamp_ns"]
-        if not (type(timestamp) is int and 0 <= timestamp <= MAX_TIMESTAMP_NS):
+        if not is_timestamp(values["timestamp_ns"]) or not all(
+            _is_float_array(values[spec.name], spec) for spec in cls.ARRAY_FIELDS
+        ):
             return cls.checked(DERIVED, **values)
-        for name, shape in zip(layout.names, layout.shapes, strict=True):
-            array = values[name]
-            if type(array) is not np.ndarray or array.dtype != _FLOAT64 or array.shape != shape:
-                return cls.checked(DERIVED, **values)
         for name in layout.names:
             values[name].setflags(write=False)
         value = object.__new__(cls)
