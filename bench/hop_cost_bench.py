@@ -43,7 +43,7 @@ from services.worker import Worker
 from ubitrack_agent.core import ErrorPose, Pose, decode, encode, quaternions
 from ubitrack_agent.core.measurements import WORKER
 from ubitrack_agent.core.poses import compose_poses
-from ubitrack_agent.core.uncertainty import cached_adjoint
+from ubitrack_agent.core.uncertainty import adjoint as adjoint_of
 from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
@@ -65,7 +65,8 @@ def samples(count: int, start_ns: int) -> list[bytes]:
 def minimal_hop(publisher: Any) -> Callable[[bytes], None]:
     """The hop's maths and checks with nothing around them (see the module docstring)."""
     q1, t1 = STATIC.rotation.tolist(), STATIC.translation.tolist()
-    adjoint, adjoint_t = cached_adjoint(STATIC.rotation, STATIC.translation)
+    adjoint = adjoint_of(STATIC.rotation, STATIC.translation)
+    adjoint_t = adjoint.T
 
     def hop(payload: bytes) -> None:
         message = msgpack.unpackb(payload)

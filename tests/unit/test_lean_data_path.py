@@ -15,7 +15,15 @@ from scipy.spatial.transform import Rotation
 
 from services.worker import Inbox, Worker
 from tests.unit.test_worker_inputs import IDENTITY, KEYS, SPEC, FakeSession, outputs, pose
-from ubitrack_agent.core import ErrorPose, MeasurementError, Pose, decode, encode, quaternions
+from ubitrack_agent.core import (
+    ErrorPose,
+    MeasurementError,
+    Pose,
+    decode,
+    encode,
+    poses,
+    quaternions,
+)
 from ubitrack_agent.core.measurements import (
     DERIVED,
     FULL,
@@ -25,7 +33,7 @@ from ubitrack_agent.core.measurements import (
     check_covariance,
     check_semidefinite,
 )
-from ubitrack_agent.core.uncertainty import adjoint, cached_adjoint
+from ubitrack_agent.core.uncertainty import adjoint
 from ubitrack_agent.net.spec import InputBinding, SpecError, parse_bindings
 
 COVARIANCE = np.eye(6) * 1e-6
@@ -201,12 +209,24 @@ def test_scalar_quaternion_paths_equal_the_batched_ones():
 
 def test_the_adjoint_of_a_static_input_is_computed_once():
     q = Rotation.random(rng=np.random.default_rng(4)).as_quat()
-    t = np.array([0.1, -2.0, 0.3])
-    first, transposed = cached_adjoint(q, t)
-    assert cached_adjoint(q.copy(), t.copy())[0] is first  # by value, not by identity
-    np.testing.assert_array_equal(first, adjoint(q, t))
+    static = ErrorPose(5, q, [0.1, -2.0, 0.3], np.eye(6) * 1e-6)
+    first, transposed = poses._adjoint(static)
+    assert poses._adjoint(static.restamped(99))[0] is first  # a restamped one shares it
+    np.testing.assert_array_equal(first, adjoint(static.rotation, static.translation))
     np.testing.assert_array_equal(transposed, first.T)
     assert not first.flags.writeable and not transposed.flags.writeable
+    twin = ErrorPose(5, q, [0.1, -2.0, 0.3], np.eye(6) * 1e-6)  # equal, other arrays
+    assert poses._adjoint(twin)[0] is not first
+    np.testing.assert_array_equal(poses._adjoint(twin)[0], first)
+
+
+def test_the_adjoints_kept_are_forgotten_at_once_when_full():
+    kept = [Pose(1, [0, 0, 0, 1], [float(i), 0, 0]) for i in range(poses._ADJOINTS_KEPT + 3)]
+    for value in kept:
+        np.testing.assert_array_equal(
+            poses._adjoint(value)[0], adjoint(value.rotation, value.translation)
+        )
+    assert 0 < len(poses._ADJOINTS) <= poses._ADJOINTS_KEPT
 
 
 # -- input bindings ----------------------------------------------------------------------------

@@ -56,15 +56,14 @@ SHORT_MESSAGE_FLOATS = 256
 """Up to this many numbers, :func:`_all_finite` checks them as Python floats."""
 
 
-def _all_finite(arrays: list[bytes]) -> bool:
-    """Whether every float64 in the raw ``arrays`` of one message is finite, over them all at
-    once. A short message's (a pose, its covariance) as Python floats: numpy's ufunc and its
-    reduction would be two more code paths for a hop to run through with cold caches
+def _all_finite(data: bytes) -> bool:
+    """Whether every float64 in ``data`` (the raw arrays of one message, joined) is finite. A
+    short message's (a pose, its covariance) as Python floats: numpy's ufunc and its reduction
+    would be two more code paths for a hop to run through with cold caches
     (``docs/performance.md``, "Data path"); a long one's with numpy."""
-    joined = b"".join(arrays)
-    if _NATIVE and len(joined) <= SHORT_MESSAGE_FLOATS * _FLOAT.itemsize:
-        return all(map(math.isfinite, memoryview(joined).cast("d")))
-    return bool(np.isfinite(np.frombuffer(joined, dtype=_FLOAT)).all())
+    if _NATIVE and len(data) <= SHORT_MESSAGE_FLOATS * _FLOAT.itemsize:
+        return all(map(math.isfinite, memoryview(data).cast("d")))
+    return bool(np.isfinite(np.frombuffer(data, dtype=_FLOAT)).all())
 
 
 def encode(measurement: Measurement) -> bytes:
@@ -85,23 +84,27 @@ def encode(measurement: Measurement) -> bytes:
             data = value.tobytes() if _NATIVE else value.astype(_FLOAT).tobytes()
             message[spec.name] = data
             parts.append(data)
-    if not _all_finite(parts):
+    if not _all_finite(b"".join(parts)):
         raise MeasurementError(f"{measurement.TYPE_TAG}: contains NaN or infinity, not encoded")
     if isinstance(measurement, CameraIntrinsics) and measurement.image_size is not None:
         message["image_size"] = list(measurement.image_size)
-    return msgpack.packb(message, use_bin_type=True)
+    return msgpack.packb(message)  # use_bin_type=True: msgpack's default since 1.0
 
 
 def _unpack(data: Any) -> dict[str, Any]:
-    if not isinstance(data, bytes | bytearray | memoryview):
-        raise MeasurementError(f"message: expected bytes, got {type(data).__name__}")
+    if type(data) is not bytes:  # a subscriber's payload is bytes: decided at once
+        if not isinstance(data, bytearray | memoryview):
+            raise MeasurementError(f"message: expected bytes, got {type(data).__name__}")
+        data = bytes(data)
     if len(data) > MAX_MESSAGE_BYTES:
         raise MeasurementError(f"message: {len(data)} bytes exceeds {MAX_MESSAGE_BYTES}")
     try:
-        message = msgpack.unpackb(bytes(data), raw=False, strict_map_key=True)
+        # msgpack's defaults since 1.0 (pyproject.toml): raw=False (text as str), and
+        # strict_map_key=True (keys only str or bytes): tested in tests/unit/test_codec.py.
+        message = msgpack.unpackb(data)
     except Exception as exc:  # msgpack raises a dozen unrelated types for garbage input
         raise MeasurementError(f"message: not valid msgpack ({type(exc).__name__})") from None
-    if not isinstance(message, dict):
+    if type(message) is not dict:
         raise MeasurementError(f"message: expected a map, got {type(message).__name__}")
     return message
 
@@ -146,9 +149,9 @@ class _Canonical:
     path")."""
 
     cls: type[Measurement]
-    keys: frozenset[str]
     names: tuple[str, ...]
-    sizes: tuple[int, ...]
+    sizes: list[int]
+    """Each field's size in bytes (a list, compared with a list of lengths at once)."""
     shapes: tuple[tuple[int, ...] | None, ...]
     """Each field's shape, None for a vector (``np.frombuffer``'s own)."""
     checks: dict[str, tuple[tuple[str, str, Callable[[str, np.ndarray], None]], ...]]
@@ -171,25 +174,30 @@ class _Canonical:
         }
         return cls(
             measurement,
-            _HEADER_KEYS | set(layout.names),
             layout.names,
-            tuple(spec.fixed_bytes for spec in specs),  # type: ignore[misc]
+            [spec.fixed_bytes for spec in specs],  # type: ignore[misc]
             tuple(None if len(shape) == 1 else shape for shape in layout.shapes),
             checks,
         )
 
     def read(self, message: dict[str, Any], level: str) -> Measurement | None:
-        """The measurement in ``message`` (whose keys are :attr:`keys`) validated at ``level``;
-        None if anything is not exactly as expected; ``MeasurementError`` from a field's check
-        (the general reader's error: same check, same order, same name)."""
-        version, timestamp = message["v"], message["t"]
+        """The measurement in ``message`` (whose ``type`` is this reader's) validated at
+        ``level``; None if anything is not exactly as expected; ``MeasurementError`` from a
+        field's check (the general reader's error: same check, same order, same name)."""
+        if len(message) != len(_HEADER_KEYS) + len(self.names):
+            return None
+        try:  # as many keys as expected: one missing means an unknown one is there instead
+            version, timestamp = message["v"], message["t"]
+            raws = [message[name] for name in self.names]
+        except KeyError:
+            return None
         if not (type(version) is int and version == WIRE_VERSION and is_timestamp(timestamp)):
             return None
-        raws = [message[name] for name in self.names]
-        for raw, size in zip(raws, self.sizes, strict=True):
-            if type(raw) is not bytes or len(raw) != size:
-                return None
-        if not _all_finite(raws):
+        try:  # bytes only: msgpack gives no other buffer type, and join refuses anything else
+            joined = b"".join(raws)
+        except TypeError:
+            return None
+        if list(map(len, raws)) != self.sizes or not _all_finite(joined):
             return None
         value = object.__new__(self.cls)
         values = value.__dict__  # a frozen dataclass: set here, once, before anyone uses it
@@ -222,11 +230,7 @@ def decode(
     message = _unpack(data)
     tag = message.get("type")
     canonical = _CANONICAL.get(tag) if type(tag) is str else None
-    if (
-        canonical is not None
-        and message.keys() == canonical.keys
-        and (expected is None or issubclass(canonical.cls, expected))
-    ):
+    if canonical is not None and (expected is None or issubclass(canonical.cls, expected)):
         value = canonical.read(message, level)
         if value is not None:
             return value  # type: ignore[return-value]
@@ -264,7 +268,7 @@ def _read(message: dict[str, Any], expected: type[M] | tuple[type[M], ...] | Non
         size = message["image_size"]
         kwargs["image_size"] = tuple(size) if isinstance(size, list) else size
     # If a number is not finite, the measurement's own check names the field.
-    return cls.checked(level, finite=_all_finite(raws), **kwargs)  # type: ignore[return-value]
+    return cls.checked(level, finite=_all_finite(b"".join(raws)), **kwargs)  # type: ignore[return-value]
 
 
 def to_json(measurement: Measurement) -> dict[str, Any]:

@@ -197,7 +197,8 @@ def check_covariance(where: str, cov: np.ndarray) -> None:
     scale = max(1.0, float(np.abs(cov).max()))
     if np.abs(cov - cov.T).max() > _SYMMETRY_TOLERANCE * scale:
         raise _fail(where, "covariance is not symmetric")
-    _check_semidefinite(where, cov, scale)
+    if not _positive_definite()(cov):
+        _check_eigenvalues(where, cov, scale)
 
 
 def check_semidefinite(where: str, cov: np.ndarray) -> None:
@@ -205,16 +206,20 @@ def check_semidefinite(where: str, cov: np.ndarray) -> None:
     ``WORKER`` level's covariance check. The tolerance's scale is the largest absolute entry
     (of a positive semi-definite matrix, its largest diagonal entry: within a factor n of its
     trace, and, unlike the trace of huge entries, never overflowing)."""
-    _check_semidefinite(where, cov, None)
+    if not _positive_definite()(cov):
+        _check_eigenvalues(where, cov, None)
 
 
 @functools.cache
 def _positive_definite() -> Callable[[np.ndarray], bool]:
-    """Whether a symmetric matrix is positive definite, by a Cholesky factorisation: LAPACK's
-    ``dpotrf`` called directly where SciPy is loaded (every worker), which costs 2 us, and 40 us
-    on a CPU woken for the sample, against 7 and 100 us through numpy's wrapper (its error
-    state and checks); numpy's where it is not (the agent runs without SciPy, and is not made
-    to import it here)."""
+    """Whether a symmetric matrix is positive definite, by a Cholesky factorisation (Golub &
+    Van Loan, Matrix Computations, 4.2.5): it decides at once for every covariance a sensor or
+    an estimate produces, at half an eigendecomposition's cost; only a singular or indefinite
+    one (an exact component, round-off) needs the eigenvalues (:func:`_check_eigenvalues`).
+    LAPACK's ``dpotrf`` called directly where SciPy is loaded (every worker), which costs 2 us,
+    and 40 us on a CPU woken for the sample, against 7 and 100 us through numpy's wrapper (its
+    error state and checks); numpy's where it is not (the agent runs without SciPy, and is not
+    made to import it here)."""
     if "scipy" in sys.modules:
         from scipy.linalg.lapack import dpotrf
 
@@ -230,15 +235,10 @@ def _positive_definite_by_numpy(matrix: np.ndarray) -> bool:
     return True
 
 
-def _check_semidefinite(where: str, cov: np.ndarray, scale: float | None) -> None:
-    """Whether the smallest eigenvalue of ``cov`` is at least ``-_PSD_TOLERANCE * scale``
-    (``scale`` None: the largest absolute entry, at least 1), and finite (the eigenvalues of
-    huge entries may overflow). A Cholesky factorisation decides at once for a
-    positive definite matrix, every covariance a sensor or an estimate produces, at half an
-    eigendecomposition's cost (Golub & Van Loan, Matrix Computations, 4.2.5); only a
-    singular or indefinite one (an exact component, round-off) needs the eigenvalues."""
-    if _positive_definite()(cov):
-        return
+def _check_eigenvalues(where: str, cov: np.ndarray, scale: float | None) -> None:
+    """Reject ``cov`` unless its smallest eigenvalue is at least ``-_PSD_TOLERANCE * scale``
+    (``scale`` None: the largest absolute entry, at least 1) and finite (the eigenvalues of
+    huge entries may overflow)."""
     if scale is None:
         scale = max(1.0, float(np.abs(cov).max()))
     smallest = float(np.linalg.eigvalsh(cov)[0])

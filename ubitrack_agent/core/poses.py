@@ -55,18 +55,42 @@ def invert_pose(pose: AnyPose) -> AnyPose:
 
 
 def compose_poses(first: AnyPose, second: AnyPose) -> AnyPose:
-    """Concatenation A->C of ``first`` = A->B and ``second`` = B->C (independent errors)."""
+    """Concatenation A->C of ``first`` = A->B and ``second`` = B->C (independent errors):
+    ``Sigma_1 + Ad_T1 Sigma_2 Ad_T1^T`` (:mod:`~ubitrack_agent.core.uncertainty`)."""
     q, t = _compose_means(first, second)
     cov1, cov2 = _covariance(first), _covariance(second)
     cov = None
     if cov1 is not None or cov2 is not None:
-        cov = uncertainty.compose_covariance(
-            first.rotation,
-            first.translation,
-            _ZERO6 if cov1 is None else cov1,
-            _ZERO6 if cov2 is None else cov2,
-        )
+        adj, adj_transposed = _adjoint(first)
+        cov = (_ZERO6 if cov1 is None else cov1) + adj @ (
+            _ZERO6 if cov2 is None else cov2
+        ) @ adj_transposed
     return _make(max(first.timestamp_ns, second.timestamp_ns), q, t, cov)
+
+
+_ADJOINTS: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+_ADJOINTS_KEPT = 16
+
+
+def _adjoint(pose: AnyPose) -> tuple[np.ndarray, np.ndarray]:
+    """``Ad_T`` of ``pose`` and its transpose, kept by the identity of its arrays (for up to
+    :data:`_ADJOINTS_KEPT` poses, then all forgotten at once: no iteration that another
+    thread could disturb): a measurement's arrays are read-only, and a restamped one
+    shares them, so the static edge a concatenation composes with on every sample (its
+    buffer's value, restamped) costs two matrix products, not an adjoint and a cache lookup by
+    value (``docs/performance.md``, "Data path"). An entry holds the arrays themselves, so
+    their ids are not reused while it is kept."""
+    q, t = pose.rotation, pose.translation
+    key = (id(q), id(t))
+    entry = _ADJOINTS.get(key)
+    if entry is None:
+        adj = uncertainty.adjoint(q, t)
+        adj.flags.writeable = False
+        entry = (q, t, adj, adj.T)
+        if len(_ADJOINTS) >= _ADJOINTS_KEPT:
+            _ADJOINTS.clear()
+        _ADJOINTS[key] = entry
+    return entry[2], entry[3]
 
 
 def transform_position(pose: AnyPose, point: Position3D) -> Position3D:

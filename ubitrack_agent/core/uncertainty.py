@@ -23,8 +23,6 @@ estimation in robotics", arXiv:1812.01537; ``../shared/reference/field-notes.md`
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from ubitrack_agent.core import quaternions
@@ -56,24 +54,6 @@ def adjoint(q: np.ndarray, t: np.ndarray) -> np.ndarray:
     result[..., 3:, 3:] = rotation
     result[..., 3:, :3] = skew(t) @ rotation
     return result
-
-
-@functools.lru_cache(maxsize=64)
-def _cached_adjoint(q: bytes, t: bytes) -> tuple[np.ndarray, np.ndarray]:
-    """The adjoint of the transform whose float64 bytes are ``q`` and ``t``, and its transpose
-    (both read-only)."""
-    result = adjoint(np.frombuffer(q), np.frombuffer(t))
-    result.flags.writeable = False
-    return result, result.T
-
-
-def cached_adjoint(q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The adjoint (6, 6) of one transform ``(q, t)`` and its transpose, read-only, cached by
-    value: the adjoint of a static input (a calibration that a concatenation composes every
-    sample with) is computed once, not per sample (issue 12)."""
-    if not (type(q) is type(t) is np.ndarray and q.dtype == t.dtype == np.float64):
-        q, t = np.asarray(q, dtype=float), np.asarray(t, dtype=float)
-    return _cached_adjoint(q.tobytes(), t.tobytes())
 
 
 def isotropic_pose_covariance(sigma_rotation_rad: float, sigma_translation_m: float) -> np.ndarray:
@@ -127,10 +107,6 @@ def compose_covariance(
     q1: np.ndarray, t1: np.ndarray, covariance1: np.ndarray, covariance2: np.ndarray
 ) -> np.ndarray:
     """Covariance of ``T1 T2`` for independent ``T1`` (mean ``(q1, t1)``) and ``T2``."""
-    if getattr(q1, "shape", None) == (4,) and getattr(t1, "shape", None) == (3,):
-        # One transform, its adjoint cached (read as an attribute: np.shape's dispatch costs)
-        adj, adj_transposed = cached_adjoint(q1, t1)
-        return covariance1 + adj @ covariance2 @ adj_transposed
     return covariance1 + _transport(adjoint(q1, t1), covariance2)
 
 
