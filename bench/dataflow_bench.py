@@ -5,14 +5,17 @@ Run: ``python -m bench.dataflow_bench [--samples N] [--seconds S] [--rates R,...
 figures are printed and written to ``bench/results/dataflow.json``.
 
 (a) **Hop latency.** The bench publishes ErrorPoses and receives them back through one other
-    process: a raw zenoh relay (``bench.raw_relay``: receive, republish), a concatenation
-    worker whose input is declared a worker's output (validated at level ``WORKER``, the usual
-    case inside a flow), and one whose input is a provider's (validated in full). Each worker
+    process: a raw zenoh relay (``bench.raw_relay``: receive, republish); the same relay
+    composing each sample with a static edge, by the maths and checks written flat
+    (``minimal``: a lower bound for a hop in Python) and by the package's own steps with no
+    worker around them (``package``: ``bench.raw_relay --compose``); a concatenation worker
+    whose input is declared a worker's output (validated at level ``WORKER``, the usual case
+    inside a flow), and one whose input is a provider's (validated in full). Each worker
     decodes, synchronises with a static input, composes with covariance, encodes and publishes.
-    The three run side by side, interleaved in rounds, 200 samples a second each; latency is
-    receive time minus send time in the bench process (one clock). The difference from the raw
-    hop is what a pattern hop adds; each worker's own ``handling_us`` (status) is printed
-    beside it.
+    The five run side by side, interleaved in rounds, one sample every 5 ms to each in turn;
+    latency is receive time minus send time in the bench process (one clock). The difference
+    from the raw hop is what a pattern hop adds; each worker's own ``handling_us`` (status)
+    is printed beside it.
 (b) **Throughput.** ErrorPoses, then Poses, offered at each rate of ``--rates`` for
     ``--seconds`` into the raw relay and then into a concatenation worker (input from a
     worker), with blocking congestion control: a hop that cannot keep up slows the sender
@@ -116,9 +119,17 @@ def _concatenation_spec(keys: KeySpace, name: str, from_worker: bool) -> Compone
     )
 
 
-HOPS = {"raw": None, "worker": True, "provider": False}
-"""The hops timed side by side: a raw zenoh relay, a concatenation worker whose input comes from
-a worker, and one whose input comes from a provider."""
+HOPS: dict[str, tuple[str, Any]] = {
+    "raw": ("relay", None),
+    "minimal": ("relay", "minimal"),
+    "package": ("relay", "package"),
+    "worker": ("worker", True),
+    "provider": ("worker", False),
+}
+"""The hops timed side by side: a raw zenoh relay; the same relay composing each sample with a
+static edge by the maths written flat (``minimal``, a lower bound for a hop in Python) and by
+the package's steps alone (``package``: ``bench.raw_relay --compose``); a concatenation worker
+whose input comes from a worker, and one whose input comes from a provider."""
 
 STATIC = ErrorPose(1, [0, 0, 0, 1], [1.0, 0, 0], np.eye(6) * 1e-6)
 
@@ -127,13 +138,18 @@ def hop_latency(samples: int) -> dict[str, Any]:
     """(a): the hops of :data:`HOPS`, interleaved in rounds, latencies in us."""
     net = Network()
     try:
-        for name, from_worker in HOPS.items():
-            if from_worker is None:
+        for name, (kind, how) in HOPS.items():
+            if kind == "relay":
+                compose = () if how is None else ("--compose", how)
                 net.spawn(
-                    "-m", "bench.raw_relay", net.keys.data("raw/in"), net.keys.data("raw/out")
+                    "-m",
+                    "bench.raw_relay",
+                    net.keys.data(f"{name}/in"),
+                    net.keys.data(f"{name}/out"),
+                    *compose,
                 )
             else:
-                spec = _concatenation_spec(net.keys, name, from_worker)
+                spec = _concatenation_spec(net.keys, name, how)
                 net.spawn(
                     "-m", "services.worker", "--spec", spec.to_json(), "--log-level", "WARNING"
                 )
@@ -149,8 +165,8 @@ def hop_latency(samples: int) -> dict[str, Any]:
             name: net.session.declare_publisher(net.keys.data(f"{name}/in")) for name in HOPS
         }
         wait_until(lambda: all(p.matching_status.matching for p in publishers.values()))
-        for name, from_worker in HOPS.items():
-            if from_worker is not None:
+        for name, (kind, _) in HOPS.items():
+            if kind == "worker":
                 net.session.put(net.keys.data(f"{name}/static"), encode(STATIC))
         time.sleep(0.5)
         latencies: dict[str, list[float]] = {name: [] for name in HOPS}
@@ -176,8 +192,8 @@ def hop_latency(samples: int) -> dict[str, Any]:
             name: json.loads(fetch_latest(net.session, net.keys.status(f"bench-{name}"))[0])[
                 "handling_us"
             ]
-            for name, from_worker in HOPS.items()
-            if from_worker is not None
+            for name, (kind, _) in HOPS.items()
+            if kind == "worker"
         }
     finally:
         net.close()
@@ -186,7 +202,7 @@ def hop_latency(samples: int) -> dict[str, Any]:
     }
     figures["handling_us"] = handling  # the workers' own time per sample, running mean
     raw = figures["raw_hop_us"]
-    for name in ("worker", "provider"):
+    for name in ("minimal", "package", "worker", "provider"):
         hop = figures[f"{name}_hop_us"]
         figures[f"{name}_over_raw_p50"] = round(hop["p50"] / raw["p50"], 2)
         figures[f"{name}_added_us_p50"] = round(hop["p50"] - raw["p50"], 1)

@@ -1,13 +1,23 @@
 """The baseline hop of ``bench.dataflow_bench``: republish every payload from one key on another,
 with zenoh-python's own receive loop and nothing else (no decoding, no computation).
 
-Run: ``python -m bench.raw_relay IN_KEY OUT_KEY [zenoh flags]``; ends on SIGTERM.
+With ``--compose minimal`` or ``--compose package``, the same loop composes each ErrorPose with
+the bench's static edge (``bench.dataflow_bench.STATIC``) before republishing it, as a
+concatenation worker does: by the maths and checks written flat (``minimal``, a lower bound for
+a hop in Python), or by the package's own steps without a worker around them (``package``);
+both from ``bench.hop_cost_bench``. They tell, live and side by side with the raw relay and the
+worker, what the maths costs and what the worker adds.
+
+Run: ``python -m bench.raw_relay IN_KEY OUT_KEY [--compose minimal|package] [zenoh flags]``;
+ends on SIGTERM.
 """
 
 from __future__ import annotations
 
 import argparse
 import threading
+from collections.abc import Callable
+from typing import Any
 
 import zenoh
 
@@ -16,22 +26,36 @@ from ubitrack_agent.net.lifecycle import stop_on_signals
 from ubitrack_agent.net.session import open_session
 
 
+def relay(subscriber: Any, publisher: Any) -> None:
+    """Republish each sample's payload as it is; ends when the subscriber is undeclared."""
+    for sample in subscriber:
+        publisher.put(sample.payload)
+
+
+def relay_composed(subscriber: Any, hop: Callable[[bytes], None]) -> None:
+    """Hand each sample's payload to ``hop``, which publishes the composition."""
+    for sample in subscriber:
+        hop(sample.payload.to_bytes())
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.raw_relay")
     parser.add_argument("source")
     parser.add_argument("target")
+    parser.add_argument("--compose", choices=("minimal", "package"), help="see the docstring")
     config.add_arguments(parser)
     args = parser.parse_args()
     stop = stop_on_signals()
     with open_session(config.from_arguments(args, role="member")) as session:
         publisher = session.declare_publisher(args.target)
         subscriber = session.declare_subscriber(args.source, zenoh.handlers.FifoChannel(4096))
+        if args.compose is None:
+            thread = threading.Thread(target=relay, args=(subscriber, publisher), daemon=True)
+        else:
+            from bench.hop_cost_bench import minimal_hop, package_hop
 
-        def relay() -> None:
-            for sample in subscriber:  # ends when the subscriber is undeclared
-                publisher.put(sample.payload)
-
-        thread = threading.Thread(target=relay, daemon=True)
+            hop = (minimal_hop if args.compose == "minimal" else package_hop)(publisher)
+            thread = threading.Thread(target=relay_composed, args=(subscriber, hop), daemon=True)
         thread.start()
         stop.wait()
         subscriber.undeclare()
