@@ -308,12 +308,12 @@ class Worker:
         self._routes: dict[str, list[str]] = {}
         self._progress_routes: dict[str, list[str]] = {}
         self.progress: dict[str, Progress] = {}
+        """The latest progress of each static estimate, by output port (shown in status)."""
         self._latency: defaultdict[str, deque[float]] = defaultdict(
             lambda: deque(maxlen=LATENCY_SAMPLES)
         )
         """Per input key, the latest samples' latency (ms): this host's clock when the worker
         takes the sample minus its timestamp (after the input's clock offset)."""
-        """The latest progress of each static estimate, by output port (shown in status)."""
         self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
         """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
         take = self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes())))
