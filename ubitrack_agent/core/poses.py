@@ -62,9 +62,8 @@ def compose_poses(first: AnyPose, second: AnyPose) -> AnyPose:
     cov = None
     if cov1 is not None or cov2 is not None:
         adj, adj_transposed = _adjoint(first)
-        cov = (_ZERO6 if cov1 is None else cov1) + adj @ (
-            _ZERO6 if cov2 is None else cov2
-        ) @ adj_transposed
+        cov1 = _ZERO6 if cov1 is None else cov1
+        cov = cov1 + adj @ (_ZERO6 if cov2 is None else cov2) @ adj_transposed
     return _make(max(first.timestamp_ns, second.timestamp_ns), q, t, cov)
 
 
