@@ -60,3 +60,41 @@ def test_silence_is_explained_by_the_agents_answer_or_its_absence():
         with pytest.raises(UnsolvedRelation, match="cannot serve it: no provider") as raised:
             relation.wait_for(timeout=0.01)
         assert raised.value.reason == "no provider announces" and relation.answer == unsolved
+
+
+def test_the_stream_runs_forward_in_time_and_an_older_sample_serves_lookups():
+    """When the agent moves a relation to another flow, the new flow's first output may be
+    older than the old flow's last: the application is not handed a pose older than one it
+    was handed (nor the same instant twice), but the sample fills the buffer for lookups."""
+    session = FakeSession()
+    passed_on = []
+    with Relation(
+        session, KEYS, RELATION, application="app", callback=passed_on.append
+    ) as relation:
+        now = time.time_ns()
+        for t in (now - 30_000_000, now - 10_000_000, now - 20_000_000, now - 10_000_000):
+            session.deliver(KEYS.relation(RELATION), pose(t))
+        session.deliver(KEYS.relation(RELATION), pose(now))
+        assert [s.timestamp_ns for s in passed_on] == [
+            now - 30_000_000,
+            now - 10_000_000,
+            now,
+        ]
+        assert [relation.get(timeout=0).timestamp_ns for _ in range(3)] == [
+            s.timestamp_ns for s in passed_on
+        ]
+        assert relation.counters["out_of_order"] == 2 and relation.received == 3
+        assert relation.lookup(now - 20_000_000).timestamp_ns == now - 20_000_000
+        assert relation.latest().timestamp_ns == now
+
+
+def test_a_static_relation_takes_each_new_value_whatever_its_stamp():
+    """A static relation's value is replaced, not streamed (its buffer holds the current one):
+    the ordering rule is the dynamic stream's only."""
+    session = FakeSession()
+    static = RelationId("WT", "A", "6D", static=True)
+    with Relation(session, KEYS, static, application="app") as relation:
+        now = time.time_ns()
+        session.deliver(KEYS.relation(static), pose(now))
+        session.deliver(KEYS.relation(static), pose(now))
+        assert relation.counters["out_of_order"] == 0 and relation.received == 2

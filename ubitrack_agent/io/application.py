@@ -22,8 +22,15 @@ data flow behind it. Every payload is validated; bad ones are counted in ``rejec
 samples stamped more than ``core.timeline.MAX_FUTURE_NS`` ahead of this host's clock in
 ``rejected_future``: one future sample would otherwise stay :meth:`Relation.latest` until the
 clock reached it. :attr:`Relation.counters` holds these and the other counts of samples not
-used (``dropped_stale``: older than every sample held; ``internal_errors``); each is logged
-rate-limited.
+used (``dropped_stale``: older than every sample held; ``out_of_order``, below;
+``internal_errors``); each is logged rate-limited.
+
+A dynamic relation's stream runs forward in time: the callback, the iterator and
+:meth:`Relation.wait_for` get only samples stamped after every sample received before. One
+stamped earlier, or the same instant again (when the agent moves the relation from one flow to
+another, the new flow's first output may be older than the old flow's last), is kept for
+:meth:`Relation.lookup` but not passed on, and counted ``out_of_order``: a renderer never
+draws a pose older than one it drew.
 
 A relation's value at a given time (``lookup``, ``predict``) comes from the samples held where
 they surround the time, and otherwise from the producer, asked with a query on the relation
@@ -159,7 +166,10 @@ class Relation(Closing):
             application or default_application_id(), single_chunk=True
         )
         self.counters: Counter[str] = Counter(
-            dict.fromkeys(("rejected", "rejected_future", "dropped_stale", "internal_errors"), 0)
+            dict.fromkeys(
+                ("rejected", "rejected_future", "dropped_stale", "out_of_order", "internal_errors"),
+                0,
+            )
         )
         """Samples and reports not used, by reason (see the module docstring)."""
         self._expected = _TYPES_BY_SRG.get(relation.type, ())
@@ -274,8 +284,17 @@ class Relation(Closing):
             self._count("rejected_future", "rejected sample stamped ahead: %d", sample.timestamp_ns)
             return
         with self._lock:
+            newest = self._buffer.newest_time()
             if not self._buffer.add(sample):
                 self._count("dropped_stale", "dropped sample older than those held")
+                return
+            if not self.relation.static and newest is not None and sample.timestamp_ns <= newest:
+                self._count(
+                    "out_of_order",
+                    "sample %d not after the newest, %d: kept for lookups, not passed on",
+                    sample.timestamp_ns,
+                    newest,
+                )
                 return
             self._received += 1
             self._lock.notify_all()
@@ -351,7 +370,8 @@ class Relation(Closing):
         return self.progress is not None and self.progress.not_static
 
     def __iter__(self) -> Iterator[Measurement]:
-        """Samples in arrival order, blocking for each (oldest dropped if the reader lags)."""
+        """Samples as they arrive, each after the one before for a dynamic relation (module
+        docstring), blocking for each (oldest dropped if the reader lags)."""
         while True:
             yield self._queue.get()
 
