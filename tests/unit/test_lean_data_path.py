@@ -33,6 +33,7 @@ from ubitrack_agent.core.measurements import (
     check_covariance,
     check_semidefinite,
 )
+from ubitrack_agent.core.poses import compose_poses
 from ubitrack_agent.core.uncertainty import adjoint
 from ubitrack_agent.net.spec import InputBinding, SpecError, parse_bindings
 
@@ -207,26 +208,46 @@ def test_scalar_quaternion_paths_equal_the_batched_ones():
         np.testing.assert_allclose(rotated, batched_rotated[i], atol=1e-14)
 
 
-def test_the_adjoint_of_a_static_input_is_computed_once():
+def test_what_depends_on_a_static_input_is_computed_once():
     q = Rotation.random(rng=np.random.default_rng(4)).as_quat()
     static = ErrorPose(5, q, [0.1, -2.0, 0.3], np.eye(6) * 1e-6)
-    first, transposed = poses._adjoint(static)
-    assert poses._adjoint(static.restamped(99))[0] is first  # a restamped one shares it
+    q1, t1, first, transposed = poses._kept(static)
+    again = poses._kept(static.restamped(99))  # a restamped one shares its arrays
+    assert again[0] is q1 and again[1] is t1 and again[2] is first
+    assert q1 == static.rotation.tolist() and t1 == static.translation.tolist()
     np.testing.assert_array_equal(first, adjoint(static.rotation, static.translation))
     np.testing.assert_array_equal(transposed, first.T)
     assert not first.flags.writeable and not transposed.flags.writeable
     twin = ErrorPose(5, q, [0.1, -2.0, 0.3], np.eye(6) * 1e-6)  # equal, other arrays
-    assert poses._adjoint(twin)[0] is not first
-    np.testing.assert_array_equal(poses._adjoint(twin)[0], first)
+    assert poses._kept(twin)[2] is not first
+    np.testing.assert_array_equal(poses._kept(twin)[2], first)
 
 
-def test_the_adjoints_kept_are_forgotten_at_once_when_full():
-    kept = [Pose(1, [0, 0, 0, 1], [float(i), 0, 0]) for i in range(poses._ADJOINTS_KEPT + 3)]
+def test_the_poses_kept_are_forgotten_at_once_when_full():
+    kept = [Pose(1, [0, 0, 0, 1], [float(i), 0, 0]) for i in range(poses._KEPT_POSES + 3)]
     for value in kept:
         np.testing.assert_array_equal(
-            poses._adjoint(value)[0], adjoint(value.rotation, value.translation)
+            poses._kept(value)[2], adjoint(value.rotation, value.translation)
         )
-    assert 0 < len(poses._ADJOINTS) <= poses._ADJOINTS_KEPT
+    assert 0 < len(poses._KEPT) <= poses._KEPT_POSES
+
+
+def test_a_composition_is_read_only_float64_of_the_types_shapes():
+    """``compose_poses`` builds its result unchecked (``Measurement.unchecked``): what the
+    validating constructor would have made of the same numbers, read-only."""
+    rng = np.random.default_rng(8)
+    a = rng.normal(size=(6, 6)) * 1e-2
+    first = ErrorPose(3, Rotation.random(rng=rng).as_quat(), [1.0, 2.0, 3.0], a @ a.T)
+    second = Pose(7, Rotation.random(rng=rng).as_quat(), [0.5, -0.5, 0.25])
+    for result in (compose_poses(first, second), compose_poses(second, first)):
+        assert type(result) is ErrorPose and result.timestamp_ns == 7
+        checked = ErrorPose(7, result.rotation, result.translation, result.covariance)
+        assert checked == result
+        for array in (result.rotation, result.translation, result.covariance):
+            assert array.dtype == np.float64 and not array.flags.writeable
+    plain = compose_poses(first.mean(), second)
+    assert type(plain) is Pose and plain == Pose(7, plain.rotation, plain.translation)
+    assert not plain.rotation.flags.writeable and not plain.translation.flags.writeable
 
 
 # -- input bindings ----------------------------------------------------------------------------

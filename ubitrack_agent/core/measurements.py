@@ -389,6 +389,15 @@ class Measurement:
             return cls.checked(DERIVED, **values)
         for name in layout.names:
             values[name].setflags(write=False)
+        return cls.unchecked(values)
+
+    @classmethod
+    def unchecked(cls, values: dict[str, Any]) -> Self:
+        """A measurement holding ``values`` as they are, nothing checked: the caller built
+        them itself, every field of the type, its arrays float64 of the declared shapes and
+        read-only (:meth:`derived` after its checks, ``core.poses`` for the poses it composes).
+        Every check a result skips costs a numpy call, about 10 us each on a CPU woken for the
+        sample among other processes (``docs/performance.md``, "Data path")."""
         value = object.__new__(cls)
         value.__dict__.update(values)  # a frozen dataclass: set here, once, before use
         return value

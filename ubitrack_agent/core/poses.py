@@ -9,6 +9,9 @@ worker that synchronised its inputs passes equal timestamps).
 
 from __future__ import annotations
 
+import struct
+from typing import Any
+
 import numpy as np
 
 from ubitrack_agent.core import quaternions, se3, uncertainty
@@ -18,6 +21,8 @@ from ubitrack_agent.core.measurements import ErrorPose, Pose, Position3D
 AnyPose = Pose | ErrorPose
 
 _ZERO6 = np.zeros((6, 6))
+_FOUR_FLOATS, _THREE_FLOATS = struct.Struct("4d"), struct.Struct("3d")
+"""Native float64: ``np.frombuffer`` reads them back as they are."""
 
 
 def _covariance(pose: AnyPose) -> np.ndarray | None:
@@ -33,16 +38,18 @@ def _make(timestamp_ns: int, q: np.ndarray, t: np.ndarray, cov: np.ndarray | Non
     return ErrorPose.derived(timestamp_ns=timestamp_ns, rotation=q, translation=t, covariance=cov)
 
 
-def _compose_means(first: AnyPose, second: AnyPose) -> tuple[np.ndarray, np.ndarray]:
-    """``(q1 q2, R(q1) t2 + t1)`` on plain floats: the means of a concatenation, which every
-    pattern hop computes per sample. Why not :func:`se3.compose`: each numpy call on a
-    four-vector costs a microsecond warm and ten on a CPU woken for the sample (``docs/
-    performance.md``, "Data path"); these are two."""
-    q1 = first.rotation.tolist()
+def _compose_means(
+    q1: list[float], t1: list[float], second: AnyPose
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(q1 q2, R(q1) t2 + t1)`` on plain floats, as read-only arrays: the means of a
+    concatenation, which every pattern hop computes per sample. Why not :func:`se3.compose`:
+    each numpy call costs a microsecond warm and about ten on a CPU woken for the sample among
+    other processes (``docs/performance.md``, "Data path"); these are four (two ``tolist``, two
+    ``frombuffer`` over the packed bytes, read-only as a measurement's arrays must be)."""
     moved = quaternions.rotate_floats(q1, second.translation.tolist())
-    t1 = first.translation.tolist()
-    q = np.array(quaternions.multiply_floats(q1, second.rotation.tolist()))
-    return q, np.array([moved[0] + t1[0], moved[1] + t1[1], moved[2] + t1[2]])
+    q = quaternions.multiply_floats(q1, second.rotation.tolist())
+    t = (moved[0] + t1[0], moved[1] + t1[1], moved[2] + t1[2])
+    return np.frombuffer(_FOUR_FLOATS.pack(*q)), np.frombuffer(_THREE_FLOATS.pack(*t))
 
 
 def invert_pose(pose: AnyPose) -> AnyPose:
@@ -56,40 +63,48 @@ def invert_pose(pose: AnyPose) -> AnyPose:
 
 def compose_poses(first: AnyPose, second: AnyPose) -> AnyPose:
     """Concatenation A->C of ``first`` = A->B and ``second`` = B->C (independent errors):
-    ``Sigma_1 + Ad_T1 Sigma_2 Ad_T1^T`` (:mod:`~ubitrack_agent.core.uncertainty`)."""
-    q, t = _compose_means(first, second)
-    cov1, cov2 = _covariance(first), _covariance(second)
-    cov = None
-    if cov1 is not None or cov2 is not None:
-        adj, adj_transposed = _adjoint(first)
-        cov1 = _ZERO6 if cov1 is None else cov1
-        cov = cov1 + adj @ (_ZERO6 if cov2 is None else cov2) @ adj_transposed
-    return _make(max(first.timestamp_ns, second.timestamp_ns), q, t, cov)
+    ``Sigma_1 + Ad_T1 Sigma_2 Ad_T1^T`` (:mod:`~ubitrack_agent.core.uncertainty`). The result
+    is built unchecked (``Measurement.unchecked``: its arrays are made here, float64 of the
+    type's shapes, read-only) and its covariance is not symmetrised again (see :func:`_make`)."""
+    timestamp_ns = max(first.timestamp_ns, second.timestamp_ns)
+    cov1, cov2 = getattr(first, "covariance", None), getattr(second, "covariance", None)
+    if cov1 is None and cov2 is None:
+        q, t = _compose_means(first.rotation.tolist(), first.translation.tolist(), second)
+        return Pose.unchecked({"timestamp_ns": timestamp_ns, "rotation": q, "translation": t})
+    q1, t1, adj, adj_transposed = _kept(first)
+    q, t = _compose_means(q1, t1, second)
+    cov = (_ZERO6 if cov1 is None else cov1) + adj @ (
+        _ZERO6 if cov2 is None else cov2
+    ) @ adj_transposed
+    cov.setflags(write=False)
+    return ErrorPose.unchecked(
+        {"timestamp_ns": timestamp_ns, "rotation": q, "translation": t, "covariance": cov}
+    )
 
 
-_ADJOINTS: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
-_ADJOINTS_KEPT = 16
+_KEPT: dict[tuple[int, int], tuple[Any, ...]] = {}
+_KEPT_POSES = 16
 
 
-def _adjoint(pose: AnyPose) -> tuple[np.ndarray, np.ndarray]:
-    """``Ad_T`` of ``pose`` and its transpose, kept by the identity of its arrays (for up to
-    :data:`_ADJOINTS_KEPT` poses, then all forgotten at once: no iteration that another
-    thread could disturb): a measurement's arrays are read-only, and a restamped one
-    shares them, so the static edge a concatenation composes with on every sample (its
-    buffer's value, restamped) costs two matrix products, not an adjoint and a cache lookup by
-    value (``docs/performance.md``, "Data path"). An entry holds the arrays themselves, so
-    their ids are not reused while it is kept."""
+def _kept(pose: AnyPose) -> tuple[list[float], list[float], np.ndarray, np.ndarray]:
+    """The rotation and translation of ``pose`` as floats, ``Ad_T`` and its transpose, kept by
+    the identity of its arrays (for up to :data:`_KEPT_POSES` poses, then all forgotten at
+    once: no iteration that another thread could disturb): a measurement's arrays are
+    read-only, and a restamped one shares them, so the static edge a concatenation composes
+    with on every sample (its buffer's value, restamped) costs two matrix products and no
+    other numpy call (``docs/performance.md``, "Data path"). An entry holds the arrays
+    themselves, so their ids are not reused while it is kept."""
     q, t = pose.rotation, pose.translation
     key = (id(q), id(t))
-    entry = _ADJOINTS.get(key)
+    entry = _KEPT.get(key)
     if entry is None:
         adj = uncertainty.adjoint(q, t)
         adj.flags.writeable = False
-        entry = (q, t, adj, adj.T)
-        if len(_ADJOINTS) >= _ADJOINTS_KEPT:
-            _ADJOINTS.clear()
-        _ADJOINTS[key] = entry
-    return entry[2], entry[3]
+        entry = (q, t, q.tolist(), t.tolist(), adj, adj.T)
+        if len(_KEPT) >= _KEPT_POSES:
+            _KEPT.clear()
+        _KEPT[key] = entry
+    return entry[2], entry[3], entry[4], entry[5]
 
 
 def transform_position(pose: AnyPose, point: Position3D) -> Position3D:
