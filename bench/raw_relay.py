@@ -8,13 +8,19 @@ a hop in Python), or by the package's own steps without a worker around them (``
 both from ``bench.hop_cost_bench``. They tell, live and side by side with the raw relay and the
 worker, what the maths costs and what the worker adds.
 
-Run: ``python -m bench.raw_relay IN_KEY OUT_KEY [--compose minimal|package] [zenoh flags]``;
-ends on SIGTERM.
+With ``--receive queue`` (and no ``--compose``), the raw relay takes each sample as a worker
+does: zenoh calls back on its own thread, the callback puts the payload on a
+``queue.SimpleQueue``, the loop's thread takes it (``services.worker.Inbox``); it tells what
+that hand-over costs against zenoh's own channel.
+
+Run: ``python -m bench.raw_relay IN_KEY OUT_KEY [--compose minimal|package | --receive queue]
+[zenoh flags]``; ends on SIGTERM.
 """
 
 from __future__ import annotations
 
 import argparse
+import queue
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -32,6 +38,12 @@ def relay(subscriber: Any, publisher: Any) -> None:
         publisher.put(sample.payload)
 
 
+def relay_handed_over(items: queue.SimpleQueue[bytes | None], publisher: Any) -> None:
+    """Republish each payload a callback put on ``items``; ends when it holds None."""
+    while (payload := items.get()) is not None:
+        publisher.put(payload)
+
+
 def relay_composed(subscriber: Any, hop: Callable[[bytes], None]) -> None:
     """Hand each sample's payload to ``hop``, which publishes the composition."""
     for sample in subscriber:
@@ -42,16 +54,29 @@ def main() -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.raw_relay")
     parser.add_argument("source")
     parser.add_argument("target")
-    parser.add_argument("--compose", choices=("minimal", "package"), help="see the docstring")
+    how = parser.add_mutually_exclusive_group()
+    how.add_argument("--compose", choices=("minimal", "package"), help="see the docstring")
+    how.add_argument(
+        "--receive", choices=("channel", "queue"), default="channel", help="see the docstring"
+    )
     config.add_arguments(parser)
     args = parser.parse_args()
     stop = stop_on_signals()
     with open_session(config.from_arguments(args, role="member")) as session:
         publisher = session.declare_publisher(args.target)
-        subscriber = session.declare_subscriber(args.source, zenoh.handlers.FifoChannel(4096))
-        if args.compose is None:
+        items: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        if args.receive == "queue":
+            subscriber = session.declare_subscriber(
+                args.source, lambda sample: items.put(sample.payload.to_bytes())
+            )
+            thread = threading.Thread(
+                target=relay_handed_over, args=(items, publisher), daemon=True
+            )
+        elif args.compose is None:
+            subscriber = session.declare_subscriber(args.source, zenoh.handlers.FifoChannel(4096))
             thread = threading.Thread(target=relay, args=(subscriber, publisher), daemon=True)
         else:
+            subscriber = session.declare_subscriber(args.source, zenoh.handlers.FifoChannel(4096))
             from bench.hop_cost_bench import minimal_hop, package_hop
 
             hop = (minimal_hop if args.compose == "minimal" else package_hop)(publisher)
@@ -59,6 +84,7 @@ def main() -> int:
         thread.start()
         stop.wait()
         subscriber.undeclare()
+        items.put(None)
         thread.join(timeout=1.0)
     return 0
 

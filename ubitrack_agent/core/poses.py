@@ -91,9 +91,9 @@ def _kept(pose: AnyPose) -> tuple[list[float], list[float], np.ndarray, np.ndarr
     the identity of its arrays (for up to :data:`_KEPT_POSES` poses, then all forgotten at
     once: no iteration that another thread could disturb): a measurement's arrays are
     read-only, and a restamped one shares them, so the static edge a concatenation composes
-    with on every sample (its buffer's value, restamped) costs two matrix products and no
-    other numpy call (``docs/performance.md``, "Data path"). An entry holds the arrays
-    themselves, so their ids are not reused while it is kept."""
+    with on every sample (its buffer's value, restamped) costs its covariance's products and
+    sum, not an adjoint and two ``tolist`` (``docs/performance.md``, "Data path"). An entry
+    holds the arrays themselves, so their ids are not reused while it is kept."""
     q, t = pose.rotation, pose.translation
     key = (id(q), id(t))
     entry = _KEPT.get(key)
