@@ -101,12 +101,6 @@ class Stack:
         raise RuntimeError(f"not within {SETTLE_S:.0f} s: {what}\n{self.net.logs(lines=15)}")
 
 
-def _forward(process: subprocess.Popen, lines: queue.SimpleQueue[str]) -> None:
-    """Put each line ``process`` prints into ``lines``."""
-    for line in process.stdout:
-        lines.put(line)
-
-
 def deploy(net: Network, split: bool, scenario_dir: Path) -> Stack:
     """Router, agent and sensors; with ``split`` the camera and the application on ``hmd``
     and a spare host manager on ``extra``, else everything on ``room``."""

@@ -231,12 +231,6 @@ def _end_group(process: subprocess.Popen) -> None:
         process.wait()
 
 
-def namespaces() -> list[str]:
-    """The names ``ip netns list`` shows."""
-    result = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True)
-    return [line.split()[0] for line in result.stdout.splitlines() if line.strip()]
-
-
 @pytest.fixture(scope="module")
 def netns(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[..., Network]]:
     """A factory ``netns(lans) -> Network``; every network it made is deleted when the module's
