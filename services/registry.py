@@ -13,7 +13,7 @@ import functools
 import importlib
 import pkgutil
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -80,6 +80,17 @@ class Service(ABC):
     @abstractmethod
     def compute(self, values: Inputs, timestamp_ns: int) -> dict[str, Measurement]:
         """Outputs by port for inputs synchronised to ``timestamp_ns``."""
+
+    def compute_run(
+        self, values: Sequence[Inputs], timestamps: Sequence[int]
+    ) -> list[dict[str, Measurement]]:
+        """The outputs of several instants at once, equal to :meth:`compute`'s one by one to
+        round-off: for a worker draining a backlog of its one dynamic input
+        (``services.worker``). A service whose maths vectorise overrides it
+        (:class:`~services.components.basic.Concatenation`); it must leave the service's
+        state as it was, since on an error the worker computes the instants one by one. Not
+        overridden, the worker calls :meth:`compute` for each instant."""
+        raise NotImplementedError(f"{self.NAME} computes one instant at a time")
 
     def asynchronous(self) -> bool:
         """Whether this instance takes every input sample as it arrives (:meth:`push`) instead

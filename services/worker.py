@@ -31,12 +31,15 @@ as it is decoded, before anything else uses it: the agent sets it when the compo
 come from hosts whose clocks differ (``agent.clocks``), so they are synchronised on the agent's
 clock. A query for an input's value at a given time goes upstream at the input's own time.
 
-Zenoh callbacks only append to a bounded inbox, so zenoh's receiving thread, which serves every
+Zenoh's threads only append to a bounded inbox, so zenoh's receiving thread, which serves every
 subscription of the process, is never held up by a computation (``docs/services.md``,
-"Threads"); one thread takes everything waiting at once, decodes each sample
-(validated in full, or at level ``WORKER`` for a binding ``from_worker``:
-``core.measurements``), synchronises (:mod:`ubitrack_agent.core.timeline`), computes and
-publishes.
+"Threads"): an input's samples are taken from zenoh's channel by a thread of its own, all
+those waiting at once (``net.transport.subscribe_in_bursts``), a command by a callback. One
+thread takes everything waiting at once, decodes each sample (validated in full, or at level
+``WORKER`` for a binding ``from_worker``: ``core.measurements``), synchronises
+(:mod:`ubitrack_agent.core.timeline`), computes and publishes; a backlog of one input under
+load, where nothing holds a sample back, as one run (:meth:`Worker._on_run`: decoded and, where
+the service vectorises, computed together).
 
 Handling is total (issue 11): bad input (a sample the codec refuses, one stamped too far ahead
 of this host's clock, a control command or specification that is not a bounded JSON object of
@@ -52,6 +55,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import itertools
 import json
 import logging
 import os
@@ -62,7 +66,7 @@ import threading
 import time
 import uuid
 from collections import Counter, defaultdict, deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
@@ -79,6 +83,7 @@ from services.spec import (
 )
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
+from ubitrack_agent.core.codec import decode_run
 from ubitrack_agent.core.errors import (
     ExtrapolationError,
     NoDataError,
@@ -105,7 +110,11 @@ from ubitrack_agent.net.spec import (
     parse_then_port,
 )
 from ubitrack_agent.net.time_queries import fetch_at
-from ubitrack_agent.net.transport import LatestValuePublisher, fetch_until_satisfied
+from ubitrack_agent.net.transport import (
+    LatestValuePublisher,
+    fetch_until_satisfied,
+    subscribe_in_bursts,
+)
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -115,6 +124,9 @@ the same service the folded component ran."""
 
 INBOX_CAPACITY = 4096
 """Samples waiting for the worker thread; beyond this the oldest are dropped and counted."""
+RUN_MIN = 8
+"""Samples of one input waiting in a row from which they are handled as one run
+(:meth:`Worker._on_run`); below it a run's numpy calls cost about what they save."""
 
 CONTROL_FIELDS = frozenset({"inputs", "outputs", "parameters", "relations", "stop"})
 """What a control command may change (see the module docstring)."""
@@ -123,6 +135,8 @@ MAX_CONTROL_BYTES = 64 * 1024
 
 COUNTERS = {
     "received": "samples received on the input keys",
+    "in_runs": "of those, samples handled in a run with others of their input (a backlog taken "
+    "at once under load: Worker._on_run)",
     "published": "outputs published",
     "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
     "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
@@ -224,6 +238,20 @@ class Inbox:
         return items
 
 
+def _run_key(item: tuple[Any, ...]) -> tuple[Any, ...]:
+    return item[:3] if item[0] == "data" else item
+
+
+def _runs(items: list[tuple[Any, ...]]) -> Iterator[tuple[Any, ...]]:
+    """``items`` in order, each row of ``("data", generation, index, payload)`` items of one
+    input as one ``("run", generation, index, [payload, ...])``."""
+    for key, group in itertools.groupby(items, _run_key):
+        if key[0] == "data":
+            yield ("run", key[1], key[2], [item[3] for item in group])
+        else:
+            yield from group
+
+
 class _Answer:
     """A query for an output's value at a given time, handed from a publisher's thread to the
     worker thread, which fills in the payload or the error."""
@@ -280,6 +308,8 @@ class Worker:
         self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
         self._session = session
         self._service_class = lookup(spec.service)
+        self._computes_runs = self._service_class.compute_run is not Service.compute_run
+        """Whether the service computes a run of instants at once (:meth:`_on_run`)."""
         self._service: Service = self._service_class(spec.parameters)
         self._asynchronous = self._service.asynchronous()
         self._reports_progress = self._new_progress()
@@ -288,6 +318,7 @@ class Worker:
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
         self._on_sample_guarded = self._guarded(self._on_sample)
+        self._on_run_guarded = self._guarded(self._on_run)
         self._handling_s = 0.0
         """Running mean of the time to handle a sample (seconds)."""
         self._stop = threading.Event()
@@ -364,12 +395,11 @@ class Worker:
                 moved = binding.clock_offset_ns - kept.binding.clock_offset_ns
                 buffer = kept.buffer.shifted(moved) if moved else kept.buffer
                 kept.subscriber.undeclare()
-            subscriber = self._session.declare_subscriber(
+            subscriber = subscribe_in_bursts(
+                self._session,
                 binding.key,
                 self._guarded(
-                    lambda s, i=index: self._inbox.put(
-                        ("data", generation, i, s.payload.to_bytes())
-                    )
+                    lambda payload, i=index: self._inbox.put(("data", generation, i, payload))
                 ),
             )
             composed = parse_then_port(binding.port)
@@ -518,31 +548,20 @@ class Worker:
             self.counters["superseded"] += 1  # from a subscription a rewire replaced
             return
         item = self._inputs[index]
-        key = item.binding.key
         try:
-            sample = decode(payload, item.expected, item.level)
+            decoded = decode(payload, item.expected, item.level)
         except MeasurementError as exc:
-            self._count("rejected", "rejected sample on %s: %s", key, exc)
+            self._count("rejected", "rejected sample on %s: %s", item.binding.key, exc)
             return
-        t = sample.timestamp_ns
-        now = self.clock.now_ns()
-        if ahead_of_clock(t, now):  # on the sensor's clock: before correction
-            self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
+        sample = self._admitted(item, decoded)
+        if sample is None:
             return
-        if item.binding.clock_offset_ns:
-            try:
-                sample = sample.restamped(t + item.binding.clock_offset_ns)
-            except MeasurementError as exc:
-                self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
-                return
-            t = sample.timestamp_ns
-        self._latency[key].append((now - t) / 1e6)
         if self._asynchronous and item.composed is None:
             self._push(item.binding.port, sample)
             return
-        if not item.buffer.add(sample):
-            self._count("dropped_stale", "dropped sample on %s older than its buffer: %d", key, t)
+        if not self._buffered(item, sample):
             return
+        t = sample.timestamp_ns
         if not item.binding.trigger:
             self.counters["buffered"] += 1
         elif item.binding.static:
@@ -555,6 +574,87 @@ class Worker:
         elif not self._pending.add(t, time.monotonic(), wait_s, extend=True):
             # Held until the other inputs catch up; an instant already computed is ignored.
             self.counters["stale_triggers"] += 1
+
+    def _admitted(self, item: _Input, sample: Measurement) -> Measurement | None:
+        """``sample`` of ``item`` on this host's clock (its input's clock offset added), its
+        latency recorded; None if it is stamped ahead of the clock or the offset takes it out
+        of range (counted)."""
+        key, t = item.binding.key, sample.timestamp_ns
+        now = self.clock.now_ns()
+        if ahead_of_clock(t, now):  # on the sensor's clock: before correction
+            self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
+            return None
+        if item.binding.clock_offset_ns:
+            try:
+                sample = sample.restamped(t + item.binding.clock_offset_ns)
+            except MeasurementError as exc:
+                self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
+                return None
+            t = sample.timestamp_ns
+        self._latency[key].append((now - t) / 1e6)
+        return sample
+
+    def _buffered(self, item: _Input, sample: Measurement) -> bool:
+        """Whether ``sample`` joined its input's buffer (else counted: beyond its horizon)."""
+        if item.buffer.add(sample):
+            return True
+        key, t = item.binding.key, sample.timestamp_ns
+        self._count("dropped_stale", "dropped sample on %s older than its buffer: %d", key, t)
+        return False
+
+    def _takes_runs(self, generation: int, index: int) -> bool:
+        """Whether samples of input ``index`` waiting together may be handled as one run
+        (:meth:`_on_run`): it is the one dynamic input and it triggers, and nothing holds a
+        sample back (no asynchronous service, time expansion, progress report or pending
+        trigger), so :meth:`_on_sample` would compute each at once."""
+        if generation != self._generation:
+            return False
+        item = self._inputs[index]
+        binding = item.binding
+        return (
+            binding.trigger
+            and not binding.static
+            and item.composed is None
+            and len(self._dynamic) == 1
+            and not self._asynchronous
+            and self._accumulator is None
+            and not self._reports_progress
+            and not self._pending.deadlines
+        )
+
+    def _on_run(self, generation: int, index: int, payloads: list[bytes]) -> None:
+        """Samples of one input taken from the inbox together (:meth:`_takes_runs`), each
+        handled as :meth:`_on_sample` would, decoded together (``core.codec.decode_run``) and
+        computed together where the service vectorises (:meth:`Service.compute_run`): under
+        load, a numpy call per run instead of one per sample (``docs/performance.md``, "Data
+        path")."""
+        self.counters["received"] += len(payloads)
+        self.counters["in_runs"] += len(payloads)
+        item = self._inputs[index]
+        instants: list[tuple[dict[str, Any], int]] = []
+        for decoded in decode_run(payloads, item.expected, item.level):
+            if isinstance(decoded, MeasurementError):
+                self._count("rejected", "rejected sample on %s: %s", item.binding.key, decoded)
+                continue
+            sample = self._admitted(item, decoded)
+            if sample is None or not self._buffered(item, sample):
+                continue
+            t = sample.timestamp_ns
+            if not self._pending.finish(t):
+                self.counters["stale_triggers"] += 1
+            elif (values := self._values_at(t, item, sample)) is not None:
+                instants.append((values, t))
+        if self._computes_runs and len(instants) > 1:
+            try:
+                outputs = self._service.compute_run(*zip(*instants, strict=True))
+            except (TooFewCorrespondences, ValueError, MeasurementError, ArithmeticError):
+                pass  # computed one by one below, each failure counted
+            else:
+                for computed, (_, t) in zip(outputs, instants, strict=True):
+                    self._publish_computed(computed, t)
+                return
+        for values, t in instants:
+            self._compute(values, t)
 
     def _wait_s(self, trigger: _Input, timestamp_ns: int) -> float:
         """How long a trigger may wait for the other live dynamic inputs (services.triggers):
@@ -585,6 +685,23 @@ class Worker:
     ) -> None:
         """Evaluate every input at ``t`` and compute (see :mod:`services.triggers`); the value
         of the ``trigger`` input, if given, is its ``sample`` stamped ``t`` (just added)."""
+        values = self._values_at(t, trigger, sample)
+        if values is None:
+            return
+        if self._accumulator is None:
+            self._compute(values, t)
+        elif not self._accumulator.add(values):
+            self.counters["not_distinct"] += 1
+        elif not self._accumulator.ready():
+            self.counters["accumulating"] += 1
+        else:
+            self._compute(self._accumulator.expanded(values), t)
+
+    def _values_at(
+        self, t: int, trigger: _Input | None, sample: Measurement | None
+    ) -> dict[str, Any] | None:
+        """The service's inputs at ``t`` by port (see :meth:`_evaluate`); None if one has no
+        value then (counted ``dropped``)."""
         values: dict[str, Any] = {}
         space = self.spec.expansion == "space"
         tolerance_ns = self.spec.tolerance_ns
@@ -595,17 +712,10 @@ class Worker:
                 values.setdefault(port, []).append(value)
             elif value is None:
                 self.counters["dropped"] += 1
-                return
+                return None
             else:
                 values[port] = value
-        if self._accumulator is None:
-            self._compute(values, t)
-        elif not self._accumulator.add(values):
-            self.counters["not_distinct"] += 1
-        elif not self._accumulator.ready():
-            self.counters["accumulating"] += 1
-        else:
-            self._compute(self._accumulator.expanded(values), t)
+        return values
 
     def _push(self, port: str, sample: Measurement) -> None:
         """An asynchronous service's update by one sample, published at once."""
@@ -628,6 +738,9 @@ class Worker:
         except (ValueError, MeasurementError, ArithmeticError) as exc:
             self._count("failed", "computation failed: %s", exc)
             return
+        self._publish_computed(outputs, timestamp_ns)
+
+    def _publish_computed(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         if not outputs:
             self.counters["no_output"] += 1
         self._publish(outputs, timestamp_ns)
@@ -814,17 +927,32 @@ class Worker:
             self._guarded(self._process_due_triggers)()
         self._handling_s += HANDLING_GAIN * (time.perf_counter() - start - self._handling_s)
 
+    def _handle_run(self, generation: int, index: int, payloads: list[bytes]) -> None:
+        """A run of samples (:meth:`_on_run`), timed per sample (``_handling_s``)."""
+        start = time.perf_counter()
+        self._on_run_guarded(generation, index, payloads)
+        each = (time.perf_counter() - start) / len(payloads)
+        self._handling_s += HANDLING_GAIN * (each - self._handling_s)
+
     def step(self, longest_s: float = 0.1) -> None:
         """Handle every inbox item waiting (waiting at most ``longest_s`` or until the next
-        trigger is due for one), each followed by the triggers due; never raises
-        (:meth:`_guarded`)."""
+        trigger is due for one), each followed by the triggers due; at least
+        :data:`RUN_MIN` samples of one input in a row as one run where it may
+        (:meth:`_takes_runs`); never raises (:meth:`_guarded`)."""
         deadline = self._pending.next_deadline()
         timeout = longest_s if deadline is None else max(0.0, deadline - time.monotonic())
-        for item in self._inbox.take(min(longest_s, timeout)):
+        for item in _runs(self._inbox.take(min(longest_s, timeout))):
             if self._stop.is_set():
                 return
-            if item[0] == "data":
-                self._handle_sample(*item[1:])
+            if item[0] == "run":
+                _, generation, index, payloads = item
+                if len(payloads) >= RUN_MIN and self._takes_runs(generation, index):
+                    self._handle_run(generation, index, payloads)
+                else:
+                    for payload in payloads:
+                        if self._stop.is_set():
+                            return
+                        self._handle_sample(generation, index, payload)
             elif item[0] == "at":
                 self._guarded(self._answer)(item[1])
             else:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from services.registry import Inputs, Port, Service, register
@@ -17,7 +19,12 @@ from ubitrack_agent.core import (
     quaternions,
     se3,
 )
-from ubitrack_agent.core.poses import compose_poses, invert_pose, transform_position
+from ubitrack_agent.core.poses import (
+    compose_pose_pairs,
+    compose_poses,
+    invert_pose,
+    transform_position,
+)
 
 POSES = (Pose, ErrorPose)
 
@@ -74,6 +81,16 @@ class Concatenation(Service):
                 f"cannot concatenate {type(first).__name__} with {type(second).__name__}"
             )
         return {"AC": result}
+
+    def compute_run(
+        self, values: Sequence[Inputs], timestamps: Sequence[int]
+    ) -> list[dict[str, Measurement]]:
+        """Pose pairs by :func:`compose_pose_pairs` (a few numpy calls for the whole run);
+        any other pair one instant at a time."""
+        firsts, seconds = [v["AB"] for v in values], [v["BC"] for v in values]
+        if all(isinstance(v, POSES) for v in (*firsts, *seconds)):
+            return [{"AC": result} for result in compose_pose_pairs(firsts, seconds)]
+        return [self.compute(v, t) for v, t in zip(values, timestamps, strict=True)]
 
 
 @register

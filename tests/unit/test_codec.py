@@ -418,3 +418,69 @@ def test_an_encoders_message_takes_the_canonical_reader():
         "Rotation3D",
         "Projection",
     }
+
+
+@st.composite
+def error_pose_runs(draw):
+    """A worker's backlog: encoded ErrorPoses, some broken as a sensor or an attacker would
+    (an indefinite or asymmetric covariance, NaN or infinity, a hostile message)."""
+    count = draw(st.integers(1, 24))
+    payloads = []
+    for _ in range(count):
+        value = draw(st.builds(ErrorPose, timestamps, quaternions(), vectors(3), covariances(6)))
+        payload = encode(value)
+        broken = draw(
+            st.sampled_from(["no", "no", "no", "indefinite", "asymmetric", "infinite", "hostile"])
+        )
+        if broken == "hostile":
+            payload = draw(hostile_messages)
+        elif broken == "infinite":
+            message = msgpack.unpackb(payload)
+            name = draw(st.sampled_from(["rotation", "translation", "covariance"]))
+            values = np.frombuffer(message[name]).copy()
+            values[draw(st.integers(0, values.size - 1))] = draw(st.sampled_from(HUGE_FLOATS[2:5]))
+            message[name] = values.tobytes()
+            payload = _packed(message)
+        elif broken != "no":
+            message = msgpack.unpackb(payload)
+            cov = value.covariance.copy()
+            if broken == "indefinite":
+                cov[0, 0] = -abs(cov[0, 0]) - draw(st.floats(1e-6, 1e3))
+            else:
+                cov[0, 1] += draw(st.floats(1e-3, 1e3))
+            message["covariance"] = cov.tobytes()
+            payload = _packed(message)
+        payloads.append(payload)
+    return payloads
+
+
+@settings(max_examples=300)
+@given(
+    error_pose_runs() | st.lists(st.one_of(measurements.map(encode), hostile_messages), max_size=8),
+    st.sampled_from([FULL, WORKER]),
+    st.sampled_from([None, (Pose, ErrorPose)]),
+)
+def test_a_run_decodes_as_each_message_alone(payloads: list[bytes], level: str, expected):
+    """``decode_run`` (a worker's backlog, its numbers and covariances checked together)
+    gives each message what ``decode`` gives it: the same measurement or the same error."""
+    run = codec.decode_run(payloads, expected, level)
+    assert len(run) == len(payloads)
+    for data, got in zip(payloads, run, strict=True):
+        alone = _outcome(lambda d: decode(d, expected, level), data)
+        if alone[0] == "value":
+            assert type(got) is type(alone[1]) and got == alone[1]
+            assert all(not a.flags.writeable for a in vars(got).values() if hasattr(a, "flags"))
+        else:
+            assert isinstance(got, MeasurementError) and str(got) == alone[1]
+
+
+def test_a_run_refuses_only_its_indefinite_covariance_with_the_error_decode_gives():
+    good = [encode(ErrorPose(i, [0, 0, 0, 1], [1, 2, 3], np.eye(6))) for i in range(9)]
+    message = msgpack.unpackb(good[4])
+    message["covariance"] = (np.eye(6) - 2 * np.eye(6)[3]).tobytes()
+    good[4] = _packed(message)
+    run = codec.decode_run(good, ErrorPose, WORKER)
+    assert [isinstance(value, ErrorPose) for value in run] == [True] * 4 + [False] + [True] * 4
+    with pytest.raises(MeasurementError) as refused:
+        decode(good[4], ErrorPose, WORKER)
+    assert str(run[4]) == str(refused.value) and "positive semi-definite" in str(run[4])

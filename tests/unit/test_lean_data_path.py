@@ -5,6 +5,7 @@ the inbox drained in one go, and callbacks that only hand samples over."""
 from __future__ import annotations
 
 import threading
+import time
 
 import msgpack
 import numpy as np
@@ -13,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from services.worker import Inbox, Worker
+from services.worker import RUN_MIN, Inbox, Worker
 from tests.unit.test_worker_inputs import IDENTITY, KEYS, SPEC, FakeSession, outputs, pose
 from ubitrack_agent.core import (
     ErrorPose,
@@ -33,7 +34,7 @@ from ubitrack_agent.core.measurements import (
     check_covariance,
     check_semidefinite,
 )
-from ubitrack_agent.core.poses import compose_poses
+from ubitrack_agent.core.poses import compose_pose_pairs, compose_poses
 from ubitrack_agent.core.uncertainty import adjoint
 from ubitrack_agent.net.spec import InputBinding, SpecError, parse_bindings
 
@@ -358,7 +359,7 @@ class EagerSession(FakeSession):
     def declare_subscriber(self, key, callback):
         subscriber = super().declare_subscriber(key, callback)
         if key in self.waiting:
-            self.deliver(key, self.waiting.pop(key))
+            self.deliver(key, self.waiting.pop(key), wait=False)  # its thread not started
         return subscriber
 
 
@@ -369,9 +370,13 @@ def test_a_sample_arriving_while_the_inputs_are_bound_waits_for_them():
         {KEYS.data("ART/WT"): pose(1_000, 0.5), KEYS.data("ART/HT"): pose(2_000)}
     )
     worker = Worker(SPEC, session, KEYS)
+    deadline = time.monotonic() + 5.0
+    while worker.counters["received"] < 2 and time.monotonic() < deadline:
+        worker.step(longest_s=0.05)
+    assert (worker.counters["received"], worker.counters["internal_errors"]) == (2, 0)
+    session.deliver(KEYS.data("ART/HT"), pose(3_000))
     worker.step(longest_s=0.0)
-    assert worker.counters["internal_errors"] == 0
-    assert [p.timestamp_ns for p in outputs(session)] == [2_000]
+    assert [p.timestamp_ns for p in outputs(session)][-1] == 3_000
     worker.stop()
 
 
@@ -382,3 +387,122 @@ def test_huge_entries_cannot_widen_the_worker_level_tolerance():
     with pytest.raises(MeasurementError, match="not positive semi-definite"):
         check_semidefinite("cov", covariance)
     check_semidefinite("cov", np.diag([1.5e308] * 6))  # huge but positive definite
+
+
+# -- a backlog handled as one run (issue 12: 20,000 ErrorPoses/s) -----------------------------
+
+
+def _error_pose(t: int, seed: int, covariance: np.ndarray | None = None) -> ErrorPose:
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(6, 6)) * 1e-3
+    q = Rotation.random(random_state=seed).as_quat()
+    cov = a @ a.T + np.eye(6) * 1e-8 if covariance is None else covariance
+    return ErrorPose(t, q, rng.normal(size=3), cov)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 40), st.integers(0, 2**32 - 1), st.booleans(), st.booleans())
+def test_pose_pairs_compose_as_each_pair_alone(count, seed, first_has_error, second_has_error):
+    """``compose_pose_pairs`` (a run's compositions in a few numpy calls) gives what
+    ``compose_poses`` gives each pair, to round-off, in read-only arrays of the same types."""
+    rng = np.random.default_rng(seed)
+    static = _error_pose(5, seed)
+    if not first_has_error:
+        static = Pose(5, static.rotation, static.translation)
+    firsts = [static.restamped(10 + i) for i in range(count)]
+    seconds = [_error_pose(10 + i, int(rng.integers(2**31))) for i in range(count)]
+    if not second_has_error:
+        seconds = [Pose(s.timestamp_ns, s.rotation, s.translation) for s in seconds]
+    for run, alone in zip(
+        compose_pose_pairs(firsts, seconds),
+        [compose_poses(a, b) for a, b in zip(firsts, seconds, strict=True)],
+        strict=True,
+    ):
+        assert type(run) is type(alone) and run.timestamp_ns == alone.timestamp_ns
+        for spec in alone.ARRAY_FIELDS:
+            mine, theirs = getattr(run, spec.name), getattr(alone, spec.name)
+            assert mine.shape == theirs.shape and not mine.flags.writeable
+            np.testing.assert_allclose(mine, theirs, rtol=1e-12, atol=1e-15)
+
+
+def test_pose_pairs_of_different_first_poses_are_composed_one_by_one():
+    firsts = [_error_pose(5, 1), _error_pose(5, 2)]
+    seconds = [_error_pose(10, 3), _error_pose(11, 4)]
+    alone = [compose_poses(a, b) for a, b in zip(firsts, seconds, strict=True)]
+    assert compose_pose_pairs(firsts, seconds) == alone
+
+
+def _backlog() -> list[bytes]:
+    """ErrorPoses from a provider, one of them garbage, one not finite, one repeating an
+    instant (a stale trigger), one with an indefinite covariance."""
+    payloads = [encode(_error_pose(2_000 + 1_000 * i, i)) for i in range(24)]
+    payloads[5] = b"\x93garbage"
+    message = msgpack.unpackb(payloads[11])
+    message["translation"] = np.array([0.0, np.nan, 0.0]).tobytes()
+    payloads[11] = msgpack.packb(message)
+    payloads[15] = payloads[14]
+    message = msgpack.unpackb(payloads[19])
+    message["covariance"] = (np.eye(6) - 2 * np.eye(6)[0]).tobytes()
+    payloads[19] = msgpack.packb(message)
+    return payloads
+
+
+def test_a_backlog_is_handled_as_one_run_as_it_would_be_sample_by_sample():
+    """Samples of the one dynamic input waiting together are handled as one run
+    (``Worker._on_run``: decoded together, composed together): the same outputs to
+    round-off and the same counts as handling them one at a time."""
+    payloads = _backlog()
+    runs = []
+    for together in (False, True):
+        session = FakeSession()
+        worker = Worker(SPEC, session, KEYS)
+        session.deliver(KEYS.data("ART/WT"), encode(_error_pose(1_000, 99)))
+        worker.step(longest_s=0.0)
+        for payload in payloads:
+            session.deliver(KEYS.data("ART/HT"), payload)
+            if not together:
+                worker.step(longest_s=0.0)
+        worker.step(longest_s=0.0)
+        worker.stop()
+        runs.append((worker.counters, outputs(session)))
+    (one_by_one, alone), (in_a_run, run) = runs
+    assert (one_by_one["in_runs"], in_a_run["in_runs"]) == (0, len(payloads))
+    assert {k: v for k, v in in_a_run.items() if k != "in_runs"} == {
+        k: v for k, v in one_by_one.items() if k != "in_runs"
+    }
+    assert in_a_run["rejected"] == 3 and in_a_run["stale_triggers"] == 1
+    assert len(run) == len(alone) == len(payloads) - 4
+    for mine, theirs in zip(run, alone, strict=True):
+        assert type(mine) is type(theirs) and mine.timestamp_ns == theirs.timestamp_ns
+        np.testing.assert_allclose(mine.covariance, theirs.covariance, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(mine.translation, theirs.translation, rtol=1e-12)
+
+
+def test_a_short_backlog_or_one_of_two_dynamic_inputs_is_handled_sample_by_sample():
+    """Fewer than ``RUN_MIN`` samples, or an input that is not the only dynamic one (its
+    trigger may wait for the other), take the path of single samples."""
+    session = FakeSession()
+    worker = Worker(SPEC, session, KEYS)
+    session.deliver(KEYS.data("ART/WT"), encode(_error_pose(1_000, 99)))
+    for i in range(RUN_MIN - 1):
+        session.deliver(KEYS.data("ART/HT"), encode(_error_pose(2_000 + i, i)))
+    worker.step(longest_s=0.0)
+    assert (worker.counters["in_runs"], worker.counters["published"]) == (0, RUN_MIN - 1)
+    worker.stop()
+    spec = SPEC.__class__(
+        instance="concat1",
+        service="concatenation",
+        inputs=(
+            InputBinding("AB", KEYS.data("ART/WT"), trigger=True),
+            InputBinding("BC", KEYS.data("ART/HT")),
+        ),
+        outputs={"AC": KEYS.data("concat1/AC")},
+    )
+    session = FakeSession()
+    worker = Worker(spec, session, KEYS)
+    session.deliver(KEYS.data("ART/HT"), encode(_error_pose(1_000, 99)))
+    for i in range(2 * RUN_MIN):
+        session.deliver(KEYS.data("ART/WT"), encode(_error_pose(1_000 + 10 * i, i)))
+    worker.step(longest_s=0.0)
+    assert worker.counters["in_runs"] == 0 and worker.counters["received"] == 2 * RUN_MIN + 1
+    worker.stop()

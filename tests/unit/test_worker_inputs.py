@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import queue
 import threading
 import time
 from types import SimpleNamespace
@@ -13,6 +14,7 @@ from types import SimpleNamespace
 import msgpack
 import numpy as np
 import pytest
+import zenoh
 
 from services.worker import COUNTERS, Pool, Worker
 from ubitrack_agent.core import ErrorPose, Pose, Position3D, decode, encode
@@ -31,15 +33,68 @@ class FakeQueryable(list):
         pass
 
 
+class FakeChannel:
+    """A subscriber with zenoh's ``FifoChannel`` handler, as ``net.transport``'s
+    ``subscribe_in_bursts`` declares one. :meth:`push` returns once the thread draining it
+    has handed the sample on (it asks for the next one after each), so a test that delivers
+    a sample and then steps the worker finds it in the inbox."""
+
+    def __init__(self, on_undeclare) -> None:
+        self._items: queue.SimpleQueue = queue.SimpleQueue()
+        self._handing: threading.Event | None = None
+        self._on_undeclare = on_undeclare
+
+    def push(self, sample, wait: bool = True) -> None:
+        handed_on = threading.Event()
+        self._items.put((sample, handed_on))
+        if wait and not handed_on.wait(5.0):
+            raise TimeoutError("the subscription's thread did not take the sample")
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        self._handed_on()
+        sample, self._handing = self._items.get()
+        if sample is None:
+            raise StopIteration
+        return sample
+
+    def try_recv(self):
+        self._handed_on()
+        try:
+            sample, handing = self._items.get_nowait()
+        except queue.Empty:
+            return None
+        if sample is None:
+            self._items.put((None, handing))  # closed: the next wait ends the iteration
+            return None
+        self._handing = handing
+        return sample
+
+    def _handed_on(self) -> None:
+        if self._handing is not None:
+            self._handing.set()
+            self._handing = None
+
+    def undeclare(self) -> None:
+        self._on_undeclare()
+        self._items.put((None, threading.Event()))
+
+
 class FakeSession:
     """Records subscriptions and puts; answers no query."""
 
     def __init__(self) -> None:
         self.callbacks: dict[str, object] = {}
+        self.channels: dict[str, FakeChannel] = {}
         self.puts: list[tuple[str, bytes]] = []
         self.encodings: dict[str, object] = {}
 
     def declare_subscriber(self, key, callback):
+        if isinstance(callback, zenoh.handlers.FifoChannel):
+            channel = self.channels[key] = FakeChannel(lambda: self.channels.pop(key, None))
+            return channel
         self.callbacks[key] = callback
         return SimpleNamespace(undeclare=lambda: self.callbacks.pop(key, None))
 
@@ -63,9 +118,15 @@ class FakeSession:
     def get(self, key, timeout=None):
         return []
 
-    def deliver(self, key: str, payload: bytes) -> None:
-        """What zenoh does when ``payload`` arrives on ``key``."""
-        self.callbacks[key](SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload)))
+    def deliver(self, key: str, payload: bytes, wait: bool = True) -> None:
+        """What zenoh does when ``payload`` arrives on ``key``; for an input of a worker
+        (``subscribe_in_bursts``), once its thread has put it in the inbox, unless not
+        ``wait``."""
+        sample = SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
+        if key in self.channels:
+            self.channels[key].push(sample, wait)
+        else:
+            self.callbacks[key](sample)
 
 
 SPEC = ComponentSpec(

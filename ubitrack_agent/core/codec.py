@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -36,6 +36,7 @@ from ubitrack_agent.core.measurements import (
     Measurement,
     fixed_layout,
     is_timestamp,
+    stacked_check,
 )
 
 WIRE_VERSION = 1
@@ -180,10 +181,10 @@ class _Canonical:
             checks,
         )
 
-    def read(self, message: dict[str, Any], level: str) -> Measurement | None:
-        """The measurement in ``message`` (whose ``type`` is this reader's) validated at
-        ``level``; None if anything is not exactly as expected; ``MeasurementError`` from a
-        field's check (the general reader's error: same check, same order, same name)."""
+    def fields(self, message: dict[str, Any]) -> tuple[int, list[bytes], bytes] | None:
+        """The timestamp, the fields' bytes and those joined, of ``message`` (whose ``type``
+        is this reader's) as an encoder writes it; None if anything is not exactly as
+        expected (its numbers not looked at yet)."""
         if len(message) != len(_HEADER_KEYS) + len(self.names):
             return None
         try:  # as many keys as expected: one missing means an unknown one is there instead
@@ -197,17 +198,79 @@ class _Canonical:
             joined = b"".join(raws)
         except TypeError:
             return None
-        if list(map(len, raws)) != self.sizes or not _all_finite(joined):
+        if list(map(len, raws)) != self.sizes:
             return None
+        return timestamp, raws, joined
+
+    def read(self, message: dict[str, Any], level: str) -> Measurement | None:
+        """The measurement in ``message`` (whose ``type`` is this reader's) validated at
+        ``level``; None if anything is not exactly as expected; ``MeasurementError`` from a
+        field's check (the general reader's error: same check, same order, same name)."""
+        found = self.fields(message)
+        return None if found is None else self._checked(found, level)
+
+    def _checked(self, found: tuple[int, list[bytes], bytes], level: str) -> Measurement | None:
+        timestamp, raws, joined = found
+        if not _all_finite(joined):
+            return None
+        value = self._built(timestamp, [np.frombuffer(raw, dtype=_FLOAT) for raw in raws])
+        for name, where, check in self.checks.get(level, ()):
+            check(where, value.__dict__[name])
+        return value
+
+    def _built(self, timestamp: int, flats: list[np.ndarray]) -> Measurement:
+        """The measurement of ``timestamp`` and its fields' values, flat and read-only."""
         value = object.__new__(self.cls)
         values = value.__dict__  # a frozen dataclass: set here, once, before anyone uses it
         values["timestamp_ns"] = timestamp
-        for name, shape, raw in zip(self.names, self.shapes, raws, strict=True):
-            array = np.frombuffer(raw, dtype=_FLOAT)  # read-only, over the message's bytes
-            values[name] = array if shape is None else array.reshape(shape)
-        for name, where, check in self.checks.get(level, ()):
-            check(where, values[name])
+        for name, shape, flat in zip(self.names, self.shapes, flats, strict=True):
+            values[name] = flat if shape is None else flat.reshape(shape)
         return value
+
+    def read_run(
+        self, found: list[tuple[int, list[bytes], bytes]], level: str
+    ) -> list[Measurement | MeasurementError | None]:
+        """For several messages' :meth:`fields`, what :meth:`read` gives each: the
+        measurement, None, or the error its check raises (returned, not raised). Their
+        numbers are tested for finiteness by one numpy call over all of them, and each
+        field's check by its stacked form over the run where it has one
+        (``core.measurements.stacked_check``); only where that fails is each checked alone,
+        in the single reader's order, so each gets the error the single reader gives it."""
+        count = len(found)
+        flat = np.frombuffer(b"".join(joined for _, _, joined in found), dtype=_FLOAT)
+        if not np.isfinite(flat).all():  # some message to the general reader: each alone
+            return [self._checked_or_error(one, level) for one in found]
+        rows = flat.reshape(count, -1)
+        columns, start = [], 0
+        for size in self.sizes:
+            columns.append(rows[:, start : start + size // _FLOAT.itemsize])
+            start += size // _FLOAT.itemsize
+        results: list[Measurement | MeasurementError | None] = [
+            self._built(timestamp, [column[j] for column in columns])
+            for j, (timestamp, _, _) in enumerate(found)
+        ]
+        for name, where, check in self.checks.get(level, ()):
+            field = self.names.index(name)
+            column, shape, stacked = columns[field], self.shapes[field], stacked_check(check)
+            if stacked is not None and stacked(
+                column if shape is None else column.reshape(count, *shape)
+            ):
+                continue
+            for j, value in enumerate(results):
+                if isinstance(value, Measurement):
+                    try:
+                        check(where, value.__dict__[name])
+                    except MeasurementError as exc:
+                        results[j] = exc
+        return results
+
+    def _checked_or_error(
+        self, found: tuple[int, list[bytes], bytes], level: str
+    ) -> Measurement | MeasurementError | None:
+        try:
+            return self._checked(found, level)
+        except MeasurementError as exc:
+            return exc
 
 
 _CANONICAL: dict[str, _Canonical] = (
@@ -228,13 +291,59 @@ def decode(
     Raises :class:`MeasurementError` naming the field at fault for anything else.
     """
     message = _unpack(data)
-    tag = message.get("type")
-    canonical = _CANONICAL.get(tag) if type(tag) is str else None
-    if canonical is not None and (expected is None or issubclass(canonical.cls, expected)):
+    canonical = _canonical(message, expected)
+    if canonical is not None:
         value = canonical.read(message, level)
         if value is not None:
             return value  # type: ignore[return-value]
     return _read(message, expected, level)
+
+
+def decode_run(
+    payloads: Sequence[Any],
+    expected: type[M] | tuple[type[M], ...] | None = None,
+    level: str = FULL,
+) -> list[M | MeasurementError]:
+    """Each of ``payloads`` as :func:`decode` decodes it: the same measurement, or the
+    :class:`MeasurementError` it raises (returned in its place). For a worker draining a
+    backlog (``services.worker``): the messages of one type an encoder wrote are checked
+    together (:meth:`_Canonical.read_run`), a numpy call per check for the whole run instead
+    of one per message; anything else goes to the general reader one by one."""
+    results: list[Any] = [None] * len(payloads)
+    messages: dict[int, dict[str, Any]] = {}
+    runs: dict[str, list[tuple[int, tuple[int, list[bytes], bytes]]]] = {}
+    for i, data in enumerate(payloads):
+        try:
+            message = messages[i] = _unpack(data)
+        except MeasurementError as exc:
+            results[i] = exc
+            continue
+        canonical = _canonical(message, expected)
+        found = None if canonical is None else canonical.fields(message)
+        if found is not None:
+            runs.setdefault(message["type"], []).append((i, found))
+    for tag, members in runs.items():
+        values = _CANONICAL[tag].read_run([found for _, found in members], level)
+        for (i, _), value in zip(members, values, strict=True):
+            results[i] = value
+    for i, message in messages.items():
+        if results[i] is None:
+            try:
+                results[i] = _read(message, expected, level)
+            except MeasurementError as exc:
+                results[i] = exc
+    return results
+
+
+def _canonical(
+    message: dict[str, Any], expected: type[Measurement] | tuple[type[Measurement], ...] | None
+) -> _Canonical | None:
+    """The canonical reader of ``message``'s type if it is one ``expected``, else None."""
+    tag = message.get("type")
+    canonical = _CANONICAL.get(tag) if type(tag) is str else None
+    if canonical is not None and (expected is None or issubclass(canonical.cls, expected)):
+        return canonical
+    return None
 
 
 def _read(message: dict[str, Any], expected: type[M] | tuple[type[M], ...] | None, level: str) -> M:

@@ -235,6 +235,32 @@ def _positive_definite_by_numpy(matrix: np.ndarray) -> bool:
     return True
 
 
+def _all_positive_definite(stack: np.ndarray) -> bool:
+    """Whether every matrix of ``stack`` (n x m x m) is positive definite: one Cholesky over
+    the stack by numpy. Where it succeeds, :func:`check_semidefinite` passes for each matrix
+    (a factorisation that succeeds leaves no eigenvalue below round-off, far inside its
+    tolerance)."""
+    try:
+        np.linalg.cholesky(stack)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+_STACKED_CHECKS: dict[Callable[[str, np.ndarray], None], Callable[[np.ndarray], bool]] = {
+    check_semidefinite: _all_positive_definite
+}
+
+
+def stacked_check(
+    check: Callable[[str, np.ndarray], None],
+) -> Callable[[np.ndarray], bool] | None:
+    """For a field's ``check``, a test over a stack of such arrays that passes only where
+    ``check`` passes for every one: how a run of samples is checked at once
+    (``core.codec.decode_run``); None where there is none, and each array is checked alone."""
+    return _STACKED_CHECKS.get(check)
+
+
 def _check_eigenvalues(where: str, cov: np.ndarray, scale: float | None) -> None:
     """Reject ``cov`` unless its smallest eigenvalue is at least ``-_PSD_TOLERANCE * scale``
     (``scale`` None: the largest absolute entry, at least 1) and finite (the eigenvalues of

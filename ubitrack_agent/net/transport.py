@@ -33,6 +33,34 @@ second, then less often, for 8 s in all. Links come up in the background after `
 and an upstream worker started at the same moment computes its static result a little later."""
 
 
+INPUT_CHANNEL_CAPACITY = 4096
+"""Samples zenoh queues for :func:`subscribe_in_bursts` before it holds the sender back."""
+
+
+def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[bytes], None]) -> Any:
+    """Subscribe to ``key`` and pass each sample's payload to ``deliver``, on a thread of its
+    own, all samples waiting at once; the subscriber is returned, and the thread ends when it
+    is undeclared. Zenoh queues the samples in its own channel (``FifoChannel``, without
+    Python's lock; when it is full, zenoh holds the sender back), and this thread takes
+    Python's lock once for each burst, where a callback takes it for every sample: under
+    load a consumer on another thread then finds a backlog to take as one run instead of
+    trading the lock with the callback sample by sample (``services.worker``,
+    ``docs/performance.md``, "Data path"). ``deliver`` must not raise."""
+    subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(INPUT_CHANNEL_CAPACITY))
+
+    def drain() -> None:
+        try:
+            for sample in subscriber:  # blocks without Python's lock
+                deliver(sample.payload.to_bytes())
+                while (more := subscriber.try_recv()) is not None:
+                    deliver(more.payload.to_bytes())
+        except zenoh.ZError:  # undeclared between two samples
+            pass
+
+    threading.Thread(target=drain, daemon=True, name=f"input {key}").start()
+    return subscriber
+
+
 class LatestValuePublisher:
     """A publisher whose latest payload is also served on its key's queryable."""
 
