@@ -22,7 +22,8 @@ figures are printed and written to ``bench/results/dataflow.json``.
     ``--seconds`` into the raw relay and then into a concatenation worker (input from a
     worker), with blocking congestion control: a hop that cannot keep up slows the sender
     (``sent_per_s`` below the rate offered) instead of zenoh dropping samples. ``dropped`` is
-    what was sent and never published.
+    what was sent and never published; ``in_runs``, what the worker handled in runs of a
+    backlog (``services.worker``).
 (c) **Reconfiguration.** An agent serves ``WT->HT`` for an application; trials start once its
     warm pool is full (steady state). Sensor appears: from
     the tracker's liveliness token appearing (seen by the bench) to the first sample on the
@@ -250,9 +251,9 @@ def _payloads(kind: type[Pose] | type[ErrorPose], count: int) -> list[bytes]:
     return [encode(Pose(start + i * 1000, rotation, translation)) for i in range(count)]
 
 
-def _settled(count: Callable[[], tuple[int, int]]) -> tuple[int, int]:
-    """``(received, published)`` once the hop has drained its backlog (unchanged for half a
-    second, at most 20 s)."""
+def _settled(count: Callable[[], tuple[int, ...]]) -> tuple[int, ...]:
+    """``count()`` (received, published, ...) once the hop has drained its backlog (unchanged
+    for half a second, at most 20 s)."""
     last, deadline = count(), time.monotonic() + 20.0
     while time.monotonic() < deadline:
         time.sleep(0.5)
@@ -287,7 +288,8 @@ def throughput(seconds: float, rates: list[float | None]) -> dict[str, Any]:
     as this process publishes). Blocking congestion control, so that zenoh drops nothing and a
     hop that cannot keep up slows the sender (``sent_per_s`` below the rate offered).
     ``dropped`` is what was sent but never published, whatever dropped it: the relay's outputs
-    are counted as this process receives them, the worker's by its ``published`` counter."""
+    are counted as this process receives them, the worker's by its ``published`` counter;
+    ``in_runs``, how many of the worker's it handled in runs of a backlog."""
     net = Network()
     results: dict[str, Any] = {}
     try:
@@ -310,15 +312,15 @@ def throughput(seconds: float, rates: list[float | None]) -> dict[str, Any]:
         net.session.put(net.keys.data("flood/static"), encode(STATIC))
         time.sleep(0.5)
 
-        def worker_counts() -> tuple[int, int]:
+        def worker_counts() -> tuple[int, int, int]:
             for _ in range(10):  # a worker draining a flood may answer late
                 replies = fetch_latest(net.session, net.keys.status(spec.instance), timeout=2.0)
                 if replies:
                     counters = json.loads(replies[0])["counters"]
-                    return counters["received"], counters["published"]
+                    return counters["received"], counters["published"], counters["in_runs"]
             raise TimeoutError("the worker does not answer its status")
 
-        counts = {"rawflood": lambda: (relayed[0], relayed[0]), "flood": worker_counts}
+        counts = {"rawflood": lambda: (relayed[0], relayed[0], 0), "flood": worker_counts}
         for kind in (ErrorPose, Pose):
             for rate in rates:
                 for hop, name in (("rawflood", "raw relay"), ("flood", "worker")):
@@ -333,6 +335,8 @@ def throughput(seconds: float, rates: list[float | None]) -> dict[str, Any]:
                         "published": published,
                         "dropped": sent - published,
                     }
+                    if hop == "flood":  # handled in runs of a backlog (services.worker)
+                        results[label][name]["in_runs"] = after[2] - before[2]
                     time.sleep(0.5)
         subscriber.undeclare()
     finally:

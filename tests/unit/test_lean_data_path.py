@@ -4,6 +4,7 @@ the inbox drained in one go, and callbacks that only hand samples over."""
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 
@@ -489,17 +490,12 @@ def test_a_short_backlog_or_one_of_two_dynamic_inputs_is_handled_sample_by_sampl
     worker.step(longest_s=0.0)
     assert (worker.counters["in_runs"], worker.counters["published"]) == (0, RUN_MIN - 1)
     worker.stop()
-    spec = SPEC.__class__(
-        instance="concat1",
-        service="concatenation",
-        inputs=(
-            InputBinding("AB", KEYS.data("ART/WT"), trigger=True),
-            InputBinding("BC", KEYS.data("ART/HT")),
-        ),
-        outputs={"AC": KEYS.data("concat1/AC")},
+    both_dynamic = (
+        InputBinding("AB", KEYS.data("ART/WT"), trigger=True),
+        InputBinding("BC", KEYS.data("ART/HT")),
     )
     session = FakeSession()
-    worker = Worker(spec, session, KEYS)
+    worker = Worker(dataclasses.replace(SPEC, inputs=both_dynamic), session, KEYS)
     session.deliver(KEYS.data("ART/HT"), encode(_error_pose(1_000, 99)))
     for i in range(2 * RUN_MIN):
         session.deliver(KEYS.data("ART/WT"), encode(_error_pose(1_000 + 10 * i, i)))
