@@ -204,13 +204,13 @@ class ControlCommand:
 
 
 class Inbox:
-    """A bounded queue from zenoh's callback threads to the worker thread that drops its oldest
-    item when full (counted as ``overflow``; producers racing past the check may each add one
-    more). The worker takes everything waiting at once (:meth:`take`): under load a backlog
-    costs one wake-up, not one per sample. Written on ``queue.SimpleQueue``, whose put and get
-    are C calls that block without Python's lock: ``threading.Event`` and ``queue.Queue`` run a
-    condition's Python code on both threads for every sample handed over (issue 12;
-    ``docs/performance.md``, "Data path")."""
+    """A bounded queue from the inputs' threads and zenoh's callbacks (commands, queries) to the
+    worker thread that drops its oldest item when full (counted as ``overflow``; producers
+    racing past the check may each add one more). The worker takes everything waiting at once
+    (:meth:`take`): under load a backlog costs one wake-up, not one per sample. Written on
+    ``queue.SimpleQueue``, whose put and get are C calls that block without Python's lock:
+    ``threading.Event`` and ``queue.Queue`` run a condition's Python code on both threads for
+    every sample handed over (issue 12; ``docs/performance.md``, "Data path")."""
 
     def __init__(self, capacity: int, counters: Counter[str]) -> None:
         self._items: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
