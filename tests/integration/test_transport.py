@@ -48,3 +48,37 @@ def test_a_backlog_is_handed_on_whole_in_order_and_the_thread_ends_with_the_subs
         publisher.put(b"after")
         time.sleep(0.2)
         assert handed[-1] == sent[-1]
+
+
+def test_undeclaring_while_a_burst_is_drained_ends_the_thread_quietly(monkeypatch):
+    """A rewire undeclares an input's subscriber while its thread drains a burst: the thread
+    ends without an exception (a call on the subscriber itself failed then: "Already mutably
+    borrowed", seen in a demo run)."""
+    raised: list[BaseException] = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: raised.append(args.exc_value))
+    port = free_port()
+    member = config.Settings(connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",))
+    with hub_session(port) as hub, open_session(member) as session:
+        publisher = hub.declare_publisher("test/undeclare")
+        stop = threading.Event()
+
+        def flood() -> None:
+            while not stop.is_set():
+                publisher.put(b"x")
+
+        for attempt in range(20):
+            handed: list[bytes] = []
+            subscriber = subscribe_in_bursts(session, "test/undeclare", handed.append)
+            wait_until(lambda: publisher.matching_status.matching)
+            if attempt == 0:
+                flooding = threading.Thread(target=flood, daemon=True)
+                flooding.start()
+            wait_until(lambda handed=handed: len(handed) > 100)
+            subscriber.undeclare()
+            for thread in threading.enumerate():
+                if thread.name == "input test/undeclare":
+                    thread.join(timeout=5.0)
+                    assert not thread.is_alive()
+        stop.set()
+        flooding.join(timeout=5.0)
+    assert raised == []

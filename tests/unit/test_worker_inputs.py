@@ -44,6 +44,10 @@ class FakeChannel:
         self._handing: threading.Event | None = None
         self._on_undeclare = on_undeclare
 
+    @property
+    def handler(self) -> FakeChannel:
+        return self
+
     def push(self, sample, wait: bool = True) -> None:
         handed_on = threading.Event()
         self._items.put((sample, handed_on))

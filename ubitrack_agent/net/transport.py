@@ -47,14 +47,17 @@ def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[bytes], None]
     trading the lock with the callback sample by sample (``services.worker``,
     ``docs/performance.md``, "Data path"). ``deliver`` must not raise."""
     subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(INPUT_CHANNEL_CAPACITY))
+    # The channel itself, not the subscriber: a call on the subscriber while another thread
+    # undeclares it fails ("Already mutably borrowed", pyo3's check of the object's use).
+    channel = subscriber.handler
 
     def drain() -> None:
         try:
-            for sample in subscriber:  # blocks without Python's lock
+            for sample in channel:  # blocks without Python's lock; ends when it is closed
                 deliver(sample.payload.to_bytes())
-                while (more := subscriber.try_recv()) is not None:
+                while (more := channel.try_recv()) is not None:
                     deliver(more.payload.to_bytes())
-        except zenoh.ZError:  # undeclared between two samples
+        except zenoh.ZError:  # closed between two samples: "channel is empty and closed"
             pass
 
     threading.Thread(target=drain, daemon=True, name=f"input {key}").start()
