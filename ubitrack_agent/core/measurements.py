@@ -228,6 +228,8 @@ def _positive_definite() -> Callable[[np.ndarray], bool]:
 
 
 def _positive_definite_by_numpy(matrix: np.ndarray) -> bool:
+    """Whether ``matrix`` is positive definite by numpy's Cholesky; given a stack of matrices
+    (n x m x m), whether every one is, by one call (:func:`stacked_check`)."""
     try:
         np.linalg.cholesky(matrix)
     except np.linalg.LinAlgError:
@@ -235,20 +237,10 @@ def _positive_definite_by_numpy(matrix: np.ndarray) -> bool:
     return True
 
 
-def _all_positive_definite(stack: np.ndarray) -> bool:
-    """Whether every matrix of ``stack`` (n x m x m) is positive definite: one Cholesky over
-    the stack by numpy. Where it succeeds, :func:`check_semidefinite` passes for each matrix
-    (a factorisation that succeeds leaves no eigenvalue below round-off, far inside its
-    tolerance)."""
-    try:
-        np.linalg.cholesky(stack)
-    except np.linalg.LinAlgError:
-        return False
-    return True
-
-
 _STACKED_CHECKS: dict[Callable[[str, np.ndarray], None], Callable[[np.ndarray], bool]] = {
-    check_semidefinite: _all_positive_definite
+    # Where numpy's factorisation succeeds, check_semidefinite passes: no eigenvalue is left
+    # below round-off, far inside its tolerance.
+    check_semidefinite: _positive_definite_by_numpy
 }
 
 
