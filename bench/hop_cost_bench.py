@@ -8,9 +8,9 @@ One process, one zenoh session with no peer (nothing leaves it). The same ErrorP
 every ``--gap-ms`` (5 ms: a tracker's rate), are handled three ways, interleaved sample by
 sample so the three see the same machine:
 
-* ``worker``: ``Worker._handle_sample`` of a concatenation worker whose input comes from a
-  worker (the dynamic ``BC`` composed with a static ``AB``), everything the live hop does
-  after zenoh hands the sample over;
+* ``worker``: ``Worker._deliver`` of a concatenation worker whose input comes from a worker
+  (the dynamic ``BC`` composed with a static ``AB``), everything the live hop does after its
+  input's thread takes the sample from zenoh's channel;
 * ``package``: the package's own steps alone: ``decode`` at level ``WORKER``,
   ``compose_poses`` with the static input restamped, ``encode``, a zenoh put;
 * ``minimal``: the same maths and checks written flat (msgpack, the arrays, finite numbers,
@@ -130,10 +130,10 @@ def main() -> int:
     with open_session(config.Settings(domain="hopcost")) as session:
         worker = Worker(_concatenation_spec(keys, "cost", from_worker=True), session, keys)
         generation = worker._generation
-        worker._handle_sample(generation, 0, encode(STATIC))
+        worker._deliver(generation, 0, [encode(STATIC)])
         publisher = session.declare_publisher(keys.data("cost/elsewhere"))
         hops = {
-            "worker": lambda payload: worker._handle_sample(generation, 1, payload),
+            "worker": lambda payload: worker._deliver(generation, 1, [payload]),
             "package": package_hop(publisher),
             "minimal": minimal_hop(publisher),
         }

@@ -31,15 +31,18 @@ as it is decoded, before anything else uses it: the agent sets it when the compo
 come from hosts whose clocks differ (``agent.clocks``), so they are synchronised on the agent's
 clock. A query for an input's value at a given time goes upstream at the input's own time.
 
-Zenoh's threads only append to a bounded inbox, so zenoh's receiving thread, which serves every
-subscription of the process, is never held up by a computation (``docs/services.md``,
-"Threads"): an input's samples are taken from zenoh's channel by a thread of its own, all
-those waiting at once (``net.transport.subscribe_in_bursts``), a command by a callback. One
-thread takes everything waiting at once, decodes each sample (validated in full, or at level
-``WORKER`` for a binding ``from_worker``: ``core.measurements``), synchronises
-(:mod:`ubitrack_agent.core.timeline`), computes and publishes; a backlog of one input under
-load, where nothing holds a sample back, as one run (:meth:`Worker._on_run`: decoded and, where
-the service vectorises, computed together).
+Zenoh's receiving thread, which serves every subscription of the process, runs no Python for a
+sample and is never held up by a computation (``docs/services.md``, "Threads"): each input has
+a thread of its own that takes the samples waiting in zenoh's channel at once
+(``net.transport.subscribe_in_bursts``) and handles them itself, one thread hand-off per
+sample: it decodes each (validated in full, or at level ``WORKER`` for a binding
+``from_worker``: ``core.measurements``), synchronises (:mod:`ubitrack_agent.core.timeline`),
+computes and publishes; a backlog of one input under load, where nothing holds a sample back,
+as one run (:meth:`Worker._on_run`: decoded and, where the service vectorises, computed
+together). The worker's state has one lock, held by whichever thread handles: an input's, a
+query's for a value at a given time, or the worker thread, which applies control commands
+(from zenoh's callbacks through a bounded inbox) and computes the triggers held for the other
+inputs when their time is up.
 
 Handling is total (issue 11): bad input (a sample the codec refuses, one stamped too far ahead
 of this host's clock, a control command or specification that is not a bounded JSON object of
@@ -55,9 +58,9 @@ from __future__ import annotations
 
 import argparse
 import functools
-import itertools
 import json
 import logging
+import math
 import os
 import queue
 import statistics
@@ -66,7 +69,7 @@ import threading
 import time
 import uuid
 from collections import Counter, defaultdict, deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
@@ -122,10 +125,11 @@ _CONCATENATION = Concatenation({})
 """Composes an output with the static edges of a folded concatenation (``net.spec.then_port``):
 the same service the folded component ran."""
 
-INBOX_CAPACITY = 4096
-"""Samples waiting for the worker thread; beyond this the oldest are dropped and counted."""
+INBOX_CAPACITY = 256
+"""Control commands waiting for the worker thread; beyond this the oldest are dropped and
+counted."""
 RUN_MIN = 8
-"""Samples of one input waiting in a row from which they are handled as one run
+"""Samples of one input taken together from which they are handled as one run
 (:meth:`Worker._on_run`); below it a run's numpy calls cost about what they save."""
 
 CONTROL_FIELDS = frozenset({"inputs", "outputs", "parameters", "relations", "stop"})
@@ -155,7 +159,7 @@ COUNTERS = {
     "infinity (not published)",
     "too_few_correspondences": "instants with fewer complete correspondences than the pattern "
     "needs (a feature hidden): expected, logged as a summary every SUMMARY_S",
-    "overflow": "samples and commands dropped because the inbox was full",
+    "overflow": "control commands dropped because the inbox was full",
     "rejected_commands": "control commands refused",
     "rewired": "control commands applied",
     "internal_errors": "unexpected exceptions handling network input (logged with traceback)",
@@ -204,13 +208,13 @@ class ControlCommand:
 
 
 class Inbox:
-    """A bounded queue from the inputs' threads and zenoh's callbacks (commands, queries) to the
-    worker thread that drops its oldest item when full (counted as ``overflow``; producers
-    racing past the check may each add one more). The worker takes everything waiting at once
-    (:meth:`take`): under load a backlog costs one wake-up, not one per sample. Written on
-    ``queue.SimpleQueue``, whose put and get are C calls that block without Python's lock:
-    ``threading.Event`` and ``queue.Queue`` run a condition's Python code on both threads for
-    every sample handed over (issue 12; ``docs/performance.md``, "Data path")."""
+    """A bounded queue from zenoh's callbacks (control commands) and the inputs' threads (a
+    wake-up for a trigger held) to the worker thread that drops its oldest item when full
+    (counted as ``overflow``; producers racing past the check may each add one more). The
+    worker takes everything waiting at once (:meth:`take`). Written on ``queue.SimpleQueue``,
+    whose put and get are C calls that block without Python's lock: ``threading.Event`` and
+    ``queue.Queue`` run a condition's Python code on both threads for every item handed over
+    (issue 12; ``docs/performance.md``, "Data path")."""
 
     def __init__(self, capacity: int, counters: Counter[str]) -> None:
         self._items: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
@@ -236,40 +240,6 @@ class Inbox:
         get = self._items.get_nowait
         items.extend(get() for _ in range(self._items.qsize()))  # only this thread takes
         return items
-
-
-def _run_key(item: tuple[Any, ...]) -> tuple[Any, ...]:
-    return item[:3] if item[0] == "data" else item
-
-
-def _runs(items: list[tuple[Any, ...]]) -> Iterator[tuple[Any, ...]]:
-    """``items`` in order, each row of ``("data", generation, index, payload)`` items of one
-    input as one ``("run", generation, index, [payload, ...])``."""
-    for key, group in itertools.groupby(items, _run_key):
-        if key[0] == "data":
-            yield ("run", key[1], key[2], [item[3] for item in group])
-        else:
-            yield from group
-
-
-class _Answer:
-    """A query for an output's value at a given time, handed from a publisher's thread to the
-    worker thread, which fills in the payload or the error."""
-
-    def __init__(self, port: str, timestamp_ns: int) -> None:
-        self.port, self.timestamp_ns = port, timestamp_ns
-        self.payload: bytes | None = None
-        self.error: Exception | None = None
-        self.done = threading.Event()
-
-    def wait(self) -> bytes:
-        if not self.done.wait(ANSWER_TIMEOUT_S):
-            raise TimeoutError(f"no answer within {ANSWER_TIMEOUT_S} s (the worker is busy)")
-        if self.error is not None:
-            raise self.error
-        if self.payload is None:  # an unexpected error, logged and counted by the worker
-            raise NoDataError("the worker could not answer")
-        return self.payload
 
 
 @dataclass
@@ -317,6 +287,12 @@ class Worker:
         self._pending = PendingTriggers()
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
         self._inbox = Inbox(INBOX_CAPACITY, self.counters)
+        self._lock = threading.Lock()
+        """Held while the worker's state is used: by an input's thread handling its samples,
+        a query's thread answering for a time, the worker thread (commands, held triggers)."""
+        self._wakes_at = -math.inf
+        """When the worker thread wakes next unless woken (monotonic; minus infinity while it
+        is awake: it looks at the triggers held before it waits again)."""
         self._on_sample_guarded = self._guarded(self._on_sample)
         self._on_run_guarded = self._guarded(self._on_run)
         self._handling_s = 0.0
@@ -358,7 +334,8 @@ class Worker:
         self._route_outputs(spec.relations)
         self._status = session.declare_queryable(keys.status(spec.instance))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
-        self._bind(spec.inputs)
+        with self._lock:  # an input's first samples wait until every input is bound
+            self._bind(spec.inputs)
         declare = functools.partial(
             session.liveliness().declare_token, keys.worker(spec.instance, self.incarnation)
         )
@@ -382,9 +359,11 @@ class Worker:
     # -- wiring ---------------------------------------------------------------------------
 
     def _bind(self, bindings: tuple[InputBinding, ...]) -> None:
-        """Subscribe to ``bindings``, keeping the buffers of keys already subscribed."""
+        """Subscribe to ``bindings``, keeping the buffers of keys already subscribed; under
+        ``_lock``."""
         self._generation += 1
         generation = self._generation
+        deliver = self._guarded(self._deliver)
         old = {(item.binding.key, item.binding.static): item for item in self._inputs}
         inputs = []
         for index, binding in enumerate(bindings):
@@ -398,9 +377,7 @@ class Worker:
             subscriber = subscribe_in_bursts(
                 self._session,
                 binding.key,
-                self._guarded(
-                    lambda payload, i=index: self._inbox.put(("data", generation, i, payload))
-                ),
+                functools.partial(deliver, generation, index),
             )
             composed = parse_then_port(binding.port)
             side = binding.port if composed is None else composed[2]
@@ -422,7 +399,7 @@ class Worker:
         wanted = [
             (
                 item.binding.key,
-                lambda payload, i=index: self._inbox.put(("data", generation, i, payload)),
+                lambda payload, i=index: deliver(generation, i, [payload]),
                 lambda buffer=item.buffer: len(buffer) > 0,
             )
             for index, item in enumerate(inputs)
@@ -798,20 +775,28 @@ class Worker:
     # -- values at a given time (net.time_queries) --------------------------------------------
 
     def _ask(self, port: str, timestamp_ns: int) -> bytes:
-        """Runs on a publisher's thread: the worker thread's answer for ``port`` at a time."""
-        answer = _Answer(port, timestamp_ns)
-        self._inbox.put(("at", answer))
-        return answer.wait()
-
-    def _answer(self, answer: _Answer) -> None:
+        """Runs on a publisher's thread: output ``port``'s value at a time, encoded, or a
+        typed error (``ValueError``, ``LookupError``, ``TimeoutError``: ``net.time_queries``);
+        an unexpected fault is logged and counted (``internal_errors``) and answered as
+        :class:`NoDataError`."""
+        if not self._lock.acquire(timeout=ANSWER_TIMEOUT_S):
+            raise TimeoutError(f"no answer within {ANSWER_TIMEOUT_S} s (the worker is busy)")
         try:
-            answer.payload = encode(self._value_at(answer.port, answer.timestamp_ns))
-            self.counters["time_queries"] += 1
-        except (ValueError, LookupError, TimeoutError) as exc:
-            answer.error = exc
+            payload = encode(self._value_at(port, timestamp_ns))
+        except (ValueError, LookupError, TimeoutError):
             self.counters["time_queries_refused"] += 1
+            raise
+        except Exception:
+            where = self.spec.instance
+            logs.count_problem(
+                self.counters, "internal_errors", log, "%s: internal error", where, exc_info=True
+            )
+            raise NoDataError("the worker could not answer") from None
+        else:
+            self.counters["time_queries"] += 1
         finally:
-            answer.done.set()
+            self._lock.release()
+        return payload
 
     def _value_at(self, port: str, t: int) -> Measurement:
         """Output ``port`` at ``t``: an asynchronous service's own answer (its filter's
@@ -919,8 +904,29 @@ class Worker:
     def stop(self) -> None:
         self._stop.set()
 
+    def _deliver(self, generation: int, index: int, payloads: list[bytes]) -> None:
+        """Handle the samples of input ``index`` of binding ``generation`` taken together, on
+        the thread that took them (an input's, or the one fetching a static edge's value):
+        at least :data:`RUN_MIN` as one run where it may (:meth:`_takes_runs`), else one by
+        one, each followed by the triggers due; then wake the worker thread if a trigger is
+        held that is due before it would wake. Nothing after :meth:`stop`."""
+        with self._lock:
+            if self._stop.is_set():
+                return
+            if len(payloads) >= RUN_MIN and self._takes_runs(generation, index):
+                self._handle_run(generation, index, payloads)
+            else:
+                for payload in payloads:
+                    if self._stop.is_set():
+                        return
+                    self._handle_sample(generation, index, payload)
+            deadline = self._pending.next_deadline()
+            if deadline is not None and deadline < self._wakes_at:
+                self._wakes_at = deadline
+                self._inbox.put(("wake",))
+
     def _handle_sample(self, generation: int, index: int, payload: bytes) -> None:
-        """A sample and the triggers due after it, timed (``_handling_s``)."""
+        """A sample and the triggers due after it, timed (``_handling_s``); under ``_lock``."""
         start = time.perf_counter()
         self._on_sample_guarded(generation, index, payload)
         if self._pending.deadlines:
@@ -928,38 +934,34 @@ class Worker:
         self._handling_s += HANDLING_GAIN * (time.perf_counter() - start - self._handling_s)
 
     def _handle_run(self, generation: int, index: int, payloads: list[bytes]) -> None:
-        """A run of samples (:meth:`_on_run`), timed per sample (``_handling_s``)."""
+        """A run of samples (:meth:`_on_run`), timed per sample (``_handling_s``); under
+        ``_lock``."""
         start = time.perf_counter()
         self._on_run_guarded(generation, index, payloads)
         each = (time.perf_counter() - start) / len(payloads)
         self._handling_s += HANDLING_GAIN * (each - self._handling_s)
 
     def step(self, longest_s: float = 0.1) -> None:
-        """Handle every inbox item waiting (waiting at most ``longest_s`` or until the next
-        trigger is due for one), each followed by the triggers due; at least
-        :data:`RUN_MIN` samples of one input in a row as one run where it may
-        (:meth:`_takes_runs`); never raises (:meth:`_guarded`)."""
-        deadline = self._pending.next_deadline()
-        timeout = longest_s if deadline is None else max(0.0, deadline - time.monotonic())
-        for item in _runs(self._inbox.take(min(longest_s, timeout))):
-            if self._stop.is_set():
-                return
-            if item[0] == "run":
-                _, generation, index, payloads = item
-                if len(payloads) >= RUN_MIN and self._takes_runs(generation, index):
-                    self._handle_run(generation, index, payloads)
-                else:
-                    for payload in payloads:
-                        if self._stop.is_set():
-                            return
-                        self._handle_sample(generation, index, payload)
-            elif item[0] == "at":
-                self._guarded(self._answer)(item[1])
-            else:
-                self._guarded(self._apply_control)(item[1])
-        if self._pending.deadlines:
-            self._guarded(self._process_due_triggers)()
-        self._summarise(time.monotonic())
+        """The worker thread's turn: wait at most ``longest_s``, or until the next trigger
+        held is due, for control commands (or a wake-up); apply them in order, then compute
+        the triggers due; never raises (:meth:`_guarded`). The inputs' samples are handled
+        on their own threads (:meth:`_deliver`)."""
+        with self._lock:
+            deadline = self._pending.next_deadline()
+            now = time.monotonic()
+            timeout = longest_s if deadline is None else min(longest_s, max(0.0, deadline - now))
+            self._wakes_at = now + timeout
+        items = self._inbox.take(timeout)
+        with self._lock:
+            self._wakes_at = -math.inf  # awake: an input's thread need not wake it
+            for item in items:
+                if self._stop.is_set():
+                    return
+                if item[0] == "control":
+                    self._guarded(self._apply_control)(item[1])
+            if self._pending.deadlines:
+                self._guarded(self._process_due_triggers)()
+            self._summarise(time.monotonic())
 
     def _summarise(self, now: float) -> None:
         """Every ``SUMMARY_S``, one warning for the expected conditions counted meanwhile
@@ -979,12 +981,16 @@ class Worker:
         self._summarised, self._summary_due = counted, now + SUMMARY_S
 
     def run(self) -> None:
-        """Process the inbox until :meth:`stop`; then undeclare everything."""
+        """Take commands and compute held triggers (:meth:`step`) until :meth:`stop`; then
+        undeclare everything."""
         self._status_thread.start()
         try:
             while not self._stop.is_set():
                 self.step()
         finally:
+            self._stop.set()
+            with self._lock:  # no input's thread is handling a sample; none will after this
+                pass
             self._token.undeclare()
             for item in self._inputs:
                 item.subscriber.undeclare()

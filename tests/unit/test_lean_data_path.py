@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from types import SimpleNamespace
 
 import msgpack
 import numpy as np
@@ -312,18 +313,66 @@ def worker_with_static(session: FakeSession, t: int) -> Worker:
     return worker
 
 
-def test_a_callback_only_hands_the_sample_over_and_the_worker_takes_them_in_order():
-    """Zenoh's callback only appends to the inbox (zenoh's receiving thread is never held up
-    by a computation); the worker thread handles the backlog at once, in order."""
-    session = FakeSession()
+class ThreadRecordingSession(FakeSession):
+    """Records the name of the thread each put comes from."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.put_threads: set[str] = set()
+
+    def declare_publisher(self, key, encoding=None):
+        publisher = super().declare_publisher(key, encoding)
+
+        def put(data: bytes) -> None:
+            self.put_threads.add(threading.current_thread().name)
+            publisher.put(data)
+
+        return SimpleNamespace(put=put, undeclare=publisher.undeclare)
+
+
+def test_an_input_is_handled_on_its_own_thread_in_order():
+    """Zenoh's thread only queues a sample in the input's channel; the input's own thread
+    takes the samples waiting and handles them itself (one thread hand-off), in order."""
+    session = ThreadRecordingSession()
     worker = worker_with_static(session, 1_000)
-    for t in (2_000, 3_000, 4_000):
-        session.deliver(KEYS.data("ART/HT"), pose(t))
-    assert outputs(session) == []
-    worker.step(longest_s=0.0)
+    session.deliver_burst(KEYS.data("ART/HT"), [pose(t) for t in (2_000, 3_000, 4_000)])
     assert [p.timestamp_ns for p in outputs(session)] == [2_000, 3_000, 4_000]
+    assert session.put_threads == {f"input {KEYS.data('ART/HT')}"}
     assert worker.status()["handling_us"] > 0
     worker.stop()
+
+
+def test_a_trigger_held_for_a_lagging_input_is_computed_when_its_wait_is_over():
+    """A trigger that waits for another input (``services.triggers``) is computed when its
+    wait is over though no sample follows it: the input's thread that held it wakes the
+    worker thread, which was waiting for commands far longer."""
+    inputs = (
+        InputBinding("AB", KEYS.data("ART/WT")),
+        InputBinding("BC", KEYS.data("ART/HT"), trigger=True),
+    )
+    session = FakeSession()
+    worker = Worker(dataclasses.replace(SPEC, inputs=inputs, wait_ms=50.0), session, KEYS)
+
+    def worker_thread() -> None:
+        while not worker.released:
+            worker.step(longest_s=30.0)
+
+    thread = threading.Thread(target=worker_thread)
+    thread.start()
+    try:
+        t0 = time.time_ns() - 10**9
+        for i in range(3):  # one every 10 ms: the trigger below waits 15 ms for the next
+            session.deliver(KEYS.data("ART/WT"), pose(t0 + i * 10_000_000, 0.5))
+        session.deliver(KEYS.data("ART/HT"), pose(t0 + 25_000_000))
+        assert worker.counters["published"] + worker.counters["dropped"] == 0  # held
+        deadline = time.monotonic() + 5.0
+        while worker.counters["published"] + worker.counters["dropped"] == 0:
+            assert time.monotonic() < deadline, "the held trigger was not computed"
+            time.sleep(0.005)
+    finally:
+        session.deliver(KEYS.control("concat1"), b'{"stop": true}')
+        thread.join(timeout=5.0)
+    assert not thread.is_alive()
 
 
 def test_a_worker_output_is_decoded_at_the_worker_level_by_its_consumer():
@@ -449,7 +498,7 @@ def _backlog() -> list[bytes]:
 
 
 def test_a_backlog_is_handled_as_one_run_as_it_would_be_sample_by_sample():
-    """Samples of the one dynamic input waiting together are handled as one run
+    """Samples of the one dynamic input taken together are handled as one run
     (``Worker._on_run``: decoded together, composed together): the same outputs to
     round-off and the same counts as handling them one at a time."""
     payloads = _backlog()
@@ -458,12 +507,11 @@ def test_a_backlog_is_handled_as_one_run_as_it_would_be_sample_by_sample():
         session = FakeSession()
         worker = Worker(SPEC, session, KEYS)
         session.deliver(KEYS.data("ART/WT"), encode(_error_pose(1_000, 99)))
-        worker.step(longest_s=0.0)
-        for payload in payloads:
-            session.deliver(KEYS.data("ART/HT"), payload)
-            if not together:
-                worker.step(longest_s=0.0)
-        worker.step(longest_s=0.0)
+        if together:
+            session.deliver_burst(KEYS.data("ART/HT"), payloads)
+        else:
+            for payload in payloads:
+                session.deliver(KEYS.data("ART/HT"), payload)
         worker.stop()
         runs.append((worker.counters, outputs(session)))
     (one_by_one, alone), (in_a_run, run) = runs
@@ -485,9 +533,8 @@ def test_a_short_backlog_or_one_of_two_dynamic_inputs_is_handled_sample_by_sampl
     session = FakeSession()
     worker = Worker(SPEC, session, KEYS)
     session.deliver(KEYS.data("ART/WT"), encode(_error_pose(1_000, 99)))
-    for i in range(RUN_MIN - 1):
-        session.deliver(KEYS.data("ART/HT"), encode(_error_pose(2_000 + i, i)))
-    worker.step(longest_s=0.0)
+    short = [encode(_error_pose(2_000 + i, i)) for i in range(RUN_MIN - 1)]
+    session.deliver_burst(KEYS.data("ART/HT"), short)
     assert (worker.counters["in_runs"], worker.counters["published"]) == (0, RUN_MIN - 1)
     worker.stop()
     both_dynamic = (
@@ -497,8 +544,7 @@ def test_a_short_backlog_or_one_of_two_dynamic_inputs_is_handled_sample_by_sampl
     session = FakeSession()
     worker = Worker(dataclasses.replace(SPEC, inputs=both_dynamic), session, KEYS)
     session.deliver(KEYS.data("ART/HT"), encode(_error_pose(1_000, 99)))
-    for i in range(2 * RUN_MIN):
-        session.deliver(KEYS.data("ART/WT"), encode(_error_pose(1_000 + 10 * i, i)))
-    worker.step(longest_s=0.0)
+    triggers = [encode(_error_pose(1_000 + 10 * i, i)) for i in range(2 * RUN_MIN)]
+    session.deliver_burst(KEYS.data("ART/WT"), triggers)
     assert worker.counters["in_runs"] == 0 and worker.counters["received"] == 2 * RUN_MIN + 1
     worker.stop()

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import json
 import logging
-import queue
 import threading
 import time
+from collections import deque
 from types import SimpleNamespace
 
 import msgpack
@@ -35,55 +35,57 @@ class FakeQueryable(list):
 
 class FakeChannel:
     """A subscriber with zenoh's ``FifoChannel`` handler, as ``net.transport``'s
-    ``subscribe_in_bursts`` declares one. :meth:`push` returns once the thread draining it
-    has handed the sample on (it asks for the next one after each), so a test that delivers
-    a sample and then steps the worker finds it in the inbox."""
+    ``subscribe_in_bursts`` declares one. :meth:`push_burst` puts its samples in at once, so the
+    thread draining it takes them as one burst, and returns once that thread has handled them
+    (it waits for the next sample then): a test that delivers a sample finds it handled."""
 
     def __init__(self, on_undeclare) -> None:
-        self._items: queue.SimpleQueue = queue.SimpleQueue()
-        self._handing: threading.Event | None = None
+        self._changed = threading.Condition()
+        self._items: deque = deque()
+        self._closed = False
+        self._taken: list[threading.Event] = []
         self._on_undeclare = on_undeclare
 
     @property
     def handler(self) -> FakeChannel:
         return self
 
-    def push(self, sample, wait: bool = True) -> None:
-        handed_on = threading.Event()
-        self._items.put((sample, handed_on))
-        if wait and not handed_on.wait(5.0):
-            raise TimeoutError("the subscription's thread did not take the sample")
+    def push_burst(self, samples, wait: bool = True) -> None:
+        handled = [threading.Event() for _ in samples]
+        with self._changed:
+            self._items.extend(zip(samples, handled, strict=True))
+            self._changed.notify()
+        if wait and not all(event.wait(5.0) for event in handled):
+            raise TimeoutError("the subscription's thread did not handle the samples")
 
     def __iter__(self):
         return self
 
     def __next__(self):
-        self._handed_on()
-        sample, self._handing = self._items.get()
-        if sample is None:
-            raise StopIteration
+        for event in self._taken:  # the burst taken before is handled
+            event.set()
+        self._taken = []
+        with self._changed:
+            self._changed.wait_for(lambda: self._items or self._closed)
+            if not self._items:
+                raise StopIteration
+            sample, handled = self._items.popleft()
+        self._taken.append(handled)
         return sample
 
     def try_recv(self):
-        self._handed_on()
-        try:
-            sample, handing = self._items.get_nowait()
-        except queue.Empty:
-            return None
-        if sample is None:
-            self._items.put((None, handing))  # closed: the next wait ends the iteration
-            return None
-        self._handing = handing
+        with self._changed:
+            if not self._items:
+                return None
+            sample, handled = self._items.popleft()
+        self._taken.append(handled)
         return sample
-
-    def _handed_on(self) -> None:
-        if self._handing is not None:
-            self._handing.set()
-            self._handing = None
 
     def undeclare(self) -> None:
         self._on_undeclare()
-        self._items.put((None, threading.Event()))
+        with self._changed:
+            self._closed = True
+            self._changed.notify()
 
 
 class FakeSession:
@@ -124,13 +126,21 @@ class FakeSession:
 
     def deliver(self, key: str, payload: bytes, wait: bool = True) -> None:
         """What zenoh does when ``payload`` arrives on ``key``; for an input of a worker
-        (``subscribe_in_bursts``), once its thread has put it in the inbox, unless not
+        (``subscribe_in_bursts``), returning once its thread has handled it, unless not
         ``wait``."""
-        sample = SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
         if key in self.channels:
-            self.channels[key].push(sample, wait)
+            self.deliver_burst(key, [payload], wait)
         else:
-            self.callbacks[key](sample)
+            self.callbacks[key](_sample(payload))
+
+    def deliver_burst(self, key: str, payloads: list[bytes], wait: bool = True) -> None:
+        """``payloads`` arriving on the input ``key`` together, taken by its thread as one
+        burst; returns once it has handled them, unless not ``wait``."""
+        self.channels[key].push_burst([_sample(payload) for payload in payloads], wait)
+
+
+def _sample(payload: bytes) -> SimpleNamespace:
+    return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
 
 
 SPEC = ComponentSpec(

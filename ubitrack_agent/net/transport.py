@@ -34,18 +34,19 @@ and an upstream worker started at the same moment computes its static result a l
 
 
 INPUT_CHANNEL_CAPACITY = 4096
-"""Samples zenoh queues for :func:`subscribe_in_bursts` before it holds the sender back."""
+"""Samples zenoh queues for :func:`subscribe_in_bursts` before it holds the sender back; also
+the most one burst hands on."""
 
 
-def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[bytes], None]) -> Any:
-    """Subscribe to ``key`` and pass each sample's payload to ``deliver``, on a thread of its
-    own, all samples waiting at once; the subscriber is returned, and the thread ends when it
-    is undeclared. Zenoh queues the samples in its own channel (``FifoChannel``, without
-    Python's lock; when it is full, zenoh holds the sender back), and this thread takes
-    Python's lock once for each burst, where a callback takes it for every sample: under
-    load a consumer on another thread then finds a backlog to take as one run instead of
-    trading the lock with the callback sample by sample (``services.worker``,
-    ``docs/performance.md``, "Data path"). ``deliver`` must not raise."""
+def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[list[bytes]], None]) -> Any:
+    """Subscribe to ``key`` and pass the payloads of the samples waiting, oldest first, to
+    ``deliver`` as one burst, on a thread of its own; the subscriber is returned, and the
+    thread ends when it is undeclared. Zenoh queues the samples in its own channel
+    (``FifoChannel``, without Python's lock; when it is full, zenoh holds the sender back), so
+    its receiving thread, which serves every subscription of the session, never runs Python,
+    and the thread wakes once for a burst: a consumer that handles the burst on this thread
+    takes each sample after one thread hand-off, and a backlog at once
+    (``services.worker``, ``docs/performance.md``, "Data path"). ``deliver`` must not raise."""
     subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(INPUT_CHANNEL_CAPACITY))
     # The channel itself, not the subscriber: a call on the subscriber while another thread
     # undeclares it fails ("Already mutably borrowed", pyo3's check of the object's use).
@@ -54,9 +55,13 @@ def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[bytes], None]
     def drain() -> None:
         try:
             for sample in channel:  # blocks without Python's lock; ends when it is closed
-                deliver(sample.payload.to_bytes())
-                while (more := channel.try_recv()) is not None:
-                    deliver(more.payload.to_bytes())
+                burst = [sample.payload.to_bytes()]
+                while len(burst) < INPUT_CHANNEL_CAPACITY:
+                    more = channel.try_recv()
+                    if more is None:
+                        break
+                    burst.append(more.payload.to_bytes())
+                deliver(burst)
         except zenoh.ZError:  # closed between two samples: "channel is empty and closed"
             pass
 
