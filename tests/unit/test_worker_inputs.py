@@ -320,7 +320,7 @@ def error_pose(t: int, x: float = 1.0, rotation=IDENTITY) -> bytes:
 
 def test_asynchronous_fusion_counts_every_sample_and_answers_a_time():
     """Each estimate publishes at once or is counted (gated, late, dropped_stale, failed);
-    a query for a time is answered by the filter through the worker thread."""
+    a query for a time is answered by the filter on the query's own thread."""
     session = FakeSession()
     w = Worker(FUSION, session, KEYS)
     now = time.time_ns() - 10**9
@@ -343,13 +343,55 @@ def test_asynchronous_fusion_counts_every_sample_and_answers_a_time():
         reply=lambda key, payload, encoding: replies.append(payload),
         reply_err=lambda payload: replies.append(b"error " + payload),
     )
-    asking = threading.Thread(target=publisher._reply, args=(query,))
-    asking.start()
-    while asking.is_alive():
-        w.step(longest_s=0.01)
+    publisher._reply(query)
     (reply,) = replies
     assert decode(reply).timestamp_ns == now + 3 * 10**7
     assert counters["time_queries"] == 1
+    w.stop()
+
+
+def _query_at(publisher, t: int) -> list[bytes]:
+    """What ``publisher`` (a ``LatestValuePublisher``) replies to a query for time ``t``."""
+    replies: list[bytes] = []
+    query = SimpleNamespace(
+        parameters={"t": str(t)},
+        reply=lambda key, payload, encoding: replies.append(payload),
+        reply_err=lambda payload: replies.append(b"error " + payload),
+    )
+    publisher._reply(query)
+    return replies
+
+
+def test_a_query_for_a_time_while_the_worker_is_busy_is_answered_with_a_time_out():
+    """A query waits for the worker's lock at most ``ANSWER_TIMEOUT_S`` (an input's thread
+    holds it through a long computation), then is answered with a time-out, never left
+    hanging; the next query, once the worker is free, is answered."""
+    session = FakeSession()
+    w = Worker(FUSION, session, KEYS)
+    now = time.time_ns() - 10**9
+    feed(w, session, KEYS.data("T0/AB"), error_pose(now))
+    publisher = w._publishers[KEYS.data("fuse/fused")]
+    with w._lock:  # what an input's thread does while it computes
+        (reply,) = _query_at(publisher, now)
+    assert reply.startswith(b"error ") and b"timeout" in reply.lower()
+    (reply,) = _query_at(publisher, now)
+    assert decode(reply).timestamp_ns == now
+    assert (w.counters["time_queries"], w.counters["internal_errors"]) == (1, 0)
+    w.stop()
+
+
+def test_an_unexpected_fault_answering_a_time_is_counted_and_answered(monkeypatch):
+    """A bug in the answer's computation is logged and counted (``internal_errors``) and the
+    querier gets a typed error at once; the worker's lock is released."""
+    session = FakeSession()
+    w = Worker(FUSION, session, KEYS)
+    now = time.time_ns() - 10**9
+    feed(w, session, KEYS.data("T0/AB"), error_pose(now))
+    monkeypatch.setattr(w, "_value_at", lambda port, t: 1 / 0)
+    (reply,) = _query_at(w._publishers[KEYS.data("fuse/fused")], now)
+    assert reply.startswith(b"error ") and w.counters["internal_errors"] == 1
+    assert w._lock.acquire(blocking=False)
+    w._lock.release()
     w.stop()
 
 
