@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from ubitrack_agent import __version__
@@ -56,9 +57,16 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser(command).parse_args(arguments)
     logs.configure(args.log_level)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # here, where a closed pipe is caught, not at the interpreter's exit
+        return code
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # the reader went away (``ubitrack plan ... | head``)
+        # What Python's documentation advises ("Note on SIGPIPE"): no further write to the
+        # closed pipe, so the interpreter's flush at exit raises nothing either.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # a shell's code for a command ended by SIGPIPE
 
 
 if __name__ == "__main__":
