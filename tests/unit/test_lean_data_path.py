@@ -1,10 +1,12 @@
 """The lean data path of issue 12: validation levels, results taken in one pass, the Cholesky
 test for positive semi-definite covariances, the cached adjoint and scalar quaternion paths,
-the inbox drained in one go, and callbacks that only hand samples over."""
+the inbox drained in one go, each input's samples handled on its own thread in bursts and
+runs, and the races of the worker's lock."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import threading
 import time
 from types import SimpleNamespace
@@ -17,7 +19,15 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from services.worker import RUN_MIN, Inbox, Worker
-from tests.unit.test_worker_inputs import IDENTITY, KEYS, SPEC, FakeSession, outputs, pose
+from tests.unit.test_worker_inputs import (
+    IDENTITY,
+    KEYS,
+    SPEC,
+    FakeSession,
+    outputs,
+    pose,
+    zenoh_sample,
+)
 from ubitrack_agent.core import (
     ErrorPose,
     MeasurementError,
@@ -547,4 +557,60 @@ def test_a_short_backlog_or_one_of_two_dynamic_inputs_is_handled_sample_by_sampl
     triggers = [encode(_error_pose(1_000 + 10 * i, i)) for i in range(2 * RUN_MIN)]
     session.deliver_burst(KEYS.data("ART/WT"), triggers)
     assert worker.counters["in_runs"] == 0 and worker.counters["received"] == 2 * RUN_MIN + 1
+    worker.stop()
+
+
+FATES = (
+    "rejected",
+    "rejected_future",
+    "rejected_clock",
+    "dropped_stale",
+    "superseded",
+    "buffered",
+    "stale_triggers",
+    "dropped",
+    "published",
+)
+"""Where each sample a concatenation worker receives ends (``services.worker.COUNTERS``)."""
+
+
+def test_rewires_while_an_input_thread_handles_bursts_lose_no_count_and_raise_nothing():
+    """Races of the worker's lock: rewires (the same keys bound again, each a new subscription)
+    applied by the worker thread while the input's thread handles bursts of samples. Every
+    sample received ends in exactly one counter, nothing raises, and the worker publishes
+    again after the last rewire."""
+    session = FakeSession()
+    worker = worker_with_static(session, 1_000)
+    stop = threading.Event()
+    sent = [0]
+
+    def flood() -> None:
+        t = 2_000
+        while not stop.is_set():
+            channel = session.channels.get(KEYS.data("ART/HT"))
+            if channel is not None:  # between an undeclare and the new subscription: none
+                burst = [pose(t + i) for i in range(1 + sent[0] % 20)]
+                channel.push_burst([zenoh_sample(p) for p in burst], wait=False)
+                sent[0] += len(burst)
+                t += len(burst)
+            time.sleep(0.0005)
+
+    flooding = threading.Thread(target=flood)
+    flooding.start()
+    try:
+        rewire = json.dumps({"inputs": [b.as_dict() for b in SPEC.inputs]}).encode()
+        for _ in range(30):
+            session.deliver(KEYS.control("concat1"), rewire)
+            worker.step(longest_s=0.0)
+            time.sleep(0.002)
+    finally:
+        stop.set()
+        flooding.join(timeout=5.0)
+    published = worker.counters["published"]
+    session.deliver(KEYS.data("ART/HT"), pose(10**9))
+    counters = worker.counters
+    assert counters["rewired"] == 30 and counters["internal_errors"] == 0
+    assert counters["published"] > published  # the last subscription is handled
+    assert counters["superseded"] + counters["in_runs"] > 0  # the race was run
+    assert counters["received"] == sum(counters[fate] for fate in FATES)
     worker.stop()

@@ -131,15 +131,15 @@ class FakeSession:
         if key in self.channels:
             self.deliver_burst(key, [payload], wait)
         else:
-            self.callbacks[key](_sample(payload))
+            self.callbacks[key](zenoh_sample(payload))
 
     def deliver_burst(self, key: str, payloads: list[bytes], wait: bool = True) -> None:
         """``payloads`` arriving on the input ``key`` together, taken by its thread as one
         burst; returns once it has handled them, unless not ``wait``."""
-        self.channels[key].push_burst([_sample(payload) for payload in payloads], wait)
+        self.channels[key].push_burst([zenoh_sample(payload) for payload in payloads], wait)
 
 
-def _sample(payload: bytes) -> SimpleNamespace:
+def zenoh_sample(payload: bytes) -> SimpleNamespace:
     return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
 
 
