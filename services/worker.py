@@ -920,10 +920,11 @@ class Worker:
                     if self._stop.is_set():
                         return
                     self._handle_sample(generation, index, payload)
-            deadline = self._pending.next_deadline()
-            if deadline is not None and deadline < self._wakes_at:
-                self._wakes_at = deadline
-                self._inbox.put(("wake",))
+            if self._pending.deadlines:  # a dictionary's truth: a method call costs the hop
+                deadline = self._pending.next_deadline()
+                if deadline is not None and deadline < self._wakes_at:
+                    self._wakes_at = deadline
+                    self._inbox.put(("wake",))
 
     def _handle_sample(self, generation: int, index: int, payload: bytes) -> None:
         """A sample and the triggers due after it, timed (``_handling_s``); under ``_lock``."""
