@@ -11,6 +11,8 @@ counters on ``<root>/status/<instance>`` and, last, declares the liveliness toke
 * ``{"inputs": [<bindings>]}`` rewires: bindings whose key is unchanged keep their history
   (moved by the change of their ``clock_offset_ns``, if any);
 * ``{"parameters": {...}}`` rebuilds the service with new parameters;
+* the bindings or parameters the worker already has change nothing (an agent taking over
+  sends each worker its whole wiring: a filter is not reset, no subscription renewed);
 * ``{"relations": {"<output port>": ["<relation key>", ...]}}`` also publishes an output on the
   stable relation keys of the applications it serves (replacing the previous ones);
 * ``{"outputs": {"<output port>": "<data key>"}}`` publishes the outputs on other data keys
@@ -489,13 +491,13 @@ class Worker:
             self.released = True
             self.stop()
             return
-        if command.service is not None:
+        if command.service is not None and command.parameters != self.spec.parameters:
             self.spec = replace(self.spec, parameters=command.parameters or {})
             self._service = command.service
             self._asynchronous = self._service.asynchronous()
             self._reports_progress = self._new_progress()
             self._accumulator = self._new_accumulator()
-        if command.inputs is not None:
+        if command.inputs is not None and command.inputs != self.spec.inputs:
             self.spec = replace(self.spec, inputs=command.inputs)
             self._bind(command.inputs)
         if command.outputs is not None:

@@ -575,7 +575,7 @@ FATES = (
 
 
 def test_rewires_while_an_input_thread_handles_bursts_lose_no_count_and_raise_nothing():
-    """Races of the worker's lock: rewires (the same keys bound again, each a new subscription)
+    """Races of the worker's lock: rewires (the same keys bound anew, each a new subscription)
     applied by the worker thread while the input's thread handles bursts of samples. Every
     sample received ends in exactly one counter, nothing raises, and the worker publishes
     again after the last rewire."""
@@ -598,8 +598,9 @@ def test_rewires_while_an_input_thread_handles_bursts_lose_no_count_and_raise_no
     flooding = threading.Thread(target=flood)
     flooding.start()
     try:
-        rewire = json.dumps({"inputs": [b.as_dict() for b in SPEC.inputs]}).encode()
-        for _ in range(30):
+        for i in range(30):  # the dynamic input's binding changes, its key stays
+            inputs = (SPEC.inputs[0], dataclasses.replace(SPEC.inputs[1], from_worker=i % 2 == 0))
+            rewire = json.dumps({"inputs": [b.as_dict() for b in inputs]}).encode()
             session.deliver(KEYS.control("concat1"), rewire)
             worker.step(longest_s=0.0)
             time.sleep(0.002)

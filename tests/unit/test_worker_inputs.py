@@ -350,6 +350,32 @@ def test_asynchronous_fusion_counts_every_sample_and_answers_a_time():
     w.stop()
 
 
+def test_the_wiring_a_worker_already_has_resets_no_filter_and_renews_no_subscription():
+    """An agent taking over sends each worker its whole wiring (``agent.runtime._adopt``).
+    Resent to a running fusion, it changed nothing: before, the filter was rebuilt, and the
+    next estimate, older than the last output, reached the application out of time order
+    (the rare ``out_of_order`` of ``tests/integration/test_standby.py``). New parameters still
+    rebuild it."""
+    session = FakeSession()
+    w = Worker(FUSION, session, KEYS)
+    now = time.time_ns() - 10**9
+    feed(w, session, KEYS.data("T0/AB"), error_pose(now))
+    feed(w, session, KEYS.data("T1/AB"), error_pose(now + 10**7))
+    service, generation, channel = w._service, w._generation, session.channels[KEYS.data("T0/AB")]
+    wiring = {k: FUSION.as_dict()[k] for k in ("inputs", "relations", "parameters")}
+    feed(w, session, KEYS.control("fuse"), json.dumps(wiring).encode())
+    assert w.counters["rewired"] == 1
+    assert (w._service, w._generation) == (service, generation)
+    assert session.channels[KEYS.data("T0/AB")] is channel
+    feed(w, session, KEYS.data("T0/AB"), error_pose(now + 5 * 10**6))  # late: re-filtered
+    published = [decode(d) for k, d in session.puts if k == KEYS.data("fuse/fused")]
+    assert [p.timestamp_ns for p in published] == [now, now + 10**7]  # nothing out of order
+    assert w.counters["late"] == 1
+    feed(w, session, KEYS.control("fuse"), json.dumps({"parameters": {"gate": 20.0}}).encode())
+    assert w.counters["rewired"] == 2 and w._service is not service
+    w.stop()
+
+
 def _query_at(publisher, t: int) -> list[bytes]:
     """What ``publisher`` (a ``LatestValuePublisher``) replies to a query for time ``t``."""
     replies: list[bytes] = []
