@@ -181,9 +181,10 @@ For an asynchronous service every sample is a trigger and ends ``gated``, ``late
 ``failed`` or publishes."""
 
 ANSWER_TIMEOUT_S = 0.15
-"""Longest a query for the value at a given time waits for the worker thread's answer."""
+"""Longest a query for the value at a given time waits for the worker's lock (a thread
+handling samples holds it), then it is answered with a time-out."""
 UPSTREAM_TIMEOUT_S = 0.1
-"""Longest the worker thread waits for an input's producer to answer such a query."""
+"""Longest the thread answering such a query waits for an input's producer to answer it."""
 NO_MODEL_S = 1.0
 """How long an input whose producer answered ``no_model`` (a measured edge) or nothing is not
 asked again: a renderer asking every frame must not cost the flow a round trip (or a
