@@ -72,10 +72,10 @@ import time
 import uuid
 from collections import Counter, defaultdict, deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
-from services.components.basic import Concatenation
+from services.components.basic import Concatenation, Inversion
 from services.expansion import BatchProgress, TimeAccumulator
 from services.parent import Parent
 from services.registry import Pushed, Service, lookup
@@ -85,6 +85,7 @@ from services.spec import (
     check_parameters,
     check_relations,
     check_spec,
+    inverted_types,
 )
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
@@ -108,6 +109,7 @@ from ubitrack_agent.net.spec import (
     ComponentSpec,
     InputBinding,
     SpecError,
+    parse_before_port,
     parse_bindings,
     parse_outputs,
     parse_relations,
@@ -124,8 +126,11 @@ from ubitrack_agent.net.transport import (
 log = logging.getLogger("ubitrack.worker")
 
 _CONCATENATION = Concatenation({})
-"""Composes an output with the static edges of a folded concatenation (``net.spec.then_port``):
-the same service the folded component ran."""
+"""Composes an output with the static edges of a folded concatenation (``net.spec.then_port``),
+and an inverted input with those of the folded inversion (``net.spec.before_port``): the same
+service the folded component ran."""
+_INVERSION = Inversion({})
+"""Inverts an ``inverted`` input's samples: the service the folded inversion ran."""
 
 INBOX_CAPACITY = 256
 """Control commands waiting for the worker thread; beyond this the oldest are dropped and
@@ -153,12 +158,13 @@ COUNTERS = {
     "buffered": "samples of inputs that do not trigger, kept for the next trigger",
     "stale_triggers": "trigger samples at an instant pending, computed, or before the last",
     "dropped": "triggers dropped: an input had no value at the trigger's time, or a static edge "
-    "the output is composed with had none yet (net.spec.then_port)",
+    "the output or an inverted input is composed with had none yet (net.spec.then_port, "
+    "before_port)",
     "not_distinct": "time expansion: correspondence values too close to the last kept",
     "accumulating": "time expansion: fewer correspondences kept than the pattern needs",
     "no_output": "computations that published nothing (an estimate not yet ready)",
     "failed": "computations that failed (degenerate input), or whose result holds NaN or "
-    "infinity (not published)",
+    "infinity (not published), and inverted inputs' samples that could not be composed",
     "too_few_correspondences": "instants with fewer complete correspondences than the pattern "
     "needs (a feature hidden): expected, logged as a summary every SUMMARY_S",
     "overflow": "control commands dropped because the inbox was full",
@@ -257,6 +263,32 @@ class _Input:
     composed: tuple[str, int, str] | None
     """For a static edge an output is composed with (``net.spec.then_port``, no port of the
     service): the output, its turn and the concatenation port it takes."""
+    before: tuple[int, int, str] | None = None
+    """For a static edge an inverted input's samples are composed with (``net.spec.before_port``,
+    no port of the service): the input's index, its turn and the concatenation port it takes."""
+    edges: list[tuple[str, _Input]] = field(default_factory=list)
+    """For an ``inverted`` input: the static edges its samples are composed with after the
+    inversion, in turn, each with the concatenation port it takes."""
+
+    @property
+    def of_service(self) -> bool:
+        """Whether the input is one of the service's ports (not an edge composed with)."""
+        return self.composed is None and self.before is None
+
+
+def _histories(bindings: list[InputBinding] | tuple[InputBinding, ...]) -> list[tuple]:
+    """What each of ``bindings``' samples are, as far as its buffer goes: its key, whether it is
+    static and, for an inverted input, the edges composed with it after the inversion. A rewire
+    keeps the buffer of an input whose history is unchanged (``Worker._bind``)."""
+    edges: dict[int, list[tuple[int, str, str]]] = {}
+    for binding in bindings:
+        if (before := parse_before_port(binding.port)) is not None:
+            target, order, side = before
+            edges.setdefault(target, []).append((order, side, binding.key))
+    return [
+        (binding.key, binding.static, binding.inverted, tuple(sorted(edges.get(index, []))))
+        for index, binding in enumerate(bindings)
+    ]
 
 
 class Worker:
@@ -362,15 +394,17 @@ class Worker:
     # -- wiring ---------------------------------------------------------------------------
 
     def _bind(self, bindings: tuple[InputBinding, ...]) -> None:
-        """Subscribe to ``bindings``, keeping the buffers of keys already subscribed; under
-        ``_lock``."""
+        """Subscribe to ``bindings``, keeping the buffers of inputs whose samples stay the
+        same (:func:`_histories`); under ``_lock``."""
         self._generation += 1
         generation = self._generation
         deliver = self._guarded(self._deliver)
-        old = {(item.binding.key, item.binding.static): item for item in self._inputs}
+        old_bindings = [item.binding for item in self._inputs]
+        old = dict(zip(_histories(old_bindings), self._inputs, strict=True))
         inputs = []
-        for index, binding in enumerate(bindings):
-            kept = old.pop((binding.key, binding.static), None)
+        histories = _histories(bindings)
+        for index, (binding, history) in enumerate(zip(bindings, histories, strict=True)):
+            kept = old.pop(history, None)
             if kept is None:
                 buffer = SampleBuffer(binding.static)
             else:
@@ -383,14 +417,20 @@ class Worker:
                 functools.partial(deliver, generation, index),
             )
             composed = parse_then_port(binding.port)
-            side = binding.port if composed is None else composed[2]
-            port = (self._service_class if composed is None else Concatenation).INPUTS[side]
+            before = parse_before_port(binding.port)
+            edge = composed or before
+            if edge is not None:  # a static edge composed with: a concatenation's port
+                expected = Concatenation.INPUTS[edge[2]].types
+            else:
+                expected = self._service_class.INPUTS[binding.port].types
+                if binding.inverted:
+                    expected = inverted_types(expected)
             level = WORKER if binding.from_worker else FULL
-            inputs.append(_Input(binding, buffer, subscriber, port.types, level, composed))
+            inputs.append(_Input(binding, buffer, subscriber, expected, level, composed, before))
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
-        self._computed = [item for item in inputs if item.composed is None]
+        self._computed = [item for item in inputs if item.of_service]
         self._then = {}
         for item in sorted(
             (item for item in inputs if item.composed is not None),
@@ -398,6 +438,11 @@ class Worker:
         ):
             output, _, side = item.composed
             self._then.setdefault(output, []).append((side, item))
+        for item in sorted(
+            (item for item in inputs if item.before is not None), key=lambda item: item.before
+        ):
+            target, _, side = item.before
+            inputs[target].edges.append((side, item))
         self._dynamic = [item.buffer for item in inputs if not item.binding.static]
         wanted = [
             (
@@ -534,9 +579,11 @@ class Worker:
             self._count("rejected", "rejected sample on %s: %s", item.binding.key, exc)
             return
         sample = self._admitted(item, decoded)
+        if sample is not None and item.binding.inverted:
+            sample = self._inverted(item, sample)
         if sample is None:
             return
-        if self._asynchronous and item.composed is None:
+        if self._asynchronous and item.of_service:
             self._push(item.binding.port, sample)
             return
         if not self._buffered(item, sample):
@@ -574,6 +621,23 @@ class Worker:
         self._latency[key].append((now - t) / 1e6)
         return sample
 
+    def _inverted(self, item: _Input, sample: Measurement) -> Measurement | None:
+        """An inverted input's ``sample`` as the inversion folded into this worker published
+        it (:meth:`_inverted_value`); None if it cannot be (counted)."""
+        try:
+            return self._inverted_value(item, sample)
+        except NoDataError as exc:
+            self._count("dropped", "sample on %s not used: %s", item.binding.key, exc)
+        except (ValueError, MeasurementError, ArithmeticError) as exc:
+            self._count("failed", "sample on %s not inverted: %s", item.binding.key, exc)
+        return None
+
+    def _inverted_value(self, item: _Input, sample: Measurement) -> Measurement:
+        """``sample`` inverted, then composed with the input's ``before`` edges
+        (``net.spec.before_port``; :class:`NoDataError` before one's first value)."""
+        t = sample.timestamp_ns
+        return self._composed_with(item.edges, _INVERSION.compute({"AB": sample}, t)["BA"])
+
     def _buffered(self, item: _Input, sample: Measurement) -> bool:
         """Whether ``sample`` joined its input's buffer (else counted: beyond its horizon)."""
         if item.buffer.add(sample):
@@ -594,7 +658,8 @@ class Worker:
         return (
             binding.trigger
             and not binding.static
-            and item.composed is None
+            and item.of_service
+            and not binding.inverted
             and len(self._dynamic) == 1
             and not self._asynchronous
             and self._accumulator is None
@@ -752,8 +817,13 @@ class Worker:
         composed with (``net.spec.then_port``), each its latest value (:meth:`_input_at`:
         :class:`NoDataError` before its first sample): the concatenation a folded component
         did (``agent.materialise``), by its own service."""
+        return self._composed_with(self._then[port], value)
+
+    def _composed_with(self, edges: list[tuple[str, _Input]], value: Measurement) -> Measurement:
+        """``value`` concatenated in turn with ``edges`` (each a static input's latest value,
+        as the concatenation's port ``AB`` or ``BC``)."""
         t = value.timestamp_ns
-        for side, item in self._then[port]:
+        for side, item in edges:
             edge = self._input_at(item, t)
             pair = {"AB": edge, "BC": value} if side == "AB" else {"AB": value, "BC": edge}
             value = _CONCATENATION.compute(pair, t)["AC"]
@@ -865,10 +935,11 @@ class Worker:
         except (NoMotionModel, NoDataError) as exc:  # nothing to predict, or nobody answers
             self._no_model[item.binding.key] = time.monotonic() + NO_MODEL_S
             raise NoMotionModel(f"{item.binding.key}: {exc}") from None
-        value = decode(payload, expected=self._service_class.INPUTS[item.binding.port].types)
+        value = decode(payload, expected=item.expected)
         if value.timestamp_ns != upstream_t:
             raise ExtrapolationError(f"{item.binding.key} answered for another time")
-        return value.restamped(t)
+        value = value.restamped(t)
+        return self._inverted_value(item, value) if item.binding.inverted else value
 
     # -- status and life cycle ----------------------------------------------------------------
 

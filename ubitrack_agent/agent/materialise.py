@@ -23,7 +23,14 @@ import networkx as nx
 from ubitrack_agent.graph.dataflow import Binding, DataFlow
 from ubitrack_agent.graph.srg import edge_ids
 from ubitrack_agent.net.keys import RelationId
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding, parse_then_port, then_port
+from ubitrack_agent.net.spec import (
+    ComponentSpec,
+    InputBinding,
+    before_port,
+    parse_before_port,
+    parse_then_port,
+    then_port,
+)
 
 
 def _port(name: str) -> str:
@@ -102,6 +109,18 @@ def component_specs(
     return specs
 
 
+def fold(
+    specs: Mapping[str, ComponentSpec], keep: Set[str] = frozenset()
+) -> tuple[dict[str, ComponentSpec], dict[str, str]]:
+    """``specs`` with the components that need no hop of their own folded into a neighbour
+    (:func:`fold_static_compositions`, then :func:`fold_inversions`; none in ``keep``), and the
+    component each folded one now runs in."""
+    specs, folded = fold_static_compositions(specs, keep)
+    specs, inversions = fold_inversions(specs, keep)
+    folded = {instance: inversions.get(into, into) for instance, into in folded.items()}
+    return specs, {**folded, **inversions}
+
+
 def fold_static_compositions(
     specs: Mapping[str, ComponentSpec], keep: Set[str] = frozenset()
 ) -> tuple[dict[str, ComponentSpec], dict[str, str]]:
@@ -155,6 +174,75 @@ def fold_static_compositions(
         del specs[instance]
         folded[instance] = host
     return specs, folded
+
+
+def fold_inversions(
+    specs: Mapping[str, ComponentSpec], keep: Set[str] = frozenset()
+) -> tuple[dict[str, ComponentSpec], dict[str, str]]:
+    """``specs`` with every inversion of a dynamic edge whose output one other component's
+    input reads (and no relation is published on) folded into that component, and which
+    component each folded one went into.
+
+    The reading input then reads the inversion's input key, ``inverted``, and takes the
+    static edges the inversion's output was composed with (:func:`fold_static_compositions`)
+    as its own (``net.spec.before_port``): the same value, computed by the same services in
+    the reader's process, one hop (a process woken, a message decoded, encoded, published)
+    fewer. With the A.R.T. path of the paper's figure 6 folded into the fusion, a fused pose
+    passes as many workers as one from the A.R.T. path alone (issue 12). Not folded: an
+    inversion in ``keep``, or read by an input that is itself static, composed, inverted or in
+    ``keep``'s component."""
+    specs = dict(specs)
+    folded: dict[str, str] = {}
+    for instance in list(specs):
+        spec = specs[instance]
+        if instance in keep or spec.service != "inversion" or spec.relations.get("BA"):
+            continue
+        sources = [binding for binding in spec.inputs if parse_then_port(binding.port) is None]
+        if len(sources) != 1 or sources[0].static or sources[0].inverted:
+            continue
+        readers = [
+            (reader, index)
+            for reader, other in specs.items()
+            for index, binding in enumerate(other.inputs)
+            if binding.key == spec.outputs["BA"]
+        ]
+        if len(readers) != 1 or readers[0][0] in keep:
+            continue
+        reader, index = readers[0]
+        into = specs[reader]
+        binding = into.inputs[index]
+        if binding.static or binding.inverted or binding.port not in _service_ports(into):
+            continue
+        source = sources[0]
+        inverted = replace(
+            binding,
+            key=source.key,
+            clock_offset_ns=source.clock_offset_ns,
+            from_worker=source.from_worker,
+            inverted=True,
+        )
+        thens = [(parse_then_port(edge.port), edge) for edge in spec.inputs]
+        composed = [
+            replace(edge, port=before_port(index, then[1], then[2]))
+            for then, edge in sorted(
+                ((then, edge) for then, edge in thens if then is not None),
+                key=lambda pair: pair[0][1],
+            )
+        ]
+        inputs = (*into.inputs[:index], inverted, *into.inputs[index + 1 :], *composed)
+        specs[reader] = replace(into, inputs=inputs)
+        del specs[instance]
+        folded[instance] = reader
+    return specs, folded
+
+
+def _service_ports(spec: ComponentSpec) -> set[str]:
+    """The ports of ``spec``'s inputs that are its service's (not a composed edge's)."""
+    return {
+        binding.port
+        for binding in spec.inputs
+        if parse_then_port(binding.port) is None and parse_before_port(binding.port) is None
+    }
 
 
 def _producer(specs: Mapping[str, ComponentSpec], key: str) -> tuple[str, str] | None:

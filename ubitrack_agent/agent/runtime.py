@@ -67,7 +67,7 @@ from ubitrack_agent.agent.election import Election, new_agent_id
 from ubitrack_agent.agent.flows import Plan, plan_name, plan_relations
 from ubitrack_agent.agent.hosts import Hosts
 from ubitrack_agent.agent.liveness import DataLiveness
-from ubitrack_agent.agent.materialise import component_specs, fold_static_compositions
+from ubitrack_agent.agent.materialise import component_specs, fold
 from ubitrack_agent.agent.placement import place
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
@@ -158,8 +158,8 @@ class Agent:
         self._planned: dict[str, ComponentSpec] = {}
         """The specifications as the plan made them, before clock correction."""
         self._folded: dict[str, str] = {}
-        """The plan's concatenations folded into their producers: the instance each went into
-        (``agent.materialise.fold_static_compositions``)."""
+        """The plan's components folded into another (concatenations into their producers,
+        inversions into their readers): the instance each runs in (``agent.materialise.fold``)."""
         self.clock_problems: dict[str, str] = {}
         """Why a component's input clocks cannot be aligned within its tolerance."""
         self._host_name = settings.host_name
@@ -400,7 +400,7 @@ class Agent:
             component.id: labels.get(component.template, frozenset())
             for component in plan.flow.components.values()
         }
-        wanted, self._folded = fold_static_compositions(
+        wanted, self._folded = fold(
             component_specs(plan.flow, srg, self.keys, plan.relations),
             keep={instance for instance, required in self._labels.items() if required},
         )
@@ -861,9 +861,9 @@ class Agent:
 
 def _derived_edges(plan: Plan | None, instance: str, folded: Mapping[str, str]) -> list[list[str]]:
     """The SRG edges ``[from, to, type]`` a component derives (none for a relay), with those
-    of the concatenations folded into it (``agent.materialise``)."""
+    of the components folded into it (``agent.materialise.fold``)."""
     if plan is None:
         return []
-    ids = [instance, *(concatenation for concatenation, into in folded.items() if into == instance)]
+    ids = [instance, *(component for component, into in folded.items() if into == instance)]
     components = [plan.flow.components[i] for i in ids if i in plan.flow.components]
     return [[src, dst, typ] for c in components for _, src, dst, typ in c.outputs]

@@ -119,7 +119,7 @@ def step_hosts(
 ) -> list[str | None]:
     """The host each step of ``solution`` would run on (:mod:`ubitrack_agent.agent.placement`),
     None where none fits."""
-    from ubitrack_agent.agent.materialise import component_specs, fold_static_compositions
+    from ubitrack_agent.agent.materialise import component_specs, fold
     from ubitrack_agent.agent.placement import place
     from ubitrack_agent.graph.dataflow import from_solution, relation_name
     from ubitrack_agent.net.host_protocol import HostInfo
@@ -130,7 +130,7 @@ def step_hosts(
     # The flow's components are the solution's steps, in order.
     steps = zip(flow.components, solution.steps, strict=True)
     labels = {cid: step.template.host_labels for cid, step in steps}
-    specs, folded = fold_static_compositions(  # as the agent does (agent.runtime)
+    specs, folded = fold(  # as the agent does (agent.runtime)
         component_specs(flow, srg, _EdgeIds(), {relation_name(query): relation}),
         keep={cid for cid, required in labels.items() if required},
     )
@@ -138,7 +138,7 @@ def step_hosts(
     readers = {"relation": {app_host}} if app_host else {}
     infos = {name: HostInfo(name, tags) for name, tags in hosts}
     placement = place(specs, infos, data_hosts, readers, {}, labels)
-    # A concatenation folded into its producer runs where that one does.
+    # A component folded into another runs where that one does.
     return [placement.hosts.get(folded.get(component, component)) for component in flow.components]
 
 
