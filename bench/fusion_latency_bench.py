@@ -181,16 +181,29 @@ def fused_phase(
 
     watches = [session.declare_subscriber(b["key"], arrived_in) for b in spec["inputs"]]
     watches.append(session.declare_subscriber(spec["outputs"]["fused"], arrived_out))
+    before = worker_counters(session, keys, instance)
     try:
         result = measure(name)
     finally:
         for watch in watches:
             watch.undeclare()
+    after = worker_counters(session, keys, instance)
+    result["fusion_counters"] = {
+        name: count - before.get(name, 0)
+        for name, count in after.items()
+        if isinstance(count, int) and count != before.get(name, 0)
+    }
     result["art_at_fusion_ms_p50"] = float(np.median(art_inputs)) if art_inputs else None
     result["fusion_hop_ms_p50"] = float(np.median(hops)) if hops else None
     result["fusion_hop_ms_p90"] = float(np.percentile(hops, 90)) if hops else None
     print(json.dumps(result), flush=True)
     return result
+
+
+def worker_counters(session: Any, keys: KeySpace, instance: str) -> dict[str, int]:
+    """A worker's counters (``services.worker.COUNTERS``), from its status."""
+    replies = fetch_latest(session, keys.status(instance), timeout=1.0)
+    return json.loads(replies[0])["counters"] if replies else {}
 
 
 def process_names(session: Any, keys: KeySpace, children: Processes) -> Callable[[int], str]:
