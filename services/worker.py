@@ -32,6 +32,8 @@ An input's ``clock_offset_ns`` (``net.spec``) is added to the timestamp of each 
 as it is decoded, before anything else uses it: the agent sets it when the component's inputs
 come from hosts whose clocks differ (``agent.clocks``), so they are synchronised on the agent's
 clock. A query for an input's value at a given time goes upstream at the input's own time.
+An ``inverted`` input's samples are inverted and composed with its ``before`` edges as they
+arrive, before anything else sees them (an inversion folded into the worker, ``net.spec``).
 
 Zenoh's receiving thread, which serves every subscription of the process, runs no Python for a
 sample and is never held up by a computation (``docs/services.md``, "Threads"): each input has
