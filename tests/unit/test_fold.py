@@ -1,6 +1,7 @@
 """Concatenations with a static edge folded into the worker producing their other input
 (``agent.materialise.fold_static_compositions``, ``net.spec.then_port``, the worker's
-composition): the same values on the same keys, a hop fewer."""
+composition): the same values on the same keys, a hop fewer. The ports of composed edges, and
+a worker taking any of them, also those of an inverted input (``test_fold_inversions.py``)."""
 
 from __future__ import annotations
 
@@ -31,11 +32,14 @@ from ubitrack_agent.net.spec import (
     ComponentSpec,
     InputBinding,
     SpecError,
+    before_port,
+    parse_before_port,
     parse_then_port,
     then_port,
 )
 
 C_A = Query("C", "A", "6D", False)
+SIDES = st.sampled_from(["AB", "BC"])
 
 
 def figure6_specs() -> dict[str, ComponentSpec]:
@@ -120,46 +124,49 @@ def test_a_composed_edge_is_checked_against_the_service(binding, fault):
 @given(
     st.text(max_size=40)
     | st.builds(
-        "then/{}/{}/{}".format,
-        st.sampled_from(["BA", "", "x/y"]),
+        "{}/{}/{}/{}".format,
+        st.sampled_from(["then", "before"]),
+        st.sampled_from(["BA", "", "x/y", "0", "12", "01"]),
         st.sampled_from(["0", "1", "01", "1000", "-1", "\u0663", " 2"]),
         st.sampled_from(["AB", "BC", "CD"]),
     )
 )
 def test_any_port_name_is_a_composed_edge_or_not_without_error(port: str):
-    parsed = parse_then_port(port)
-    assert parsed is None or then_port(*parsed) == port  # one spelling per edge
+    then, before = parse_then_port(port), parse_before_port(port)
+    assert then is None or then_port(*then) == port  # one spelling per edge
+    assert before is None or before_port(*before) == port
+    assert then is None or before is None
 
 
 composed_edges = st.lists(
     st.builds(
         InputBinding,
-        st.builds(
-            then_port,
-            st.sampled_from(["BA", "AB"]),
-            st.integers(0, 3),
-            st.sampled_from(["AB", "BC"]),
-        ),
+        st.builds(then_port, st.sampled_from(["BA", "AB"]), st.integers(0, 3), SIDES)
+        | st.builds(before_port, st.integers(0, 2), st.integers(0, 3), SIDES),
         st.sampled_from([KEYS.data("db/a"), KEYS.data("db/b")]),
         st.booleans(),
+        st.booleans(),
+        st.just(0),
+        st.just(False),
         st.booleans(),
     ),
     max_size=4,
 )
 
 
-@given(composed_edges)
-def test_a_worker_takes_any_composed_edges_that_pass_the_check_and_only_those(edges):
-    """Whatever composed edges a specification from the network holds, the check refuses it
-    with a ``SpecError`` or a worker runs it."""
-    bindings = (InputBinding("AB", KEYS.data("ART/HT"), trigger=True), *edges)
+@given(st.booleans(), composed_edges)
+def test_a_worker_takes_any_composed_edges_that_pass_the_check_and_only_those(inverted, edges):
+    """Whatever composed edges (of an output, of an inverted input) a specification from the
+    network holds, the check refuses it with a ``SpecError`` or a worker runs it."""
+    bindings = (InputBinding("AB", KEYS.data("ART/HT"), trigger=True, inverted=inverted), *edges)
     try:
         check_bindings(bindings, lookup("inversion"), "none")
     except SpecError:
         return
     spec = ComponentSpec("inv", "inversion", bindings, {"BA": KEYS.data("inv/BA")})
     worker = Worker(spec, FakeSession(), KEYS)
-    assert sum(len(edges) for edges in worker._then.values()) == len(edges)
+    composed = sum(len(edges) for edges in worker._then.values()) + len(worker._inputs[0].edges)
+    assert composed == len(edges)
     worker.stop()
 
 

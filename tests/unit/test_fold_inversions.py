@@ -9,8 +9,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
 from services.registry import lookup
 from services.spec import check_bindings
@@ -134,50 +132,6 @@ def test_an_inverted_input_is_dynamic_and_takes_what_an_inversion_gives():
     )
     with pytest.raises(SpecError, match="takes nothing an inversion gives"):
         check_bindings(bindings, triangulation, "none")
-
-
-@given(
-    st.text(max_size=40)
-    | st.builds(
-        "before/{}/{}/{}".format,
-        st.sampled_from(["0", "12", "", "01", "x"]),
-        st.sampled_from(["0", "1", "01", "1000", "-1", "\u0663", " 2"]),
-        st.sampled_from(["AB", "BC", "CD"]),
-    )
-)
-def test_any_port_name_is_an_edge_composed_with_an_input_or_not_without_error(port: str):
-    parsed = parse_before_port(port)
-    assert parsed is None or before_port(*parsed) == port  # one spelling per edge
-
-
-composed_edges = st.lists(
-    st.builds(
-        InputBinding,
-        st.builds(before_port, st.integers(0, 2), st.integers(0, 3), st.sampled_from(["AB", "BC"])),
-        st.sampled_from([KEYS.data("db/a"), KEYS.data("db/b")]),
-        st.booleans(),
-        st.booleans(),
-        st.just(0),
-        st.just(False),
-        st.booleans(),
-    ),
-    max_size=4,
-)
-
-
-@given(st.booleans(), composed_edges)
-def test_a_worker_takes_any_inverted_input_that_passes_the_check_and_only_those(inverted, edges):
-    """Whatever inverted inputs and edges a specification from the network holds, the check
-    refuses it with a ``SpecError`` or a worker runs it."""
-    bindings = (InputBinding("AB", KEYS.data("ART/HT"), trigger=True, inverted=inverted), *edges)
-    try:
-        check_bindings(bindings, lookup("inversion"), "none")
-    except SpecError:
-        return
-    spec = ComponentSpec("inv", "inversion", bindings, {"BA": KEYS.data("inv/BA")})
-    worker = Worker(spec, FakeSession(), KEYS)
-    assert len(worker._inputs[0].edges) == len(edges)
-    worker.stop()
 
 
 # -- the worker's inverted inputs -------------------------------------------------------------
