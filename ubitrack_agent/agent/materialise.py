@@ -221,13 +221,10 @@ def fold_inversions(
             from_worker=source.from_worker,
             inverted=True,
         )
-        thens = [(parse_then_port(edge.port), edge) for edge in spec.inputs]
-        composed = [
-            replace(edge, port=before_port(index, then[1], then[2]))
-            for then, edge in sorted(
-                ((then, edge) for then, edge in thens if then is not None),
-                key=lambda pair: pair[0][1],
-            )
+        thens = [(then, edge) for edge in spec.inputs if (then := parse_then_port(edge.port))]
+        composed = [  # in turn, as the inversion composed its output
+            replace(edge, port=before_port(index, order, side))
+            for (_, order, side), edge in sorted(thens, key=lambda pair: pair[0][1])
         ]
         inputs = (*into.inputs[:index], inverted, *into.inputs[index + 1 :], *composed)
         specs[reader] = replace(into, inputs=inputs)
