@@ -181,6 +181,7 @@ COUNTERS = {
 }
 """The worker's counters (its status), each with what it counts. Every sample received is
 ``rejected``, ``rejected_future``, ``rejected_clock``, ``dropped_stale``, ``superseded``,
+``dropped`` or ``failed`` (an inverted input's, not composed with its static edges),
 ``buffered`` or a trigger; every trigger is ``stale_triggers``, ``dropped``, ``not_distinct``,
 ``accumulating``, ``failed``, ``no_output`` or publishes: a worker that receives but does not
 publish shows why.
@@ -626,12 +627,20 @@ class Worker:
     def _inverted(self, item: _Input, sample: Measurement) -> Measurement | None:
         """An inverted input's ``sample`` as the inversion folded into this worker published
         it (:meth:`_inverted_value`); None if it cannot be (counted)."""
+        return self._counted(item.binding.key, self._inverted_value, item, sample)
+
+    def _counted(
+        self, what: str, compose: Callable[..., Measurement], *args: Any
+    ) -> Measurement | None:
+        """``compose(*args)``, a value composed with static edges (an output's ``then``, an
+        inverted input's ``before``), or None if it cannot be, counted: ``dropped`` while an
+        edge has no value yet (:class:`NoDataError`), ``failed`` if the maths refuses."""
         try:
-            return self._inverted_value(item, sample)
+            return compose(*args)
         except NoDataError as exc:
-            self._count("dropped", "sample on %s not used: %s", item.binding.key, exc)
+            self._count("dropped", "%s not composed yet: %s", what, exc)
         except (ValueError, MeasurementError, ArithmeticError) as exc:
-            self._count("failed", "sample on %s not inverted: %s", item.binding.key, exc)
+            self._count("failed", "%s not composed: %s", what, exc)
         return None
 
     def _inverted_value(self, item: _Input, sample: Measurement) -> Measurement:
@@ -795,14 +804,10 @@ class Worker:
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         for port, value in outputs.items():
             if port in self._then:
-                try:
-                    value = self._composed(port, value)
-                except NoDataError as exc:
-                    self._count("dropped", "%s not published: %s", port, exc)
+                composed = self._counted(port, self._composed, port, value)
+                if composed is None:
                     continue
-                except (ValueError, MeasurementError, ArithmeticError) as exc:
-                    self._count("failed", "%s not composed: %s", port, exc)
-                    continue
+                value = composed
             try:
                 payload = encode(value)  # where a result's numbers are checked
             except MeasurementError as exc:

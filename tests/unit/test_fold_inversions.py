@@ -16,7 +16,7 @@ from services.worker import Worker, _histories
 from tests.unit.test_fold import PRODUCER, figure6_specs, sample
 from tests.unit.test_worker_inputs import IDENTITY, KEYS, FakeSession
 from ubitrack_agent.agent.materialise import fold, fold_inversions, fold_static_compositions
-from ubitrack_agent.core import Pose, decode, encode
+from ubitrack_agent.core import Pose, Rotation3D, decode, encode
 from ubitrack_agent.core.poses import compose_poses, invert_pose
 from ubitrack_agent.net.spec import (
     ComponentSpec,
@@ -186,6 +186,24 @@ def test_an_inverted_input_waits_for_its_static_edges_and_says_so():
     session.deliver(KEYS.data("ART/HT"), encode(sample(time.time_ns(), 1.0)))
     worker.step(longest_s=0.0)
     assert not session.puts and worker.counters["dropped"] == 1
+    worker.stop()
+
+
+def test_an_inverted_input_the_maths_cannot_compose_is_counted_and_the_worker_goes_on():
+    """A static edge of a type the concatenation refuses after a pose (a 3D rotation as the
+    second factor): each sample is counted ``failed``, nothing is published, and the worker
+    takes the next one."""
+    session = FakeSession()
+    worker = fusion_reading_the_art_tracker(session)
+    session.deliver(KEYS.data("db/WT_A"), encode(Pose(1, IDENTITY, [0.0, 0.0, 1.0])))
+    session.deliver(KEYS.data("db/ART_WT"), encode(Rotation3D(1, IDENTITY)))
+    session.deliver(KEYS.data("db/C_HT"), encode(sample(1, -0.7)))
+    t = time.time_ns()
+    for k in range(3):
+        session.deliver(KEYS.data("ART/HT"), encode(sample(t + k, 1.0)))
+    worker.step(longest_s=0.0)
+    assert worker.counters["failed"] == 3 and not session.puts
+    assert worker.counters["internal_errors"] == 0
     worker.stop()
 
 

@@ -151,7 +151,7 @@ def fold_static_compositions(
         if dynamic[0].clock_offset_ns:
             continue  # its producer's output moved to another clock: not the producer's value
         producer = _producer(specs, dynamic[0].key)
-        if producer is None or _readers(specs, dynamic[0].key) != 1:
+        if producer is None or len(_readers(specs, dynamic[0].key)) != 1:
             continue
         host, port = producer
         into = specs[host]
@@ -200,12 +200,7 @@ def fold_inversions(
         sources = [binding for binding in spec.inputs if parse_then_port(binding.port) is None]
         if len(sources) != 1 or sources[0].static or sources[0].inverted:
             continue
-        readers = [
-            (reader, index)
-            for reader, other in specs.items()
-            for index, binding in enumerate(other.inputs)
-            if binding.key == spec.outputs["BA"]
-        ]
+        readers = _readers(specs, spec.outputs["BA"])
         if len(readers) != 1 or readers[0][0] in keep:
             continue
         reader, index = readers[0]
@@ -251,6 +246,11 @@ def _producer(specs: Mapping[str, ComponentSpec], key: str) -> tuple[str, str] |
     return None
 
 
-def _readers(specs: Mapping[str, ComponentSpec], key: str) -> int:
-    """How many inputs read ``key``."""
-    return sum(binding.key == key for spec in specs.values() for binding in spec.inputs)
+def _readers(specs: Mapping[str, ComponentSpec], key: str) -> list[tuple[str, int]]:
+    """The inputs reading ``key``: each its instance and its index in the instance's inputs."""
+    return [
+        (instance, index)
+        for instance, spec in specs.items()
+        for index, binding in enumerate(spec.inputs)
+        if binding.key == key
+    ]
