@@ -29,8 +29,6 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from itertools import permutations
 
-import networkx as nx
-
 from ubitrack_agent.graph.srg import Quality
 from ubitrack_agent.graph.templates import InputSpec, Template
 
@@ -42,6 +40,8 @@ class EdgeRecord:
     ``time_integrated`` marks a static edge produced by a time expansion (a calibration result);
     ``canon`` identifies the computation up to concatenation order and inversion (used to drop
     derivations that differ only in how a chain was bracketed or which way it was inverted).
+    ``hops`` is the length of the way through the SRG the edge takes: 1 for a measured edge, the
+    sum of its links' for a chain, the distance between its frames for any other step.
     """
 
     id: str
@@ -62,6 +62,7 @@ class EdgeRecord:
     time_integrated: bool = False
     steps: frozenset[str] = frozenset()
     providers: frozenset[str] = frozenset()
+    hops: int = 1
 
 
 @dataclass
@@ -414,6 +415,50 @@ def _time_ok(match: Match, index: EdgeIndex) -> bool:
     return all(known) and (not introducing or any(introducing))
 
 
+def _copy_order(match: Match, index: EdgeIndex) -> tuple:
+    """How good a copy is for a space expansion: its correspondence edges' summed cost, then
+    their canonical computations (a total, announcement-independent order)."""
+    edges = [index.edges[e] for e in _corr_edges(match)]
+    return (sum(e.cost for e in edges), [e.canon for e in edges], match.edges)
+
+
+def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
+    """Sets of pairwise compatible occurrences to expand in space, each inclusion-maximal.
+
+    Enumerating every maximal clique of the compatibility graph (Bron-Kerbosch) is exponential:
+    with ``a`` derivations of each of ``m`` features it finds ``a**m`` sets, and the planner
+    applied 630,435 pattern instances for one cross-room query. Instead each occurrence seeds
+    one set, completed greedily with the best compatible occurrences (:func:`_copy_order`):
+    the cheapest copies of every frame together, and for each alternative copy a set built
+    around it (a tracker's path seeds the set of that tracker's derivations). With ``n``
+    occurrences this is ``O(n**3)`` bit operations on a precomputed compatibility matrix and at
+    most ``n`` sets. Each set is maximal: an occurrence left out conflicts with one taken.
+    """
+    order = sorted(members, key=lambda m: _copy_order(m, index))
+    n = len(order)
+    compatible = [0] * n  # bit j of compatible[i]: order[i] and order[j] may be copies together
+    for i in range(n):
+        for j in range(i + 1, n):
+            if _compatible(order[i], order[j], index):
+                compatible[i] |= 1 << j
+                compatible[j] |= 1 << i
+    found: dict[int, None] = {}
+    for seed in range(n):
+        chosen, allowed = 1 << seed, compatible[seed]
+        for j in range(n):
+            if allowed >> j & 1:
+                chosen |= 1 << j
+                allowed &= compatible[j]
+        found.setdefault(chosen)
+
+    def by_canon(match: Match) -> list[str]:
+        return [index.edges[e].canon for e in match.edges]
+
+    return [
+        sorted((order[j] for j in range(n) if chosen >> j & 1), key=by_canon) for chosen in found
+    ]
+
+
 def expand_group(members: list[Match], index: EdgeIndex) -> list[Instance]:
     """Expanded instances from occurrences sharing one :func:`group_key` (steps 2 and 3).
 
@@ -440,18 +485,8 @@ def expand_group(members: list[Match], index: EdgeIndex) -> list[Instance]:
             )
             for m in members
         ]
-    graph = nx.Graph()
-    graph.add_nodes_from(range(len(members)))
-    for i, a in enumerate(members):
-        for j in range(i + 1, len(members)):
-            if _compatible(a, members[j], index):
-                graph.add_edge(i, j)
     instances = []
-    for clique in nx.find_cliques(graph):
-        copies = [
-            members[i]
-            for i in sorted(clique, key=lambda i: [index.edges[e].canon for e in members[i].edges])
-        ]
+    for copies in copy_sets(members, index):
         expansions = []
         if "space" in corr.expansions and len(copies) in corr.multiplicity:
             expansions.append("space")

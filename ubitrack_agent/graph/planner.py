@@ -30,6 +30,7 @@ price of the extra sensors and steps.
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -62,6 +63,7 @@ DEFAULT_SLACK = 2
 """Longest detour (hops beyond a shortest path) a derivation may take through the SRG."""
 DEFAULT_PER_RELATION = 8
 """Most alternatives kept per (from, to, type, static) relation during planning."""
+ROUTE_SLACK = 2
 VARIANCE_FLOOR = 1e-30
 """Smallest variance (m^2) fusion divides by: a measured edge may announce sigma 0."""
 _TIE = 1e-9
@@ -150,6 +152,18 @@ class Solution:
     @property
     def static(self) -> bool:
         return self.edge.static
+
+
+def _dominates(a: EdgeRecord, b: EdgeRecord) -> bool:
+    """``a`` is no worse than ``b`` in any component of the cost vector (variance, latency,
+    sensors, steps)."""
+    qa, qb = a.quality, b.quality
+    return (
+        qa.variance <= qb.variance * (1 + _TIE)
+        and qa.latency <= qb.latency * (1 + _TIE)
+        and len(a.providers) <= len(b.providers)
+        and len(a.steps) <= len(b.steps)
+    )
 
 
 def edge_cost(quality: Quality, providers: int, steps: int) -> float:
@@ -252,6 +266,23 @@ def _hops(
     return dist
 
 
+def _hops_in(
+    neighbours: Mapping[str, Iterable[str]], start: str, avoid: frozenset[str] = frozenset()
+) -> dict[str, int]:
+    """Hop distances from ``start`` over an adjacency mapping, never entering ``avoid``."""
+    dist = {start: 0}
+    frontier = [start]
+    while frontier:
+        nxt = []
+        for node in frontier:
+            for other in neighbours.get(node, ()):
+                if other not in dist and other not in avoid:
+                    dist[other] = dist[node] + 1
+                    nxt.append(other)
+        frontier = nxt
+    return dist
+
+
 def _chain_distances(
     srg: nx.MultiDiGraph, frames: set[str], goal: tuple[str, str]
 ) -> tuple[dict[str, int], dict[str, int]]:
@@ -348,6 +379,87 @@ class Workspace:
     useful_types: frozenset[str] = EDGE_TYPES
     goal: tuple[str, str] | None = None
     distances: tuple[dict[str, int], dict[str, int]] = field(default_factory=lambda: ({}, {}))
+    neighbours: dict[str, set[str]] = field(default_factory=dict)
+    detour: int = DEFAULT_SLACK
+    _distances: dict[str, dict[str, int]] = field(default_factory=dict)
+    _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
+
+    def _distance(self, a: str, b: str) -> int:
+        """Hops between frames ``a`` and ``b`` in the region, either direction (BFS from ``a``,
+        ``O(frames + edges)`` once per frame)."""
+        known = self._distances.get(a)
+        if known is None:
+            known = self._distances[a] = _hops_in(self.neighbours, a)
+        return known.get(b, len(self.neighbours) + 1)
+
+    def _avoiding(self, start: str, goal: str, avoid: frozenset[str]) -> float:
+        """Hops from ``start`` to ``goal`` in the region without entering a frame of ``avoid``
+        (edges in either direction; infinite if there is no such way). ``O(frames + edges)``
+        per distinct ``(start, avoid)``, memoised."""
+        if start == goal:
+            return 0
+        if start in avoid or goal in avoid:
+            return math.inf
+        key = (start, avoid)
+        known = self._reach.get(key)
+        if known is None:
+            known = self._reach[key] = _hops_in(self.neighbours, start, avoid)
+        return known.get(goal, math.inf)
+
+    def may_chain(self, match: Match) -> bool:
+        """A cheap test of a chain's occurrence before it is applied: the chain is wanted
+        (:meth:`_wanted`) and, for a dynamic query, its way is within the detour bound counted
+        with plain hop distances (a lower bound of those :meth:`_on_a_route` counts)."""
+        roles, types = dict(match.roles), dict(match.types)
+        template = match.template
+        output = template.outputs[0]
+        source, target = roles[output.source], roles[output.target]
+        edge_type = types[output.type[1:]] if output.type.startswith("$") else output.type
+        if not self._wanted(template, edge_type, source, target):
+            return False
+        if not self.neighbours:
+            return True
+        start, end = self.goal
+        edges = self.index.edges
+        limit = self._distance(start, end) + self.detour - sum(edges[e].hops for e in match.edges)
+        return any(
+            self._distance(start, a) + self._distance(b, end) <= limit
+            for a, b in ((source, target), (target, source))
+        )
+
+    def _on_a_route(self, record: EdgeRecord) -> bool:
+        """Whether a chain ``record`` (X->Y, 6D) can lie on a derivation of a dynamic query
+        S->T: "no concatenation that cannot lie on a derivation of the query".
+
+        * S reaches X and Y reaches T (or, read inverted, the other way round) without passing
+          a frame inside the chain: a derivation through such a frame would hold a cycle, and
+          cutting the cycle gives a chain at no higher cost on a subset of its sources, which
+          therefore fits wherever the longer one does.
+        * That way, ``hops(S, X) + record.hops + hops(Y, T)`` with the first and last hops
+          counted around the chain's inside, is no longer than ``detour`` hops beyond a
+          shortest S-T path: the slack that bounds the region's frames bounds the ways through
+          them too.
+
+        Only dynamic queries are pruned: a static query's time-integrated edges may share
+        dynamic sources with the rest (section 5.1), so there a cycle can carry information.
+        """
+        if not self.neighbours or record.pattern != "Concatenation":
+            return True
+        start, end = self.goal
+        x, y = record.source, record.target
+        edges = self.index.edges
+        inside = frozenset(
+            frame
+            for source in record.sources
+            if source in edges
+            for frame in (edges[source].source, edges[source].target)
+            if frame not in (x, y)
+        )
+        limit = self._distance(start, end) + self.detour - record.hops
+        return any(
+            self._avoiding(start, a, inside | {b}) + self._avoiding(b, end, inside | {a}) <= limit
+            for a, b in ((x, y), (y, x))
+        )
 
     def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
         """Index one measured SRG edge."""
@@ -445,6 +557,7 @@ class Workspace:
             canon = f"cat({','.join(leaves)})"
         else:
             canon = f"{pattern}/{instance.expansion}[{','.join(sorted(e.canon for e in inputs))}]"
+        chain_hops = sum(e.hops for e in inputs) if composed else 0
         outputs, added = [], []
         for name, source, target, edge_type, static, mode in instance.outputs:
             edge_id = None
@@ -482,8 +595,10 @@ class Workspace:
                     time_integrated=instance.expansion == "time",
                     steps=steps,
                     providers=providers,
+                    hops=chain_hops
+                    or (max(1, self._distance(source, target)) if self.neighbours else 1),
                 )
-                if self._admit(record):
+                if self._on_a_route(record) and self._admit(record):
                     self.index.add(record)
                     self.by_relation[(source, target, edge_type, static)].append(record.id)
                     edge_id = record.id
@@ -505,6 +620,7 @@ def saturate(
     per_relation: int = DEFAULT_PER_RELATION,
     goal: tuple[str, str] | None = None,
     new_frames: Iterable[str] = (),
+    slack: int = DEFAULT_SLACK,
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
@@ -521,6 +637,7 @@ def saturate(
         per_relation=per_relation,
         useful_types=useful_types(templates, wanted),
         goal=goal,
+        detour=min(slack, ROUTE_SLACK),
     )
     ws.index.new_frames = tuple(new_frames)
     if goal is not None:
@@ -530,6 +647,8 @@ def saturate(
             for key, data in sorted(srg.succ[source][target].items()):
                 ws.add_measured(source, target, key, data)
     rigid = [(a, b) for a, b in rigid if not ws.index.is_measured_rigid(a, b)]
+    if goal is not None and not rigid:  # no time integration: chains on cycles are never needed
+        ws.neighbours = {f: frames.intersection((*srg.succ[f], *srg.pred[f])) for f in frames}
     for a, b in rigid:
         ws.index.add_rigid(a, b)
     # a time-only pattern yields static edges, wanted only for rigid relations not yet measured;
@@ -545,7 +664,10 @@ def saturate(
     while new:
         touched: dict[tuple, None] = {}
         for template in templates:
+            chain = template.signature == "chain"
             for match in find_matches(template, ws.index, new):
+                if chain and not ws.may_chain(match):
+                    continue
                 key = (template.name, group_key(match))
                 members = groups.setdefault(key, {})
                 if match.edges not in members:
@@ -648,7 +770,7 @@ def plan(
     frames = relevant_frames(srg, query.source, query.target, slack, new)
     rigid = [(query.source, query.target)] if query.static else []
     goal = (query.source, query.target)
-    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal, new)
+    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal, new, slack)
     found = solutions(ws, query)
     if not found:
         kind = "static " if query.static else ""
