@@ -31,6 +31,7 @@ price of the extra sensors and steps.
 from __future__ import annotations
 
 import math
+import sys
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -48,6 +49,7 @@ from ubitrack_agent.graph.matcher import (
     find_matches,
     group_key,
 )
+from ubitrack_agent.graph.segments import cut_frames
 from ubitrack_agent.graph.srg import EDGE_TYPES, EdgeAttrs, Quality, check_node_name, edge_ids
 from ubitrack_agent.graph.templates import Template
 
@@ -63,7 +65,6 @@ DEFAULT_SLACK = 2
 """Longest detour (hops beyond a shortest path) a derivation may take through the SRG."""
 DEFAULT_PER_RELATION = 8
 """Most alternatives kept per (from, to, type, static) relation during planning."""
-ROUTE_SLACK = 2
 VARIANCE_FLOOR = 1e-30
 """Smallest variance (m^2) fusion divides by: a measured edge may announce sigma 0."""
 _TIE = 1e-9
@@ -381,6 +382,7 @@ class Workspace:
     distances: tuple[dict[str, int], dict[str, int]] = field(default_factory=lambda: ({}, {}))
     neighbours: dict[str, set[str]] = field(default_factory=dict)
     detour: int = DEFAULT_SLACK
+    prefix: str = ""
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
 
@@ -532,7 +534,7 @@ class Workspace:
         records = self.index.edges
         inputs = [records[e] for e in instance.input_edges()]
         quality = propagate(instance, records)
-        step_id = f"s{len(self.steps) + 1}"
+        step_id = f"{self.prefix}s{len(self.steps) + 1}"
         template = instance.template
         pattern = template.pattern
         sources = frozenset().union(*(e.sources for e in inputs))
@@ -621,6 +623,7 @@ def saturate(
     goal: tuple[str, str] | None = None,
     new_frames: Iterable[str] = (),
     slack: int = DEFAULT_SLACK,
+    prefix: str = "",
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
@@ -637,7 +640,8 @@ def saturate(
         per_relation=per_relation,
         useful_types=useful_types(templates, wanted),
         goal=goal,
-        detour=min(slack, ROUTE_SLACK),
+        detour=slack,
+        prefix=prefix,
     )
     ws.index.new_frames = tuple(new_frames)
     if goal is not None:
@@ -747,6 +751,105 @@ def with_solution(srg: nx.MultiDiGraph, solution: Solution) -> nx.MultiDiGraph:
     return graph
 
 
+def _plan_parts(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    query: Query,
+    parts: Sequence[tuple[str, str, set[str]]],
+    slack: int,
+    per_relation: int,
+) -> list[Solution]:
+    """Solutions of a dynamic 6D query whose region has cut frames (:mod:`segments`): each
+    part planned on its own, then the parts' derivations chained.
+
+    The best solution chains every part's best derivation; the others change one part's
+    derivation to its next best, cheapest first, at most ``per_relation`` in all. The links of
+    the parts' chains are bracketed anew as one chain, joining each time the neighbours whose
+    join has the least latency, so that the slowest links are composed last (the cost model
+    charges each concatenation's latency on the way of the data). ``O(parts)`` saturations of
+    one part's region each.
+    """
+    chain = next(t for t in templates if t.signature == "chain" and "6D" in _chain_types(t))
+    joined = Workspace(per_relation=sys.maxsize, prefix="j.")
+    alternatives: list[list[EdgeRecord]] = []
+    for i, (a, b, part) in enumerate(parts):
+        ws = saturate(srg, templates, part, "6D", (), per_relation, (a, b), (), slack, f"p{i}.")
+        found = solutions(ws, Query(a, b, "6D"))
+        if not found:
+            raise NoSolutionError(
+                f"no derivation of 6D {query.source}->{query.target}: every way passes "
+                f"{b if a == query.source else a} and no combination of patterns yields "
+                f"6D {a}->{b} (frames considered: {', '.join(sorted(part))})"
+            )
+        joined.index.edges.update(ws.index.edges)
+        joined.steps.update(ws.steps)
+        alternatives.append([s.edge for s in found])
+    best = [options[0] for options in alternatives]
+    variants = (
+        [*best[:i], option, *best[i + 1 :]]
+        for i, options in enumerate(alternatives)
+        for option in options[1:]
+    )
+    picks = [best, *sorted(variants, key=lambda links: sum(e.cost for e in links))]
+    made: dict[tuple[str, str], EdgeRecord] = {}
+    for parts_links in picks[:per_relation]:
+        links = [link for edge in parts_links for link in _links(joined, chain, edge)]
+        _join(joined, chain, links, made)
+    return solutions(joined, query)
+
+
+def _links(ws: Workspace, chain: Template, edge: EdgeRecord) -> list[EdgeRecord]:
+    """The links of ``edge`` if a chain made it (in order, through chains of chains), else
+    ``[edge]``: a part's chain is bracketed again with its neighbours' links."""
+    if edge.pattern != chain.pattern or edge.step is None:
+        return [edge]
+    step = ws.steps[edge.step]
+    ids = [edge_id for _, group in step.inputs for edge_id in group]
+    return [link for edge_id in ids for link in _links(ws, chain, ws.index.edges[edge_id])]
+
+
+def _chain_types(template: Template) -> set[str]:
+    """The types a chain template's output may take."""
+    out = template.outputs[0].type
+    return set(template.type_vars[out[1:]]) if out.startswith("$") else {out}
+
+
+def _join(
+    ws: Workspace,
+    chain: Template,
+    links: Sequence[EdgeRecord],
+    made: dict[tuple[str, str], EdgeRecord],
+) -> EdgeRecord | None:
+    """The chain of ``links`` (consecutive 6D edges with disjoint sources) applied in ``ws``,
+    joining first the neighbours whose join has the least latency; joins already ``made`` are
+    reused. ``None`` if ``ws`` admits no such chain (one as good is there already)."""
+    items = list(links)
+    while len(items) > 1:
+        i = min(
+            range(len(items) - 1),
+            key=lambda k: (max(items[k].quality.latency, items[k + 1].quality.latency), k),
+        )
+        a, b = items[i], items[i + 1]
+        record = made.get((a.id, b.id))
+        if record is None:
+            roles = {chain.inputs[0].source: a.source, chain.inputs[0].target: a.target}
+            roles[chain.inputs[1].target] = b.target
+            var = chain.outputs[0].type[1:] if chain.outputs[0].type.startswith("$") else None
+            match = Match(
+                chain,
+                (a.id, b.id),
+                tuple(sorted(roles.items())),
+                ((var, "6D"),) if var else (),
+            )
+            (instance,) = expand_group([match], ws.index)
+            added = ws.apply(instance)
+            if not added:  # no better than a chain joined already (Workspace._admit)
+                return None
+            record = made[(a.id, b.id)] = ws.index.edges[added[0]]
+        items[i : i + 2] = [record]
+    return items[0]
+
+
 def plan(
     srg: nx.MultiDiGraph,
     templates: Sequence[Template],
@@ -768,10 +871,14 @@ def plan(
         )
     new = introducible_frames(srg, templates, query)
     frames = relevant_frames(srg, query.source, query.target, slack, new)
-    rigid = [(query.source, query.target)] if query.static else []
     goal = (query.source, query.target)
-    ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal, new, slack)
-    found = solutions(ws, query)
+    parts = [] if query.static or query.type != "6D" else cut_frames(srg, frames, *goal)
+    if len(parts) > 1:
+        found = _plan_parts(srg, templates, query, parts, slack, per_relation)
+    else:
+        rigid = [(query.source, query.target)] if query.static else []
+        ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal, new, slack)
+        found = solutions(ws, query)
     if not found:
         kind = "static " if query.static else ""
         why = (
