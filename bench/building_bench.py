@@ -8,20 +8,22 @@ Setups come from :mod:`bench.building` (rooms in a star or a corridor, K redunda
 bodies, cameras on bodies seeing a marker target with 5 features, static surveys, shared
 targets). The series, each a query on a growing setup:
 
-* ``in_room``: camera -> marker in one room (``C0_1 -> M0``, 6D), K = 0, 2, 5, 7, 10, 15, ...
-  redundant trackers;
+* ``in_room``: camera -> marker in one room (``C0_1 -> M0``, 6D), K = 0, 2, 5, 7, 10, 15, 20,
+  30, 50 redundant trackers;
 * ``in_building``: the same query in one room of a 50-room star, K = 2 and 4 (the region
   restriction should make it cost what a lone room costs);
 * ``head_to_head_k1`` / ``_k2``: head -> head across two rooms (``H0_1 -> H1_1``), 1, 2, 3, 4,
-  ... bodies per room seen by K + 1 = 2 / 3 trackers;
+  5, 6, 8, 10, 15, 20 bodies per room, each seen by K + 1 = 2 / 3 trackers;
 * ``corridor``: rooms in a corridor (each also surveyed to the next), first room's camera to
-  the last room's marker (``C0_1 -> M<n-1>``), n = 2, 5, 10, 20, 50, ... rooms, K = 0;
+  the last room's marker (``C0_1 -> M<n-1>``), n = 2, 3, 5, 10, 20, 50, 100, 200 rooms, K = 0;
 * ``shared_in_room`` / ``shared_cross_room``: shared targets (each camera also sees the next
-  room's marker through the door), in a star of n rooms; in the middle room ``m = n // 2``,
-  ``C<m>_1 -> M<m>`` and from the room before, ``C<m-1>_1 -> M<m>`` (a target seen from two
-  rooms);
-* ``cross_building``: a star of n = 2, 10, 50, ... rooms, first room's camera to the last
+  room's marker through the door), in a star of n = 2, 5, 10, 20, 50, 100 rooms; in the
+  middle room ``m = n // 2``, ``C<m>_1 -> M<m>``, and from the room before, ``C<m-1>_1 ->
+  M<m>`` (a target seen from two rooms);
+* ``cross_building``: a star of n = 2, 10, 50, 100, 200 rooms, first room's camera to the last
   room's marker.
+
+``--quick`` runs a few small rows of most series (``all_series``).
 
 For each row, in a child process (forked, one per row) so that a planner that explodes is
 stopped and reported as *over the limit* instead of hanging the run:
@@ -43,9 +45,11 @@ body or room), ``(t2 / t1) ** (1 / (x2 - x1))``, and the milliseconds per added 
 towards 1, exponential growth a constant factor above 1.
 
 The benchmark uses only the planner's public ``plan`` API (``Query``, ``PlanningError``, a
-solution's ``cost`` and ``steps``), so it runs unchanged on any planner with that API; the
-commit of the checkout is written with the figures. Its own cost is the SRG's construction
-(O(edges)) and a shortest path (O(E log V)) per row, negligible beside the plans.
+solution's ``cost`` and ``steps``), so it runs unchanged on any planner with that API. The
+commit of the checkout, the last commit that changed the planner and the machine's load
+average (others may share it) are written with the figures. The benchmark's own cost is the
+SRG's construction (O(edges)) and a shortest path (O(E log V)) per row, negligible beside the
+plans.
 """
 
 from __future__ import annotations
@@ -54,6 +58,7 @@ import argparse
 import json
 import math
 import multiprocessing as mp
+import os
 import platform
 import statistics
 import subprocess
@@ -83,6 +88,7 @@ SHORTEST_PATH_REPEATS = 50
 """Runs of the shortest path per row (fewer if they take more than a second together)."""
 SETUP_TIMEOUT_S = 120.0
 """Longest wait for a row's SRG and shortest path, before its plans (they take milliseconds)."""
+PLANNER_PACKAGE = "ubitrack_agent/graph"
 BUILDING_ROOMS = 50
 """Rooms of the building of the ``in_building`` series."""
 
@@ -188,7 +194,7 @@ def all_series(quick: bool) -> list[Series]:
         Series("in_building", "tracker", tuple(in_building(k) for k in (2, 4))),
         Series("head_to_head_k1", "body", tuple(head_to_head(b, 1) for b in bodies)),
         Series("head_to_head_k2", "body", tuple(head_to_head(b, 2) for b in bodies)),
-        Series("corridor", "room", tuple(corridor(n) for n in (*rooms, 200))),
+        Series("corridor", "room", tuple(corridor(n) for n in (2, 3, *rooms[1:], 200))),
         Series("shared_in_room", "room", tuple(shared(n, cross=False) for n in rooms)),
         Series("shared_cross_room", "room", tuple(shared(n, cross=True) for n in rooms)),
         Series("cross_building", "room", tuple(cross_building(n) for n in (2, 10, 50, 100, 200))),
@@ -332,17 +338,20 @@ def table_line(result: dict[str, Any], limit_s: float) -> str:
     )
 
 
-def growth_line(series: Series, steps: Sequence[dict[str, Any]]) -> str:
+def growth_line(series: Series, steps: Sequence[dict[str, Any]], broke_at: int | None) -> str:
     parts = [
         f"{s['from']}->{s['to']}: x{s['factor_per_unit']:g}/{series.unit} "
         f"({s['ms_per_unit']:+.1f} ms/{series.unit})"
         for s in steps
     ]
-    return f"  growth of {series.name}: " + ("; ".join(parts) if parts else "(one point)")
+    if broke_at is not None:
+        parts.append(f"over the limit at {broke_at}")
+    return f"  growth of {series.name}: " + ("; ".join(parts) or "(one point)")
 
 
-def checkout_commit() -> str:
-    """The commit of this checkout (``+dirty`` if the planner's files differ from it)."""
+def checkout_commits() -> dict[str, str]:
+    """The commit of this checkout and the last one that changed the planner's package
+    (``+dirty`` if its files differ from it), or ``unknown`` outside a git checkout."""
 
     def git(*args: str) -> str:
         done = subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True)
@@ -351,11 +360,12 @@ def checkout_commit() -> str:
         return done.stdout.strip()
 
     try:
-        commit = git("rev-parse", "--short", "HEAD")
-        dirty = git("status", "--porcelain", "ubitrack_agent/graph")
+        head = git("rev-parse", "--short", "HEAD")
+        planner = git("log", "-1", "--format=%h", "--", PLANNER_PACKAGE)
+        dirty = git("status", "--porcelain", PLANNER_PACKAGE)
     except OSError:
-        return "unknown"
-    return commit + ("+dirty" if dirty else "")
+        return {"commit": "unknown", "planner_commit": "unknown"}
+    return {"commit": head, "planner_commit": planner + ("+dirty" if dirty else "")}
 
 
 def run(series: Sequence[Series], repeats: int, limit_s: float) -> dict[str, Any]:
@@ -364,9 +374,10 @@ def run(series: Sequence[Series], repeats: int, limit_s: float) -> dict[str, Any
         "date": time.strftime("%Y-%m-%d"),
         "python": platform.python_version(),
         "machine": platform.machine(),
-        "planner_commit": checkout_commit(),
+        **checkout_commits(),
         "limit_s": limit_s,
         "repeats": repeats,
+        "load_average_1min": {"start": os.getloadavg()[0]},
         "rows": [],
         "series": {},
     }
@@ -386,7 +397,7 @@ def run(series: Sequence[Series], repeats: int, limit_s: float) -> dict[str, Any
                 broke_at = row.size
                 break
         steps = growth(rows)
-        print(growth_line(s, steps), flush=True)
+        print(growth_line(s, steps, broke_at), flush=True)
         results["rows"].extend(rows)
         results["series"][s.name] = {
             "unit": s.unit,
@@ -396,6 +407,7 @@ def run(series: Sequence[Series], repeats: int, limit_s: float) -> dict[str, Any
             "growth": steps,
             "broke_at": broke_at,
         }
+    results["load_average_1min"]["end"] = os.getloadavg()[0]
     return results
 
 

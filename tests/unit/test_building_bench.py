@@ -58,7 +58,15 @@ def test_a_quick_run_writes_every_series_with_its_rows(tmp_path: Path) -> None:
         [*command, "--repeats", "1", "--out", str(out)], cwd=ROOT, check=True, timeout=120
     )
     results = json.loads(out.read_text())
-    assert set(results) >= {"planner_commit", "limit_s", "repeats", "rows", "series", "quick"}
+    assert set(results) >= {
+        "commit",
+        "planner_commit",
+        "limit_s",
+        "repeats",
+        "rows",
+        "series",
+        "quick",
+    }
     assert list(results["series"]) == [s.name for s in all_series(quick=True)]
     for row in results["rows"]:
         assert row["error"] is None, row
