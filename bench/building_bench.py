@@ -428,7 +428,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--series", help="comma-separated series to run (default all; names in the docstring)"
     )
-    parser.add_argument("--out", type=Path, default=RESULTS, help=f"JSON file (default {RESULTS})")
+    parser.add_argument(
+        "--out", type=Path, default=RESULTS, help=f"JSON file (default {RESULTS.relative_to(ROOT)})"
+    )
     args = parser.parse_args(argv)
     repeats = args.repeats or (QUICK_REPEATS if args.quick else DEFAULT_REPEATS)
     chosen = all_series(args.quick)
