@@ -73,12 +73,23 @@ def camera(r: int, j: int = 1) -> str:
     return f"C{r}_{j}"
 
 
+def image(r: int, j: int = 1) -> str:
+    """The image plane of camera ``camera(r, j)``."""
+    return f"I{r}_{j}"
+
+
 def marker(r: int) -> str:
     return f"M{r}"
 
 
+def feature(r: int, f: int) -> str:
+    """The ``f``-th feature (from 1) of room ``r``'s marker target."""
+    return f"F{r}_{f}"
+
+
 def build(shape: Building) -> nx.MultiDiGraph:
-    """The SRG of ``shape`` (module docstring)."""
+    """The SRG of ``shape`` (module docstring): per room O((redundant + 1) * bodies + cameras *
+    features) edges, so O(rooms * that) in all, built in time linear in its edges."""
     srg = new_srg()
 
     def static(a: str, b: str, edge_type: str = "6D") -> None:
@@ -90,18 +101,18 @@ def build(shape: Building) -> nx.MultiDiGraph:
             static(room(r), room(r + 1))
         static(room(r), marker(r))
         for f in range(1, shape.features + 1):
-            static(marker(r), f"F{r}_{f}", "3D")
+            static(marker(r), feature(r, f), "3D")
         for k in range(shape.redundant + 1):
             t = tracker(r, k)
             static(room(r), t)
             for j in range(1, shape.bodies + 1):
                 add_measured_edge(srg, t, body(r, j), "6D", provider=t, quality=TRACKER)
         for j in range(1, shape.cameras + 1):
-            c, image = camera(r, j), f"I{r}_{j}"
+            c, plane = camera(r, j), image(r, j)
             static(c, body(r, j))
-            static(c, image, "3x4")
+            static(c, plane, "3x4")
             seen = [r, r + 1] if shape.shared_targets and r + 1 < shape.rooms else [r]
             for s in seen:
                 for f in range(1, shape.features + 1):
-                    add_measured_edge(srg, image, f"F{s}_{f}", "2D", provider=c, quality=FEATURE)
+                    add_measured_edge(srg, plane, feature(s, f), "2D", provider=c, quality=FEATURE)
     return srg
