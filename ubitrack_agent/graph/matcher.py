@@ -25,7 +25,7 @@ the outputs to such a frame hold only where the query declares it rigid (:func:`
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from itertools import permutations
 
@@ -357,7 +357,7 @@ def _corr_edges(match: Match) -> list[str]:
     return [e for n, e in zip(names, match.edges, strict=True) if n in corr.edges]
 
 
-def _compatible(a: Match, b: Match, index: EdgeIndex) -> bool:
+def compatible(a: Match, b: Match, index: EdgeIndex) -> bool:
     """Two occurrences can be copies in one space expansion (section 5.1)."""
     corr = a.template.correspondence
     assert corr is not None
@@ -436,19 +436,19 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     """
     order = sorted(members, key=lambda m: _copy_order(m, index))
     n = len(order)
-    compatible = [0] * n  # bit j of compatible[i]: order[i] and order[j] may be copies together
+    fits = [0] * n  # bit j of fits[i]: order[i] and order[j] may be copies together
     for i in range(n):
         for j in range(i + 1, n):
-            if _compatible(order[i], order[j], index):
-                compatible[i] |= 1 << j
-                compatible[j] |= 1 << i
+            if compatible(order[i], order[j], index):
+                fits[i] |= 1 << j
+                fits[j] |= 1 << i
     found: dict[int, None] = {}
     for seed in range(n):
-        chosen, allowed = 1 << seed, compatible[seed]
+        chosen, allowed = 1 << seed, fits[seed]
         for j in range(n):
             if allowed >> j & 1:
                 chosen |= 1 << j
-                allowed &= compatible[j]
+                allowed &= fits[j]
         found.setdefault(chosen)
 
     def by_canon(match: Match) -> list[str]:
@@ -459,7 +459,13 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     ]
 
 
-def expand_group(members: list[Match], index: EdgeIndex) -> list[Instance]:
+CopySets = Callable[[list[Match], EdgeIndex], list[list[Match]]]
+"""How a group's compatible occurrences are gathered into sets of copies (:func:`copy_sets`)."""
+
+
+def expand_group(
+    members: list[Match], index: EdgeIndex, copies: CopySets = copy_sets
+) -> list[Instance]:
     """Expanded instances from occurrences sharing one :func:`group_key` (steps 2 and 3).
 
     A template without correspondence yields one unexpanded instance per occurrence. Otherwise
@@ -486,22 +492,22 @@ def expand_group(members: list[Match], index: EdgeIndex) -> list[Instance]:
             for m in members
         ]
     instances = []
-    for copies in copy_sets(members, index):
+    for chosen in copies(members, index):
         expansions = []
-        if "space" in corr.expansions and len(copies) in corr.multiplicity:
+        if "space" in corr.expansions and len(chosen) in corr.multiplicity:
             expansions.append("space")
-        if "time" in corr.expansions and len(copies) == 1 and _time_ok(copies[0], index):
+        if "time" in corr.expansions and len(chosen) == 1 and _time_ok(chosen[0], index):
             expansions.append("time")
         for expansion in expansions:
             inputs = tuple(
-                (spec.name, tuple(m.edges[k] for m in copies))
+                (spec.name, tuple(m.edges[k] for m in chosen))
                 if spec.name in corr.edges
-                else (spec.name, (copies[0].edges[k],))
+                else (spec.name, (chosen[0].edges[k],))
                 for k, spec in enumerate(template.inputs)
             )
             records = [index.edges[e] for _, ids in inputs for e in ids]
             outputs = _outputs(
-                template, dict(copies[0].roles), dict(copies[0].types), records, expansion
+                template, dict(chosen[0].roles), dict(chosen[0].types), records, expansion
             )
             instances.append(Instance(template, expansion, inputs, outputs))
     return instances

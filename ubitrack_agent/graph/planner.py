@@ -41,10 +41,12 @@ from typing import Any
 import networkx as nx
 
 from ubitrack_agent.graph.matcher import (
+    CopySets,
     EdgeIndex,
     EdgeRecord,
     Instance,
     Match,
+    copy_sets,
     expand_group,
     find_matches,
     group_key,
@@ -624,6 +626,8 @@ def saturate(
     new_frames: Iterable[str] = (),
     slack: int = DEFAULT_SLACK,
     prefix: str = "",
+    prune: bool = True,
+    copies: CopySets = copy_sets,
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
@@ -651,7 +655,7 @@ def saturate(
             for key, data in sorted(srg.succ[source][target].items()):
                 ws.add_measured(source, target, key, data)
     rigid = [(a, b) for a, b in rigid if not ws.index.is_measured_rigid(a, b)]
-    if goal is not None and not rigid:  # no time integration: chains on cycles are never needed
+    if prune and goal is not None and not rigid:  # no time integration: no chain on a cycle
         ws.neighbours = {f: frames.intersection((*srg.succ[f], *srg.pred[f])) for f in frames}
     for a, b in rigid:
         ws.index.add_rigid(a, b)
@@ -668,7 +672,7 @@ def saturate(
     while new:
         touched: dict[tuple, None] = {}
         for template in templates:
-            chain = template.signature == "chain"
+            chain = prune and template.signature == "chain"
             for match in find_matches(template, ws.index, new):
                 if chain and not ws.may_chain(match):
                     continue
@@ -681,7 +685,7 @@ def saturate(
         for key in touched:
             retired = ws.index.retired
             members = [m for m in groups[key].values() if retired.isdisjoint(m.edges)]
-            for instance in expand_group(members, ws.index) if members else ():
+            for instance in expand_group(members, ws.index, copies) if members else ():
                 if instance.key not in applied:
                     applied.add(instance.key)
                     new.extend(ws.apply(instance))
