@@ -10,6 +10,7 @@ import threading
 import pytest
 
 from ubitrack_agent.agent.announcements import provider_entries
+from ubitrack_agent.agent.live_srg import LiveSrg
 from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, make_outcome
 from ubitrack_agent.agent.replanning import Planned
 from ubitrack_agent.graph.templates import load_templates
@@ -33,7 +34,7 @@ class Jobs:
         self.done.set()
         if failure is not None:
             raise failure
-        return Outcome(request, Planned(), {}, {}, {}, {}, 0.0)
+        return Outcome(request, LiveSrg(), Planned(), {}, {}, {}, {}, 0.0)
 
     def finish(self, failure: Exception | None = None) -> None:
         self.done.clear()

@@ -26,7 +26,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from ubitrack_agent.agent.announcements import build_srg
+from ubitrack_agent.agent.live_srg import LiveSrg, live_srg
 from ubitrack_agent.agent.materialise import Keys, component_specs, fold
 from ubitrack_agent.agent.replanning import Planned, replan
 from ubitrack_agent.graph.templates import Template
@@ -52,12 +52,13 @@ class Request:
 
 @dataclass(frozen=True)
 class Outcome:
-    """A plan made from ``request``: the planning state, and the worker specifications of its
-    plan (``labels``: the host labels each component's template requires; ``folded``: the
-    components folded into another, ``materialise.fold``), the host of each measured edge by
-    data key, and how long it took."""
+    """A plan made from ``request``: the live SRG and the planning state, and the worker
+    specifications of its plan (``labels``: the host labels each component's template
+    requires; ``folded``: the components folded into another, ``materialise.fold``), the host
+    of each measured edge by data key, and how long it took."""
 
     request: Request
+    live: LiveSrg
     planned: Planned
     wanted: Mapping[str, ComponentSpec]
     folded: Mapping[str, str]
@@ -73,13 +74,24 @@ def make_outcome(
     keys: Keys,
 ) -> Outcome:
     """Plan ``request`` incrementally from ``previous`` (pure). The specifications are made
-    again only when the plan changed. O(edges) for the SRG, plus :func:`.replanning.replan`'s
-    cost, plus O(components) when the plan changed."""
+    again only when the plan changed. O(edges) for the SRG (``agent.live_srg``: no fragment
+    parsed again), plus :func:`.replanning.replan`'s cost, plus O(components) when the plan
+    changed."""
     started = time.perf_counter()
-    srg = build_srg(request.fragments, without=request.stale)
+    live, removed, added = live_srg(
+        request.fragments, request.stale, previous.live if previous else None
+    )
+    srg = live.srg
     base = previous.planned if previous else None
     planned = replan(
-        base, srg, templates, request.relations, request.running, request.follow, request.full
+        base,
+        srg,
+        templates,
+        request.relations,
+        request.running,
+        request.follow,
+        request.full,
+        (removed, added) if base is not None else None,
     )
     if previous is not None and planned.plan is previous.planned.plan:
         wanted, folded, labels = previous.wanted, previous.folded, previous.labels
@@ -95,7 +107,7 @@ def make_outcome(
         keys.data(edge_id): host for *_, edge_id, host in srg.edges(keys=True, data="host") if host
     }
     seconds = time.perf_counter() - started
-    return Outcome(request, planned, wanted, folded, labels, data_hosts, seconds)
+    return Outcome(request, live, planned, wanted, folded, labels, data_hosts, seconds)
 
 
 class BackgroundPlanner:

@@ -29,7 +29,8 @@ added edges' frames (an edge within a region has both frames within the region's
 ``d(source, target) + slack`` of the query's frames, and that bound only shrinks as edges are
 added), then decided exactly by computing the candidates' regions again.
 
-Cost per event, for ``Q`` relations and ``E`` edges: O(E) to compare the SRGs, O(ball) for the
+Cost per event, for ``Q`` relations and ``E`` edges: O(E) to compare the SRGs (O(changed edges)
+when the caller knows the changes: ``agent.live_srg``), O(ball) for the
 search around the added edges, O(region) per candidate, and one ``graph.planner.plan`` per
 relation replanned, plus O(components) to merge the flows when any changed.
 """
@@ -150,10 +151,13 @@ def affected(
     srg: nx.MultiDiGraph,
     templates: Sequence[Template],
     relations: Set[RelationId],
+    changes: tuple[Edges, Edges] | None = None,
 ) -> tuple[set[RelationId], dict[RelationId, Region]]:
     """The relations among ``relations`` that the change from ``previous.srg`` to ``srg`` can
-    affect (module docstring), and the regions of the others as they are on ``srg``."""
-    removed, added = edge_changes(previous.srg, srg)
+    affect (module docstring), and the regions of the others as they are on ``srg``;
+    ``changes``, the edges removed and added, if known (``agent.live_srg``), saves comparing
+    the SRGs."""
+    removed, added = changes if changes is not None else edge_changes(previous.srg, srg)
     todo = {r for r in relations if r not in previous.parts}
     regions = {r: previous.regions[r] for r in relations if r not in todo}
     if not removed and not added:
@@ -208,19 +212,20 @@ def replan(
     running: Set[str] = frozenset(),
     follow: bool = True,
     full: bool = False,
+    changes: tuple[Edges, Edges] | None = None,
 ) -> Planned:
     """The plan of ``relations`` on ``srg``, planning again only the relations the change
     since ``previous`` can affect (all of them if ``full`` or there is no ``previous``); the
     others keep their part. Choices follow ``flows.stable_choice`` with the ``running``
     components and, if ``follow``, the previous plan's derivations (a standby agent, which
-    follows what runs, passes ``False``)."""
+    follows what runs, passes ``False``); ``changes`` as for :func:`affected`."""
     relations = set(relations)
     if previous is None or full:
         base = previous or Planned()
         todo, regions = set(relations), {}
     else:
         base = previous
-        todo, regions = affected(previous, srg, templates, relations)
+        todo, regions = affected(previous, srg, templates, relations, changes)
     serving = base.plan.serving if follow and previous is not None else None
     parts = {r: base.parts[r] for r in relations if r not in todo}
     for relation in todo:
