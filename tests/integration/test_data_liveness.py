@@ -1,7 +1,7 @@
-"""Data liveness, live: a provider that keeps its token but stops publishing an edge loses that
-edge for planning (``agent/liveness.py``) while another provider offers an alternative, and gets
-it back when its data returns. The situation of issue 11: ``ubitrack sim art`` dead, its DTrack
-adapter alive and still announcing the A.R.T. edges."""
+"""Data liveness, live: a provider that keeps its token but stops publishing an edge reports it
+quiet (``io/provider.py``) and the agent plans without it (``agent/liveness.py``) while another
+provider offers an alternative, and gets it back when its data returns. The situation of issue
+11: ``ubitrack sim art`` dead, its DTrack adapter alive and still announcing the A.R.T. edges."""
 
 from __future__ import annotations
 
@@ -14,10 +14,9 @@ import pytest
 from sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 from tests.integration.test_agent import WT_HT, assert_true_pose, fresh_samples, setup  # noqa: F401
 from tests.integration.zenoh_helpers import wait_until
-from ubitrack_agent.agent.liveness import STALE_MIN_S
 from ubitrack_agent.core import ErrorPose, se3
 from ubitrack_agent.io.application import Relation
-from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
+from ubitrack_agent.io.provider import STALE_MIN_S, EdgeAnnouncement, Provider
 
 pytestmark = pytest.mark.integration
 

@@ -12,7 +12,6 @@ import json
 import math
 import threading
 
-import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -25,7 +24,6 @@ from ubitrack_agent.agent.announcements import (
     fragment_entries,
 )
 from ubitrack_agent.agent.flows import plan_relations, stable_choice
-from ubitrack_agent.agent.liveness import DataLiveness
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.runtime import Agent
 from ubitrack_agent.graph.planner import Query, plan
@@ -229,45 +227,6 @@ def test_rejections_are_logged_rate_limited(caplog):
     assert problems.counters["rejected_worker_keys"] == 2000
     assert problems.last["rejected_worker_keys"] == "ignored 1999"
     assert len(caplog.records) == 12  # the first ten, the 1000th and the 2000th
-
-
-def test_an_edge_whose_data_stopped_is_stale_until_data_returns():
-    liveness = DataLiveness()
-    entries = [
-        {"id": "a/HT", "rate": 100.0},  # window max(20 / 100, 1) = 1 s
-        {"id": "a/slow", "rate": 0.5},  # 40 s
-        {"id": "a/WT", "rate": 100.0, "static": True},
-        {"id": "a/pull", "rate": 100.0, "mode": "pull"},
-        {"id": "a/unrated"},
-    ]
-    added, _ = liveness.watch(entries, now=0.0)
-    assert added == {"a/HT", "a/slow"}
-    assert liveness.windows == {"a/HT": 1.0, "a/slow": 40.0}
-    assert checked_until(liveness, 0.0, 0.9) == frozenset()  # a new edge has its window
-    assert checked_until(liveness, 0.9, 1.1) == {"a/HT"}
-    liveness.arrived("a/HT", 1.2)
-    assert checked_until(liveness, 1.1, 1.3) == frozenset()
-    assert checked_until(liveness, 1.3, 41.0) == {"a/HT", "a/slow"}
-    _, removed = liveness.watch(entries[:1], now=41.0)
-    assert removed == {"a/slow"}
-    assert liveness.stale(41.0) == {"a/HT"}
-
-
-def checked_until(liveness: DataLiveness, start: float, end: float) -> frozenset[str]:
-    """The stale edges at ``end``, checked every 50 ms from ``start`` as the agent does."""
-    for now in np.arange(start, end, 0.05):
-        liveness.stale(float(now))
-    return liveness.stale(end)
-
-
-def test_a_pause_of_the_agent_is_not_silence_of_the_edges():
-    liveness = DataLiveness()
-    liveness.watch([{"id": "a/HT", "rate": 100.0}], now=0.0)
-    assert checked_until(liveness, 0.0, 0.5) == frozenset()
-    assert liveness.stale(3.0) == frozenset()  # no check for 2.5 s: the agent did not run
-    liveness.arrived("a/HT", 3.05)  # samples queued meanwhile arrive
-    assert checked_until(liveness, 3.0, 4.0) == frozenset()
-    assert checked_until(liveness, 4.0, 4.1) == {"a/HT"}  # then silence counts again
 
 
 def test_the_live_srg_leaves_out_stale_edges():

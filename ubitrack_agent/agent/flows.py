@@ -25,14 +25,14 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 
-from ubitrack_agent.graph.dataflow import (
-    DataFlow,
-    from_solution,
-    merge,
-    plan_flows,
-    relation_name,
+from ubitrack_agent.graph.dataflow import DataFlow, from_solution, merge, relation_name
+from ubitrack_agent.graph.planner import (
+    PlanningError,
+    Query,
+    Solution,
+    introducible_frames,
+    plan,
 )
-from ubitrack_agent.graph.planner import PlanningError, Query, Solution, introducible_frames
 from ubitrack_agent.graph.srg import remove_static_relation, static_relation_edges
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import RelationId
@@ -82,40 +82,84 @@ def stable_choice(
     return choose
 
 
-def _plan_on(
+@dataclass(frozen=True)
+class RelationPlan:
+    """One relation's part of a :class:`Plan`: its data flow (empty if unsolved, then
+    ``unsolved`` says why), the components of its derivation (``serving``) and the measured
+    edges that derivation reads (``edges``: an event removing one of them replans it,
+    ``agent.replanning``). ``name`` is its :func:`plan_name`; ``relations`` maps the names it
+    is planned under to the relation (none for a type the planner does not know)."""
+
+    relation: RelationId
+    name: str
+    flow: DataFlow = field(default_factory=DataFlow)
+    unsolved: str | None = None
+    serving: frozenset[str] = frozenset()
+    edges: frozenset[str] = frozenset()
+    relations: Mapping[str, RelationId] = field(default_factory=dict)
+
+
+def plan_relation(
     srg: nx.MultiDiGraph,
     templates: Sequence[Template],
-    relations: Iterable[RelationId],
-    choose: Chooser,
-    plan_name_of: Callable[[Query], str] = relation_name,
-) -> Plan:
-    """A derivation of each relation on ``srg`` chosen by ``choose``, merged into one data flow
-    under the data flow's relation names (``"C->HT:6D/static"``), with the components of each
-    derivation by ``plan_name_of``."""
-    queries, names, unsolved = [], {}, {}
-    for relation in sorted(set(relations), key=str):
-        try:
-            query = Query(relation.source, relation.target, relation.type, relation.static)
-        except PlanningError as exc:
-            unsolved[str(relation)] = str(exc)
-            continue
-        name = relation_name(query)
-        names[name] = relation
+    relation: RelationId,
+    running: Set[str] = frozenset(),
+    serving: Mapping[str, Set[str]] | None = None,
+) -> RelationPlan:
+    """A derivation of ``relation`` chosen by :func:`stable_choice` (``serving``: the
+    components of the previous plan's derivations, by plan name; ``None`` before the first
+    plan). A recalibration is planned on ``srg`` without the measured static edges of its
+    relation (``srg.remove_static_relation``), so it is computed from the other edges; its
+    unsolved reason says which edges it ignored. O(one ``graph.planner.plan``)."""
+    try:
+        query = Query(relation.source, relation.target, relation.type, relation.static)
+    except PlanningError as exc:
+        return RelationPlan(relation, str(relation), unsolved=str(exc))
+    name = plan_name(relation)
+    ignored: list[str] = []
+    if relation.recalibrate:
+        ignored = static_relation_edges(srg, relation.source, relation.target)
+        srg = remove_static_relation(srg, relation.source, relation.target)
+        choose = stable_choice(running, serving, _recalibration_name)
+    else:
+        choose = stable_choice(running, serving)
+    names = {name: relation}
+    try:
         new = introducible_frames(srg, templates, query)  # a calibration may add a frame
         missing = [f for f in (relation.source, relation.target) if f not in srg and f not in new]
         if missing:
-            unsolved[name] = f"no provider announces frame(s) {', '.join(missing)}"
-            continue
-        queries.append(query)
-    serving: dict[str, frozenset[str]] = {}
+            raise PlanningError(f"no provider announces frame(s) {', '.join(missing)}")
+        solution = choose(query, plan(srg, templates, query))
+    except PlanningError as exc:
+        without = f"without the measured static edge(s) {', '.join(ignored)}: " if ignored else ""
+        return RelationPlan(relation, name, unsolved=without + str(exc), relations=names)
+    flow = from_solution(solution, query)
+    return RelationPlan(
+        relation,
+        name,
+        DataFlow(flow.components, {name: flow.relations[relation_name(query)]}),
+        serving=frozenset(flow.components),
+        edges=frozenset(r.id for r in solution.records.values() if r.measured),
+        relations=names,
+    )
 
-    def choose_and_remember(query: Query, solutions: Sequence[Solution]) -> Solution:
-        chosen = choose(query, solutions)
-        serving[plan_name_of(query)] = frozenset(from_solution(chosen, query).components)
-        return chosen
 
-    flow, unresolved = plan_flows(srg, templates, queries, choose_and_remember)
-    return Plan(flow, names, {**unsolved, **unresolved}, serving)
+def planning_order(relation: RelationId) -> tuple[bool, str]:
+    """The order in which relations' flows are merged (shared components keep the ids of the
+    first flow that has them: ``dataflow.merge``): plain relations, then recalibrations."""
+    return relation.recalibrate, str(relation)
+
+
+def combine(parts: Iterable[RelationPlan]) -> Plan:
+    """One plan of the relations' ``parts`` (taken in :func:`planning_order`), their flows
+    merged. O(components of all parts)."""
+    ordered = sorted(parts, key=lambda part: planning_order(part.relation))
+    return Plan(
+        merge(part.flow for part in ordered),
+        {name: r for part in ordered for name, r in part.relations.items()},
+        {part.name: part.unsolved for part in ordered if part.unsolved is not None},
+        {part.name: part.serving for part in ordered if part.unsolved is None},
+    )
 
 
 def plan_name(relation: RelationId) -> str:
@@ -138,33 +182,6 @@ def _recalibration_name(query: Query | str) -> str:
     return name.replace("/static", "/recalibrate")
 
 
-def _recalibration_plan(
-    srg: nx.MultiDiGraph,
-    templates: Sequence[Template],
-    relation: RelationId,
-    choose: Chooser,
-) -> Plan:
-    """The static ``relation`` planned on ``srg`` without the measured static edges between
-    its frames (``srg.remove_static_relation``), so it is computed from the other edges
-    (calibrated over time); an unsolved reason says which edges it ignored."""
-    source, target = relation.source, relation.target
-    ignored = static_relation_edges(srg, source, target)
-    without_stored = remove_static_relation(srg, source, target)
-    planned = _plan_on(without_stored, templates, [relation], choose, _recalibration_name)
-    if not planned.relations:
-        return planned  # not a query the planner takes (its type), with the reason
-    name = plan_name(relation)
-    without = f"without the measured static edge(s) {', '.join(ignored)}: " if ignored else ""
-    binding = next(iter(planned.flow.relations.values()), None)
-    reason = next(iter(planned.unsolved.values()), None)
-    return Plan(
-        DataFlow(planned.flow.components, {name: binding} if binding else {}),
-        {name: relation},
-        {name: without + reason} if reason else {},
-        planned.serving,
-    )
-
-
 def plan_relations(
     srg: nx.MultiDiGraph,
     templates: Sequence[Template],
@@ -172,22 +189,8 @@ def plan_relations(
     running: Set[str] = frozenset(),
     previous: Plan | None = None,
 ) -> Plan:
-    """A derivation of each relation (:func:`stable_choice` given the ``previous`` plan),
-    merged into one data flow. A recalibration is planned on the SRG without the measured
-    static edges of its relation, every other relation on the whole SRG (so the stored edge
-    keeps serving them)."""
+    """A derivation of each relation (:func:`plan_relation`, :func:`stable_choice` given the
+    ``previous`` plan), merged into one data flow: every relation planned again
+    (``agent.replanning`` plans only those an event can affect). O(relations x one plan)."""
     serving = previous.serving if previous else None
-    relations = set(relations)
-    plain = [r for r in relations if not r.recalibrate]
-    plans = [_plan_on(srg, templates, plain, stable_choice(running, serving))]
-    recalibrating = stable_choice(running, serving, _recalibration_name)
-    plans += [
-        _recalibration_plan(srg, templates, relation, recalibrating)
-        for relation in sorted((r for r in relations if r.recalibrate), key=str)
-    ]
-    return Plan(
-        merge(plan.flow for plan in plans),
-        {name: r for plan in plans for name, r in plan.relations.items()},
-        {name: reason for plan in plans for name, reason in plan.unsolved.items()},
-        {name: parts for plan in plans for name, parts in plan.serving.items()},
-    )
+    return combine(plan_relation(srg, templates, r, running, serving) for r in set(relations))

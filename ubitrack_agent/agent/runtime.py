@@ -16,24 +16,26 @@ history, so a restarted agent rebuilds its whole state from them alone (``docs/p
   stop or rewire a worker: its plan is current, so when it takes over it adopts every worker
   that runs at once. A clean stop of the active agent with a standby alive hands over.
 
-It also watches the arrival of data on the measured edges that announce a rate
-(:mod:`.liveness`): an edge whose data stopped is planned without until its data returns.
+It also takes the providers' liveness reports (:mod:`.liveness`, on ``<root>/data/<provider>``):
+an edge whose data stopped, as its provider observes, is planned without until its data
+returns. The agent itself reads no sample.
 
-After each batch of events it replans every relation (:mod:`.flows`), turns the merged data
-flow into worker specifications (:mod:`.materialise`) and reconciles the running workers with
-them (:mod:`.reconcile`): start or stop (through a host manager, over zenoh only: :mod:`.hosts`),
-or rewire in place with a control command. Each start goes to the host :mod:`.placement`
-chooses, near the data the component reads; a running component moves (started on the new
-host, then its old process stopped) only when another host is better by the placement's
-margin. A start no host manager took is tried again on a later pass. A worker that ends on
-its own (or whose host vanished with it) is started again where placement says; a worker
-alive but not known (left by an earlier agent) is adopted if wanted, stopped otherwise, but
-only once it has been unwanted for ``ORPHAN_GRACE_S`` after start-up settled (``SETTLE_S``).
-Planning prefers the components that are alive, adopted or not, so a restarted agent replans
-onto what runs.
-A stop the agent puts itself (for a worker no host manager owns) is put again every
-``STOP_RESEND_S`` while the worker's token stays up and nothing wants it. Events are handled
-on the agent's own thread; zenoh callbacks only queue them.
+After each batch of events it replans the relations the events can affect (:mod:`.replanning`;
+every relation when a worker nothing runs appeared, which the plan may prefer), on a planning
+thread that never holds up the loop (:mod:`.planning`: an outcome made before a newer event is
+dropped), turns the merged data flow into worker specifications (:mod:`.materialise`) and
+reconciles the running workers with them (:mod:`.reconcile`): start or stop (through a host
+manager, over zenoh only: :mod:`.hosts`), or rewire in place with a control command. Each start
+goes to the host :mod:`.placement` chooses, near the data the component reads; a running
+component moves (started on the new host, then its old process stopped) only when another host
+is better by the placement's margin. A start no host manager took is tried again on a later
+pass. A worker that ends on its own (or whose host vanished with it) is started again where
+placement says; a worker alive but not known (left by an earlier agent) is adopted if wanted,
+stopped otherwise, but only once it has been unwanted for ``ORPHAN_GRACE_S`` after start-up
+settled (``SETTLE_S``). Planning prefers the components that are alive, adopted or not, so a
+restarted agent replans onto what runs. A stop the agent puts itself (for a worker no host
+manager owns) is put again every ``STOP_RESEND_S`` while the worker's token stays up and nothing
+wants it. Events are handled on the agent's own thread; zenoh callbacks only queue them.
 
 Nothing from the network can end the agent: every key is parsed by ``KeySpace.parse_token``
 and every fragment by :func:`.announcements.fragment_entries`, which return a value or a
@@ -64,11 +66,16 @@ from ubitrack_agent.agent.announcements import (
 from ubitrack_agent.agent.answers import query_answers
 from ubitrack_agent.agent.clocks import EXACT, correct_clocks
 from ubitrack_agent.agent.election import Election, new_agent_id
-from ubitrack_agent.agent.flows import Plan, plan_name, plan_relations
+from ubitrack_agent.agent.flows import Plan, plan_name
 from ubitrack_agent.agent.hosts import Hosts
-from ubitrack_agent.agent.liveness import DataLiveness
-from ubitrack_agent.agent.materialise import component_specs, fold
+from ubitrack_agent.agent.liveness import (
+    MAX_REPORT_BYTES,
+    ProviderReports,
+    ReportError,
+    parse_report,
+)
 from ubitrack_agent.agent.placement import place
+from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, make_outcome
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
 from ubitrack_agent.graph.templates import Template
@@ -104,6 +111,8 @@ STOP_RESEND_S = 1.0
 """A stop put on a worker's control key by the agent is put again this often while the
 worker's token stays up."""
 PUT = "SampleKind.PUT"
+MAX_QUEUED_REPORTS = 10_000
+"""Most liveness reports waiting for the agent's loop (providers put about one a second)."""
 STATUS_REFRESH_S = 0.25
 """The status answer is rebuilt on every event, and at least this often (counters, rejections
 and worker liveness also change between events)."""
@@ -126,13 +135,19 @@ class Agent:
         """Whether a clean stop left the workers running for a standby agent to adopt."""
         self._on_role = on_role
         self.templates = tuple(templates)
+        self._planner = BackgroundPlanner(
+            lambda request, previous: make_outcome(request, previous, self.templates, self.keys)
+        )
         self.counters: Counter[str] = Counter()
         self.problems = Problems(self.counters)
         self._guard = Guard(self.problems)
-        self._replan_due = False
-        self.liveness = DataLiveness()
+        self.last_plan_s: float | None = None
+        """How long the latest plan applied took to make (on the planning thread)."""
+        self.liveness = ProviderReports()
         self.stale: frozenset[str] = frozenset()
-        self._data_watches: dict[str, Any] = {}
+        self._reports: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
+        self.dropped_reports = 0
+        """Liveness reports dropped unread because ``MAX_QUEUED_REPORTS`` were waiting."""
         self.fragments: dict[str, list[dict[str, Any]]] = {}
         self.rejected: dict[str, str] = {}
         self.queries: dict[RelationId, set[str]] = defaultdict(set)
@@ -198,6 +213,9 @@ class Agent:
                 ("active_agent", self.keys.all_active_agents()),
             )
         ]
+        self._watches.append(
+            self.session.declare_subscriber(self.keys.pattern("data", "*"), self._queue_report)
+        )
         self._started = time.monotonic()
         """When the watches were declared: their history arrives within ``SETTLE_S`` of it."""
         self._declared = [
@@ -233,6 +251,7 @@ class Agent:
         return self._on_worker(token.name, token.incarnation, appeared)
 
     def _on_provider(self, provider: str, appeared: bool) -> bool:
+        self.liveness.forget(provider)  # a new process reports afresh
         if appeared:
             self._pending_fragments[provider] = (0, 0.0)
             return False
@@ -263,8 +282,8 @@ class Agent:
         return before != bool(apps)
 
     def _on_worker(self, instance: str, incarnation: str, appeared: bool) -> bool:
-        """Apply a worker token event; True (replan) if a worker nothing runs appeared, so the
-        plan may prefer it."""
+        """Apply a worker token event; True if a worker nothing runs appeared, so the plan may
+        prefer it (every relation is then planned again: :meth:`run`)."""
         incarnations = self.incarnations[instance]
         if appeared:
             incarnations.setdefault(incarnation, time.monotonic())
@@ -356,6 +375,7 @@ class Agent:
             self.problems.report("rejected_announcements", "rejected announcement: %s", exc)
             self.rejected[provider] = str(exc)
             return self.fragments.pop(provider, None) is not None
+        self.liveness.forget(provider)  # its report may name edges it no longer announces
         self.fragments[provider] = entries
         self.rejected.pop(provider, None)
         return True
@@ -386,62 +406,90 @@ class Agent:
     # -- planning and reconciling -------------------------------------------------------------
 
     def _replan(self) -> None:
-        """Plan every queried relation on the live SRG; the state changes only once the whole
-        plan is made (a failure keeps the previous plan, and planning is asked again)."""
-        self._watch_data()
-        srg = build_srg(self.fragments, without=self.stale)
-        running = set(self.running) | self.alive
-        # A standby follows what the active agent runs (as an agent that has not planned yet
-        # does: every alive component counts), so that it adopts all of it when it takes over.
-        previous = self.plan if self.active else None
-        plan = plan_relations(srg, self.templates, self.queries, running, previous)
-        labels = {template.name: template.host_labels for template in self.templates}
-        self._labels = {
-            component.id: labels.get(component.template, frozenset())
-            for component in plan.flow.components.values()
-        }
-        wanted, self._folded = fold(
-            component_specs(plan.flow, srg, self.keys, plan.relations),
-            keep={instance for instance, required in self._labels.items() if required},
-        )
-        self.srg, self.plan, self.wanted, self._planned = srg, plan, wanted, wanted
-        self._data_hosts = {
-            self.keys.data(edge_id): host
-            for *_, edge_id, host in srg.edges(keys=True, data="host")
-            if host
-        }
-        self._replan_due = False
-        self.counters["replans"] += 1
-        for name, reason in self.plan.unsolved.items():
-            log.warning("cannot serve %s: %s", name, reason)
+        """Apply the planning thread's outcome if it is current (no change since its snapshot),
+        then hand it a snapshot of the newest state if the applied plan is behind; the state
+        changes only when a whole plan is applied (a failure keeps the previous plan, and
+        planning is asked again). Never waits for a plan (:mod:`.planning`)."""
+        outcome = self._planner.step(self._snapshot)
+        self.counters["superseded_plans"] = self._planner.superseded
+        if outcome is not None:
+            self._apply(outcome)
 
-    def _watch_data(self) -> None:
-        """Subscribe to the data keys of exactly the edges :class:`.liveness.DataLiveness`
-        watches among the accepted providers' (only arrival times are recorded)."""
-        entries = [entry for entries in self.fragments.values() for entry in entries]
-        added, removed = self.liveness.watch(entries, time.monotonic())
-        for edge_id in removed:
-            self._data_watches.pop(edge_id).undeclare()
-        for edge_id in sorted(added):
-            self._data_watches[edge_id] = self.session.declare_subscriber(
-                self.keys.data(edge_id),
-                lambda _sample, edge_id=edge_id: self.liveness.arrived(edge_id, time.monotonic()),
+    def _snapshot(self, generation: int, full: bool) -> Request:
+        """What planning reads, as it is now (immutable: the planning thread reads it)."""
+        return Request(
+            generation,
+            dict(self.fragments),
+            self.stale,
+            frozenset(self.queries),
+            frozenset(self.running.keys() | self.alive),
+            # A standby follows what the active agent runs (as an agent that has not planned
+            # yet does: every alive component counts), so that it adopts all of it when it
+            # takes over.
+            follow=self.active,
+            full=full,
+        )
+
+    def _apply(self, outcome: Outcome) -> None:
+        """Make ``outcome``'s plan the agent's (its worker specifications if it changed)."""
+        planned = outcome.planned
+        if planned.plan is not self.plan:
+            self.wanted, self._planned = dict(outcome.wanted), dict(outcome.wanted)
+            self._folded, self._labels = dict(outcome.folded), dict(outcome.labels)
+        self.srg, self.plan, self._data_hosts = planned.srg, planned.plan, dict(outcome.data_hosts)
+        self.counters["replans"] += 1
+        self.counters["relations_replanned"] += len(planned.replanned)
+        self.last_plan_s = outcome.seconds
+        for relation in sorted(planned.replanned, key=str):
+            part = planned.parts[relation]
+            if part.unsolved is not None:
+                log.warning("cannot serve %s: %s", part.name, part.unsolved)
+
+    def _queue_report(self, sample: Any) -> None:
+        """Queue a liveness report (on zenoh's thread; bounded: a flood is dropped unread)."""
+        if self._reports.qsize() < MAX_QUEUED_REPORTS:
+            self._reports.put((str(sample.key_expr), sample.payload))
+        else:
+            self.dropped_reports += 1
+
+    def _take_reports(self) -> bool:
+        """Apply the queued liveness reports; True if the stale edges changed (then the agent
+        replans)."""
+        while not self._reports.empty():
+            self._guard.call(
+                "liveness_report", self._take_report, *self._reports.get_nowait(), default=None
+            )
+        self.counters["dropped_liveness_reports"] = self.dropped_reports
+        return self._update_stale()
+
+    def _take_report(self, key: str, payload: Any) -> None:
+        """Keep one provider's report (:mod:`.liveness`); a report of a provider not accepted
+        (yet) is ignored: it puts one every second."""
+        provider = key.removeprefix(f"{self.keys.root}/data/")
+        if provider not in self.fragments:
+            return
+        try:
+            if len(payload) > MAX_REPORT_BYTES:  # refused before it is copied
+                raise ReportError(f"{len(payload)} bytes, at most {MAX_REPORT_BYTES}")
+            names = parse_report(payload.to_bytes())
+            self.liveness.take(provider, names, self.fragments[provider])
+        except ReportError as exc:
+            self.problems.report(
+                "rejected_liveness_reports", "ignored liveness report of %r: %s", provider, exc
             )
 
-    def _check_liveness(self) -> bool:
-        """Update the stale edges; True if they changed (then the agent replans)."""
-        stale = self.liveness.stale(time.monotonic())
+    def _update_stale(self) -> bool:
+        """The stale edges from the reports; True if they changed."""
+        stale = self.liveness.stale
         if stale == self.stale:
             return False
         for edge_id in sorted(stale - self.stale):
             self.counters["stale_edges"] += 1
-            window = self.liveness.windows[edge_id]
-            log.warning(
-                "%s: no data for %.1f s, planning without it until it returns", edge_id, window
-            )
-        for edge_id in sorted((self.stale - stale) & set(self.liveness.windows)):
-            self.counters["returned_edges"] += 1  # (not an edge whose provider left)
-            log.warning("%s: data again, planning with it", edge_id)
+            log.warning("%s: no data, planning without it until it returns", edge_id)
+        for edge_id in sorted(self.stale - stale):
+            if edge_id.partition("/")[0] in self.fragments:  # (not an edge whose provider left)
+                self.counters["returned_edges"] += 1
+                log.warning("%s: data again, planning with it", edge_id)
         self.stale = stale
         return True
 
@@ -712,14 +760,14 @@ class Agent:
             while not self._stop.is_set():
                 batch = self._next_batch()
                 for event in batch:
-                    self._replan_due |= guard.call(
-                        "liveliness", self._handle, *event, default=False
-                    )
-                self._replan_due |= guard.periodic("fragments", self._fetch_fragments, False)
-                self._replan_due |= guard.periodic("liveness", self._check_liveness, False)
+                    if guard.call("liveliness", self._handle, *event, default=False):
+                        self._planner.changed(full=event[0] == "worker")
+                if guard.periodic("fragments", self._fetch_fragments, False):
+                    self._planner.changed()
+                if guard.periodic("liveness", self._take_reports, False):
+                    self._planner.changed()
                 guard.periodic("hosts", self._reap_hosts, None)
-                if self._replan_due:
-                    guard.periodic("replan", self._replan, None)
+                guard.periodic("replan", self._replan, None)
                 guard.periodic("election", self._elect, None)
                 if self.active:  # a standby keeps its state current but changes nothing
                     guard.periodic("answers", self._publish_answers, None)
@@ -814,6 +862,10 @@ class Agent:
             "counters": dict(self.counters),
             "problems": dict(self.problems.last),
             "last_change_ns": self.last_change_ns,
+            "planning": {
+                "last_plan_s": self.last_plan_s,
+                "under_way": self._planner.in_flight is not None,
+            },
         }
 
     def _roles(self) -> dict[str, Any]:
@@ -846,7 +898,7 @@ class Agent:
         self.handed_over = stop_workers and self.active and standby
         was_active = self.active
         self._undeclare_active()
-        for declared in (*self._declared, *self._watches, *self._data_watches.values()):
+        for declared in (*self._declared, *self._watches):
             declared.undeclare()
         if stop_workers and was_active and not standby:
             for instance in sorted({*self.running, *self._retiring}):
@@ -855,6 +907,7 @@ class Agent:
             log.warning("handing over to the standby agent: the workers keep running")
         elif not stop_workers:
             log.error("the agent failed: its workers keep running for a restarted agent")
+        self._planner.close()
         self.hosts.close()
         self.session.close()
 

@@ -1,5 +1,6 @@
 """``ubitrack agent``: run the live agent (the zenoh hub of the embedded default), with a host
-manager for its own machine as a child process unless ``--no-host``."""
+manager for its own machine as a child process unless ``--no-host``; that host manager takes
+the capacity options of ``ubitrack host`` (``--pool-size``, ``--labels``, ``--capacity``)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,12 @@ import subprocess
 import sys
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
-from services.host import DEFAULT_POOL_SIZE
+from services.host import DEFAULT_POOL_SIZE, labels
 from ubitrack_agent.net import config
+from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.status_line import periodic_status
 
@@ -51,6 +54,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "each holds about 100 MB (default: %(default)s)",
     )
     parser.add_argument(
+        "--labels",
+        type=labels,
+        default=frozenset(),
+        help="comma-separated labels of this machine that templates may require, such as "
+        "camera,gpu,hmd, for its host manager (as `ubitrack host --labels`; default: none)",
+    )
+    parser.add_argument(
+        "--capacity",
+        type=int,
+        default=DEFAULT_CAPACITY,
+        help="workers this machine's host manager runs at most; further starts go to other "
+        f"hosts (as `ubitrack host --capacity`; default: %(default)s, 1 to {MAX_CAPACITY})",
+    )
+    parser.add_argument(
         "--quiet",
         action="store_true",
         help="no status line (every 10 s: role, queries, workers alive, reconfigurations, the "
@@ -65,21 +82,42 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+@dataclass(frozen=True)
+class HostOptions:
+    """The capacity options of the agent's own host manager (those of ``ubitrack host``)."""
+
+    pool_size: int = DEFAULT_POOL_SIZE
+    labels: frozenset[str] = frozenset()
+    capacity: int = DEFAULT_CAPACITY
+
+    def flags(self) -> list[str]:
+        """The host manager's command-line flags for these options."""
+        flags = ["--pool-size", str(self.pool_size), "--capacity", str(self.capacity)]
+        return [*flags, "--labels", ",".join(sorted(self.labels))] if self.labels else flags
+
+    def problem(self) -> str | None:
+        """Why these options are invalid, or ``None``."""
+        if self.pool_size < 0:
+            return "--pool-size must be >= 0"
+        if not 1 <= self.capacity <= MAX_CAPACITY:
+            return f"--capacity must be 1 to {MAX_CAPACITY}"
+        return None
+
+
 class EmbeddedHost:
     """The host manager for this machine (``python -m services.host``), joined to the agent's
     network, started again if it ends while the agent runs. Its standard input is a pipe from
     this process, so it ends when the agent dies, leaving the assigned workers running for a
     restarted agent to adopt (its idle pool workers end with it)."""
 
-    def __init__(self, settings: config.Settings, pool_size: int, log_level: str) -> None:
+    def __init__(self, settings: config.Settings, options: HostOptions, log_level: str) -> None:
         self._command = [
             sys.executable,
             "-m",
             "services.host",
             "--exit-when-stdin-closes",
             "--quiet",  # the agent's status line counts its workers
-            "--pool-size",
-            str(pool_size),
+            *options.flags(),
             "--log-level",
             log_level,
             *config.member_flags(settings),
@@ -155,8 +193,8 @@ class HostWhileActive:
     (``agent.election``): a standby's host manager would answer the active agent's requests
     under the same host name. Stepping down abandons it (the workers keep running)."""
 
-    def __init__(self, settings: config.Settings, pool_size: int, log_level: str) -> None:
-        self._options = (settings, pool_size, log_level)
+    def __init__(self, settings: config.Settings, options: HostOptions, log_level: str) -> None:
+        self._options = (settings, options, log_level)
         self._stopping = False
         self.host: EmbeddedHost | None = None
 
@@ -191,10 +229,11 @@ def run(args: argparse.Namespace) -> int:
     except (config.ConfigError, TemplateError) as exc:
         print(f"ubitrack agent: {exc}", file=sys.stderr)
         return 2
-    if args.pool_size < 0:
-        print("ubitrack agent: --pool-size must be >= 0", file=sys.stderr)
+    options = HostOptions(args.pool_size, args.labels, args.capacity)
+    if (problem := options.problem()) is not None:
+        print(f"ubitrack agent: {problem}", file=sys.stderr)
         return 2
-    host = None if args.no_host else HostWhileActive(settings, args.pool_size, args.log_level)
+    host = None if args.no_host else HostWhileActive(settings, options, args.log_level)
     try:
         agent = Agent(settings, templates, on_role=host.on_role if host else None)
     except zenoh.ZError as exc:

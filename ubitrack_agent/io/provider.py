@@ -21,13 +21,29 @@ token ``<root>/provider/<id>``; the agent sees the token, fetches the fragment a
 edges to the live SRG. Each edge's data key also answers queries with the latest value, so a
 worker started later still gets a static edge's value. Closing (leaving the ``with`` block,
 calling :meth:`Provider.close`, or the process dying) removes the token and the agent replans.
+
+Data liveness is judged here, where the data is (``docs/protocol.md`` "Data liveness"): a
+token says the process lives, not that its edges deliver. A dynamic push edge announcing a
+``rate`` is *quiet* when :meth:`Provider.publish` was not called for it for
+:func:`stale_after` seconds (20 periods, at least 1 s); the provider then puts a liveness
+report, the JSON ``{"quiet": [<edge name>, ...]}`` listing every quiet edge, on
+``<root>/data/<provider>`` (one chunk below ``data``, where an edge's data key always has two,
+and a key the provider may write under access control). It puts the report again at once when
+the set changes (an edge went quiet, or a sample of a quiet edge was published) and every
+``SUMMARY_S`` anyway, so an agent that starts later (or missed one) learns the state within a
+second. The agent plans without the quiet edges (``agent.liveness``) and so never reads a
+sample itself: its work does not grow with the sample rate. Silence counts only while the
+provider's checks run: a pause of its checks longer than ``PAUSE_S`` (the process starved of
+CPU, or stopped in a debugger) is not held against any edge, and the samples queued meanwhile
+get the time to be published. The check costs each publish one clock read and one assignment.
 """
 
 from __future__ import annotations
 
 import json
 import threading
-from collections.abc import Iterable
+import time
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,6 +56,59 @@ from ubitrack_agent.net.transport import LatestValuePublisher
 
 SRG_TYPES = frozenset(cls.SRG_TYPE for cls in MEASUREMENT_TYPES.values())
 MODES = ("push", "pull")
+STALE_PERIODS = 20.0
+"""Periods of its announced rate without a sample after which an edge is quiet."""
+STALE_MIN_S = 1.0
+"""Shortest silence after which an edge is quiet, whatever its rate."""
+PAUSE_S = 0.25
+"""A longer time between two checks is a pause of the provider, not silence of its edges (it
+checks every ``CHECK_S``)."""
+CHECK_S = 0.05
+"""How often a provider checks its edges for silence."""
+SUMMARY_S = 1.0
+"""How often a provider puts its liveness report when nothing changed."""
+
+
+def stale_after(static: bool, mode: str, rate: float | None) -> float | None:
+    """Seconds without a sample after which an edge is quiet: ``max(STALE_PERIODS / rate,
+    STALE_MIN_S)`` (1 s at 60 Hz, 20 s at 1 Hz); ``None`` if it never is (static, pull, or no
+    rate)."""
+    if static or mode != "push" or not rate or rate <= 0:
+        return None
+    return max(STALE_PERIODS / rate, STALE_MIN_S)
+
+
+class QuietEdges:
+    """Which watched edges went quiet, from the times their samples were published (module
+    docstring). Times are passed in (monotonic seconds); :meth:`published` runs on the
+    publishing thread, :meth:`check` on the checking one. O(watched edges) per check."""
+
+    def __init__(self, windows: Mapping[str, float], now: float) -> None:
+        self.windows = dict(windows)
+        self._last = dict.fromkeys(self.windows, now)  # a new edge has its whole window
+        self._checked = now
+        self.quiet: frozenset[str] = frozenset()
+
+    def published(self, name: str, now: float) -> bool:
+        """A sample of ``name`` was published; True if the edge was quiet (it is back)."""
+        if name in self._last:
+            self._last[name] = now
+            if name in self.quiet:
+                self.quiet = self.quiet - {name}
+                return True
+        return False
+
+    def check(self, now: float) -> bool:
+        """Update :attr:`quiet`; True if it changed. A pause since the last check longer than
+        ``PAUSE_S`` is not counted as silence."""
+        paused = now - self._checked
+        if paused > PAUSE_S:
+            for name, last in list(self._last.items()):
+                self._last[name] = min(last + paused, now)
+        self._checked = now
+        quiet = frozenset(n for n, w in self.windows.items() if now - self._last[n] > w)
+        changed, self.quiet = quiet != self.quiet, quiet
+        return changed
 
 
 @dataclass(frozen=True)
@@ -122,6 +191,18 @@ class Provider(Closing):
         self._queryable = session.declare_queryable(keys.fragment(self.id))
         self._thread = threading.Thread(target=self._serve_fragment, daemon=True)
         self._thread.start()
+        windows = {
+            name: window
+            for name, edge in self.edges.items()
+            if (window := stale_after(edge.static, edge.mode, edge.rate)) is not None
+        }
+        self._quiet = QuietEdges(windows, time.monotonic())
+        self._session, self._report_key = session, keys.data(self.id)
+        self._report_lock = threading.Lock()
+        self._stop_reports = threading.Event()
+        self._reporter = threading.Thread(target=self._report_liveness, daemon=True)
+        if windows:
+            self._reporter.start()
         self._token = session.liveliness().declare_token(keys.provider(self.id))
         self._closed = False
 
@@ -133,6 +214,23 @@ class Provider(Closing):
         if edge.type != measurement.SRG_TYPE:
             raise TypeError(f"edge {edge_name} is {edge.type}, got a {type(measurement).__name__}")
         self._publishers[edge_name].put(encode(measurement))
+        if self._quiet.published(edge_name, time.monotonic()):
+            self._put_report()
+
+    def _report_liveness(self) -> None:
+        """Check the edges every ``CHECK_S``; put the report when it changed, and every
+        ``SUMMARY_S`` (module docstring)."""
+        summary_due = time.monotonic() + SUMMARY_S
+        while not self._stop_reports.wait(CHECK_S):
+            now = time.monotonic()
+            if self._quiet.check(now) or now >= summary_due:
+                self._put_report()
+                summary_due = now + SUMMARY_S
+
+    def _put_report(self) -> None:
+        with self._report_lock:
+            report = json.dumps({"quiet": sorted(self._quiet.quiet)})
+            self._session.put(self._report_key, report, encoding=JSON)
 
     def _serve_fragment(self) -> None:
         for query in self._queryable:
@@ -145,6 +243,9 @@ class Provider(Closing):
         if self._closed:
             return
         self._closed = True
+        self._stop_reports.set()
+        if self._reporter.is_alive():
+            self._reporter.join(timeout=1.0)
         self._token.undeclare()
         self._queryable.undeclare()
         self._thread.join(timeout=1.0)
