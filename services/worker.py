@@ -79,6 +79,7 @@ from typing import Any
 
 from services.components.basic import Concatenation, Inversion
 from services.expansion import BatchProgress, TimeAccumulator
+from services.local_wires import LocalSubscription, LocalWires, finite
 from services.parent import Parent
 from services.registry import Pushed, Service, lookup
 from services.spec import (
@@ -151,6 +152,10 @@ COUNTERS = {
     "in_runs": "of those, samples handled in a run with others of their input (a backlog taken "
     "at once under load: Worker._on_run)",
     "published": "outputs published",
+    "handed_over": "of those, outputs handed as objects to components of the same container "
+    "(services.local_wires)",
+    "not_sent": "of those, outputs zenoh did not carry on their data key: no subscriber outside "
+    "the process (an application's relation key is always carried)",
     "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
     "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
     "rejected_clock": "samples whose timestamp moved by their input's clock offset leaves the "
@@ -203,6 +208,11 @@ LATENCY_SAMPLES = 64
 HANDLING_GAIN = 0.05
 """Weight of the latest sample in the running mean of the time to handle one (``handling_us``
 in the status)."""
+MATCHING_S = 0.05
+"""How long the answer to whether a subscriber outside the process listens to an output read
+in the container is used before zenoh is asked again (asking costs about 2 us, a third of a
+concatenation's maths): a reader elsewhere gets the output at most this long after it
+appears (its latest value at once: ``Worker._send_unsent``)."""
 SUMMARY_S = 10.0
 """Seconds between two summaries of the expected conditions counted (``_summarise``)."""
 
@@ -305,8 +315,25 @@ class Worker:
         pool_counters: Counter[str] | None = None,
         clock: Clock | None = None,
         parent: Parent | None = None,
+        wires: LocalWires | None = None,
+        container: str | None = None,
     ) -> None:
         self.spec = spec
+        self.container = container
+        """The container this component runs in with others (``services.container``), if
+        any (shown in status)."""
+        self._wires = wires
+        """The container's local wires: inputs whose key another component of the container
+        produces are handed its values as objects, and outputs read there are handed over
+        (``services.local_wires``); zenoh carries an output only where something outside the
+        process reads it."""
+        self._flush: Callable[[], None] = (lambda: None) if wires is None else wires.flush
+        self._outside_readers: dict[str, tuple[float, bool]] = {}
+        """Per output key read in the container: when zenoh was last asked whether a
+        subscriber outside the process listens (monotonic), and its answer."""
+        self._unsent: set[str] = set()
+        """Output keys read in the container whose latest value zenoh has not carried (no
+        subscriber outside then): sent once one appears (:meth:`_send_unsent`)."""
         self.clock = clock or Clock()
         """This host's clock (``Settings.clock_offset_ms`` applied), for samples stamped
         ahead of it."""
@@ -332,6 +359,9 @@ class Worker:
         """When the worker thread wakes next unless woken (monotonic; minus infinity while it
         is awake: it looks at the triggers held before it waits again)."""
         self._on_sample_guarded = self._guarded(self._on_sample)
+        self._on_value_guarded = self._guarded(self._on_value)
+        self._deliver_guarded = self._guarded(self._deliver)
+        self._deliver_values_guarded = self._guarded(self._deliver_values)
         self._on_run_guarded = self._guarded(self._on_run)
         self._handling_s = 0.0
         """Running mean of the time to handle a sample (seconds)."""
@@ -374,6 +404,8 @@ class Worker:
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
         with self._lock:  # an input's first samples wait until every input is bound
             self._bind(spec.inputs)
+        if wires is not None:
+            wires.produce(spec.instance, tuple(spec.outputs.values()))
         declare = functools.partial(
             session.liveliness().declare_token, keys.worker(spec.instance, self.incarnation)
         )
@@ -401,7 +433,6 @@ class Worker:
         same (:func:`_histories`); under ``_lock``."""
         self._generation += 1
         generation = self._generation
-        deliver = self._guarded(self._deliver)
         old_bindings = [item.binding for item in self._inputs]
         old = dict(zip(_histories(old_bindings), self._inputs, strict=True))
         inputs = []
@@ -414,11 +445,7 @@ class Worker:
                 moved = binding.clock_offset_ns - kept.binding.clock_offset_ns
                 buffer = kept.buffer.shifted(moved) if moved else kept.buffer
                 kept.subscriber.undeclare()
-            subscriber = subscribe_in_bursts(
-                self._session,
-                binding.key,
-                functools.partial(deliver, generation, index),
-            )
+            subscriber = self._subscribe(generation, index, binding.key)
             composed = parse_then_port(binding.port)
             before = parse_before_port(binding.port)
             edge = composed or before
@@ -447,19 +474,74 @@ class Worker:
             target, _, side = item.before
             inputs[target].edges.append((side, item))
         self._dynamic = [item.buffer for item in inputs if not item.binding.static]
+        static = [(index, item) for index, item in enumerate(inputs) if item.binding.static]
         wanted = [
             (
                 item.binding.key,
-                lambda payload, i=index: deliver(generation, i, [payload]),
+                lambda payload, i=index: self._deliver_guarded(generation, i, [payload]),
                 lambda buffer=item.buffer: len(buffer) > 0,
             )
-            for index, item in enumerate(inputs)
-            if item.binding.static
+            for index, item in static
+            if not self._local(item.binding.key)
         ]
-        # A static edge's value may have been published long ago: ask for it, off this thread.
+        latest = [
+            (index, value)
+            for index, item in static
+            if self._local(item.binding.key)
+            and (value := self._wires.latest(item.binding.key)) is not None
+        ]
+        # A static edge's value may have been published long ago: ask for it, off this thread
+        # (which holds no lock: the one binding holds this worker's).
         threading.Thread(
-            target=fetch_until_satisfied, args=(self._session, wanted, self._stop), daemon=True
+            target=self._fetch_static,
+            args=(
+                wanted,
+                [
+                    functools.partial(self._deliver_values_guarded, generation, i, [value])
+                    for i, value in latest
+                ],
+            ),
+            daemon=True,
         ).start()
+
+    def _fetch_static(
+        self,
+        wanted: list[tuple[str, Callable[[bytes], None], Callable[[], bool]]],
+        latest: list[Callable[[], None]],
+    ) -> None:
+        """Hand the static inputs read in the container their producers' latest values, and
+        fetch the others' (``net.transport.fetch_until_satisfied``)."""
+        for deliver in latest:
+            deliver()
+        fetch_until_satisfied(self._session, wanted, self._stop)
+
+    def _local(self, key: str) -> bool:
+        """Whether another component of this worker's container produces ``key``."""
+        return self._wires is not None and self._wires.producer(key) is not None
+
+    def _subscribe(self, generation: int, index: int, key: str) -> Any:
+        """Input ``index``'s subscription: to the container's local wire if a component there
+        produces ``key`` (``services.local_wires``), else to zenoh."""
+        if self._local(key):
+            deliver = functools.partial(self._deliver_values_guarded, generation, index)
+            return self._wires.subscribe(key, deliver)
+        deliver = functools.partial(self._deliver_guarded, generation, index)
+        return subscribe_in_bursts(self._session, key, deliver)
+
+    def rebind(self) -> bool:
+        """Move the inputs whose producer joined or left this worker's container onto the
+        local wire or onto zenoh; nothing else changes (no sample in flight on another input is
+        superseded, histories are kept). Whether any moved. O(inputs)."""
+        moved = False
+        with self._lock:
+            if self._stop.is_set():
+                return False
+            for index, item in enumerate(self._inputs):
+                if isinstance(item.subscriber, LocalSubscription) != self._local(item.binding.key):
+                    item.subscriber.undeclare()
+                    item.subscriber = self._subscribe(self._generation, index, item.binding.key)
+                    moved = True
+        return moved
 
     def _route_outputs(self, relations: dict[str, tuple[str, ...]]) -> None:
         """Publish each output port on its key and on the relation keys it serves, and the
@@ -551,6 +633,8 @@ class Worker:
             self._bind(command.inputs)
         if command.outputs is not None:
             self.spec = replace(self.spec, outputs=command.outputs)
+            if self._wires is not None:
+                self._wires.produce(self.spec.instance, tuple(command.outputs.values()))
         if command.relations is not None:
             self.spec = replace(self.spec, relations=command.relations)
         if command.outputs is not None or command.relations is not None:
@@ -581,6 +665,24 @@ class Worker:
         except MeasurementError as exc:
             self._count("rejected", "rejected sample on %s: %s", item.binding.key, exc)
             return
+        self._take(item, decoded)
+
+    def _on_value(self, generation: int, index: int, value: Measurement) -> None:
+        """A value handed over by another component of the container (``services.local_wires``):
+        handled as a sample (:meth:`_on_sample`), with nothing to decode."""
+        self.counters["received"] += 1
+        if generation != self._generation:
+            self.counters["superseded"] += 1  # from a wire a rewire replaced
+            return
+        item = self._inputs[index]
+        if not isinstance(value, item.expected):
+            key = item.binding.key
+            self._count("rejected", "rejected %s on %s", type(value).__name__, key)
+            return
+        self._take(item, value)
+
+    def _take(self, item: _Input, decoded: Measurement) -> None:
+        """A sample of ``item`` decoded (or handed over): admitted, buffered, triggering."""
         sample = self._admitted(item, decoded)
         if sample is not None and item.binding.inverted:
             sample = self._inverted(item, sample)
@@ -802,22 +904,65 @@ class Worker:
         self._publish(outputs, timestamp_ns)
 
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
+        wires = self._wires
         for port, value in outputs.items():
             if port in self._then:
                 composed = self._counted(port, self._composed, port, value)
                 if composed is None:
                     continue
                 value = composed
+            routes = self._routes.get(port, ())
+            if wires is not None and routes and wires.has_readers(routes[0]):
+                if not finite(value):
+                    self._count("failed", "result of %s holds NaN or infinity", port)
+                    continue
+                wires.hand_over(routes[0], value)  # delivered once this worker's lock is free
+                self.counters["handed_over"] += 1
+                routes = self._outside(routes)
+                if not routes:
+                    self.counters["published"] += 1
+                    continue
             try:
                 payload = encode(value)  # where a result's numbers are checked
             except MeasurementError as exc:
                 self._count("failed", "result not published: %s", exc)
                 continue
-            for key in self._routes.get(port, ()):
+            for key in routes:
                 self._publishers[key].put(payload)
             self.counters["published"] += 1
         if self._reports_progress or self._batch_progress is not None:
             self._publish_progress(outputs, timestamp_ns)
+
+    def _outside(self, routes: list[str]) -> list[str]:
+        """Of an output's ``routes`` (its data key first, then its relation keys), those zenoh
+        must carry besides the hand-over in the container: the relation keys, and the data key
+        while a subscriber outside this process listens (else it is remembered, to be sent
+        when one appears: :meth:`_send_unsent`)."""
+        key = routes[0]
+        now = time.monotonic()
+        checked_at, outside = self._outside_readers.get(key, (-math.inf, False))
+        if now - checked_at > MATCHING_S:
+            outside = self._publishers[key].matching
+            self._outside_readers[key] = (now, outside)
+        if outside:
+            return routes
+        self.counters["not_sent"] += 1
+        self._unsent.add(key)
+        return routes[1:]
+
+    def _send_unsent(self) -> None:
+        """Put the latest value of each output key read in the container that zenoh has not
+        carried, once a subscriber outside listens (a reader in another process started
+        later: it gets the current value, as from a publisher that always put it)."""
+        for key in list(self._unsent):
+            publisher = self._publishers.get(key)
+            value = self._wires.latest(key) if self._wires is not None else None
+            if publisher is None or value is None:
+                self._unsent.discard(key)
+            elif publisher.matching:
+                self._unsent.discard(key)
+                self._outside_readers[key] = (time.monotonic(), True)
+                publisher.put(encode(value))
 
     def _composed(self, port: str, value: Measurement) -> Measurement:
         """``value`` of output ``port`` concatenated in turn with the static edges it is
@@ -962,6 +1107,7 @@ class Worker:
             "latency_ms": self._latencies(),
             "handling_us": round(self._handling_s * 1e6, 1),
             "spec": self.spec.as_dict(),
+            **({"container": self.container} if self.container is not None else {}),
         }
 
     def _latencies(self) -> dict[str, float]:
@@ -991,26 +1137,51 @@ class Worker:
         at least :data:`RUN_MIN` as one run where it may (:meth:`_takes_runs`), else one by
         one, each followed by the triggers due; then wake the worker thread if a trigger is
         held that is due before it would wake. Nothing after :meth:`stop`."""
-        with self._lock:
-            if self._stop.is_set():
-                return
-            if len(payloads) >= RUN_MIN and self._takes_runs(generation, index):
-                self._handle_run(generation, index, payloads)
-            else:
-                for payload in payloads:
-                    if self._stop.is_set():
-                        return
-                    self._handle_sample(generation, index, payload)
-            if self._pending.deadlines:  # a dictionary's truth: a method call costs the hop
-                deadline = self._pending.next_deadline()
-                if deadline is not None and deadline < self._wakes_at:
-                    self._wakes_at = deadline
-                    self._inbox.put(("wake",))
+        if len(payloads) >= RUN_MIN:
+            with self._lock:
+                if self._takes_runs(generation, index) and not self._stop.is_set():
+                    self._handle_run(generation, index, payloads)
+                    self._wake_for_held()
+                    payloads = []
+        self._handle_each(self._on_sample_guarded, generation, index, payloads)
 
-    def _handle_sample(self, generation: int, index: int, payload: bytes) -> None:
-        """A sample and the triggers due after it, timed (``_handling_s``); under ``_lock``."""
+    def _deliver_values(self, generation: int, index: int, values: list[Measurement]) -> None:
+        """Handle values handed over on input ``index`` of binding ``generation`` by another
+        component of the container, on that component's thread (``services.local_wires``), as
+        :meth:`_deliver` handles samples one by one; then hand this one's outputs on."""
+        self._handle_each(self._on_value_guarded, generation, index, values)
+
+    def _handle_each(
+        self, handler: Callable[[int, int, Any], None], generation: int, index: int, items: list
+    ) -> None:
+        """Handle ``items`` (samples or values) of input ``index`` one by one, each followed by
+        the triggers due, under ``_lock``; then wake the worker thread if a trigger held is
+        due before it would wake, and, the lock released, hand the outputs to the container's
+        readers (``services.local_wires``). Nothing after :meth:`stop`."""
+        with self._lock:
+            for item in items:
+                if self._stop.is_set():
+                    break
+                self._handle(handler, generation, index, item)
+            self._wake_for_held()
+        self._flush()
+
+    def _wake_for_held(self) -> None:
+        """Wake the worker thread if a trigger is held that is due before it would wake;
+        under ``_lock``."""
+        if self._pending.deadlines:  # a dictionary's truth: a method call costs the hop
+            deadline = self._pending.next_deadline()
+            if deadline is not None and deadline < self._wakes_at:
+                self._wakes_at = deadline
+                self._inbox.put(("wake",))
+
+    def _handle(
+        self, handler: Callable[[int, int, Any], None], generation: int, index: int, sample: Any
+    ) -> None:
+        """A sample (or a value handed over) and the triggers due after it, timed
+        (``_handling_s``); under ``_lock``."""
         start = time.perf_counter()
-        self._on_sample_guarded(generation, index, payload)
+        handler(generation, index, sample)
         if self._pending.deadlines:
             self._guarded(self._process_due_triggers)()
         self._handling_s += HANDLING_GAIN * (time.perf_counter() - start - self._handling_s)
@@ -1043,7 +1214,10 @@ class Worker:
                     self._guarded(self._apply_control)(item[1])
             if self._pending.deadlines:
                 self._guarded(self._process_due_triggers)()
+            if self._unsent:
+                self._guarded(self._send_unsent)()
             self._summarise(time.monotonic())
+        self._flush()
 
     def _summarise(self, now: float) -> None:
         """Every ``SUMMARY_S``, one warning for the expected conditions counted meanwhile
@@ -1074,6 +1248,8 @@ class Worker:
             with self._lock:  # no input's thread is handling a sample; none will after this
                 pass
             self._token.undeclare()
+            if self._wires is not None:
+                self._wires.produce(self.spec.instance, ())
             for item in self._inputs:
                 item.subscriber.undeclare()
             for control in self._controls:

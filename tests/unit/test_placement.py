@@ -3,7 +3,7 @@ last hop beside the application, labels and capacity respected, no flapping."""
 
 import pytest
 
-from ubitrack_agent.agent.placement import LOAD_WEIGHT, MOVE_MARGIN, place
+from ubitrack_agent.agent.placement import LOAD_WEIGHT, MOVE_MARGIN, group_containers, place
 from ubitrack_agent.net.host_protocol import HostInfo
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
@@ -139,3 +139,56 @@ def test_a_chain_moves_together_when_that_saves_a_crossing():
     assert moved == {"pnp": "hmd", "art": "room", "fusion": "hmd", "last": "hmd"}
     # Placed so from the start, it stays so (no flapping back and forth).
     assert place(specs, hosts, DATA_HOSTS, readers, moved).hosts == moved
+
+
+# -- containers: a host's components grouped (issue 28) ----------------------------------------
+
+
+def chain(prefix, length, source="d/art/ART_HT"):
+    """``length`` components in a chain reading ``source``: one derivation."""
+    specs, key = {}, source
+    for i in range(length):
+        specs[f"{prefix}{i}"] = spec(f"{prefix}{i}", key)
+        key = f"d/{prefix}{i}/out"
+    return specs
+
+
+def members(groups):
+    return {name: [s.instance for s in group.components] for name, group in groups.items()}
+
+
+def test_a_derivation_stays_in_one_container_and_derivations_share_the_cores():
+    specs = {**chain("a", 3), **chain("b", 2), **chain("c", 1)}
+    hosts = dict.fromkeys(specs, "room")
+    groups = group_containers(specs, hosts, {"room": 2})
+    assert members(groups) == {"room-0": ["a0", "a1", "a2"], "room-1": ["b0", "b1", "c0"]}
+    assert [len(g.wires) for g in groups.values()] == [2, 1]
+    assert group_containers(specs, hosts, {"room": 1}).keys() == {"room-0"}
+
+
+def test_containers_are_per_host_and_isolation_gives_a_container_of_its_own():
+    specs = {**chain("a", 2), **chain("b", 2)}
+    hosts = {"a0": "room", "a1": "hmd", "b0": "hmd", "b1": "hmd"}
+    groups = group_containers(specs, hosts, {"room": 4, "hmd": 4}, isolated={"b1"})
+    assert members(groups) == {
+        "hmd-b1": ["b1"],
+        "hmd-0": ["a1"],  # its producer is on the room's host: a derivation of its own here
+        "hmd-1": ["b0"],
+        "room-0": ["a0"],
+    }
+    alone = group_containers(specs, hosts, {"hmd": 1}, isolating_hosts={"hmd"})
+    assert sorted(alone) == ["hmd-a1", "hmd-b0", "hmd-b1", "room-0"]
+
+
+def test_a_derivation_already_running_stays_in_its_container():
+    specs = {**chain("a", 1), **chain("b", 1)}
+    hosts = dict.fromkeys(specs, "room")
+    fresh = group_containers(specs, hosts, {"room": 2})
+    assert members(fresh) == {"room-0": ["a0"], "room-1": ["b0"]}
+    specs = {**chain("c", 3), **specs}  # a larger derivation joins: the others do not move
+    kept = group_containers(
+        specs, dict.fromkeys(specs, "room"), {"room": 2}, current={"a0": "room-0", "b0": "room-1"}
+    )
+    assert members(kept) == {"room-0": ["c0", "c1", "c2", "a0"], "room-1": ["b0"]}
+    unplaced = group_containers(specs, {"a0": "room"}, {"room": 2})
+    assert members(unplaced) == {"room-0": ["a0"]}

@@ -36,7 +36,7 @@ from collections.abc import Mapping, Set
 from dataclasses import dataclass
 
 from ubitrack_agent.net.host_protocol import HostInfo
-from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec
 
 STATIC_WEIGHT = 0.1
 """The cost of a static input from another host, relative to a stream's."""
@@ -177,3 +177,84 @@ def _why_none(hosts: Mapping[str, HostInfo], labels: frozenset[str]) -> str:
     if labels and not any(labels <= info.labels for info in hosts.values()):
         return f"no live host manager has the labels {', '.join(sorted(labels))}"
     return "every eligible host manager runs as many workers as its capacity"
+
+
+def group_containers(
+    specs: Mapping[str, ComponentSpec],
+    hosts: Mapping[str, str],
+    cores: Mapping[str, int],
+    isolated: Set[str] = frozenset(),
+    isolating_hosts: Set[str] = frozenset(),
+    current: Mapping[str, str] | None = None,
+) -> dict[str, GroupSpec]:
+    """The containers (``services.container``) the placed components of ``specs`` run in,
+    by name: the rule of issue 28 ("Placement of groups").
+
+    1. **Derivations stay together**: on each host, the components wired to one another there
+       (an input reading another's output key, ``GroupSpec.wires``) form one derivation, and
+       a derivation is never split, so a sample crosses no process boundary inside a host.
+    2. **One container per core**: a host's derivations share ``cores[host]`` containers (at
+       least one) named ``<host>-<k>``; the largest derivation goes first, each into the
+       container holding the fewest components so far (ties: the lower ``k``).
+    3. **Stable**: a derivation whose components already run in one of those containers
+       (``current``: instance -> container) stays there, so a change of plan moves nothing it
+       need not move (a move is a stop and a start).
+    4. **Isolation**: an instance in ``isolated`` (its template asks for it: a real camera
+       adapter, OpenCV-heavy or untrusted code), and every component of a host in
+       ``isolating_hosts``, runs alone in ``<host>-<instance>``.
+
+    ``hosts`` maps a placed instance to its host (:attr:`Assignment.hosts`); unplaced
+    instances are left out. Pure and deterministic; O(components + bindings) per host, plus
+    O(derivations x cores) for rule 2.
+    """
+    current = current or {}
+    groups: dict[str, list[ComponentSpec]] = {}
+    for host in sorted(set(hosts.values())):
+        here = [spec for instance, spec in specs.items() if hosts.get(instance) == host]
+        shared = []
+        for spec in here:
+            if host in isolating_hosts or spec.instance in isolated:
+                groups[f"{host}-{spec.instance}"] = [spec]
+            else:
+                shared.append(spec)
+        containers = [f"{host}-{k}" for k in range(max(1, cores.get(host, 1)))]
+        filled: dict[str, list[ComponentSpec]] = {name: [] for name in containers}
+        pending = []
+        for derivation in _derivations(shared):
+            kept = {current.get(spec.instance) for spec in derivation} & set(containers)
+            if len(kept) == 1:
+                filled[kept.pop()].extend(derivation)
+            else:
+                pending.append(derivation)
+        for derivation in sorted(pending, key=len, reverse=True):  # stable: ties keep order
+            emptiest = min(containers, key=lambda name: (len(filled[name]), name))
+            filled[emptiest].extend(derivation)
+        groups.update({name: members for name, members in filled.items() if members})
+    order = {instance: index for index, instance in enumerate(specs)}
+    return {
+        name: GroupSpec(name, tuple(sorted(members, key=lambda spec: order[spec.instance])))
+        for name, members in groups.items()
+    }
+
+
+def _derivations(specs: list[ComponentSpec]) -> list[list[ComponentSpec]]:
+    """``specs`` split into the sets wired to one another (connected by an input reading
+    another's output key), each in the order of ``specs``; union-find, O(bindings)."""
+    parent = list(range(len(specs)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    producer = {key: i for i, spec in enumerate(specs) for key in spec.outputs.values()}
+    for i, spec in enumerate(specs):
+        for binding in spec.inputs:
+            j = producer.get(binding.key)
+            if j is not None:
+                parent[root(i)] = root(j)
+    sets: dict[int, list[ComponentSpec]] = {}
+    for i, spec in enumerate(specs):
+        sets.setdefault(root(i), []).append(spec)
+    return list(sets.values())

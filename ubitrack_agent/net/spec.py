@@ -199,6 +199,15 @@ def _require(data: Mapping[str, Any], name: str, kind: type, where: str) -> Any:
     return value
 
 
+def _name(data: Mapping[str, Any], name: str, where: str) -> str:
+    """Field ``name`` of ``data``: one key chunk (an instance's, a service's name)."""
+    value = _require(data, name, str, where)
+    try:
+        return validate_key_chunks(value, single_chunk=True)
+    except ValueError as exc:
+        raise SpecError(f"{where}.{name}: {exc}") from None
+
+
 def _key(value: Any, where: str) -> str:
     try:
         return validate_key_chunks(value)
@@ -287,21 +296,26 @@ def _milliseconds(data: Mapping[str, Any], name: str, default: float) -> float:
     return float(value)
 
 
+def _read_object(text: str | bytes | Mapping[str, Any], max_bytes: int, where: str) -> dict:
+    """The JSON object in ``text`` (read by :func:`~ubitrack_agent.net.json_messages.load_object`:
+    at most ``max_bytes``), or ``text`` itself if already read; :class:`SpecError` otherwise."""
+    if isinstance(text, str | bytes):
+        raw = text.encode("utf-8", "surrogatepass") if isinstance(text, str) else text
+        try:
+            return load_object(raw, max_bytes)
+        except MessageError as exc:
+            raise SpecError(f"{where}: {exc.reason}") from None
+    if not isinstance(text, dict):
+        raise SpecError(f"{where}: expected a JSON object")
+    return text
+
+
 def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
     """Parse and validate a specification: JSON text or bytes (from the command line or the
     network, read by :func:`~ubitrack_agent.net.json_messages.load_object`: at most
     :data:`MAX_SPEC_BYTES`, nested at most ``MAX_DEPTH`` deep), or a mapping already read so.
     Raises :class:`SpecError` and nothing else."""
-    if isinstance(text, str | bytes):
-        raw = text.encode("utf-8", "surrogatepass") if isinstance(text, str) else text
-        try:
-            data = load_object(raw, MAX_SPEC_BYTES)
-        except MessageError as exc:
-            raise SpecError(f"spec: {exc.reason}") from None
-    else:
-        data = text
-    if not isinstance(data, dict):
-        raise SpecError("spec: expected a JSON object")
+    data = _read_object(text, MAX_SPEC_BYTES, "spec")
     known = {
         "instance",
         "service",
@@ -317,16 +331,8 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
     unknown = sorted(set(data) - known)
     if unknown:
         raise SpecError(f"spec: unknown fields {unknown}")
-    instance = _require(data, "instance", str, "spec")
-    try:
-        validate_key_chunks(instance, single_chunk=True)
-    except ValueError as exc:
-        raise SpecError(f"spec.instance: {exc}") from None
-    name = _require(data, "service", str, "spec")
-    try:
-        validate_key_chunks(name, single_chunk=True)
-    except ValueError as exc:
-        raise SpecError(f"spec.service: {exc}") from None
+    instance = _name(data, "instance", "spec")
+    name = _name(data, "service", "spec")
     parameters = data.get("parameters", {})
     if not isinstance(parameters, dict):
         raise SpecError("spec.parameters: expected an object")
@@ -355,3 +361,112 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
         tolerance_ms=tolerance,
         wait_ms=wait,
     )
+
+
+MAX_GROUP_COMPONENTS = 1000
+"""Most component specifications one group (one container) holds."""
+MAX_GROUP_BYTES = 4 * 1024 * 1024
+"""Largest group read from text (a thousand specifications of a few kilobytes)."""
+
+
+@dataclass(frozen=True)
+class LocalWire:
+    """A wire inside a container: output ``port`` of ``producer`` read by input ``index`` of
+    ``reader`` (its binding's key is the producer's output key), handed over as the
+    measurement object, with no encoding and no zenoh (``services.local_wires``)."""
+
+    producer: str
+    port: str
+    reader: str
+    index: int
+
+
+@dataclass(frozen=True)
+class GroupSpec:
+    """The components one container (a worker process hosting many component instances,
+    ``services.container``) runs: their specifications, named by the container.
+
+    JSON form: ``{"container": "<name>", "components": [<specification>, ...]}``.
+    The local wires are not written out: they follow from the keys (:attr:`wires`), so a group
+    cannot name a wire that its specifications contradict. Instance names are unique in a
+    group and no data key is the output of two of its components."""
+
+    container: str
+    components: tuple[ComponentSpec, ...] = ()
+
+    @property
+    def wires(self) -> tuple[LocalWire, ...]:
+        """Every input of a component reading another component's output in this group, in
+        component and binding order. O(bindings + outputs)."""
+        producers = {
+            key: (spec.instance, port)
+            for spec in self.components
+            for port, key in spec.outputs.items()
+        }
+        return tuple(
+            LocalWire(*producers[binding.key], spec.instance, index)
+            for spec in self.components
+            for index, binding in enumerate(spec.inputs)
+            if binding.key in producers
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON-ready form :func:`parse_group` reads."""
+        return {
+            "container": self.container,
+            "components": [spec.as_dict() for spec in self.components],
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.as_dict())
+
+
+def check_group_members(components: tuple[ComponentSpec, ...], where: str = "group") -> None:
+    """:class:`SpecError` if two of ``components`` share an instance name or an output key, or
+    there are more than :data:`MAX_GROUP_COMPONENTS`."""
+    if len(components) > MAX_GROUP_COMPONENTS:
+        raise SpecError(f"{where}.components: more than {MAX_GROUP_COMPONENTS}")
+    instances: set[str] = set()
+    outputs: dict[str, str] = {}
+    for index, spec in enumerate(components):
+        if spec.instance in instances:
+            raise SpecError(f"{where}.components[{index}].instance: {spec.instance!r} twice")
+        instances.add(spec.instance)
+        for key in spec.outputs.values():
+            if key in outputs:
+                raise SpecError(
+                    f"{where}.components[{index}].outputs: {key!r} is also {outputs[key]!r}'s"
+                )
+            outputs[key] = spec.instance
+
+
+def parse_group(text: str | bytes | Mapping[str, Any]) -> GroupSpec:
+    """Parse and validate a group: JSON text or bytes (at most :data:`MAX_GROUP_BYTES`), or a
+    mapping already read. Raises :class:`SpecError` naming the field, and nothing else."""
+    data = _read_object(text, MAX_GROUP_BYTES, "group")
+    unknown = sorted(set(data) - {"container", "components"})
+    if unknown:
+        raise SpecError(f"group: unknown fields {unknown}")
+    container = _name(data, "container", "group")
+    components = parse_components(data.get("components", []), "group.components")
+    return GroupSpec(container, components)
+
+
+def parse_components(raw: Any, where: str) -> tuple[ComponentSpec, ...]:
+    """A list of specifications (:func:`parse_spec` each), checked as members of one group
+    (:func:`check_group_members`)."""
+    if not isinstance(raw, list):
+        raise SpecError(f"{where}: expected a list of specifications")
+    if len(raw) > MAX_GROUP_COMPONENTS:
+        raise SpecError(f"{where}: more than {MAX_GROUP_COMPONENTS}")
+    components = []
+    for index, item in enumerate(raw):
+        if not isinstance(item, dict):
+            raise SpecError(f"{where}[{index}]: expected an object")
+        try:
+            components.append(parse_spec(item))
+        except SpecError as exc:
+            raise SpecError(f"{where}[{index}]: {exc}") from None
+    specs = tuple(components)
+    check_group_members(specs, where.rsplit(".", 1)[0])
+    return specs

@@ -1,0 +1,405 @@
+"""A container: one worker process hosting any number of component instances.
+
+Start: ``python -m services.container --name NAME [--group '<json>'] [zenoh flags]`` (a
+:class:`~ubitrack_agent.net.spec.GroupSpec`). Where the worker (:mod:`services.worker`) runs
+one component per process, paying an interpreter, the imports of numpy, scipy and OpenCV and a
+zenoh session for each (issue 28: about 75 MB and a session linked to every other per
+component), a container runs many on one session, each a :class:`~services.worker.Worker` as
+before: its own control keys, status, counters, liveliness token and worker thread, so the
+agent, ``ubitrack status`` and the web view see one component as they always did (its status
+names its ``container``). The anchors are ROS 2's component containers (composable nodes
+loaded into a running process, ``ros2 component load``, with intra-process communication) and
+dora-rs's operators sharing a runtime process; the paper's service managers run the pattern
+instances of a host (Pustka et al. 2006, section 5.2.1).
+
+**Wires inside.** A component reading another's output in the same container is handed the
+measurement object (:mod:`services.local_wires`): no encoding, no decoding, no zenoh. Zenoh
+carries an output only where something outside the process reads it: a subscriber in another
+process or host (the publisher's matching status), an application's relation key, a query
+for a value at a given time (answered by the producer's queryable, as before).
+
+**Control** on ``<root>/control/<name>`` (JSON objects, read totally: a malformed or refused
+command is logged rate-limited, counted in ``rejected_commands`` and changes nothing):
+
+* ``{"add": [<specification>, ...]}`` starts components in the running process (checked in
+  full first: form, registered service and ports, parameters, no instance or output key
+  already in the container; all or none);
+* ``{"remove": ["<instance>", ...]}`` stops them (an unknown name is ignored);
+* ``{"stop": true}`` ends the container and every component in it.
+
+A component is rewired, reconfigured or stopped on its own control key as before (a stop
+there removes it). Adding, removing or rewiring starts no process; the readers of an output
+whose producer joined or left the container bind again (locally, or over zenoh), keeping their
+history.
+
+**Failure containment.** Every handler of a component is total (its own counters); an
+unexpected exception is counted there (``internal_errors``) and the others go on. A component
+with :data:`RESTART_AFTER_FAULTS` such faults since it started, or whose thread ended without
+being stopped, is restarted in the process from its current specification (counted:
+``restarts``, per component in the container's status). SIGTERM or SIGINT ends the container
+cleanly.
+
+The container's own status answers on ``<root>/status/<name>`` (no ``instance`` field: it is
+no component's). Growth: memory and zenoh declarations O(components + their inputs and
+outputs); a hand-over O(readers of the output).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import queue
+import sys
+import threading
+import time
+import uuid
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from services.local_wires import LocalWires
+from services.spec import check_spec
+from services.worker import Worker
+from ubitrack_agent.net import config, logs
+from ubitrack_agent.net.clock import Clock
+from ubitrack_agent.net.encodings import JSON
+from ubitrack_agent.net.json_messages import MessageError, load_object
+from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+from ubitrack_agent.net.lifecycle import on_termination
+from ubitrack_agent.net.spec import (
+    ComponentSpec,
+    GroupSpec,
+    SpecError,
+    check_group_members,
+    parse_components,
+    parse_group,
+)
+
+log = logging.getLogger("ubitrack.container")
+
+RESTART_AFTER_FAULTS = 20
+"""Unexpected exceptions (``internal_errors``) a component may raise since it started before
+the container restarts it with a fresh state."""
+LOOP_S = 0.05
+"""Longest wait of the container's thread for a command before it looks at its components."""
+JOIN_S = 2.0
+"""How long a component stopped may take to end its run."""
+MAX_CONTROL_BYTES = 4 * 1024 * 1024
+"""Largest container command read (an ``add`` of a thousand specifications)."""
+CONTROL_FIELDS = frozenset({"add", "remove", "stop"})
+
+COUNTERS = {
+    "added": "components started in the running container",
+    "removed": "components stopped by a remove command or their own stop command",
+    "restarts": "components restarted after faults, or after their thread ended unasked",
+    "rebinds": "components whose inputs were bound again (a producer joined or left)",
+    "rejected_commands": "container commands refused (malformed, or not all components valid)",
+    "failed_starts": "components whose start failed unexpectedly (logged with traceback)",
+    "internal_errors": "unexpected exceptions of the container itself (logged with traceback)",
+}
+"""The container's own counters (its status); each component keeps its own."""
+
+
+@dataclass
+class Running:
+    """A component running in the container: its worker, the thread running it, its faults
+    when it (re)started and how often it was restarted."""
+
+    worker: Worker
+    thread: threading.Thread
+    faults_at_start: int = 0
+    restarts: int = 0
+
+
+class Container:
+    """Runs components on an open zenoh ``session`` until :meth:`stop` (module docstring)."""
+
+    def __init__(
+        self,
+        session: Any,
+        keys: KeySpace,
+        name: str,
+        clock: Clock | None = None,
+        components: Iterable[ComponentSpec] = (),
+    ) -> None:
+        self.name = validate_key_chunks(name, single_chunk=True)
+        self.keys = keys
+        self.clock = clock or Clock()
+        self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
+        self.wires = LocalWires()
+        self.wires.changed = lambda moved: self._events.put(("moved", moved))
+        self.components: dict[str, Running] = {}
+        self._session = session
+        self._lock = threading.Lock()
+        """Held while :attr:`components` changes (the container's thread) or is read (status)."""
+        self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        take = self._guarded(
+            lambda sample: self._events.put(("control", sample.payload.to_bytes()))
+        )
+        self._control = session.declare_subscriber(keys.control(self.name), take)
+        self._status = session.declare_queryable(keys.status(self.name))
+        self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
+        self._status_thread.start()
+        self.add(tuple(components))
+
+    # -- components ---------------------------------------------------------------------------
+
+    def check(self, specs: tuple[ComponentSpec, ...]) -> None:
+        """:class:`SpecError` unless every one of ``specs`` may join the container: a
+        registered service wired as it declares (``services.spec.check_spec``), and no
+        instance name or output key the container (or another of them) already has."""
+        for index, spec in enumerate(specs):
+            try:
+                check_spec(spec)
+            except SpecError as exc:
+                raise SpecError(f"add[{index}]: {exc}") from None
+        with self._lock:
+            running = tuple(entry.worker.spec for entry in self.components.values())
+        check_group_members((*running, *specs), "container")
+
+    def add(self, specs: tuple[ComponentSpec, ...]) -> None:
+        """Start ``specs`` in this process (checked: :meth:`check`); their outputs are
+        produced here from now on, so they and the running components read each other's
+        locally. O(specs + their bindings)."""
+        self.check(specs)
+        for spec in specs:  # before any starts: members read each other's outputs locally
+            self.wires.produce(spec.instance, tuple(spec.outputs.values()))
+        for spec in specs:
+            entry = self._start(spec)
+            if entry is not None:
+                self.counters["added"] += 1
+
+    def _start(self, spec: ComponentSpec, restarts: int = 0) -> Running | None:
+        """Run ``spec`` on a thread of its own; None if it could not start (counted)."""
+        try:
+            worker = Worker(
+                spec,
+                self._session,
+                self.keys,
+                clock=self.clock,
+                wires=self.wires,
+                container=self.name,
+            )
+        except Exception:
+            self.wires.produce(spec.instance, ())
+            logs.count_problem(
+                self.counters,
+                "failed_starts",
+                log,
+                "%s: %s did not start",
+                self.name,
+                spec.instance,
+                exc_info=True,
+            )
+            return None
+        thread = threading.Thread(target=worker.run, daemon=True, name=f"component {spec.instance}")
+        entry = Running(worker, thread, worker.counters["internal_errors"], restarts)
+        with self._lock:
+            self.components[spec.instance] = entry
+        thread.start()
+        log.info("%s: running %s (%s)", self.name, spec.instance, spec.service)
+        return entry
+
+    def remove(self, instances: Iterable[str]) -> None:
+        """Stop the components named (the readers of their outputs bind over zenoh again)."""
+        for instance in instances:
+            with self._lock:
+                entry = self.components.pop(instance, None)
+            if entry is not None:
+                self._end(entry)
+                self.counters["removed"] += 1
+
+    @staticmethod
+    def _end(entry: Running) -> None:
+        entry.worker.stop()
+        entry.thread.join(timeout=JOIN_S)
+
+    def _restart(self, instance: str, entry: Running, why: str) -> None:
+        log.warning("%s: restarting %s (%s)", self.name, instance, why)
+        with self._lock:
+            self.components.pop(instance, None)
+        self._end(entry)
+        spec = entry.worker.spec  # as rewired since it started
+        self.wires.produce(spec.instance, tuple(spec.outputs.values()))
+        self.counters["restarts"] += 1
+        self._start(spec, entry.restarts + 1)
+
+    def _look_after(self) -> None:
+        """Restart the components that faulted too often or whose thread ended unasked; forget
+        those a stop command on their own control key released."""
+        with self._lock:
+            entries = list(self.components.items())
+        for instance, entry in entries:
+            worker = entry.worker
+            if not entry.thread.is_alive():
+                if worker.released:
+                    with self._lock:
+                        self.components.pop(instance, None)
+                    self.counters["removed"] += 1
+                else:
+                    self._restart(instance, entry, "its thread ended")
+            elif worker.counters["internal_errors"] - entry.faults_at_start >= RESTART_AFTER_FAULTS:
+                self._restart(instance, entry, f"{RESTART_AFTER_FAULTS} unexpected faults")
+
+    def _rebind(self, moved: set[str]) -> None:
+        """Bind again the inputs reading ``moved`` keys (their producer joined or left)."""
+        with self._lock:
+            workers = [entry.worker for entry in self.components.values()]
+        for worker in workers:
+            if any(binding.key in moved for binding in worker.spec.inputs) and worker.rebind():
+                self.counters["rebinds"] += 1
+
+    # -- control ------------------------------------------------------------------------------
+
+    def _apply_control(self, payload: bytes) -> None:
+        """Apply a container command in full, or refuse it (counted, logged)."""
+        try:
+            command = load_object(payload, MAX_CONTROL_BYTES)
+            if not command or set(command) - CONTROL_FIELDS or len(command) != 1:
+                raise SpecError(f"container: expected one of {sorted(CONTROL_FIELDS)}")
+            if "stop" in command:
+                if command["stop"] is not True:
+                    raise SpecError('container.stop: expected {"stop": true}')
+                self.stop()
+            elif "add" in command:
+                self.add(parse_components(command["add"], "add"))
+            else:
+                self.remove(_instances(command["remove"]))
+        except (SpecError, MessageError) as exc:
+            logs.count_problem(
+                self.counters, "rejected_commands", log, "%s: refused command: %s", self.name, exc
+            )
+
+    def _guarded(self, handler: Any) -> Any:
+        return logs.guarded(handler, self.counters, log, self.name)
+
+    # -- status and life cycle ----------------------------------------------------------------
+
+    def status(self) -> dict[str, Any]:
+        with self._lock:
+            entries = dict(self.components)
+        return {
+            "container": self.name,
+            "pid": os.getpid(),
+            "incarnation": self.incarnation,
+            "components": {
+                instance: {
+                    "service": entry.worker.spec.service,
+                    "incarnation": entry.worker.incarnation,
+                    "restarts": entry.restarts,
+                }
+                for instance, entry in entries.items()
+            },
+            "wires": len(
+                GroupSpec(self.name, tuple(e.worker.spec for e in entries.values())).wires
+            ),
+            "counters": dict(self.counters),
+        }
+
+    def _serve_status(self) -> None:
+        reply = self._guarded(
+            lambda query: query.reply(
+                self.keys.status(self.name), json.dumps(self.status()), encoding=JSON
+            )
+        )
+        for query in self._status:
+            with query:
+                reply(query)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def run(self) -> None:
+        """Take commands, rebind, look after the components, until :meth:`stop`; then end
+        every component and undeclare."""
+        handle = self._guarded(self._handle)
+        try:
+            while not self._stop.is_set():
+                try:
+                    handle(*self._events.get(timeout=LOOP_S))
+                    while not self._events.empty():
+                        handle(*self._events.get_nowait())
+                except queue.Empty:
+                    pass
+                self._guarded(self._look_after)()
+        finally:
+            self._stop.set()
+            self._control.undeclare()
+            self.remove(list(self.components))
+            self._status.undeclare()
+            self._status_thread.join(timeout=1.0)
+
+    def _handle(self, kind: str, event: Any) -> None:
+        if kind == "control":
+            self._apply_control(event)
+        elif kind == "moved":
+            self._rebind(event)
+
+
+def _instances(raw: Any) -> list[str]:
+    """The instance names of a remove command."""
+    if not isinstance(raw, list):
+        raise SpecError("remove: expected a list of instance names")
+    names = []
+    for index, name in enumerate(raw):
+        try:
+            names.append(validate_key_chunks(name, single_chunk=True))
+        except (ValueError, TypeError) as exc:
+            raise SpecError(f"remove[{index}]: {exc}") from None
+    return names
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m services.container",
+        description="Run many pattern instances in one process (a container), wired in the "
+        "process where they read each other, over zenoh elsewhere.",
+    )
+    parser.add_argument("--name", help="the container's name (default: the group's)")
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument("--group", help="the group (its components) as JSON text")
+    source.add_argument("--group-file", help="a file holding the group")
+    logs.add_log_level_argument(parser)
+    config.add_arguments(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logs.configure(args.log_level)
+    try:
+        text = args.group
+        if args.group_file is not None:
+            with open(args.group_file, encoding="utf-8") as file:
+                text = file.read()
+        if text is None and args.name is None:
+            raise SpecError("give --name, --group or --group-file")
+        group = parse_group(text) if text is not None else GroupSpec(args.name)
+        if args.name is not None and args.name != group.container:
+            raise SpecError(f"--name {args.name!r} is not the group's {group.container!r}")
+        for spec in group.components:
+            check_spec(spec)
+        settings = config.from_arguments(args, role="member")
+    except (OSError, SpecError, config.ConfigError) as exc:
+        print(f"container: {exc}", file=sys.stderr)
+        return 2
+    from ubitrack_agent.net.session import open_session
+
+    keys = KeySpace(settings.key_prefix)
+    with open_session(settings) as session:
+        container = Container(session, keys, group.container, Clock.of(settings), group.components)
+        on_termination(container.stop)
+        started = time.monotonic()
+        log.info("%s: %d components", group.container, len(group.components))
+        container.run()
+        log.info("%s: ended after %.0f s", group.container, time.monotonic() - started)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,144 @@
+"""The wires inside one container: outputs handed to readers in the same process as objects.
+
+A container (:mod:`services.container`) runs many components in one process. Where one of
+them reads another's output (a :class:`~ubitrack_agent.net.spec.LocalWire`: the reader's
+binding key is the producer's output key), the producer hands the measurement object to the
+reader, with no encoding, no decoding and no zenoh; the value is the one the producer
+computed, checked finite as the codec would check it on the way out (``core.codec.encode``).
+This is the intra-process communication of ROS 2's component containers and the direct calls
+of Ubitrack's single-process data flow (Pustka et al. 2006, section 5: the pattern instances
+of one host's data flow connected by their ports).
+
+A hand-over happens on the producer's thread, after the producer released its lock
+(:meth:`LocalWires.hand_over` queues it for the thread, :meth:`LocalWires.flush` delivers),
+so no component ever waits for another's lock while holding its own: a reader's query for a
+value at a given time (``net.time_queries``), which goes upstream to the producer, cannot
+deadlock against the producer's hand-over downstream. A chain of components in one container
+thus runs on the thread that took the first sample: one hand-over per hop, no thread switch,
+a stack depth growing with the chain's length (O(depth)).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Callable
+
+import numpy as np
+
+from ubitrack_agent.core import Measurement
+
+log = logging.getLogger("ubitrack.container")
+
+Deliver = Callable[[list[Measurement]], None]
+"""A reader's input: takes values of one wire, oldest first; must not raise."""
+
+SHORT_VALUE_FLOATS = 256
+"""Up to this many numbers, :func:`finite` checks them as Python floats, as the codec does
+(``core.codec.SHORT_MESSAGE_FLOATS``)."""
+
+
+def finite(value: Measurement) -> bool:
+    """Whether every number of ``value`` is finite: the check ``core.codec.encode`` makes of a
+    result leaving the process, made here for one leaving its component (a short value's
+    numbers as Python floats, as the codec does, a long one's with numpy). O(numbers)."""
+    arrays = [a for spec in value.ARRAY_FIELDS if (a := getattr(value, spec.name)) is not None]
+    if sum(array.size for array in arrays) <= SHORT_VALUE_FLOATS:
+        data = b"".join(array.tobytes() for array in arrays)  # float64: validated on creation
+        return all(map(math.isfinite, memoryview(data).cast("d")))
+    return all(bool(np.isfinite(array).all()) for array in arrays)
+
+
+class LocalSubscription:
+    """A reader's place on a wire; :meth:`undeclare` takes it off (as a zenoh subscriber)."""
+
+    def __init__(self, wires: LocalWires, key: str, deliver: Deliver) -> None:
+        self._wires, self.key, self.deliver = wires, key, deliver
+
+    def undeclare(self) -> None:
+        self._wires._remove(self)
+
+
+class LocalWires:
+    """The outputs produced in one container and their readers there (module docstring).
+
+    Registration (:meth:`produce`, :meth:`subscribe`) takes a lock and replaces the readers'
+    tuples; a hand-over reads them without it. Memory O(outputs + readers)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._producers: dict[str, str] = {}
+        """Data key -> the instance in this container producing it."""
+        self._readers: dict[str, tuple[LocalSubscription, ...]] = {}
+        self._latest: dict[str, Measurement] = {}
+        """The latest value handed over on each key (a static output's reader bound later
+        starts from it)."""
+        self._queued = threading.local()
+        self.changed: Callable[[set[str]], None] = lambda keys: None
+        """Called with the keys whose producer in this container came or went (by the thread
+        that changed it, holding no lock of this object): their readers bind again."""
+
+    # -- who produces, who reads ----------------------------------------------------------------
+
+    def produce(self, instance: str, keys: list[str] | tuple[str, ...]) -> None:
+        """``instance`` produces exactly ``keys`` now (its earlier keys no longer); tells
+        :attr:`changed` which keys came or went. O(outputs in the container)."""
+        with self._lock:
+            before = {k for k, owner in self._producers.items() if owner == instance}
+            for key in before - set(keys):
+                del self._producers[key]
+                self._latest.pop(key, None)
+            self._producers.update(dict.fromkeys(keys, instance))
+        if moved := before ^ set(keys):
+            self.changed(moved)
+
+    def producer(self, key: str) -> str | None:
+        """The instance in this container producing ``key``, if any."""
+        return self._producers.get(key)
+
+    def subscribe(self, key: str, deliver: Deliver) -> LocalSubscription:
+        subscription = LocalSubscription(self, key, deliver)
+        with self._lock:
+            self._readers[key] = (*self._readers.get(key, ()), subscription)
+        return subscription
+
+    def _remove(self, subscription: LocalSubscription) -> None:
+        with self._lock:
+            kept = tuple(
+                s for s in self._readers.get(subscription.key, ()) if s is not subscription
+            )
+            if kept:
+                self._readers[subscription.key] = kept
+            else:
+                self._readers.pop(subscription.key, None)
+
+    def has_readers(self, key: str) -> bool:
+        return key in self._readers
+
+    def latest(self, key: str) -> Measurement | None:
+        return self._latest.get(key)
+
+    # -- hand-over ------------------------------------------------------------------------------
+
+    def hand_over(self, key: str, value: Measurement) -> None:
+        """Queue ``value`` of ``key`` for its readers, delivered by this thread's next
+        :meth:`flush` (the producer calls it holding its lock, flushes after releasing it)."""
+        self._latest[key] = value
+        readers = self._readers.get(key)
+        if not readers:
+            return
+        queued = getattr(self._queued, "items", None)
+        if queued is None:
+            queued = self._queued.items = []
+        queued.extend((reader.deliver, value) for reader in readers)
+
+    def flush(self) -> None:
+        """Deliver what this thread queued, in order; a reader's own hand-overs are flushed
+        by the reader before it returns. O(values queued)."""
+        queued = getattr(self._queued, "items", None)
+        if not queued:
+            return
+        self._queued.items = []
+        for deliver, value in queued:
+            deliver([value])

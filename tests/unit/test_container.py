@@ -1,0 +1,330 @@
+"""Containers (issue 28): groups in the specification, local wires handing over objects, and a
+container of components on a stand-in session: hand-over without zenoh, add and remove in the
+running process, rebinding when a producer joins or leaves, rejected commands, a faulty
+component counted and restarted while the others go on."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from services.container import RESTART_AFTER_FAULTS, Container
+from services.local_wires import LocalWires, finite
+from tests.unit.test_worker_inputs import KEYS, FakeSession
+from ubitrack_agent.core import ErrorPose, Pose, decode, encode
+from ubitrack_agent.core.poses import compose_poses
+from ubitrack_agent.net.spec import (
+    ComponentSpec,
+    GroupSpec,
+    InputBinding,
+    LocalWire,
+    SpecError,
+    parse_group,
+)
+
+RNG = np.random.default_rng(28)
+
+
+def concatenation(instance: str, first: str, second: str, static_first: bool = True):
+    """``instance`` composing a static ``first`` with a triggering ``second``."""
+    return ComponentSpec(
+        instance=instance,
+        service="concatenation",
+        inputs=(
+            InputBinding("AB", KEYS.data(first), static=static_first),
+            InputBinding("BC", KEYS.data(second), trigger=True, from_worker="/" in second),
+        ),
+        outputs={"AC": KEYS.data(f"{instance}/AC")},
+    )
+
+
+FIRST = concatenation("first", "ART/WT", "ART/HT")
+SECOND = concatenation("second", "CAL/X", "first/AC")
+
+
+def random_pose(t_ns: int) -> Pose:
+    return Pose(t_ns, Rotation.random(rng=RNG).as_quat(), RNG.normal(size=3))
+
+
+# -- groups in the specification --------------------------------------------------------------
+
+
+def test_a_group_round_trips_and_names_its_wires():
+    group = GroupSpec("c0", (FIRST, SECOND))
+    assert parse_group(group.to_json()) == group
+    assert group.wires == (LocalWire("first", "AC", "second", 1),)
+    assert GroupSpec("c0", (SECOND,)).wires == ()
+
+
+@pytest.mark.parametrize(
+    "data, field",
+    [
+        ({"container": "c0", "components": [], "extra": 1}, "unknown fields"),
+        ({"components": []}, "group.container: missing"),
+        ({"container": "a/b", "components": []}, "group.container"),
+        ({"container": "c0", "components": {}}, "expected a list"),
+        ({"container": "c0", "components": [1]}, "components[0]: expected an object"),
+        ({"container": "c0", "components": [{"instance": "x"}]}, "components[0]: spec"),
+        ({"container": "c0", "components": [FIRST.as_dict()] * 2}, "'first' twice"),
+    ],
+)
+def test_a_malformed_group_is_refused_naming_the_field(data, field):
+    with pytest.raises(SpecError, match=field.replace("[", r"\[").replace("]", r"\]")):
+        parse_group(json.dumps(data))
+
+
+def test_two_components_publishing_on_one_key_are_refused():
+    clash = {**SECOND.as_dict(), "outputs": {"AC": KEYS.data("first/AC")}}
+    with pytest.raises(SpecError, match="also 'first'"):
+        parse_group({"container": "c0", "components": [FIRST.as_dict(), clash]})
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | st.text(max_size=8),
+        lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner),
+        max_leaves=20,
+    )
+)
+def test_parsing_a_group_is_total(value):
+    for data in (value, {"container": "c0", "components": value}):
+        with contextlib.suppress(SpecError):
+            parse_group(json.dumps(data))
+
+
+# -- local wires ------------------------------------------------------------------------------
+
+
+def test_a_hand_over_waits_for_the_flush_and_reaches_every_reader_in_order():
+    wires = LocalWires()
+    moved: list[set[str]] = []
+    wires.changed = moved.append
+    wires.produce("p", ("k",))
+    got_a, got_b = [], []
+    wires.subscribe("k", got_a.extend)
+    subscription = wires.subscribe("k", got_b.extend)
+    first, second = random_pose(1), random_pose(2)
+    wires.hand_over("k", first)
+    wires.hand_over("k", second)
+    assert got_a == [] and wires.latest("k") is second
+    wires.flush()
+    assert got_a == [first, second] and got_b == [first, second]
+    assert got_a[0] is first  # the object itself: nothing encoded or copied
+    subscription.undeclare()
+    wires.hand_over("k", first)
+    wires.flush()
+    assert len(got_b) == 2 and len(got_a) == 3
+    wires.produce("p", ())
+    assert moved == [{"k"}, {"k"}] and wires.producer("k") is None and wires.latest("k") is None
+
+
+def test_a_readers_own_hand_over_is_flushed_by_the_reader_on_the_same_thread():
+    wires = LocalWires()
+    seen: list[tuple[str, int]] = []
+
+    def relay(values):
+        for value in values:
+            seen.append(("mid", value.timestamp_ns))
+            wires.hand_over("out", value)
+        wires.flush()
+
+    wires.subscribe("in", relay)
+    wires.subscribe("out", lambda values: seen.extend(("end", v.timestamp_ns) for v in values))
+    wires.hand_over("in", random_pose(5))
+    wires.flush()
+    assert seen == [("mid", 5), ("end", 5)]
+
+
+def test_finite_refuses_nan_and_infinity_in_any_field():
+    good = ErrorPose(1, [0, 0, 0, 1], [1, 2, 3], np.eye(6) * 1e-6)
+    assert finite(good)
+    for name, bad in (("translation", [1, np.nan, 3]), ("covariance", np.full((6, 6), np.inf))):
+        value = good.__class__.__new__(good.__class__)  # bypass validation, as a bug would
+        object.__setattr__(value, "__dict__", {**good.__dict__, name: np.asarray(bad, float)})
+        assert not finite(value)
+
+
+# -- a container on a stand-in session ---------------------------------------------------------
+
+
+class MatchingSession(FakeSession):
+    """A stand-in session whose publishers report a subscriber outside the process for the
+    keys in :attr:`outside`."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.outside: set[str] = set()
+
+    def declare_publisher(self, key, encoding=None):
+        session = self
+
+        class Publisher:
+            @property
+            def matching_status(self):
+                return type("Status", (), {"matching": key in session.outside})()
+
+            def put(self, data):
+                session.puts.append((key, data))
+
+            def undeclare(self):
+                pass
+
+        return Publisher()
+
+
+def wait_for(condition, timeout: float = 5.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if value := condition():
+            return value
+        time.sleep(0.005)
+    raise AssertionError("condition not met in time")
+
+
+@pytest.fixture
+def running():
+    """A container running on its own thread over a stand-in session; ended after the test."""
+    session = MatchingSession()
+    container = Container(session, KEYS, "c0")
+    thread = threading.Thread(target=container.run, daemon=True)
+    thread.start()
+    yield container, session
+    container.stop()
+    thread.join(timeout=5)
+    assert not thread.is_alive()
+
+
+def control(session: FakeSession, command: dict) -> None:
+    session.deliver(KEYS.control("c0"), json.dumps(command).encode())
+
+
+def puts(session: FakeSession, key: str) -> list:
+    return [decode(data) for k, data in session.puts if k == KEYS.data(key)]
+
+
+def test_components_in_one_container_hand_over_objects_and_zenoh_carries_only_the_outside(
+    running,
+):
+    container, session = running
+    control(session, {"add": [FIRST.as_dict(), SECOND.as_dict()]})
+    wait_for(lambda: len(container.components) == 2)
+    assert KEYS.data("first/AC") not in session.channels  # read in the process, not subscribed
+    static, calibration = random_pose(1_000), random_pose(1_000)
+    session.deliver(KEYS.data("ART/WT"), encode(static))
+    session.deliver(KEYS.data("CAL/X"), encode(calibration))
+    moving = [random_pose(2_000 + i) for i in range(3)]
+    for sample in moving:
+        session.deliver(KEYS.data("ART/HT"), encode(sample))
+    out = puts(session, "second/AC")
+    assert [value.timestamp_ns for value in out] == [2_000, 2_001, 2_002]
+    for value, sample in zip(out, moving, strict=True):
+        want = compose_poses(calibration, compose_poses(static, sample))
+        np.testing.assert_allclose(value.translation, want.translation, atol=1e-12)
+    first = container.components["first"].worker
+    assert first.counters["published"] == 3 and puts(session, "first/AC") == []
+    assert first.status()["container"] == "c0"
+    # A subscriber outside appears: the latest value is sent, and the next ones are put.
+    session.outside.add(KEYS.data("first/AC"))
+    wait_for(lambda: puts(session, "first/AC"))
+    assert puts(session, "first/AC")[-1].timestamp_ns == 2_002
+    session.deliver(KEYS.data("ART/HT"), encode(random_pose(3_000)))
+    assert puts(session, "first/AC")[-1].timestamp_ns == 3_000
+    assert puts(session, "second/AC")[-1].timestamp_ns == 3_000
+
+
+def test_adding_a_producer_moves_its_reader_onto_the_local_wire_and_removing_it_moves_it_back(
+    running,
+):
+    container, session = running
+    control(session, {"add": [SECOND.as_dict()]})
+    wait_for(lambda: KEYS.data("first/AC") in session.channels)  # over zenoh: no producer here
+    control(session, {"add": [FIRST.as_dict()]})
+    wait_for(lambda: container.counters["rebinds"] == 1)
+    assert KEYS.data("first/AC") not in session.channels and container.counters["added"] == 2
+    session.deliver(KEYS.data("CAL/X"), encode(random_pose(1)))
+    session.deliver(KEYS.data("ART/WT"), encode(random_pose(1)))
+    session.deliver(KEYS.data("ART/HT"), encode(random_pose(10)))
+    assert [value.timestamp_ns for value in puts(session, "second/AC")] == [10]
+    control(session, {"remove": ["first"]})
+    wait_for(lambda: KEYS.data("first/AC") in session.channels)
+    assert set(container.components) == {"second"} and container.counters["removed"] == 1
+    session.deliver(KEYS.data("first/AC"), encode(random_pose(20)))  # from elsewhere now
+    assert [value.timestamp_ns for value in puts(session, "second/AC")] == [10, 20]
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        b"{not json",
+        json.dumps({"add": [{"instance": "x"}]}).encode(),
+        json.dumps({"add": [{**FIRST.as_dict(), "service": "nope"}]}).encode(),
+        json.dumps({"add": [FIRST.as_dict(), FIRST.as_dict()]}).encode(),
+        json.dumps({"remove": "first"}).encode(),
+        json.dumps({"remove": ["a/b"]}).encode(),
+        json.dumps({"stop": 1}).encode(),
+        json.dumps({"add": [], "remove": []}).encode(),
+        json.dumps({"launch": []}).encode(),
+    ],
+)
+def test_a_bad_container_command_is_refused_counted_and_changes_nothing(running, command):
+    container, session = running
+    control(session, {"add": [FIRST.as_dict()]})
+    wait_for(lambda: container.components)
+    session.deliver(KEYS.control("c0"), command)
+    wait_for(lambda: container.counters["rejected_commands"] == 1)
+    assert set(container.components) == {"first"} and container.counters["internal_errors"] == 0
+
+
+def test_adding_a_component_already_running_is_refused(running):
+    container, session = running
+    control(session, {"add": [FIRST.as_dict()]})
+    wait_for(lambda: container.components)
+    control(session, {"add": [FIRST.as_dict(), SECOND.as_dict()]})
+    wait_for(lambda: container.counters["rejected_commands"] == 1)
+    assert set(container.components) == {"first"}  # all or none
+
+
+def test_a_faulty_component_is_counted_and_restarted_while_the_other_goes_on(running):
+    container, session = running
+    control(session, {"add": [FIRST.as_dict(), SECOND.as_dict()]})
+    wait_for(lambda: len(container.components) == 2)
+    faulty = container.components["second"].worker
+
+    def broken(values, timestamp_ns):
+        raise RuntimeError("a bug in the service")
+
+    faulty._service.compute = broken
+    session.deliver(KEYS.data("ART/WT"), encode(random_pose(1)))
+    session.deliver(KEYS.data("CAL/X"), encode(random_pose(1)))
+    for i in range(RESTART_AFTER_FAULTS):
+        session.deliver(KEYS.data("ART/HT"), encode(random_pose(100 + i)))
+    first = container.components["first"].worker
+    assert first.counters["published"] == RESTART_AFTER_FAULTS  # the other went on
+    assert faulty.counters["internal_errors"] == RESTART_AFTER_FAULTS
+    restarted = wait_for(
+        lambda: (entry := container.components.get("second")) and entry.restarts == 1 and entry
+    )
+    assert restarted.worker is not faulty and container.counters["restarts"] == 1
+    assert container.status()["components"]["second"]["restarts"] == 1
+    session.deliver(KEYS.data("CAL/X"), encode(random_pose(1)))
+    session.deliver(KEYS.data("ART/HT"), encode(random_pose(500)))
+    wait_for(lambda: puts(session, "second/AC"))
+    assert puts(session, "second/AC")[-1].timestamp_ns == 500
+
+
+def test_a_component_stopped_on_its_own_control_key_leaves_the_container(running):
+    container, session = running
+    control(session, {"add": [FIRST.as_dict(), SECOND.as_dict()]})
+    wait_for(lambda: len(container.components) == 2)
+    session.deliver(KEYS.control("second"), json.dumps({"stop": True}).encode())
+    wait_for(lambda: set(container.components) == {"first"})
+    assert container.counters["removed"] == 1 and container.counters["restarts"] == 0
