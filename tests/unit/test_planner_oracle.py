@@ -1,7 +1,8 @@
 """The planner's search against the exhaustive one it replaced (issue [scale], "the same
 answers"): on generated setups small enough for the old search, the best derivation costs no
 more than the old one's, the same queries are solvable, and the choice does not depend on the
-order in which the SRG's edges were announced."""
+order in which the SRG's edges were announced; parts planned once are shared across queries
+and planned again when their edges change."""
 
 from __future__ import annotations
 
@@ -12,10 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.building import Building, body, build, camera, marker, room
+from bench.building import Building, body, build, camera, marker, room, tracker
 from tests.unit import exhaustive_planner
-from ubitrack_agent.graph.planner import NoSolutionError, Query, plan
-from ubitrack_agent.graph.srg import add_measured_edge, new_srg
+from ubitrack_agent.graph.planner import NoSolutionError, PartCache, Query, plan
+from ubitrack_agent.graph.srg import add_measured_edge, new_srg, remove_provider
 
 TOLERANCE = 1e-9
 
@@ -128,3 +129,29 @@ def test_the_choice_does_not_depend_on_the_order_of_announcement(templates, seed
         first = [s.as_json() for s in plan(srg, templates, query)]
         again = [s.as_json() for s in plan(shuffled, templates, query)]
         assert first == again
+
+
+def test_parts_are_shared_across_queries_and_planned_again_when_their_edges_change(templates):
+    srg = build(Building(rooms=3, bodies=2, redundant=2))
+    queries = [Query(body(0), body(2), "6D"), Query(body(1), body(2, 2), "6D")]
+    cache = PartCache()
+    for query in queries:
+        cached = [s.as_json() for s in plan(srg, templates, query, cache=cache)]
+        assert cached == [s.as_json() for s in plan(srg, templates, query)]
+    assert cache.hits > 0  # the room of H2_1 and H2_2 was planned for the first query only
+    misses = cache.misses
+    without = remove_provider(srg, tracker(0))
+    cached = [s.as_json() for s in plan(without, templates, queries[0], cache=cache)]
+    assert cached == [s.as_json() for s in plan(without, templates, queries[0])]
+    assert cache.misses == misses + 1  # room 0 changed (two trackers left); the rest did not
+
+
+def test_the_part_cache_keeps_the_most_recently_used_parts():
+    cache = PartCache(size=2)
+    for key in ("a", "b", "c"):
+        cache.put((key,), [])
+    assert cache.get(("a",)) is None
+    assert cache.get(("b",)) == [] and cache.get(("c",)) == []
+    cache.put(("d",), [])
+    assert cache.get(("b",)) is None  # b was used before c
+    assert (cache.hits, cache.misses) == (2, 2)

@@ -30,9 +30,10 @@ price of the extra sensors and steps.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import sys
-from collections import defaultdict
+from collections import OrderedDict, defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import product
@@ -755,6 +756,55 @@ def with_solution(srg: nx.MultiDiGraph, solution: Solution) -> nx.MultiDiGraph:
     return graph
 
 
+class PartCache:
+    """The derivations of parts (:func:`_plan_parts`) shared across queries and plans: a part
+    is saturated once for as long as its frames' edges, its ends and the templates are the
+    same (memoised sub-derivations: every query through a room reuses the room's part, and an
+    event elsewhere in the building leaves it valid). Keyed by :func:`_part_key`, ``O(edges
+    of the part)`` to compute; at most ``size`` parts, the least recently used dropped first.
+    Not thread-safe: one planner thread uses it."""
+
+    def __init__(self, size: int = 4096) -> None:
+        self.size = size
+        self.hits = 0
+        self.misses = 0
+        self._parts: OrderedDict[tuple, list[Solution]] = OrderedDict()
+
+    def get(self, key: tuple) -> list[Solution] | None:
+        found = self._parts.get(key)
+        if found is None:
+            self.misses += 1
+            return None
+        self.hits += 1
+        self._parts.move_to_end(key)
+        return found
+
+    def put(self, key: tuple, found: list[Solution]) -> None:
+        self._parts[key] = found
+        self._parts.move_to_end(key)
+        while len(self._parts) > self.size:
+            self._parts.popitem(last=False)
+
+
+def _part_key(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    part: set[str],
+    ends: tuple[str, str],
+    slack: int,
+    per_relation: int,
+) -> tuple:
+    """What a part's derivations depend on: its ends, its frames' edges with every attribute
+    the planner reads, the templates (by name and object: templates loaded anew are another
+    catalogue) and the bounds."""
+    edges = sorted(
+        (u, v, k, d["type"], d["static"], d["mode"], d["provider"], d["quality"])
+        for u, v, k, d in srg.subgraph(part).edges(keys=True, data=True)
+    )
+    names = tuple(t.name for t in templates)
+    return (ends, tuple(edges), names, tuple(map(id, templates)), slack, per_relation)
+
+
 def _plan_parts(
     srg: nx.MultiDiGraph,
     templates: Sequence[Template],
@@ -762,9 +812,10 @@ def _plan_parts(
     parts: Sequence[tuple[str, str, set[str]]],
     slack: int,
     per_relation: int,
+    cache: PartCache | None,
 ) -> list[Solution]:
     """Solutions of a dynamic 6D query whose region has cut frames (:mod:`segments`): each
-    part planned on its own, then the parts' derivations chained.
+    part planned on its own (or taken from ``cache``), then the parts' derivations chained.
 
     The best solution chains every part's best derivation; the others change one part's
     derivation to its next best, cheapest first, at most ``per_relation`` in all. The links of
@@ -776,17 +827,24 @@ def _plan_parts(
     chain = next(t for t in templates if t.signature == "chain" and "6D" in _chain_types(t))
     joined = Workspace(per_relation=sys.maxsize, prefix="j.")
     alternatives: list[list[EdgeRecord]] = []
-    for i, (a, b, part) in enumerate(parts):
-        ws = saturate(srg, templates, part, "6D", (), per_relation, (a, b), (), slack, f"p{i}.")
-        found = solutions(ws, Query(a, b, "6D"))
+    for a, b, part in parts:
+        key = _part_key(srg, templates, part, (a, b), slack, per_relation)
+        found = cache.get(key) if cache is not None else None
+        if found is None:
+            prefix = hashlib.sha1(repr(key[:3]).encode()).hexdigest()[:10] + "."
+            ws = saturate(srg, templates, part, "6D", (), per_relation, (a, b), (), slack, prefix)
+            found = solutions(ws, Query(a, b, "6D"))
+            if cache is not None:
+                cache.put(key, found)
         if not found:
             raise NoSolutionError(
                 f"no derivation of 6D {query.source}->{query.target}: every way passes "
                 f"{b if a == query.source else a} and no combination of patterns yields "
                 f"6D {a}->{b} (frames considered: {', '.join(sorted(part))})"
             )
-        joined.index.edges.update(ws.index.edges)
-        joined.steps.update(ws.steps)
+        for solution in found:
+            joined.index.edges.update(solution.records)
+            joined.steps.update((step.id, step) for step in solution.steps)
         alternatives.append([s.edge for s in found])
     best = [options[0] for options in alternatives]
     variants = (
@@ -861,11 +919,13 @@ def plan(
     *,
     slack: int = DEFAULT_SLACK,
     per_relation: int = DEFAULT_PER_RELATION,
+    cache: PartCache | None = None,
 ) -> list[Solution]:
     """All distinct solutions of ``query`` on ``srg``, best first; raises :class:`NoSolutionError`.
 
     The first solution is the best derivation by the cost model; the whole list is what the
-    design tool shows with ``--all``.
+    design tool shows with ``--all``. With a ``cache``, the derivations of parts between cut
+    frames are shared with other plans using the same cache (:class:`PartCache`).
     """
     absent = [n for n in (query.source, query.target) if n not in srg]
     if absent and not query.static and any(t.introduced for t in templates):
@@ -878,7 +938,7 @@ def plan(
     goal = (query.source, query.target)
     parts = [] if query.static or query.type != "6D" else cut_frames(srg, frames, *goal)
     if len(parts) > 1:
-        found = _plan_parts(srg, templates, query, parts, slack, per_relation)
+        found = _plan_parts(srg, templates, query, parts, slack, per_relation, cache)
     else:
         rigid = [(query.source, query.target)] if query.static else []
         ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal, new, slack)
