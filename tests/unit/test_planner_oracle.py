@@ -95,16 +95,17 @@ def test_a_room_with_redundant_trackers_plans_as_the_exhaustive_search(templates
 )
 def test_random_srgs_plan_no_worse_than_the_exhaustive_search(templates, edges, query):
     """Random multigraphs (parallel, opposite, static and dynamic edges) with the bound on the
-    alternatives kept per relation lifted, so that neither search is cut short by it: which
-    alternatives a bound of 8 keeps depends on the order they come in, and the two searches
-    take them in different orders."""
+    alternatives kept per relation raised to 16: which alternatives a bound of 8 keeps depends
+    on the order they come in, and the two searches take them in different orders (one such
+    graph in 300 planned 0.83 against 0.79 with 8, the same with 16). With 64 a dense example
+    takes either search half a minute."""
     srg = new_srg()
     for a, b, edge_type, static in edges:
         add_measured_edge(srg, f"N{a}", f"N{b}", edge_type, static=static)
     if f"N{query[0]}" not in srg or f"N{query[1]}" not in srg:
         return
     q = Query(f"N{query[0]}", f"N{query[1]}", "6D", query[2])
-    assert_no_worse(srg, templates, q, per_relation=64)
+    assert_no_worse(srg, templates, q, per_relation=16)
 
 
 @pytest.mark.parametrize("seed", range(3))

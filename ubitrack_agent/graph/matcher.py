@@ -234,6 +234,9 @@ def _introductions(
 ) -> Iterator[dict[str, str]]:
     """Bindings of the template's introduced roles to distinct new frames not bound already;
     a single empty binding for a template that introduces none."""
+    if not template.introduced:
+        yield {}
+        return
     free = [frame for frame in index.new_frames if frame not in roles.values()]
     for frames in permutations(free, len(template.introduced)):
         yield dict(zip(template.introduced, frames, strict=True))

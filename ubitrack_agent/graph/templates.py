@@ -19,6 +19,7 @@ import importlib.resources
 import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
@@ -147,12 +148,12 @@ class Template:
     signature: str = "step"
     host_labels: frozenset[str] = frozenset()
 
-    @property
+    @cached_property
     def time_only(self) -> bool:
         """True if the pattern is only ever applied expanded in time (its outputs are static)."""
         return self.correspondence is not None and self.correspondence.expansions == {"time"}
 
-    @property
+    @cached_property
     def introduced(self) -> tuple[str, ...]:
         """Roles no input binds: frames the pattern introduces (the tip of a tip calibration).
 
