@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 from hypothesis import given, settings
-from hypothesis import strategies as st
 
+from tests.unit import srg_strategies
 from ubitrack_agent.graph.planner import (
     NoSolutionError,
     PlanningError,
@@ -303,21 +303,7 @@ def test_alternatives_per_relation_are_bounded(templates):
 
 
 @settings(max_examples=40, deadline=None)
-@given(
-    edges=st.lists(
-        st.tuples(
-            st.integers(0, 4),
-            st.integers(0, 4),
-            st.sampled_from(["6D", "6D", "3D", "2D", "3x4"]),
-            st.booleans(),
-        ).filter(lambda e: e[0] != e[1]),
-        min_size=1,
-        max_size=9,
-    ),
-    query=st.tuples(st.integers(0, 4), st.integers(0, 4), st.booleans()).filter(
-        lambda q: q[0] != q[1]
-    ),
-)
+@given(edges=srg_strategies.edges, query=srg_strategies.queries)
 def test_any_srg_gets_valid_solutions_or_a_clear_error(templates, edges, query):
     srg = setup(*((f"N{a}", f"N{b}", t, s) for a, b, t, s in edges))
     q = Query(f"N{query[0]}", f"N{query[1]}", "6D", query[2])

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.building import Building, body, build, camera, marker, room, tracker
-from tests.unit import exhaustive_planner
+from tests.unit import exhaustive_planner, srg_strategies
 from ubitrack_agent.graph.planner import NoSolutionError, PartCache, Query, plan
 from ubitrack_agent.graph.srg import add_measured_edge, new_srg, remove_provider
 
@@ -78,21 +78,7 @@ def test_a_room_with_redundant_trackers_plans_as_the_exhaustive_search(templates
 
 
 @settings(max_examples=60, deadline=None)
-@given(
-    edges=st.lists(
-        st.tuples(
-            st.integers(0, 4),
-            st.integers(0, 4),
-            st.sampled_from(["6D", "6D", "6D", "3D", "2D", "3x4"]),
-            st.booleans(),
-        ).filter(lambda e: e[0] != e[1]),
-        min_size=1,
-        max_size=9,
-    ),
-    query=st.tuples(st.integers(0, 4), st.integers(0, 4), st.booleans()).filter(
-        lambda q: q[0] != q[1]
-    ),
-)
+@given(edges=srg_strategies.edges, query=srg_strategies.queries)
 def test_random_srgs_plan_no_worse_than_the_exhaustive_search(templates, edges, query):
     """Random multigraphs (parallel, opposite, static and dynamic edges) with the bound on the
     alternatives kept per relation raised to 16: which alternatives a bound of 8 keeps depends
