@@ -412,9 +412,8 @@ class Workspace:
         return known.get(goal, math.inf)
 
     def may_chain(self, match: Match) -> bool:
-        """A cheap test of a chain's occurrence before it is applied: the chain is wanted
-        (:meth:`_wanted`) and, for a dynamic query, its way is within the detour bound counted
-        with plain hop distances (a lower bound of those :meth:`_on_a_route` counts)."""
+        """Whether a chain's occurrence is worth applying: the chain is wanted (:meth:`_wanted`)
+        and, for a dynamic query, it can lie on a way of the query (:meth:`_on_a_way`)."""
         roles, types = dict(match.roles), dict(match.types)
         template = match.template
         output = template.outputs[0]
@@ -424,46 +423,48 @@ class Workspace:
             return False
         if not self.neighbours:
             return True
-        start, end = self.goal
-        edges = self.index.edges
-        limit = self._distance(start, end) + self.detour - sum(edges[e].hops for e in match.edges)
-        return any(
-            self._distance(start, a) + self._distance(b, end) <= limit
-            for a, b in ((source, target), (target, source))
-        )
+        links = [self.index.edges[e] for e in match.edges]
+        sources = frozenset().union(*(link.sources for link in links))
+        return self._on_a_way(source, target, sum(link.hops for link in links), sources)
 
-    def _on_a_route(self, record: EdgeRecord) -> bool:
-        """Whether a chain ``record`` (X->Y, 6D) can lie on a derivation of a dynamic query
-        S->T: "no concatenation that cannot lie on a derivation of the query".
+    def _on_a_way(self, x: str, y: str, hops: int, sources: frozenset[str]) -> bool:
+        """Whether a chain X->Y of ``hops`` links on ``sources`` can lie on a derivation of a
+        dynamic query S->T: "no concatenation that cannot lie on a derivation of the query".
 
         * S reaches X and Y reaches T (or, read inverted, the other way round) without passing
-          a frame inside the chain: a derivation through such a frame would hold a cycle, and
-          cutting the cycle gives a chain at no higher cost on a subset of its sources, which
-          therefore fits wherever the longer one does.
-        * That way, ``hops(S, X) + record.hops + hops(Y, T)`` with the first and last hops
-          counted around the chain's inside, is no longer than ``detour`` hops beyond a
-          shortest S-T path: the slack that bounds the region's frames bounds the ways through
-          them too.
+          a frame inside the chain (a frame of its sources other than X and Y): a derivation
+          through such a frame would hold a cycle, and cutting the cycle gives a chain at no
+          higher cost on a subset of its sources, which therefore fits wherever the longer one
+          does.
+        * That way, ``hops(S, X) + hops + hops(Y, T)`` with the first and last hops counted
+          around the chain's inside, is no longer than ``detour`` hops beyond a shortest S-T
+          path: the slack that bounds the region's frames bounds the ways through them too.
 
-        Only dynamic queries are pruned: a static query's time-integrated edges may share
-        dynamic sources with the rest (section 5.1), so there a cycle can carry information.
+        Plain hop distances (a lower bound of those around the inside) are tried first.
+        Only dynamic queries are pruned (:attr:`neighbours` is empty otherwise): a static
+        query's time-integrated edges may share dynamic sources with the rest (section 5.1),
+        so there a cycle can carry information.
         """
-        if not self.neighbours or record.pattern != "Concatenation":
-            return True
         start, end = self.goal
-        x, y = record.source, record.target
+        limit = self._distance(start, end) + self.detour - hops
+        ends = [
+            (a, b)
+            for a, b in ((x, y), (y, x))
+            if self._distance(start, a) + self._distance(b, end) <= limit
+        ]
+        if not ends:
+            return False
         edges = self.index.edges
         inside = frozenset(
             frame
-            for source in record.sources
+            for source in sources
             if source in edges
             for frame in (edges[source].source, edges[source].target)
             if frame not in (x, y)
         )
-        limit = self._distance(start, end) + self.detour - record.hops
         return any(
             self._avoiding(start, a, inside | {b}) + self._avoiding(b, end, inside | {a}) <= limit
-            for a, b in ((x, y), (y, x))
+            for a, b in ends
         )
 
     def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
@@ -603,7 +604,7 @@ class Workspace:
                     hops=chain_hops
                     or (max(1, self._distance(source, target)) if self.neighbours else 1),
                 )
-                if self._on_a_route(record) and self._admit(record):
+                if self._admit(record):
                     self.index.add(record)
                     self.by_relation[(source, target, edge_type, static)].append(record.id)
                     edge_id = record.id
