@@ -1,8 +1,10 @@
 """Planning in a building (issue [scale], point 4): plan time against a plain shortest path.
 
 Run as ``python -m bench.building_bench [--quick] [--limit S] [--repeats N] [--series NAME,...]
-[--out FILE]``; prints a table and the growth of each series, and writes
-``bench/results/building.json`` (or ``--out``).
+[--compare-with DIR] [--out FILE]``; prints a table and the growth of each series, and writes
+``bench/results/building.json`` (or ``--out``). ``--compare-with DIR`` plans every row again,
+right after, with the planner of the checkout in ``DIR`` (e.g. ``git worktree add /tmp/before
+5e538ac``), so that both are measured side by side in one run.
 
 Setups come from :mod:`bench.building` (rooms in a star or a corridor, K redundant trackers,
 bodies, cameras on bodies seeing a marker target with 5 features, static surveys, shared
@@ -55,6 +57,7 @@ plans.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import multiprocessing as mp
@@ -62,6 +65,7 @@ import os
 import platform
 import statistics
 import subprocess
+import sys
 import time
 from collections import Counter
 from collections.abc import Sequence
@@ -201,10 +205,27 @@ def all_series(quick: bool) -> list[Series]:
     ]
 
 
-def _measure_in_child(send: Connection, row: Row, repeats: int, limit_s: float) -> None:
-    """In the child: build the SRG, time the shortest path, then the plans, sending each
-    figure as it is known (so the parent keeps what finished if it has to kill the child)."""
+def _planner_of(root: Path | None) -> tuple[Any, Any, type[Exception]]:
+    """``plan``, ``load_templates`` and ``PlanningError`` of this checkout, or (in a child
+    process only) of the checkout at ``root``: the package is imported again from there."""
+    if root is None:
+        return plan, load_templates, PlanningError
+    for name in [n for n in sys.modules if n.split(".")[0] in ("ubitrack_agent", "templates")]:
+        del sys.modules[name]
+    sys.path.insert(0, str(root))
+    planner = importlib.import_module("ubitrack_agent.graph.planner")
+    catalogue = importlib.import_module("ubitrack_agent.graph.templates")
+    return planner.plan, catalogue.load_templates, planner.PlanningError
+
+
+def _measure_in_child(
+    send: Connection, row: Row, repeats: int, limit_s: float, root: Path | None
+) -> None:
+    """In the child: build the SRG, time the shortest path, then the plans (of the planner at
+    ``root`` if given, :func:`_planner_of`), sending each figure as it is known (so the parent
+    keeps what finished if it has to kill the child)."""
     srg = build(row.shape)
+    plan, load_templates, PlanningError = _planner_of(root)
     templates = load_templates()
     send.send(("graph", srg.number_of_nodes(), srg.number_of_edges()))
     times: list[float] = []
@@ -235,12 +256,12 @@ def _measure_in_child(send: Connection, row: Row, repeats: int, limit_s: float) 
     send.send(("done",))
 
 
-def measure(row: Row, repeats: int, limit_s: float) -> dict[str, Any]:
+def measure(row: Row, repeats: int, limit_s: float, root: Path | None = None) -> dict[str, Any]:
     """The figures of ``row`` (module docstring), measured in a forked child that is killed
-    when one plan takes over ``limit_s`` seconds."""
+    when one plan takes over ``limit_s`` seconds; with ``root``, of the planner there."""
     context = mp.get_context("fork")
     receive, send = context.Pipe(duplex=False)
-    child = context.Process(target=_measure_in_child, args=(send, row, repeats, limit_s))
+    child = context.Process(target=_measure_in_child, args=(send, row, repeats, limit_s, root))
     child.start()
     send.close()
     result: dict[str, Any] = {
@@ -328,6 +349,11 @@ def table_line(result: dict[str, Any], limit_s: float) -> str:
     ratio = result.get("ratio")
     shortest = result.get("shortest_path_ms")
     cost = result.get("best_cost")
+    if "before_plan_ms" in result:
+        then = result["before_plan_ms"]
+        then = f"over {limit_s:g} s" if result["before_over_limit"] else f"{then:.1f} ms"
+        cost_then = result["before_best_cost"]
+        planned += f" (before {then}, cost {'-' if cost_then is None else f'{cost_then:.3f}'})"
     return (
         f"{result['series']:<18} {result['size']:>4} {setup.get('frames', '?'):>5}/"
         f"{setup.get('edges', '?'):<5} {result['query']:<16} {planned:>12} "
@@ -368,8 +394,24 @@ def checkout_commits() -> dict[str, str]:
     return {"commit": head, "planner_commit": planner + ("+dirty" if dirty else "")}
 
 
-def run(series: Sequence[Series], repeats: int, limit_s: float) -> dict[str, Any]:
-    """Measure every series (each until its first row over the limit), printing as it goes."""
+def compared(result: dict[str, Any], before: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with the figures of the planner compared with (``before``) beside it."""
+    ms = None if before["over_limit"] else before["plan_ms"]
+    now = result["plan_ms"]
+    return {
+        **result,
+        "before_plan_ms": ms,
+        "before_over_limit": before["over_limit"],
+        "before_best_cost": before.get("best_cost"),
+        "speed_up": round(ms / now, 1) if ms and now else None,
+    }
+
+
+def run(
+    series: Sequence[Series], repeats: int, limit_s: float, before: Path | None = None
+) -> dict[str, Any]:
+    """Measure every series (each until its first row over the limit), printing as it goes;
+    with ``before``, each row also on the planner of that checkout, right after."""
     results: dict[str, Any] = {
         "date": time.strftime("%Y-%m-%d"),
         "python": platform.python_version(),
@@ -378,6 +420,7 @@ def run(series: Sequence[Series], repeats: int, limit_s: float) -> dict[str, Any
         "limit_s": limit_s,
         "repeats": repeats,
         "load_average_1min": {"start": os.getloadavg()[0]},
+        "compared_with": str(before) if before else None,
         "rows": [],
         "series": {},
     }
@@ -391,6 +434,8 @@ def run(series: Sequence[Series], repeats: int, limit_s: float) -> dict[str, Any
         broke_at = None
         for row in s.rows:
             result = measure(row, repeats, limit_s)
+            if before is not None:
+                result = compared(result, measure(row, repeats, limit_s, before))
             rows.append(result)
             print(table_line(result, limit_s), flush=True)
             if result["over_limit"]:
@@ -429,6 +474,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--series", help="comma-separated series to run (default all; names in the docstring)"
     )
     parser.add_argument(
+        "--compare-with",
+        type=Path,
+        metavar="DIR",
+        help="also plan each row with the planner of the checkout in DIR (e.g. a git worktree "
+        "of an older commit), right after, for figures side by side in one run",
+    )
+    parser.add_argument(
         "--out", type=Path, default=RESULTS, help=f"JSON file (default {RESULTS.relative_to(ROOT)})"
     )
     args = parser.parse_args(argv)
@@ -440,7 +492,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         if unknown:
             parser.error(f"unknown series {', '.join(sorted(unknown))}")
         chosen = [s for s in chosen if s.name in wanted]
-    results = run(chosen, max(1, repeats), args.limit)
+    if args.compare_with and not (args.compare_with / "ubitrack_agent" / "graph").is_dir():
+        parser.error(f"--compare-with {args.compare_with}: no ubitrack_agent/graph there")
+    results = run(chosen, max(1, repeats), args.limit, args.compare_with)
     results["quick"] = args.quick
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")

@@ -12,7 +12,7 @@ import networkx as nx
 import pytest
 
 from bench.building import Building, body, build, camera, marker, room, tracker
-from bench.building_bench import all_series, corridor, growth, measure, shortest_path
+from bench.building_bench import all_series, compared, corridor, growth, measure, shortest_path
 from ubitrack_agent.graph.planner import Query
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -79,3 +79,12 @@ def test_a_quick_run_writes_every_series_with_its_rows(tmp_path: Path) -> None:
         rows = [r for r in results["rows"] if r["series"] == name]
         assert series["sizes"] == [r["size"] for r in rows]
         assert series["broke_at"] in (None, rows[-1]["size"])
+
+
+def test_a_row_compared_with_the_planner_before_it():
+    now = {"plan_ms": 20.0, "over_limit": False}
+    before = {"plan_ms": 500.0, "over_limit": False, "best_cost": 4.2}
+    row = compared(now, before)
+    assert (row["before_plan_ms"], row["before_best_cost"], row["speed_up"]) == (500.0, 4.2, 25.0)
+    over = compared(now, {"plan_ms": None, "over_limit": True})
+    assert over["before_over_limit"] and over["speed_up"] is None
