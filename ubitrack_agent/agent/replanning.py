@@ -7,13 +7,17 @@ section 5), so its answer depends only on that *region* and the edges within it.
 SRGs (any batch of events: providers or edges appearing or vanishing, edges going stale or
 coming back, queries coming or going) a relation is planned again only when
 
-* it is new (a query came), or every relation is asked for (``full``: a worker nothing runs
-  appeared, which the stable choice may prefer);
+* it is new (a query came);
+* a worker nothing ran appeared (``appeared``) that is a component of one of its derivations
+  within the cost margin (``RelationPlan.candidates``): the stable choice
+  (``flows.stable_choice``) prefers running components among those derivations only, so for
+  any other relation the new worker changes nothing (an unknown worker that is merely claimed
+  or stopped replans none);
 * its running derivation reads a removed (or changed) edge;
 * an added (or changed) edge lies within its region on the new SRG, or the region itself
   changed (an added edge can shorten the way between the query's frames): the new edge may
   make it solvable, or cheaper (whether by more than the hysteresis margin,
-  ``flows.stable_choice`` decides, as for a full replan);
+  ``flows.stable_choice`` decides, as when the relation is planned first);
 * it is unsolved because its frames are absent or not connected: it is planned again on any
   change (cheap: the planner fails on the first search of the frames).
 
@@ -31,8 +35,10 @@ added), then decided exactly by computing the candidates' regions again.
 
 Cost per event, for ``Q`` relations and ``E`` edges: O(E) to compare the SRGs (O(changed edges)
 when the caller knows the changes: ``agent.live_srg``), O(ball) for the
-search around the added edges, O(region) per candidate, and one ``graph.planner.plan`` per
-relation replanned, plus O(components) to merge the flows when any changed.
+search around the added edges, O(region) per candidate, O(Q) to find the relations a new
+worker may serve, and one planner call per relation replanned (``graph.planner.plan``, or a
+memo of it that answers unchanged regions at O(region): ``agent.plan_memo``), plus
+O(components) to merge the flows when any changed.
 """
 
 from __future__ import annotations
@@ -44,12 +50,13 @@ from typing import Any
 
 import networkx as nx
 
-from ubitrack_agent.agent.flows import Plan, RelationPlan, combine, plan_relation
+from ubitrack_agent.agent.flows import Plan, Planner, RelationPlan, combine, plan_relation
 from ubitrack_agent.graph.planner import (
     DEFAULT_SLACK,
     PlanningError,
     Query,
     introducible_frames,
+    plan,
     relevant_frames,
 )
 from ubitrack_agent.graph.srg import new_srg, remove_static_relation
@@ -152,14 +159,19 @@ def affected(
     templates: Sequence[Template],
     relations: Set[RelationId],
     changes: tuple[Edges, Edges] | None = None,
+    appeared: Set[str] = frozenset(),
 ) -> tuple[set[RelationId], dict[RelationId, Region]]:
-    """The relations among ``relations`` that the change from ``previous.srg`` to ``srg`` can
-    affect (module docstring), and the regions of the others as they are on ``srg``;
-    ``changes``, the edges removed and added, if known (``agent.live_srg``), saves comparing
-    the SRGs."""
+    """The relations among ``relations`` that the change from ``previous.srg`` to ``srg``, and
+    the workers that ``appeared``, can affect (module docstring), and the regions of the others
+    as they are on ``srg``; ``changes``, the edges removed and added, if known
+    (``agent.live_srg``), saves comparing the SRGs."""
     removed, added = changes if changes is not None else edge_changes(previous.srg, srg)
-    todo = {r for r in relations if r not in previous.parts}
-    regions = {r: previous.regions[r] for r in relations if r not in todo}
+    todo = {
+        r
+        for r in relations
+        if r not in previous.parts or not previous.parts[r].candidates.isdisjoint(appeared)
+    }
+    regions = {r: previous.regions[r] for r in relations if r in previous.parts}
     if not removed and not added:
         return todo, regions
     for relation, region in regions.items():
@@ -211,25 +223,26 @@ def replan(
     relations: Iterable[RelationId],
     running: Set[str] = frozenset(),
     follow: bool = True,
-    full: bool = False,
+    appeared: Set[str] = frozenset(),
     changes: tuple[Edges, Edges] | None = None,
+    planner: Planner = plan,
 ) -> Planned:
-    """The plan of ``relations`` on ``srg``, planning again only the relations the change
-    since ``previous`` can affect (all of them if ``full`` or there is no ``previous``); the
-    others keep their part. Choices follow ``flows.stable_choice`` with the ``running``
-    components and, if ``follow``, the previous plan's derivations (a standby agent, which
-    follows what runs, passes ``False``); ``changes`` as for :func:`affected`."""
+    """The plan of ``relations`` on ``srg``, planning again (with ``planner``) only the
+    relations the change since ``previous`` and the workers that ``appeared`` can affect (all
+    of them if there is no ``previous``); the others keep their part. Choices follow
+    ``flows.stable_choice`` with the ``running`` components (``appeared`` among them) and, if
+    ``follow``, the previous plan's derivations (a standby agent, which follows what runs,
+    passes ``False``); ``changes`` as for :func:`affected`."""
     relations = set(relations)
-    if previous is None or full:
-        base = previous or Planned()
+    if previous is None:
         todo, regions = set(relations), {}
     else:
-        base = previous
-        todo, regions = affected(previous, srg, templates, relations, changes)
+        todo, regions = affected(previous, srg, templates, relations, changes, appeared)
+    base = previous or Planned()
     serving = base.plan.serving if follow and previous is not None else None
     parts = {r: base.parts[r] for r in relations if r not in todo}
     for relation in todo:
-        parts[relation] = plan_relation(srg, templates, relation, running, serving)
+        parts[relation] = plan_relation(srg, templates, relation, running, serving, planner)
         regions[relation] = region_of(srg, templates, relation)
     if previous is not None and parts.keys() == previous.parts.keys() and not todo:
         plan = previous.plan  # nothing changed: the same plan object
