@@ -32,6 +32,7 @@ def step(planned, fragments, relations, without=frozenset()):
     assert after.plan.flow == everything.flow
     assert after.plan.unsolved.keys() == everything.unsolved.keys()
     assert after.plan.serving == everything.serving
+    assert after.regions == {r: region_of(srg, TEMPLATES, r) for r in relations}  # all current
     return after
 
 

@@ -162,9 +162,10 @@ def affected(
     appeared: Set[str] = frozenset(),
 ) -> tuple[set[RelationId], dict[RelationId, Region]]:
     """The relations among ``relations`` that the change from ``previous.srg`` to ``srg``, and
-    the workers that ``appeared``, can affect (module docstring), and the regions of the others
-    as they are on ``srg``; ``changes``, the edges removed and added, if known
-    (``agent.live_srg``), saves comparing the SRGs."""
+    the workers that ``appeared``, can affect (module docstring), and the regions on ``srg``
+    of those known (all but the affected ones whose region was not computed again);
+    ``changes``, the edges removed and added, if known (``agent.live_srg``), saves comparing
+    the SRGs."""
     removed, added = changes if changes is not None else edge_changes(previous.srg, srg)
     todo = {
         r
@@ -177,16 +178,16 @@ def affected(
     for relation, region in regions.items():
         if region.frames is None or not previous.parts[relation].edges.isdisjoint(removed):
             todo.add(relation)
-    if added:
-        _check_additions(srg, templates, added, regions, todo)
+    computed = _check_additions(srg, templates, added, regions, todo) if added else set()
     for relation, region in regions.items():
         if relation in todo or region.frames is None:
             continue
         if any(u in region.frames and v in region.frames for u, v in removed.values()):
             regions[relation] = region_of(srg, templates, relation)
+            computed.add(relation)
             if previous.parts[relation].unsolved is not None and regions[relation] != region:
                 todo.add(relation)  # the reason names the frames it considered
-    return todo, regions
+    return todo, {r: g for r, g in regions.items() if r not in todo or r in computed}
 
 
 def _check_additions(
@@ -195,25 +196,29 @@ def _check_additions(
     added: Edges,
     regions: dict[RelationId, Region],
     todo: set[RelationId],
-) -> None:
+) -> set[RelationId]:
     """Add to ``todo`` the relations an added edge lies within the region of (or whose region
     changed), updating ``regions``: a breadth-first search from the added edges' frames keeps
-    the candidates whose frames are within their hop bound of them (module docstring)."""
+    the candidates whose frames are within their hop bound of them (module docstring). The
+    relations whose region it computed again."""
     open_regions = {r: g for r, g in regions.items() if r not in todo and g.bound >= 0}
     finite = [g.bound for g in open_regions.values() if math.isfinite(g.bound)]
     ends = {frame for edge in added.values() for frame in edge}
     near = _hops(srg, ends, max(finite, default=0))
+    computed = set()
     for relation, region in open_regions.items():
         reach = near.get(relation.source, math.inf) + near.get(relation.target, math.inf)
         if reach > region.bound:
             continue
         now = region_of(srg, templates, relation)
         regions[relation] = now
+        computed.add(relation)
         inside = now.frames is not None and any(
             u in now.frames and v in now.frames for u, v in added.values()
         )
         if inside or now != region:
             todo.add(relation)
+    return computed
 
 
 def replan(
@@ -243,7 +248,8 @@ def replan(
     parts = {r: base.parts[r] for r in relations if r not in todo}
     for relation in todo:
         parts[relation] = plan_relation(srg, templates, relation, running, serving, planner)
-        regions[relation] = region_of(srg, templates, relation)
+        if relation not in regions:
+            regions[relation] = region_of(srg, templates, relation)
     if previous is not None and parts.keys() == previous.parts.keys() and not todo:
         plan = previous.plan  # nothing changed: the same plan object
     else:
