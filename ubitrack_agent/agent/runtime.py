@@ -189,6 +189,8 @@ class Agent:
         self._host_name = settings.host_name
         self.plan: Plan | None = None
         self.srg = build_srg({})
+        self._srg_listed: tuple[Any, list[dict[str, Any]]] = (None, [])
+        """The SRG the status last listed, and its list (:meth:`_srg_status`)."""
         self.last_change_ns: int | None = None
         self._pending_fragments: dict[str, tuple[int, float]] = {}
         """Providers whose fragment is still to fetch: (attempts so far, next attempt)."""
@@ -855,17 +857,7 @@ class Agent:
             "providers": {p: [e["id"] for e in entries] for p, entries in self.fragments.items()},
             "rejected_providers": dict(self.rejected),
             "stale_edges": sorted(self.stale),
-            "srg": [
-                {
-                    "id": key,
-                    "from": u,
-                    "to": v,
-                    "type": d["type"],
-                    "static": d["static"],
-                    "rate": d["quality"].rate,
-                }
-                for u, v, key, d in self.srg.edges(keys=True, data=True)
-            ],
+            "srg": self._srg_status(),
             "queries": {names[r]: sorted(apps) for r, apps in self.queries.items()},
             "application_hosts": {names[r]: sorted(hosts[r]) for r in self.queries},
             "unsolved": dict(plan.unsolved) if plan else {},
@@ -898,6 +890,26 @@ class Agent:
             },
             "loop": self.loop_times.last,
         }
+
+    def _srg_status(self) -> list[dict[str, Any]]:
+        """The live SRG's edges as the status lists them, made again only when a plan brings
+        another SRG (the status is made every ``STATUS_REFRESH_S``: O(edges) each time
+        otherwise, whatever happened)."""
+        srg, listed = self._srg_listed
+        if srg is not self.srg:
+            listed = [
+                {
+                    "id": key,
+                    "from": u,
+                    "to": v,
+                    "type": d["type"],
+                    "static": d["static"],
+                    "rate": d["quality"].rate,
+                }
+                for u, v, key, d in self.srg.edges(keys=True, data=True)
+            ]
+            self._srg_listed = (self.srg, listed)
+        return listed
 
     def _roles(self) -> dict[str, Any]:
         """This agent's id and role, and the ids of the active and standby agents it sees."""
