@@ -24,6 +24,7 @@ from ubitrack_agent.agent.announcements import (
     fragment_entries,
 )
 from ubitrack_agent.agent.flows import plan_relations, stable_choice
+from ubitrack_agent.agent.loop_times import LoopTimes
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.runtime import Agent
 from ubitrack_agent.graph.planner import Query, plan
@@ -242,6 +243,7 @@ def test_a_failing_loop_leaves_the_workers_running_and_a_clean_stop_ends_them():
     agent = Agent.__new__(Agent)  # the loop alone: no session
     agent._stop = threading.Event()
     agent._guard = Guard(Problems())
+    agent.loop_times = LoopTimes()
     closed = []
     agent._close = lambda stop_workers: closed.append(stop_workers)
 

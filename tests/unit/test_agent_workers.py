@@ -91,3 +91,12 @@ def test_a_held_rewire_of_a_worker_that_ended_is_dropped():
     bare._on_worker("concat-1", "100.aaaa", appeared=False)  # it vanished: started afresh
     bare._retire()
     assert puts == [] and bare._held == {}
+
+
+def test_only_a_worker_nothing_ran_asks_for_its_relations_to_be_planned_again():
+    bare, _ = agent()
+    bare.running["concat-1"] = "spec"
+    assert not bare._on_worker("concat-1", "100.aaaa", appeared=True)  # started by this agent
+    assert bare._on_worker("fusion-2", "300.cccc", appeared=True)  # an earlier agent's
+    assert not bare._on_worker("fusion-2", "400.dddd", appeared=True)  # alive already
+    assert not bare._on_worker("fusion-2", "300.cccc", appeared=False)

@@ -65,3 +65,17 @@ def test_malformed_query_keys_are_rejected(key, message):
 def test_malformed_relation_keys_are_rejected(key):
     with pytest.raises(ValueError):
         KEYS.parse_relation(key)
+
+
+def test_a_liveness_report_key_is_one_chunk_below_data_apart_from_every_edge_key():
+    key = KEYS.liveness("art")
+    assert key == "ubitrack/test/data/art"
+    assert KEYS.parse_liveness(key) == "art"
+    edge = KEYS.measured("art", "ART_HT")
+    assert edge.startswith(key + "/")  # the provider's edges lie below its report key
+    with pytest.raises(ValueError):
+        KEYS.parse_liveness(edge)  # two chunks: an edge's data, not a report
+    with pytest.raises(ValueError):
+        KEYS.liveness("a/b")
+    with pytest.raises(ValueError):
+        KEYS.parse_liveness("ubitrack/other/data/art")

@@ -48,3 +48,12 @@ def test_a_fragment_is_parsed_once():
     second, removed, added = live_srg({"a": a, "b": tracker("b")}, frozenset(), first)
     assert second.parsed["a"] is first.parsed["a"]
     assert not removed and set(added) == {"b/room", "b/H"}
+
+
+def test_nothing_changed_gives_the_same_srg_object():
+    a = tracker("a")
+    first, _, _ = live_srg({"a": a}, frozenset({"a/H"}))
+    again, removed, added = live_srg({"a": a}, frozenset({"a/H"}), first)
+    assert again is first and not removed and not added
+    back, removed, added = live_srg({"a": a}, frozenset(), first)
+    assert back.srg is not first.srg and set(added) == {"a/H"} and not removed

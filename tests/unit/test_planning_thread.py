@@ -42,8 +42,8 @@ class Jobs:
         assert self.done.wait(WAIT_S)
 
 
-def snapshot(generation: int, full: bool) -> Request:
-    return Request(generation, {}, frozenset(), frozenset(), frozenset(), True, full)
+def snapshot(generation: int, appeared: frozenset[str]) -> Request:
+    return Request(generation, {}, frozenset(), frozenset(), frozenset(), True, appeared)
 
 
 def settle(planner: BackgroundPlanner) -> Outcome | None:
@@ -85,12 +85,12 @@ def test_an_outcome_made_before_a_change_is_dropped_and_the_next_builds_on_it(jo
     planner.step(snapshot)
     first, _ = job.started.get(timeout=WAIT_S)
     planner.changed()  # an event while the plan is made
-    planner.changed(full=True)
+    planner.changed("fusion-1")  # a worker nothing ran
     job.finish()
     assert settle(planner) is None  # outdated: not applied
     assert planner.superseded == 1 and planner.applied == -1
     second, previous = job.started.get(timeout=WAIT_S)  # asked again at once, from the newest
-    assert second.generation == 2 and second.full
+    assert second.generation == 2 and second.appeared == {"fusion-1"}
     assert previous is not None and previous.request is first  # incremental from it
     job.finish()
     outcome = settle(planner)
@@ -99,16 +99,17 @@ def test_an_outcome_made_before_a_change_is_dropped_and_the_next_builds_on_it(jo
 
 def test_a_failed_job_is_raised_on_the_loop_and_asked_again(jobs):
     job, planner = jobs
-    planner.changed(full=True)
+    planner.changed("fusion-1")
     planner.step(snapshot)
     first, _ = job.started.get(timeout=WAIT_S)
-    assert first.full
+    assert first.appeared == {"fusion-1"}
     job.finish(RuntimeError("boom"))
     with pytest.raises(RuntimeError, match="boom"):
         settle(planner)
-    assert planner.step(snapshot) is None  # asked again, keeping the full replan asked for
+    assert planner.step(snapshot) is None  # asked again, keeping the worker that appeared
     again, previous = job.started.get(timeout=WAIT_S)
-    assert again.full and again.generation == first.generation and previous is None
+    assert again.appeared == {"fusion-1"}
+    assert again.generation == first.generation and previous is None
     job.finish()
     assert settle(planner) is not None
 

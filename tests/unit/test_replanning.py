@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from tests.unit.rooms import building, edge, tracker
 from ubitrack_agent.agent.announcements import build_srg, provider_entries
 from ubitrack_agent.agent.flows import plan_relations
 from ubitrack_agent.agent.replanning import edge_changes, region_of, replan
@@ -12,35 +13,6 @@ from ubitrack_agent.graph.templates import load_templates
 from ubitrack_agent.net.keys import RelationId
 
 TEMPLATES = load_templates()
-
-
-def edge(name, source, target, edge_type="6D", **extra):
-    return {"name": name, "from": source, "to": target, "type": edge_type, **extra}
-
-
-def tracker(name, room, sigma=1e-3):
-    """A tracker ``name`` in ``room`` seeing the room's two bodies ``H<room>_1``, ``_2``."""
-    frame = name.upper()
-    return provider_entries(
-        name,
-        [
-            edge("room", f"R{room}", frame, static=True),
-            *(edge(f"H{j}", frame, f"H{room}_{j}", rate=60, sigma=sigma) for j in (1, 2)),
-        ],
-    )
-
-
-def building(rooms=3):
-    """Rooms ``R<r>`` surveyed into ``B``, each with tracker ``t<r>`` and a worse ``u<r>``."""
-    fragments = {
-        "survey": provider_entries(
-            "survey", [edge(f"R{r}", "B", f"R{r}", static=True) for r in range(rooms)]
-        )
-    }
-    for r in range(rooms):
-        fragments[f"t{r}"] = tracker(f"t{r}", r)
-        fragments[f"u{r}"] = tracker(f"u{r}", r, sigma=5e-3)
-    return fragments
 
 
 HEADS = [RelationId(f"H{r}_1", f"H{r}_2", "6D") for r in range(3)]
@@ -60,6 +32,7 @@ def step(planned, fragments, relations, without=frozenset()):
     assert after.plan.flow == everything.flow
     assert after.plan.unsolved.keys() == everything.unsolved.keys()
     assert after.plan.serving == everything.serving
+    assert after.regions == {r: region_of(srg, TEMPLATES, r) for r in relations}  # all current
     return after
 
 
@@ -152,13 +125,39 @@ def test_a_relation_across_rooms_follows_changes_in_both_rooms_only():
     assert reads(third, across, "u1")
 
 
-def test_full_replans_everything_and_a_worker_preference_is_kept():
+def two_equal_trackers_in_room_0():
+    """Room 0 seen by ``t0`` and ``v0``, equally good and so precise that fusing them is not
+    worth a sensor: two derivations of ``H0_1 -> H0_2`` within the cost margin."""
     fragments = building()
-    first = step(None, fragments, HEADS)
-    srg = build_srg(fragments)
-    again = replan(first, srg, TEMPLATES, HEADS, running_of(first), full=True)
-    assert again.replanned == set(HEADS)
-    assert again.plan.flow == first.plan.flow
+    fragments["t0"] = tracker("t0", 0, sigma=1e-4)
+    fragments["v0"] = tracker("v0", 0, sigma=1e-4)
+    return fragments
+
+
+@pytest.mark.parametrize("follow", [True, False])
+def test_a_worker_appearing_replans_only_the_relations_it_may_serve(follow):
+    srg = build_srg(two_equal_trackers_in_room_0())
+    first = replan(None, srg, TEMPLATES, HEADS, frozenset(), follow)
+    chosen = first.parts[HEADS[0]]
+    other = sorted(chosen.candidates - chosen.serving)  # the other tracker's derivation
+    assert other and all(not first.parts[r].candidates & set(other) for r in HEADS[1:])
+    running = frozenset(other)  # an earlier agent's workers of the other derivation appear
+    again = replan(first, srg, TEMPLATES, HEADS, running, follow, appeared=running)
+    assert again.replanned == {HEADS[0]}
+    assert kept(first, again, HEADS) == set(HEADS[1:])
+    everything = plan_relations(srg, TEMPLATES, HEADS, running, first.plan if follow else None)
+    assert again.plan.flow == everything.flow and again.plan.serving == everything.serving
+    # following its plan, the active agent keeps its choice; a standby moves onto what runs
+    assert (again.parts[HEADS[0]].serving == chosen.serving) == follow
+    assert (set(other) <= again.parts[HEADS[0]].serving) != follow
+
+
+def test_a_worker_no_derivation_uses_replans_nothing():
+    srg = build_srg(two_equal_trackers_in_room_0())
+    first = replan(None, srg, TEMPLATES, HEADS, frozenset())
+    stray = frozenset({"fusion-0123456789"})
+    again = replan(first, srg, TEMPLATES, HEADS, stray, appeared=stray)
+    assert again.replanned == set() and again.plan is first.plan
 
 
 @pytest.mark.parametrize("recalibrate", [False, True])

@@ -40,6 +40,9 @@ from ubitrack_agent.net.keys import RelationId
 HYSTERESIS = 0.10
 """Relative cost margin within which running components are preferred."""
 
+Planner = Callable[[nx.MultiDiGraph, Sequence[Template], Query], list[Solution]]
+"""``graph.planner.plan``, or a memo of it (``agent.plan_memo``)."""
+
 
 @dataclass(frozen=True)
 class Plan:
@@ -71,15 +74,20 @@ def stable_choice(
         kept = running if serving is None else running & serving.get(name(query), frozenset())
         if not kept:
             return solutions[0]
-        limit = solutions[0].cost * (1 + HYSTERESIS) + 1e-12
 
         def new_components(solution: Solution) -> int:
             return len(set(from_solution(solution, query).components) - kept)
 
-        eligible = [s for s in solutions if s.cost <= limit] or solutions[:1]  # NaN-proof
-        return min(eligible, key=lambda s: (new_components(s), s.cost))
+        return min(within_margin(solutions), key=lambda s: (new_components(s), s.cost))
 
     return choose
+
+
+def within_margin(solutions: Sequence[Solution]) -> list[Solution]:
+    """The solutions (best first) whose cost is within :data:`HYSTERESIS` of the best: those
+    :func:`stable_choice` chooses among (the best alone if costs are not numbers)."""
+    limit = solutions[0].cost * (1 + HYSTERESIS) + 1e-12
+    return [s for s in solutions if s.cost <= limit] or list(solutions[:1])
 
 
 @dataclass(frozen=True)
@@ -88,7 +96,10 @@ class RelationPlan:
     ``unsolved`` says why), the components of its derivation (``serving``) and the measured
     edges that derivation reads (``edges``: an event removing one of them replans it,
     ``agent.replanning``). ``name`` is its :func:`plan_name`; ``relations`` maps the names it
-    is planned under to the relation (none for a type the planner does not know)."""
+    is planned under to the relation (none for a type the planner does not know).
+    ``candidates`` are the components of every derivation within the cost margin
+    (:func:`within_margin`): the only ones whose running can change the choice, so a worker
+    that appears replans the relation only if it is one of them (``agent.replanning``)."""
 
     relation: RelationId
     name: str
@@ -97,6 +108,7 @@ class RelationPlan:
     serving: frozenset[str] = frozenset()
     edges: frozenset[str] = frozenset()
     relations: Mapping[str, RelationId] = field(default_factory=dict)
+    candidates: frozenset[str] = frozenset()
 
 
 def plan_relation(
@@ -105,12 +117,14 @@ def plan_relation(
     relation: RelationId,
     running: Set[str] = frozenset(),
     serving: Mapping[str, Set[str]] | None = None,
+    planner: Planner = plan,
 ) -> RelationPlan:
     """A derivation of ``relation`` chosen by :func:`stable_choice` (``serving``: the
     components of the previous plan's derivations, by plan name; ``None`` before the first
-    plan). A recalibration is planned on ``srg`` without the measured static edges of its
-    relation (``srg.remove_static_relation``), so it is computed from the other edges; its
-    unsolved reason says which edges it ignored. O(one ``graph.planner.plan``)."""
+    plan) among those ``planner`` finds. A recalibration is planned on ``srg`` without the
+    measured static edges of its relation (``srg.remove_static_relation``), so it is computed
+    from the other edges; its unsolved reason says which edges it ignored. O(one
+    ``planner`` call + the data flows of the derivations within the cost margin)."""
     try:
         query = Query(relation.source, relation.target, relation.type, relation.static)
     except PlanningError as exc:
@@ -129,10 +143,11 @@ def plan_relation(
         missing = [f for f in (relation.source, relation.target) if f not in srg and f not in new]
         if missing:
             raise PlanningError(f"no provider announces frame(s) {', '.join(missing)}")
-        solution = choose(query, plan(srg, templates, query))
+        solutions = planner(srg, templates, query)
     except PlanningError as exc:
         without = f"without the measured static edge(s) {', '.join(ignored)}: " if ignored else ""
         return RelationPlan(relation, name, unsolved=without + str(exc), relations=names)
+    solution = choose(query, solutions)
     flow = from_solution(solution, query)
     return RelationPlan(
         relation,
@@ -141,6 +156,9 @@ def plan_relation(
         serving=frozenset(flow.components),
         edges=frozenset(r.id for r in solution.records.values() if r.measured),
         relations=names,
+        candidates=frozenset().union(
+            *(from_solution(s, query).components for s in within_margin(solutions))
+        ),
     )
 
 

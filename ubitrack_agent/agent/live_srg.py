@@ -7,7 +7,8 @@ list is new: the agent replaces a provider's list when it takes its fragment aga
 assembled from the parsed edges (O(edges) dictionary work, no validation), and the edges
 removed and added since the previous SRG are found from the fragments that changed and the
 edges whose staleness changed alone: O(edges of the changed fragments + stale edges that
-changed). The SRG equals ``build_srg(fragments, without=stale)`` (same edges, same order).
+changed). The SRG equals ``build_srg(fragments, without=stale)`` (same edges, same order); when
+no fragment and no stale edge changed, it is the previous SRG object, found in O(providers).
 """
 
 from __future__ import annotations
@@ -54,6 +55,8 @@ def live_srg(
         p for p in fragments.keys() | previous.fragments.keys()
         if fragments.get(p) is not previous.fragments.get(p)
     }  # fmt: skip
+    if not changed and stale == previous.stale:
+        return previous, {}, {}  # (a query or a worker came or went): the same SRG object
     parsed = {
         p: previous.parsed[p] if p not in changed else _parse(entries)
         for p, entries in fragments.items()

@@ -26,9 +26,11 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from ubitrack_agent.agent.flows import Planner
 from ubitrack_agent.agent.live_srg import LiveSrg, live_srg
 from ubitrack_agent.agent.materialise import Keys, component_specs, fold
 from ubitrack_agent.agent.replanning import Planned, replan
+from ubitrack_agent.graph.planner import plan
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import RelationId
 from ubitrack_agent.net.spec import ComponentSpec
@@ -46,8 +48,9 @@ class Request:
     running: frozenset[str]
     follow: bool
     """Whether choices follow the previous plan's derivations (the active agent)."""
-    full: bool = False
-    """Whether every relation is planned again (a worker nothing runs appeared)."""
+    appeared: frozenset[str] = frozenset()
+    """The workers nothing ran that appeared since the last plan applied (the relations they
+    may serve are planned again: ``agent.replanning``)."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +58,7 @@ class Outcome:
     """A plan made from ``request``: the live SRG and the planning state, and the worker
     specifications of its plan (``labels``: the host labels each component's template
     requires; ``folded``: the components folded into another, ``materialise.fold``), the host
-    of each measured edge by data key, and how long it took."""
+    of each measured edge by data key, and how long it took (all of it, and replanning)."""
 
     request: Request
     live: LiveSrg
@@ -65,6 +68,9 @@ class Outcome:
     labels: Mapping[str, frozenset[str]]
     data_hosts: Mapping[str, str]
     seconds: float
+    replanning_s: float = 0.0
+    """Of ``seconds``, the time :func:`.replanning.replan` took (the rest: the SRG and the
+    specifications)."""
 
 
 def make_outcome(
@@ -72,10 +78,12 @@ def make_outcome(
     previous: Outcome | None,
     templates: Sequence[Template],
     keys: Keys,
+    planner: Planner = plan,
 ) -> Outcome:
-    """Plan ``request`` incrementally from ``previous`` (pure). The specifications are made
-    again only when the plan changed. O(edges) for the SRG (``agent.live_srg``: no fragment
-    parsed again), plus :func:`.replanning.replan`'s cost, plus O(components) when the plan
+    """Plan ``request`` incrementally from ``previous``, each relation with ``planner`` (pure
+    but for a memo's contents: ``agent.plan_memo``). The specifications are made again only
+    when the plan changed. O(edges) for the SRG (``agent.live_srg``: no fragment parsed
+    again), plus :func:`.replanning.replan`'s cost, plus O(components) when the plan
     changed."""
     started = time.perf_counter()
     live, removed, added = live_srg(
@@ -83,6 +91,7 @@ def make_outcome(
     )
     srg = live.srg
     base = previous.planned if previous else None
+    replanning_started = time.perf_counter()
     planned = replan(
         base,
         srg,
@@ -90,9 +99,11 @@ def make_outcome(
         request.relations,
         request.running,
         request.follow,
-        request.full,
+        request.appeared,
         (removed, added) if base is not None else None,
+        planner,
     )
+    replanning_s = time.perf_counter() - replanning_started
     if previous is not None and planned.plan is previous.planned.plan:
         wanted, folded, labels = previous.wanted, previous.folded, previous.labels
     else:
@@ -103,11 +114,18 @@ def make_outcome(
             component_specs(planned.plan.flow, srg, keys, planned.plan.relations),
             keep={instance for instance, needed in labels.items() if needed},
         )
-    data_hosts = {
-        keys.data(edge_id): host for *_, edge_id, host in srg.edges(keys=True, data="host") if host
-    }
+    if previous is not None and srg is previous.live.srg:
+        data_hosts = previous.data_hosts
+    else:
+        data_hosts = {
+            keys.data(edge_id): host
+            for *_, edge_id, host in srg.edges(keys=True, data="host")
+            if host
+        }
     seconds = time.perf_counter() - started
-    return Outcome(request, live, planned, wanted, folded, labels, data_hosts, seconds)
+    return Outcome(
+        request, live, planned, wanted, folded, labels, data_hosts, seconds, replanning_s
+    )
 
 
 class BackgroundPlanner:
@@ -130,33 +148,36 @@ class BackgroundPlanner:
         self.in_flight: Request | None = None
         self.superseded = 0
         """Outcomes dropped because the state changed while they were made."""
-        self._full_due = False
+        self._appeared: set[str] = set()
         threading.Thread(target=self._run, name="ubitrack-planning", daemon=True).start()
 
-    def changed(self, full: bool = False) -> None:
-        """What planning reads changed (``full``: every relation is to be planned again)."""
+    def changed(self, appeared: str | None = None) -> None:
+        """What planning reads changed (``appeared``: a worker nothing ran, whose relations
+        are to be planned again)."""
         self.generation += 1
-        self._full_due |= full
+        if appeared is not None:
+            self._appeared.add(appeared)
 
-    def step(self, snapshot: Callable[[int, bool], Request]) -> Outcome | None:
+    def step(self, snapshot: Callable[[int, frozenset[str]], Request]) -> Outcome | None:
         """The finished outcome if it is current (to apply), else ``None``; then, if the
         applied generation is behind and no job is under way, submit ``snapshot(generation,
-        full)``. Raises a failed job's exception (the next call asks again)."""
+        appeared)`` (the workers that appeared since the last submission, and those of a
+        failed one). Raises a failed job's exception (the next call asks again)."""
         with self._lock:
             result, self._result = self._result, None
         current = None
         if result is not None:
             request, self.in_flight = self.in_flight, None
             if isinstance(result, Exception):
-                self._full_due |= request is not None and request.full
+                self._appeared |= request.appeared if request is not None else set()
                 raise result
             if result.request.generation == self.generation:
                 current, self.applied = result, self.generation
             else:
                 self.superseded += 1
         if self.applied != self.generation and self.in_flight is None:
-            request = snapshot(self.generation, self._full_due)
-            self._full_due = False
+            request = snapshot(self.generation, frozenset(self._appeared))
+            self._appeared.clear()
             with self._lock:
                 self.in_flight = self._request = request
                 self._wake.notify()

@@ -7,13 +7,17 @@ section 5), so its answer depends only on that *region* and the edges within it.
 SRGs (any batch of events: providers or edges appearing or vanishing, edges going stale or
 coming back, queries coming or going) a relation is planned again only when
 
-* it is new (a query came), or every relation is asked for (``full``: a worker nothing runs
-  appeared, which the stable choice may prefer);
+* it is new (a query came);
+* a worker nothing ran appeared (``appeared``) that is a component of one of its derivations
+  within the cost margin (``RelationPlan.candidates``): the stable choice
+  (``flows.stable_choice``) prefers running components among those derivations only, so for
+  any other relation the new worker changes nothing (an unknown worker that is merely claimed
+  or stopped replans none);
 * its running derivation reads a removed (or changed) edge;
 * an added (or changed) edge lies within its region on the new SRG, or the region itself
   changed (an added edge can shorten the way between the query's frames): the new edge may
   make it solvable, or cheaper (whether by more than the hysteresis margin,
-  ``flows.stable_choice`` decides, as for a full replan);
+  ``flows.stable_choice`` decides, as when the relation is planned first);
 * it is unsolved because its frames are absent or not connected: it is planned again on any
   change (cheap: the planner fails on the first search of the frames).
 
@@ -31,8 +35,10 @@ added), then decided exactly by computing the candidates' regions again.
 
 Cost per event, for ``Q`` relations and ``E`` edges: O(E) to compare the SRGs (O(changed edges)
 when the caller knows the changes: ``agent.live_srg``), O(ball) for the
-search around the added edges, O(region) per candidate, and one ``graph.planner.plan`` per
-relation replanned, plus O(components) to merge the flows when any changed.
+search around the added edges, O(region) per candidate, O(Q) to find the relations a new
+worker may serve, and one planner call per relation replanned (``graph.planner.plan``, or a
+memo of it that answers unchanged regions at O(region): ``agent.plan_memo``), plus
+O(components) to merge the flows when any changed.
 """
 
 from __future__ import annotations
@@ -44,12 +50,13 @@ from typing import Any
 
 import networkx as nx
 
-from ubitrack_agent.agent.flows import Plan, RelationPlan, combine, plan_relation
+from ubitrack_agent.agent.flows import Plan, Planner, RelationPlan, combine, plan_relation
 from ubitrack_agent.graph.planner import (
     DEFAULT_SLACK,
     PlanningError,
     Query,
     introducible_frames,
+    plan,
     relevant_frames,
 )
 from ubitrack_agent.graph.srg import new_srg, remove_static_relation
@@ -152,29 +159,35 @@ def affected(
     templates: Sequence[Template],
     relations: Set[RelationId],
     changes: tuple[Edges, Edges] | None = None,
+    appeared: Set[str] = frozenset(),
 ) -> tuple[set[RelationId], dict[RelationId, Region]]:
-    """The relations among ``relations`` that the change from ``previous.srg`` to ``srg`` can
-    affect (module docstring), and the regions of the others as they are on ``srg``;
+    """The relations among ``relations`` that the change from ``previous.srg`` to ``srg``, and
+    the workers that ``appeared``, can affect (module docstring), and the regions on ``srg``
+    of those known (all but the affected ones whose region was not computed again);
     ``changes``, the edges removed and added, if known (``agent.live_srg``), saves comparing
     the SRGs."""
     removed, added = changes if changes is not None else edge_changes(previous.srg, srg)
-    todo = {r for r in relations if r not in previous.parts}
-    regions = {r: previous.regions[r] for r in relations if r not in todo}
+    todo = {
+        r
+        for r in relations
+        if r not in previous.parts or not previous.parts[r].candidates.isdisjoint(appeared)
+    }
+    regions = {r: previous.regions[r] for r in relations if r in previous.parts}
     if not removed and not added:
         return todo, regions
     for relation, region in regions.items():
         if region.frames is None or not previous.parts[relation].edges.isdisjoint(removed):
             todo.add(relation)
-    if added:
-        _check_additions(srg, templates, added, regions, todo)
+    computed = _check_additions(srg, templates, added, regions, todo) if added else set()
     for relation, region in regions.items():
         if relation in todo or region.frames is None:
             continue
         if any(u in region.frames and v in region.frames for u, v in removed.values()):
             regions[relation] = region_of(srg, templates, relation)
+            computed.add(relation)
             if previous.parts[relation].unsolved is not None and regions[relation] != region:
                 todo.add(relation)  # the reason names the frames it considered
-    return todo, regions
+    return todo, {r: g for r, g in regions.items() if r not in todo or r in computed}
 
 
 def _check_additions(
@@ -183,25 +196,29 @@ def _check_additions(
     added: Edges,
     regions: dict[RelationId, Region],
     todo: set[RelationId],
-) -> None:
+) -> set[RelationId]:
     """Add to ``todo`` the relations an added edge lies within the region of (or whose region
     changed), updating ``regions``: a breadth-first search from the added edges' frames keeps
-    the candidates whose frames are within their hop bound of them (module docstring)."""
+    the candidates whose frames are within their hop bound of them (module docstring). The
+    relations whose region it computed again."""
     open_regions = {r: g for r, g in regions.items() if r not in todo and g.bound >= 0}
     finite = [g.bound for g in open_regions.values() if math.isfinite(g.bound)]
     ends = {frame for edge in added.values() for frame in edge}
     near = _hops(srg, ends, max(finite, default=0))
+    computed = set()
     for relation, region in open_regions.items():
         reach = near.get(relation.source, math.inf) + near.get(relation.target, math.inf)
         if reach > region.bound:
             continue
         now = region_of(srg, templates, relation)
         regions[relation] = now
+        computed.add(relation)
         inside = now.frames is not None and any(
             u in now.frames and v in now.frames for u, v in added.values()
         )
         if inside or now != region:
             todo.add(relation)
+    return computed
 
 
 def replan(
@@ -211,26 +228,28 @@ def replan(
     relations: Iterable[RelationId],
     running: Set[str] = frozenset(),
     follow: bool = True,
-    full: bool = False,
+    appeared: Set[str] = frozenset(),
     changes: tuple[Edges, Edges] | None = None,
+    planner: Planner = plan,
 ) -> Planned:
-    """The plan of ``relations`` on ``srg``, planning again only the relations the change
-    since ``previous`` can affect (all of them if ``full`` or there is no ``previous``); the
-    others keep their part. Choices follow ``flows.stable_choice`` with the ``running``
-    components and, if ``follow``, the previous plan's derivations (a standby agent, which
-    follows what runs, passes ``False``); ``changes`` as for :func:`affected`."""
+    """The plan of ``relations`` on ``srg``, planning again (with ``planner``) only the
+    relations the change since ``previous`` and the workers that ``appeared`` can affect (all
+    of them if there is no ``previous``); the others keep their part. Choices follow
+    ``flows.stable_choice`` with the ``running`` components (``appeared`` among them) and, if
+    ``follow``, the previous plan's derivations (a standby agent, which follows what runs,
+    passes ``False``); ``changes`` as for :func:`affected`."""
     relations = set(relations)
-    if previous is None or full:
-        base = previous or Planned()
+    if previous is None:
         todo, regions = set(relations), {}
     else:
-        base = previous
-        todo, regions = affected(previous, srg, templates, relations, changes)
+        todo, regions = affected(previous, srg, templates, relations, changes, appeared)
+    base = previous or Planned()
     serving = base.plan.serving if follow and previous is not None else None
     parts = {r: base.parts[r] for r in relations if r not in todo}
     for relation in todo:
-        parts[relation] = plan_relation(srg, templates, relation, running, serving)
-        regions[relation] = region_of(srg, templates, relation)
+        parts[relation] = plan_relation(srg, templates, relation, running, serving, planner)
+        if relation not in regions:
+            regions[relation] = region_of(srg, templates, relation)
     if previous is not None and parts.keys() == previous.parts.keys() and not todo:
         plan = previous.plan  # nothing changed: the same plan object
     else:

@@ -20,22 +20,23 @@ It also takes the providers' liveness reports (:mod:`.liveness`, on ``<root>/dat
 an edge whose data stopped, as its provider observes, is planned without until its data
 returns. The agent itself reads no sample.
 
-After each batch of events it replans the relations the events can affect (:mod:`.replanning`;
-every relation when a worker nothing runs appeared, which the plan may prefer), on a planning
-thread that never holds up the loop (:mod:`.planning`: an outcome made before a newer event is
-dropped), turns the merged data flow into worker specifications (:mod:`.materialise`) and
+After each batch of events it replans the relations the events can affect (:mod:`.replanning`; when
+a worker nothing runs appeared, the relations it is a component of a derivation of, which the plan
+may prefer), on a planning thread that never holds up the loop (:mod:`.planning`: an outcome made
+before a newer event is dropped; plans of regions that did not change come from a memo,
+:mod:`.plan_memo`), turns the merged data flow into worker specifications (:mod:`.materialise`) and
 reconciles the running workers with them (:mod:`.reconcile`): start or stop (through a host
 manager, over zenoh only: :mod:`.hosts`), or rewire in place with a control command. Each start
-goes to the host :mod:`.placement` chooses, near the data the component reads; a running
-component moves (started on the new host, then its old process stopped) only when another host
-is better by the placement's margin. A start no host manager took is tried again on a later
-pass. A worker that ends on its own (or whose host vanished with it) is started again where
-placement says; a worker alive but not known (left by an earlier agent) is adopted if wanted,
-stopped otherwise, but only once it has been unwanted for ``ORPHAN_GRACE_S`` after start-up
-settled (``SETTLE_S``). Planning prefers the components that are alive, adopted or not, so a
-restarted agent replans onto what runs. A stop the agent puts itself (for a worker no host
-manager owns) is put again every ``STOP_RESEND_S`` while the worker's token stays up and nothing
-wants it. Events are handled on the agent's own thread; zenoh callbacks only queue them.
+goes to the host :mod:`.placement` chooses, near the data the component reads; a running component
+moves (started on the new host, then its old process stopped) only when another host is better by
+the placement's margin. A start no host manager took is tried again on a later pass. A worker that
+ends on its own (or whose host vanished with it) is started again where placement says; a worker
+alive but not known (left by an earlier agent) is adopted if wanted, stopped otherwise, but only
+once it has been unwanted for ``ORPHAN_GRACE_S`` after start-up settled (``SETTLE_S``). Planning
+prefers the components that are alive, adopted or not, so a restarted agent replans onto what runs.
+A stop the agent puts itself (for a worker no host manager owns) is put again every
+``STOP_RESEND_S`` while the worker's token stays up and nothing wants it. Events are handled on the
+agent's own thread; zenoh callbacks only queue them.
 
 Nothing from the network can end the agent: every key is parsed by ``KeySpace.parse_token``
 and every fragment by :func:`.announcements.fragment_entries`, which return a value or a
@@ -74,7 +75,9 @@ from ubitrack_agent.agent.liveness import (
     ReportError,
     parse_report,
 )
+from ubitrack_agent.agent.loop_times import LoopTimes
 from ubitrack_agent.agent.placement import place
+from ubitrack_agent.agent.plan_memo import PlanMemo
 from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, make_outcome
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import reconcile
@@ -135,13 +138,19 @@ class Agent:
         """Whether a clean stop left the workers running for a standby agent to adopt."""
         self._on_role = on_role
         self.templates = tuple(templates)
+        self._plan_memo = PlanMemo()
+        """The planner's answers by region, shared by every plan (:mod:`.plan_memo`)."""
         self._planner = BackgroundPlanner(
-            lambda request, previous: make_outcome(request, previous, self.templates, self.keys)
+            lambda request, previous: make_outcome(
+                request, previous, self.templates, self.keys, self._plan_memo
+            )
         )
         self.counters: Counter[str] = Counter()
         self.problems = Problems(self.counters)
         self._guard = Guard(self.problems)
         self.last_plan_s: float | None = None
+        self.loop_times = LoopTimes()
+        """How long the loop's passes and handlers take (:mod:`.loop_times`, in the status)."""
         """How long the latest plan applied took to make (on the planning thread)."""
         self.liveness = ProviderReports()
         self.stale: frozenset[str] = frozenset()
@@ -180,6 +189,8 @@ class Agent:
         self._host_name = settings.host_name
         self.plan: Plan | None = None
         self.srg = build_srg({})
+        self._srg_listed: tuple[Any, list[dict[str, Any]]] = (None, [])
+        """The SRG the status last listed, and its list (:meth:`_srg_status`)."""
         self.last_change_ns: int | None = None
         self._pending_fragments: dict[str, tuple[int, float]] = {}
         """Providers whose fragment is still to fetch: (attempts so far, next attempt)."""
@@ -214,7 +225,7 @@ class Agent:
             )
         ]
         self._watches.append(
-            self.session.declare_subscriber(self.keys.pattern("data", "*"), self._queue_report)
+            self.session.declare_subscriber(self.keys.all_liveness(), self._queue_report)
         )
         self._started = time.monotonic()
         """When the watches were declared: their history arrives within ``SETTLE_S`` of it."""
@@ -282,13 +293,14 @@ class Agent:
         return before != bool(apps)
 
     def _on_worker(self, instance: str, incarnation: str, appeared: bool) -> bool:
-        """Apply a worker token event; True if a worker nothing runs appeared, so the plan may
-        prefer it (every relation is then planned again: :meth:`run`)."""
+        """Apply a worker token event; True if a worker nothing ran appeared, so the plan may
+        prefer it (the relations it may serve are then planned again: :mod:`.replanning`)."""
         incarnations = self.incarnations[instance]
         if appeared:
+            known = instance in self.running or instance in self.alive
             incarnations.setdefault(incarnation, time.monotonic())
             self.alive.add(instance)
-            return instance not in self.running
+            return not known
         incarnations.pop(incarnation, None)
         self._duplicate_stops.pop((instance, incarnation), None)
         if incarnations:
@@ -415,7 +427,11 @@ class Agent:
         if outcome is not None:
             self._apply(outcome)
 
-    def _snapshot(self, generation: int, full: bool) -> Request:
+    def _worker(self, key: str) -> str:
+        """The instance of a worker token's key (one :meth:`_handle` accepted)."""
+        return self.keys.parse_worker(key)[0]
+
+    def _snapshot(self, generation: int, appeared: frozenset[str]) -> Request:
         """What planning reads, as it is now (immutable: the planning thread reads it)."""
         return Request(
             generation,
@@ -427,7 +443,7 @@ class Agent:
             # yet does: every alive component counts), so that it adopts all of it when it
             # takes over.
             follow=self.active,
-            full=full,
+            appeared=appeared,
         )
 
     def _apply(self, outcome: Outcome) -> None:
@@ -439,6 +455,8 @@ class Agent:
         self.srg, self.plan, self._data_hosts = planned.srg, planned.plan, dict(outcome.data_hosts)
         self.counters["replans"] += 1
         self.counters["relations_replanned"] += len(planned.replanned)
+        self.counters["plans_memoised"] = self._plan_memo.hits
+        self.counters["plans_made"] = self._plan_memo.misses
         self.last_plan_s = outcome.seconds
         for relation in sorted(planned.replanned, key=str):
             part = planned.parts[relation]
@@ -465,7 +483,11 @@ class Agent:
     def _take_report(self, key: str, payload: Any) -> None:
         """Keep one provider's report (:mod:`.liveness`); a report of a provider not accepted
         (yet) is ignored: it puts one every second."""
-        provider = key.removeprefix(f"{self.keys.root}/data/")
+        try:
+            provider = self.keys.parse_liveness(key)
+        except ValueError as exc:
+            self.problems.report("rejected_liveness_reports", "ignored liveness report: %s", exc)
+            return
         if provider not in self.fragments:
             return
         try:
@@ -755,29 +777,38 @@ class Agent:
         """Handle events until :meth:`stop`; every handler runs under the guard (module
         docstring)."""
         status_due = 0.0
-        guard = self._guard
+        times = self.loop_times
+
+        def periodic(name: str, handler: Callable[[], Any], default: Any) -> Any:
+            with times.handler(name):
+                return self._guard.periodic(name, handler, default)
+
         try:
             while not self._stop.is_set():
                 batch = self._next_batch()
-                for event in batch:
-                    if guard.call("liveliness", self._handle, *event, default=False):
-                        self._planner.changed(full=event[0] == "worker")
-                if guard.periodic("fragments", self._fetch_fragments, False):
+                started = time.perf_counter()
+                with times.handler("liveliness"):
+                    for event in batch:
+                        if self._guard.call("liveliness", self._handle, *event, default=False):
+                            worker = event[0] == "worker"
+                            self._planner.changed(self._worker(event[2]) if worker else None)
+                if periodic("fragments", self._fetch_fragments, False):
                     self._planner.changed()
-                if guard.periodic("liveness", self._take_reports, False):
+                if periodic("liveness", self._take_reports, False):
                     self._planner.changed()
-                guard.periodic("hosts", self._reap_hosts, None)
-                guard.periodic("replan", self._replan, None)
-                guard.periodic("election", self._elect, None)
+                periodic("hosts", self._reap_hosts, None)
+                periodic("replan", self._replan, None)
+                periodic("election", self._elect, None)
                 if self.active:  # a standby keeps its state current but changes nothing
-                    guard.periodic("answers", self._publish_answers, None)
-                    guard.periodic("reconcile", self._reconcile, None)
-                    guard.periodic("retire", self._retire, None)
-                    guard.periodic("resend_stops", self._resend_stops, None)
-                    guard.periodic("duplicates", self._stop_duplicates, None)
+                    periodic("answers", self._publish_answers, None)
+                    periodic("reconcile", self._reconcile, None)
+                    periodic("retire", self._retire, None)
+                    periodic("resend_stops", self._resend_stops, None)
+                    periodic("duplicates", self._stop_duplicates, None)
                 if batch or time.monotonic() > status_due:
-                    guard.periodic("status", self._refresh_status, None)
+                    periodic("status", self._refresh_status, None)
                     status_due = time.monotonic() + STATUS_REFRESH_S
+                times.pass_done(time.perf_counter() - started)
         finally:
             self._close(stop_workers=self._stop.is_set())
 
@@ -800,6 +831,7 @@ class Agent:
                 self.counters["restarts"] += 1
 
     def _refresh_status(self) -> None:
+        self.loop_times.window()
         self._status_json = json.dumps(self.status())
 
     def stop(self) -> None:
@@ -811,33 +843,23 @@ class Agent:
         return json.loads(self._status_json)
 
     def status(self) -> dict[str, Any]:
-        """The agent's state: SRG, providers, queries, components, counters (JSON-ready)."""
+        """The agent's state: SRG, providers, queries, components, counters (JSON-ready).
+        O(edges + applications + components): it is made again every ``STATUS_REFRESH_S``."""
         plan = self.plan
         placements = self.hosts.placements
+        names = {relation: plan_name(relation) for relation in self.queries}
+        hosts: dict[RelationId, set[str]] = defaultdict(set)
+        for (relation, _), host in self.application_hosts.items():
+            hosts[relation].add(host)
         return {
             "key_prefix": self.keys.root,
             "agent": self._roles(),
             "providers": {p: [e["id"] for e in entries] for p, entries in self.fragments.items()},
             "rejected_providers": dict(self.rejected),
             "stale_edges": sorted(self.stale),
-            "srg": [
-                {
-                    "id": key,
-                    "from": u,
-                    "to": v,
-                    "type": d["type"],
-                    "static": d["static"],
-                    "rate": d["quality"].rate,
-                }
-                for u, v, key, d in self.srg.edges(keys=True, data=True)
-            ],
-            "queries": {plan_name(r): sorted(apps) for r, apps in self.queries.items()},
-            "application_hosts": {
-                plan_name(relation): sorted(
-                    {host for (r, _), host in self.application_hosts.items() if r == relation}
-                )
-                for relation in self.queries
-            },
+            "srg": self._srg_status(),
+            "queries": {names[r]: sorted(apps) for r, apps in self.queries.items()},
+            "application_hosts": {names[r]: sorted(hosts[r]) for r in self.queries},
             "unsolved": dict(plan.unsolved) if plan else {},
             "relations": {
                 name: {"key": self.keys.relation(relation)}
@@ -866,7 +888,28 @@ class Agent:
                 "last_plan_s": self.last_plan_s,
                 "under_way": self._planner.in_flight is not None,
             },
+            "loop": self.loop_times.last,
         }
+
+    def _srg_status(self) -> list[dict[str, Any]]:
+        """The live SRG's edges as the status lists them, made again only when a plan brings
+        another SRG (the status is made every ``STATUS_REFRESH_S``: O(edges) each time
+        otherwise, whatever happened)."""
+        srg, listed = self._srg_listed
+        if srg is not self.srg:
+            listed = [
+                {
+                    "id": key,
+                    "from": u,
+                    "to": v,
+                    "type": d["type"],
+                    "static": d["static"],
+                    "rate": d["quality"].rate,
+                }
+                for u, v, key, d in self.srg.edges(keys=True, data=True)
+            ]
+            self._srg_listed = (self.srg, listed)
+        return listed
 
     def _roles(self) -> dict[str, Any]:
         """This agent's id and role, and the ids of the active and standby agents it sees."""

@@ -197,7 +197,7 @@ class Provider(Closing):
             if (window := stale_after(edge.static, edge.mode, edge.rate)) is not None
         }
         self._quiet = QuietEdges(windows, time.monotonic())
-        self._session, self._report_key = session, keys.data(self.id)
+        self._session, self._report_key = session, keys.liveness(self.id)
         self._report_lock = threading.Lock()
         self._stop_reports = threading.Event()
         self._reporter = threading.Thread(target=self._report_liveness, daemon=True)

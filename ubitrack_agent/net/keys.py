@@ -7,6 +7,9 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/data/<edge-id>            measurements of one SRG edge (msgpack, see core.codec);
                                      measured edges are <provider>/<edge-name>; the key is also
                                      a queryable answering the latest value
+    <root>/data/<provider>           the provider's data liveness report: its quiet edges
+                                     (JSON, io.provider; one chunk below data, where an edge's
+                                     data key always has two)
     <root>/query/<from>/<to>/<type>/<kind>/<host>/<app>[/<label>+<label>...]
                                      liveliness token of an application's query: the key is
                                      the whole description, so liveliness alone rebuilds state;
@@ -192,6 +195,19 @@ class KeySpace:
     def data(self, edge_id: str) -> str:
         """Key on which the measurements of edge ``edge_id`` flow."""
         return f"{self.root}/data/{validate_key_chunks(edge_id)}"
+
+    def liveness(self, provider: str) -> str:
+        """Key on which ``provider`` puts its data liveness report (``io.provider``)."""
+        return f"{self.root}/data/{validate_key_chunks(provider, single_chunk=True)}"
+
+    def all_liveness(self) -> str:
+        """Selector of every provider's liveness report (one chunk below ``data``: no edge's
+        data key)."""
+        return f"{self.root}/data/*"
+
+    def parse_liveness(self, key: str) -> str:
+        """The provider id of a liveness report's key; ``ValueError`` if malformed."""
+        return self._parse_name(key, "data")
 
     def worker(self, instance: str, incarnation: str) -> str:
         """Liveliness token of the worker process ``incarnation`` running component
