@@ -1,30 +1,32 @@
 """Time to recovery per kind of event (issue 11), one event at a time.
 
-Run: ``python -m bench.recovery_bench [--trials 5] [--seed 11]``. The live system of
+Run: ``python -m bench.recovery_bench [--trials 5] [--seed 11] [--only TEXT]``. The live system of
 ``bench.churn_bench`` (an agent with its host manager, two noise-free trackers, the
 applications ``WT->HT`` and ``HT->WT`` fused from both; real processes and zenoh on loopback),
 steady before every trial (whole, warm pool full, every application fresh). Each trial is one
 event of a kind, made by the chaos test's faults (``tests/integration/chaos_faults.py``):
 
 * ``tracker SIGKILL``: a tracker (ART and IR in turn) killed and started again at once;
-* ``worker SIGKILL, warm pool``: a process running a wanted component, drawn (seeded), killed;
-  the agent starts the component again from its host manager's warm pool of 3;
+* ``container SIGKILL, warm pool``: the container (``services.container``: one process running
+  several components) running the most components, killed; its host manager restores it with
+  them (from its warm pool of 3) and the agent sends each its wiring (issue 28);
 * ``agent SIGKILL and restart``: the agent killed and started again at once (its workers keep
   running and are adopted);
 * ``query open``: an application opens ``HT->ART``, which nothing else asks for (its first
   samples can come from the inversion of ``ART->HT`` that the ``HT->WT`` flow runs; a fusion of
   both trackers then takes over): the time to its first fresh, correct sample (and, as
   ``settled_s``, until it is fresh for good); it is closed after the trial;
-* ``worker SIGKILL, no pool``: as above, on a second system whose agent has ``--pool-size 0``,
-  so the component starts in a new process (cold).
+* ``container SIGKILL, no pool``: as above, on a second system whose agent has
+  ``--pool-size 0``, so the container starts in a new process (cold).
 
 Recovery is the time from the event until every application's data is fresh and correct again
 for good: the end of its last outage after the event (``bench.availability.recovery``; fresh
 and correct as in ``bench.churn_bench``: stamped within 0.25 s, within 3 mm of the truth), 0
 when it never lapsed. The largest over the applications is the trial's figure. A trial ends
 once the agent serves again every component it served before (``restored_s``: the killed
-tracker's flows stopped and started again, the killed worker started again, or every
-component adopted by the restarted agent, as ``bench.agent_restart_bench`` measures it) and
+tracker's flows stopped and started again, the killed container's components restored and
+rewired, or every component adopted by the restarted agent, as ``bench.agent_restart_bench``
+measures it) and
 every application has then been fresh for ``HOLD_S`` (at most ``TIMEOUT_S``). Printed per
 trial (with the time, the machine's load average, what arrived: samples, those not correct,
 the longest silence, each outage's start after the event and length), with the median,
@@ -40,6 +42,7 @@ import os
 import signal
 import statistics
 import time
+from collections import Counter
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
@@ -48,7 +51,14 @@ from typing import Any
 from bench.agent_restart_bench import agent_status, recovered, serving
 from bench.availability import first_fresh, outages, recovery
 from bench.churn_bench import APPLICATIONS, FRESH_S, Applications, machine, steady, system
-from tests.integration.chaos_faults import FLAPPING, POOL_SIZE, TRACKERS, TRUE_WITHIN_M, Chaos
+from tests.integration.chaos_faults import (
+    FLAPPING,
+    POOL_SIZE,
+    TRACKERS,
+    TRUE_WITHIN_M,
+    Chaos,
+    host_status,
+)
 from ubitrack_agent.net.keys import RelationId
 
 RESULTS = Path(__file__).with_name("results") / "recovery.json"
@@ -130,11 +140,27 @@ def tracker_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]
     return observe(apps, APPLICATIONS, event, restored)
 
 
-def worker_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
-    restored = back(chaos, 1)  # the worker started again
+def container_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
+    """The container running the most components (ties: the lower pid) killed; restored when
+    the agent has been told of every one's restoration and each is alive again."""
+    instances = (host_status(chaos.setup) or {"instances": {}})["instances"]
+    members = Counter(entry["pid"] for entry in instances.values())
+    pid, count = min(members.items(), key=lambda item: (-item[1], item[0]))
+    status = chaos.setup.status() or {"components": {}, "counters": {}}
+    before, told = set(status["components"]), status["counters"].get("restored", 0)
+
+    def restored() -> bool:
+        now = agent_status(chaos.setup)
+        return (
+            serving(now)
+            and set(now["components"]) == before
+            and now["counters"].get("restored", 0) >= told + count
+        )
+
     event = time.time()
-    chaos.kill_worker(signal.SIGKILL)
-    return observe(apps, APPLICATIONS, event, restored)
+    os.kill(pid, signal.SIGKILL)
+    chaos.log.append(f"container {pid} ({count} components) SIGKILL")
+    return observe(apps, APPLICATIONS, event, restored) | {"components": count}
 
 
 def agent_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
@@ -161,11 +187,11 @@ def query_open(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
 Trial = Callable[[Chaos, Applications, int], dict[str, Any]]
 WARM: dict[str, Trial] = {
     "tracker SIGKILL": tracker_kill,
-    "worker SIGKILL, warm pool": worker_kill,
+    "container SIGKILL, warm pool": container_kill,
     "agent SIGKILL and restart": agent_kill,
     "query open": query_open,
 }
-COLD: dict[str, Trial] = {"worker SIGKILL, no pool": worker_kill}
+COLD: dict[str, Trial] = {"container SIGKILL, no pool": container_kill}
 
 
 def trials(chaos: Chaos, apps: Applications, kinds: dict[str, Trial], count: int) -> list[dict]:
@@ -215,13 +241,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--trials", type=int, default=5, help="trials per kind (default 5)")
     parser.add_argument("--seed", type=int, default=11, help="seed of the faults (default 11)")
+    parser.add_argument(
+        "--only", default="", help="run only the kinds whose name holds this text (default: all)"
+    )
     args = parser.parse_args(argv)
-    with system(POOL_SIZE, args.seed) as (chaos, apps):
-        rows = trials(chaos, apps, WARM, args.trials)
-    with system(0, args.seed) as (chaos, apps):
-        rows += trials(chaos, apps, COLD, args.trials)
+    warm = {kind: trial for kind, trial in WARM.items() if args.only in kind}
+    cold = {kind: trial for kind, trial in COLD.items() if args.only in kind}
+    rows: list[dict[str, Any]] = []
+    if warm:
+        with system(POOL_SIZE, args.seed) as (chaos, apps):
+            rows += trials(chaos, apps, warm, args.trials)
+    if cold:
+        with system(0, args.seed) as (chaos, apps):
+            rows += trials(chaos, apps, cold, args.trials)
+    only = f" --only '{args.only}'" if args.only else ""
     results = {
-        "command": f"python -m bench.recovery_bench --trials {args.trials} --seed {args.seed}",
+        "command": f"python -m bench.recovery_bench --trials {args.trials} --seed {args.seed}"
+        + only,
         "date": datetime.now(UTC).strftime("%Y-%m-%d"),
         "machine": machine(),
         "summary": summary(rows),

@@ -28,7 +28,8 @@ command is logged rate-limited, counted in ``rejected_commands`` and changes not
 * ``{"stop": true}`` ends the container and every component in it.
 
 A component is rewired, reconfigured or stopped on its own control key as before (a stop
-there removes it). Adding, removing or rewiring starts no process; the readers of an output
+there removes it, and is reported on ``<root>/left/<name>``, so the host manager that runs the
+container forgets it). Adding, removing or rewiring starts no process; the readers of an output
 whose producer joined or left the container bind again (locally, or over zenoh), keeping their
 history.
 
@@ -40,13 +41,21 @@ being stopped, is restarted in the process from its current specification (count
 cleanly.
 
 The container's own status answers on ``<root>/status/<name>`` (no ``instance`` field: it is
-no component's). Growth: memory and zenoh declarations O(components + their inputs and
-outputs); a hand-over O(readers of the output).
+no component's). Once it takes commands it declares the liveliness token
+``<root>/container/<name>/<incarnation>`` (``<pid>.<nonce>``): its host manager sends it
+commands only from then on. Started by a host manager (``parent``, :mod:`services.parent`), it
+exits while starting if the host manager is gone, and outlives it once its token is up (a
+restarted agent adopts its components), until its last component has left (then nobody would
+stop it).
+
+Growth: memory and zenoh declarations O(components + their inputs and outputs); a hand-over
+O(readers of the output).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import os
@@ -61,6 +70,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from services.local_wires import LocalWires
+from services.parent import Parent
 from services.spec import check_spec
 from services.worker import Worker
 from ubitrack_agent.net import config, logs
@@ -124,6 +134,7 @@ class Container:
         name: str,
         clock: Clock | None = None,
         components: Iterable[ComponentSpec] = (),
+        parent: Parent | None = None,
     ) -> None:
         self.name = validate_key_chunks(name, single_chunk=True)
         self.keys = keys
@@ -138,6 +149,7 @@ class Container:
         """Held while :attr:`components` changes (the container's thread) or is read (status)."""
         self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
+        self._parent = parent
         take = self._guarded(
             lambda sample: self._events.put(("control", sample.payload.to_bytes()))
         )
@@ -145,7 +157,12 @@ class Container:
         self._status = session.declare_queryable(keys.status(self.name))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
         self._status_thread.start()
+        self._left = session.declare_publisher(keys.container_left(self.name), encoding=JSON)
         self.add(tuple(components))
+        declare = functools.partial(
+            session.liveliness().declare_token, keys.container(self.name, self.incarnation)
+        )
+        self._token = declare() if parent is None else parent.serve(declare)
 
     # -- components ---------------------------------------------------------------------------
 
@@ -231,9 +248,11 @@ class Container:
 
     def _look_after(self) -> None:
         """Restart the components that faulted too often or whose thread ended unasked; forget
-        those a stop command on their own control key released."""
+        those a stop command on their own control key released (reported on
+        ``<root>/left/<name>``)."""
         with self._lock:
             entries = list(self.components.items())
+        left = []
         for instance, entry in entries:
             worker = entry.worker
             if not entry.thread.is_alive():
@@ -241,10 +260,16 @@ class Container:
                     with self._lock:
                         self.components.pop(instance, None)
                     self.counters["removed"] += 1
+                    left.append(instance)
                 else:
                     self._restart(instance, entry, "its thread ended")
             elif worker.counters["internal_errors"] - entry.faults_at_start >= RESTART_AFTER_FAULTS:
                 self._restart(instance, entry, f"{RESTART_AFTER_FAULTS} unexpected faults")
+        if left:
+            self._left.put(json.dumps({"instances": left, "incarnation": self.incarnation}))
+        if self._parent is not None and self._parent.gone and not self.components:
+            log.warning("%s: host manager gone and no component left: ending", self.name)
+            self.stop()
 
     def _rebind(self, moved: set[str]) -> None:
         """Bind again the inputs reading ``moved`` keys (their producer joined or left)."""
@@ -329,8 +354,10 @@ class Container:
                 self._guarded(self._look_after)()
         finally:
             self._stop.set()
+            self._token.undeclare()
             self._control.undeclare()
             self.remove(list(self.components))
+            self._left.undeclare()
             self._status.undeclare()
             self._status_thread.join(timeout=1.0)
 
@@ -392,13 +419,21 @@ def main(argv: list[str] | None = None) -> int:
 
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
-        container = Container(session, keys, group.container, Clock.of(settings), group.components)
-        on_termination(container.stop)
-        started = time.monotonic()
-        log.info("%s: %d components", group.container, len(group.components))
-        container.run()
-        log.info("%s: ended after %.0f s", group.container, time.monotonic() - started)
+        run_container(session, keys, group, Clock.of(settings))
     return 0
+
+
+def run_container(
+    session: Any, keys: KeySpace, group: GroupSpec, clock: Clock, parent: Parent | None = None
+) -> None:
+    """Run ``group``'s container on ``session`` until it is stopped (a stop command, SIGTERM or
+    SIGINT); ``parent``: the host manager that started the process (a pool member's)."""
+    container = Container(session, keys, group.container, clock, group.components, parent)
+    on_termination(container.stop)
+    started = time.monotonic()
+    log.info("%s: %d components", group.container, len(group.components))
+    container.run()
+    log.info("%s: ended after %.0f s", group.container, time.monotonic() - started)
 
 
 if __name__ == "__main__":

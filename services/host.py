@@ -29,7 +29,13 @@ from typing import TYPE_CHECKING, Any
 from ubitrack_agent.core.names import parse_labels
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.config import Settings
-from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY, MAX_LABELS, HostInfo
+from ubitrack_agent.net.host_protocol import (
+    DEFAULT_CAPACITY,
+    MAX_CAPACITY,
+    MAX_CORES,
+    MAX_LABELS,
+    HostInfo,
+)
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.status_line import periodic_status
@@ -37,7 +43,10 @@ from ubitrack_agent.net.status_line import periodic_status
 if TYPE_CHECKING:
     from services.host_manager import HostManager
 
-DEFAULT_POOL_SIZE = 8
+DEFAULT_POOL_SIZE = 2
+"""Idle pool members by default: every component runs in a container (one per core), so a
+member is taken only to start a container or restore one that died (issue 28: worker
+processes at most the cores + 2)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -63,6 +72,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default: %(default)s, 1 to {MAX_CAPACITY})",
     )
     parser.add_argument(
+        "--cores",
+        type=int,
+        default=min(os.cpu_count() or 1, MAX_CORES),
+        help="containers the agent runs this machine's components in (one process each, "
+        "components of one derivation together; default: the machine's CPU cores, "
+        f"%(default)s; 1 to {MAX_CORES})",
+    )
+    parser.add_argument(
         "--quiet",
         action="store_true",
         help="no status line (every 10 s: workers running, pool ready, requests, the clock's "
@@ -72,8 +89,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--pool-size",
         type=int,
         default=DEFAULT_POOL_SIZE,
-        help="idle pre-started workers kept ready for fast reconfiguration; each holds about "
-        "100 MB (default: %(default)s)",
+        help="idle pre-started workers kept ready to start (or restore) a container at once; "
+        "each holds about 100 MB (default: %(default)s)",
     )
 
 
@@ -113,6 +130,7 @@ def serve(
     quiet: bool = False,
     labels: frozenset[str] = frozenset(),
     capacity: int = DEFAULT_CAPACITY,
+    cores: int = 1,
 ) -> int:
     """Run a host manager until SIGTERM or SIGINT (or, if asked, until standard input closes);
     the exit status (2 for invalid options). ``name`` (default: the ``host_name`` setting)
@@ -131,6 +149,9 @@ def serve(
     if not 1 <= capacity <= MAX_CAPACITY:
         print(f"host: --capacity must be 1 to {MAX_CAPACITY}", file=sys.stderr)
         return 2
+    if not 1 <= cores <= MAX_CORES:
+        print(f"host: --cores must be 1 to {MAX_CORES}", file=sys.stderr)
+        return 2
     # Imported here: the registry and zenoh are heavy, and ``ubitrack --help`` reads this module.
     from services.host_manager import HostManager
     from ubitrack_agent.net.clock import Clock
@@ -138,7 +159,7 @@ def serve(
 
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
-        info = HostInfo(name, labels, capacity)
+        info = HostInfo(name, labels, capacity, cores=cores)
         flags = config.member_flags(settings)
         manager = HostManager(session, keys, info, flags, pool_size, Clock.of(settings))
         on_termination(manager.stop)
@@ -193,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         args.quiet,
         args.labels,
         args.capacity,
+        args.cores,
     )
 
 

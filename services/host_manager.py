@@ -4,13 +4,18 @@ One host manager runs per machine (:mod:`services.host` starts it) and owns that
 worker processes through a :class:`services.supervisor.Supervisor`. It declares
 
 * the liveliness token ``<root>/host/<name>`` once it serves requests;
-* the queryable ``<root>/host/<name>/request``: start, stop and status requests
-  (:mod:`ubitrack_agent.net.host_protocol`); a start's specification is checked for form and
-  against the registered service and its parameters (``services.spec.check_spec``)
-  before anything runs, so only registered services run;
+* the queryable ``<root>/host/<name>/request``: start, start_group, stop and status requests
+  (:mod:`ubitrack_agent.net.host_protocol`); a start's specification (each of a group's) is
+  checked for form and against the registered service and its parameters
+  (``services.spec.check_spec``) before anything runs, so only registered services run;
 * ``<root>/host/<name>/exited``: an :class:`~ubitrack_agent.net.host_protocol.Exited` for every
   instance that ended without being asked (its process exited, even before declaring its
-  worker token, or a stop command from elsewhere released it), so the agent starts it again.
+  worker token, or a stop command from elsewhere released it), so the agent starts it again;
+  and every component of a container that died and was restored (the agent rewires it).
+
+It watches the tokens of containers (``<root>/container/<name>/<incarnation>``: a container
+takes commands once its token is up) and their reports of components that left
+(``<root>/left/<name>``), for the containers its supervisor runs.
 
 While it runs it estimates its host's clock offset to the active agent's
 (:mod:`services.clock_sync`), shown in its status as ``clock``.
@@ -47,11 +52,12 @@ from ubitrack_agent.net.host_protocol import (
     ProtocolError,
     Request,
     Start,
+    StartGroup,
     Status,
     Stop,
     parse_request,
 )
-from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.keys import KeyRejection, KeySpace
 from ubitrack_agent.net.spec import SpecError
 
 log = logging.getLogger("ubitrack.host")
@@ -91,20 +97,31 @@ class HostManager:
         self._request_slots = threading.Semaphore(MAX_PENDING_REQUESTS)
         liveliness = session.liveliness()
         self._pool_watch = liveliness.declare_subscriber(
-            keys.all_pools(),
-            logs.guarded(
-                lambda sample: self._events.put(("pool", (str(sample.kind), str(sample.key_expr)))),
-                self.counters,
-                log,
-                "pool token",
-            ),
-            history=True,
+            keys.all_pools(), self._queue("pool", "pool token"), history=True
+        )
+        self._container_watch = liveliness.declare_subscriber(
+            keys.all_containers(), self._queue("container", "container token"), history=True
+        )
+        self._left = session.declare_subscriber(
+            keys.all_container_left(), self._queue("left", "container report")
         )
         self._exits = session.declare_publisher(keys.host_exited(name), encoding=JSON)
         self._requests = session.declare_queryable(keys.host_request(name))
         self._request_thread = threading.Thread(target=self._receive_requests, daemon=True)
         self._request_thread.start()
         self._token = liveliness.declare_token(keys.host(name))
+
+    def _queue(self, kind: str, what: str) -> Any:
+        """A zenoh callback queueing its sample for the handling thread as ``kind``: a token's
+        change and key, or (``left``) a report's key and payload; faults counted."""
+
+        def queue_sample(sample: Any) -> None:
+            if kind == "left":
+                self._events.put((kind, (str(sample.key_expr), sample.payload.to_bytes())))
+            else:
+                self._events.put((kind, (str(sample.kind), str(sample.key_expr))))
+
+        return logs.guarded(queue_sample, self.counters, log, what)
 
     def _receive_requests(self) -> None:
         for query in self._requests:
@@ -148,6 +165,12 @@ class HostManager:
         if kind == "request":
             self._answer(event)
             return
+        if kind == "container":
+            self._on_container_token(*event)
+            return
+        if kind == "left":
+            self._on_left(*event)
+            return
         change, key = event
         try:
             pool_id = self.keys.parse_pool(key)
@@ -156,6 +179,25 @@ class HostManager:
             return
         exited = self.supervisor.on_pool_token(pool_id, change == PUT)
         if exited is not None:
+            self._exits.put(exited.to_json())
+            self.counters["exits_reported"] += 1
+
+    def _on_container_token(self, change: str, key: str) -> None:
+        token = self.keys.parse_token("container", key)
+        if isinstance(token, KeyRejection):
+            reason = ValueError(f"{token.key!r}: {token.reason}")
+            self._count_problem("rejected_container_keys", "ignored container key: %s", reason)
+            return
+        self.supervisor.on_container_token(token.name, token.incarnation, change == PUT)
+
+    def _on_left(self, key: str, payload: bytes) -> None:
+        try:
+            name = self.keys.parse_container_left(key)
+            exits = self.supervisor.on_left(name, payload)
+        except (ValueError, ProtocolError) as exc:
+            self._count_problem("rejected_container_reports", "ignored container report: %s", exc)
+            return
+        for exited in exits:
             self._exits.put(exited.to_json())
             self.counters["exits_reported"] += 1
 
@@ -202,20 +244,31 @@ class HostManager:
                     check_spec(spec)
                 except SpecError as exc:
                     raise ProtocolError("refused_spec", str(exc)) from None
-                self._check_capacity(spec.instance)
+                self._check_capacity((spec.instance,))
                 return self.supervisor.start(spec).to_json()
+            case StartGroup(group=group):
+                for index, spec in enumerate(group.components):
+                    try:
+                        check_spec(spec)
+                    except SpecError as exc:
+                        raise ProtocolError("refused_spec", f"components[{index}]: {exc}") from None
+                self._check_capacity(tuple(spec.instance for spec in group.components))
+                return self.supervisor.start_group(group).to_json()
             case Stop(instance=instance):
                 return json.dumps({"instance": instance, "process": self.supervisor.stop(instance)})
             case Status():
                 return json.dumps(self.status())
 
-    def _check_capacity(self, instance: str) -> None:
-        """:class:`ProtocolError` if starting ``instance`` would exceed the capacity (a start
+    def _check_capacity(self, instances: tuple[str, ...]) -> None:
+        """:class:`ProtocolError` if starting ``instances`` would exceed the capacity (a start
         of a running instance replaces it: that is no more)."""
         running = self.supervisor.assigned
-        if instance not in running and len(running) >= self.info.capacity:
+        new = sum(instance not in running for instance in instances)
+        if new and len(running) + new > self.info.capacity:
             raise ProtocolError(
-                "over_capacity", f"runs {len(running)} workers, its capacity {self.info.capacity}"
+                "over_capacity",
+                f"runs {len(running)} components, {new} more would pass its capacity "
+                f"{self.info.capacity}",
             )
 
     def status(self) -> dict[str, Any]:
@@ -238,6 +291,8 @@ class HostManager:
         self._requests.undeclare()
         self._request_thread.join(timeout=1.0)
         self._pool_watch.undeclare()
+        self._container_watch.undeclare()
+        self._left.undeclare()
         while not self._events.empty():  # unanswered requests end now, not at their timeout
             kind, event = self._events.get_nowait()
             if kind == "request":

@@ -116,6 +116,11 @@ class LocalWires:
     def has_readers(self, key: str) -> bool:
         return key in self._readers
 
+    def keep(self, key: str, value: Measurement) -> None:
+        """Keep ``value`` (finite: the codec encoded it) as ``key``'s latest, for a reader
+        bound later, where no reader in the container took it."""
+        self._latest[key] = value
+
     def latest(self, key: str) -> Measurement | None:
         return self._latest.get(key)
 

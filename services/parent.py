@@ -14,7 +14,8 @@ What the process does once its host manager is gone depends on where its run sta
   then stops: under load such processes were still importing 40 s later (chaos seed 210,
   ``docs/reliability.md``);
 * **serving**, its token up: it keeps running, so that a restarted agent adopts it and the
-  applications keep their data; released, it exits instead of returning to the pool;
+  applications keep their data; released, it exits instead of returning to the pool (a
+  container, once its last component has left);
 * **idle** in the pool: it leaves the pool and exits.
 
 A worker whose host manager dies just as it declares its token is either starting or serving,
@@ -62,6 +63,13 @@ class Parent:
             self._gone = True
             wake = self._wake
         wake()
+
+    @property
+    def gone(self) -> bool:
+        """Whether the host manager is gone (a container left without a component then
+        ends: nobody else would stop it)."""
+        with self._lock:
+            return self._gone
 
     def when_gone(self, wake: Callable[[], None]) -> None:
         """Call ``wake`` (from the watching thread) when the host manager goes from now on while

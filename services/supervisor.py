@@ -25,6 +25,20 @@ so the supervisor keeps a **warm pool** of idle members (``python -m services.wo
 * a pool token appearing for a process that runs an instance means a stop command from
   elsewhere released it: the instance ended (reported, like a process that exited).
 
+**Containers** (:mod:`services.container`): a group's components run in one process named by
+the group. A start of a group whose container does not run hands the group to a ready pool
+member, which becomes the container (with none ready, a fresh member is spawned and given the
+group once its pool token is up: a group is too large for a command line); one whose container
+runs adds the components to it with an ``add`` command (no process start), sent once the
+container's token shows it takes commands. A stop of a component in a container removes it
+from there (``remove``); a container left with no component for ``EMPTY_GRACE_S`` is stopped.
+A container whose
+process exits unasked is started again with the components it ran (**restored**, each reported
+as such with the new process's pid, under its old run: the agent sends their current wiring),
+at most ``MAX_QUICK_RESTORES`` times in a row within ``QUICK_RESTORE_S`` of its start; then its
+components are reported as exited. A component that left its container by its own stop
+command (``<root>/left/<name>``) is reported as released.
+
 Only the worker module runs, without a shell, the specification as one argument; every member
 reads a pipe from this process as its standard input, so idle members, and workers still
 starting (no worker token yet), exit with the host manager, while workers serving keep running
@@ -33,6 +47,7 @@ starting (no worker token yet), exit with the host manager, while workers servin
 
 from __future__ import annotations
 
+import json
 import logging
 import subprocess
 import sys
@@ -40,12 +55,19 @@ import time
 import uuid
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
-from ubitrack_agent.net.host_protocol import STOP_COMMAND, Exited, ProtocolError, Started
-from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.host_protocol import (
+    STOP_COMMAND,
+    Exited,
+    ProtocolError,
+    Started,
+    StartedGroup,
+)
+from ubitrack_agent.net.json_messages import MessageError, load_object
+from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec
 from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.host")
@@ -59,17 +81,45 @@ REFILL_QUIET_S = 3.0
 """The pool is topped up only after this long without a component being started."""
 POOL_READY_S = 20.0
 """A pool member whose pool token is not up this long after it was spawned (or after its token
-vanished) is terminated."""
+vanished) is terminated; so is a container whose token is not up this long after its start."""
+QUICK_RESTORE_S = 10.0
+"""A container that dies sooner than this after its start died quickly."""
+MAX_QUICK_RESTORES = 3
+"""A container that died quickly this many times in a row is not restored again."""
+EMPTY_GRACE_S = 1.0
+"""A container without a component is stopped after this long (a component restarted with
+another specification is removed and added again: its container stays)."""
+MAX_LEFT_BYTES = 64 * 1024
+"""Largest report of components that left a container read."""
 
 
 @dataclass
 class Assignment:
-    """A worker process running an instance: ``run`` names this start of it."""
+    """A worker process running an instance: ``run`` names this start of it; ``container``
+    the container it runs in (None: a process of its own)."""
 
     spec: ComponentSpec
     run: str
     pool_id: str
     process: subprocess.Popen
+    container: str | None = None
+
+
+@dataclass
+class ContainerRun:
+    """A container process: its pool id, whether its token is up (it takes commands), the
+    commands waiting for that, and the group it is still to be given (a member spawned for it
+    gets it once its pool token is up)."""
+
+    name: str
+    pool_id: str
+    process: subprocess.Popen
+    started: float
+    ready: bool = False
+    pending: list[str] = field(default_factory=list)
+    group: str | None = None
+    quick_restores: int = 0
+    empty_since: float | None = None
 
 
 @dataclass
@@ -109,6 +159,7 @@ class Supervisor:
         self._releasing: dict[str, Release] = {}
         """Processes told to stop, by pool id, until they confirm."""
         self.assigned: dict[str, Assignment] = {}
+        self.containers: dict[str, ContainerRun] = {}
         self._stopping: list[tuple[subprocess.Popen, float]] = []
         self._last_start = -REFILL_QUIET_S
 
@@ -152,6 +203,12 @@ class Supervisor:
             self.counters["stops_confirmed"] += 1
             self._rejoin(pool_id, release.process)
             return None
+        box = next((b for b in self.containers.values() if b.pool_id == pool_id), None)
+        if box is not None:
+            if box.group is not None:  # spawned for the container: its group now
+                put_command(self._session, self._keys.pool(pool_id), box.group)
+                box.group = None
+            return None
         owner = next((i for i, a in self.assigned.items() if a.pool_id == pool_id), None)
         if owner is None:
             return None  # another host manager's member
@@ -190,7 +247,9 @@ class Supervisor:
         running with the same specification starts nothing; with another, the running one is
         stopped first, so one instance never runs twice here."""
         current = self.assigned.get(spec.instance)
-        if current is not None and current.process.poll() is None:
+        if current is not None and current.container is not None:
+            self.stop(spec.instance)  # moves out of its container
+        elif current is not None and current.process.poll() is None:
             if current.spec == spec:
                 self.counters["reused"] += 1
                 return Started(spec.instance, current.run, current.process.pid, reused=True)
@@ -215,10 +274,133 @@ class Supervisor:
         self._last_start = time.monotonic()
         return Started(spec.instance, run, process.pid, reused=False)
 
+    def start_group(self, group: GroupSpec) -> StartedGroup:
+        """Run ``group``'s components (already checked against the registry) in its container:
+        started with them if it does not run, else added to it (module docstring). A component
+        already running there with the same specification starts nothing; one running elsewhere
+        on this host, or there with another specification, is stopped first."""
+        box = self.containers.get(group.container)
+        started, new = [], []
+        for spec in group.components:
+            current = self.assigned.get(spec.instance)
+            here = current is not None and current.container == group.container
+            if box is not None and here and current.spec == spec:
+                self.counters["reused"] += 1
+                started.append(Started(spec.instance, current.run, box.process.pid, True))
+                continue
+            if current is not None:
+                self.stop(spec.instance)
+            self._terminate_releases_of(spec.instance)
+            new.append(spec)
+        if box is None:
+            box = self._start_container(GroupSpec(group.container, tuple(new)))
+        elif new:
+            self._send(box, json.dumps({"add": [spec.as_dict() for spec in new]}))
+            self.counters["added_to_containers"] += len(new)
+        for spec in new:
+            run = uuid.uuid4().hex[:12]
+            self.assigned[spec.instance] = Assignment(
+                spec, run, box.pool_id, box.process, group.container
+            )
+            started.append(Started(spec.instance, run, box.process.pid, reused=False))
+        if new:
+            self._last_start = time.monotonic()
+        return StartedGroup(group.container, box.process.pid, tuple(started))
+
+    def _start_container(self, group: GroupSpec, quick_restores: int = 0) -> ContainerRun:
+        """A container process for ``group``: a ready pool member given the group, else a
+        member spawned to be given it once ready; :class:`ProtocolError` if none can start."""
+        taken = self._take_ready()
+        if taken is not None:
+            pool_id, process = taken
+            put_command(self._session, self._keys.pool(pool_id), group.to_json())
+            pending_group = None
+            self.counters["containers_from_pool"] += 1
+        else:
+            pool_id = f"{self._tag}-{uuid.uuid4().hex[:8]}"
+            try:
+                process = self._spawn(pool_id)
+            except OSError as exc:
+                raise ProtocolError("failed_spawn", str(exc)) from None
+            pending_group = group.to_json()
+            self.counters["containers_cold"] += 1
+        log.info(
+            "container %s: %d components, process %d",
+            group.container,
+            len(group.components),
+            process.pid,
+        )
+        box = ContainerRun(
+            group.container,
+            pool_id,
+            process,
+            time.monotonic(),
+            group=pending_group,
+            quick_restores=quick_restores,
+        )
+        self.containers[group.container] = box
+        return box
+
+    def _send(self, box: ContainerRun, command: str) -> None:
+        """Put ``command`` on ``box``'s control key, or keep it until its token is up."""
+        if box.ready:
+            put_command(self._session, self._keys.control(box.name), command)
+        else:
+            box.pending.append(command)
+
+    def on_container_token(self, name: str, incarnation: str, appeared: bool) -> None:
+        """A container's token appeared (it takes commands: those waiting are sent) or
+        vanished; tokens of another process than the container's are ignored."""
+        box = self.containers.get(name)
+        if box is None or incarnation.partition(".")[0] != str(box.process.pid):
+            return
+        box.ready = appeared
+        if appeared:
+            for command in box.pending:
+                put_command(self._session, self._keys.control(name), command)
+            box.pending.clear()
+
+    def on_left(self, name: str, payload: bytes) -> list[Exited]:
+        """Components that left container ``name`` by their own stop command (its report on
+        ``<root>/left/<name>``): each reported as released. :class:`ProtocolError` if the
+        report is malformed."""
+        try:
+            report = load_object(payload, MAX_LEFT_BYTES)
+        except MessageError as exc:
+            raise ProtocolError(exc.error, exc.reason) from None
+        instances, incarnation = report.get("instances"), report.get("incarnation")
+        if not isinstance(instances, list) or not isinstance(incarnation, str):
+            raise ProtocolError("malformed_request", "left: expected instances and incarnation")
+        box = self.containers.get(name)
+        if box is None or incarnation.partition(".")[0] != str(box.process.pid):
+            return []  # another process's (an earlier one, or not this host manager's)
+        exits = []
+        for instance in instances:
+            try:
+                validate_key_chunks(instance, single_chunk=True)
+            except (TypeError, ValueError) as exc:
+                raise ProtocolError("malformed_request", f"left: {exc}") from None
+            assignment = self.assigned.get(instance)
+            if assignment is not None and assignment.container == name:
+                del self.assigned[instance]
+                self.counters["released"] += 1
+                log.info("%s: left container %s by a stop command from elsewhere", instance, name)
+                exits.append(Exited(instance, assignment.run, box.process.pid, None, "released"))
+        return exits
+
     def stop(self, instance: str) -> str:
         """Put the stop command on ``instance``'s control key (wherever it runs) and release
         or terminate its process here: ``"released"`` (it returns to the pool once it confirms,
-        module docstring), ``"terminated"`` or ``"none"``."""
+        module docstring), ``"terminated"`` or ``"none"``; for a component in a container,
+        remove it from there (``"removed"``)."""
+        assignment = self.assigned.get(instance)
+        if assignment is not None and assignment.container is not None:
+            del self.assigned[instance]
+            self.counters["stopped"] += 1
+            box = self.containers.get(assignment.container)
+            if box is not None:
+                self._send(box, json.dumps({"remove": [instance]}))
+            return "removed"
         put_command(self._session, self._keys.control(instance), STOP_COMMAND)
         assignment = self.assigned.pop(instance, None)
         if assignment is None:
@@ -247,8 +429,10 @@ class Supervisor:
 
     def reap(self) -> list[Exited]:
         """Collect exited processes, kill overdue ones; the instances whose process exited."""
-        exits = []
+        exits = self._look_after_containers()
         for instance, assignment in list(self.assigned.items()):
+            if assignment.container is not None:
+                continue
             returncode = assignment.process.poll()
             if returncode is not None:
                 del self.assigned[instance]
@@ -281,6 +465,78 @@ class Supervisor:
             self._unready_since.pop(pool_id, None)
         return exits
 
+    def _look_after_containers(self) -> list[Exited]:
+        """Restore the containers whose process exited (or that never became ready), end those
+        left without a component; the components restored, or ended if their container cannot
+        be restored (module docstring)."""
+        now = time.monotonic()
+        members: dict[str, list[tuple[str, Assignment]]] = {name: [] for name in self.containers}
+        for instance, assignment in self.assigned.items():
+            if assignment.container in members:
+                members[assignment.container].append((instance, assignment))
+        exits: list[Exited] = []
+        for name, box in list(self.containers.items()):
+            returncode = box.process.poll()
+            if returncode is None and not box.ready and now - box.started > POOL_READY_S:
+                log.warning("container %s not ready for %.0f s: terminating it", name, POOL_READY_S)
+                self.counters["unready_containers"] += 1
+                box.process.kill()
+                returncode = box.process.wait()
+            if returncode is None:
+                if members[name]:
+                    box.empty_since = None
+                elif box.empty_since is None:
+                    box.empty_since = now
+                elif now - box.empty_since > EMPTY_GRACE_S:
+                    self._end_container(box)
+                continue
+            del self.containers[name]
+            if not members[name]:
+                continue
+            self.counters["containers_exited"] += 1
+            log.warning("container %s exited with %s", name, returncode)
+            exits += self._restore(box, members[name], returncode, now)
+        return exits
+
+    def _restore(
+        self, box: ContainerRun, members: list[tuple[str, Assignment]], returncode: int, now: float
+    ) -> list[Exited]:
+        """Start ``box``'s container again with ``members``; their reports."""
+        quick = box.quick_restores + 1 if now - box.started < QUICK_RESTORE_S else 0
+        group = GroupSpec(box.name, tuple(assignment.spec for _, assignment in members))
+        try:
+            if quick > MAX_QUICK_RESTORES:
+                raise ProtocolError(
+                    "failed_spawn", f"died {quick} times within {QUICK_RESTORE_S} s"
+                )
+            new = self._start_container(group, quick)
+        except ProtocolError as exc:
+            log.error("container %s not restored: %s", box.name, exc)
+            for instance, _ in members:
+                del self.assigned[instance]
+            return [
+                Exited(instance, a.run, box.process.pid, returncode, "exited")
+                for instance, a in members
+            ]
+        self.counters["containers_restored"] += 1
+        for _, assignment in members:
+            assignment.process, assignment.pool_id = new.process, new.pool_id
+        return [
+            Exited(instance, a.run, new.process.pid, returncode, "restored")
+            for instance, a in members
+        ]
+
+    def _end_container(self, box: ContainerRun) -> None:
+        """Stop a container left without a component: its stop command once it takes commands
+        (killed if it has not ended ``STOP_GRACE_S`` later), else SIGTERM."""
+        del self.containers[box.name]
+        self.counters["containers_ended"] += 1
+        if box.ready:
+            put_command(self._session, self._keys.control(box.name), STOP_COMMAND)
+            self._stopping.append((box.process, time.monotonic() + STOP_GRACE_S))
+        else:
+            self._terminate(box.process)
+
     def _follow_releases(self, now: float) -> None:
         """Forget releasing processes that exited, put the stop again to those that did not
         confirm yet, terminate those past their deadline."""
@@ -304,6 +560,7 @@ class Supervisor:
     def terminate_all(self) -> None:
         """End every process this supervisor started (the host manager is stopping cleanly)."""
         everything = [a.process for a in self.assigned.values()]
+        everything += [box.process for box in self.containers.values()]
         everything += [*self._members.values(), *(process for process, _ in self._stopping)]
         everything += [release.process for release in self._releasing.values()]
         for process in everything:
@@ -316,6 +573,7 @@ class Supervisor:
                 process.kill()
                 process.wait()
         self.assigned.clear()
+        self.containers.clear()
         self._members.clear()
         self._ready.clear()
         self._unready_since.clear()
@@ -336,7 +594,12 @@ class Supervisor:
                     "run": assignment.run,
                     "pid": assignment.process.pid,
                     "pool_id": assignment.pool_id,
+                    "container": assignment.container,
                 }
                 for instance, assignment in self.assigned.items()
+            },
+            "containers": {
+                name: {"pid": box.process.pid, "ready": box.ready}
+                for name, box in self.containers.items()
             },
         }

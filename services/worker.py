@@ -26,7 +26,8 @@ manager) outlives the host manager only once its token is up: one still starting
 spawn to its token (importing every service takes seconds on a loaded machine), exits as soon
 as the host manager is gone, which it watches from the start of :func:`main`, before any
 service is imported (:mod:`services.parent`); one serving keeps running, for a restarted agent
-to adopt.
+to adopt. A pool member given a group (``net.spec.GroupSpec``) instead of one specification
+becomes that container (:mod:`services.container`) and exits when the container ends.
 
 An input's ``clock_offset_ns`` (``net.spec``) is added to the timestamp of each of its samples
 as it is decoded, before anything else uses it: the agent sets it when the component's inputs
@@ -110,8 +111,10 @@ from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.progress import Progress
 from ubitrack_agent.net.spec import (
     ComponentSpec,
+    GroupSpec,
     InputBinding,
     SpecError,
+    parse_assignment,
     parse_before_port,
     parse_bindings,
     parse_outputs,
@@ -927,6 +930,8 @@ class Worker:
             except MeasurementError as exc:
                 self._count("failed", "result not published: %s", exc)
                 continue
+            if wires is not None and routes:  # a reader bound later in the container starts here
+                wires.keep(routes[0], value)
             for key in routes:
                 self._publishers[key].put(payload)
             self.counters["published"] += 1
@@ -1272,7 +1277,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--pool-id",
         help="member of the host manager's warm pool: idle, fully imported, it runs the "
         "specification sent to <root>/pool/<ID> (or --spec first) and returns to the pool when "
-        "released; when its standard input closes (the host manager is gone) it exits unless "
+        "released, or the group sent there as a container until that ends; when its standard "
+        "input closes (the host manager is gone) it exits unless "
         "its worker token is up, and then once released",
     )
     logs.add_log_level_argument(parser)
@@ -1283,7 +1289,8 @@ def build_parser() -> argparse.ArgumentParser:
 class Pool:
     """Pool membership of a worker process: idles fully imported until a specification comes
     on ``<root>/pool/<id>``, runs it, and, when the agent releases it (a stop command),
-    returns to the pool instead of exiting, so the process's imports are paid once.
+    returns to the pool instead of exiting, so the process's imports are paid once. Given a
+    group instead, the process runs it as a container (:mod:`services.container`).
 
     The process lives on after its host manager (``parent``, :mod:`services.parent`) only while
     it serves: idle, it leaves the pool when its host manager is gone, and it exits at once if
@@ -1302,8 +1309,9 @@ class Pool:
         parent.when_gone(lambda: self._inbox.put(None))
         lookup("relay")  # imports every registered service and its maths
 
-    def wait(self) -> ComponentSpec | None:
-        """The next specification, or None when the process should end."""
+    def wait(self) -> ComponentSpec | GroupSpec | None:
+        """The next specification (or group, for a container), or None when the process
+        should end."""
         if not self.parent.idle():
             return None
         receive = logs.guarded(
@@ -1325,11 +1333,13 @@ class Pool:
             token.undeclare()
             subscriber.undeclare()
 
-    def _read_spec(self, payload: bytes) -> ComponentSpec | None:
-        """The specification in ``payload`` checked in full, or None (rejected, counted)."""
+    def _read_spec(self, payload: bytes) -> ComponentSpec | GroupSpec | None:
+        """The specification or group in ``payload`` checked in full, or None (rejected,
+        counted)."""
         try:
-            spec = parse_spec(payload)
-            check_spec(spec)
+            spec = parse_assignment(payload)
+            for component in spec.components if isinstance(spec, GroupSpec) else (spec,):
+                check_spec(component)
         except SpecError as exc:
             logs.count_problem(
                 self.counters,
@@ -1385,6 +1395,12 @@ def main(argv: list[str] | None = None) -> int:
                 spec = pool.wait() if pool is not None else None
                 if spec is None:
                     return 0
+            if isinstance(spec, GroupSpec):  # the member becomes a container; it ends with it
+                # Imported here, not at the top: services.container builds on this module.
+                from services.container import run_container
+
+                run_container(session, keys, spec, Clock.of(settings), parent)
+                return 0
             released = run_worker(session, keys, spec, Clock.of(settings), pool)
             if not (released and pool is not None):
                 return 0

@@ -26,13 +26,15 @@ from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
     Start,
+    StartedGroup,
+    StartGroup,
     Status,
     Stop,
     encode_request,
 )
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 from ubitrack_agent.net.transport import fetch_latest
 
 pytestmark = pytest.mark.integration
@@ -178,6 +180,17 @@ def tagged(domain: str) -> list[str]:
     return [pid for pid in found.split() if pid != str(os.getpid())]
 
 
+def relayed(hub: Network, instance: str) -> tuple[Collector, object]:
+    """A collector of ``instance``'s output and a publisher of its input, once a pose put
+    there came out."""
+    output = Collector(hub.session, hub.keys.data(f"{instance}/out"))
+    source = hub.session.declare_publisher(hub.keys.data("src/in"))
+    wait_until(lambda: source.matching_status.matching)
+    source.put(encode(Pose(1_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    assert decode(output.next(), expected=Pose).timestamp_ns == 1_000
+    return output, source
+
+
 def test_start_stop_status_and_exit_reports(hub):
     keys = hub.keys
     tokens = hub.tokens()
@@ -189,11 +202,7 @@ def test_start_stop_status_and_exit_reports(hub):
     ok, started = hub.ask("lab", encode_request(Start(relay(keys, "relay1"))))
     assert ok and not started["reused"], started
     wait_until(lambda: (PUT, "relay1") in [(k, i) for k, i, _ in tokens], timeout=20)
-    output = Collector(hub.session, keys.data("relay1/out"))
-    source = hub.session.declare_publisher(keys.data("src/in"))
-    wait_until(lambda: source.matching_status.matching)
-    source.put(encode(Pose(1_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
-    assert decode(output.next(), expected=Pose).timestamp_ns == 1_000
+    relayed(hub, "relay1")
     status = hub.status("lab")
     assert status["instances"]["relay1"]["pid"] == started["pid"]
     assert status["counters"]["started_from_pool"] == 1
@@ -236,6 +245,76 @@ def test_start_stop_status_and_exit_reports(hub):
     host.send_signal(signal.SIGTERM)
     assert host.wait(timeout=15) == 0
     wait_until(lambda: not tagged(hub.domain), timeout=10)
+
+
+def test_containers_start_with_a_group_take_additions_and_are_restored_when_killed(hub):
+    """Issue 28: one request starts a group's components in one process (a pool member given
+    the group); a later one adds to it without a process start; a container killed with its
+    components is restored by the host manager and each is reported ``restored`` with the new
+    pid; a component stopped on its own control key is reported released; the container ends
+    with its last component."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    exits = Collector(hub.session, keys.host_exited("lab"))
+    hub.host("lab", pool_size=1)
+    wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=30)
+
+    def up(*names: str) -> bool:
+        seen = [(k, i) for k, i, _ in tokens]
+        return all((PUT, name) in seen for name in names)
+
+    group = GroupSpec("lab-0", (relay(keys, "relay1"), relay(keys, "relay2")))
+    ok, reply = hub.ask("lab", encode_request(StartGroup(group)))
+    assert ok, reply
+    started = StartedGroup.parse(json.dumps(reply).encode())
+    assert [s.instance for s in started.started] == ["relay1", "relay2"]
+    assert {s.pid for s in started.started} == {started.pid}  # one process
+    wait_until(lambda: up("relay1", "relay2"), timeout=20)
+    output, source = relayed(hub, "relay1")
+    status = hub.status("lab")
+    assert status["counters"]["containers_from_pool"] == 1
+    assert status["instances"]["relay2"]["container"] == "lab-0"
+    assert status["containers"]["lab-0"] == {"pid": started.pid, "ready": True}
+
+    # Another component of the container: added to the running process.
+    ok, reply = hub.ask(
+        "lab", encode_request(StartGroup(GroupSpec("lab-0", (relay(keys, "relay3"),))))
+    )
+    assert ok and reply["pid"] == started.pid, reply
+    wait_until(lambda: up("relay3"), timeout=20)
+    status = hub.status("lab")
+    assert status["counters"]["added_to_containers"] == 1
+    assert status["counters"].get("containers_cold", 0) == 0
+    assert status["counters"].get("started_cold", 0) == 0
+
+    # Killed: restored with its three components, in a new process, under their runs.
+    runs = {s.instance: s.run for s in started.started}
+    os.kill(started.pid, signal.SIGKILL)
+    reports = [Exited.parse(exits.next(timeout=10)) for _ in range(3)]
+    assert {r.instance for r in reports} == {"relay1", "relay2", "relay3"}
+    assert {r.reason for r in reports} == {"restored"}
+    new_pid = reports[0].pid
+    assert new_pid != started.pid and {r.pid for r in reports} == {new_pid}
+    assert {r.instance: r.run for r in reports if r.instance in runs} == runs
+    wait_until(lambda: hub.status("lab")["containers"].get("lab-0", {}).get("ready"), timeout=30)
+    output.drain()
+    source.put(encode(Pose(2_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    assert decode(output.next(timeout=10), expected=Pose).timestamp_ns == 2_000
+    assert hub.status("lab")["counters"]["containers_restored"] == 1
+
+    # Stopped on its own control key: it leaves the container and is reported released.
+    hub.session.put(keys.control("relay3"), STOP_COMMAND)
+    report = Exited.parse(exits.next(timeout=10))
+    assert (report.instance, report.reason) == ("relay3", "released")
+
+    # Stopped through the host manager: removed; the container ends with the last one.
+    for name in ("relay1", "relay2"):
+        ok, stopped = hub.ask("lab", encode_request(Stop(name)))
+        assert ok and stopped == {"instance": name, "process": "removed"}, stopped
+    wait_until(lambda: hub.status("lab")["containers"] == {}, timeout=10)
+    wait_until(lambda: not running(new_pid), timeout=10)
+    with pytest.raises(queue.Empty):  # nothing more was reported
+        exits.next(timeout=0.5)
 
 
 def running(pid: int) -> bool:
@@ -368,10 +447,11 @@ def test_workers_killed_before_and_after_their_token_are_started_again(net):
     assert not [event for event in tokens if event[1] == victim]  # it never declared a token
     wait_until(lambda: relation.latest() is not None, timeout=30)
     assert next(e for e in tokens if e[1] == victim)[2] > killed_at
-    assert net.agent_status()["counters"]["restarts"] >= 1
-    assert net.status("lab")["counters"]["exited"] >= 1
+    # its container was restored by the host manager, which told the agent
+    assert net.agent_status()["counters"]["restored"] >= 1
+    assert net.status("lab")["counters"]["containers_restored"] >= 1
 
-    # Killed while running: its host manager reports it, the agent starts it again.
+    # Killed while running: its host manager restores it, the agent rewires it.
     pid = net.status("lab")["instances"][victim]["pid"]
     os.kill(pid, signal.SIGKILL)
 

@@ -48,8 +48,8 @@ PREFIXES = {
 def key_of(kind: str, name: str) -> str:
     if kind == "host_exited":
         return f"{KEYS.root}/host/{name}/exited"
-    if kind == "worker":
-        return f"{KEYS.root}/worker/{name}/1.a"
+    if kind in ("worker", "container"):
+        return f"{KEYS.root}/{kind}/{name}/1.a"
     if kind == "active_agent":
         return f"{KEYS.root}/agents/{name}/active"
     return f"{KEYS.root}/{PREFIXES[kind]}{name}"
@@ -70,7 +70,7 @@ def test_every_token_kind_rejects_hostile_names(kind, name):
 def test_every_token_kind_reads_a_good_name(kind):
     token = KEYS.parse_token(kind, key_of(kind, "good-1"))
     relation = RelationId("C", "HT", "6D") if kind == "query" else None
-    incarnation = "1.a" if kind == "worker" else ""
+    incarnation = "1.a" if kind in ("worker", "container") else ""
     host = "hmd" if kind == "query" else ""
     assert token == Token(kind, "good-1", relation, incarnation, host)
 

@@ -2,6 +2,7 @@
 session: where starts go, when they wait, which exit reports restart what, how stops go."""
 
 import json
+from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
@@ -11,16 +12,19 @@ from ubitrack_agent.agent.hosts import Hosts, Placement
 from ubitrack_agent.agent.problems import Problems
 from ubitrack_agent.net.clock import ClockEstimate
 from ubitrack_agent.net.host_protocol import (
+    MAX_MESSAGE_BYTES,
     STOP_COMMAND,
     Exited,
     HostInfo,
     ProtocolError,
     Started,
+    StartedGroup,
     Status,
+    encode_request,
     parse_request,
 )
 from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 
 KEYS = KeySpace("ubitrack/test")
 PUT, DELETE = "SampleKind.PUT", "SampleKind.DELETE"
@@ -73,9 +77,15 @@ class FakeSession:
 
 
 def started(request) -> SimpleNamespace:
-    run = f"run-{request.spec.instance}"
-    reply = Started(request.spec.instance, run, 7, reused=False).to_json().encode()
+    group = request.group
+    runs = tuple(Started(s.instance, f"run-{s.instance}", 7, False) for s in group.components)
+    reply = StartedGroup(group.container, 7, runs).to_json().encode()
     return SimpleNamespace(ok=SimpleNamespace(payload=payload(reply)), err=None)
+
+
+def start(hosts: Hosts, component: ComponentSpec, host: str) -> bool:
+    """Whether ``host`` started ``component`` alone in its first container."""
+    return hosts.start_group(GroupSpec(f"{host}-0", (component,)), host) == [component.instance]
 
 
 def refused(request) -> SimpleNamespace:
@@ -118,14 +128,14 @@ def spec(instance: str) -> ComponentSpec:
 def test_a_start_goes_to_the_chosen_live_host_manager(world):
     session, hosts, _counters = world
     assert hosts.available() == {}
-    assert not hosts.start(spec("a"), "alpha")
+    assert not start(hosts, spec("a"), "alpha")
     assert session.requests == []
     for name in ("zeta", "alpha"):
         session.answers[name] = started
         host_appears(session, hosts, name)
     assert hosts.available() == {"alpha": HostInfo("alpha"), "zeta": HostInfo("zeta")}
-    assert not hosts.start(spec("a"), "nowhere")
-    assert hosts.start(spec("a"), "zeta")
+    assert not start(hosts, spec("a"), "nowhere")
+    assert start(hosts, spec("a"), "zeta")
     assert [host for host, _ in session.requests] == ["zeta"]
     assert hosts.placements["a"] == Placement("zeta", "run-a")
     assert hosts.reports_exit_of("a")
@@ -173,17 +183,17 @@ def test_refused_and_unanswered_starts_are_asked_again_later(world, clock):
     session, hosts, counters = world
     session.answers["lab"] = refused
     host_appears(session, hosts, "lab")
-    assert not hosts.start(spec("a"), "lab")
-    assert not hosts.start(spec("a"), "lab")  # not again at once
+    assert not start(hosts, spec("a"), "lab")
+    assert not start(hosts, spec("a"), "lab")  # not again at once
     assert len(session.requests) == 1
     clock[0] += hosts_module.START_RETRY_S + 0.1
     session.answers["lab"] = None  # silent
-    assert not hosts.start(spec("a"), "lab")
-    assert not hosts.start(spec("b"), "lab")  # a silent host manager is left alone for a while
+    assert not start(hosts, spec("a"), "lab")
+    assert not start(hosts, spec("b"), "lab")  # a silent host manager is left alone for a while
     assert len(session.requests) == 2
     clock[0] += hosts_module.START_RETRY_S + 0.1
     session.answers["lab"] = started
-    assert hosts.start(spec("a"), "lab") and hosts.start(spec("b"), "lab")
+    assert start(hosts, spec("a"), "lab") and start(hosts, spec("b"), "lab")
     assert counters["refused_starts"] == 2
 
 
@@ -196,21 +206,21 @@ def test_a_zenoh_error_reply_is_no_answer_and_the_host_is_left_alone(world, cloc
     session, hosts, counters = world
     session.answers["lab"] = zenoh_timeout
     host_appears(session, hosts, "lab")
-    assert not hosts.start(spec("a"), "lab")
+    assert not start(hosts, spec("a"), "lab")
     assert hosts.available() == {}  # silent for a while: nothing else is sent to it
-    assert not hosts.start(spec("b"), "lab") and len(session.requests) == 1
+    assert not start(hosts, spec("b"), "lab") and len(session.requests) == 1
     assert counters["refused_starts"] == 1
     assert hosts._problems.last["refused_starts"].endswith("no answer (Timeout)")
     clock[0] += hosts_module.START_RETRY_S + 0.1
     session.answers["lab"] = started
-    assert set(hosts.available()) == {"lab"} and hosts.start(spec("b"), "lab")
+    assert set(hosts.available()) == {"lab"} and start(hosts, spec("b"), "lab")
 
 
 def test_only_a_matching_exit_report_restarts(world):
     session, hosts, counters = world
     session.answers["lab"] = started
     host_appears(session, hosts, "lab")
-    hosts.start(spec("a"), "lab")
+    start(hosts, spec("a"), "lab")
     exits = KEYS.all_host_exits()
     for report in (
         Exited("a", "an-earlier-run", 1, 0, "exited"),  # stale
@@ -232,8 +242,8 @@ def test_a_vanished_host_manager_restarts_its_instances_that_are_not_alive(world
     session, hosts, _counters = world
     session.answers["lab"] = started
     host_appears(session, hosts, "lab")
-    hosts.start(spec("a"), "lab")
-    hosts.start(spec("b"), "lab")
+    start(hosts, spec("a"), "lab")
+    start(hosts, spec("b"), "lab")
     session.event(KEYS.all_hosts(), DELETE, KEYS.host("lab"))
     assert hosts.reap(alive={"a"}) == ["b"]
     assert hosts.placements == {}
@@ -244,9 +254,50 @@ def test_stops_go_through_the_host_manager_else_on_the_control_key(world):
     session, hosts, _counters = world
     session.answers["lab"] = started
     host_appears(session, hosts, "lab")
-    hosts.start(spec("a"), "lab")
+    start(hosts, spec("a"), "lab")
     session.answers["lab"] = stopped
     hosts.stop("a")
     assert session.requests[-1][0] == "lab" and session.puts == []
     hosts.stop("adopted")  # never placed: the stop command itself
     assert session.puts == [(KEYS.control("adopted"), STOP_COMMAND)]
+
+
+def test_a_container_s_components_start_in_one_request_split_only_by_size(world):
+    session, hosts, _counters = world
+    session.answers["lab"] = started
+    host_appears(session, hosts, "lab")
+    three = tuple(spec(name) for name in ("a", "b", "c"))
+    assert hosts.start_group(GroupSpec("lab-1", three), "lab") == ["a", "b", "c"]
+    assert len(session.requests) == 1
+    assert hosts.placements["b"] == Placement("lab", "run-b", 7, "lab-1")
+    assert hosts.placements["b"].container == "lab-1"
+    big = ComponentSpec(  # each about a fifth of the protocol's message size
+        instance="x",
+        service="relay",
+        inputs=(InputBinding("in", KEYS.data("art/HT"), trigger=True),),
+        outputs={"out": KEYS.data("x/out")},
+        parameters={"padding": "p" * (MAX_MESSAGE_BYTES // 5)},
+    )
+    many = tuple(
+        replace(big, instance=f"x{i}", outputs={"out": KEYS.data(f"x{i}")}) for i in range(5)
+    )
+    assert hosts.start_group(GroupSpec("lab-0", many), "lab") == [s.instance for s in many]
+    sizes = [len(r.group.components) for _, r in session.requests[1:]]
+    assert sizes == [2, 2, 1]
+    assert all(len(encode_request(r)) < MAX_MESSAGE_BYTES for _, r in session.requests)
+
+
+def test_a_restored_container_keeps_its_components_placed_and_lists_them(world):
+    session, hosts, _counters = world
+    session.answers["lab"] = started
+    host_appears(session, hosts, "lab")
+    hosts.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))), "lab")
+    exits = KEYS.all_host_exits()
+    for instance in ("a", "b"):
+        report = Exited(instance, f"run-{instance}", 99, -9, "restored")
+        session.event(exits, PUT, KEYS.host_exited("lab"), report.to_json().encode())
+    stale = Exited("a", "an-earlier-run", 98, -9, "restored")
+    session.event(exits, PUT, KEYS.host_exited("lab"), stale.to_json().encode())
+    assert hosts.reap({"a", "b"}) == []  # nothing to start again
+    assert hosts.restored == {"a": 99, "b": 99}
+    assert hosts.placements["a"].pid == 99 and hosts.reports_exit_of("a")

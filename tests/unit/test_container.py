@@ -9,6 +9,7 @@ import contextlib
 import json
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -328,3 +329,41 @@ def test_a_component_stopped_on_its_own_control_key_leaves_the_container(running
     session.deliver(KEYS.control("second"), json.dumps({"stop": True}).encode())
     wait_for(lambda: set(container.components) == {"first"})
     assert container.counters["removed"] == 1 and container.counters["restarts"] == 0
+    left = [json.loads(data) for k, data in session.puts if k == KEYS.container_left("c0")]
+    assert [report["instances"] for report in left] == [["second"]]  # for its host manager
+    assert left[0]["incarnation"] == container.incarnation
+
+
+def test_a_static_output_computed_before_its_reader_joined_reaches_it(running):
+    container, session = running
+    inversion = ComponentSpec(
+        instance="inv",
+        service="inversion",
+        inputs=(InputBinding("AB", KEYS.data("ART/WT"), trigger=True, static=True),),
+        outputs={"BA": KEYS.data("inv/BA")},
+    )
+    control(session, {"add": [inversion.as_dict()]})
+    wait_for(lambda: container.components)
+    session.deliver(KEYS.data("ART/WT"), encode(random_pose(1)))
+    wait_for(lambda: container.components["inv"].worker.counters["published"] == 1)
+    reader = concatenation("reader", "inv/BA", "ART/HT")  # joins after the value was computed
+    control(session, {"add": [reader.as_dict()]})
+    wait_for(lambda: len(container.components) == 2)
+    worker = container.components["reader"].worker
+    wait_for(lambda: worker.counters["buffered"] == 1)  # the static value, handed at binding
+    session.deliver(KEYS.data("ART/HT"), encode(random_pose(10)))
+    assert [value.timestamp_ns for value in puts(session, "reader/AC")] == [10]
+
+
+def test_a_container_whose_host_manager_is_gone_ends_with_its_last_component():
+    session = MatchingSession()
+    parent = SimpleNamespace(gone=False, serve=lambda declare: declare())
+    container = Container(session, KEYS, "c0", components=(FIRST,), parent=parent)
+    thread = threading.Thread(target=container.run, daemon=True)
+    thread.start()
+    parent.gone = True  # serving: it keeps running while it has a component
+    time.sleep(0.2)
+    assert thread.is_alive()
+    control(session, {"remove": ["first"]})
+    thread.join(timeout=5)
+    assert not thread.is_alive() and container.components == {}

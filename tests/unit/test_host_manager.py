@@ -34,6 +34,9 @@ class FakeSession:
             declare_token=lambda key: SimpleNamespace(undeclare=lambda: None),
         )
 
+    def declare_subscriber(self, key, callback):
+        return SimpleNamespace(undeclare=lambda: None)
+
     def declare_publisher(self, key, encoding=None):
         self.encodings[key] = encoding
         return SimpleNamespace(
@@ -144,12 +147,42 @@ SPEC = {
         (json.dumps({"op": "start", "spec": {**SPEC, "tolerance_ms": 2**80}}), "refused_spec"),
         (json.dumps({"op": "start", "spec": {**SPEC, "service": "os.system"}}), "refused_spec"),
         (json.dumps({"op": "stop", "instance": "**"}), "malformed_request"),
+        (
+            json.dumps(
+                {
+                    "op": "start_group",
+                    "group": {"container": "c", "components": [{**SPEC, "service": "os.system"}]},
+                }
+            ),
+            "refused_spec",
+        ),
+        (
+            json.dumps(
+                {
+                    "op": "start_group",
+                    "group": {
+                        "container": "c",
+                        "components": [SPEC, {**SPEC, "instance": "r2", "outputs": {}}],
+                    },
+                }
+            ),
+            "over_capacity",  # two components, a capacity of one
+        ),
     ],
 )
 def test_hostile_requests_get_a_typed_refusal(manager, payload, error):
     data = payload.encode() if isinstance(payload, str) else payload
     ok, refusal = answer(manager, data)
     assert not ok and refusal["error"] == error, refusal
+    assert manager.counters.get("internal_errors", 0) == 0
+
+
+def test_hostile_container_tokens_and_reports_are_counted_and_ignored(manager):
+    manager._handle("container", ("SampleKind.PUT", "ubitrack/test/container/a b/1.x"))
+    manager._handle("left", ("ubitrack/test/left/c/extra", b"{}"))
+    manager._handle("left", ("ubitrack/test/left/c", b"{garbage"))
+    assert manager.counters["rejected_container_keys"] == 1
+    assert manager.counters["rejected_container_reports"] == 2
     assert manager.counters.get("internal_errors", 0) == 0
 
 

@@ -15,13 +15,15 @@ from ubitrack_agent.net.host_protocol import (
     ProtocolError,
     Start,
     Started,
+    StartedGroup,
+    StartGroup,
     Status,
     Stop,
     encode_request,
     parse_request,
 )
 from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 
 KEYS = KeySpace("ubitrack/test")
 SPEC = ComponentSpec(
@@ -32,7 +34,9 @@ SPEC = ComponentSpec(
 )
 
 
-@pytest.mark.parametrize("request_", [Start(SPEC), Stop("relay-1"), Status()])
+@pytest.mark.parametrize(
+    "request_", [Start(SPEC), StartGroup(GroupSpec("lab-0", (SPEC,))), Stop("relay-1"), Status()]
+)
 def test_requests_round_trip(request_):
     assert parse_request(encode_request(request_).encode()) == request_
 
@@ -40,9 +44,12 @@ def test_requests_round_trip(request_):
 def test_replies_and_reports_round_trip():
     started = Started("relay-1", "0123abcd", 42, reused=False)
     assert Started.parse(started.to_json().encode()) == started
+    group = StartedGroup("lab-0", 42, (started, Started("b", "r2", 42, reused=True)))
+    assert StartedGroup.parse(group.to_json().encode()) == group
     for exited in (
         Exited("relay-1", "0123abcd", 42, -9, "exited"),
         Exited("relay-1", "0123abcd", 42, None, "released"),
+        Exited("relay-1", "0123abcd", 43, -9, "restored"),
     ):
         assert Exited.parse(exited.to_json().encode()) == exited
     refusal = ProtocolError("refused_spec", "spec.service: no registered service 'x'")
@@ -68,6 +75,18 @@ def test_replies_and_reports_round_trip():
         (b'{"op": "stop", "instance": "**"}', "malformed_request", "instance"),
         (b'{"op": "start", "spec": "x"}', "malformed_request", "spec"),
         (b'{"op": "start", "spec": {"instance": "a"}}', "refused_spec", "spec."),
+        (b'{"op": "start_group", "group": []}', "malformed_request", "group"),
+        (b'{"op": "start_group", "group": {"container": "a/b"}}', "refused_spec", "container"),
+        (
+            json.dumps(
+                {
+                    "op": "start_group",
+                    "group": {"container": "c", "components": [SPEC.as_dict()] * 2},
+                }
+            ).encode(),
+            "refused_spec",
+            "twice",
+        ),
     ],
 )
 def test_malformed_requests_are_refused_with_their_type(payload, error, fragment):
@@ -128,6 +147,10 @@ def test_host_keys_and_their_parsers():
     assert KEYS.parse_host_exited(KEYS.host_exited("lab-pc")) == "lab-pc"
     assert KEYS.parse_pool(KEYS.pool("ab-12")) == "ab-12"
     assert KEYS.parse_worker(KEYS.worker("concat-1", "42.a1b2")) == ("concat-1", "42.a1b2")
+    assert KEYS.parse_container(KEYS.container("lab-0", "42.a1b2")) == ("lab-0", "42.a1b2")
+    assert KEYS.parse_container_left(KEYS.container_left("lab-0")) == "lab-0"
+    with pytest.raises(ValueError):
+        KEYS.parse_container_left(KEYS.container_left("lab-0") + "/x")
 
 
 @pytest.mark.parametrize(
@@ -162,9 +185,17 @@ def test_hostile_host_names_are_rejected(name):
 
 
 def test_host_information_round_trips_through_the_status_reply():
-    info = HostInfo("hmd", frozenset({"camera", "hmd"}), 12, 0.25)
-    status = {**info.as_dict(), "pid": 7, "instances": {}, "counters": {}, "clock": None}
-    assert HostInfo.parse(json.dumps(status).encode()) == info
+    info = HostInfo("hmd", frozenset({"camera", "hmd"}), 12, 0.25, cores=3)
+    instances = {
+        "a": {"run": "r1", "pid": 7, "container": "hmd-0"},
+        "b": {"run": "r2", "pid": 8, "container": None},
+    }
+    status = {**info.as_dict(), "pid": 7, "instances": instances, "counters": {}, "clock": None}
+    parsed = HostInfo.parse(json.dumps(status).encode())
+    assert parsed == info and parsed.cores == 3
+    assert parsed.runs == {"a": ("r1", 7, "hmd-0"), "b": ("r2", 8, None)}
+    older = {k: v for k, v in status.items() if k != "cores"}  # a host manager before cores
+    assert HostInfo.parse(json.dumps(older).encode()).cores == 1
 
 
 GOOD_INFO = {"name": "hmd", "labels": ["camera"], "capacity": 4, "cpu_load": 0.5}
@@ -192,6 +223,10 @@ GOOD_INFO = {"name": "hmd", "labels": ["camera"], "capacity": 4, "cpu_load": 0.5
         {"instances": {"a": {"run": "r"}}},
         {"instances": {"a": {"run": "r/*", "pid": 1}}},
         {"instances": {"a": 5}},
+        {"instances": {"a": {"run": "r", "pid": 1, "container": "x/*"}}},
+        {"cores": 0},
+        {"cores": 2.0},
+        {"cores": 10**6},
     ],
 )
 def test_malformed_host_information_is_refused(change):

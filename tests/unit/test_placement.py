@@ -192,3 +192,15 @@ def test_a_derivation_already_running_stays_in_its_container():
     assert members(kept) == {"room-0": ["c0", "c1", "c2", "a0"], "room-1": ["b0"]}
     unplaced = group_containers(specs, {"a0": "room"}, {"room": 2})
     assert members(unplaced) == {"room-0": ["a0"]}
+
+
+def test_running_components_never_move_and_new_ones_join_most_of_their_derivation():
+    specs = chain("a", 4)  # a0 -> a1 -> a2 -> a3, one derivation
+    hosts = dict.fromkeys(specs, "room")
+    # a0 and a1 run in room-1, a3 in room-0 (joined into one derivation by a2, new)
+    current = {"a0": "room-1", "a1": "room-1", "a3": "room-0"}
+    groups = group_containers(specs, hosts, {"room": 2}, current=current)
+    assert members(groups) == {"room-0": ["a3"], "room-1": ["a0", "a1", "a2"]}
+    # a container beyond the host's cores (it has fewer now) is not kept: grouped afresh
+    fewer = group_containers(specs, hosts, {"room": 1}, current=current)
+    assert members(fewer) == {"room-0": ["a0", "a1", "a2", "a3"]}

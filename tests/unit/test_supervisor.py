@@ -1,15 +1,16 @@
 """The host manager's process handling (``services/supervisor.py``) with stand-in processes:
 the warm pool, starting without duplicates, releases, exits and overdue stops."""
 
+import json
 from collections import Counter
 
 import pytest
 
 from services import supervisor as supervisor_module
 from services.supervisor import Supervisor
-from ubitrack_agent.net.host_protocol import STOP_COMMAND
+from ubitrack_agent.net.host_protocol import STOP_COMMAND, ProtocolError
 from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 
 KEYS = KeySpace("ubitrack/test")
 
@@ -218,3 +219,132 @@ def test_terminate_all_ends_every_process(make, clock):
     supervisor.terminate_all()
     assert all(process.returncode is not None for process in spawned)
     assert supervisor.status()["instances"] == {}
+
+
+# -- containers (issue 28) -----------------------------------------------------------------------
+
+
+def commands(session: FakeSession, key: str) -> list[dict]:
+    return [json.loads(payload) for k, payload in session.puts if k == key]
+
+
+def container_ready(supervisor: Supervisor, name: str) -> None:
+    box = supervisor.containers[name]
+    supervisor.on_container_token(name, f"{box.process.pid + 1}.x", appeared=True)  # not its
+    assert not box.ready
+    supervisor.on_container_token(name, f"{box.process.pid}.x", appeared=True)
+    assert box.ready
+
+
+def test_a_group_starts_a_container_from_the_pool_and_later_ones_are_added(make, clock):
+    supervisor, session, spawned = make(pool_size=1)
+    pool_id = ready_pool(supervisor, spawned, clock)
+    first = supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))))
+    assert first.pid == spawned[0].pid and [s.instance for s in first.started] == ["a", "b"]
+    assert commands(session, KEYS.pool(pool_id)) == [
+        GroupSpec("lab-0", (spec("a"), spec("b"))).as_dict()
+    ]
+    # the container is not taking commands yet: an add waits for its token
+    later = supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("c"))))
+    assert [(s.instance, s.reused) for s in later.started] == [("a", True), ("c", False)]
+    assert commands(session, KEYS.control("lab-0")) == []
+    container_ready(supervisor, "lab-0")
+    assert commands(session, KEYS.control("lab-0")) == [{"add": [spec("c").as_dict()]}]
+    assert len(spawned) == 1  # no process started for the add
+    status = supervisor.status()
+    assert status["instances"]["c"]["container"] == "lab-0"
+    assert status["containers"] == {"lab-0": {"pid": spawned[0].pid, "ready": True}}
+
+
+def test_a_cold_container_is_given_its_group_once_its_pool_token_is_up(make, clock):
+    supervisor, session, spawned = make(pool_size=0)
+    supervisor.start_group(GroupSpec("lab-0", (spec("a"),)))
+    assert len(spawned) == 1 and spawned[0].arguments[1:] == ()  # a pool member, no spec
+    pool_id = spawned[0].arguments[0]
+    assert commands(session, KEYS.pool(pool_id)) == []
+    supervisor.on_pool_token(pool_id, appeared=True)
+    assert commands(session, KEYS.pool(pool_id)) == [GroupSpec("lab-0", (spec("a"),)).as_dict()]
+    supervisor.on_pool_token(pool_id, appeared=True)  # again: given once
+    assert len(commands(session, KEYS.pool(pool_id))) == 1
+
+
+def test_stops_remove_components_and_an_empty_container_ends(make, clock):
+    supervisor, session, spawned = make(pool_size=0)
+    supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))))
+    container_ready(supervisor, "lab-0")
+    assert supervisor.stop("a") == "removed"
+    assert commands(session, KEYS.control("lab-0")) == [{"remove": ["a"]}]
+    assert KEYS.control("a") not in {k for k, _ in session.puts}
+    supervisor.stop("b")
+    supervisor.start_group(GroupSpec("lab-0", (spec("b", source="ir/HT"),)))  # b restarted
+    supervisor.reap()
+    clock[0] += supervisor_module.EMPTY_GRACE_S + 1
+    supervisor.reap()
+    assert "lab-0" in supervisor.containers  # b runs in it again
+    supervisor.stop("b")
+    supervisor.reap()
+    clock[0] += supervisor_module.EMPTY_GRACE_S + 1
+    supervisor.reap()
+    assert supervisor.containers == {}
+    assert commands(session, KEYS.control("lab-0"))[-1] == {"stop": True}
+    clock[0] += supervisor_module.STOP_GRACE_S + 1
+    supervisor.reap()
+    assert spawned[0].signals == ["KILL"]  # it did not end: killed
+
+
+def test_a_component_moves_between_containers_of_the_host(make, clock):
+    supervisor, session, _spawned = make(pool_size=0)
+    supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))))
+    supervisor.start_group(GroupSpec("lab-1", (spec("c"),)))
+    container_ready(supervisor, "lab-0")
+    container_ready(supervisor, "lab-1")
+    moved = supervisor.start_group(GroupSpec("lab-1", (spec("a"),)))
+    assert not moved.started[0].reused and supervisor.assigned["a"].container == "lab-1"
+    assert commands(session, KEYS.control("lab-0")) == [{"remove": ["a"]}]
+    assert commands(session, KEYS.control("lab-1")) == [{"add": [spec("a").as_dict()]}]
+
+
+def test_a_dead_container_is_restored_with_its_components_until_it_dies_too_quickly(make, clock):
+    supervisor, session, spawned = make(pool_size=0)
+    runs = {
+        s.instance: s.run
+        for s in supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b")))).started
+    }
+    container_ready(supervisor, "lab-0")
+    clock[0] += supervisor_module.QUICK_RESTORE_S + 1
+    spawned[0].returncode = -9
+    exits = supervisor.reap()
+    assert [(e.instance, e.run, e.pid, e.reason) for e in exits] == [
+        ("a", runs["a"], spawned[1].pid, "restored"),
+        ("b", runs["b"], spawned[1].pid, "restored"),
+    ]
+    supervisor.on_pool_token(spawned[1].arguments[0], appeared=True)
+    group = commands(session, KEYS.pool(spawned[1].arguments[0]))
+    assert [c["instance"] for c in group[0]["components"]] == ["a", "b"]
+    assert supervisor.counters["containers_restored"] == 1
+    for _ in range(supervisor_module.MAX_QUICK_RESTORES):  # each dies at once
+        spawned[-1].returncode = 1
+        assert {e.reason for e in supervisor.reap()} == {"restored"}
+    spawned[-1].returncode = 1
+    exits = supervisor.reap()
+    assert {(e.instance, e.reason) for e in exits} == {("a", "exited"), ("b", "exited")}
+    assert supervisor.assigned == {} and supervisor.containers == {}
+
+
+def test_a_component_that_left_by_its_own_stop_is_reported_released(make, clock):
+    supervisor, _session, spawned = make(pool_size=0)
+    supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))))
+    pid = spawned[0].pid
+    other = json.dumps({"instances": ["a"], "incarnation": f"{pid + 5}.x"}).encode()
+    assert supervisor.on_left("lab-0", other) == []  # another process's
+    report = json.dumps({"instances": ["a", "zzz"], "incarnation": f"{pid}.x"}).encode()
+    exits = supervisor.on_left("lab-0", report)
+    assert [(e.instance, e.reason, e.returncode) for e in exits] == [("a", "released", None)]
+    assert set(supervisor.assigned) == {"b"}
+    for bad in (
+        b"{",
+        b"[]",
+        json.dumps({"instances": ["a/b"], "incarnation": f"{pid}.x"}).encode(),
+    ):
+        with pytest.raises(ProtocolError):
+            supervisor.on_left("lab-0", bad)

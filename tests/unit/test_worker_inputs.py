@@ -20,7 +20,7 @@ from services.worker import COUNTERS, Pool, Worker
 from ubitrack_agent.core import ErrorPose, Pose, Position3D, decode, encode
 from ubitrack_agent.core.timeline import MAX_FUTURE_NS
 from ubitrack_agent.net.keys import KeySpace, RelationId
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 
 KEYS = KeySpace("ubitrack/test")
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
@@ -290,6 +290,9 @@ def test_an_unexpected_fault_is_counted_not_raised(worker, monkeypatch):
         json.dumps({**SPEC.as_dict(), "service": "os.system"}).encode(),
         json.dumps({**SPEC.as_dict(), "parameters": {"x": 1e400}}).encode(),
         json.dumps({**SPEC.as_dict(), "relations": {"AC": ["not/a/relation"]}})[:-1].encode(),
+        json.dumps({"container": "c", "components": [{**SPEC.as_dict(), "service": "x"}]}).encode(),
+        json.dumps({"container": "c", "components": [SPEC.as_dict()], "x": 1}).encode(),
+        json.dumps({"container": "*", "components": []}).encode(),
     ],
 )
 def test_an_idle_pool_worker_rejects_a_bad_specification_and_keeps_waiting(payload):
@@ -297,6 +300,8 @@ def test_an_idle_pool_worker_rejects_a_bad_specification_and_keeps_waiting(paylo
     assert pool._read_spec(payload) is None
     assert pool.counters["rejected_specs"] == 1
     assert pool._read_spec(SPEC.to_json().encode()) == SPEC
+    group = GroupSpec("c", (SPEC,))
+    assert pool._read_spec(group.to_json().encode()) == group  # the member becomes a container
 
 
 def test_a_relation_route_that_is_no_relation_key_does_not_stop_the_worker():

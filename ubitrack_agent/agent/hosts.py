@@ -8,12 +8,14 @@ starting and stopping workers over zenoh only (``docs/protocol.md``).
   a host without labels. An instance it runs that has no placement (a worker adopted from an
   earlier agent, or the old process of a move whose new host vanished) gets it from there.
 * A start goes to the host manager :mod:`.placement` chose, as a ``get`` on
-  ``<root>/host/<name>/request`` with a timeout; the reply names the run, remembered with the
-  host as the instance's :class:`Placement`. With no host manager alive, or no answer, or a
-  refusal, the start does not happen and the runtime asks again on a later pass (a refused or
-  unanswered instance after ``START_RETRY_S``; a host manager that did not answer is left
-  alone for as long). A host manager starts nothing twice: it answers a repeated start of a
-  running instance with the same run.
+  ``<root>/host/<name>/request`` with a timeout: the components of one container
+  (``agent.placement.group_containers``) in one ``start_group`` request (split only where it
+  would pass the protocol's message size); the reply names each one's run, remembered with
+  the host and the container as the instance's :class:`Placement`. With no host manager
+  alive, or no answer, or a refusal, the start does not happen and the runtime asks again on
+  a later pass (a refused or unanswered instance after ``START_RETRY_S``; a host manager that
+  did not answer is left alone for as long). A host manager starts nothing twice: it answers
+  a repeated start of a running instance with the same run.
 * A stop goes to the instance's host manager; an instance without one (adopted from an earlier
   agent, or whose host manager vanished or does not answer) is stopped by putting the stop
   command on its control key.
@@ -21,8 +23,10 @@ starting and stopping workers over zenoh only (``docs/protocol.md``).
   ``<root>/host/<name>/exited``; a report matching the instance's placement (same host, same
   run) means it must be started again. Only those reports end a placed instance: its worker
   token vanishing is not enough (the token of an instance started again may replace the old
-  one before the old one's removal arrives). When a host manager vanishes, its instances lose
-  their placement; those not alive must be started again.
+  one before the old one's removal arrives). A report that the instance's container died and
+  was restored keeps its placement: the instance is listed in :attr:`Hosts.restored`, with the
+  new process's pid, for the agent to send it its current wiring. When a host manager
+  vanishes, its instances lose their placement; those not alive must be started again.
 
 Zenoh callbacks only queue; everything else runs on the agent's thread (:meth:`Hosts.reap`).
 """
@@ -32,7 +36,7 @@ from __future__ import annotations
 import logging
 import queue
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import zenoh
@@ -40,19 +44,20 @@ import zenoh
 from ubitrack_agent.agent.problems import Problems
 from ubitrack_agent.net.clock import ClockEstimate
 from ubitrack_agent.net.host_protocol import (
+    MAX_MESSAGE_BYTES,
     STOP_COMMAND,
     Exited,
     HostInfo,
     ProtocolError,
     Request,
-    Start,
-    Started,
+    StartedGroup,
+    StartGroup,
     Status,
     Stop,
     encode_request,
 )
 from ubitrack_agent.net.keys import KeyRejection, KeySpace
-from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec
 from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.agent")
@@ -70,11 +75,13 @@ PUT = "SampleKind.PUT"
 @dataclass(frozen=True)
 class Placement:
     """Where an instance runs: the host manager that started it, the run it named, and the
-    process's pid (which the worker's token incarnation carries; not compared)."""
+    process's pid (which the worker's token incarnation carries) and container (None: a
+    process of its own); neither compared."""
 
     host: str
     run: str
     pid: int = field(default=0, compare=False)
+    container: str | None = field(default=None, compare=False)
 
 
 class Hosts:
@@ -93,6 +100,9 @@ class Hosts:
         still run."""
         self._info_due: dict[str, float] = {}
         self.placements: dict[str, Placement] = {}
+        self.restored: dict[str, int] = {}
+        """Instances whose container died and was restored by its host manager, with the new
+        process's pid: the agent takes them (and sends each its current wiring)."""
         self._retry_at: dict[str, float] = {}
         self._silent_until: dict[str, float] = {}
         self._waiting = False
@@ -122,27 +132,44 @@ class Hosts:
             self._waiting = True
         return {host: self.info.get(host, HostInfo(host)) for host in self._answering()}
 
-    def start(self, spec: ComponentSpec, host: str) -> bool:
-        """Have ``host``'s manager run ``spec``; False if it did not (ask again later). An
-        instance running elsewhere is started there too: the agent keeps the new process
-        and stops the other (a move, make before break)."""
-        instance = spec.instance
-        if time.monotonic() < self._retry_at.get(instance, 0.0):
-            return False
-        if host not in self._answering():
-            return False
-        try:
-            started = Started.parse(self._request(host, Start(spec)))
-        except ProtocolError as exc:
-            self._retry_at[instance] = time.monotonic() + START_RETRY_S
-            self._problems.report(
-                "refused_starts", "%s: host %s did not start it: %s", instance, host, exc
+    def start_group(self, group: GroupSpec, host: str) -> list[str]:
+        """Have ``host``'s manager run ``group``'s components in its container; the instances
+        it started (ask again later for the others). An instance running elsewhere is started
+        there too: the agent keeps the new process and stops the other (a move, make before
+        break). O(components) and one request per :data:`MAX_MESSAGE_BYTES` of them."""
+        now = time.monotonic()
+        specs = [spec for spec in group.components if now >= self._retry_at.get(spec.instance, 0)]
+        started: list[str] = []
+        for part in _parts(specs):
+            if host not in self._answering():
+                break
+            try:
+                reply = StartedGroup.parse(
+                    self._request(host, StartGroup(GroupSpec(group.container, part)))
+                )
+            except ProtocolError as exc:
+                for spec in part:
+                    self._retry_at[spec.instance] = time.monotonic() + START_RETRY_S
+                self._problems.report(
+                    "refused_starts",
+                    "%d components: host %s did not start them in %s: %s",
+                    len(part),
+                    host,
+                    group.container,
+                    exc,
+                )
+                continue
+            for one in reply.started:
+                self._retry_at.pop(one.instance, None)
+                self.placements[one.instance] = Placement(host, one.run, one.pid, reply.container)
+                started.append(one.instance)
+            log.info(
+                "%d components started on host %s in container %s",
+                len(reply.started),
+                host,
+                reply.container,
             )
-            return False
-        self._retry_at.pop(instance, None)
-        self.placements[instance] = Placement(host, started.run, started.pid)
-        log.info("%s: started on host %s (run %s)", instance, host, started.run)
-        return True
+        return started
 
     def stop(self, instance: str) -> bool:
         """Stop ``instance`` through its host manager, else with the stop command; True if a
@@ -254,9 +281,9 @@ class Hosts:
         if self.info.get(host, HostInfo(host)).labels != info.labels:
             log.info("host manager %s has labels %s", host, ", ".join(sorted(info.labels)))
         self.info[host] = info
-        for instance, (run, pid) in sorted(info.runs.items()):
+        for instance, (run, pid, container) in sorted(info.runs.items()):
             if instance not in self.placements:  # adopted, or a move failed half-way
-                self.placements[instance] = Placement(host, run, pid)
+                self.placements[instance] = Placement(host, run, pid, container)
                 log.info("%s: runs on host %s (run %s)", instance, host, run)
         if info.clock is not None:
             self._clocks[host] = (info.clock, time.monotonic())
@@ -292,8 +319,14 @@ class Hosts:
                 "rejected_host_reports", "ignored exit report of %s: %s", host, exc
             )
             return []
-        if self.placements.get(exited.instance) != Placement(host, exited.run):
+        placement = self.placements.get(exited.instance)
+        if placement != Placement(host, exited.run):
             return []  # an earlier run, or not ours
+        if exited.reason == "restored":
+            log.warning("%s: its container on host %s was restored", exited.instance, host)
+            self.placements[exited.instance] = replace(placement, pid=exited.pid)
+            self.restored[exited.instance] = exited.pid
+            return []
         del self.placements[exited.instance]
         log.warning("%s: worker ended on host %s (%s)", exited.instance, host, exited.reason)
         return [exited.instance]
@@ -301,6 +334,24 @@ class Hosts:
     def close(self) -> None:
         self._watch.undeclare()
         self._exits.undeclare()
+
+
+def _parts(specs: list[ComponentSpec]) -> list[tuple[ComponentSpec, ...]]:
+    """``specs`` in runs whose start_group request stays well below the protocol's message
+    size (half of :data:`MAX_MESSAGE_BYTES`: the request wraps them)."""
+    parts: list[tuple[ComponentSpec, ...]] = []
+    part: list[ComponentSpec] = []
+    size = 0
+    for spec in specs:
+        length = len(spec.to_json())
+        if part and size + length > MAX_MESSAGE_BYTES // 2:
+            parts.append(tuple(part))
+            part, size = [], 0
+        part.append(spec)
+        size += length
+    if part:
+        parts.append(tuple(part))
+    return parts
 
 
 def _reply_bytes(reply: Any) -> bytes | None:

@@ -32,6 +32,7 @@ The rule, pure and deterministic (:func:`place`):
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping, Set
 from dataclasses import dataclass
 
@@ -196,9 +197,10 @@ def group_containers(
     2. **One container per core**: a host's derivations share ``cores[host]`` containers (at
        least one) named ``<host>-<k>``; the largest derivation goes first, each into the
        container holding the fewest components so far (ties: the lower ``k``).
-    3. **Stable**: a derivation whose components already run in one of those containers
-       (``current``: instance -> container) stays there, so a change of plan moves nothing it
-       need not move (a move is a stop and a start).
+    3. **Stable**: a component already running in one of those containers (``current``:
+       instance -> container) stays there, so a change of plan moves nothing (a move would
+       stop and start it, losing its state); the new components of a derivation that runs
+       go to the container holding most of its components (ties: the name first in order).
     4. **Isolation**: an instance in ``isolated`` (its template asks for it: a real camera
        adapter, OpenCV-heavy or untrusted code), and every component of a host in
        ``isolating_hosts``, runs alone in ``<host>-<instance>``.
@@ -221,11 +223,17 @@ def group_containers(
         filled: dict[str, list[ComponentSpec]] = {name: [] for name in containers}
         pending = []
         for derivation in _derivations(shared):
-            kept = {current.get(spec.instance) for spec in derivation} & set(containers)
-            if len(kept) == 1:
-                filled[kept.pop()].extend(derivation)
-            else:
+            running = Counter(
+                name for spec in derivation if (name := current.get(spec.instance)) in filled
+            )
+            if not running:
                 pending.append(derivation)
+                continue
+            home = min(running, key=lambda name: (-running[name], name))
+            for spec in derivation:
+                filled[
+                    current[spec.instance] if current.get(spec.instance) in filled else home
+                ].append(spec)
         for derivation in sorted(pending, key=len, reverse=True):  # stable: ties keep order
             emptiest = min(containers, key=lambda name: (len(filled[name]), name))
             filled[emptiest].extend(derivation)

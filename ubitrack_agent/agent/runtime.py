@@ -27,16 +27,20 @@ before a newer event is dropped; plans of regions that did not change come from 
 :mod:`.plan_memo`), turns the merged data flow into worker specifications (:mod:`.materialise`) and
 reconciles the running workers with them (:mod:`.reconcile`): start or stop (through a host
 manager, over zenoh only: :mod:`.hosts`), or rewire in place with a control command. Each start
-goes to the host :mod:`.placement` chooses, near the data the component reads; a running component
-moves (started on the new host, then its old process stopped) only when another host is better by
-the placement's margin. A start no host manager took is tried again on a later pass. A worker that
-ends on its own (or whose host vanished with it) is started again where placement says; a worker
-alive but not known (left by an earlier agent) is adopted if wanted, stopped otherwise, but only
-once it has been unwanted for ``ORPHAN_GRACE_S`` after start-up settled (``SETTLE_S``). Planning
-prefers the components that are alive, adopted or not, so a restarted agent replans onto what runs.
-A stop the agent puts itself (for a worker no host manager owns) is put again every
-``STOP_RESEND_S`` while the worker's token stays up and nothing wants it. Events are handled on the
-agent's own thread; zenoh callbacks only queue them.
+goes to the host :mod:`.placement` chooses, near the data the component reads, and into the
+container there that :func:`.placement.group_containers` chooses (one per core the host may
+use, a derivation's components together): the components of one container in one request, added
+to it if it runs (no process start). A running component moves (started on the new host, then
+its old process stopped) only when another host is better by the placement's margin; within a
+host it never moves. A component whose container died and was restored by its host manager is
+sent its current wiring once it is back. A start no host manager took is tried again on a later
+pass. A worker that ends on its own (or whose host vanished with it) is started again where
+placement says; a worker alive but not known (left by an earlier agent) is adopted if wanted,
+stopped otherwise, but only once it has been unwanted for ``ORPHAN_GRACE_S`` after start-up
+settled (``SETTLE_S``). Planning prefers the components that are alive, adopted or not, so a
+restarted agent replans onto what runs. A stop the agent puts itself (for a worker no host
+manager owns) is put again every ``STOP_RESEND_S`` while the worker's token stays up and nothing
+wants it. Events are handled on the agent's own thread; zenoh callbacks only queue them.
 
 Nothing from the network can end the agent: every key is parsed by ``KeySpace.parse_token``
 and every fragment by :func:`.announcements.fragment_entries`, which return a value or a
@@ -76,7 +80,7 @@ from ubitrack_agent.agent.liveness import (
     parse_report,
 )
 from ubitrack_agent.agent.loop_times import LoopTimes
-from ubitrack_agent.agent.placement import place
+from ubitrack_agent.agent.placement import group_containers, place
 from ubitrack_agent.agent.plan_memo import PlanMemo
 from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, make_outcome
 from ubitrack_agent.agent.problems import Guard, Problems
@@ -88,7 +92,7 @@ from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
-from ubitrack_agent.net.spec import ComponentSpec
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec
 from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.agent")
@@ -200,6 +204,9 @@ class Agent:
         self._retiring: dict[str, float] = {}
         self._held: dict[str, tuple[dict[str, Any], float]] = {}
         """Rewires waiting for the workers being started: command and deadline, by instance."""
+        self._restored: dict[str, int] = {}
+        """Components whose container was restored, with its new pid: their current wiring is
+        sent once their token from that process is up."""
         self._events: queue.SimpleQueue[tuple[str, str, str]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._status_json = "{}"
@@ -535,12 +542,11 @@ class Agent:
                 self._stop_worker(instance)  # replaced by another specification at once
             else:
                 self._retiring[instance] = time.monotonic() + RETIRE_S
-        started = [
-            spec
-            for spec in actions.start
-            if spec.instance in placement and self.hosts.start(spec, placement[spec.instance])
-        ]
-        self._move(placement, restarted)
+        containers = _Containers(self, placement)
+        started = self._start(
+            [spec for spec in actions.start if spec.instance in placement], placement, containers
+        )
+        self._move(placement, restarted, containers)
         for spec in started:
             self.running[spec.instance] = spec
             self._stopped.pop(spec.instance, None)
@@ -604,15 +610,35 @@ class Agent:
         self.clock_problems = problems
         return wanted
 
-    def _move(self, placement: dict[str, str], restarted: set[str]) -> None:
-        """Start each running instance that placement puts on another host there (its old
-        process is then stopped as a duplicate, :meth:`_stop_duplicates`: make before break)."""
+    def _start(
+        self, specs: list[ComponentSpec], placement: dict[str, str], containers: _Containers
+    ) -> list[ComponentSpec]:
+        """Start ``specs`` on their hosts, in their containers: one request per container
+        (:meth:`.hosts.Hosts.start_group`); those started."""
+        by_container: dict[tuple[str, str], list[ComponentSpec]] = defaultdict(list)
+        for spec in specs:
+            host = placement[spec.instance]
+            by_container[host, containers.of(spec.instance)].append(spec)
+        started: set[str] = set()
+        for (host, container), members in sorted(by_container.items()):
+            started.update(self.hosts.start_group(GroupSpec(container, tuple(members)), host))
+        return [spec for spec in specs if spec.instance in started]
+
+    def _move(
+        self, placement: dict[str, str], restarted: set[str], containers: _Containers
+    ) -> None:
+        """Start each running instance that placement puts on another host there, in its
+        container there (its old process is then stopped as a duplicate,
+        :meth:`_stop_duplicates`: make before break)."""
         for instance, spec in self.running.items():
             placed = self.hosts.placements.get(instance)
             target = placement.get(instance)
             if instance in restarted or placed is None or target in (None, placed.host):
                 continue
-            if instance in self.alive and self.hosts.start(spec, target):
+            if instance not in self.alive:
+                continue
+            group = GroupSpec(containers.of(instance), (spec,))
+            if self.hosts.start_group(group, target):
                 self.counters["moves"] += 1
                 log.info("%s: moved from host %s to %s", instance, placed.host, target)
 
@@ -824,11 +850,28 @@ class Agent:
         return batch
 
     def _reap_hosts(self) -> None:
-        """Apply host managers' tokens and exit reports: forget the instances that ended."""
+        """Apply host managers' tokens and exit reports: forget the instances that ended; send
+        the components of a restored container their current wiring once they are back."""
         for instance in self.hosts.reap(self.alive):
             self._held.pop(instance, None)
             if self.running.pop(instance, None) is not None:
                 self.counters["restarts"] += 1
+        restored, self.hosts.restored = self.hosts.restored, {}
+        for instance, pid in restored.items():
+            if instance in self.running:
+                self._restored[instance] = pid
+                self.counters["restored"] += 1
+        for instance, pid in list(self._restored.items()):
+            spec = self.running.get(instance)
+            if spec is None:
+                del self._restored[instance]
+            elif any(i.partition(".")[0] == str(pid) for i in self.incarnations.get(instance, ())):
+                del self._restored[instance]
+                wiring = spec.as_dict()
+                self._send_control(
+                    instance,
+                    {k: wiring[k] for k in ("inputs", "outputs", "relations", "parameters")},
+                )
 
     def _refresh_status(self) -> None:
         self.loop_times.window()
@@ -873,6 +916,7 @@ class Agent:
                     "processes": sorted(self.incarnations.get(instance, ())),
                     "host": placement.host if (placement := placements.get(instance)) else None,
                     "pid": placement.pid if placement else None,
+                    "container": placement.container if placement else None,
                     "derives": _derived_edges(plan, instance, self._folded),
                 }
                 for instance, spec in self.wanted.items()
@@ -953,6 +997,29 @@ class Agent:
         self._planner.close()
         self.hosts.close()
         self.session.close()
+
+
+class _Containers:
+    """The container of each placed instance for one reconcile pass
+    (:func:`.placement.group_containers` over the wanted components, with the containers the
+    running ones are in), grouped when first asked: O(components + bindings)."""
+
+    def __init__(self, agent: Agent, placement: dict[str, str]) -> None:
+        self._agent, self._placement = agent, placement
+        self._of: dict[str, str] | None = None
+
+    def of(self, instance: str) -> str:
+        if self._of is None:
+            agent = self._agent
+            cores = {host: info.cores for host, info in agent.hosts.info.items()}
+            current = {
+                i: p.container
+                for i, p in agent.hosts.placements.items()
+                if p.container is not None and p.host == self._placement.get(i)
+            }
+            groups = group_containers(agent.wanted, self._placement, cores, current=current)
+            self._of = {s.instance: name for name, g in groups.items() for s in g.components}
+        return self._of[instance]
 
 
 def _derived_edges(plan: Plan | None, instance: str, folded: Mapping[str, str]) -> list[list[str]]:

@@ -36,4 +36,5 @@ def run(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         labels=args.labels,
         capacity=args.capacity,
+        cores=args.cores,
     )

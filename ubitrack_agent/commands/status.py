@@ -70,6 +70,7 @@ def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> s
     components = status.get("components", {})
     for instance, component in components.items():
         where = f"\non {component['host']}" if component.get("host") else ""
+        where += f"\nin {component['container']}" if component.get("container") else ""
         colour = "black" if component.get("alive") else "grey"
         name = component.get("pattern") or component["service"]
         label = f"{name}\n{instance}{where}"
@@ -283,6 +284,7 @@ def run(args: argparse.Namespace) -> int:
     for instance, component in status["components"].items():
         state = "alive" if component["alive"] else "starting"
         where = f" on {component['host']}" if component.get("host") else ""
+        where += f" in {component['container']}" if component.get("container") else ""
         print(
             f"worker {instance} ({component['service']}, {state}{where}): {component['counters']}"
         )

@@ -4,14 +4,21 @@
 A request is one JSON object, the payload of a ``get`` on ``<root>/host/<name>/request``::
 
     {"op": "start", "spec": {<component specification, ubitrack_agent.net.spec>}}
+    {"op": "start_group", "group": {<group: a container and its components>}}
     {"op": "stop", "instance": "<instance>"}
     {"op": "status"}
 
-Success is an ordinary reply holding a JSON object (:class:`Started` for a start; see the host
-manager for stop and status); a refusal is an error reply (zenoh ``reply_err``) holding
-``{"error": "<type>", "reason": "<text>"}``, the type one of :data:`ERRORS`. A host manager
-reports a worker that ended without being asked by putting an :class:`Exited` on
-``<root>/host/<name>/exited``.
+A ``start_group`` runs the group's components in the container it names (``services.container``,
+one process hosting many components): started with them if it does not run, else they are
+added to the running process (no process start). Starting N components on a host is one
+request. A stop of a component in a container removes it from there; the container ends with
+its last component.
+
+Success is an ordinary reply holding a JSON object (:class:`Started` for a start,
+:class:`StartedGroup` for a start_group; see the host manager for stop and status); a refusal
+is an error reply (zenoh ``reply_err``) holding ``{"error": "<type>", "reason": "<text>"}``,
+the type one of :data:`ERRORS`. A host manager reports a worker that ended without being asked
+by putting an :class:`Exited` on ``<root>/host/<name>/exited``.
 
 Everything here is pure and total over its input: malformed bytes raise :class:`ProtocolError`
 (a ``ValueError``) naming the field, whatever they hold.
@@ -30,10 +37,11 @@ from ubitrack_agent.core.names import check_label
 from ubitrack_agent.net.clock import ClockEstimate, ClockRejection, parse_clock_status
 from ubitrack_agent.net.json_messages import MessageError, field, load_object
 from ubitrack_agent.net.keys import validate_key_chunks
-from ubitrack_agent.net.spec import ComponentSpec, SpecError, parse_spec
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, SpecError, parse_group, parse_spec
 
 MAX_MESSAGE_BYTES = 256 * 1024
-"""Largest request or report accepted; a specification takes a few kilobytes."""
+"""Largest request or report accepted; a specification takes a few kilobytes (the agent splits
+a larger start_group into several requests)."""
 
 ERRORS = (
     "malformed_request",
@@ -49,9 +57,12 @@ malformed or names no registered service; the worker process could not be starte
 manager already runs as many workers as its capacity; a fault of the host manager itself
 (logged there)."""
 
-EXIT_REASONS = ("exited", "released")
+EXIT_REASONS = ("exited", "released", "restored")
 """Why an instance ended without its host manager being asked: its process exited, or a stop
-command from elsewhere released the process (it went back to the pool)."""
+command from elsewhere released the process (it went back to the pool, or left its
+container); or its container died and the host manager started it again with the instance
+(``restored``: the report's ``pid`` is the new process's, and the instance runs there with the
+specification it was started with, under the same run: the agent sends its current wiring)."""
 
 STOP_COMMAND = json.dumps({"stop": True})
 """The control command that ends a worker (``services.worker``), put on its control key."""
@@ -87,6 +98,13 @@ class Start:
 
 
 @dataclass(frozen=True)
+class StartGroup:
+    """Run ``group``'s components in its container (started with them, or added to it)."""
+
+    group: GroupSpec
+
+
+@dataclass(frozen=True)
 class Stop:
     """Stop ``instance``: its stop command is put on its control key, its process released."""
 
@@ -98,13 +116,15 @@ class Status:
     """Answer the host manager's state."""
 
 
-Request = Start | Stop | Status
+Request = Start | StartGroup | Stop | Status
 
 
 def encode_request(request: Request) -> str:
     """The JSON payload of ``request``."""
     if isinstance(request, Start):
         return json.dumps({"op": "start", "spec": request.spec.as_dict()})
+    if isinstance(request, StartGroup):
+        return json.dumps({"op": "start_group", "group": request.group.as_dict()})
     if isinstance(request, Stop):
         return json.dumps({"op": "stop", "instance": request.instance})
     return json.dumps({"op": "status"})
@@ -115,7 +135,12 @@ def parse_request(payload: bytes | None) -> Request:
     of a start is checked for form only (``services.spec.check_spec`` checks the service)."""
     data = _json_object(payload)
     op = data.get("op")
-    fields = {"start": {"op", "spec"}, "stop": {"op", "instance"}, "status": {"op"}}
+    fields = {
+        "start": {"op", "spec"},
+        "start_group": {"op", "group"},
+        "stop": {"op", "instance"},
+        "status": {"op"},
+    }
     if not isinstance(op, str) or op not in fields:
         raise ProtocolError("malformed_request", f"op: expected one of {sorted(fields)}")
     if set(data) != fields[op]:
@@ -126,6 +151,14 @@ def parse_request(payload: bytes | None) -> Request:
             raise ProtocolError("malformed_request", "spec: expected an object")
         try:
             return Start(parse_spec(spec))
+        except SpecError as exc:
+            raise ProtocolError("refused_spec", str(exc)) from None
+    if op == "start_group":
+        group = data["group"]
+        if not isinstance(group, dict):
+            raise ProtocolError("malformed_request", "group: expected an object")
+        try:
+            return StartGroup(parse_group(group))
         except SpecError as exc:
             raise ProtocolError("refused_spec", str(exc)) from None
     if op == "stop":
@@ -154,6 +187,36 @@ class Started:
         if not isinstance(reused, bool):
             raise ProtocolError("malformed_request", "reused: expected true or false")
         return cls(_name(data, "instance"), _name(data, "run"), _field(data, "pid", int), reused)
+
+
+@dataclass(frozen=True)
+class StartedGroup:
+    """The reply to a start_group: the container's process (``pid``) and each component's
+    :class:`Started` (its pid the container's)."""
+
+    container: str
+    pid: int
+    started: tuple[Started, ...]
+
+    def to_json(self) -> str:
+        return json.dumps(
+            {
+                "container": self.container,
+                "pid": self.pid,
+                "started": [asdict(started) for started in self.started],
+            }
+        )
+
+    @classmethod
+    def parse(cls, payload: bytes) -> StartedGroup:
+        data = _json_object(payload)
+        entries = _field(data, "started", list)
+        started = []
+        for entry in entries:
+            if not isinstance(entry, dict):
+                raise ProtocolError("malformed_request", "started: expected objects")
+            started.append(Started.parse(json.dumps(entry).encode()))
+        return cls(_name(data, "container"), _field(data, "pid", int), tuple(started))
 
 
 @dataclass(frozen=True)
@@ -193,26 +256,33 @@ MAX_LABELS = 32
 MAX_CAPACITY = 10_000
 """Largest capacity (workers at most) a host manager may announce."""
 DEFAULT_CAPACITY = 64
-"""Workers a host manager runs at most unless told (each holds about 100 MB)."""
+"""Components a host manager runs at most unless told."""
+MAX_CORES = 1024
+"""Most containers a host manager may announce it runs its shared components in."""
 
 
 @dataclass(frozen=True)
 class HostInfo:
     """What a host manager says of itself in its status reply, and all placement and clock
     correction use (``agent.placement``, ``agent.clocks``): its ``labels`` (``camera``,
-    ``gpu``, ``hmd``...), how many workers it runs at most (``capacity``), its CPU load per
-    core (``cpu_load``: the one-minute load average over the cores; 1.0 is every core busy),
-    and its clock's offset to the agent's (``clock``, None until measured)."""
+    ``gpu``, ``hmd``...), how many components it runs at most (``capacity``), how many
+    containers its components share (``cores``: one per CPU core it may use, the agent's
+    grouping rule, ``agent.placement.group_containers``), its CPU load per core (``cpu_load``:
+    the one-minute load average over the cores; 1.0 is every core busy), and its clock's offset
+    to the agent's (``clock``, None until measured)."""
 
     name: str
     labels: frozenset[str] = frozenset()
     capacity: int = DEFAULT_CAPACITY
     cpu_load: float = 0.0
     clock: ClockEstimate | None = None
-    runs: Mapping[str, tuple[str, int]] = dataclass_field(default_factory=dict, compare=False)
-    """The instances it runs, with their run and pid (its status's ``instances``): how the
-    agent finds where a worker runs that it has no placement for (adopted, or left alone by
-    a move that failed half-way)."""
+    runs: Mapping[str, tuple[str, int, str | None]] = dataclass_field(
+        default_factory=dict, compare=False
+    )
+    """The instances it runs, with their run, pid and container (None: a worker process of
+    its own; its status's ``instances``): how the agent finds where a component runs that it
+    has no placement for (adopted, or left alone by a move that failed half-way)."""
+    cores: int = 1
 
     def as_dict(self) -> dict[str, Any]:
         """The fields as they appear in the status reply (the clock as of now: age 0)."""
@@ -220,6 +290,7 @@ class HostInfo:
             "name": self.name,
             "labels": sorted(self.labels),
             "capacity": self.capacity,
+            "cores": self.cores,
             "cpu_load": self.cpu_load,
             "clock": None if self.clock is None else self.clock.as_status(0.0),
         }
@@ -227,7 +298,8 @@ class HostInfo:
     @classmethod
     def parse(cls, payload: bytes) -> HostInfo:
         """The host information in a status reply (other fields are ignored; a missing
-        ``clock`` is None); :class:`ProtocolError` naming the field if it is malformed."""
+        ``clock`` is None, missing ``cores`` 1); :class:`ProtocolError` naming the field if it
+        is malformed."""
         data = _json_object(payload)
         labels = _field(data, "labels", list)
         if len(labels) > MAX_LABELS:
@@ -242,12 +314,15 @@ class HostInfo:
         clock = parse_clock_status(data.get("clock"))
         if isinstance(clock, ClockRejection):
             raise ProtocolError("malformed_request", clock.reason)
+        cores = data.get("cores", 1)
+        if type(cores) is not int or not 1 <= cores <= MAX_CORES:
+            raise ProtocolError("malformed_request", f"cores: expected 1 to {MAX_CORES}")
         runs = _runs(data.get("instances", {}))
-        return cls(_name(data, "name"), names, capacity, float(cpu_load), clock, runs)
+        return cls(_name(data, "name"), names, capacity, float(cpu_load), clock, runs, cores)
 
 
-def _runs(value: Any) -> dict[str, tuple[str, int]]:
-    """The ``instances`` of a status reply: instance -> (run, pid)."""
+def _runs(value: Any) -> dict[str, tuple[str, int, str | None]]:
+    """The ``instances`` of a status reply: instance -> (run, pid, container or None)."""
     if not isinstance(value, dict):
         raise ProtocolError("malformed_request", "instances: expected an object")
     runs = {}
@@ -258,7 +333,12 @@ def _runs(value: Any) -> dict[str, tuple[str, int]]:
             name = validate_key_chunks(instance, single_chunk=True)
         except ValueError as exc:
             raise ProtocolError("malformed_request", f"instances: {exc}") from None
-        runs[name] = (_name(entry, "run"), _field(entry, "pid", int))
+        container = entry.get("container")
+        runs[name] = (
+            _name(entry, "run"),
+            _field(entry, "pid", int),
+            None if container is None else _name(entry, "container"),
+        )
     return runs
 
 

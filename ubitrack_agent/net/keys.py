@@ -32,7 +32,12 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
     <root>/host/<name>/request       queryable: start, stop, status requests (JSON)
     <root>/host/<name>/exited        a worker that ended without being asked (JSON, put)
     <root>/pool/<id>                 an idle pre-started worker: its token, and where its
-                                     component specification is sent
+                                     component specification (or group) is sent
+    <root>/container/<name>/<incarnation>
+                                     liveliness token of a container (services.container) once
+                                     it takes commands on <root>/control/<name>
+    <root>/left/<name>               components that left container <name> by their own stop
+                                     command (JSON, put): its host manager forgets them
     <root>/worker/<instance>/<incarnation>
                                      liveliness token of a running pattern worker; the
                                      incarnation (``<pid>.<nonce>``) tells one process's token
@@ -96,6 +101,7 @@ TOKEN_KINDS = (
     "query",
     "worker",
     "pool",
+    "container",
     "host",
     "host_exited",
     "agent",
@@ -386,6 +392,33 @@ class KeySpace:
         """The pool id of a pool token key; ``ValueError`` if malformed."""
         return self._parse_name(key, "pool")
 
+    def container(self, name: str, incarnation: str) -> str:
+        """Liveliness token of the process ``incarnation`` (``<pid>.<nonce>``) running the
+        container ``name``, declared once it takes commands on :meth:`control` ``(name)``."""
+        validate_key_chunks(incarnation, single_chunk=True)
+        return f"{self.root}/container/{validate_key_chunks(name, single_chunk=True)}/{incarnation}"
+
+    def all_containers(self) -> str:
+        """Selector of every container's token."""
+        return f"{self.root}/container/*/*"
+
+    def parse_container(self, key: str) -> tuple[str, str]:
+        """The name and incarnation of a container token key; ``ValueError`` if malformed."""
+        return self._parse_incarnation(key, "container")
+
+    def container_left(self, name: str) -> str:
+        """Where container ``name`` reports components that left it by their own stop
+        command (not by its host manager's remove)."""
+        return f"{self.root}/left/{validate_key_chunks(name, single_chunk=True)}"
+
+    def all_container_left(self) -> str:
+        """Selector of every container's reports of components that left."""
+        return f"{self.root}/left/*"
+
+    def parse_container_left(self, key: str) -> str:
+        """The container's name in a left report's key; ``ValueError`` if malformed."""
+        return self._parse_name(key, "left")
+
     def all_providers(self) -> str:
         """Selector of every provider's token."""
         return f"{self.root}/provider/*"
@@ -400,8 +433,13 @@ class KeySpace:
 
     def parse_worker(self, key: str) -> tuple[str, str]:
         """The instance and incarnation of a worker token key; ``ValueError`` if malformed."""
-        instance, _, incarnation = self._parse_name(key, "worker", chunks=2).partition("/")
-        return instance, incarnation
+        return self._parse_incarnation(key, "worker")
+
+    def _parse_incarnation(self, key: str, kind: str) -> tuple[str, str]:
+        """The name and incarnation after ``<root>/<kind>/`` in ``key``; ``ValueError``
+        otherwise."""
+        name, _, incarnation = self._parse_name(key, kind, chunks=2).partition("/")
+        return name, incarnation
 
     def host(self, name: str) -> str:
         """Liveliness token of the host manager ``name`` (one per machine)."""
@@ -453,9 +491,9 @@ class KeySpace:
             if kind == "query":
                 relation, application, host, labels = self.parse_query(key)
                 return Token(kind, application, relation, host=host, labels=labels)
-            if kind == "worker":
-                instance, incarnation = self.parse_worker(key)
-                return Token(kind, instance, incarnation=incarnation)
+            if kind in ("worker", "container"):
+                name, incarnation = getattr(self, f"parse_{kind}")(key)
+                return Token(kind, name, incarnation=incarnation)
             return Token(kind, getattr(self, f"parse_{kind}")(key))
         except ValueError as exc:
             return KeyRejection(kind, key, str(exc))

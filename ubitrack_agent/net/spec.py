@@ -470,3 +470,11 @@ def parse_components(raw: Any, where: str) -> tuple[ComponentSpec, ...]:
     specs = tuple(components)
     check_group_members(specs, where.rsplit(".", 1)[0])
     return specs
+
+
+def parse_assignment(text: str | bytes | Mapping[str, Any]) -> ComponentSpec | GroupSpec:
+    """What a pool member is given to run (``services.worker.Pool``): a group (an object with a
+    ``container`` field, :func:`parse_group`) or one specification (:func:`parse_spec`).
+    Raises :class:`SpecError` and nothing else."""
+    data = _read_object(text, MAX_GROUP_BYTES, "assignment")
+    return parse_group(data) if "container" in data else parse_spec(data)

@@ -143,6 +143,7 @@ function drawComponents(status) {
           element("td", component.pattern || component.service),
           element("td", instance),
           element("td", component.host || "–"),
+          element("td", component.container || "–"),
           element("td", component.alive ? "alive" : "starting"),
           element("td", finite(component.rate_hz) ? `${component.rate_hz.toFixed(0)} Hz` : "–"),
         );
