@@ -139,3 +139,18 @@ def test_a_copy_answers_what_the_memo_held_and_counts_apart():
     copy(srg, TEMPLATES, b)
     assert (copy.hits, copy.misses, len(copy)) == (1, 2, 2)
     assert (memo.hits, memo.misses, len(memo)) == (0, 1, 1)
+
+
+def test_a_region_that_changed_in_one_room_reuses_the_other_rooms_parts():
+    memo = PlanMemo()
+    fragments = building()
+    query = Query("H0_1", "H2_2", "6D")  # across the building: parts at R0, B and R2
+    memo(build_srg(fragments), TEMPLATES, query)
+    parts_planned = memo.parts.misses
+    assert parts_planned >= 3 and memo.parts.hits == 0
+    fragments["u0"] = tracker("u0", 0, sigma=4e-3)  # a better tracker in room 0 only
+    srg = build_srg(fragments)
+    assert same(memo(srg, TEMPLATES, query), plan(srg, TEMPLATES, query))
+    assert memo.misses == 2  # the region changed: planned again,
+    assert memo.parts.misses == parts_planned + 1  # but only room 0's part was saturated
+    assert memo.parts.hits == parts_planned - 1

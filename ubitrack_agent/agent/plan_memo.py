@@ -39,6 +39,7 @@ from ubitrack_agent.graph.planner import (
     DEFAULT_PER_RELATION,
     DEFAULT_SLACK,
     NoSolutionError,
+    PartCache,
     PlanningError,
     Query,
     Solution,
@@ -85,6 +86,9 @@ class PlanMemo:
         self.misses = 0
         self._answers: OrderedDict[Hashable, list[Solution] | NoSolutionError] = OrderedDict()
         self._templates: Sequence[Template] | None = None
+        self.parts = PartCache()
+        """The parts between cut frames the plans share (``graph.planner.PartCache``): a
+        region that changed is planned again, but its rooms that did not are not."""
 
     def __len__(self) -> int:
         return len(self._answers)
@@ -93,6 +97,7 @@ class PlanMemo:
         """A memo holding the same answers (shared, not copied), counting on from here."""
         other = PlanMemo(self.capacity)
         other.hits, other.misses, other._templates = self.hits, self.misses, self._templates
+        other.parts = self.parts
         other._answers = OrderedDict(self._answers)
         return other
 
@@ -110,17 +115,22 @@ class PlanMemo:
         shared)."""
         if templates is not self._templates:  # other templates: other answers
             self._answers.clear()
+            self.parts = PartCache()
             self._templates = templates
         try:
             region = region_key(srg, templates, query, slack)
         except PlanningError:
-            return plan(srg, templates, query, slack=slack, per_relation=per_relation)
+            return plan(
+                srg, templates, query, slack=slack, per_relation=per_relation, cache=self.parts
+            )
         key = (query, slack, per_relation, region)
         answer = self._answers.get(key)
         if answer is None:
             self.misses += 1
             try:
-                answer = plan(srg, templates, query, slack=slack, per_relation=per_relation)
+                answer = plan(
+                    srg, templates, query, slack=slack, per_relation=per_relation, cache=self.parts
+                )
             except NoSolutionError as exc:
                 answer = exc
             self._answers[key] = answer

@@ -464,6 +464,8 @@ class Agent:
         self.counters["relations_replanned"] += len(planned.replanned)
         self.counters["plans_memoised"] = self._plan_memo.hits
         self.counters["plans_made"] = self._plan_memo.misses
+        self.counters["parts_memoised"] = self._plan_memo.parts.hits
+        self.counters["parts_planned"] = self._plan_memo.parts.misses
         self.last_plan_s = outcome.seconds
         for relation in sorted(planned.replanned, key=str):
             part = planned.parts[relation]
