@@ -18,12 +18,15 @@ carries an output only where something outside the process reads it: a subscribe
 process or host (the publisher's matching status), an application's relation key, a query
 for a value at a given time (answered by the producer's queryable, as before).
 
-**Control** on ``<root>/control/<name>`` (JSON objects, read totally: a malformed or refused
-command is logged rate-limited, counted in ``rejected_commands`` and changes nothing):
+**Control** on ``<root>/control/<name>``, and on ``<root>/control/<name>/<incarnation>`` for
+this process alone (how its host manager talks to it: a container of the same name left
+running by an earlier host manager does not hear it), JSON objects, read totally (a malformed
+or refused command is logged rate-limited, counted in ``rejected_commands`` and changes
+nothing):
 
 * ``{"add": [<specification>, ...]}`` starts components in the running process (checked in
-  full first: form, registered service and ports, parameters, no instance or output key
-  already in the container; all or none);
+  full first: form, registered service and ports, parameters, no instance already in the
+  container; all or none);
 * ``{"remove": ["<instance>", ...]}`` stops them (an unknown name is ignored);
 * ``{"stop": true}`` ends the container and every component in it.
 
@@ -153,7 +156,10 @@ class Container:
         take = self._guarded(
             lambda sample: self._events.put(("control", sample.payload.to_bytes()))
         )
-        self._control = session.declare_subscriber(keys.control(self.name), take)
+        self._controls = [
+            session.declare_subscriber(key, take)
+            for key in (keys.control(self.name), keys.control_incarnation(name, self.incarnation))
+        ]
         self._status = session.declare_queryable(keys.status(self.name))
         self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
         self._status_thread.start()
@@ -169,7 +175,7 @@ class Container:
     def check(self, specs: tuple[ComponentSpec, ...]) -> None:
         """:class:`SpecError` unless every one of ``specs`` may join the container: a
         registered service wired as it declares (``services.spec.check_spec``), and no
-        instance name or output key the container (or another of them) already has."""
+        instance name the container (or another of them) already has."""
         for index, spec in enumerate(specs):
             try:
                 check_spec(spec)
@@ -186,10 +192,14 @@ class Container:
         self.check(specs)
         for spec in specs:  # before any starts: members read each other's outputs locally
             self.wires.produce(spec.instance, tuple(spec.outputs.values()))
+        failed = []
         for spec in specs:
-            entry = self._start(spec)
-            if entry is not None:
+            if self._start(spec) is not None:
                 self.counters["added"] += 1
+            else:
+                failed.append(spec.instance)
+        if failed:  # its host manager reports them ended: the agent starts them again
+            self._report_left(failed, "exited")
 
     def _start(self, spec: ComponentSpec, restarts: int = 0) -> Running | None:
         """Run ``spec`` on a thread of its own; None if it could not start (counted)."""
@@ -266,10 +276,16 @@ class Container:
             elif worker.counters["internal_errors"] - entry.faults_at_start >= RESTART_AFTER_FAULTS:
                 self._restart(instance, entry, f"{RESTART_AFTER_FAULTS} unexpected faults")
         if left:
-            self._left.put(json.dumps({"instances": left, "incarnation": self.incarnation}))
+            self._report_left(left, "released")
         if self._parent is not None and self._parent.gone and not self.components:
             log.warning("%s: host manager gone and no component left: ending", self.name)
             self.stop()
+
+    def _report_left(self, instances: list[str], reason: str) -> None:
+        """Tell the host manager that ``instances`` left without its remove command: released
+        by their own stop command, or ``exited`` (their start failed)."""
+        report = {"instances": instances, "incarnation": self.incarnation, "reason": reason}
+        self._left.put(json.dumps(report))
 
     def _rebind(self, moved: set[str]) -> None:
         """Bind again the inputs reading ``moved`` keys (their producer joined or left)."""
@@ -355,7 +371,8 @@ class Container:
         finally:
             self._stop.set()
             self._token.undeclare()
-            self._control.undeclare()
+            for control in self._controls:
+                control.undeclare()
             self.remove(list(self.components))
             self._left.undeclare()
             self._status.undeclare()

@@ -80,6 +80,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"%(default)s; 1 to {MAX_CORES})",
     )
     parser.add_argument(
+        "--isolate",
+        action="store_true",
+        help="run each component of this machine alone in a container of its own (untrusted "
+        "or crash-prone code: a fault takes down no other component; more processes)",
+    )
+    parser.add_argument(
         "--quiet",
         action="store_true",
         help="no status line (every 10 s: workers running, pool ready, requests, the clock's "
@@ -131,6 +137,7 @@ def serve(
     labels: frozenset[str] = frozenset(),
     capacity: int = DEFAULT_CAPACITY,
     cores: int = 1,
+    isolate: bool = False,
 ) -> int:
     """Run a host manager until SIGTERM or SIGINT (or, if asked, until standard input closes);
     the exit status (2 for invalid options). ``name`` (default: the ``host_name`` setting)
@@ -159,7 +166,7 @@ def serve(
 
     keys = KeySpace(settings.key_prefix)
     with open_session(settings) as session:
-        info = HostInfo(name, labels, capacity, cores=cores)
+        info = HostInfo(name, labels, capacity, cores=cores, isolating=isolate)
         flags = config.member_flags(settings)
         manager = HostManager(session, keys, info, flags, pool_size, Clock.of(settings))
         on_termination(manager.stop)
@@ -215,6 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         args.labels,
         args.capacity,
         args.cores,
+        args.isolate,
     )
 
 

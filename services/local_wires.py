@@ -68,8 +68,9 @@ class LocalWires:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._producers: dict[str, str] = {}
-        """Data key -> the instance in this container producing it."""
+        self._producers: dict[str, frozenset[str]] = {}
+        """Data key -> the instances in this container producing it (two while a plan changes:
+        ``net.spec.GroupSpec``)."""
         self._readers: dict[str, tuple[LocalSubscription, ...]] = {}
         self._latest: dict[str, Measurement] = {}
         """The latest value handed over on each key (a static output's reader bound later
@@ -83,19 +84,31 @@ class LocalWires:
 
     def produce(self, instance: str, keys: list[str] | tuple[str, ...]) -> None:
         """``instance`` produces exactly ``keys`` now (its earlier keys no longer); tells
-        :attr:`changed` which keys came or went. O(outputs in the container)."""
+        :attr:`changed` the keys that gained their first producer here or lost their last.
+        O(outputs in the container)."""
+        wanted = set(keys)
+        moved = set()
         with self._lock:
-            before = {k for k, owner in self._producers.items() if owner == instance}
-            for key in before - set(keys):
-                del self._producers[key]
-                self._latest.pop(key, None)
-            self._producers.update(dict.fromkeys(keys, instance))
-        if moved := before ^ set(keys):
+            before = {k for k, owners in self._producers.items() if instance in owners}
+            for key in before - wanted:
+                owners = self._producers[key] - {instance}
+                if owners:
+                    self._producers[key] = owners
+                else:
+                    del self._producers[key]
+                    self._latest.pop(key, None)
+                    moved.add(key)
+            for key in wanted - before:
+                owners = self._producers.get(key, frozenset())
+                moved.update(() if owners else (key,))
+                self._producers[key] = owners | {instance}
+        if moved:
             self.changed(moved)
 
     def producer(self, key: str) -> str | None:
-        """The instance in this container producing ``key``, if any."""
-        return self._producers.get(key)
+        """An instance in this container producing ``key`` (the first by name), if any."""
+        owners = self._producers.get(key)
+        return min(owners) if owners else None
 
     def subscribe(self, key: str, deliver: Deliver) -> LocalSubscription:
         subscription = LocalSubscription(self, key, deliver)

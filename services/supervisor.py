@@ -107,15 +107,16 @@ class Assignment:
 
 @dataclass
 class ContainerRun:
-    """A container process: its pool id, whether its token is up (it takes commands), the
-    commands waiting for that, and the group it is still to be given (a member spawned for it
-    gets it once its pool token is up)."""
+    """A container process: its pool id, its incarnation once its token is up (it takes
+    commands on its own control key), the commands waiting for that, and the group it is still
+    to be given (a member spawned for it gets it once its pool token is up)."""
 
     name: str
     pool_id: str
     process: subprocess.Popen
     started: float
-    ready: bool = False
+    incarnation: str | None = None
+    """Its process's incarnation once its token is up (it takes commands)."""
     pending: list[str] = field(default_factory=list)
     group: str | None = None
     quick_restores: int = 0
@@ -342,27 +343,31 @@ class Supervisor:
         return box
 
     def _send(self, box: ContainerRun, command: str) -> None:
-        """Put ``command`` on ``box``'s control key, or keep it until its token is up."""
-        if box.ready:
-            put_command(self._session, self._keys.control(box.name), command)
+        """Put ``command`` on the control key of ``box``'s process, or keep it until its token
+        is up (another process of the same name, left by an earlier host manager, never
+        hears it)."""
+        if box.incarnation is not None:
+            key = self._keys.control_incarnation(box.name, box.incarnation)
+            put_command(self._session, key, command)
         else:
             box.pending.append(command)
 
     def on_container_token(self, name: str, incarnation: str, appeared: bool) -> None:
-        """A container's token appeared (it takes commands: those waiting are sent) or
-        vanished; tokens of another process than the container's are ignored."""
+        """A container's token appeared: it takes commands (those waiting are sent). Tokens
+        of another process than the container's, and a token vanishing (the process ends:
+        :meth:`reap` sees it), change nothing."""
         box = self.containers.get(name)
-        if box is None or incarnation.partition(".")[0] != str(box.process.pid):
+        if not appeared or box is None or incarnation.partition(".")[0] != str(box.process.pid):
             return
-        box.ready = appeared
-        if appeared:
-            for command in box.pending:
-                put_command(self._session, self._keys.control(name), command)
-            box.pending.clear()
+        box.incarnation = incarnation
+        for command in box.pending:
+            self._send(box, command)
+        box.pending.clear()
 
     def on_left(self, name: str, payload: bytes) -> list[Exited]:
-        """Components that left container ``name`` by their own stop command (its report on
-        ``<root>/left/<name>``): each reported as released. :class:`ProtocolError` if the
+        """Components that left container ``name`` without its remove (its report on
+        ``<root>/left/<name>``): by their own stop command (reported as released), or because
+        they failed to start there (reported as exited). :class:`ProtocolError` if the
         report is malformed."""
         try:
             report = load_object(payload, MAX_LEFT_BYTES)
@@ -371,6 +376,9 @@ class Supervisor:
         instances, incarnation = report.get("instances"), report.get("incarnation")
         if not isinstance(instances, list) or not isinstance(incarnation, str):
             raise ProtocolError("malformed_request", "left: expected instances and incarnation")
+        reason = report.get("reason", "released")
+        if reason not in ("released", "exited"):
+            raise ProtocolError("malformed_request", "left: reason released or exited")
         box = self.containers.get(name)
         if box is None or incarnation.partition(".")[0] != str(box.process.pid):
             return []  # another process's (an earlier one, or not this host manager's)
@@ -383,9 +391,9 @@ class Supervisor:
             assignment = self.assigned.get(instance)
             if assignment is not None and assignment.container == name:
                 del self.assigned[instance]
-                self.counters["released"] += 1
-                log.info("%s: left container %s by a stop command from elsewhere", instance, name)
-                exits.append(Exited(instance, assignment.run, box.process.pid, None, "released"))
+                self.counters["released" if reason == "released" else "failed_in_containers"] += 1
+                log.info("%s: left container %s (%s)", instance, name, reason)
+                exits.append(Exited(instance, assignment.run, box.process.pid, None, reason))
         return exits
 
     def stop(self, instance: str) -> str:
@@ -477,7 +485,7 @@ class Supervisor:
         exits: list[Exited] = []
         for name, box in list(self.containers.items()):
             returncode = box.process.poll()
-            if returncode is None and not box.ready and now - box.started > POOL_READY_S:
+            if returncode is None and box.incarnation is None and now - box.started > POOL_READY_S:
                 log.warning("container %s not ready for %.0f s: terminating it", name, POOL_READY_S)
                 self.counters["unready_containers"] += 1
                 box.process.kill()
@@ -531,8 +539,8 @@ class Supervisor:
         (killed if it has not ended ``STOP_GRACE_S`` later), else SIGTERM."""
         del self.containers[box.name]
         self.counters["containers_ended"] += 1
-        if box.ready:
-            put_command(self._session, self._keys.control(box.name), STOP_COMMAND)
+        if box.incarnation is not None:
+            self._send(box, STOP_COMMAND)
             self._stopping.append((box.process, time.monotonic() + STOP_GRACE_S))
         else:
             self._terminate(box.process)
@@ -599,7 +607,7 @@ class Supervisor:
                 for instance, assignment in self.assigned.items()
             },
             "containers": {
-                name: {"pid": box.process.pid, "ready": box.ready}
+                name: {"pid": box.process.pid, "ready": box.incarnation is not None}
                 for name, box in self.containers.items()
             },
         }

@@ -141,7 +141,10 @@ def test_a_container_wires_in_the_process_adds_removes_and_contains_bad_input(pr
         assert query_status(session, keys, "third")["pid"] == container.pid
         session.put(keys.control("box0"), json.dumps({"remove": ["third"]}))
         wait_until(lambda: "SampleKind.DELETE" in tokens["third"])
-        box = query_status(session, keys, "box0")
+        # (its token goes as its run ends; the container counts it once the run has ended)
+        box = wait_until(
+            lambda: (b := query_status(session, keys, "box0"))["counters"]["removed"] and b
+        )
         assert set(box["components"]) == {"first", "second"}
         assert (box["counters"]["added"], box["counters"]["removed"]) == (3, 1)
 

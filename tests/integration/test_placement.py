@@ -57,7 +57,7 @@ def test_components_run_beside_their_data_move_with_their_host_and_come_back(net
         [*command, *member_flags(net.port, net.domain)], capture_output=True, text=True, timeout=60
     ).stdout
     assert "host room: capacity" in shown and f"query {WT_HT} from app on room" in shown
-    assert shown.count(", alive on room)") == len(placed), shown
+    assert shown.count(", alive on room in room-") == len(placed), shown  # and its container
 
     # The room's machine fails: its host manager and its workers (one process group) die.
     os.killpg(room.pid, signal.SIGKILL)

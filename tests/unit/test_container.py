@@ -9,6 +9,7 @@ import contextlib
 import json
 import threading
 import time
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -82,10 +83,12 @@ def test_a_malformed_group_is_refused_naming_the_field(data, field):
         parse_group(json.dumps(data))
 
 
-def test_two_components_publishing_on_one_key_are_refused():
+def test_two_components_of_a_group_may_publish_on_one_key_but_names_are_unique():
     clash = {**SECOND.as_dict(), "outputs": {"AC": KEYS.data("first/AC")}}
-    with pytest.raises(SpecError, match="also 'first'"):
-        parse_group({"container": "c0", "components": [FIRST.as_dict(), clash]})
+    group = parse_group({"container": "c0", "components": [FIRST.as_dict(), clash]})
+    assert len(group.components) == 2
+    with pytest.raises(SpecError, match="'first' twice"):
+        parse_group({"container": "c0", "components": [FIRST.as_dict(), FIRST.as_dict()]})
 
 
 @settings(max_examples=200, deadline=None)
@@ -331,7 +334,7 @@ def test_a_component_stopped_on_its_own_control_key_leaves_the_container(running
     assert container.counters["removed"] == 1 and container.counters["restarts"] == 0
     left = [json.loads(data) for k, data in session.puts if k == KEYS.container_left("c0")]
     assert [report["instances"] for report in left] == [["second"]]  # for its host manager
-    assert left[0]["incarnation"] == container.incarnation
+    assert left[0]["incarnation"] == container.incarnation and left[0]["reason"] == "released"
 
 
 def test_a_static_output_computed_before_its_reader_joined_reaches_it(running):
@@ -367,3 +370,32 @@ def test_a_container_whose_host_manager_is_gone_ends_with_its_last_component():
     control(session, {"remove": ["first"]})
     thread.join(timeout=5)
     assert not thread.is_alive() and container.components == {}
+
+
+def test_a_container_takes_commands_on_its_own_incarnation_s_key(running):
+    container, session = running
+    other = KEYS.control_incarnation("c0", "1.another")  # a process of the same name elsewhere
+    assert other not in session.callbacks and KEYS.control("c0") in session.callbacks
+    own = KEYS.control_incarnation("c0", container.incarnation)
+    session.deliver(own, json.dumps({"add": [FIRST.as_dict()]}).encode())
+    wait_for(lambda: set(container.components) == {"first"})
+
+
+def test_while_a_plan_changes_two_producers_of_one_key_feed_its_reader_locally(running):
+    """A concatenation folded into its producer, or taken out of it: the old and the new
+    producer publish on one key until the old one is rewired (make before break)."""
+    container, session = running
+    twin = replace(concatenation("twin", "ART/WT2", "ART/HT2"), outputs=FIRST.outputs)
+    control(session, {"add": [FIRST.as_dict(), twin.as_dict(), SECOND.as_dict()]})
+    wait_for(lambda: len(container.components) == 3)
+    assert KEYS.data("first/AC") not in session.channels  # read in the process
+    for key in ("ART/WT", "ART/WT2", "CAL/X"):  # (the stand-in session: one reader a key)
+        session.deliver(KEYS.data(key), encode(random_pose(1)))
+    session.deliver(KEYS.data("ART/HT"), encode(random_pose(10)))
+    session.deliver(KEYS.data("ART/HT2"), encode(random_pose(20)))
+    assert [value.timestamp_ns for value in puts(session, "second/AC")] == [10, 20]
+    control(session, {"remove": ["first"]})  # the old producer goes: the reader stays local
+    wait_for(lambda: set(container.components) == {"twin", "second"})
+    assert container.counters["rebinds"] == 0 and KEYS.data("first/AC") not in session.channels
+    session.deliver(KEYS.data("ART/HT2"), encode(random_pose(30)))
+    assert [value.timestamp_ns for value in puts(session, "second/AC")] == [10, 20, 30]

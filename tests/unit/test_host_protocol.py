@@ -2,6 +2,7 @@
 its type (``ubitrack_agent/net/host_protocol.py``)."""
 
 import json
+from dataclasses import replace
 
 import pytest
 from hypothesis import given
@@ -185,17 +186,17 @@ def test_hostile_host_names_are_rejected(name):
 
 
 def test_host_information_round_trips_through_the_status_reply():
-    info = HostInfo("hmd", frozenset({"camera", "hmd"}), 12, 0.25, cores=3)
+    info = HostInfo("hmd", frozenset({"camera", "hmd"}), 12, 0.25, cores=3, isolating=True)
     instances = {
         "a": {"run": "r1", "pid": 7, "container": "hmd-0"},
         "b": {"run": "r2", "pid": 8, "container": None},
     }
     status = {**info.as_dict(), "pid": 7, "instances": instances, "counters": {}, "clock": None}
     parsed = HostInfo.parse(json.dumps(status).encode())
-    assert parsed == info and parsed.cores == 3
+    assert parsed == info and parsed.cores == 3 and parsed.isolating
     assert parsed.runs == {"a": ("r1", 7, "hmd-0"), "b": ("r2", 8, None)}
-    older = {k: v for k, v in status.items() if k != "cores"}  # a host manager before cores
-    assert HostInfo.parse(json.dumps(older).encode()).cores == 1
+    older = {k: v for k, v in status.items() if k not in ("cores", "isolating")}  # before them
+    assert HostInfo.parse(json.dumps(older).encode()) == replace(info, cores=1, isolating=False)
 
 
 GOOD_INFO = {"name": "hmd", "labels": ["camera"], "capacity": 4, "cpu_load": 0.5}
@@ -227,6 +228,7 @@ GOOD_INFO = {"name": "hmd", "labels": ["camera"], "capacity": 4, "cpu_load": 0.5
         {"cores": 0},
         {"cores": 2.0},
         {"cores": 10**6},
+        {"isolating": 1},
     ],
 )
 def test_malformed_host_information_is_refused(change):

@@ -228,12 +228,14 @@ def commands(session: FakeSession, key: str) -> list[dict]:
     return [json.loads(payload) for k, payload in session.puts if k == key]
 
 
-def container_ready(supervisor: Supervisor, name: str) -> None:
+def container_ready(supervisor: Supervisor, name: str) -> str:
+    """Announce the token of container ``name``'s process; the key it takes commands on."""
     box = supervisor.containers[name]
     supervisor.on_container_token(name, f"{box.process.pid + 1}.x", appeared=True)  # not its
-    assert not box.ready
+    assert box.incarnation is None
     supervisor.on_container_token(name, f"{box.process.pid}.x", appeared=True)
-    assert box.ready
+    assert box.incarnation == f"{box.process.pid}.x"
+    return KEYS.control_incarnation(name, box.incarnation)
 
 
 def test_a_group_starts_a_container_from_the_pool_and_later_ones_are_added(make, clock):
@@ -247,9 +249,9 @@ def test_a_group_starts_a_container_from_the_pool_and_later_ones_are_added(make,
     # the container is not taking commands yet: an add waits for its token
     later = supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("c"))))
     assert [(s.instance, s.reused) for s in later.started] == [("a", True), ("c", False)]
-    assert commands(session, KEYS.control("lab-0")) == []
-    container_ready(supervisor, "lab-0")
-    assert commands(session, KEYS.control("lab-0")) == [{"add": [spec("c").as_dict()]}]
+    assert not [key for key, _ in session.puts if key.startswith(KEYS.control("lab-0"))]
+    control = container_ready(supervisor, "lab-0")
+    assert commands(session, control) == [{"add": [spec("c").as_dict()]}]
     assert len(spawned) == 1  # no process started for the add
     status = supervisor.status()
     assert status["instances"]["c"]["container"] == "lab-0"
@@ -271,9 +273,9 @@ def test_a_cold_container_is_given_its_group_once_its_pool_token_is_up(make, clo
 def test_stops_remove_components_and_an_empty_container_ends(make, clock):
     supervisor, session, spawned = make(pool_size=0)
     supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))))
-    container_ready(supervisor, "lab-0")
+    control = container_ready(supervisor, "lab-0")
     assert supervisor.stop("a") == "removed"
-    assert commands(session, KEYS.control("lab-0")) == [{"remove": ["a"]}]
+    assert commands(session, control) == [{"remove": ["a"]}]
     assert KEYS.control("a") not in {k for k, _ in session.puts}
     supervisor.stop("b")
     supervisor.start_group(GroupSpec("lab-0", (spec("b", source="ir/HT"),)))  # b restarted
@@ -286,7 +288,7 @@ def test_stops_remove_components_and_an_empty_container_ends(make, clock):
     clock[0] += supervisor_module.EMPTY_GRACE_S + 1
     supervisor.reap()
     assert supervisor.containers == {}
-    assert commands(session, KEYS.control("lab-0"))[-1] == {"stop": True}
+    assert commands(session, control)[-1] == {"stop": True}
     clock[0] += supervisor_module.STOP_GRACE_S + 1
     supervisor.reap()
     assert spawned[0].signals == ["KILL"]  # it did not end: killed
@@ -296,12 +298,11 @@ def test_a_component_moves_between_containers_of_the_host(make, clock):
     supervisor, session, _spawned = make(pool_size=0)
     supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))))
     supervisor.start_group(GroupSpec("lab-1", (spec("c"),)))
-    container_ready(supervisor, "lab-0")
-    container_ready(supervisor, "lab-1")
+    old, new = container_ready(supervisor, "lab-0"), container_ready(supervisor, "lab-1")
     moved = supervisor.start_group(GroupSpec("lab-1", (spec("a"),)))
     assert not moved.started[0].reused and supervisor.assigned["a"].container == "lab-1"
-    assert commands(session, KEYS.control("lab-0")) == [{"remove": ["a"]}]
-    assert commands(session, KEYS.control("lab-1")) == [{"add": [spec("a").as_dict()]}]
+    assert commands(session, old) == [{"remove": ["a"]}]
+    assert commands(session, new) == [{"add": [spec("a").as_dict()]}]
 
 
 def test_a_dead_container_is_restored_with_its_components_until_it_dies_too_quickly(make, clock):
@@ -341,10 +342,15 @@ def test_a_component_that_left_by_its_own_stop_is_reported_released(make, clock)
     exits = supervisor.on_left("lab-0", report)
     assert [(e.instance, e.reason, e.returncode) for e in exits] == [("a", "released", None)]
     assert set(supervisor.assigned) == {"b"}
+    failed = json.dumps({"instances": ["b"], "incarnation": f"{pid}.x", "reason": "exited"})
+    assert [(e.instance, e.reason) for e in supervisor.on_left("lab-0", failed.encode())] == [
+        ("b", "exited")  # it failed to start there: the agent starts it again
+    ]
     for bad in (
         b"{",
         b"[]",
         json.dumps({"instances": ["a/b"], "incarnation": f"{pid}.x"}).encode(),
+        json.dumps({"instances": [], "incarnation": f"{pid}.x", "reason": "x"}).encode(),
     ):
         with pytest.raises(ProtocolError):
             supervisor.on_left("lab-0", bad)

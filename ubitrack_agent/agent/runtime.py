@@ -1019,7 +1019,10 @@ class _Containers:
                 for i, p in agent.hosts.placements.items()
                 if p.container is not None and p.host == self._placement.get(i)
             }
-            groups = group_containers(agent.wanted, self._placement, cores, current=current)
+            isolating = {host for host, info in agent.hosts.info.items() if info.isolating}
+            groups = group_containers(
+                agent.wanted, self._placement, cores, isolating_hosts=isolating, current=current
+            )
             self._of = {s.instance: name for name, g in groups.items() for s in g.components}
         return self._of[instance]
 

@@ -37,4 +37,5 @@ def run(args: argparse.Namespace) -> int:
         labels=args.labels,
         capacity=args.capacity,
         cores=args.cores,
+        isolate=args.isolate,
     )

@@ -267,9 +267,10 @@ class HostInfo:
     correction use (``agent.placement``, ``agent.clocks``): its ``labels`` (``camera``,
     ``gpu``, ``hmd``...), how many components it runs at most (``capacity``), how many
     containers its components share (``cores``: one per CPU core it may use, the agent's
-    grouping rule, ``agent.placement.group_containers``), its CPU load per core (``cpu_load``:
-    the one-minute load average over the cores; 1.0 is every core busy), and its clock's offset
-    to the agent's (``clock``, None until measured)."""
+    grouping rule, ``agent.placement.group_containers``), whether each of its components runs
+    alone in a container (``isolating``: untrusted or crash-prone code), its CPU load per core
+    (``cpu_load``: the one-minute load average over the cores; 1.0 is every core busy), and its
+    clock's offset to the agent's (``clock``, None until measured)."""
 
     name: str
     labels: frozenset[str] = frozenset()
@@ -283,6 +284,7 @@ class HostInfo:
     its own; its status's ``instances``): how the agent finds where a component runs that it
     has no placement for (adopted, or left alone by a move that failed half-way)."""
     cores: int = 1
+    isolating: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         """The fields as they appear in the status reply (the clock as of now: age 0)."""
@@ -291,6 +293,7 @@ class HostInfo:
             "labels": sorted(self.labels),
             "capacity": self.capacity,
             "cores": self.cores,
+            "isolating": self.isolating,
             "cpu_load": self.cpu_load,
             "clock": None if self.clock is None else self.clock.as_status(0.0),
         }
@@ -298,8 +301,8 @@ class HostInfo:
     @classmethod
     def parse(cls, payload: bytes) -> HostInfo:
         """The host information in a status reply (other fields are ignored; a missing
-        ``clock`` is None, missing ``cores`` 1); :class:`ProtocolError` naming the field if it
-        is malformed."""
+        ``clock`` is None, missing ``cores`` 1, missing ``isolating`` false);
+        :class:`ProtocolError` naming the field if it is malformed."""
         data = _json_object(payload)
         labels = _field(data, "labels", list)
         if len(labels) > MAX_LABELS:
@@ -317,8 +320,13 @@ class HostInfo:
         cores = data.get("cores", 1)
         if type(cores) is not int or not 1 <= cores <= MAX_CORES:
             raise ProtocolError("malformed_request", f"cores: expected 1 to {MAX_CORES}")
+        isolating = data.get("isolating", False)
+        if not isinstance(isolating, bool):
+            raise ProtocolError("malformed_request", "isolating: expected true or false")
         runs = _runs(data.get("instances", {}))
-        return cls(_name(data, "name"), names, capacity, float(cpu_load), clock, runs, cores)
+        return cls(
+            _name(data, "name"), names, capacity, float(cpu_load), clock, runs, cores, isolating
+        )
 
 
 def _runs(value: Any) -> dict[str, tuple[str, int, str | None]]:

@@ -389,7 +389,10 @@ class GroupSpec:
     JSON form: ``{"container": "<name>", "components": [<specification>, ...]}``.
     The local wires are not written out: they follow from the keys (:attr:`wires`), so a group
     cannot name a wire that its specifications contradict. Instance names are unique in a
-    group and no data key is the output of two of its components."""
+    group. Two components may publish on one data key, as two processes may: while the agent
+    changes a plan (a concatenation folded into its producer, or taken out of it: the producer
+    keeps publishing on the key until it is rewired, make before break); a reader of the key in
+    the container then takes the values of both, as it would over zenoh."""
 
     container: str
     components: tuple[ComponentSpec, ...] = ()
@@ -422,22 +425,15 @@ class GroupSpec:
 
 
 def check_group_members(components: tuple[ComponentSpec, ...], where: str = "group") -> None:
-    """:class:`SpecError` if two of ``components`` share an instance name or an output key, or
-    there are more than :data:`MAX_GROUP_COMPONENTS`."""
+    """:class:`SpecError` if two of ``components`` share an instance name, or there are more
+    than :data:`MAX_GROUP_COMPONENTS`."""
     if len(components) > MAX_GROUP_COMPONENTS:
         raise SpecError(f"{where}.components: more than {MAX_GROUP_COMPONENTS}")
     instances: set[str] = set()
-    outputs: dict[str, str] = {}
     for index, spec in enumerate(components):
         if spec.instance in instances:
             raise SpecError(f"{where}.components[{index}].instance: {spec.instance!r} twice")
         instances.add(spec.instance)
-        for key in spec.outputs.values():
-            if key in outputs:
-                raise SpecError(
-                    f"{where}.components[{index}].outputs: {key!r} is also {outputs[key]!r}'s"
-                )
-            outputs[key] = spec.instance
 
 
 def parse_group(text: str | bytes | Mapping[str, Any]) -> GroupSpec:

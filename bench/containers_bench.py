@@ -1,0 +1,216 @@
+"""Many applications on one host with containers (issue 28, "Done when"): the memory of the
+host's worker processes, their number, the machine's load and each application's time to its
+first sample while applications are added one by one.
+
+Everything on loopback with real zenoh and real processes: an agent with its host manager
+(``--pool-size``, default 2; one container per core of the machine, ``ubitrack host --cores``),
+``--trackers`` providers (each a tracker ``T<k>`` in room ``R`` seeing bodies ``H<k>_1``,
+``H<k>_2`` at ``--rate`` Hz, all published by one process: ``bench.agent_live_bench publish``),
+the static ``R -> T<k>`` of each, and applications (``io.application.Relation``) added one every
+``--every`` seconds, five relations per tracker (``bench.agent_live_bench.relations_of``), up
+to ``--applications`` or until the machine has less than 3 GB of memory available.
+
+After each application: the components the agent wants and those alive, the worker processes
+(the host manager's children running ``services.worker``: containers and idle pool members)
+and their memory, as the unique set size (USS: private clean and dirty pages, from
+``/proc/<pid>/smaps_rollup``) summed over them, and the machine's one-minute load average.
+At the end: each application's time from its query to its first sample (median, 90th
+percentile, largest). Run::
+
+    .venv/bin/python -m bench.containers_bench [--applications 100] [--trackers 20] \\
+        [--rate 10] [--every 1.0] [--pool-size 2]
+
+Printed, and written to ``bench/results/containers.json``. Growth: the bench's own work is
+O(applications x worker processes) reads of ``/proc``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import signal
+import statistics
+import subprocess
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from bench.agent_live_bench import Hub, add_rooms, available_bytes, relations_of
+from tests.integration.zenoh_helpers import wait_until
+from ubitrack_agent.io.application import Relation
+
+RESULTS = Path(__file__).parent / "results" / "containers.json"
+MIN_AVAILABLE_BYTES = 3 << 30
+"""Applications stop being added when the machine has less memory available than this."""
+
+
+def children(pid: int) -> list[int]:
+    """Every descendant of process ``pid`` (from ``/proc/<pid>/task/*/children``)."""
+    found, todo = [], [pid]
+    while todo:
+        parent = todo.pop()
+        try:
+            tasks = os.listdir(f"/proc/{parent}/task")
+        except OSError:
+            continue
+        for task in tasks:
+            try:
+                with open(f"/proc/{parent}/task/{task}/children", encoding="ascii") as file:
+                    kids = [int(text) for text in file.read().split()]
+            except OSError:
+                continue
+            found += kids
+            todo += kids
+    return found
+
+
+def command_line(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as file:
+            return file.read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def uss_bytes(pid: int) -> int:
+    """The unique set size of ``pid``: its private pages, clean and dirty (0 if gone)."""
+    total = 0
+    try:
+        with open(f"/proc/{pid}/smaps_rollup", encoding="ascii") as file:
+            for line in file:
+                if line.startswith(("Private_Clean:", "Private_Dirty:")):
+                    total += int(line.split()[1]) * 1024
+    except OSError:
+        return 0
+    return total
+
+
+def worker_processes(agent_pid: int) -> list[int]:
+    """The worker processes (containers, pool members) under the agent's host manager."""
+    return [pid for pid in children(agent_pid) if "services.worker" in command_line(pid)]
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    hub = Hub(None, "--pool-size", str(args.pool_size))
+    publisher = room = None
+    opened: list[Relation] = []
+    first: dict[str, float] = {}
+    asked: dict[str, float] = {}
+    rows: list[dict[str, Any]] = []
+    try:
+        edges = [
+            sys.executable, "-m", "bench.agent_live_bench", "publish", "--rate", str(args.rate),
+            "--providers", str(args.trackers), "--edges", "2", "--port", str(hub.port),
+            "--domain", hub.domain,
+        ]  # fmt: skip
+        publisher = subprocess.Popen(edges, stdout=subprocess.DEVNULL, start_new_session=True)
+        wait_until(lambda: len((hub.status() or {}).get("providers", ())) == args.trackers, 60)
+        room = add_rooms(hub, args.trackers)
+        for n, relation in enumerate(relations_of(args.trackers)[: args.applications], 1):
+            if available_bytes() < MIN_AVAILABLE_BYTES:
+                print(f"  stopping at {n - 1} applications: memory", flush=True)
+                break
+            name = f"app{n}"
+            asked[name] = time.monotonic()
+            opened.append(
+                Relation(
+                    hub.session,
+                    hub.keys,
+                    relation,
+                    application=name,
+                    callback=lambda _m, name=name: first.setdefault(name, time.monotonic()),
+                )
+            )
+            time.sleep(args.every)
+            rows.append(measure(hub, n, len(first)))
+            r = rows[-1]
+            print(
+                f"  {n:3d} applications ({r['with_data']} with data): {r['components']} "
+                f"components, {r['alive']} alive, in {r['containers']} containers; "
+                f"{r['worker_processes']} worker processes, {r['uss_mb']:.0f} MB; "
+                f"load {r['load_1min']:.2f}",
+                flush=True,
+            )
+        deadline = time.monotonic() + args.settle
+        while len(first) < len(asked) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        final = measure(hub, len(asked), len(first))
+    finally:
+        for relation in opened:
+            relation.close()
+        if room is not None:
+            room.close()
+        if publisher is not None:
+            publisher.send_signal(signal.SIGTERM)
+            publisher.wait(timeout=60)
+        hub.close()
+    to_first = sorted(first[name] - asked[name] for name in first)
+    return {
+        "applications": len(asked),
+        "trackers": args.trackers,
+        "rate_hz": args.rate,
+        "pool_size": args.pool_size,
+        "rows": rows,
+        "final": final,
+        "first_sample_median_s": round(statistics.median(to_first), 3) if to_first else None,
+        "first_sample_p90_s": round(to_first[int(0.9 * (len(to_first) - 1))], 3)
+        if to_first
+        else None,
+        "first_sample_max_s": round(to_first[-1], 3) if to_first else None,
+        "applications_without_data": len(asked) - len(first),
+    }
+
+
+def measure(hub: Hub, applications: int, with_data: int) -> dict[str, Any]:
+    """The agent's components, the host's worker processes and their memory, the load."""
+    status = hub.status() or {}
+    components = status.get("components", {})
+    workers = worker_processes(hub.agent.pid)
+    return {
+        "applications": applications,
+        "with_data": with_data,
+        "components": len(components),
+        "alive": sum(c["alive"] for c in components.values()),
+        "containers": len({c.get("container") for c in components.values()} - {None}),
+        "worker_processes": len(workers),
+        "uss_mb": round(sum(uss_bytes(pid) for pid in workers) / 2**20, 1),
+        "load_1min": os.getloadavg()[0],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.containers_bench", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument("--applications", type=int, default=100)
+    parser.add_argument("--trackers", type=int, default=20, help="five relations each")
+    parser.add_argument("--rate", type=float, default=10.0, help="Hz per tracked body")
+    parser.add_argument("--every", type=float, default=1.0, help="s between applications")
+    parser.add_argument("--pool-size", type=int, default=2)
+    parser.add_argument(
+        "--settle", type=float, default=20.0, help="s to wait at the end for first samples"
+    )
+    args = parser.parse_args(argv)
+    result = run(args)
+    results = {
+        "command": "python -m bench.containers_bench " + " ".join(argv or sys.argv[1:]),
+        "date": datetime.now(UTC).strftime("%Y-%m-%d"),
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "load_1min_at_start": result["rows"][0]["load_1min"] if result["rows"] else None,
+        },
+        **result,
+    }
+    RESULTS.parent.mkdir(exist_ok=True)
+    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
+    print(json.dumps({k: v for k, v in results.items() if k != "rows"}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
