@@ -3,11 +3,14 @@ fast it answers its status while applications keep coming.
 
 Everything on loopback with real zenoh and real processes. Two parts:
 
-* ``cpu``: the agent alone (``ubitrack agent --no-host``, no query, so no worker), then with 20
-  providers x 10 dynamic 6D edges (``io.provider.Provider``, all in one publishing process,
-  ``python -m bench.agent_live_bench publish``) at 1, 10 and 50 Hz: the agent's CPU (its
+* ``cpu``: the agent alone (``ubitrack agent --no-host``, no query, so no worker: *idle, no
+  provider*), then with 20 providers x 10 dynamic 6D edges (``io.provider.Provider``, all in
+  one publishing process, ``python -m bench.agent_live_bench publish``) announced but not
+  publishing (rate 0: *idle, providers announced*; their edges go quiet, and each provider
+  reports so every second) and publishing at 1, 10 and 50 Hz (``--rates``): the agent's CPU (its
   process's ``utime + stime`` from ``/proc``, ``bench.cpu_use``) over ``--seconds``, in percent
-  of one core, beside the samples per second actually published. ``--compare CHECKOUT``
+  of one core, beside the samples per second actually published and the ratio to each idle
+  figure. ``--compare CHECKOUT``
   measures the same with the agent of another checkout (run in its directory, so ``-m`` imports
   its code; by its ``.venv`` if it has one: e.g. ``git archive`` of the commit before the agent
   left the data path) in the same run, side by side.
@@ -16,8 +19,13 @@ Everything on loopback with real zenoh and real processes. Two parts:
   (``io.application.Relation``) are added one every ``--every`` seconds, five relations per
   tracker (``H->T`` twice, ``R->H`` twice, ``H<k>_1->H<k>_2``), up to ``--applications`` (50)
   or until the machine has less than 3 GB of memory available. Throughout, the bench asks the
-  agent's status every 50 ms (``<root>/agent/status``) and records each answer's latency;
-  also each application's time to its first sample and the agent's plan times.
+  agent's status every 50 ms (``<root>/agent/status``), from a process of its own
+  (``probe``), and records each answer's latency, and beside it that of a control: a process
+  that does nothing but answer 20 kB on a key of its own (``echo``), so that what the machine's
+  load costs every process is told from what the agent adds. Per window (one application
+  added): the medians and maxima of both, the load average, the agent's CPU, its slowest loop
+  pass and handler (its status's ``loop``), its plan times and replanning counters; at the
+  end each application's time to its first sample.
 
 Run::
 
@@ -67,9 +75,7 @@ MIN_AVAILABLE_BYTES = 3 << 30
 def publish(args: argparse.Namespace) -> int:
     """Announce ``--providers`` providers of ``--edges`` dynamic edges each and publish them
     all at ``--rate`` Hz until SIGTERM; print the samples published per second."""
-    settings = config.Settings(
-        connect=(f"tcp/127.0.0.1:{args.port}",), listen=("tcp/127.0.0.1:0",), domain=args.domain
-    )
+    settings = settings_of(args)
     keys = KeySpace(settings.key_prefix)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -102,6 +108,55 @@ def publish(args: argparse.Namespace) -> int:
         for provider in providers:
             provider.close()
     print(json.dumps({"samples_per_s": published / seconds}), flush=True)
+    return 0
+
+
+def settings_of(args: argparse.Namespace) -> config.Settings:
+    return config.Settings(
+        connect=(f"tcp/127.0.0.1:{args.port}",), listen=("tcp/127.0.0.1:0",), domain=args.domain
+    )
+
+
+def echo(args: argparse.Namespace) -> int:
+    """Answer queries on the control key (``echo_key``) with ``--bytes`` of JSON until SIGTERM:
+    a queryable in a process of its own that does nothing else, beside the agent's status."""
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    settings = settings_of(args)
+    answer = json.dumps({"padding": "x" * args.bytes})
+    key = echo_key(KeySpace(settings.key_prefix))
+    with open_session(settings) as session:
+        queryable = session.declare_queryable(key, lambda query: query.reply(key, answer))
+        stop.wait()
+        queryable.undeclare()
+    return 0
+
+
+def echo_key(keys: KeySpace) -> str:
+    return f"{keys.root}/bench/echo"
+
+
+def probe(args: argparse.Namespace) -> int:
+    """Every ``--period`` s ask the agent's status, then the echo process (the control), each
+    answer's latency printed as a JSON line ``{"key", "t", "s"}`` (``t``: the monotonic clock,
+    shared by the processes of the machine; ``s``: null when unanswered), until SIGTERM."""
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    settings = settings_of(args)
+    keys = KeySpace(settings.key_prefix)
+    targets = {"status": keys.agent_status(), "echo": echo_key(keys)}
+    with open_session(settings) as session:
+        while not stop.wait(args.period):
+            for name, key in targets.items():
+                started = time.monotonic()
+                answered = fetch_latest(session, key, timeout=5.0)
+                seconds = time.monotonic() - started if answered else None
+                loop = (
+                    json.loads(answered[0]).get("loop") if answered and name == "status" else None
+                )
+                print(
+                    json.dumps({"key": name, "t": started, "s": seconds, "loop": loop}), flush=True
+                )
     return 0
 
 
@@ -178,8 +233,14 @@ def cpu_part(
     try:
         time.sleep(3.0)  # start-up settled
         rows.append(
-            {"rate_hz": 0.0, "samples_per_s": 0.0, "agent_cpu_pct": agent_cpu(hub, seconds)}
+            {
+                "rate_hz": None,
+                "samples_per_s": 0.0,
+                "agent_cpu_pct": agent_cpu(hub, seconds),
+                "stale": 0,
+            }
         )
+        print(f"  {name}: idle, no provider: agent {rows[0]['agent_cpu_pct']:5.2f} % of a core")
         for rate in rates:
             publisher = subprocess.Popen(
                 [
@@ -220,10 +281,18 @@ def cpu_part(
                 flush=True,
             )
             wait_until(lambda: not (hub.status() or {}).get("providers"), 30)
-        print(f"  {name}: idle: agent {rows[0]['agent_cpu_pct']:5.2f} % of a core", flush=True)
     finally:
         hub.close()
-    return {"agent": name, "rows": rows}
+    idle = rows[0]["agent_cpu_pct"]
+    announced = next((r["agent_cpu_pct"] for r in rows if r["rate_hz"] == 0), None)
+    for row in rows[1:]:
+        row["of_idle"] = row["agent_cpu_pct"] / idle if idle else None
+        row["of_announced"] = row["agent_cpu_pct"] / announced if announced else None
+        print(
+            f"  {name}: {row['rate_hz']:5.1f} Hz: {row['of_idle'] or 0:.2f} x idle without "
+            f"providers, {row['of_announced'] or 0:.2f} x idle with them announced"
+        )
+    return {"agent": name, "rows": rows, "load_average": os.getloadavg()[0]}
 
 
 # -- the status part --------------------------------------------------------------------------
@@ -250,33 +319,68 @@ def available_bytes() -> int:
 
 
 class StatusProbe:
-    """Asks the agent's status every ``period`` s on a thread; keeps (time, latency) pairs."""
+    """The probing process (``probe``: the agent's status and the control queryable every
+    ``period`` s, from a process of its own, so the bench's applications do not delay it) and
+    the echo process; keeps each key's (time, latency) pairs as they come."""
 
     def __init__(self, hub: Hub, period: float = 0.05) -> None:
-        self.samples: list[tuple[float, float]] = []
-        self.unanswered = 0
-        self._stop = threading.Event()
-        self._hub, self._period = hub, period
-        self._thread = threading.Thread(target=self._run, daemon=True)
+        self.samples: dict[str, list[tuple[float, float]]] = {"status": [], "echo": []}
+        self.unanswered: dict[str, int] = {"status": 0, "echo": 0}
+        self.loops: list[tuple[float, dict[str, Any]]] = []
+        where = ["--port", str(hub.port), "--domain", hub.domain]
+        self._echo = subprocess.Popen(
+            [sys.executable, "-m", "bench.agent_live_bench", "echo", "--bytes", "20000", *where],
+            start_new_session=True,
+        )
+        self._probe = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "bench.agent_live_bench",
+                "probe",
+                "--period",
+                str(period),
+                *where,
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
+        self._thread = threading.Thread(target=self._read, daemon=True)
         self._thread.start()
 
-    def _run(self) -> None:
-        while not self._stop.wait(self._period):
-            started = time.monotonic()
-            replies = fetch_latest(self._hub.session, self._hub.keys.agent_status(), timeout=5.0)
-            if replies:
-                self.samples.append((started, time.monotonic() - started))
+    def _read(self) -> None:
+        assert self._probe.stdout is not None
+        for line in self._probe.stdout:
+            sample = json.loads(line)
+            if sample["s"] is None:
+                self.unanswered[sample["key"]] += 1
             else:
-                self.unanswered += 1
+                self.samples[sample["key"]].append((sample["t"], sample["s"]))
+            if sample["loop"]:
+                self.loops.append((sample["t"], sample["loop"]))
+
+    def slowest_pass(self, start: float) -> dict[str, Any]:
+        """The agent's slowest loop pass seen since ``start`` (its status's ``loop``)."""
+        seen = [loop for t, loop in self.loops if t >= start]
+        return max(seen, key=lambda loop: loop["slowest_pass_s"], default={})
+
+    def window(self, key: str, start: float) -> list[float]:
+        return [lat for t, lat in self.samples[key] if t >= start]
 
     def stop(self) -> None:
-        self._stop.set()
+        for process in (self._probe, self._echo):
+            process.send_signal(signal.SIGTERM)
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
         self._thread.join(timeout=10)
 
 
 def status_part(applications: int, every: float, trackers: int, rate: float) -> dict:
     hub = Hub(None, "--pool-size", "2")
-    publisher = room = None
+    publisher = room = probe = None
     opened: list[Relation] = []
     first: dict[str, float] = {}
     asked: dict[str, float] = {}
@@ -306,29 +410,51 @@ def status_part(applications: int, every: float, trackers: int, rate: float) -> 
                     callback=lambda _m, name=name: first.setdefault(name, time.monotonic()),
                 )
             )
-            window_start = time.monotonic()
+            window_start, cpu_before = time.monotonic(), hub.agent_cpu_s()
             time.sleep(every)
-            latencies = [lat for t, lat in probe.samples if t >= window_start]
+            cpu = (hub.agent_cpu_s() - cpu_before) / (time.monotonic() - window_start)
+            latencies = probe.window("status", window_start)
+            control = probe.window("echo", window_start)
             status = hub.status() or {}
+            loop = probe.slowest_pass(window_start)
             rows.append(
                 {
                     "applications": n,
                     "status_median_s": statistics.median(latencies) if latencies else None,
                     "status_max_s": max(latencies) if latencies else None,
+                    "echo_median_s": statistics.median(control) if control else None,
+                    "echo_max_s": max(control) if control else None,
+                    "load_average": os.getloadavg()[0],
+                    "agent_cpu_pct": 100.0 * cpu,
+                    "slowest_pass_s": loop.get("slowest_pass_s"),
+                    "slowest_handler": loop.get("slowest_handler"),
+                    "slowest_handler_s": loop.get("slowest_handler_s"),
                     "workers_alive": sum(c["alive"] for c in status.get("components", {}).values()),
                     "last_plan_s": status.get("planning", {}).get("last_plan_s"),
+                    **{
+                        name: status.get("counters", {}).get(name, 0)
+                        for name in ("replans", "relations_replanned", "plans_memoised")
+                    },
                 }
             )
             r = rows[-1]
             print(
                 f"  {n:3d} applications: status median {1e3 * (r['status_median_s'] or 0):6.1f} ms"
-                f" max {1e3 * (r['status_max_s'] or 0):7.1f} ms; {r['workers_alive']} workers "
-                f"alive; last plan {1e3 * (r['last_plan_s'] or 0):.1f} ms",
+                f" max {1e3 * (r['status_max_s'] or 0):7.1f} ms (echo "
+                f"{1e3 * (r['echo_median_s'] or 0):.1f}/{1e3 * (r['echo_max_s'] or 0):.1f} ms); "
+                f"load {r['load_average']:.1f}, agent {r['agent_cpu_pct']:.0f} % of a core; "
+                f"slowest pass {1e3 * (r['slowest_pass_s'] or 0):.0f} ms "
+                f"({r['slowest_handler']} {1e3 * (r['slowest_handler_s'] or 0):.0f} ms); "
+                f"{r['workers_alive']} workers "
+                f"alive; last plan {1e3 * (r['last_plan_s'] or 0):.1f} ms; {r['replans']} replans, "
+                f"{r['relations_replanned']} relations replanned ({r['plans_memoised']} from "
+                "the memo)",
                 flush=True,
             )
         time.sleep(5.0)
-        probe.stop()
     finally:
+        if probe is not None:
+            probe.stop()
         for relation in opened:
             relation.close()
         if room is not None:
@@ -337,7 +463,8 @@ def status_part(applications: int, every: float, trackers: int, rate: float) -> 
             publisher.send_signal(signal.SIGTERM)
             publisher.wait(timeout=60)
         hub.close()
-    latencies = [lat for _, lat in probe.samples]
+    latencies = [lat for _, lat in probe.samples["status"]]
+    control = [lat for _, lat in probe.samples["echo"]]
     to_first = [first[name] - asked[name] for name in first]
     return {
         "trackers": trackers,
@@ -346,7 +473,10 @@ def status_part(applications: int, every: float, trackers: int, rate: float) -> 
         "status_median_s": statistics.median(latencies),
         "status_max_s": max(latencies),
         "status_answers": len(latencies),
-        "status_unanswered": probe.unanswered,
+        "status_unanswered": probe.unanswered["status"],
+        "echo_median_s": statistics.median(control),
+        "echo_max_s": max(control),
+        "echo_unanswered": probe.unanswered["echo"],
         "first_sample_median_s": statistics.median(to_first) if to_first else None,
         "first_sample_max_s": max(to_first) if to_first else None,
         "applications_without_data": len(asked) - len(first),
@@ -370,8 +500,15 @@ def main(argv: list[str] | None = None) -> int:
     for flag, kind in (("--rate", float), ("--providers", int), ("--edges", int), ("--port", int)):
         publisher.add_argument(flag, type=kind, required=True)
     publisher.add_argument("--domain", required=True)
+    echoing = sub.add_parser("echo")
+    probing = sub.add_parser("probe")
+    echoing.add_argument("--bytes", type=int, required=True)
+    probing.add_argument("--period", type=float, required=True)
+    for command in (echoing, probing):
+        command.add_argument("--port", type=int, required=True)
+        command.add_argument("--domain", required=True)
     parser.add_argument("--part", choices=("cpu", "status", "both"), default="both")
-    parser.add_argument("--rates", default="1,10,50")
+    parser.add_argument("--rates", default="0,1,10,50", help="Hz; 0: announced, not publishing")
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument(
         "--compare",
@@ -384,8 +521,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every", type=float, default=2.0)
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    if args.command == "publish":
-        return publish(args)
+    if args.command in ("publish", "echo", "probe"):
+        return {"publish": publish, "echo": echo, "probe": probe}[args.command](args)
     result: dict[str, Any] = {"machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
     if args.part in ("cpu", "both"):
         rates = [float(r) for r in args.rates.split(",")]
@@ -400,7 +537,9 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"  status: median {1e3 * s['status_median_s']:.1f} ms, max "
             f"{1e3 * s['status_max_s']:.1f} ms over {s['status_answers']} answers "
-            f"({s['status_unanswered']} unanswered); first sample: median "
+            f"({s['status_unanswered']} unanswered); the echo process: median "
+            f"{1e3 * s['echo_median_s']:.1f} ms, max {1e3 * s['echo_max_s']:.1f} ms; first "
+            f"sample: median "
             f"{s['first_sample_median_s']:.2f} s, max {s['first_sample_max_s']:.2f} s"
         )
     args.output.parent.mkdir(parents=True, exist_ok=True)
