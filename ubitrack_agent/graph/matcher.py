@@ -7,7 +7,8 @@ Detection has the three steps of section 5.1:
    attributed SRG edges (the candidates are the edges adjacent to an already bound frame, or the
    edges of the (type, static) partition), so the search never enumerates unrelated subgraphs.
 2. :func:`expand_group` unifies compatible occurrences into inclusion-maximal collections
-   (maximal cliques of a compatibility graph, :func:`networkx.find_cliques`).
+   (sets of pairwise compatible occurrences, each grown greedily from one occurrence:
+   :func:`copy_sets`, polynomial where every maximal clique would be exponential).
 3. A collection is kept as a *space* expansion if each correspondence edge is represented
    ``m`` times with ``m`` in ``M_P``, as a *time* expansion if it is represented once, its
    correspondence edges are dynamic and every other edge is static, and rejected otherwise.
@@ -472,7 +473,8 @@ def expand_group(
     """Expanded instances from occurrences sharing one :func:`group_key` (steps 2 and 3).
 
     A template without correspondence yields one unexpanded instance per occurrence. Otherwise
-    the inclusion-maximal sets of pairwise compatible occurrences are formed and each is kept
+    inclusion-maximal sets of pairwise compatible occurrences are formed (``copies``, by default
+    :func:`copy_sets`; the test oracle passes every maximal clique) and each is kept
     as a space expansion (``m`` copies, ``m`` in the multiplicity), as a time expansion (a single
     occurrence meeting :func:`_time_ok`) or rejected.
     """

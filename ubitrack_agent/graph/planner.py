@@ -5,12 +5,19 @@ For a query ``(from, to, type, static)`` the planner
 1. restricts the SRG to the frames that can take part in a derivation (:func:`relevant_frames`:
    the biconnected block joining the two frames, minus detours longer than ``slack`` hops, the
    reduction section 5.1 suggests for large graphs),
-2. applies every template repeatedly (forward chaining with the matcher of
+2. for a dynamic 6D query whose region falls apart at cut frames (:mod:`.segments`: blocks in
+   a row, Hopcroft and Tarjan 1973), plans each part on its own and chains the parts'
+   derivations (:func:`_plan_parts`; parts shared across plans through a :class:`PartCache`),
+3. applies every template repeatedly (forward chaining with the matcher of
    :mod:`ubitrack_agent.graph.matcher`) until no new, non-redundant edge can be inferred, keeping
    the bookkeeping of section 5.1 (sources, canonical computation, dominance) and adding only edges
    that serve the query (useful types, calibration of unknown rigid relations only, chains
-   towards the query, :meth:`Workspace._wanted`),
-3. returns every distinct derivation of the queried edge, best first by the cost model below.
+   towards the query, :meth:`Workspace._wanted`, and for a dynamic query only chains that can
+   lie on a way of it, :meth:`Workspace.may_chain`),
+4. returns every distinct derivation of the queried edge, best first by the cost model below.
+
+The cost of a plan grows with what a part of the region holds, polynomially (``docs/planner.md``,
+"Complexity and guarantees"), and linearly with the parts a query crosses.
 
 A static query may name a frame the SRG lacks: a calibration introduces it (the tip of a tip
 calibration, :func:`introducible_frames`; ``docs/planner.md``, "Frames introduced by a
