@@ -386,30 +386,14 @@ def status_part(applications: int, every: float, trackers: int, rate: float) -> 
     asked: dict[str, float] = {}
     rows = []
     try:
-        edges = [
-            sys.executable, "-m", "bench.agent_live_bench", "publish", "--rate", str(rate),
-            "--providers", str(trackers), "--edges", "2", "--port", str(hub.port),
-            "--domain", hub.domain,
-        ]  # fmt: skip
-        publisher = subprocess.Popen(edges, stdout=subprocess.DEVNULL, start_new_session=True)
-        wait_until(lambda: len((hub.status() or {}).get("providers", ())) == trackers, 60)
+        publisher = start_publisher(hub, trackers, rate)
         room = add_rooms(hub, trackers)
         probe = StatusProbe(hub)
         for n, relation in enumerate(relations_of(trackers)[:applications], 1):
             if available_bytes() < MIN_AVAILABLE_BYTES:
                 print(f"  stopping at {n - 1} applications: memory", flush=True)
                 break
-            name = f"app{n}"
-            asked[name] = time.monotonic()
-            opened.append(
-                Relation(
-                    hub.session,
-                    hub.keys,
-                    relation,
-                    application=name,
-                    callback=lambda _m, name=name: first.setdefault(name, time.monotonic()),
-                )
-            )
+            opened.append(open_application(hub, relation, f"app{n}", asked, first))
             window_start, cpu_before = time.monotonic(), hub.agent_cpu_s()
             time.sleep(every)
             cpu = (hub.agent_cpu_s() - cpu_before) / (time.monotonic() - window_start)
@@ -481,6 +465,38 @@ def status_part(applications: int, every: float, trackers: int, rate: float) -> 
         "first_sample_max_s": max(to_first) if to_first else None,
         "applications_without_data": len(asked) - len(first),
     }
+
+
+def start_publisher(hub: Hub, trackers: int, rate: float) -> subprocess.Popen:
+    """The process publishing ``trackers`` trackers' two bodies at ``rate`` Hz (``publish``),
+    once the agent has their fragments."""
+    edges = [
+        sys.executable, "-m", "bench.agent_live_bench", "publish", "--rate", str(rate),
+        "--providers", str(trackers), "--edges", "2", "--port", str(hub.port),
+        "--domain", hub.domain,
+    ]  # fmt: skip
+    publisher = subprocess.Popen(edges, stdout=subprocess.DEVNULL, start_new_session=True)
+    wait_until(lambda: len((hub.status() or {}).get("providers", ())) == trackers, 60)
+    return publisher
+
+
+def open_application(
+    hub: Hub,
+    relation: RelationId,
+    name: str,
+    asked: dict[str, float],
+    first: dict[str, float],
+) -> Relation:
+    """Application ``name`` asking for ``relation``: when it asked goes into ``asked``, when
+    its first sample came into ``first`` (``time.monotonic``)."""
+    asked[name] = time.monotonic()
+    return Relation(
+        hub.session,
+        hub.keys,
+        relation,
+        application=name,
+        callback=lambda _m: first.setdefault(name, time.monotonic()),
+    )
 
 
 def add_rooms(hub: Hub, trackers: int) -> Provider:

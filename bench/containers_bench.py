@@ -7,21 +7,26 @@ Everything on loopback with real zenoh and real processes: an agent with its hos
 ``--trackers`` providers (each a tracker ``T<k>`` in room ``R`` seeing bodies ``H<k>_1``,
 ``H<k>_2`` at ``--rate`` Hz, all published by one process: ``bench.agent_live_bench publish``),
 the static ``R -> T<k>`` of each, and applications (``io.application.Relation``) added one every
-``--every`` seconds, five relations per tracker (``bench.agent_live_bench.relations_of``), up
-to ``--applications`` or until the machine has less than 3 GB of memory available.
+``--every`` seconds, up to ``--applications`` or until the machine has less than 3 GB of
+memory available. ``--relations per-tracker``: five relations per tracker
+(``bench.agent_live_bench.relations_of``: about one component each); ``cross``: a body of one
+tracker seen from a body of another, ``H<k>_1 -> H<k+d>_2`` for d = 1, 2, ... (through the
+room: an inversion, a composition with the static edges, about three components each, some
+shared).
 
 After each application: the components the agent wants and those alive, the worker processes
 (the host manager's children running ``services.worker``: containers and idle pool members)
 and their memory, as the unique set size (USS: private clean and dirty pages, from
 ``/proc/<pid>/smaps_rollup``) summed over them, and the machine's one-minute load average.
 At the end: each application's time from its query to its first sample (median, 90th
-percentile, largest). Run::
+percentile, largest), and the CPU each part used over ``CPU_S`` (percent of one core: the
+worker processes, the agent, its host manager, the publishing process). Run::
 
     .venv/bin/python -m bench.containers_bench [--applications 100] [--trackers 20] \\
-        [--rate 10] [--every 1.0] [--pool-size 2]
+        [--rate 10] [--every 1.0] [--pool-size 2] [--relations cross|per-tracker]
 
-Printed, and written to ``bench/results/containers.json``. Growth: the bench's own work is
-O(applications x worker processes) reads of ``/proc``.
+Printed, and written to ``bench/results/containers_<relations>.json``. Growth: the bench's own
+work is O(applications x worker processes) reads of ``/proc``.
 """
 
 from __future__ import annotations
@@ -32,18 +37,27 @@ import os
 import platform
 import signal
 import statistics
-import subprocess
 import sys
 import time
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from bench.agent_live_bench import Hub, add_rooms, available_bytes, relations_of
-from tests.integration.zenoh_helpers import wait_until
+from bench.agent_live_bench import (
+    Hub,
+    add_rooms,
+    available_bytes,
+    open_application,
+    relations_of,
+    start_publisher,
+)
+from bench.cpu_use import _stat
 from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net.keys import RelationId
 
-RESULTS = Path(__file__).parent / "results" / "containers.json"
+RESULTS = Path(__file__).parent / "results"
+CPU_S = 10.0
+"""Seconds over which the CPU of each part is measured at the end."""
 MIN_AVAILABLE_BYTES = 3 << 30
 """Applications stop being added when the machine has less memory available than this."""
 
@@ -102,29 +116,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     asked: dict[str, float] = {}
     rows: list[dict[str, Any]] = []
     try:
-        edges = [
-            sys.executable, "-m", "bench.agent_live_bench", "publish", "--rate", str(args.rate),
-            "--providers", str(args.trackers), "--edges", "2", "--port", str(hub.port),
-            "--domain", hub.domain,
-        ]  # fmt: skip
-        publisher = subprocess.Popen(edges, stdout=subprocess.DEVNULL, start_new_session=True)
-        wait_until(lambda: len((hub.status() or {}).get("providers", ())) == args.trackers, 60)
+        publisher = start_publisher(hub, args.trackers, args.rate)
         room = add_rooms(hub, args.trackers)
-        for n, relation in enumerate(relations_of(args.trackers)[: args.applications], 1):
+        relations = (cross_relations if args.relations == "cross" else relations_of)(args.trackers)
+        for n, relation in enumerate(relations[: args.applications], 1):
             if available_bytes() < MIN_AVAILABLE_BYTES:
                 print(f"  stopping at {n - 1} applications: memory", flush=True)
                 break
-            name = f"app{n}"
-            asked[name] = time.monotonic()
-            opened.append(
-                Relation(
-                    hub.session,
-                    hub.keys,
-                    relation,
-                    application=name,
-                    callback=lambda _m, name=name: first.setdefault(name, time.monotonic()),
-                )
-            )
+            opened.append(open_application(hub, relation, f"app{n}", asked, first))
             time.sleep(args.every)
             rows.append(measure(hub, n, len(first)))
             r = rows[-1]
@@ -139,6 +138,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         while len(first) < len(asked) and time.monotonic() < deadline:
             time.sleep(0.2)
         final = measure(hub, len(asked), len(first))
+        final["cpu_percent"] = cpu_percent(hub, publisher.pid, CPU_S)
     finally:
         for relation in opened:
             relation.close()
@@ -154,6 +154,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "trackers": args.trackers,
         "rate_hz": args.rate,
         "pool_size": args.pool_size,
+        "relations": args.relations,
         "rows": rows,
         "final": final,
         "first_sample_median_s": round(statistics.median(to_first), 3) if to_first else None,
@@ -163,6 +164,39 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "first_sample_max_s": round(to_first[-1], 3) if to_first else None,
         "applications_without_data": len(asked) - len(first),
     }
+
+
+def cpu_percent(hub: Hub, publisher: int, seconds: float) -> dict[str, float]:
+    """Percent of one core each part used over ``seconds``: the worker processes (containers
+    and pool members), the agent, its host manager, the publishing process."""
+    host = [pid for pid in children(hub.agent.pid) if "services.host" in command_line(pid)]
+    parts = {
+        "workers": worker_processes(hub.agent.pid),
+        "agent": [hub.agent.pid],
+        "host_manager": host,
+        "publisher": [publisher],
+    }
+
+    def ticks() -> dict[str, int]:
+        return {
+            name: sum(stat[1] for pid in pids if (stat := _stat(pid)) is not None)
+            for name, pids in parts.items()
+        }
+
+    before, started = ticks(), time.monotonic()
+    time.sleep(seconds)
+    after, took = ticks(), time.monotonic() - started
+    per_s = os.sysconf("SC_CLK_TCK") * took
+    return {name: round(100.0 * (after[name] - before[name]) / per_s, 1) for name in parts}
+
+
+def cross_relations(trackers: int) -> list[RelationId]:
+    """``H<k>_1 -> H<k+d>_2`` for d = 1, 2, ... and each k (module docstring)."""
+    return [
+        RelationId(f"H{k}_1", f"H{(k + d) % trackers}_2", "6D")
+        for d in range(1, trackers)
+        for k in range(trackers)
+    ]
 
 
 def measure(hub: Hub, applications: int, with_data: int) -> dict[str, Any]:
@@ -191,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=10.0, help="Hz per tracked body")
     parser.add_argument("--every", type=float, default=1.0, help="s between applications")
     parser.add_argument("--pool-size", type=int, default=2)
+    parser.add_argument("--relations", choices=("per-tracker", "cross"), default="cross")
     parser.add_argument(
         "--settle", type=float, default=20.0, help="s to wait at the end for first samples"
     )
@@ -206,8 +241,9 @@ def main(argv: list[str] | None = None) -> int:
         },
         **result,
     }
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
+    RESULTS.mkdir(exist_ok=True)
+    written = RESULTS / f"containers_{args.relations.replace('-', '_')}.json"
+    written.write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: v for k, v in results.items() if k != "rows"}, indent=2))
     return 0
 

@@ -30,7 +30,8 @@ measures it) and
 every application has then been fresh for ``HOLD_S`` (at most ``TIMEOUT_S``). Printed per
 trial (with the time, the machine's load average, what arrived: samples, those not correct,
 the longest silence, each outage's start after the event and length), with the median,
-minimum and maximum per kind, and written to ``bench/results/recovery.json``.
+minimum and maximum per kind, and written to ``bench/results/recovery.json`` (with ``--only``,
+``recovery_<its first word>.json``).
 """
 
 from __future__ import annotations
@@ -263,8 +264,9 @@ def main(argv: list[str] | None = None) -> int:
         "summary": summary(rows),
         "trials": rows,
     }
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=2) + "\n")
+    written = RESULTS.with_stem(f"recovery_{args.only.split()[0]}") if args.only else RESULTS
+    written.parent.mkdir(exist_ok=True)
+    written.write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps(results["summary"], indent=2))
     return 0
 

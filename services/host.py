@@ -68,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--capacity",
         type=int,
         default=DEFAULT_CAPACITY,
-        help="workers this host manager runs at most; further starts are refused "
+        help="components this host manager runs at most; further starts are refused "
         f"(default: %(default)s, 1 to {MAX_CAPACITY})",
     )
     parser.add_argument(

@@ -64,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--capacity",
         type=int,
         default=DEFAULT_CAPACITY,
-        help="workers this machine's host manager runs at most; further starts go to other "
+        help="components this machine's host manager runs at most; further starts go to other "
         f"hosts (as `ubitrack host --capacity`; default: %(default)s, 1 to {MAX_CAPACITY})",
     )
     parser.add_argument(

@@ -255,8 +255,9 @@ MAX_LABELS = 32
 """Labels a host manager may carry at most."""
 MAX_CAPACITY = 10_000
 """Largest capacity (workers at most) a host manager may announce."""
-DEFAULT_CAPACITY = 64
-"""Components a host manager runs at most unless told."""
+DEFAULT_CAPACITY = 1000
+"""Components a host manager runs at most unless told: they share its containers (a
+component in a container holds about 1 MB, a container about 100 MB; issue 28)."""
 MAX_CORES = 1024
 """Most containers a host manager may announce it runs its shared components in."""
 
