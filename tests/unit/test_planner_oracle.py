@@ -142,3 +142,10 @@ def test_the_part_cache_keeps_the_most_recently_used_parts():
     cache.put(("d",), [])
     assert cache.get(("b",)) is None  # b was used before c
     assert (cache.hits, cache.misses) == (2, 2)
+
+
+def test_a_catalogue_without_a_chain_plans_the_region_whole(templates):
+    srg = build(Building(rooms=2))
+    without = [t for t in templates if t.signature != "chain"]
+    with pytest.raises(NoSolutionError, match="no combination of patterns"):
+        plan(srg, without, Query(body(0), body(1), "6D"))

@@ -821,9 +821,11 @@ def _plan_parts(
     slack: int,
     per_relation: int,
     cache: PartCache | None,
+    chain: Template,
 ) -> list[Solution]:
     """Solutions of a dynamic 6D query whose region has cut frames (:mod:`segments`): each
-    part planned on its own (or taken from ``cache``), then the parts' derivations chained.
+    part planned on its own (or taken from ``cache``), then the parts' derivations chained by
+    the template ``chain`` (a catalogue without one plans the region whole).
 
     The best solution chains every part's best derivation; the others change one part's
     derivation to its next best, cheapest first, at most ``per_relation`` in all. The links of
@@ -832,7 +834,6 @@ def _plan_parts(
     charges each concatenation's latency on the way of the data). ``O(parts)`` saturations of
     one part's region each.
     """
-    chain = next(t for t in templates if t.signature == "chain" and "6D" in _chain_types(t))
     joined = Workspace(per_relation=sys.maxsize, prefix="j.")
     alternatives: list[list[EdgeRecord]] = []
     for a, b, part in parts:
@@ -944,9 +945,11 @@ def plan(
     new = introducible_frames(srg, templates, query)
     frames = relevant_frames(srg, query.source, query.target, slack, new)
     goal = (query.source, query.target)
-    parts = [] if query.static or query.type != "6D" else cut_frames(srg, frames, *goal)
+    chain = next((t for t in templates if t.signature == "chain" and "6D" in _chain_types(t)), None)
+    chained = chain is not None and not query.static and query.type == "6D"
+    parts = cut_frames(srg, frames, *goal) if chained else []
     if len(parts) > 1:
-        found = _plan_parts(srg, templates, query, parts, slack, per_relation, cache)
+        found = _plan_parts(srg, templates, query, parts, slack, per_relation, cache, chain)
     else:
         rigid = [(query.source, query.target)] if query.static else []
         ws = saturate(srg, templates, frames, query.type, rigid, per_relation, goal, new, slack)
