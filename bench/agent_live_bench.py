@@ -439,14 +439,7 @@ def status_part(applications: int, every: float, trackers: int, rate: float) -> 
     finally:
         if probe is not None:
             probe.stop()
-        for relation in opened:
-            relation.close()
-        if room is not None:
-            room.close()
-        if publisher is not None:
-            publisher.send_signal(signal.SIGTERM)
-            publisher.wait(timeout=60)
-        hub.close()
+        close_all(opened, room, publisher, hub)
     latencies = [lat for _, lat in probe.samples["status"]]
     control = [lat for _, lat in probe.samples["echo"]]
     to_first = [first[name] - asked[name] for name in first]
@@ -478,6 +471,20 @@ def start_publisher(hub: Hub, trackers: int, rate: float) -> subprocess.Popen:
     publisher = subprocess.Popen(edges, stdout=subprocess.DEVNULL, start_new_session=True)
     wait_until(lambda: len((hub.status() or {}).get("providers", ())) == trackers, 60)
     return publisher
+
+
+def close_all(
+    opened: list[Relation], room: Provider | None, publisher: subprocess.Popen | None, hub: Hub
+) -> None:
+    """End a run: the applications, the rooms' provider, the publisher process, the hub."""
+    for relation in opened:
+        relation.close()
+    if room is not None:
+        room.close()
+    if publisher is not None:
+        publisher.send_signal(signal.SIGTERM)
+        publisher.wait(timeout=60)
+    hub.close()
 
 
 def open_application(

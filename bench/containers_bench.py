@@ -35,7 +35,6 @@ import argparse
 import json
 import os
 import platform
-import signal
 import statistics
 import sys
 import time
@@ -47,6 +46,7 @@ from bench.agent_live_bench import (
     Hub,
     add_rooms,
     available_bytes,
+    close_all,
     open_application,
     relations_of,
     start_publisher,
@@ -140,14 +140,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         final = measure(hub, len(asked), len(first))
         final["cpu_percent"] = cpu_percent(hub, publisher.pid, CPU_S)
     finally:
-        for relation in opened:
-            relation.close()
-        if room is not None:
-            room.close()
-        if publisher is not None:
-            publisher.send_signal(signal.SIGTERM)
-            publisher.wait(timeout=60)
-        hub.close()
+        close_all(opened, room, publisher, hub)
     to_first = sorted(first[name] - asked[name] for name in first)
     return {
         "applications": len(asked),
