@@ -68,14 +68,15 @@ class EdgeRecord:
 
 @dataclass
 class EdgeIndex:
-    """Adjacency and (type, static) partitions of the working SRG, updated as edges are
-    inferred (the partitioning of section 5.1 that keeps the subgraph search small).
+    """Adjacency by (frame, type) and (type, static) partitions of the working SRG, updated
+    as edges are inferred (the partitioning of section 5.1 that keeps the subgraph search
+    small).
     ``new_frames`` are frames a query names that have no edge yet: only a pattern's introduced
     roles bind them."""
 
     edges: dict[str, EdgeRecord] = field(default_factory=dict)
-    out: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
-    inn: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
+    out: dict[tuple[str, str], list[str]] = field(default_factory=lambda: defaultdict(list))
+    inn: dict[tuple[str, str], list[str]] = field(default_factory=lambda: defaultdict(list))
     partitions: dict[tuple[str, bool], list[str]] = field(default_factory=lambda: defaultdict(list))
     rigid: dict[str, set[str]] = field(default_factory=lambda: defaultdict(set))
     measured_rigid: set[frozenset[str]] = field(default_factory=set)
@@ -86,8 +87,8 @@ class EdgeIndex:
     def add(self, record: EdgeRecord) -> None:
         """Insert ``record`` into every index."""
         self.edges[record.id] = record
-        self.out[record.source].append(record.id)
-        self.inn[record.target].append(record.id)
+        self.out[(record.source, record.type)].append(record.id)
+        self.inn[(record.target, record.type)].append(record.id)
         self.partitions[(record.type, record.static)].append(record.id)
         if record.measured and not record.static:
             self.dynamic_measured.add(record.id)
@@ -99,8 +100,8 @@ class EdgeIndex:
         """Stop offering ``edge_id`` to the matcher (its record stays, for provenance)."""
         record = self.edges[edge_id]
         self.retired.add(edge_id)
-        self.out[record.source].remove(edge_id)
-        self.inn[record.target].remove(edge_id)
+        self.out[(record.source, record.type)].remove(edge_id)
+        self.inn[(record.target, record.type)].remove(edge_id)
         self.partitions[(record.type, record.static)].remove(edge_id)
 
     def add_rigid(self, a: str, b: str) -> None:
@@ -244,22 +245,37 @@ def _introductions(
 
 
 def _candidates(
-    spec: InputSpec, roles: Mapping[str, str], template: Template, index: EdgeIndex
+    spec: InputSpec,
+    roles: Mapping[str, str],
+    types: Mapping[str, str],
+    template: Template,
+    index: EdgeIndex,
 ) -> Iterable[str]:
-    """Edge ids that could bind ``spec`` given the roles bound so far (most selective first)."""
+    """Edge ids that could bind ``spec`` given the roles and types bound so far (most selective
+    first: the edges of a bound frame of a possible type)."""
+    if spec.type.startswith("$"):
+        var = spec.type[1:]
+        kinds = (types[var],) if var in types else template.type_vars[var]
+    else:
+        kinds = (spec.type,)
     if spec.source in roles:
-        return index.out.get(roles[spec.source], ())
-    if spec.target in roles:
-        return index.inn.get(roles[spec.target], ())
-    for a, b in _rigid_links(template):
-        for near, far in ((a, b), (b, a)):
-            if far in roles and near in (spec.source, spec.target):
-                partners = sorted(index.rigid.get(roles[far], ()))
-                adjacency = index.out if near == spec.source else index.inn
-                return [e for node in partners for e in adjacency.get(node, ())]
-    types = template.type_vars[spec.type[1:]] if spec.type.startswith("$") else (spec.type,)
-    kinds = (False, True) if spec.static is None else (spec.static,)
-    return [e for t in types for s in kinds for e in index.partitions.get((t, s), ())]
+        frame, adjacency = roles[spec.source], index.out
+    elif spec.target in roles:
+        frame, adjacency = roles[spec.target], index.inn
+    else:
+        for a, b in _rigid_links(template):
+            for near, far in ((a, b), (b, a)):
+                if far in roles and near in (spec.source, spec.target):
+                    partners = sorted(index.rigid.get(roles[far], ()))
+                    adjacency = index.out if near == spec.source else index.inn
+                    return [
+                        e for node in partners for t in kinds for e in adjacency.get((node, t), ())
+                    ]
+        statics = (False, True) if spec.static is None else (spec.static,)
+        return [e for t in kinds for s in statics for e in index.partitions.get((t, s), ())]
+    if len(kinds) == 1:
+        return adjacency.get((frame, kinds[0]), ())
+    return [e for t in kinds for e in adjacency.get((frame, t), ())]
 
 
 def _next_input(template: Template, bound: Mapping[int, str], roles: Mapping[str, str]) -> int:
@@ -274,12 +290,25 @@ def _next_input(template: Template, bound: Mapping[int, str], roles: Mapping[str
     return best
 
 
+Viable = Callable[[Mapping[str, str], Mapping[str, str], Mapping[int, str]], bool]
+"""A caller's test of a partial occurrence (role bindings, type bindings, bound input edge ids
+by input index): ``False`` if no occurrence completing it is wanted, so the search drops it
+before binding the remaining inputs (and a complete one before it is built)."""
+
+
+def _any_binding(
+    roles: Mapping[str, str], types: Mapping[str, str], bound: Mapping[int, str]
+) -> bool:
+    return True
+
+
 def _extend(
     template: Template,
     index: EdgeIndex,
     bound: dict[int, str],
     roles: dict[str, str],
     types: dict[str, str],
+    viable: Viable = _any_binding,
 ) -> Iterator[Match]:
     if len(bound) == len(template.inputs):
         for introduced in _introductions(template, index, roles):
@@ -293,18 +322,20 @@ def _extend(
     i = _next_input(template, bound, roles)
     spec = template.inputs[i]
     edges = index.edges
-    for edge_id in _candidates(spec, roles, template, index):
+    chosen = [edges[b] for b in bound.values()]
+    for edge_id in _candidates(spec, roles, types, template, index):
         if edge_id in bound.values():
             continue
         edge = edges[edge_id]
         # bookkeeping of section 5.1: inputs of one occurrence must not share a measured edge
-        if not all(independent(edge, edges[b], index, strict=False) for b in bound.values()):
+        if not all(independent(edge, other, index, strict=False) for other in chosen):
             continue
         made = _bind(spec, edge, template, roles, types)
         if made is None:
             continue
         bound[i] = edge_id
-        yield from _extend(template, index, bound, roles, types)
+        if viable(roles, types, bound):
+            yield from _extend(template, index, bound, roles, types, viable)
         del bound[i]
         _unbind(made)
 
@@ -316,16 +347,20 @@ def _admissible(match: Match, index: EdgeIndex) -> bool:
 
 
 def find_matches(
-    template: Template, index: EdgeIndex, seeds: Iterable[str] | None = None
+    template: Template,
+    index: EdgeIndex,
+    seeds: Iterable[str] | None = None,
+    viable: Viable = _any_binding,
 ) -> Iterator[Match]:
     """Occurrences of the unexpanded ``template`` in ``index`` that pass the bookkeeping rules.
 
     With ``seeds`` (edge ids, e.g. the edges inferred in the last round), only occurrences using
     at least one seed are found (semi-naive evaluation); a match may be yielded more than once
-    if it uses several seeds.
+    if it uses several seeds. ``viable`` prunes partial occurrences (the planner's test of
+    which chains serve a query), checked after each bound input.
     """
     if seeds is None:
-        start = _extend(template, index, {}, {}, {})
+        start = _extend(template, index, {}, {}, {}, viable)
         yield from (m for m in start if _admissible(m, index))
         return
     for seed in seeds:
@@ -333,8 +368,11 @@ def find_matches(
         for i, spec in enumerate(template.inputs):
             roles: dict[str, str] = {}
             types: dict[str, str] = {}
-            if _bind(spec, edge, template, roles, types) is not None:
-                for match in _extend(template, index, {i: seed}, roles, types):
+            bound = {i: seed}
+            if _bind(spec, edge, template, roles, types) is not None and viable(
+                roles, types, bound
+            ):
+                for match in _extend(template, index, bound, roles, types, viable):
                     if _admissible(match, index):
                         yield match
 
@@ -437,6 +475,10 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     around it (a tracker's path seeds the set of that tracker's derivations). With ``n``
     occurrences this is ``O(n**3)`` bit operations on a precomputed compatibility matrix and at
     most ``n`` sets. Each set is maximal: an occurrence left out conflicts with one taken.
+
+    For a fusion, the cheapest ``k`` compatible copies are a set for every ``k`` too (at most
+    ``n`` more): each fused estimate adds its sensors and steps to the cost, so fusing the best
+    few may cost less than fusing all (in a room with eight trackers, three of them).
     """
     order = sorted(members, key=lambda m: _copy_order(m, index))
     n = len(order)
@@ -446,6 +488,7 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
             if compatible(order[i], order[j], index):
                 fits[i] |= 1 << j
                 fits[j] |= 1 << i
+    prefixes = bool(members) and members[0].template.cost.rule == "fusion"
     found: dict[int, None] = {}
     for seed in range(n):
         chosen, allowed = 1 << seed, fits[seed]
@@ -453,6 +496,8 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
             if allowed >> j & 1:
                 chosen |= 1 << j
                 allowed &= fits[j]
+                if prefixes and seed == 0:
+                    found.setdefault(chosen)
         found.setdefault(chosen)
 
     def by_canon(match: Match) -> list[str]:

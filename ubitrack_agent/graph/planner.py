@@ -54,6 +54,7 @@ from ubitrack_agent.graph.matcher import (
     EdgeRecord,
     Instance,
     Match,
+    Viable,
     copy_sets,
     expand_group,
     find_matches,
@@ -393,6 +394,7 @@ class Workspace:
     neighbours: dict[str, set[str]] = field(default_factory=dict)
     detour: int = DEFAULT_SLACK
     prefix: str = ""
+    static_serves: bool = False
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
 
@@ -418,21 +420,38 @@ class Workspace:
             known = self._reach[key] = _hops_in(self.neighbours, start, avoid)
         return known.get(goal, math.inf)
 
-    def may_chain(self, match: Match) -> bool:
-        """Whether a chain's occurrence is worth applying: the chain is wanted (:meth:`_wanted`)
-        and, for a dynamic query, it can lie on a way of the query (:meth:`_on_a_way`)."""
-        roles, types = dict(match.roles), dict(match.types)
-        template = match.template
+    def viable_chain(self, template: Template) -> Viable:
+        """The occurrences of a chain template worth applying, as a test of partial ones for
+        the matcher (which drops the others before it binds the remaining links): the chain is
+        wanted (:meth:`_wanted`: decided as soon as the output's type and source, a point
+        being carried only into a query frame, or both its frames are bound) and, for a
+        dynamic query, once every link is bound, it can lie on a way of the query
+        (:meth:`_on_a_way`)."""
         output = template.outputs[0]
-        source, target = roles[output.source], roles[output.target]
-        edge_type = types[output.type[1:]] if output.type.startswith("$") else output.type
-        if not self._wanted(template, edge_type, source, target):
-            return False
-        if not self.neighbours:
-            return True
-        links = [self.index.edges[e] for e in match.edges]
-        sources = frozenset().union(*(link.sources for link in links))
-        return self._on_a_way(source, target, sum(link.hops for link in links), sources)
+        var = output.type[1:] if output.type.startswith("$") else None
+        links = len(template.inputs)
+        edges = self.index.edges
+
+        def viable(
+            roles: Mapping[str, str], types: Mapping[str, str], bound: Mapping[int, str]
+        ) -> bool:
+            edge_type = types.get(var) if var else output.type
+            source = roles.get(output.source)
+            if edge_type is None or source is None or self.goal is None:
+                return True
+            target = roles.get(output.target)
+            if target is None:
+                return edge_type != "3D" or source in self.goal
+            if not self._wanted(template, edge_type, source, target):
+                return False
+            if len(bound) < links or not self.neighbours:
+                return True
+            chained = [edges[e] for e in bound.values()]
+            hops = sum(link.hops for link in chained)
+            sources = frozenset().union(*(link.sources for link in chained))
+            return self._on_a_way(source, target, hops, sources)
+
+        return viable
 
     def _on_a_way(self, x: str, y: str, hops: int, sources: frozenset[str]) -> bool:
         """Whether a chain X->Y of ``hops`` links on ``sources`` can lie on a derivation of a
@@ -500,12 +519,23 @@ class Workspace:
         """The "new or better edge" rule: reject a re-bracketing of a known computation and an
         edge that uses more sources than an existing one without being cheaper. Keep at most
         ``per_relation`` alternatives per relation: a cheaper newcomer retires the most
-        expensive one (edges already derived from it stay)."""
+        expensive one (edges already derived from it stay).
+
+        Where a static edge serves wherever a dynamic one does (:attr:`static_serves`), the
+        static alternatives of the relation are rivals of a dynamic newcomer too: a dynamic edge
+        on more sources than a static one and no cheaper is dominated (everything independent
+        of it is independent of the static edge, which has no latency), e.g. a tracker's
+        surveyed pose fused with a worse estimate of it through the bodies it tracks."""
         key = (record.source, record.target, record.type, record.static)
         alternatives = self.by_relation[key]
         existing = [self.index.edges[e] for e in alternatives]
         limit = record.cost * (1 + _TIE)
-        for other in existing:
+        rivals = existing
+        if self.static_serves and not record.static:
+            rivals = existing + [
+                self.index.edges[e] for e in self.by_relation.get((*key[:3], True), ())
+            ]
+        for other in rivals:
             if other.cost <= limit and (
                 other.canon == record.canon or other.sources < record.sources
             ):
@@ -675,6 +705,15 @@ def saturate(
         for t in templates
         if (rigid or not t.time_only) and (ws.index.new_frames or not t.introduced)
     ]
+    # a dynamic query takes static edges too; where no pattern asks for a dynamic input, a
+    # static edge serves wherever a dynamic one of its relation does (Workspace._admit)
+    ws.static_serves = (
+        prune
+        and goal is not None
+        and not rigid
+        and all(spec.static is not False for t in templates for spec in t.inputs)
+    )
+    viable = {t.name: ws.viable_chain(t) for t in templates if t.signature == "chain"}
     groups: dict[tuple, dict[tuple[str, ...], Match]] = {}
     applied: set[tuple] = set()
     new = list(ws.index.edges)
@@ -682,9 +721,12 @@ def saturate(
         touched: dict[tuple, None] = {}
         for template in templates:
             chain = prune and template.signature == "chain"
-            for match in find_matches(template, ws.index, new):
-                if chain and not ws.may_chain(match):
-                    continue
+            found = (
+                find_matches(template, ws.index, new, viable[template.name])
+                if chain
+                else find_matches(template, ws.index, new)
+            )
+            for match in found:
                 key = (template.name, group_key(match))
                 members = groups.setdefault(key, {})
                 if match.edges not in members:
