@@ -42,7 +42,8 @@ class EdgeRecord:
     ``canon`` identifies the computation up to concatenation order and inversion (used to drop
     derivations that differ only in how a chain was bracketed or which way it was inverted).
     ``hops`` is the length of the way through the SRG the edge takes: 1 for a measured edge, the
-    sum of its links' for a chain, the distance between its frames for any other step.
+    sum of its links' for a chain, the distance between its frames for any other step;
+    ``frames`` are the frames its sources join.
     """
 
     id: str
@@ -64,6 +65,7 @@ class EdgeRecord:
     steps: frozenset[str] = frozenset()
     providers: frozenset[str] = frozenset()
     hops: int = 1
+    frames: frozenset[str] = frozenset()
 
 
 @dataclass
@@ -324,11 +326,17 @@ def _extend(
     edges = index.edges
     chosen = [edges[b] for b in bound.values()]
     for edge_id in _candidates(spec, roles, types, template, index):
-        if edge_id in bound.values():
-            continue
         edge = edges[edge_id]
         # bookkeeping of section 5.1: inputs of one occurrence must not share a measured edge
-        if not all(independent(edge, other, index, strict=False) for other in chosen):
+        # (which also keeps an edge from binding twice); a plain loop: the hottest of the search
+        sources, clash = edge.sources, False
+        for other in chosen:
+            if not sources.isdisjoint(other.sources) and (
+                edge is other or not independent(edge, other, index, strict=False)
+            ):
+                clash = True
+                break
+        if clash:
             continue
         made = _bind(spec, edge, template, roles, types)
         if made is None:

@@ -448,14 +448,15 @@ class Workspace:
                 return True
             chained = [edges[e] for e in bound.values()]
             hops = sum(link.hops for link in chained)
-            sources = frozenset().union(*(link.sources for link in chained))
-            return self._on_a_way(source, target, hops, sources)
+            frames = frozenset().union(*(link.frames for link in chained))
+            return self._on_a_way(source, target, hops, frames)
 
         return viable
 
-    def _on_a_way(self, x: str, y: str, hops: int, sources: frozenset[str]) -> bool:
-        """Whether a chain X->Y of ``hops`` links on ``sources`` can lie on a derivation of a
-        dynamic query S->T: "no concatenation that cannot lie on a derivation of the query".
+    def _on_a_way(self, x: str, y: str, hops: int, frames: frozenset[str]) -> bool:
+        """Whether a chain X->Y of ``hops`` links whose sources join ``frames`` can lie on a
+        derivation of a dynamic query S->T: "no concatenation that cannot lie on a derivation
+        of the query".
 
         * S reaches X and Y reaches T (or, read inverted, the other way round) without passing
           a frame inside the chain (a frame of its sources other than X and Y): a derivation
@@ -480,14 +481,7 @@ class Workspace:
         ]
         if not ends:
             return False
-        edges = self.index.edges
-        inside = frozenset(
-            frame
-            for source in sources
-            if source in edges
-            for frame in (edges[source].source, edges[source].target)
-            if frame not in (x, y)
-        )
+        inside = frames - {x, y}
         return any(
             self._avoiding(start, a, inside | {b}) + self._avoiding(b, end, inside | {a}) <= limit
             for a, b in ends
@@ -507,6 +501,7 @@ class Workspace:
             provider=data["provider"],
             quality=data["quality"],
             sources=frozenset({edge_id}),
+            frames=frozenset((source, target)),
             cost=edge_cost(data["quality"], len(providers), 0),
             canon=f"m:{edge_id}",
             leaves=(f"m:{edge_id}",),
@@ -589,6 +584,7 @@ class Workspace:
             if frame in self.index.new_frames
         }
         providers = frozenset().union(*(e.providers for e in inputs))
+        frames = frozenset().union(*(e.frames for e in inputs))
         steps = frozenset({step_id}).union(*(e.steps for e in inputs))
         # the computation's signature: an inverse is its input, a chain the sorted computations
         # it chains (any bracketing), any other step its own on its inputs (Template.signature)
@@ -630,6 +626,7 @@ class Workspace:
                     provider=template.service,
                     quality=quality,
                     sources=sources,
+                    frames=frames,
                     cost=edge_cost(quality, len(providers), len(steps)),
                     canon=out_canon,
                     leaves=leaves if composed else (out_canon,),
