@@ -74,6 +74,7 @@ def test_a_quick_run_writes_every_series_with_its_rows(tmp_path: Path) -> None:
         if row["over_limit"]:
             continue
         assert row["plan_ms"] > 0 and row["best_steps"] and row["ratio"] > 0
+        assert row["plan_cpu_ms"] > 0 and row["ratio_cpu"] > 0
         assert row["best_cost"] > 0 and row["shortest_path_hops"] >= 1
     for name, series in results["series"].items():
         rows = [r for r in results["rows"] if r["series"] == name]
