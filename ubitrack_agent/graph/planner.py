@@ -41,7 +41,7 @@ import hashlib
 import math
 import sys
 from collections import OrderedDict, defaultdict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import product
 from typing import Any
@@ -253,12 +253,23 @@ def useful_types(templates: Sequence[Template], wanted: str) -> frozenset[str]:
     return frozenset(useful)
 
 
-def _hops(
-    srg: nx.MultiDiGraph, start: str, limit: float, goal: str | None = None, slack: int = 0
-) -> dict[str, int]:
-    """Hop distances from ``start`` ignoring edge direction, up to ``limit`` hops, or up to
-    ``slack`` hops beyond the distance of ``goal`` once it is reached."""
+def _either_way(srg: nx.MultiDiGraph) -> Callable[[str], Iterable[str]]:
+    """A frame's neighbours in ``srg``, whichever way their edges point."""
     succ, pred = srg.succ, srg.pred
+    return lambda node: (*succ[node], *pred[node])
+
+
+def _hops(
+    around: Callable[[str], Iterable[str]],
+    start: str,
+    limit: float = math.inf,
+    goal: str | None = None,
+    slack: int = 0,
+    avoid: frozenset[str] = frozenset(),
+) -> dict[str, int]:
+    """Hop distances from ``start`` (breadth-first over the neighbours ``around`` gives), up to
+    ``limit`` hops, or up to ``slack`` hops beyond the distance of ``goal`` once it is
+    reached, never entering a frame of ``avoid``. ``O(frames + edges)`` visited."""
     dist = {start: 0}
     frontier = [start]
     depth = 0
@@ -270,26 +281,9 @@ def _hops(
         depth += 1
         nxt = []
         for node in frontier:
-            for other in (*succ[node], *pred[node]):
-                if other not in dist:
-                    dist[other] = depth
-                    nxt.append(other)
-        frontier = nxt
-    return dist
-
-
-def _hops_in(
-    neighbours: Mapping[str, Iterable[str]], start: str, avoid: frozenset[str] = frozenset()
-) -> dict[str, int]:
-    """Hop distances from ``start`` over an adjacency mapping, never entering ``avoid``."""
-    dist = {start: 0}
-    frontier = [start]
-    while frontier:
-        nxt = []
-        for node in frontier:
-            for other in neighbours.get(node, ()):
+            for other in around(node):
                 if other not in dist and other not in avoid:
-                    dist[other] = dist[node] + 1
+                    dist[other] = depth
                     nxt.append(other)
         frontier = nxt
     return dist
@@ -311,8 +305,8 @@ def _chain_distances(
     near = {}
     for end in goal:
         if end in frames:
-            anywhere = _hops(sub, end, float("inf"))
-            along = _hops(poses, end, float("inf"))
+            anywhere = _hops(_either_way(sub), end)
+            along = _hops(_either_way(poses), end)
             near[end] = {n: along.get(n, len(frames) + anywhere[n]) for n in frames}
     source, target = goal
     return near.get(source, near.get(target)), near.get(target, near.get(source))
@@ -356,18 +350,19 @@ def relevant_frames(
         raise NoSolutionError(f"frame(s) {', '.join(missing)} not in the SRG")
     present = [n for n in (source, target) if n in srg]
     if len(present) == 1:
-        return set(_hops(srg, present[0], slack + 1))
-    from_source = _hops(srg, source, float("inf"), target, slack)
+        return set(_hops(_either_way(srg), present[0], slack + 1))
+    around = _either_way(srg)
+    from_source = _hops(around, source, goal=target, slack=slack)
     if target not in from_source:
         part_a = sorted(from_source)
-        part_b = sorted(_hops(srg, target, float("inf")))
+        part_b = sorted(_hops(around, target))
         raise NoSolutionError(
             f"frames {source} and {target} are not connected in the SRG: "
             f"{source} is connected to {{{', '.join(part_a)}}}, "
             f"{target} to {{{', '.join(part_b)}}}"
         )
     bound = from_source[target] + slack
-    from_target = _hops(srg, target, bound)
+    from_target = _hops(around, target, bound)
     near = {n for n, d in from_target.items() if d + from_source.get(n, bound + 1) <= bound}
     sub = nx.Graph()
     sub.add_edges_from((u, v) for u in near for v in (*srg.succ[u], *srg.pred[u]) if v in near)
@@ -398,12 +393,15 @@ class Workspace:
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
 
+    def _around(self, frame: str) -> Iterable[str]:
+        return self.neighbours.get(frame, ())
+
     def _distance(self, a: str, b: str) -> int:
         """Hops between frames ``a`` and ``b`` in the region, either direction (BFS from ``a``,
         ``O(frames + edges)`` once per frame)."""
         known = self._distances.get(a)
         if known is None:
-            known = self._distances[a] = _hops_in(self.neighbours, a)
+            known = self._distances[a] = _hops(self._around, a)
         return known.get(b, len(self.neighbours) + 1)
 
     def _avoiding(self, start: str, goal: str, avoid: frozenset[str]) -> float:
@@ -417,7 +415,7 @@ class Workspace:
         key = (start, avoid)
         known = self._reach.get(key)
         if known is None:
-            known = self._reach[key] = _hops_in(self.neighbours, start, avoid)
+            known = self._reach[key] = _hops(self._around, start, avoid=avoid)
         return known.get(goal, math.inf)
 
     def viable_chain(self, template: Template) -> Viable:
