@@ -30,6 +30,8 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from itertools import permutations
 
+import networkx as nx
+
 from ubitrack_agent.graph.srg import Quality
 from ubitrack_agent.graph.templates import InputSpec, Template
 
@@ -472,6 +474,10 @@ def _copy_order(match: Match, index: EdgeIndex) -> tuple:
     return (sum(e.cost for e in edges), [e.canon for e in edges], match.edges)
 
 
+EXACT_COPIES = 8
+"""Most occurrences in a group for which :func:`copy_sets` also takes every maximal set."""
+
+
 def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     """Sets of pairwise compatible occurrences to expand in space, each inclusion-maximal.
 
@@ -483,6 +489,10 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     around it (a tracker's path seeds the set of that tracker's derivations). With ``n``
     occurrences this is ``O(n**3)`` bit operations on a precomputed compatibility matrix and at
     most ``n`` sets. Each set is maximal: an occurrence left out conflicts with one taken.
+    Greedy sets can miss the best one (a cheap copy taken first may conflict with two that
+    together are worth more), so a group of at most :data:`EXACT_COPIES` occurrences also gets
+    every maximal set (Bron-Kerbosch, :func:`networkx.find_cliques`; at most ``3**(n/3)``, 18
+    for eight): exact where the sets are few, polynomial where they would explode.
 
     For a fusion, the cheapest ``k`` compatible copies are a set for every ``k`` too (at most
     ``n`` more): each fused estimate adds its sensors and steps to the cost, so fusing the best
@@ -507,6 +517,12 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
                 if prefixes and seed == 0:
                     found.setdefault(chosen)
         found.setdefault(chosen)
+    if n <= EXACT_COPIES:  # few: every maximal set, as many as 3**(n/3) (Moon and Moser 1965)
+        graph = nx.Graph()
+        graph.add_nodes_from(range(n))
+        graph.add_edges_from((i, j) for i in range(n) for j in range(i + 1, n) if fits[i] >> j & 1)
+        for clique in sorted(sorted(c) for c in nx.find_cliques(graph)):
+            found.setdefault(sum(1 << j for j in clique))
 
     def by_canon(match: Match) -> list[str]:
         return [index.edges[e].canon for e in match.edges]

@@ -4,7 +4,8 @@ For a query ``(from, to, type, static)`` the planner
 
 1. restricts the SRG to the frames that can take part in a derivation (:func:`relevant_frames`:
    the biconnected block joining the two frames, minus detours longer than ``slack`` hops, the
-   reduction section 5.1 suggests for large graphs),
+   reduction section 5.1 suggests for large graphs; for a dynamic query, only the frames on a
+   simple way that short, :mod:`.ways`),
 2. for a dynamic 6D query whose region falls apart at cut frames (:mod:`.segments`: blocks in
    a row, Hopcroft and Tarjan 1973), plans each part on its own and chains the parts'
    derivations (:func:`_plan_parts`; parts shared across plans through a :class:`PartCache`),
@@ -63,6 +64,7 @@ from ubitrack_agent.graph.matcher import (
 from ubitrack_agent.graph.segments import cut_frames
 from ubitrack_agent.graph.srg import EDGE_TYPES, EdgeAttrs, Quality, check_node_name, edge_ids
 from ubitrack_agent.graph.templates import Template
+from ubitrack_agent.graph.ways import short_way_frames
 
 SIGMA_REF = 1e-3
 """Reference error (m): a variance of SIGMA_REF**2 costs 1."""
@@ -289,6 +291,34 @@ def _hops(
     return dist
 
 
+def _span(
+    srg: nx.MultiDiGraph,
+    frames: set[str],
+    goal: tuple[str, str],
+    wanted: str,
+    around: Callable[[str], Iterable[str]],
+) -> float:
+    """The hops of a shortest way between the goal's frames along edges of the ``wanted``
+    type (a chain of them alone derives the query), or along any edge if there is none: the
+    length the ways of :meth:`Workspace._on_a_way` may exceed by the slack. An edge of another
+    type between the two (a point of the target seen from the source) derives no pose by itself,
+    so it does not shorten the ways the slack is counted from. ``O(frames + edges)``."""
+    source, target = goal
+    along = {f: set() for f in frames}
+    for u, v, edge_type in srg.subgraph(frames).edges(data="type"):
+        if edge_type == wanted:
+            along[u].add(v)
+            along[v].add(u)
+    hops = _hops(along.__getitem__, source, goal=target).get(target)
+    if hops is None:
+
+        def within(frame: str) -> Iterable[str]:
+            return (other for other in around(frame) if other in frames)
+
+        hops = _hops(within, source, goal=target).get(target)
+    return math.inf if hops is None else hops
+
+
 def _chain_distances(
     srg: nx.MultiDiGraph, frames: set[str], goal: tuple[str, str]
 ) -> tuple[dict[str, int], dict[str, int]]:
@@ -390,6 +420,7 @@ class Workspace:
     detour: int = DEFAULT_SLACK
     prefix: str = ""
     static_serves: bool = False
+    span: float = 0
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
 
@@ -471,7 +502,7 @@ class Workspace:
         so there a cycle can carry information.
         """
         start, end = self.goal
-        limit = self._distance(start, end) + self.detour - hops
+        limit = self.span + self.detour - hops
         ends = [
             (a, b)
             for a, b in ((x, y), (y, x))
@@ -691,6 +722,7 @@ def saturate(
     rigid = [(a, b) for a, b in rigid if not ws.index.is_measured_rigid(a, b)]
     if prune and goal is not None and not rigid:  # no time integration: no chain on a cycle
         ws.neighbours = {f: frames.intersection((*srg.succ[f], *srg.pred[f])) for f in frames}
+        ws.span = _span(srg, frames, goal, wanted, ws._around)
     for a, b in rigid:
         ws.index.add_rigid(a, b)
     # a time-only pattern yields static edges, wanted only for rigid relations not yet measured;
@@ -982,6 +1014,10 @@ def plan(
     new = introducible_frames(srg, templates, query)
     frames = relevant_frames(srg, query.source, query.target, slack, new)
     goal = (query.source, query.target)
+    if not query.static:  # its chains lie on short ways without a cycle (Workspace._on_a_way)
+        around = _either_way(srg)
+        longest = _span(srg, frames, goal, query.type, around) + slack
+        frames = short_way_frames(around, frames, *goal, longest)
     chain = next((t for t in templates if t.signature == "chain" and "6D" in _chain_types(t)), None)
     chained = chain is not None and not query.static and query.type == "6D"
     parts = cut_frames(srg, frames, *goal) if chained else []

@@ -1,0 +1,76 @@
+"""Frames on short ways: the frames of a region a derivation of a dynamic query can pass.
+
+The region of a query ``S -> T`` (:func:`ubitrack_agent.graph.planner.relevant_frames`) keeps a
+frame ``n`` when ``hops(S, n) + hops(n, T)`` is within ``slack`` hops of a shortest path. That
+is a lower bound of the shortest *simple* way through ``n``: near a hub (a building frame every
+room is surveyed to) each frame is two hops from both query frames, through the hub both
+times, while every simple way through it goes round the building. A chain of a dynamic query
+must lie on a way without a cycle (:meth:`ubitrack_agent.graph.planner.Workspace._on_a_way`),
+so such a frame only costs the planner matches it rejects.
+
+:func:`short_way_frames` keeps the frames on a simple path from ``S`` to ``T`` no longer than
+the ways a chain may lie on (the span of the query plus the slack): a depth-first enumeration
+of those paths, each step pruned by the remaining distance to ``T`` (breadth-first,
+``O(frames + edges)``). The paths may be many
+(``O(d**L)`` for degree ``d`` and length ``L``, e.g. ways through every body a room's trackers
+see), so the enumeration stops after ``budget`` steps and the region is kept whole: the answer
+is never smaller than the exact set, only sometimes larger.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+DEFAULT_BUDGET = 20_000
+"""Most steps of the enumeration before the region is kept whole."""
+
+
+def short_way_frames(
+    around: Callable[[str], Iterable[str]],
+    frames: set[str],
+    source: str,
+    target: str,
+    longest: float,
+    budget: int = DEFAULT_BUDGET,
+) -> set[str]:
+    """The frames of ``frames`` on a simple path from ``source`` to ``target`` of at most
+    ``longest`` hops, over the neighbours ``around`` gives (module docstring); ``frames``
+    itself if the enumeration takes more than ``budget`` steps or the two are not
+    connected."""
+    to_target = {target: 0}
+    frontier = [target]
+    while frontier:
+        nxt = []
+        for node in frontier:
+            for other in around(node):
+                if other in frames and other not in to_target:
+                    to_target[other] = to_target[node] + 1
+                    nxt.append(other)
+        frontier = nxt
+    if source not in to_target:
+        return frames
+    limit = longest
+    kept = {source, target}
+    path = [source]
+    on_path = {source}
+    # iterative depth-first search: a stack of neighbour iterators, one per frame on the path
+    stack = [iter(around(source))]
+    steps = 0
+    while stack:
+        steps += 1
+        if steps > budget:
+            return frames
+        nxt = next(stack[-1], None)
+        if nxt is None:
+            stack.pop()
+            on_path.discard(path.pop())
+            continue
+        if nxt in on_path or nxt not in to_target or len(path) + to_target[nxt] > limit:
+            continue
+        if nxt == target:
+            kept.update(path)
+            continue
+        path.append(nxt)
+        on_path.add(nxt)
+        stack.append(iter(around(nxt)))
+    return kept
