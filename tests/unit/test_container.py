@@ -161,12 +161,20 @@ def test_finite_refuses_nan_and_infinity_in_any_field():
 
 
 class MatchingSession(FakeSession):
-    """A stand-in session whose publishers report a subscriber outside the process for the
-    keys in :attr:`outside`."""
+    """A stand-in session whose publishers report a subscriber outside the process (zenoh's
+    matching status, told to their matching listeners) for every key but those in
+    :attr:`quiet`, until :meth:`listen` is called for one."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.outside: set[str] = set()
+        self.quiet: set[str] = {KEYS.data("first/AC")}
+        self.listeners: dict[str, list] = {}
+
+    def listen(self, key: str) -> None:
+        """A subscriber outside the process appears on ``key``."""
+        self.quiet.discard(key)
+        for callback in self.listeners.get(key, ()):
+            callback(SimpleNamespace(matching=True))
 
     def declare_publisher(self, key, encoding=None):
         session = self
@@ -174,7 +182,11 @@ class MatchingSession(FakeSession):
         class Publisher:
             @property
             def matching_status(self):
-                return type("Status", (), {"matching": key in session.outside})()
+                return SimpleNamespace(matching=key not in session.quiet)
+
+            def declare_matching_listener(self, callback):
+                session.listeners.setdefault(key, []).append(callback)
+                return SimpleNamespace(undeclare=lambda: session.listeners[key].remove(callback))
 
             def put(self, data):
                 session.puts.append((key, data))
@@ -237,7 +249,7 @@ def test_components_in_one_container_hand_over_objects_and_zenoh_carries_only_th
     assert first.counters["published"] == 3 and puts(session, "first/AC") == []
     assert first.status()["container"] == "c0"
     # A subscriber outside appears: the latest value is sent, and the next ones are put.
-    session.outside.add(KEYS.data("first/AC"))
+    session.listen(KEYS.data("first/AC"))
     wait_for(lambda: puts(session, "first/AC"))
     assert puts(session, "first/AC")[-1].timestamp_ns == 2_002
     session.deliver(KEYS.data("ART/HT"), encode(random_pose(3_000)))

@@ -91,18 +91,33 @@ class LatestValuePublisher:
         worker's), it counts there."""
         self._latest: bytes | None = None
         self._publisher = session.declare_publisher(key, encoding=encoding)
+        self._matching = False
+        """Whether a subscriber listens, as zenoh last told the matching listener (no
+        call into zenoh per sample: asking costs about 8 us, a put nobody takes 2 us)."""
+        self._listener = self._publisher.declare_matching_listener(
+            logs.guarded(self._on_matching, self.counters, log, key)
+        )
+        if self._publisher.matching_status.matching:  # one already listening: no change told
+            self._matching = True
         self._queryable = session.declare_queryable(key)
         self._thread = threading.Thread(target=self._serve, daemon=True, name=f"latest:{key}")
         self._thread.start()
 
     def put(self, payload: bytes) -> None:
+        """Keep ``payload`` as the latest (answered to queries) and publish it if a subscriber
+        listens (zenoh would deliver it to nobody else)."""
         self._latest = payload
-        self._publisher.put(payload)
+        if self._matching:
+            self._publisher.put(payload)
+
+    def _on_matching(self, status: Any) -> None:
+        self._matching = bool(status.matching)
 
     @property
     def matching(self) -> bool:
-        """Whether a subscriber currently listens to this key."""
-        return bool(self._publisher.matching_status.matching)
+        """Whether a subscriber currently listens to this key (zenoh's matching status, as
+        its listener last reported it)."""
+        return self._matching
 
     def _serve(self) -> None:
         # Replies from this thread, never from a zenoh callback; a failed reply (the querier
@@ -135,6 +150,7 @@ class LatestValuePublisher:
         query.reply(self.key, payload, encoding=self._encoding)
 
     def undeclare(self) -> None:
+        self._listener.undeclare()
         self._queryable.undeclare()
         self._publisher.undeclare()
         self._thread.join(timeout=1.0)
