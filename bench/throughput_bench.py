@@ -246,6 +246,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hops", type=int, default=2, help="concatenations per chain (2)")
     parser.add_argument("--cores", type=int, default=2, help="containers (host --cores, 2)")
     parser.add_argument("--break-ms", type=float, default=200.0, help="p99 that breaks (200)")
+    parser.add_argument(
+        "--clients",
+        action="store_true",
+        help="the host manager's worker processes as its zenoh clients (host --workers-as-clients)",
+    )
     parser.add_argument("--idle-s", type=float, default=5.0, help="idle window (default 5)")
     sub = parser.add_subparsers(dest="part")
     for name in ("provide", "apply"):
@@ -305,6 +310,7 @@ def bench(args: argparse.Namespace) -> dict[str, Any]:
         "hops": args.hops,
         "containers": {name: len(group.components) for name, group in groups.items()},
         "seconds_per_step": args.seconds,
+        "workers_as_clients": args.clients,
     }
     statics = []
     try:
@@ -331,8 +337,17 @@ def start(net: Any, args: argparse.Namespace, groups: dict[str, Any], components
     from tests.integration.zenoh_helpers import wait_until
 
     quiet = ("--log-level", "WARNING")
+    clients = ("--workers-as-clients",) if args.clients else ()
     manager = net.spawn(
-        "-m", "services.host", "--name", HOST, "--cores", str(args.cores), "--quiet", *quiet
+        "-m",
+        "services.host",
+        "--name",
+        HOST,
+        "--cores",
+        str(args.cores),
+        "--quiet",
+        *clients,
+        *quiet,
     )
     watch = net.session.liveliness().declare_subscriber(net.keys.all_workers(), history=True)
     wait_until(lambda: _host_up(net, HOST), timeout=60, interval=0.2)
