@@ -154,8 +154,9 @@ COUNTERS = {
     "published": "outputs published",
     "handed_over": "of those, outputs handed as objects to components of the same container "
     "(services.local_wires)",
-    "not_sent": "of those, outputs zenoh did not carry on their data key: no subscriber outside "
-    "the process (an application's relation key is always carried)",
+    "not_sent": "of those, outputs handed over in the container that zenoh did not carry on "
+    "their data key: no subscriber outside the process (a relation key is put for an "
+    "application listening, as every key: net.transport.LatestValuePublisher)",
     "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
     "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
     "rejected_clock": "samples whose timestamp moved by their input's clock offset leaves the "
