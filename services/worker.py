@@ -209,12 +209,10 @@ LATENCY_SAMPLES = 64
 HANDLING_GAIN = 0.05
 """Weight of the latest sample in the running mean of the time to handle one (``handling_us``
 in the status)."""
-SWITCH_INTERVAL_S = 0.0002
-"""How long a thread of a worker process holds Python's lock while another waits for it
-(``sys.setswitchinterval``; Python's default is 5 ms). A zenoh put releases the lock, and
-taking it back waits for whichever thread took it meanwhile to pass it on: with many inputs'
-threads in a container, each put then cost up to the whole interval (a put measured 5.7 ms
-beside one busy thread at 5 ms, 0.17 ms at 0.2 ms: ``docs/performance.md``, "Throughput")."""
+IDLE_S = 1.0
+"""Longest the worker thread waits when nothing is due: commands, a trigger held, a stop and
+a subscriber appearing for an output read in the container wake it (``Worker.step``); every
+0.1 s, it cost an idle container of ten components 2.8 % of a core."""
 SUMMARY_S = 10.0
 """Seconds between two summaries of the expected conditions counted (``_summarise``)."""
 
@@ -560,7 +558,7 @@ class Worker:
             at = None if port is None else (lambda t, port=port: self._ask(port, t))
             encoding = JSON if port is None else MSGPACK  # progress, or a measurement
             self._publishers[key] = LatestValuePublisher(
-                self._session, key, at, self.counters, encoding
+                self._session, key, at, self.counters, encoding, self._wake
             )
         self._routes = routes
         self._progress_routes = progress_routes
@@ -970,6 +968,10 @@ class Worker:
         self._unsent.add(routes[0])
         return routes[1:]
 
+    def _wake(self) -> None:
+        """Wake the worker thread (a subscriber appeared: :meth:`_send_unsent`)."""
+        self._inbox.put(("wake",))
+
     def _send_unsent(self) -> None:
         """Put the latest value of each output key read in the container that zenoh has not
         carried, once a subscriber outside listens (a reader in another process started
@@ -1149,6 +1151,7 @@ class Worker:
 
     def stop(self) -> None:
         self._stop.set()
+        self._inbox.put(("wake",))  # the worker thread ends now, not after its idle wait
 
     def _deliver(self, generation: int, index: int, payloads: list[bytes]) -> None:
         """Handle the samples of input ``index`` of binding ``generation`` taken together, on
@@ -1223,7 +1226,7 @@ class Worker:
             self._guarded(self._process_due_triggers)()
         self._handling_s += HANDLING_GAIN * (time.perf_counter() - start - self._handling_s)
 
-    def step(self, longest_s: float = 0.1) -> None:
+    def step(self, longest_s: float = IDLE_S) -> None:
         """The worker thread's turn: wait at most ``longest_s``, or until the next trigger
         held is due, for control commands (or a wake-up); apply them in order, then compute
         the triggers due; never raises (:meth:`_guarded`). The inputs' samples are handled
@@ -1392,7 +1395,6 @@ def run_worker(
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logs.configure(args.log_level)
-    sys.setswitchinterval(SWITCH_INTERVAL_S)
     if args.spec is None and args.spec_file is None and args.pool_id is None:
         print("worker: give --spec, --spec-file or --pool-id", file=sys.stderr)
         return 2

@@ -79,6 +79,7 @@ class LatestValuePublisher:
         at: Callable[[int], bytes] | None = None,
         counters: Counter[str] | None = None,
         encoding: zenoh.Encoding = MSGPACK,
+        listening: Callable[[], None] | None = None,
     ) -> None:
         self.key = key
         self._encoding = encoding
@@ -90,10 +91,12 @@ class LatestValuePublisher:
         ``rejected_queries``: queries for a time that is no timestamp. Given ``counters`` (a
         worker's), it counts there."""
         self._latest: bytes | None = None
+        self._listening = listening
+        """Called (on zenoh's thread; it must not block) when a subscriber appears."""
         self._publisher = session.declare_publisher(key, encoding=encoding)
         self._matching = False
-        """Whether a subscriber listens, as zenoh last told the matching listener (no
-        call into zenoh per sample: asking costs about 8 us, a put nobody takes 2 us)."""
+        """Whether a subscriber listens, as zenoh last told the matching listener (asking
+        zenoh costs about 8 us)."""
         self._listener = self._publisher.declare_matching_listener(
             logs.guarded(self._on_matching, self.counters, log, key)
         )
@@ -104,14 +107,17 @@ class LatestValuePublisher:
         self._thread.start()
 
     def put(self, payload: bytes) -> None:
-        """Keep ``payload`` as the latest (answered to queries) and publish it if a subscriber
-        listens (zenoh would deliver it to nobody else)."""
+        """Keep ``payload`` as the latest (answered to queries) and publish it. Put even while
+        the matching listener has not told of a subscriber: zenoh routes by the subscriptions
+        it knows, and tells the listener later (a subscriber declared just before a sample on
+        the same link gets the sample, and its matching news after it)."""
         self._latest = payload
-        if self._matching:
-            self._publisher.put(payload)
+        self._publisher.put(payload)
 
     def _on_matching(self, status: Any) -> None:
         self._matching = bool(status.matching)
+        if self._matching and self._listening is not None:
+            self._listening()
 
     @property
     def matching(self) -> bool:
