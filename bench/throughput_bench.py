@@ -2,8 +2,10 @@
 concatenation chains on one 2-core host carry >= 20,000 samples/s with p99 <= 20 ms).
 
 Run: ``python -m bench.throughput_bench [--rates 1000,2000,5000,10000,20000,40000]
-[--seconds 5] [--chains 20] [--hops 2] [--cores 2]``; prints the figures and writes them to
-``bench/results/throughput.json``.
+[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--clients]``; prints the figures and writes
+them to ``bench/results/throughput.json`` (``throughput_clients.json`` with ``--clients``: the
+worker processes as zenoh clients of their host manager, ``ubitrack host
+--workers-as-clients``).
 
 Everything is a real process on loopback with real zenoh (explicit endpoints, multicast off):
 
@@ -271,7 +273,9 @@ def main(argv: list[str] | None = None) -> int:
         return provide(args)
     if args.part == "apply":
         return apply(args)
-    write_results(RESULTS, bench(args))
+    write_results(
+        RESULTS.with_name("throughput_clients.json") if args.clients else RESULTS, bench(args)
+    )
     return 0
 
 
