@@ -79,16 +79,22 @@ class Network:
     def flags(self) -> list[str]:
         return config.member_flags(self.hub)
 
-    def spawn(self, *command: str, tree: Path | None = None) -> subprocess.Popen:
+    def spawn(
+        self, *command: str, tree: Path | None = None, pipes: bool = False
+    ) -> subprocess.Popen:
         """``python *command`` joined to the hub; from the checkout ``tree`` if given (its
-        modules first on the path), else from this one."""
-        if tree is None:
-            process = subprocess.Popen([sys.executable, *command, *self.flags()])
-        else:
-            environment = {**os.environ, "PYTHONPATH": str(tree)}
-            process = subprocess.Popen(
-                [sys.executable, *command, *self.flags()], cwd=tree, env=environment
-            )
+        modules first on the path), else from this one; with ``pipes``, its standard input
+        and output are text pipes to this process."""
+        environment = None if tree is None else {**os.environ, "PYTHONPATH": str(tree)}
+        pipe = subprocess.PIPE if pipes else None
+        process = subprocess.Popen(
+            [sys.executable, *command, *self.flags()],
+            cwd=tree,
+            env=environment,
+            stdin=pipe,
+            stdout=pipe,
+            text=pipes,
+        )
         self.children.append(process)
         return process
 

@@ -96,8 +96,9 @@ log = logging.getLogger("ubitrack.container")
 RESTART_AFTER_FAULTS = 20
 """Unexpected exceptions (``internal_errors``) a component may raise since it started before
 the container restarts it with a fresh state."""
-LOOP_S = 0.05
-"""Longest wait of the container's thread for a command before it looks at its components."""
+LOOP_S = 0.25
+"""Longest wait of the container's thread for a command before it looks at its components
+(a stop wakes it)."""
 JOIN_S = 2.0
 """How long a component stopped may take to end its run."""
 MAX_CONTROL_BYTES = 4 * 1024 * 1024
@@ -354,6 +355,7 @@ class Container:
 
     def stop(self) -> None:
         self._stop.set()
+        self._events.put(("wake", None))
 
     def run(self) -> None:
         """Take commands, rebind, look after the components, until :meth:`stop`; then end

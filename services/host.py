@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import socket
 import sys
 import threading
 from dataclasses import replace
@@ -86,6 +87,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "or crash-prone code: a fault takes down no other component; more processes)",
     )
     parser.add_argument(
+        "--workers-as-clients",
+        action="store_true",
+        help="its worker processes (containers, pool members) join the network as zenoh "
+        "clients of this host manager, one link each, instead of peers linked to every other "
+        "process; it is their gateway, so they are cut off while it is down (an agent that "
+        "dies ends the host manager it started: its applications then get no data until it "
+        "restarts)",
+    )
+    parser.add_argument(
         "--quiet",
         action="store_true",
         help="no status line (every 10 s: workers running, pool ready, requests, the clock's "
@@ -138,6 +148,7 @@ def serve(
     capacity: int = DEFAULT_CAPACITY,
     cores: int = 1,
     isolate: bool = False,
+    workers_as_clients: bool = False,
 ) -> int:
     """Run a host manager until SIGTERM or SIGINT (or, if asked, until standard input closes);
     the exit status (2 for invalid options). ``name`` (default: the ``host_name`` setting)
@@ -165,9 +176,16 @@ def serve(
     from ubitrack_agent.net.session import open_session
 
     keys = KeySpace(settings.key_prefix)
+    flags = config.member_flags(settings)
+    if workers_as_clients:
+        if settings.mode != "peer" or settings.tls:
+            print("host: --workers-as-clients needs a peer without TLS", file=sys.stderr)
+            return 2
+        gateway = f"tcp/127.0.0.1:{free_loopback_port()}"
+        flags = config.as_flags(config.client_of(settings, gateway))
+        settings = replace(settings, listen=(*settings.listen, gateway))
     with open_session(settings) as session:
         info = HostInfo(name, labels, capacity, cores=cores, isolating=isolate)
-        flags = config.member_flags(settings)
         manager = HostManager(session, keys, info, flags, pool_size, Clock.of(settings))
         on_termination(manager.stop)
         if exit_when_stdin_closes:
@@ -178,6 +196,14 @@ def serve(
         with periodic_status(lambda: status_line(manager.status()), not quiet):
             manager.run()
     return 0
+
+
+def free_loopback_port() -> int:
+    """A TCP port on loopback that was free a moment ago (where a host manager's clients
+    connect: ``--workers-as-clients``)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
 
 
 def status_line(status: dict[str, Any]) -> str:
@@ -223,6 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         args.capacity,
         args.cores,
         args.isolate,
+        args.workers_as_clients,
     )
 
 

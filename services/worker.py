@@ -93,7 +93,7 @@ from services.spec import (
 )
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
-from ubitrack_agent.core.codec import decode_run
+from ubitrack_agent.core.codec import RUN_MIN, decode_run
 from ubitrack_agent.core.errors import (
     ExtrapolationError,
     NoDataError,
@@ -141,9 +141,6 @@ _INVERSION = Inversion({})
 INBOX_CAPACITY = 256
 """Control commands waiting for the worker thread; beyond this the oldest are dropped and
 counted."""
-RUN_MIN = 8
-"""Samples of one input taken together from which they are handled as one run
-(:meth:`Worker._on_run`); below it a run's numpy calls cost about what they save."""
 
 CONTROL_FIELDS = frozenset({"inputs", "outputs", "parameters", "relations", "stop"})
 """What a control command may change (see the module docstring)."""
@@ -157,8 +154,9 @@ COUNTERS = {
     "published": "outputs published",
     "handed_over": "of those, outputs handed as objects to components of the same container "
     "(services.local_wires)",
-    "not_sent": "of those, outputs zenoh did not carry on their data key: no subscriber outside "
-    "the process (an application's relation key is always carried)",
+    "not_sent": "of those, outputs handed over in the container that zenoh did not carry on "
+    "their data key: no subscriber outside the process (a relation key is put for an "
+    "application listening, as every key: net.transport.LatestValuePublisher)",
     "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
     "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
     "rejected_clock": "samples whose timestamp moved by their input's clock offset leaves the "
@@ -211,11 +209,10 @@ LATENCY_SAMPLES = 64
 HANDLING_GAIN = 0.05
 """Weight of the latest sample in the running mean of the time to handle one (``handling_us``
 in the status)."""
-MATCHING_S = 0.05
-"""How long the answer to whether a subscriber outside the process listens to an output read
-in the container is used before zenoh is asked again (asking costs about 2 us, a third of a
-concatenation's maths): a reader elsewhere gets the output at most this long after it
-appears (its latest value at once: ``Worker._send_unsent``)."""
+IDLE_S = 1.0
+"""Longest the worker thread waits when nothing is due: commands, a trigger held, a stop and
+a subscriber appearing for an output read in the container wake it (``Worker.step``); every
+0.1 s, it cost an idle container of ten components 2.8 % of a core."""
 SUMMARY_S = 10.0
 """Seconds between two summaries of the expected conditions counted (``_summarise``)."""
 
@@ -331,9 +328,6 @@ class Worker:
         (``services.local_wires``); zenoh carries an output only where something outside the
         process reads it."""
         self._flush: Callable[[], None] = (lambda: None) if wires is None else wires.flush
-        self._outside_readers: dict[str, tuple[float, bool]] = {}
-        """Per output key read in the container: when zenoh was last asked whether a
-        subscriber outside the process listens (monotonic), and its answer."""
         self._unsent: set[str] = set()
         """Output keys read in the container whose latest value zenoh has not carried (no
         subscriber outside then): sent once one appears (:meth:`_send_unsent`)."""
@@ -366,6 +360,7 @@ class Worker:
         self._deliver_guarded = self._guarded(self._deliver)
         self._deliver_values_guarded = self._guarded(self._deliver_values)
         self._on_run_guarded = self._guarded(self._on_run)
+        self._on_value_run_guarded = self._guarded(self._on_value_run)
         self._handling_s = 0.0
         """Running mean of the time to handle a sample (seconds)."""
         self._stop = threading.Event()
@@ -563,7 +558,7 @@ class Worker:
             at = None if port is None else (lambda t, port=port: self._ask(port, t))
             encoding = JSON if port is None else MSGPACK  # progress, or a measurement
             self._publishers[key] = LatestValuePublisher(
-                self._session, key, at, self.counters, encoding
+                self._session, key, at, self.counters, encoding, self._wake
             )
         self._routes = routes
         self._progress_routes = progress_routes
@@ -786,25 +781,48 @@ class Worker:
     def _on_run(self, generation: int, index: int, payloads: list[bytes]) -> None:
         """Samples of one input taken from the inbox together (:meth:`_takes_runs`), each
         handled as :meth:`_on_sample` would, decoded together (``core.codec.decode_run``) and
-        computed together where the service vectorises (:meth:`Service.compute_run`): under
-        load, a numpy call per run instead of one per sample (``docs/performance.md``, "Data
-        path")."""
+        computed together where the service vectorises (:meth:`_run`)."""
         self.counters["received"] += len(payloads)
         self.counters["in_runs"] += len(payloads)
         item = self._inputs[index]
+        decoded = []
+        for value in decode_run(payloads, item.expected, item.level):
+            if isinstance(value, MeasurementError):
+                self._count("rejected", "rejected sample on %s: %s", item.binding.key, value)
+            else:
+                decoded.append(value)
+        self._run(item, decoded)
+
+    def _on_value_run(self, generation: int, index: int, values: list[Measurement]) -> None:
+        """Values handed over together by another component of the container (a run it
+        computed, ``services.local_wires``), handled as :meth:`_on_value` would, computed
+        together where the service vectorises (:meth:`_run`)."""
+        self.counters["received"] += len(values)
+        self.counters["in_runs"] += len(values)
+        item = self._inputs[index]
+        taken = []
+        for value in values:
+            if isinstance(value, item.expected):
+                taken.append(value)
+            else:
+                self._count("rejected", "rejected %s on %s", type(value).__name__, item.binding.key)
+        self._run(item, taken)
+
+    def _run(self, item: _Input, values: list[Measurement]) -> None:
+        """A run of ``item``'s samples, each admitted and buffered as :meth:`_take` would, then
+        computed together where the service vectorises (:meth:`Service.compute_run`): under
+        load, a numpy call per run instead of one per sample (``docs/performance.md``, "Data
+        path")."""
         instants: list[tuple[dict[str, Any], int]] = []
-        for decoded in decode_run(payloads, item.expected, item.level):
-            if isinstance(decoded, MeasurementError):
-                self._count("rejected", "rejected sample on %s: %s", item.binding.key, decoded)
-                continue
-            sample = self._admitted(item, decoded)
+        for value in values:
+            sample = self._admitted(item, value)
             if sample is None or not self._buffered(item, sample):
                 continue
             t = sample.timestamp_ns
             if not self._pending.finish(t):
                 self.counters["stale_triggers"] += 1
-            elif (values := self._values_at(t, item, sample)) is not None:
-                instants.append((values, t))
+            elif (inputs := self._values_at(t, item, sample)) is not None:
+                instants.append((inputs, t))
         if self._computes_runs and len(instants) > 1:
             try:
                 outputs = self._service.compute_run(*zip(*instants, strict=True))
@@ -814,8 +832,8 @@ class Worker:
                 for computed, (_, t) in zip(outputs, instants, strict=True):
                     self._publish_computed(computed, t)
                 return
-        for values, t in instants:
-            self._compute(values, t)
+        for inputs, t in instants:
+            self._compute(inputs, t)
 
     def _wait_s(self, trigger: _Input, timestamp_ns: int) -> float:
         """How long a trigger may wait for the other live dynamic inputs (services.triggers):
@@ -941,19 +959,18 @@ class Worker:
     def _outside(self, routes: list[str]) -> list[str]:
         """Of an output's ``routes`` (its data key first, then its relation keys), those zenoh
         must carry besides the hand-over in the container: the relation keys, and the data key
-        while a subscriber outside this process listens (else it is remembered, to be sent
+        while a subscriber outside this process listens (zenoh's matching status, told to the
+        publisher: ``net.transport.LatestValuePublisher``; else it is remembered, to be sent
         when one appears: :meth:`_send_unsent`)."""
-        key = routes[0]
-        now = time.monotonic()
-        checked_at, outside = self._outside_readers.get(key, (-math.inf, False))
-        if now - checked_at > MATCHING_S:
-            outside = self._publishers[key].matching
-            self._outside_readers[key] = (now, outside)
-        if outside:
+        if self._publishers[routes[0]].matching:
             return routes
         self.counters["not_sent"] += 1
-        self._unsent.add(key)
+        self._unsent.add(routes[0])
         return routes[1:]
+
+    def _wake(self) -> None:
+        """Wake the worker thread (a subscriber appeared: :meth:`_send_unsent`)."""
+        self._inbox.put(("wake",))
 
     def _send_unsent(self) -> None:
         """Put the latest value of each output key read in the container that zenoh has not
@@ -966,7 +983,6 @@ class Worker:
                 self._unsent.discard(key)
             elif publisher.matching:
                 self._unsent.discard(key)
-                self._outside_readers[key] = (time.monotonic(), True)
                 publisher.put(encode(value))
 
     def _composed(self, port: str, value: Measurement) -> Measurement:
@@ -1135,6 +1151,7 @@ class Worker:
 
     def stop(self) -> None:
         self._stop.set()
+        self._inbox.put(("wake",))  # the worker thread ends now, not after its idle wait
 
     def _deliver(self, generation: int, index: int, payloads: list[bytes]) -> None:
         """Handle the samples of input ``index`` of binding ``generation`` taken together, on
@@ -1142,19 +1159,37 @@ class Worker:
         at least :data:`RUN_MIN` as one run where it may (:meth:`_takes_runs`), else one by
         one, each followed by the triggers due; then wake the worker thread if a trigger is
         held that is due before it would wake. Nothing after :meth:`stop`."""
-        if len(payloads) >= RUN_MIN:
-            with self._lock:
-                if self._takes_runs(generation, index) and not self._stop.is_set():
-                    self._handle_run(generation, index, payloads)
-                    self._wake_for_held()
-                    payloads = []
+        if len(payloads) >= RUN_MIN and self._handled_as_run(
+            self._on_run_guarded, generation, index, payloads
+        ):
+            return
         self._handle_each(self._on_sample_guarded, generation, index, payloads)
 
     def _deliver_values(self, generation: int, index: int, values: list[Measurement]) -> None:
         """Handle values handed over on input ``index`` of binding ``generation`` by another
         component of the container, on that component's thread (``services.local_wires``), as
-        :meth:`_deliver` handles samples one by one; then hand this one's outputs on."""
+        :meth:`_deliver` handles samples; then hand this one's outputs on."""
+        if len(values) >= RUN_MIN and self._handled_as_run(
+            self._on_value_run_guarded, generation, index, values
+        ):
+            return
         self._handle_each(self._on_value_guarded, generation, index, values)
+
+    def _handled_as_run(
+        self, handler: Callable[[int, int, list], None], generation: int, index: int, items: list
+    ) -> bool:
+        """Whether ``items`` were handled as one run (:meth:`_takes_runs`), timed per item
+        (``_handling_s``); then the outputs are handed on, the lock released."""
+        with self._lock:
+            if not self._takes_runs(generation, index) or self._stop.is_set():
+                return False
+            start = time.perf_counter()
+            handler(generation, index, items)
+            each = (time.perf_counter() - start) / len(items)
+            self._handling_s += HANDLING_GAIN * (each - self._handling_s)
+            self._wake_for_held()
+        self._flush()
+        return True
 
     def _handle_each(
         self, handler: Callable[[int, int, Any], None], generation: int, index: int, items: list
@@ -1191,15 +1226,7 @@ class Worker:
             self._guarded(self._process_due_triggers)()
         self._handling_s += HANDLING_GAIN * (time.perf_counter() - start - self._handling_s)
 
-    def _handle_run(self, generation: int, index: int, payloads: list[bytes]) -> None:
-        """A run of samples (:meth:`_on_run`), timed per sample (``_handling_s``); under
-        ``_lock``."""
-        start = time.perf_counter()
-        self._on_run_guarded(generation, index, payloads)
-        each = (time.perf_counter() - start) / len(payloads)
-        self._handling_s += HANDLING_GAIN * (each - self._handling_s)
-
-    def step(self, longest_s: float = 0.1) -> None:
+    def step(self, longest_s: float = IDLE_S) -> None:
         """The worker thread's turn: wait at most ``longest_s``, or until the next trigger
         held is due, for control commands (or a wake-up); apply them in order, then compute
         the triggers due; never raises (:meth:`_guarded`). The inputs' samples are handled

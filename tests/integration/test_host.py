@@ -66,12 +66,18 @@ class Network:
         return process
 
     def host(
-        self, name: str, pool_size: int, *via: str, as_the_agent_starts_it: bool = False
+        self,
+        name: str,
+        pool_size: int,
+        *via: str,
+        as_the_agent_starts_it: bool = False,
+        options: tuple[str, ...] = (),
     ) -> subprocess.Popen:
-        """A host manager (``python -m services.host``, or ``via`` another entry point); ``as
-        the agent starts it``: reading a pipe from the test, and ending when it closes."""
+        """A host manager (``python -m services.host``, or ``via`` another entry point) with
+        ``options``; ``as the agent starts it``: reading a pipe from the test, and ending when
+        it closes."""
         entry = via or ("-m", "services.host")
-        options = ("--exit-when-stdin-closes",) if as_the_agent_starts_it else ()
+        options = (*options, "--exit-when-stdin-closes") if as_the_agent_starts_it else options
         process = self.start(
             *entry,
             "--name",
@@ -315,6 +321,40 @@ def test_containers_start_with_a_group_take_additions_and_are_restored_when_kill
     wait_until(lambda: not running(new_pid), timeout=10)
     with pytest.raises(queue.Empty):  # nothing more was reported
         exits.next(timeout=0.5)
+
+
+def sockets(pid: int) -> int:
+    """Open sockets of process ``pid`` (``/proc/<pid>/fd`` links to ``socket:``)."""
+    links = (os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd"))
+    return sum(link.startswith("socket:") for link in links)
+
+
+def test_workers_as_clients_hold_one_link_and_reach_the_hub_when_their_host_manager_dies(hub):
+    """``--workers-as-clients`` (issue 28, "Fewer links"): a container is a zenoh client of
+    its host manager, one socket where a peer links to every other process, and its data
+    flows through the host manager; killed, the host manager no longer carries it, and the
+    container, which outlives it, reaches the network through the hub instead."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    host = hub.host("lab", pool_size=1, options=("--workers-as-clients",))
+    wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=30)
+    group = GroupSpec("lab-0", (relay(keys, "relay1"),))
+    ok, reply = hub.ask("lab", encode_request(StartGroup(group)))
+    assert ok, reply
+    wait_until(lambda: (PUT, "relay1") in [(k, i) for k, i, _ in tokens], timeout=20)
+    output, source = relayed(hub, "relay1")
+    assert sockets(reply["pid"]) == 1
+    host.kill()
+    host.wait(timeout=10)
+    deadline, seen = time.monotonic() + 10, None
+    while seen is None and time.monotonic() < deadline:
+        source.put(encode(Pose(3_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+        try:
+            seen = decode(output.next(timeout=0.2), expected=Pose)
+        except queue.Empty:
+            continue
+    assert seen is not None and seen.timestamp_ns == 3_000
+    assert running(reply["pid"])
 
 
 def running(pid: int) -> bool:

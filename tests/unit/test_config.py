@@ -222,3 +222,16 @@ def test_host_name_and_clock_offset_reach_child_processes():
 def test_bad_host_name_or_clock_offset_is_refused(name, value, fragment):
     with pytest.raises(config.ConfigError, match=fragment):
         config.resolve("member", env={name: value})
+
+
+def test_a_client_of_a_host_manager_connects_to_it_first_then_where_it_connects():
+    host = config.Settings(
+        listen=("tcp/127.0.0.1:0",), connect=("tcp/127.0.0.1:7448",), domain="lab"
+    )
+    client = config.client_of(host, "tcp/127.0.0.1:40001")
+    assert client.mode == "client" and client.listen == () and client.domain == "lab"
+    assert client.connect == ("tcp/127.0.0.1:40001", "tcp/127.0.0.1:7448")
+    parser = argparse.ArgumentParser()
+    config.add_arguments(parser)
+    handed = config.from_arguments(parser.parse_args(config.as_flags(client)), role="member")
+    assert handed.mode == "client" and handed.connect == client.connect and handed.listen == ()

@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from services.container import RESTART_AFTER_FAULTS, Container
 from services.local_wires import LocalWires, finite
+from services.worker import RUN_MIN
 from tests.unit.test_worker_inputs import KEYS, FakeSession
 from ubitrack_agent.core import ErrorPose, Pose, decode, encode
 from ubitrack_agent.core.poses import compose_poses
@@ -161,12 +162,20 @@ def test_finite_refuses_nan_and_infinity_in_any_field():
 
 
 class MatchingSession(FakeSession):
-    """A stand-in session whose publishers report a subscriber outside the process for the
-    keys in :attr:`outside`."""
+    """A stand-in session whose publishers report a subscriber outside the process (zenoh's
+    matching status, told to their matching listeners) for every key but those in
+    :attr:`quiet`, until :meth:`listen` is called for one."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.outside: set[str] = set()
+        self.quiet: set[str] = {KEYS.data("first/AC")}
+        self.listeners: dict[str, list] = {}
+
+    def listen(self, key: str) -> None:
+        """A subscriber outside the process appears on ``key``."""
+        self.quiet.discard(key)
+        for callback in self.listeners.get(key, ()):
+            callback(SimpleNamespace(matching=True))
 
     def declare_publisher(self, key, encoding=None):
         session = self
@@ -174,7 +183,11 @@ class MatchingSession(FakeSession):
         class Publisher:
             @property
             def matching_status(self):
-                return type("Status", (), {"matching": key in session.outside})()
+                return SimpleNamespace(matching=key not in session.quiet)
+
+            def declare_matching_listener(self, callback):
+                session.listeners.setdefault(key, []).append(callback)
+                return SimpleNamespace(undeclare=lambda: session.listeners[key].remove(callback))
 
             def put(self, data):
                 session.puts.append((key, data))
@@ -237,12 +250,35 @@ def test_components_in_one_container_hand_over_objects_and_zenoh_carries_only_th
     assert first.counters["published"] == 3 and puts(session, "first/AC") == []
     assert first.status()["container"] == "c0"
     # A subscriber outside appears: the latest value is sent, and the next ones are put.
-    session.outside.add(KEYS.data("first/AC"))
+    session.listen(KEYS.data("first/AC"))
     wait_for(lambda: puts(session, "first/AC"))
     assert puts(session, "first/AC")[-1].timestamp_ns == 2_002
     session.deliver(KEYS.data("ART/HT"), encode(random_pose(3_000)))
     assert puts(session, "first/AC")[-1].timestamp_ns == 3_000
     assert puts(session, "second/AC")[-1].timestamp_ns == 3_000
+
+
+def test_a_backlog_taken_as_a_run_is_handed_on_as_a_run_and_computed_as_each_alone(running):
+    """A burst of at least ``RUN_MIN`` samples the first component takes as one run reaches
+    the second as one run too (``LocalWires.flush``, ``Worker._on_value_run``), with the
+    results, in order, that each sample alone gives."""
+    container, session = running
+    control(session, {"add": [FIRST.as_dict(), SECOND.as_dict()]})
+    wait_for(lambda: len(container.components) == 2)
+    static, calibration = random_pose(1_000), random_pose(1_000)
+    session.deliver(KEYS.data("ART/WT"), encode(static))
+    session.deliver(KEYS.data("CAL/X"), encode(calibration))
+    moving = [random_pose(2_000 + i) for i in range(2 * RUN_MIN)]
+    session.deliver_burst(KEYS.data("ART/HT"), [encode(sample) for sample in moving])
+    out = puts(session, "second/AC")
+    assert [value.timestamp_ns for value in out] == [sample.timestamp_ns for sample in moving]
+    for value, sample in zip(out, moving, strict=True):
+        want = compose_poses(calibration, compose_poses(static, sample))
+        np.testing.assert_allclose(value.rotation, want.rotation, atol=1e-12)
+        np.testing.assert_allclose(value.translation, want.translation, atol=1e-12)
+    second = container.components["second"].worker
+    assert second.counters["in_runs"] == len(moving) == second.counters["published"]
+    assert container.components["first"].worker.counters["in_runs"] == len(moving)
 
 
 def test_adding_a_producer_moves_its_reader_onto_the_local_wire_and_removing_it_moves_it_back(

@@ -337,7 +337,12 @@ class ThreadRecordingSession(FakeSession):
             self.put_threads.add(threading.current_thread().name)
             publisher.put(data)
 
-        return SimpleNamespace(put=put, undeclare=publisher.undeclare)
+        return SimpleNamespace(
+            put=put,
+            undeclare=publisher.undeclare,
+            matching_status=publisher.matching_status,
+            declare_matching_listener=publisher.declare_matching_listener,
+        )
 
 
 def test_an_input_is_handled_on_its_own_thread_in_order():

@@ -77,7 +77,10 @@ class FakeQuery:
 def publisher(at=None) -> LatestValuePublisher:
     session = SimpleNamespace(
         declare_publisher=lambda key, encoding: SimpleNamespace(
-            put=lambda data: None, undeclare=lambda: None
+            put=lambda data: None,
+            undeclare=lambda: None,
+            matching_status=SimpleNamespace(matching=False),
+            declare_matching_listener=lambda callback: SimpleNamespace(undeclare=lambda: None),
         ),
         declare_queryable=lambda key: SimpleNamespace(__iter__=None),
     )

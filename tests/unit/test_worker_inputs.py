@@ -105,9 +105,13 @@ class FakeSession:
         return SimpleNamespace(undeclare=lambda: self.callbacks.pop(key, None))
 
     def declare_publisher(self, key, encoding=None):
+        """A publisher with a subscriber listening (zenoh's matching status): it puts."""
         self.encodings[key] = encoding
         return SimpleNamespace(
-            put=lambda data: self.puts.append((key, data)), undeclare=lambda: None
+            put=lambda data: self.puts.append((key, data)),
+            undeclare=lambda: None,
+            matching_status=SimpleNamespace(matching=True),
+            declare_matching_listener=lambda callback: SimpleNamespace(undeclare=lambda: None),
         )
 
     def declare_queryable(self, key):

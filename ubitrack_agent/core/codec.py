@@ -53,6 +53,9 @@ _ABSENT = object()
 M = TypeVar("M", bound=Measurement)
 
 
+RUN_MIN = 8
+"""Samples taken together from which :func:`decode_run` is worth it (a worker's backlog,
+``services.worker``): below it a run's numpy calls cost about what they save."""
 SHORT_MESSAGE_FLOATS = 256
 """Up to this many numbers, :func:`_all_finite` checks them as Python floats."""
 

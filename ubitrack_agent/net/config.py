@@ -181,6 +181,19 @@ def member_of(hub: Settings) -> Settings:
     )
 
 
+def client_of(host: Settings, gateway: str) -> Settings:
+    """Settings of a process joining the network as a zenoh client of the peer ``host`` (a
+    host manager) at its endpoint ``gateway``: one link, listening nowhere, instead of a peer
+    linked to every other (gossip scouting makes the peers a full mesh: a process's links grow
+    with the processes, their total with their square). ``host``'s own connect endpoints
+    follow, tried when the gateway is gone (zenoh 1.10's peers forward between the network and
+    their clients: ``docs/services.md``, "Links")."""
+    member = member_of(host)
+    return replace(
+        member, mode="client", connect=tuple(dict.fromkeys((gateway, *member.connect))), listen=()
+    )
+
+
 def as_flags(settings: Settings) -> list[str]:
     """The command-line flags (:func:`add_arguments`) that resolve to ``settings``; how a
     process hands its network to a child process."""

@@ -79,6 +79,7 @@ class LatestValuePublisher:
         at: Callable[[int], bytes] | None = None,
         counters: Counter[str] | None = None,
         encoding: zenoh.Encoding = MSGPACK,
+        listening: Callable[[], None] | None = None,
     ) -> None:
         self.key = key
         self._encoding = encoding
@@ -90,19 +91,39 @@ class LatestValuePublisher:
         ``rejected_queries``: queries for a time that is no timestamp. Given ``counters`` (a
         worker's), it counts there."""
         self._latest: bytes | None = None
+        self._listening = listening
+        """Called (on zenoh's thread; it must not block) when a subscriber appears."""
         self._publisher = session.declare_publisher(key, encoding=encoding)
+        self._matching = False
+        """Whether a subscriber listens, as zenoh last told the matching listener (asking
+        zenoh costs about 8 us)."""
+        self._listener = self._publisher.declare_matching_listener(
+            logs.guarded(self._on_matching, self.counters, log, key)
+        )
+        if self._publisher.matching_status.matching:  # one already listening: no change told
+            self._matching = True
         self._queryable = session.declare_queryable(key)
         self._thread = threading.Thread(target=self._serve, daemon=True, name=f"latest:{key}")
         self._thread.start()
 
     def put(self, payload: bytes) -> None:
+        """Keep ``payload`` as the latest (answered to queries) and publish it. Put even while
+        the matching listener has not told of a subscriber: zenoh routes by the subscriptions
+        it knows, and tells the listener later (a subscriber declared just before a sample on
+        the same link gets the sample, and its matching news after it)."""
         self._latest = payload
         self._publisher.put(payload)
 
+    def _on_matching(self, status: Any) -> None:
+        self._matching = bool(status.matching)
+        if self._matching and self._listening is not None:
+            self._listening()
+
     @property
     def matching(self) -> bool:
-        """Whether a subscriber currently listens to this key."""
-        return bool(self._publisher.matching_status.matching)
+        """Whether a subscriber currently listens to this key (zenoh's matching status, as
+        its listener last reported it)."""
+        return self._matching
 
     def _serve(self) -> None:
         # Replies from this thread, never from a zenoh callback; a failed reply (the querier
@@ -135,6 +156,7 @@ class LatestValuePublisher:
         query.reply(self.key, payload, encoding=self._encoding)
 
     def undeclare(self) -> None:
+        self._listener.undeclare()
         self._queryable.undeclare()
         self._publisher.undeclare()
         self._thread.join(timeout=1.0)
