@@ -30,9 +30,9 @@ share the CPUs with the flow). Phases, in one run:
 In the fused phases the bench also times the fusion hop itself, paired per timestamp: the
 arrival of the fusion's output minus the arrival of the estimate it came from at the
 fusion's input, both seen by this process at the same moment; and the latency of the A.R.T.
-path's estimates at the fusion's input. With the A.R.T. chain folded into the fusion
-(``agent.materialise.fold_inversions``) that input is the A.R.T. tracker's own sample, and the
-hop includes the inversion and its compositions. Each fused phase also reports the fusion
+path's estimates at the fusion's input: the output of the A.R.T. chain's last concatenation,
+handed to the fusion in their container (``services.local_wires``), read here as zenoh carries
+it to this process. Each fused phase also reports the fusion
 worker's counters over the phase (``fusion_counters``: what became of the samples it took).
 
 Per sample the application receives: latency (its arrival, ``time.time_ns()`` in the
