@@ -4,14 +4,17 @@ bindings + relations); issue 28, "the fold's special code is gone").
 
 The plans are those of ``bench.agent_replan_bench``'s generated building (four queries per
 room, every query planned), for several numbers of rooms; for each, the median of
-``--repeat`` timed calls, and the time per component: flat if the growth is linear. Run::
+``--repeat`` timed calls (CPU time of this process, ``time.process_time``: the machine is
+shared, and wall-clock time grows with the other jobs' load), and the time per
+specification: flat if the growth is linear. Run::
 
     .venv/bin/python -m bench.materialise_bench       # writes bench/results/materialise.json
     .venv/bin/python -m bench.materialise_bench --rooms 5 10
 
-Before the fold was retired, the same plans took component_specs plus the fold, whose search
-for each candidate's producer and readers made it O(components^2): 1.4, 3.0, 19.1 and 35.6 ms
-for 5, 10, 25 and 50 rooms (2026-11-27, ``docs/performance.md``).
+Before the fold was retired, a changed plan took component_specs plus the fold, whose search
+for each candidate's producer and readers made it O(components^2): 2.7, 3.3, 14.6 and 41.0 ms
+of CPU for 5, 10, 25 and 50 rooms, against 0.9, 1.9, 8.8 and 10.8 ms for component_specs
+alone, measured side by side (2026-11-27, ``docs/performance.md``).
 """
 
 from __future__ import annotations
@@ -42,9 +45,9 @@ def measure(rooms: int, templates: Any, repeat: int) -> dict[str, Any]:
     plan = plan_relations(srg, templates, frozenset(queries_of(shape)), frozenset())
     times = []
     for _ in range(repeat):
-        started = time.perf_counter()
+        started = time.process_time()
         specs = component_specs(plan.flow, srg, KEYS, plan.relations)
-        times.append(time.perf_counter() - started)
+        times.append(time.process_time() - started)
     median = statistics.median(times)
     bindings = sum(len(spec.inputs) for spec in specs.values())
     row = {
