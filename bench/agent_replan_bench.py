@@ -15,7 +15,7 @@ plan, with the running components of that plan:
   (``agent.plan_memo``, as the agent runs it), on a chain of plans of its own (the plans are
   checked equal);
 * ``everything``: build the SRG, ``agent.flows.plan_relations`` over every relation, the worker
-  specifications (``materialise.component_specs`` + ``fold``): what the agent ran before.
+  specifications (``materialise.component_specs``): what the agent ran before.
 
 Then a 101st query is added, timed the three ways; for the incremental steps, the time of
 ``agent.replanning.replan`` alone is given beside the whole step's (the rest builds the SRG and
@@ -47,7 +47,7 @@ from typing import Any
 from bench.building import Building, body, build, camera, tracker
 from ubitrack_agent.agent.announcements import build_srg
 from ubitrack_agent.agent.flows import plan_relations
-from ubitrack_agent.agent.materialise import component_specs, fold
+from ubitrack_agent.agent.materialise import component_specs
 from ubitrack_agent.agent.plan_memo import PlanMemo
 from ubitrack_agent.agent.planning import Outcome, Request, make_outcome
 from ubitrack_agent.graph.templates import load_templates
@@ -99,7 +99,7 @@ def everything(request: Request, templates) -> float:
     started = time.perf_counter()
     srg = build_srg(request.fragments, without=request.stale)
     plan = plan_relations(srg, templates, request.relations, request.running)
-    fold(component_specs(plan.flow, srg, KEYS, plan.relations))
+    component_specs(plan.flow, srg, KEYS, plan.relations)
     return time.perf_counter() - started
 
 

@@ -14,9 +14,9 @@ writes them to ``bench/results/container_hop.json``.
    sample by sample, back to back and after a gap of ``--gap-ms`` (a CPU that did something
    else since: a tracker's rate). Targets (issue 28): a hop <= 30 us, and within 1.25x of the
    direct maths for the figure-6 flow.
-2. **Figure 6's A.R.T. path**, unfolded (no fold: ``agent.materialise.fold``): an inversion of
-   the tracker's pose, then two concatenations with calibrations (paper, figure 6), each its
-   own component in one container, against ``invert_pose`` and two ``compose_poses`` in a loop.
+2. **Figure 6's A.R.T. path**: an inversion of the tracker's pose, then two concatenations
+   with calibrations (paper, figure 6), each its own component in one container (as the agent
+   runs them), against ``invert_pose`` and two ``compose_poses`` in a loop.
    The fusion that follows (two dynamic inputs, a trigger held for the other) is not in it.
 3. **Add**: a container process (``python -m services.container``) runs a relay of a provider
    publishing every millisecond; an ``{"add": [...]}`` command on its control key starts an

@@ -2,7 +2,7 @@
 (the wait-for-all policy) and on the A.R.T. path alone, and the pose predicted for display.
 
 Run: ``python -m bench.fusion_latency_bench [--phase-seconds S] [--cycles N] [--seed N]
-[--parameters JSON]`` (defaults 15 s phases, one cycle, seed 7, the template's fusion
+[--parameters JSON] [--no-probes]`` (defaults 15 s phases, one cycle, seed 7, the template's fusion
 parameters; about two minutes, and 45 s more per further cycle). Prints a table and writes
 ``bench/results/fusion_latency.json``.
 
@@ -30,10 +30,13 @@ share the CPUs with the flow). Phases, in one run:
 In the fused phases the bench also times the fusion hop itself, paired per timestamp: the
 arrival of the fusion's output minus the arrival of the estimate it came from at the
 fusion's input, both seen by this process at the same moment; and the latency of the A.R.T.
-path's estimates at the fusion's input. With the A.R.T. chain folded into the fusion
-(``agent.materialise.fold_inversions``) that input is the A.R.T. tracker's own sample, and the
-hop includes the inversion and its compositions. Each fused phase also reports the fusion
+path's estimates at the fusion's input: the output of the A.R.T. chain's last concatenation,
+handed to the fusion in their container (``services.local_wires``), read here as zenoh carries
+it to this process. Each fused phase also reports the fusion
 worker's counters over the phase (``fusion_counters``: what became of the samples it took).
+The probes are themselves readers outside the container: its components then put those
+values on zenoh too (an encode and a put on the flow's path, ``services.worker``), which no
+reader of the demo makes them do; ``--no-probes`` leaves them out.
 
 Per sample the application receives: latency (its arrival, ``time.time_ns()`` in the
 subscriber's callback, minus its timestamp; one host, one clock), the error against the
@@ -159,13 +162,14 @@ def fused_phase(
     measure: Callable[..., dict],
     parameters: dict[str, Any],
     art_times: set[int],
+    probes: bool,
     name: str,
     policy: dict[str, Any],
 ) -> dict:
     """A phase of the fused flow with the fusion worker's ``parameters`` and ``policy`` set
-    (a control command), also timing the fusion hop itself: per timestamp, the arrival of
-    the fusion's output minus the arrival of the estimate of that timestamp at its input (the
-    two paired in the same moment, unlike two phases under a varying load)."""
+    (a control command), also timing the fusion hop itself (with ``probes``): per timestamp,
+    the arrival of the fusion's output minus the arrival of the estimate of that timestamp at
+    its input (the two paired in the same moment, unlike two phases under a varying load)."""
     (fusion,) = [(i, c) for i, c in components(session, keys).items() if c["service"] == "fusion"]
     instance, spec = fusion
     if parameters or policy:
@@ -188,8 +192,10 @@ def fused_phase(
         if sent is not None:
             hops.append((now - sent) / 1e6)
 
-    watches = [session.declare_subscriber(b["key"], arrived_in) for b in spec["inputs"]]
-    watches.append(session.declare_subscriber(spec["outputs"]["fused"], arrived_out))
+    watches = []
+    if probes:
+        watches = [session.declare_subscriber(b["key"], arrived_in) for b in spec["inputs"]]
+        watches.append(session.declare_subscriber(spec["outputs"]["fused"], arrived_out))
     before = worker_counters(session, keys, instance)
     try:
         result = measure(name)
@@ -279,6 +285,13 @@ def main(argv: list[str] | None = None) -> None:
         help="fusion parameters (JSON) set on the running worker for both fused phases, e.g. "
         "'{\"linear_noise\": 0.1}' (default: the template's)",
     )
+    parser.add_argument(
+        "--no-probes",
+        action="store_true",
+        help="do not time the fusion hop: no subscriber of this process on the fusion's inputs "
+        "and output, which makes their producers put them on zenoh as well as hand them over in "
+        "their container (an encode and a put on the flow's path)",
+    )
     config.add_arguments(parser)
     args = parser.parse_args(argv)
     if args.cycles < 1:
@@ -329,7 +342,15 @@ def main(argv: list[str] | None = None) -> None:
                 measure = partial(
                     run_phase, args.phase_seconds, relation, arrivals, world, art_times, names
                 )
-                fused = partial(fused_phase, session, keys, measure, args.parameters, art_times)
+                fused = partial(
+                    fused_phase,
+                    session,
+                    keys,
+                    measure,
+                    args.parameters,
+                    art_times,
+                    not args.no_probes,
+                )
                 phases.append(fused("asynchronous", {}))
                 phases.append(fused("synchronised", {"policy": "synchronised"}))
                 children.stop("sim camera")

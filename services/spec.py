@@ -14,13 +14,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from services.registry import Service, lookup
-from ubitrack_agent.net.spec import (
-    ComponentSpec,
-    InputBinding,
-    SpecError,
-    parse_before_port,
-    parse_then_port,
-)
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError
 
 
 def check_spec(spec: ComponentSpec) -> type[Service]:
@@ -54,55 +48,16 @@ def check_bindings(
     where: str = "spec.inputs",
 ) -> None:
     """Every binding names an input port; every port has one binding (several for a
-    correspondence port under space expansion). A binding of a static edge an output is
-    composed with (``net.spec.then_port``) names an output, is static and does not trigger;
-    an output's are numbered from 0 in turn. So are the static edges an ``inverted`` input's
-    samples are composed with (``net.spec.before_port``), which name that input by its index;
-    an inverted input is dynamic and its port takes what an inversion gives."""
-    composed: dict[object, list[int]] = {}
+    correspondence port under space expansion)."""
     for index, binding in enumerate(bindings):
-        then = parse_then_port(binding.port)
-        before = parse_before_port(binding.port)
-        edge = then is not None or before is not None
-        if edge and (not binding.static or binding.trigger or binding.inverted):
-            raise SpecError(
-                f"{where}[{index}]: a composed edge is static and no trigger, not inverted"
-            )
-        if then is not None:
-            output, order, _ = then
-            if output not in service.OUTPUTS:
-                raise SpecError(f"{where}[{index}].port: {service.NAME} has no output {output!r}")
-            composed.setdefault(output, []).append(order)
-        elif before is not None:
-            target, order, _ = before
-            if not (target < len(bindings) and bindings[target].inverted):
-                raise SpecError(f"{where}[{index}].port: input {target} is no inverted input")
-            composed.setdefault(target, []).append(order)
-        elif binding.port not in service.INPUTS:
+        if binding.port not in service.INPUTS:
             raise SpecError(f"{where}[{index}].port: {service.NAME} has no input {binding.port!r}")
-        elif binding.inverted:
-            if binding.static:
-                raise SpecError(f"{where}[{index}]: an inverted input is dynamic")
-            if not inverted_types(service.INPUTS[binding.port].types):
-                raise SpecError(
-                    f"{where}[{index}]: port {binding.port!r} takes nothing an inversion gives"
-                )
-    for target, orders in composed.items():
-        if sorted(orders) != list(range(len(orders))):
-            raise SpecError(f"{where}: the edges composed with {target!r} are not numbered 0..n")
     for port in service.INPUTS:
         count = sum(binding.port == port for binding in bindings)
         listed = expansion == "space" and port in service.CORRESPONDENCE
         if count == 0 or (count > 1 and not listed):
             needed = "one or more bindings" if listed else "exactly one binding"
             raise SpecError(f"{where}: port {port!r} needs {needed}, got {count}")
-
-
-def inverted_types(types: tuple[type, ...]) -> tuple[type, ...]:
-    """Of the measurement types a port takes, those an inverted input of it reads: the ones
-    the inversion service takes (it gives the same type back)."""
-    invertible = lookup("inversion").INPUTS["AB"].types
-    return tuple(kind for kind in types if kind in invertible)
 
 
 def check_outputs(

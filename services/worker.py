@@ -15,8 +15,6 @@ counters on ``<root>/status/<instance>`` and, last, declares the liveliness toke
   sends each worker its whole wiring: a filter is not reset, no subscription renewed);
 * ``{"relations": {"<output port>": ["<relation key>", ...]}}`` also publishes an output on the
   stable relation keys of the applications it serves (replacing the previous ones);
-* ``{"outputs": {"<output port>": "<data key>"}}`` publishes the outputs on other data keys
-  (a concatenation folded into the worker, or no longer: ``agent.materialise``);
 * ``{"stop": true}`` ends the run: the agent (directly, or through the host manager that
   started the worker) stops every worker with it; a pool member then rejoins its pool (or
   exits, if its host manager is gone).
@@ -33,8 +31,6 @@ An input's ``clock_offset_ns`` (``net.spec``) is added to the timestamp of each 
 as it is decoded, before anything else uses it: the agent sets it when the component's inputs
 come from hosts whose clocks differ (``agent.clocks``), so they are synchronised on the agent's
 clock. A query for an input's value at a given time goes upstream at the input's own time.
-An ``inverted`` input's samples are inverted and composed with its ``before`` edges as they
-arrive, before anything else sees them (an inversion folded into the worker, ``net.spec``).
 
 Zenoh's receiving thread, which serves every subscription of the process, runs no Python for a
 sample and is never held up by a computation (``docs/services.md``, "Threads"): each input has
@@ -75,22 +71,14 @@ import time
 import uuid
 from collections import Counter, defaultdict, deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from services.components.basic import Concatenation, Inversion
 from services.expansion import BatchProgress, TimeAccumulator
 from services.local_wires import LocalSubscription, LocalWires, finite
 from services.parent import Parent
 from services.registry import Pushed, Service, lookup
-from services.spec import (
-    check_bindings,
-    check_outputs,
-    check_parameters,
-    check_relations,
-    check_spec,
-    inverted_types,
-)
+from services.spec import check_bindings, check_parameters, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
 from ubitrack_agent.core.codec import RUN_MIN, decode_run
@@ -115,12 +103,9 @@ from ubitrack_agent.net.spec import (
     InputBinding,
     SpecError,
     parse_assignment,
-    parse_before_port,
     parse_bindings,
-    parse_outputs,
     parse_relations,
     parse_spec,
-    parse_then_port,
 )
 from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.net.transport import (
@@ -131,18 +116,11 @@ from ubitrack_agent.net.transport import (
 
 log = logging.getLogger("ubitrack.worker")
 
-_CONCATENATION = Concatenation({})
-"""Composes an output with the static edges of a folded concatenation (``net.spec.then_port``),
-and an inverted input with those of the folded inversion (``net.spec.before_port``): the same
-service the folded component ran."""
-_INVERSION = Inversion({})
-"""Inverts an ``inverted`` input's samples: the service the folded inversion ran."""
-
 INBOX_CAPACITY = 256
 """Control commands waiting for the worker thread; beyond this the oldest are dropped and
 counted."""
 
-CONTROL_FIELDS = frozenset({"inputs", "outputs", "parameters", "relations", "stop"})
+CONTROL_FIELDS = frozenset({"inputs", "parameters", "relations", "stop"})
 """What a control command may change (see the module docstring)."""
 MAX_CONTROL_BYTES = 64 * 1024
 """Largest control command read (a rewire of a dozen bindings takes a kilobyte)."""
@@ -165,14 +143,12 @@ COUNTERS = {
     "superseded": "samples from a subscription that a rewire replaced",
     "buffered": "samples of inputs that do not trigger, kept for the next trigger",
     "stale_triggers": "trigger samples at an instant pending, computed, or before the last",
-    "dropped": "triggers dropped: an input had no value at the trigger's time, or a static edge "
-    "the output or an inverted input is composed with had none yet (net.spec.then_port, "
-    "before_port)",
+    "dropped": "triggers dropped: an input had no value at the trigger's time",
     "not_distinct": "time expansion: correspondence values too close to the last kept",
     "accumulating": "time expansion: fewer correspondences kept than the pattern needs",
     "no_output": "computations that published nothing (an estimate not yet ready)",
     "failed": "computations that failed (degenerate input), or whose result holds NaN or "
-    "infinity (not published), and inverted inputs' samples that could not be composed",
+    "infinity (not published)",
     "too_few_correspondences": "instants with fewer complete correspondences than the pattern "
     "needs (a feature hidden): expected, logged as a summary every SUMMARY_S",
     "overflow": "control commands dropped because the inbox was full",
@@ -187,13 +163,11 @@ COUNTERS = {
 }
 """The worker's counters (its status), each with what it counts. Every sample received is
 ``rejected``, ``rejected_future``, ``rejected_clock``, ``dropped_stale``, ``superseded``,
-``dropped`` or ``failed`` (an inverted input's, not composed with its static edges),
 ``buffered`` or a trigger; every trigger is ``stale_triggers``, ``dropped``, ``not_distinct``,
 ``accumulating``, ``failed``, ``no_output`` or publishes: a worker that receives but does not
 publish shows why.
 For an asynchronous service every sample is a trigger and ends ``gated``, ``late``,
-``dropped_stale``, ``dropped`` (a static edge its output is composed with has no value yet),
-``failed`` or publishes."""
+``dropped_stale``, ``failed`` or publishes."""
 
 ANSWER_TIMEOUT_S = 0.15
 """Longest a query for the value at a given time waits for the worker's lock (a thread
@@ -225,7 +199,6 @@ class ControlCommand:
     parameters: dict[str, Any] | None = None
     service: Service | None = None
     inputs: tuple[InputBinding, ...] | None = None
-    outputs: dict[str, str] | None = None
     relations: dict[str, tuple[str, ...]] | None = None
 
 
@@ -273,35 +246,6 @@ class _Input:
     """The measurement types its port takes."""
     level: str
     """Its samples' validation level: ``WORKER`` from a known worker, else ``FULL``."""
-    composed: tuple[str, int, str] | None
-    """For a static edge an output is composed with (``net.spec.then_port``, no port of the
-    service): the output, its turn and the concatenation port it takes."""
-    before: tuple[int, int, str] | None = None
-    """For a static edge an inverted input's samples are composed with (``net.spec.before_port``,
-    no port of the service): the input's index, its turn and the concatenation port it takes."""
-    edges: list[tuple[str, _Input]] = field(default_factory=list)
-    """For an ``inverted`` input: the static edges its samples are composed with after the
-    inversion, in turn, each with the concatenation port it takes."""
-
-    @property
-    def of_service(self) -> bool:
-        """Whether the input is one of the service's ports (not an edge composed with)."""
-        return self.composed is None and self.before is None
-
-
-def _histories(bindings: list[InputBinding] | tuple[InputBinding, ...]) -> list[tuple]:
-    """What each of ``bindings``' samples are, as far as its buffer goes: its key, whether it is
-    static and, for an inverted input, the edges composed with it after the inversion. A rewire
-    keeps the buffer of an input whose history is unchanged (``Worker._bind``)."""
-    edges: dict[int, list[tuple[int, str, str]]] = {}
-    for binding in bindings:
-        if (before := parse_before_port(binding.port)) is not None:
-            target, order, side = before
-            edges.setdefault(target, []).append((order, side, binding.key))
-    return [
-        (binding.key, binding.static, binding.inverted, tuple(sorted(edges.get(index, []))))
-        for index, binding in enumerate(bindings)
-    ]
 
 
 class Worker:
@@ -367,11 +311,6 @@ class Worker:
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
         self._inputs: list[_Input] = []
-        self._computed: list[_Input] = []
-        """The inputs of the service's ports (not the edges its outputs are composed with)."""
-        self._then: dict[str, list[tuple[str, _Input]]] = {}
-        """By output port, the static edges it is composed with in turn, each with the
-        concatenation port it takes (``net.spec.then_port``)."""
         self._dynamic: list[SampleBuffer] = []
         """The buffers of the dynamic inputs, in binding order."""
         self._no_model: dict[str, float] = {}
@@ -427,16 +366,14 @@ class Worker:
     # -- wiring ---------------------------------------------------------------------------
 
     def _bind(self, bindings: tuple[InputBinding, ...]) -> None:
-        """Subscribe to ``bindings``, keeping the buffers of inputs whose samples stay the
-        same (:func:`_histories`); under ``_lock``."""
+        """Subscribe to ``bindings``, keeping the buffers of inputs whose key (and whether it
+        is static) stays the same; under ``_lock``."""
         self._generation += 1
         generation = self._generation
-        old_bindings = [item.binding for item in self._inputs]
-        old = dict(zip(_histories(old_bindings), self._inputs, strict=True))
+        old = {(item.binding.key, item.binding.static): item for item in self._inputs}
         inputs = []
-        histories = _histories(bindings)
-        for index, (binding, history) in enumerate(zip(bindings, histories, strict=True)):
-            kept = old.pop(history, None)
+        for index, binding in enumerate(bindings):
+            kept = old.pop((binding.key, binding.static), None)
             if kept is None:
                 buffer = SampleBuffer(binding.static)
             else:
@@ -444,33 +381,12 @@ class Worker:
                 buffer = kept.buffer.shifted(moved) if moved else kept.buffer
                 kept.subscriber.undeclare()
             subscriber = self._subscribe(generation, index, binding.key)
-            composed = parse_then_port(binding.port)
-            before = parse_before_port(binding.port)
-            edge = composed or before
-            if edge is not None:  # a static edge composed with: a concatenation's port
-                expected = Concatenation.INPUTS[edge[2]].types
-            else:
-                expected = self._service_class.INPUTS[binding.port].types
-                if binding.inverted:
-                    expected = inverted_types(expected)
+            expected = self._service_class.INPUTS[binding.port].types
             level = WORKER if binding.from_worker else FULL
-            inputs.append(_Input(binding, buffer, subscriber, expected, level, composed, before))
+            inputs.append(_Input(binding, buffer, subscriber, expected, level))
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
-        self._computed = [item for item in inputs if item.of_service]
-        self._then = {}
-        for item in sorted(
-            (item for item in inputs if item.composed is not None),
-            key=lambda item: item.composed,
-        ):
-            output, _, side = item.composed
-            self._then.setdefault(output, []).append((side, item))
-        for item in sorted(
-            (item for item in inputs if item.before is not None), key=lambda item: item.before
-        ):
-            target, _, side = item.before
-            inputs[target].edges.append((side, item))
         self._dynamic = [item.buffer for item in inputs if not item.binding.static]
         static = [(index, item) for index, item in enumerate(inputs) if item.binding.static]
         wanted = [
@@ -597,10 +513,6 @@ class Worker:
             bindings = parse_bindings(command["inputs"], "control.inputs")
             check_bindings(bindings, self._service_class, self.spec.expansion, "control.inputs")
             parsed = replace(parsed, inputs=bindings)
-        if "outputs" in command:
-            outputs = parse_outputs(command["outputs"], "control.outputs")
-            check_outputs(outputs, self._service_class, "control.outputs")
-            parsed = replace(parsed, outputs=outputs)
         if "relations" in command:
             relations = parse_relations(command["relations"], "control.relations")
             check_relations(relations, self._service_class, "control.relations")
@@ -629,13 +541,8 @@ class Worker:
         if command.inputs is not None and command.inputs != self.spec.inputs:
             self.spec = replace(self.spec, inputs=command.inputs)
             self._bind(command.inputs)
-        if command.outputs is not None:
-            self.spec = replace(self.spec, outputs=command.outputs)
-            if self._wires is not None:
-                self._wires.produce(self.spec.instance, tuple(command.outputs.values()))
         if command.relations is not None:
             self.spec = replace(self.spec, relations=command.relations)
-        if command.outputs is not None or command.relations is not None:
             self._route_outputs(self.spec.relations)
         self.counters["rewired"] += 1
         log.info("%s: reconfigured", self.spec.instance)
@@ -682,11 +589,9 @@ class Worker:
     def _take(self, item: _Input, decoded: Measurement) -> None:
         """A sample of ``item`` decoded (or handed over): admitted, buffered, triggering."""
         sample = self._admitted(item, decoded)
-        if sample is not None and item.binding.inverted:
-            sample = self._inverted(item, sample)
         if sample is None:
             return
-        if self._asynchronous and item.of_service:
+        if self._asynchronous:
             self._push(item.binding.port, sample)
             return
         if not self._buffered(item, sample):
@@ -724,31 +629,6 @@ class Worker:
         self._latency[key].append((now - t) / 1e6)
         return sample
 
-    def _inverted(self, item: _Input, sample: Measurement) -> Measurement | None:
-        """An inverted input's ``sample`` as the inversion folded into this worker published
-        it (:meth:`_inverted_value`); None if it cannot be (counted)."""
-        return self._counted(item.binding.key, self._inverted_value, item, sample)
-
-    def _counted(
-        self, what: str, compose: Callable[..., Measurement], *args: Any
-    ) -> Measurement | None:
-        """``compose(*args)``, a value composed with static edges (an output's ``then``, an
-        inverted input's ``before``), or None if it cannot be, counted: ``dropped`` while an
-        edge has no value yet (:class:`NoDataError`), ``failed`` if the maths refuses."""
-        try:
-            return compose(*args)
-        except NoDataError as exc:
-            self._count("dropped", "%s not composed yet: %s", what, exc)
-        except (ValueError, MeasurementError, ArithmeticError) as exc:
-            self._count("failed", "%s not composed: %s", what, exc)
-        return None
-
-    def _inverted_value(self, item: _Input, sample: Measurement) -> Measurement:
-        """``sample`` inverted, then composed with the input's ``before`` edges
-        (``net.spec.before_port``; :class:`NoDataError` before one's first value)."""
-        t = sample.timestamp_ns
-        return self._composed_with(item.edges, _INVERSION.compute({"AB": sample}, t)["BA"])
-
     def _buffered(self, item: _Input, sample: Measurement) -> bool:
         """Whether ``sample`` joined its input's buffer (else counted: beyond its horizon)."""
         if item.buffer.add(sample):
@@ -769,8 +649,6 @@ class Worker:
         return (
             binding.trigger
             and not binding.static
-            and item.of_service
-            and not binding.inverted
             and len(self._dynamic) == 1
             and not self._asynchronous
             and self._accumulator is None
@@ -884,7 +762,7 @@ class Worker:
         values: dict[str, Any] = {}
         space = self.spec.expansion == "space"
         tolerance_ns = self.spec.tolerance_ns
-        for item in self._computed:
+        for item in self._inputs:
             port = item.binding.port
             value = sample if item is trigger else item.buffer.value_at(t, tolerance_ns)
             if space and port in self._service_class.CORRESPONDENCE:
@@ -927,11 +805,6 @@ class Worker:
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         wires = self._wires
         for port, value in outputs.items():
-            if port in self._then:
-                composed = self._counted(port, self._composed, port, value)
-                if composed is None:
-                    continue
-                value = composed
             routes = self._routes.get(port, ())
             if wires is not None and routes and wires.has_readers(routes[0]):
                 if not finite(value):
@@ -985,23 +858,6 @@ class Worker:
                 self._unsent.discard(key)
                 publisher.put(encode(value))
 
-    def _composed(self, port: str, value: Measurement) -> Measurement:
-        """``value`` of output ``port`` concatenated in turn with the static edges it is
-        composed with (``net.spec.then_port``), each its latest value (:meth:`_input_at`:
-        :class:`NoDataError` before its first sample): the concatenation a folded component
-        did (``agent.materialise``), by its own service."""
-        return self._composed_with(self._then[port], value)
-
-    def _composed_with(self, edges: list[tuple[str, _Input]], value: Measurement) -> Measurement:
-        """``value`` concatenated in turn with ``edges`` (each a static input's latest value,
-        as the concatenation's port ``AB`` or ``BC``)."""
-        t = value.timestamp_ns
-        for side, item in edges:
-            edge = self._input_at(item, t)
-            pair = {"AB": edge, "BC": value} if side == "AB" else {"AB": value, "BC": edge}
-            value = _CONCATENATION.compute(pair, t)["AC"]
-        return value
-
     def _publish_progress(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         """The progress of each static estimate (``ubitrack_agent.net.progress``), also when
         there is no estimate to publish (still initialising, or the relation moves)."""
@@ -1050,12 +906,6 @@ class Worker:
         its samples or, after them, asked of its producer in turn (a chain of such queries
         ends at a filter that predicts, or at a measured edge, which refuses). A time
         expansion's result is not a function of time and is not answered."""
-        if port in self._then:
-            return self._composed(port, self._service_value_at(port, t))
-        return self._service_value_at(port, t)
-
-    def _service_value_at(self, port: str, t: int) -> Measurement:
-        """The service's own output ``port`` at ``t`` (see :meth:`_value_at`)."""
         if self._asynchronous:
             return self._service.value_at(port, t)
         if self.spec.expansion == "time":
@@ -1063,7 +913,7 @@ class Worker:
         space = self.spec.expansion == "space"
         values: dict[str, Any] = {}
         no_model: list[NoMotionModel] = []
-        for item in self._computed:
+        for item in self._inputs:
             correspondence = space and item.binding.port in self._service_class.CORRESPONDENCE
             try:
                 value: Measurement | None = self._input_at(item, t)
@@ -1111,8 +961,7 @@ class Worker:
         value = decode(payload, expected=item.expected)
         if value.timestamp_ns != upstream_t:
             raise ExtrapolationError(f"{item.binding.key} answered for another time")
-        value = value.restamped(t)
-        return self._inverted_value(item, value) if item.binding.inverted else value
+        return value.restamped(t)
 
     # -- status and life cycle ----------------------------------------------------------------
 

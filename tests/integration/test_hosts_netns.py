@@ -322,16 +322,14 @@ def pose_estimation_hosts(status: dict) -> set[str]:
 def test_the_pose_estimation_runs_on_hmd_beside_the_camera(live):
     """Placement (docs/architecture.md): the pose estimation beside the camera whose features
     it reads; as that section describes this split, the fusion beside the application (hmd),
-    with the A.R.T. chain folded into it: the A.R.T. tracker's stream crosses to hmd as the
-    chain's output did."""
+    and the A.R.T. chain's inversion beside the A.R.T. tracker (room): the chain's output
+    crosses to hmd, one stream."""
     d = live
     status = d.wait_for(lambda s: pose_estimation_hosts(s) and s, RECOVERY_S, "all placed")
     hosts = pose_estimation_hosts(status)
     assert hosts == {"hmd"}, f"pose estimation on {hosts}\n{d.explain()}"
     assert hosts_of(status, "fusion") == {"hmd"}, d.explain()
-    (fusion,) = [c for c in status["components"].values() if c["service"] == "fusion"]
-    inverted = [b["key"] for b in fusion["inputs"] if b.get("inverted")]
-    assert inverted == [d.keys.data("ART/ART_HT")], d.explain()
+    assert hosts_of(status, "inversion") == {"room"}, d.explain()
 
 
 def test_the_camera_clock_ahead_is_measured_and_aligned_where_it_meets_the_art(live):

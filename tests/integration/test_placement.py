@@ -10,11 +10,13 @@ import signal
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
 from tests.integration.test_host import Network, network
 from tests.integration.zenoh_helpers import member_flags, wait_until
+from ubitrack_agent.graph.templates import shipped_templates
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net.keys import RelationId
 
@@ -104,3 +106,65 @@ def test_a_query_may_require_labels_of_the_host_running_its_last_hop(net):
         wait_until(lambda: net.agent_status()["unplaced"], timeout=30)
         (reason,) = set(net.agent_status()["unplaced"].values())
         assert reason == "no live host manager has the labels vr"
+
+
+# -- isolation: a container of its own (docs/architecture.md, "Containers") -------------------
+
+
+def containers_of(net: Network, relation: Relation) -> dict[str, tuple[str, int]]:
+    """Each component's container and process, once the relation flows and every component
+    runs (the agent's status)."""
+
+    def placed() -> dict[str, tuple[str, int]] | None:
+        components = (net.agent_status() or {}).get("components", {})
+        where = {i: (c["container"], c["pid"]) for i, c in components.items() if c["alive"]}
+        done = components and len(where) == len(components) and all(p for _, p in where.values())
+        return where if done and relation.latest() is not None else None
+
+    return wait_until(placed, timeout=30)
+
+
+def isolating_templates(directory: Path) -> Path:
+    """The shipped templates, the inversion's asking for a container of its own."""
+    directory.mkdir()
+    for entry in shipped_templates().iterdir():
+        if entry.name.endswith(".yaml"):
+            text = entry.read_text(encoding="utf-8")
+            extra = "isolation: own\n" if entry.name == "inversion.yaml" else ""
+            (directory / entry.name).write_text(text + extra)
+    return directory
+
+
+def test_a_template_asking_for_isolation_runs_in_a_container_process_of_its_own(net, tmp_path):
+    """``isolation: own`` in the inversion's template: the flow's inversion (of the static
+    ART->WT) runs alone in ``room-<instance>``, a process of its own; the concatenation reading
+    it runs in the host's shared container ``room-0`` and reads it over zenoh."""
+    templates = isolating_templates(tmp_path / "templates")
+    net.agent("--no-host", "--templates", str(templates))
+    net.host("room", 2, "-m", "services.host", "--cores", "1")
+    net.tracker(host_name="room")
+    with Relation(net.session, net.keys, WT_HT, application="app", host="room") as relation:
+        where = containers_of(net, relation)
+        services = {i: c["service"] for i, c in net.agent_status()["components"].items()}
+        (inversion,) = [i for i, service in services.items() if service == "inversion"]
+        (concatenation,) = [i for i, service in services.items() if service == "concatenation"]
+        assert where[inversion][0] == f"room-{inversion}", where
+        assert where[concatenation][0] == "room-0", where
+        assert where[inversion][1] != where[concatenation][1], where  # two processes
+        assert set(net.status("room")["instances"]) == {inversion, concatenation}
+        before = relation.received
+        wait_until(lambda: relation.received > before + 10, timeout=30)
+
+
+def test_a_host_asking_for_isolation_runs_each_component_in_a_process_of_its_own(net):
+    """``ubitrack host --isolate``: every component of the host alone in a container."""
+    net.agent("--no-host")
+    net.host("room", 2, "-m", "services.host", "--isolate")
+    net.tracker(host_name="room")
+    with Relation(net.session, net.keys, WT_HT, application="app", host="room") as relation:
+        where = containers_of(net, relation)
+        assert len(where) == 2 and {c for c, _ in where.values()} == {
+            f"room-{instance}" for instance in where
+        }, where
+        assert len({pid for _, pid in where.values()}) == 2, where
+        assert net.agent_status()["host_info"]["room"]["isolating"] is True

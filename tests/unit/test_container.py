@@ -418,8 +418,8 @@ def test_a_container_takes_commands_on_its_own_incarnation_s_key(running):
 
 
 def test_while_a_plan_changes_two_producers_of_one_key_feed_its_reader_locally(running):
-    """A concatenation folded into its producer, or taken out of it: the old and the new
-    producer publish on one key until the old one is rewired (make before break)."""
+    """Two components of a group publishing on one key, as two processes may (the agent names
+    each output after its component, so it never asks for it): the reader takes both."""
     container, session = running
     twin = replace(concatenation("twin", "ART/WT2", "ART/HT2"), outputs=FIRST.outputs)
     control(session, {"add": [FIRST.as_dict(), twin.as_dict(), SECOND.as_dict()]})

@@ -118,6 +118,8 @@ def test_parse_and_load_round_trip(tmp_path):
         "gpu",
         "camera",
     }
+    assert template.isolation == "shared"  # a container shared with its derivation
+    assert parse_template({**POSE_2D3D, "isolation": "own"}).isolation == "own"
 
 
 @pytest.mark.parametrize(
@@ -170,6 +172,10 @@ def _broken(path: str, value):
         ("host_labels", "gpu", "field 'host_labels': must be a list"),
         ("host_labels", ["gpu", "a b"], "field 'host_labels'[1]: 'a b' is not well-formed"),
         ("host_labels", ["gpu", "gpu"], "duplicate entries"),
+        ("isolation", "alone", "field 'isolation': 'alone' is not one of ['own', 'shared']"),
+        ("isolation", True, "field 'isolation': True is not one of"),
+        ("isolation", ["own"], "field 'isolation': ['own'] is not one of"),
+        ("signature", {"step": 1}, "field 'signature': {'step': 1} is not one of"),
     ],
 )
 def test_invalid_templates_name_file_entry_and_field(path, value, message):

@@ -186,34 +186,6 @@ def test_enrich_adds_pattern_counters_and_rate_and_leaves_odd_components_alone()
     assert enrich({"components": []}, {}, {}, {}) == {"components": []}
 
 
-def test_a_component_is_named_with_the_concatenations_folded_into_it():
-    inputs = [
-        {"port": "AB", "key": "k1"},
-        {"port": "then/BA/0/BC", "key": "k2"},
-        {"port": "then/BA/1/AB", "key": "k3"},
-        "odd",
-        {"port": 7},
-    ]
-    status = {"components": {"a": {"service": "inversion", "inputs": inputs}}}
-    enriched = enrich(status, {}, {}, pattern_names(load_templates()))
-    assert enriched["components"]["a"]["pattern"] == "Inversion + Concatenation + Concatenation"
-
-
-def test_a_component_is_named_with_the_inversions_folded_into_it():
-    inputs = [
-        {"port": "AB", "key": "k1", "inverted": True},
-        {"port": "AB", "key": "k2", "inverted": 1},
-        {"port": "before/0/0/BC", "key": "k3"},
-        {"port": "then/fused/0/BC", "key": "k4"},
-    ]
-    status = {"components": {"a": {"service": "fusion", "inputs": inputs}}}
-    enriched = enrich(status, {}, {}, pattern_names(load_templates()))
-    assert (
-        enriched["components"]["a"]["pattern"]
-        == "MultiTrackerFusion + Inversion + Concatenation + Concatenation"
-    )
-
-
 def test_output_rates_are_published_samples_per_second_of_workers_seen_twice():
     before = {"a": {"published": 10}, "b": {"published": 3}, "c": {"published": "x"}}
     after = {"a": {"published": 40}, "b": {"published": 1}, "c": {"published": 9}, "d": {}}

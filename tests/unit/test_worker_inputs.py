@@ -249,6 +249,7 @@ def test_a_sample_older_than_its_buffer_is_counted(worker):
         (json.dumps({"stop": 1}).encode(), "stop"),  # 1 == True in Python, not in JSON
         (json.dumps({"stop": True, "inputs": []}).encode(), "stop"),
         (json.dumps({"parameters": {"nope": 1}}).encode(), "unknown parameters"),
+        (json.dumps({"outputs": {"AC": KEYS.data("x/AC")}}).encode(), "output keys are fixed"),
         (b"{" + b" " * 70_000 + b"}", "oversized"),
     ],
 )

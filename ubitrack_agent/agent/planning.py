@@ -28,8 +28,9 @@ from typing import Any
 
 from ubitrack_agent.agent.flows import Planner
 from ubitrack_agent.agent.live_srg import LiveSrg, live_srg
-from ubitrack_agent.agent.materialise import Keys, component_specs, fold
+from ubitrack_agent.agent.materialise import Keys, component_specs
 from ubitrack_agent.agent.replanning import Planned, replan
+from ubitrack_agent.graph.dataflow import DataFlow
 from ubitrack_agent.graph.planner import plan
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import RelationId
@@ -57,15 +58,16 @@ class Request:
 class Outcome:
     """A plan made from ``request``: the live SRG and the planning state, and the worker
     specifications of its plan (``labels``: the host labels each component's template
-    requires; ``folded``: the components folded into another, ``materialise.fold``), the host
-    of each measured edge by data key, and how long it took (all of it, and replanning)."""
+    requires; ``isolated``: the components whose template asks for a container of their own,
+    ``Template.isolation``), the host of each measured edge by data key, and how long it took
+    (all of it, and replanning)."""
 
     request: Request
     live: LiveSrg
     planned: Planned
     wanted: Mapping[str, ComponentSpec]
-    folded: Mapping[str, str]
     labels: Mapping[str, frozenset[str]]
+    isolated: frozenset[str]
     data_hosts: Mapping[str, str]
     seconds: float
     replanning_s: float = 0.0
@@ -83,8 +85,8 @@ def make_outcome(
     """Plan ``request`` incrementally from ``previous``, each relation with ``planner`` (pure
     but for a memo's contents: ``agent.plan_memo``). The specifications are made again only
     when the plan changed. O(edges) for the SRG (``agent.live_srg``: no fragment parsed
-    again), plus :func:`.replanning.replan`'s cost, plus O(components) when the plan
-    changed."""
+    again), plus :func:`.replanning.replan`'s cost, plus O(components + bindings) when the
+    plan changed (``materialise.component_specs``)."""
     started = time.perf_counter()
     live, removed, added = live_srg(
         request.fragments, request.stale, previous.live if previous else None
@@ -105,15 +107,10 @@ def make_outcome(
     )
     replanning_s = time.perf_counter() - replanning_started
     if previous is not None and planned.plan is previous.planned.plan:
-        wanted, folded, labels = previous.wanted, previous.folded, previous.labels
+        wanted, labels, isolated = previous.wanted, previous.labels, previous.isolated
     else:
-        required = {template.name: template.host_labels for template in templates}
-        components = planned.plan.flow.components.values()
-        labels = {c.id: required.get(c.template, frozenset()) for c in components}
-        wanted, folded = fold(
-            component_specs(planned.plan.flow, srg, keys, planned.plan.relations),
-            keep={instance for instance, needed in labels.items() if needed},
-        )
+        labels, isolated = template_needs(planned.plan.flow, templates)
+        wanted = component_specs(planned.plan.flow, srg, keys, planned.plan.relations)
     if previous is not None and srg is previous.live.srg:
         data_hosts = previous.data_hosts
     else:
@@ -124,8 +121,21 @@ def make_outcome(
         }
     seconds = time.perf_counter() - started
     return Outcome(
-        request, live, planned, wanted, folded, labels, data_hosts, seconds, replanning_s
+        request, live, planned, wanted, labels, isolated, data_hosts, seconds, replanning_s
     )
+
+
+def template_needs(
+    flow: DataFlow, templates: Sequence[Template]
+) -> tuple[dict[str, frozenset[str]], frozenset[str]]:
+    """What the templates of ``flow``'s components ask of where they run: the host labels each
+    component requires (``Template.host_labels``, :func:`.placement.place`), and the
+    components that run alone in a container of their own (``Template.isolation`` ``own``,
+    :func:`.placement.group_containers`). O(components + templates)."""
+    by_name = {template.name: template for template in templates}
+    of = {c.id: by_name.get(c.template) for c in flow.components.values()}
+    labels = {instance: t.host_labels if t else frozenset() for instance, t in of.items()}
+    return labels, frozenset(instance for instance, t in of.items() if t and t.isolation == "own")
 
 
 class BackgroundPlanner:

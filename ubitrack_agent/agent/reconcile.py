@@ -1,8 +1,9 @@
 """What turns the running workers into the wanted ones: start, stop, or update in place.
 
-Specifications are compared field by field. Inputs, output keys, relation routes and
-parameters can change in a running worker (a control command, ``services.worker``); a change of
-service, expansion or timing options needs a new process.
+Specifications are compared field by field. Inputs, relation routes and parameters can change
+in a running worker (a control command, ``services.worker``); a change of service, output
+keys, expansion or timing options needs a new one (output keys never change in practice: the
+agent names each output after its component, ``agent.materialise``).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import Any
 
 from ubitrack_agent.net.spec import ComponentSpec
 
-IN_PLACE = ("inputs", "outputs", "relations", "parameters")
+IN_PLACE = ("inputs", "relations", "parameters")
 
 
 @dataclass(frozen=True)

@@ -59,7 +59,7 @@ import queue
 import threading
 import time
 from collections import Counter, defaultdict
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 from ubitrack_agent.agent.announcements import (
@@ -84,7 +84,7 @@ from ubitrack_agent.agent.placement import group_containers, place
 from ubitrack_agent.agent.plan_memo import PlanMemo
 from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, make_outcome
 from ubitrack_agent.agent.problems import Guard, Problems
-from ubitrack_agent.agent.reconcile import reconcile
+from ubitrack_agent.agent.reconcile import IN_PLACE, reconcile
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.clock import Clock, ClockEstimate, serve_clock
 from ubitrack_agent.net.config import Settings
@@ -185,9 +185,9 @@ class Agent:
         once placed."""
         self._planned: dict[str, ComponentSpec] = {}
         """The specifications as the plan made them, before clock correction."""
-        self._folded: dict[str, str] = {}
-        """The plan's components folded into another (concatenations into their producers,
-        inversions into their readers): the instance each runs in (``agent.materialise.fold``)."""
+        self.isolated: frozenset[str] = frozenset()
+        """The plan's components whose template asks for a container of their own
+        (``Template.isolation``, :func:`.placement.group_containers`)."""
         self.clock_problems: dict[str, str] = {}
         """Why a component's input clocks cannot be aligned within its tolerance."""
         self._host_name = settings.host_name
@@ -458,7 +458,7 @@ class Agent:
         planned = outcome.planned
         if planned.plan is not self.plan:
             self.wanted, self._planned = dict(outcome.wanted), dict(outcome.wanted)
-            self._folded, self._labels = dict(outcome.folded), dict(outcome.labels)
+            self._labels, self.isolated = dict(outcome.labels), outcome.isolated
         self.srg, self.plan, self._data_hosts = planned.srg, planned.plan, dict(outcome.data_hosts)
         self.counters["replans"] += 1
         self.counters["relations_replanned"] += len(planned.replanned)
@@ -872,7 +872,7 @@ class Agent:
                 wiring = spec.as_dict()
                 self._send_control(
                     instance,
-                    {k: wiring[k] for k in ("inputs", "outputs", "relations", "parameters")},
+                    {k: wiring[k] for k in IN_PLACE},
                 )
 
     def _refresh_status(self) -> None:
@@ -919,7 +919,7 @@ class Agent:
                     "host": placement.host if (placement := placements.get(instance)) else None,
                     "pid": placement.pid if placement else None,
                     "container": placement.container if placement else None,
-                    "derives": _derived_edges(plan, instance, self._folded),
+                    "derives": _derived_edges(plan, instance),
                 }
                 for instance, spec in self.wanted.items()
             },
@@ -1021,17 +1021,18 @@ class _Containers:
             }
             isolating = {host for host, info in agent.hosts.info.items() if info.isolating}
             groups = group_containers(
-                agent.wanted, self._placement, cores, isolating_hosts=isolating, current=current
+                agent.wanted,
+                self._placement,
+                cores,
+                isolated=agent.isolated,
+                isolating_hosts=isolating,
+                current=current,
             )
             self._of = {s.instance: name for name, g in groups.items() for s in g.components}
         return self._of[instance]
 
 
-def _derived_edges(plan: Plan | None, instance: str, folded: Mapping[str, str]) -> list[list[str]]:
-    """The SRG edges ``[from, to, type]`` a component derives (none for a relay), with those
-    of the components folded into it (``agent.materialise.fold``)."""
-    if plan is None:
-        return []
-    ids = [instance, *(component for component, into in folded.items() if into == instance)]
-    components = [plan.flow.components[i] for i in ids if i in plan.flow.components]
-    return [[src, dst, typ] for c in components for _, src, dst, typ in c.outputs]
+def _derived_edges(plan: Plan | None, instance: str) -> list[list[str]]:
+    """The SRG edges ``[from, to, type]`` a component derives (none for a relay)."""
+    component = plan.flow.components.get(instance) if plan is not None else None
+    return [] if component is None else [[s, d, t] for _, s, d, t in component.outputs]

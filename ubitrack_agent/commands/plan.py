@@ -119,7 +119,7 @@ def step_hosts(
 ) -> list[str | None]:
     """The host each step of ``solution`` would run on (:mod:`ubitrack_agent.agent.placement`),
     None where none fits."""
-    from ubitrack_agent.agent.materialise import component_specs, fold
+    from ubitrack_agent.agent.materialise import component_specs
     from ubitrack_agent.agent.placement import place
     from ubitrack_agent.graph.dataflow import from_solution, relation_name
     from ubitrack_agent.net.host_protocol import HostInfo
@@ -130,16 +130,12 @@ def step_hosts(
     # The flow's components are the solution's steps, in order.
     steps = zip(flow.components, solution.steps, strict=True)
     labels = {cid: step.template.host_labels for cid, step in steps}
-    specs, folded = fold(  # as the agent does (agent.runtime)
-        component_specs(flow, srg, _EdgeIds(), {relation_name(query): relation}),
-        keep={cid for cid, required in labels.items() if required},
-    )
+    specs = component_specs(flow, srg, _EdgeIds(), {relation_name(query): relation})
     data_hosts = {edge: host for *_, edge, host in srg.edges(keys=True, data="host") if host}
     readers = {"relation": {app_host}} if app_host else {}
     infos = {name: HostInfo(name, tags) for name, tags in hosts}
     placement = place(specs, infos, data_hosts, readers, {}, labels)
-    # A component folded into another runs where that one does.
-    return [placement.hosts.get(folded.get(component, component)) for component in flow.components]
+    return [placement.hosts.get(component) for component in flow.components]
 
 
 class _EdgeIds:

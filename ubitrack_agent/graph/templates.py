@@ -33,6 +33,8 @@ EXPANSIONS: frozenset[str] = frozenset({"space", "time"})
 COST_RULES: frozenset[str] = frozenset({"sum", "fusion", "pooled"})
 SIGNATURES: frozenset[str] = frozenset({"step", "inverse", "chain"})
 """How the planner identifies a pattern's outputs (:attr:`Template.signature`)."""
+ISOLATIONS: frozenset[str] = frozenset({"shared", "own"})
+"""Whether the pattern's instances share a container with others (:attr:`Template.isolation`)."""
 
 
 _SERVICE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -127,6 +129,11 @@ class Template:
     ``host_labels`` are labels a host must have to run the service (``agent.placement``): a
     service needing a GPU or a camera's local bus says so.
 
+    ``isolation`` says where an instance runs on its host: ``shared`` (the default) in a
+    container with the other components of its derivation, ``own`` alone in a container of its
+    own (``agent.placement.group_containers``): a real camera's adapter, OpenCV-heavy or
+    untrusted code, whose crash or stall then takes down no other component.
+
     ``signature`` says how the planner identifies the computation an output stands for, to drop
     derivations that differ only in how they were put together (section 5.1): ``step`` (its own
     step on its inputs), ``inverse`` (its single input read the other way round: the same
@@ -147,6 +154,7 @@ class Template:
     parameters: Mapping[str, Any] = field(default_factory=dict)
     signature: str = "step"
     host_labels: frozenset[str] = frozenset()
+    isolation: str = "shared"
 
     @cached_property
     def time_only(self) -> bool:
@@ -181,6 +189,7 @@ _TOP = {
     "parameters",
     "signature",
     "host_labels",
+    "isolation",
 }
 _REQUIRED_TOP = ("pattern", "service", "roles", "inputs", "outputs")
 _INPUT_KEYS = {"name", "from", "to", "type", "static", "mode", "measured", "not_from"}
@@ -219,7 +228,7 @@ class _Checker:
         return value
 
     def choice(self, where: str, value: Any, choices: Any) -> Any:
-        if value not in choices:
+        if not isinstance(value, str | int | float) or value not in choices:
             raise self.fail(where, f"{value!r} is not one of {sorted(map(str, choices))}")
         return value
 
@@ -379,6 +388,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
     host_labels = frozenset(
         c.string_list("field 'host_labels'", data.get("host_labels", []), LABEL_PATTERN)
     )
+    isolation = c.choice("field 'isolation'", data.get("isolation", "shared"), ISOLATIONS)
     template = Template(
         name=Path(origin).stem,
         pattern=pattern,
@@ -393,6 +403,7 @@ def parse_template(data: Any, origin: str = "<template>") -> Template:
         parameters=dict(parameters),
         signature=signature,
         host_labels=host_labels,
+        isolation=isolation,
     )
     if template.introduced and not template.time_only:
         raise c.fail(

@@ -13,20 +13,10 @@ JSON form::
 
 ``relations`` lists, per output port, the stable relation keys (``docs/protocol.md``) the output
 is also published on, for the applications that asked for it. ``trigger`` marks the push inputs
-whose samples cause a computation; ``static`` inputs answer their latest value.
-An input whose port is ``then/<output>/<k>/<side>`` (:func:`then_port`) is no port of the
-service: it is a static edge the ``output`` is concatenated with before it is published, the
-``k``-th in turn (from 0), as the concatenation's ``side`` (``AB``: the static edge comes
-first, ``A->B`` before the output's ``B->C``; ``BC``: after it). The agent folds a
-concatenation with a static edge into the worker producing its other input this way
-(``agent.materialise.fold_static_compositions``), which saves a hop.
-An input may also be ``inverted`` (``"inverted": true``, omitted when false): each of its samples
-is inverted on arrival, as by the inversion service, then concatenated in turn with the static
-edges whose ports are ``before/<n>/<k>/<side>`` (:func:`before_port`; ``n``: the input's
-index in ``inputs``, the other parts as for ``then``). The agent folds an inversion whose
-output one other component reads into that component this way
-(``agent.materialise.fold_inversions``): the input reads the inversion's input key, and the
-inversion's hop is saved.
+whose samples cause a computation; ``static`` inputs answer their latest value. Every
+binding names an input port of the service: each step of a pattern is a component of its own,
+and the components of one derivation on a host run in one container (:class:`GroupSpec`),
+where they hand each other their outputs as objects.
 ``clock_offset_ns`` (an integer within a day either way, default 0, omitted when 0) is added
 to the timestamp of every sample arriving on the input before it is used: the agent sets it to
 the offset of the sensor host's clock to the agent's (``agent.clocks``) when a component reads
@@ -70,48 +60,6 @@ class SpecError(ValueError):
     """A component specification is invalid."""
 
 
-THEN_SIDES = ("AB", "BC")
-"""The concatenation ports a static edge an output is composed with can take (see the module
-docstring)."""
-
-
-def then_port(output: str, index: int, side: str) -> str:
-    """The port of the ``index``-th static edge ``output`` is concatenated with, as ``side``."""
-    return f"then/{output}/{index}/{side}"
-
-
-def parse_then_port(port: str) -> tuple[str, int, str] | None:
-    """``(output, index, side)`` of a :func:`then_port`, None for any other port name."""
-    parts = port.split("/")
-    if len(parts) != 4 or parts[0] != "then" or not parts[1] or parts[3] not in THEN_SIDES:
-        return None
-    index = _small_number(parts[2])
-    return None if index is None else (parts[1], index, parts[3])
-
-
-def before_port(binding: int, index: int, side: str) -> str:
-    """The port of the ``index``-th static edge the samples of input ``binding`` (its index
-    in the specification's inputs, an ``inverted`` one) are concatenated with, as ``side``."""
-    return f"before/{binding}/{index}/{side}"
-
-
-def parse_before_port(port: str) -> tuple[int, int, str] | None:
-    """``(binding, index, side)`` of a :func:`before_port`, None for any other port name."""
-    parts = port.split("/")
-    if len(parts) != 4 or parts[0] != "before" or parts[3] not in THEN_SIDES:
-        return None
-    binding, index = _small_number(parts[1]), _small_number(parts[2])
-    return None if binding is None or index is None else (binding, index, parts[3])
-
-
-def _small_number(text: str) -> int | None:
-    """``text`` as written by :func:`then_port` and :func:`before_port` (ASCII digits, no
-    leading zero, below 1000), else None."""
-    if not (text.isascii() and text.isdigit() and len(text) <= 3 and str(int(text)) == text):
-        return None
-    return int(text)
-
-
 @dataclass(frozen=True)
 class InputBinding:
     """One input edge bound to a port: the data key it arrives on and how to sample it."""
@@ -130,13 +78,10 @@ class InputBinding:
     without it, a hostile publisher's sample is still refused if it is malformed or could
     break the maths, and the unchecked properties only change the value it carries, which a
     publisher can do anyway."""
-    inverted: bool = False
-    """Each sample is inverted on arrival, then composed with the input's ``before`` edges
-    (see the module docstring): an inversion folded into this worker."""
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON-ready form :func:`parse_bindings` reads (``clock_offset_ns``,
-        ``from_worker`` and ``inverted`` only when set)."""
+        """The JSON-ready form :func:`parse_bindings` reads (``clock_offset_ns`` and
+        ``from_worker`` only when set)."""
         data: dict[str, Any] = {
             "port": self.port,
             "key": self.key,
@@ -147,8 +92,6 @@ class InputBinding:
             data["clock_offset_ns"] = self.clock_offset_ns
         if self.from_worker:
             data["from_worker"] = True
-        if self.inverted:
-            data["inverted"] = True
         return data
 
 
@@ -215,9 +158,7 @@ def _key(value: Any, where: str) -> str:
         raise SpecError(f"{where}: {exc}") from None
 
 
-BINDING_FIELDS = frozenset(
-    {"port", "key", "trigger", "static", "clock_offset_ns", "from_worker", "inverted"}
-)
+BINDING_FIELDS = frozenset({"port", "key", "trigger", "static", "clock_offset_ns", "from_worker"})
 """The fields of an input binding on the wire (:meth:`InputBinding.as_dict`)."""
 
 
@@ -237,18 +178,15 @@ def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, 
         port = _require(item, "port", str, at)
         trigger, static = item.get("trigger", False), item.get("static", False)
         from_worker = item.get("from_worker", False)
-        inverted = item.get("inverted", False)
-        if not all(isinstance(flag, bool) for flag in (trigger, static, from_worker, inverted)):
-            raise SpecError(
-                f"{at}: trigger, static, from_worker and inverted must be true or false"
-            )
+        if not all(isinstance(flag, bool) for flag in (trigger, static, from_worker)):
+            raise SpecError(f"{at}: trigger, static and from_worker must be true or false")
         offset = item.get("clock_offset_ns", 0)
         if type(offset) is not int or abs(offset) > MAX_CLOCK_OFFSET_NS:
             raise SpecError(
                 f"{at}.clock_offset_ns: expected integer nanoseconds within +-{MAX_CLOCK_OFFSET_NS}"
             )
         key = _key(item.get("key"), f"{at}.key")
-        bindings.append(InputBinding(port, key, trigger, static, offset, from_worker, inverted))
+        bindings.append(InputBinding(port, key, trigger, static, offset, from_worker))
     if not any(binding.trigger for binding in bindings):
         raise SpecError(f"{where}: no binding is marked trigger")
     return tuple(bindings)
@@ -389,10 +327,9 @@ class GroupSpec:
     JSON form: ``{"container": "<name>", "components": [<specification>, ...]}``.
     The local wires are not written out: they follow from the keys (:attr:`wires`), so a group
     cannot name a wire that its specifications contradict. Instance names are unique in a
-    group. Two components may publish on one data key, as two processes may: while the agent
-    changes a plan (a concatenation folded into its producer, or taken out of it: the producer
-    keeps publishing on the key until it is rewired, make before break); a reader of the key in
-    the container then takes the values of both, as it would over zenoh."""
+    group. Two components may publish on one data key, as two processes may (the agent names
+    each output after its component, so it never asks for it); a reader of the key in the
+    container then takes the values of both, as it would over zenoh."""
 
     container: str
     components: tuple[ComponentSpec, ...] = ()

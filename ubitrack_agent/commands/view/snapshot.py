@@ -13,7 +13,6 @@ from typing import Any
 
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.keys import KeySpace, RelationId
-from ubitrack_agent.net.spec import parse_before_port, parse_then_port
 
 MAX_RELATIONS = 64
 """Most relations the view watches (one subscriber each), whatever a status lists."""
@@ -78,9 +77,7 @@ def enrich(
 ) -> dict[str, Any]:
     """A copy of ``status`` whose components also carry their worker's ``counters`` and its
     inputs' ``latency_ms`` (as ``ubitrack status --json`` shows them; the data flow's wires
-    show the latency), their ``pattern`` (the service's, where a template names one, followed by
-    `` + Inversion`` and `` + Concatenation`` for each inversion and concatenation folded into
-    it: ``net.spec`` ``inverted``, ``then_port``, ``before_port``) and
+    show the latency), their ``pattern`` (the service's, where a template names one) and
     their measured output rate ``rate_hz`` (None before it is measured).
     Components that are not JSON objects are left as they are; of a worker's counters, only
     integers are shown (they come from the network too)."""
@@ -90,30 +87,16 @@ def enrich(
     enriched = {}
     for instance, component in components.items():
         if isinstance(component, dict):
+            service = component.get("service")
             component = {
                 **component,
                 "counters": _integers(counters.get(instance)),
-                "pattern": _pattern(component, patterns),
+                "pattern": patterns.get(service) if isinstance(service, str) else None,
                 "rate_hz": rates.get(instance),
                 "latency_ms": dict((latencies or {}).get(instance, {})),
             }
         enriched[instance] = component
     return {**status, "components": enriched}
-
-
-def _pattern(component: Mapping[str, Any], patterns: Mapping[str, str]) -> str | None:
-    """The pattern a component runs, with the inversions and concatenations folded into it."""
-    service, inputs = component.get("service"), component.get("inputs")
-    pattern = patterns.get(service) if isinstance(service, str) else None
-    if pattern is None or not isinstance(inputs, list):
-        return pattern
-    items = [item for item in inputs if isinstance(item, dict)]
-    ports = [item["port"] for item in items if isinstance(item.get("port"), str)]
-    inversions = sum(item.get("inverted") is True for item in items)
-    concatenations = sum(
-        parse_then_port(port) is not None or parse_before_port(port) is not None for port in ports
-    )
-    return " + ".join([pattern, *["Inversion"] * inversions, *["Concatenation"] * concatenations])
 
 
 def _integers(counters: Mapping[str, Any] | None) -> dict[str, int] | None:
