@@ -19,7 +19,9 @@ After each application: the components the agent wants and those alive, the work
 and their memory, as the unique set size (USS: private clean and dirty pages, from
 ``/proc/<pid>/smaps_rollup``) summed over them, and the machine's one-minute load average.
 At the end: each application's time from its query to its first sample (median, 90th
-percentile, largest), and the CPU each part used over ``CPU_S`` (percent of one core: the
+percentile, largest), broken into its parts (:func:`first_sample_parts`, from the stamps the
+agent and the components take where each step happens: ``agent.stamps``, a component's
+``stamps`` in its status), and the CPU each part used over ``CPU_S`` (percent of one core: the
 worker processes, the agent, its host manager, the publishing process). Run::
 
     .venv/bin/python -m bench.containers_bench [--applications 100] [--trackers 20] \\
@@ -47,13 +49,14 @@ from bench.agent_live_bench import (
     add_rooms,
     available_bytes,
     close_all,
-    open_application,
     relations_of,
     start_publisher,
 )
 from bench.cpu_use import _stat
+from ubitrack_agent.agent.flows import plan_name
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net.keys import RelationId
+from ubitrack_agent.net.transport import fetch_latest
 
 RESULTS = Path(__file__).parent / "results"
 CPU_S = 10.0
@@ -112,8 +115,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     hub = Hub(None, "--pool-size", str(args.pool_size))
     publisher = room = None
     opened: list[Relation] = []
-    first: dict[str, float] = {}
-    asked: dict[str, float] = {}
+    first: dict[str, int] = {}
+    asked: dict[str, int] = {}
+    """When each application asked and got its first sample (``time.time_ns``: the clock
+    the agent's and the components' stamps use)."""
+    asking: dict[str, RelationId] = {}
     rows: list[dict[str, Any]] = []
     try:
         publisher = start_publisher(hub, args.trackers, args.rate)
@@ -123,7 +129,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             if available_bytes() < MIN_AVAILABLE_BYTES:
                 print(f"  stopping at {n - 1} applications: memory", flush=True)
                 break
-            opened.append(open_application(hub, relation, f"app{n}", asked, first))
+            asking[f"app{n}"] = relation
+            opened.append(open_stamped(hub, relation, f"app{n}", asked, first))
             time.sleep(args.every)
             rows.append(measure(hub, n, len(first)))
             r = rows[-1]
@@ -138,10 +145,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         while len(first) < len(asked) and time.monotonic() < deadline:
             time.sleep(0.2)
         final = measure(hub, len(asked), len(first))
+        breakdown = first_sample_parts(hub, asking, asked, first)
         final["cpu_percent"] = cpu_percent(hub, publisher.pid, CPU_S)
     finally:
         close_all(opened, room, publisher, hub)
-    to_first = sorted(first[name] - asked[name] for name in first)
+    to_first = sorted((first[name] - asked[name]) / 1e9 for name in first)
     return {
         "applications": len(asked),
         "trackers": args.trackers,
@@ -156,7 +164,168 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         else None,
         "first_sample_max_s": round(to_first[-1], 3) if to_first else None,
         "applications_without_data": len(asked) - len(first),
+        "first_sample_parts": breakdown,
     }
+
+
+def open_stamped(
+    hub: Hub, relation: RelationId, name: str, asked: dict[str, int], first: dict[str, int]
+) -> Relation:
+    """Application ``name`` asking for ``relation``: when it asked goes into ``asked``, when
+    its first sample came into ``first`` (``time.time_ns``)."""
+    asked[name] = time.time_ns()
+    return Relation(
+        hub.session,
+        hub.keys,
+        relation,
+        application=name,
+        callback=lambda _m: first.setdefault(name, time.time_ns()),
+    )
+
+
+PATHS = {
+    "started": (
+        ("to the agent", "received_ns"),
+        ("agent's loop takes it", "handled_ns"),
+        ("waits for the planning thread", "plan_asked_ns"),
+        ("planning", "plan_made_ns"),
+        ("plan applied on the loop", "planned_ns"),
+        ("to the start request", "requested_ns"),
+        ("host manager and container add it", "created_ns"),
+        ("component declares its keys", "ready_ns"),
+        ("its inputs' first samples", "inputs_ns"),
+        ("computed down the chain to the application's key", "published_ns"),
+        ("to the application", "first_ns"),
+    ),
+    "rewired": (
+        ("to the agent", "received_ns"),
+        ("agent's loop takes it", "handled_ns"),
+        ("waits for the planning thread", "plan_asked_ns"),
+        ("planning", "plan_made_ns"),
+        ("plan applied on the loop", "planned_ns"),
+        ("to the rewire command", "rewired_ns"),
+        ("producer's next output on the application's key", "published_ns"),
+        ("to the application", "first_ns"),
+    ),
+}
+"""The steps from an application's query to its first sample, in order, each with the stamp
+that ends it (``asked_ns`` begins the first): through a component started for it, or through
+running components rewired to publish on its key."""
+
+
+def first_sample_parts(
+    hub: Hub, asking: dict[str, RelationId], asked: dict[str, int], first: dict[str, int]
+) -> dict[str, Any]:
+    """Each application's time to its first sample cut into the parts of :data:`PATHS`,
+    from the stamps taken where each step happened (the agent's status, every component's
+    status): per part the median, 90th percentile and largest (ms) over the applications with
+    data. The path of an application: the component publishing its relation key (its
+    *producer*), then, while the input of the component at hand whose first sample came last
+    came after the query and another component produces it, that component; the last one is
+    the *root*. If the root was created after the query, the path is ``started`` (the root's
+    start request, creation, ... its first inputs, then the producer's first output on the key),
+    else ``rewired``. Parts are differences of consecutive stamps, so they add up to the whole
+    (a negative part: a step done before the one listed first, say a component started for an
+    earlier application). O(applications x path length x inputs)."""
+    status = hub.status(timeout=5.0) or {}
+    components = status.get("components", {})
+    agent_stamps = status.get("stamps", {})
+    workers: dict[str, dict[str, Any]] = {}
+    for payload in fetch_latest(hub.session, hub.keys.all_statuses(), timeout=5.0):
+        answer = json.loads(payload)
+        if "instance" in answer:
+            workers[answer["instance"]] = answer
+    producer_of = {
+        key: instance
+        for instance, spec in components.items()
+        for keys in (spec["outputs"].values(), *spec["relations"].values())
+        for key in keys
+    }
+    by_path: dict[str, list[dict[str, int]]] = {"started": [], "rewired": []}
+    missing: dict[str, int] = {}
+    for name, relation in asking.items():
+        if name not in first:
+            continue
+        key = hub.keys.relation(relation)
+        query = agent_stamps.get("queries", {}).get(plan_name(relation), {}).get(name, {})
+        producer = producer_of.get(key)
+        stamps = workers.get(producer, {}).get("stamps") if producer else None
+        if not query or stamps is None or key not in stamps["first_published_ns"]:
+            missing[name] = 1
+            continue
+        root, root_stamps = producer, stamps
+        seen = {producer}
+        while True:
+            firsts = root_stamps["first_sample_ns"]
+            inputs = [b["key"] for b in components[root]["inputs"]]
+            latest = max(inputs, key=lambda k: firsts.get(k, 0), default=None)
+            upstream = producer_of.get(latest) if latest else None
+            if (
+                upstream is None
+                or upstream in seen
+                or firsts.get(latest, 0) < asked[name]
+                or upstream not in workers
+            ):
+                break
+            root, root_stamps = upstream, workers[upstream]["stamps"]
+            seen.add(root)
+        path = "started" if root_stamps["created_ns"] > asked[name] else "rewired"
+        firsts = root_stamps["first_sample_ns"]
+        agent_component = agent_stamps.get("components", {})
+        times = {
+            "asked_ns": asked[name],
+            **query,
+            **agent_component.get(root, {}),
+            "rewired_ns": agent_component.get(producer, {}).get("rewired_ns", 0),
+            "created_ns": root_stamps["created_ns"],
+            "ready_ns": root_stamps["ready_ns"],
+            "inputs_ns": max(
+                (firsts.get(b["key"], 0) for b in components[root]["inputs"]), default=0
+            ),
+            "published_ns": stamps["first_published_ns"][key],
+            "first_ns": first[name],
+        }
+        steps = PATHS[path]
+        if any(times.get(stamp, 0) == 0 for _, stamp in steps):
+            missing[name] = 1
+            continue
+        previous = times["asked_ns"]
+        parts = {}
+        for part, stamp in steps:
+            parts[part] = times[stamp] - previous
+            previous = times[stamp]
+        by_path[path].append({**parts, "total": times["first_ns"] - times["asked_ns"]})
+    return {
+        path: {"applications": len(rows), **_part_figures(rows, [p for p, _ in PATHS[path]])}
+        for path, rows in by_path.items()
+    } | {"applications_without_stamps": sorted(missing)}
+
+
+def print_parts(breakdown: dict[str, Any]) -> None:
+    """The parts of the time to a first sample, one line each (:func:`first_sample_parts`)."""
+    for path in PATHS:
+        figures = breakdown[path]
+        print(f"first sample through a component {path}: {figures['applications']} applications")
+        for part, values in figures.items():
+            if part != "applications":
+                print(
+                    f"  {part:52s} median {values['median_ms']:7.1f} ms, "
+                    f"p90 {values['p90_ms']:7.1f}, max {values['max_ms']:7.1f}"
+                )
+
+
+def _part_figures(rows: list[dict[str, int]], parts: list[str]) -> dict[str, Any]:
+    """Median, 90th percentile and largest of each part and the total (ms)."""
+    figures = {}
+    for part in [*parts, "total"]:
+        values = sorted(row[part] / 1e6 for row in rows)
+        if values:
+            figures[part] = {
+                "median_ms": round(statistics.median(values), 1),
+                "p90_ms": round(values[int(0.9 * (len(values) - 1))], 1),
+                "max_ms": round(values[-1], 1),
+            }
+    return figures
 
 
 def cpu_percent(hub: Hub, publisher: int, seconds: float) -> dict[str, float]:
@@ -237,6 +406,7 @@ def main(argv: list[str] | None = None) -> int:
     RESULTS.mkdir(exist_ok=True)
     written = RESULTS / f"containers_{args.relations.replace('-', '_')}.json"
     written.write_text(json.dumps(results, indent=2) + "\n")
+    print_parts(result["first_sample_parts"])
     print(json.dumps({k: v for k, v in results.items() if k != "rows"}, indent=2))
     return 0
 

@@ -321,6 +321,7 @@ class Worker:
         wires: LocalWires | None = None,
         container: str | None = None,
     ) -> None:
+        created_ns = time.time_ns()
         self.spec = spec
         self.container = container
         """The container this component runs in with others (``services.container``), if
@@ -390,6 +391,8 @@ class Worker:
         self._latency: defaultdict[str, deque[float]] = defaultdict(
             lambda: deque(maxlen=LATENCY_SAMPLES)
         )
+        self._first_samples: dict[str, int] = {}
+        """Per input key, when its first sample was taken (wall clock): O(input keys ever)."""
         """Per input key, the latest samples' latency (ms): this host's clock when the worker
         takes the sample minus its timestamp (after the input's clock offset)."""
         self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
@@ -413,6 +416,9 @@ class Worker:
             session.liveliness().declare_token, keys.worker(spec.instance, self.incarnation)
         )
         self._token = declare() if parent is None else parent.serve(declare)
+        self.stamps = {"created_ns": created_ns, "ready_ns": time.time_ns()}
+        """When this component was created and had declared everything (its token last), on
+        the wall clock (issue 28's time to a first sample: ``agent.stamps``)."""
 
     def _new_progress(self) -> bool:
         """Whether the service reports progress (:meth:`Service.progress` overridden): only
@@ -727,6 +733,8 @@ class Worker:
                 return None
             t = sample.timestamp_ns
         self._latency[key].append((now - t) / 1e6)
+        if key not in self._first_samples:
+            self._first_samples[key] = time.time_ns()
         return sample
 
     def _inverted(self, item: _Input, sample: Measurement) -> Measurement | None:
@@ -1112,6 +1120,15 @@ class Worker:
             "latency_ms": self._latencies(),
             "handling_us": round(self._handling_s * 1e6, 1),
             "spec": self.spec.as_dict(),
+            "stamps": {
+                **self.stamps,
+                "first_sample_ns": dict(self._first_samples),
+                "first_published_ns": {
+                    key: publisher.first_put_ns
+                    for key, publisher in list(self._publishers.items())
+                    if publisher.first_put_ns is not None
+                },
+            },
             **({"container": self.container} if self.container is not None else {}),
         }
 

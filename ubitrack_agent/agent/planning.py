@@ -51,6 +51,8 @@ class Request:
     appeared: frozenset[str] = frozenset()
     """The workers nothing ran that appeared since the last plan applied (the relations they
     may serve are planned again: ``agent.replanning``)."""
+    taken_ns: int = 0
+    """When the snapshot was taken (``time.time_ns``: ``agent.stamps``)."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,8 @@ class Outcome:
     replanning_s: float = 0.0
     """Of ``seconds``, the time :func:`.replanning.replan` took (the rest: the SRG and the
     specifications)."""
+    made_ns: int = 0
+    """When it was finished (``time.time_ns``: ``agent.stamps``)."""
 
 
 def make_outcome(
@@ -124,7 +128,16 @@ def make_outcome(
         }
     seconds = time.perf_counter() - started
     return Outcome(
-        request, live, planned, wanted, folded, labels, data_hosts, seconds, replanning_s
+        request,
+        live,
+        planned,
+        wanted,
+        folded,
+        labels,
+        data_hosts,
+        seconds,
+        replanning_s,
+        time.time_ns(),
     )
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -90,6 +91,8 @@ class LatestValuePublisher:
         ``rejected_queries``: queries for a time that is no timestamp. Given ``counters`` (a
         worker's), it counts there."""
         self._latest: bytes | None = None
+        self.first_put_ns: int | None = None
+        """When the first payload was put (wall clock): the first sample on its key."""
         self._publisher = session.declare_publisher(key, encoding=encoding)
         self._queryable = session.declare_queryable(key)
         self._thread = threading.Thread(target=self._serve, daemon=True, name=f"latest:{key}")
@@ -98,6 +101,8 @@ class LatestValuePublisher:
     def put(self, payload: bytes) -> None:
         self._latest = payload
         self._publisher.put(payload)
+        if self.first_put_ns is None:
+            self.first_put_ns = time.time_ns()
 
     @property
     def matching(self) -> bool:
