@@ -242,7 +242,9 @@ def first_sample_parts(
         for key in keys
     }
     by_path: dict[str, list[dict[str, int]]] = {"started": [], "rewired": []}
-    missing: dict[str, int] = {}
+    missing: dict[str, str] = {}
+    """Applications with data left out, with why (their steps cannot be told apart)."""
+    each: list[dict[str, Any]] = []
     for name, relation in asking.items():
         if name not in first:
             continue
@@ -251,7 +253,7 @@ def first_sample_parts(
         producer = producer_of.get(key)
         stamps = workers.get(producer, {}).get("stamps") if producer else None
         if not query or stamps is None or key not in stamps["first_published_ns"]:
-            missing[name] = 1
+            missing[name] = "no stamps (the agent's, or its producer's on the key)"
             continue
         root, root_stamps = producer, stamps
         seen = {producer}
@@ -287,7 +289,12 @@ def first_sample_parts(
         }
         steps = PATHS[path]
         if any(times.get(stamp, 0) == 0 for _, stamp in steps):
-            missing[name] = 1
+            missing[name] = "a step not stamped"
+            continue
+        if any(times[stamp] > first[name] for _, stamp in steps[:-2]):
+            # The query seen again (its token lost and declared again) or the component
+            # started again after the first sample: the stamps are of a later round.
+            missing[name] = "stamped after its first sample"
             continue
         previous = times["asked_ns"]
         parts = {}
@@ -295,10 +302,19 @@ def first_sample_parts(
             parts[part] = times[stamp] - previous
             previous = times[stamp]
         by_path[path].append({**parts, "total": times["first_ns"] - times["asked_ns"]})
+        each.append(
+            {
+                "application": name,
+                "path": path,
+                "producer": producer,
+                "root": root,
+                **{part: round(ms / 1e6, 1) for part, ms in parts.items()},
+            }
+        )
     return {
         path: {"applications": len(rows), **_part_figures(rows, [p for p, _ in PATHS[path]])}
         for path, rows in by_path.items()
-    } | {"applications_without_stamps": sorted(missing)}
+    } | {"left_out": dict(sorted(missing.items())), "each_ms": each}
 
 
 def print_parts(breakdown: dict[str, Any]) -> None:
@@ -407,7 +423,8 @@ def main(argv: list[str] | None = None) -> int:
     written = RESULTS / f"containers_{args.relations.replace('-', '_')}.json"
     written.write_text(json.dumps(results, indent=2) + "\n")
     print_parts(result["first_sample_parts"])
-    print(json.dumps({k: v for k, v in results.items() if k != "rows"}, indent=2))
+    shown = {k: v for k, v in results.items() if k not in ("rows", "first_sample_parts")}
+    print(json.dumps(shown, indent=2))
     return 0
 
 

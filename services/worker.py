@@ -840,10 +840,12 @@ class Worker:
             self._service.min_correspondences() if self.spec.expansion == "space" else len(dynamic)
         )
         same_instant = trigger.buffer if present >= needed else None
-        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, same_instant)
+        every = self.spec.expansion != "space"  # each input needed (services.triggers)
+        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, same_instant, every)
 
     def _caught_up(self, timestamp_ns: int) -> bool:
-        return not lagging(self._dynamic, timestamp_ns, self.spec.tolerance_ns)
+        every = self.spec.expansion != "space"
+        return not lagging(self._dynamic, timestamp_ns, self.spec.tolerance_ns, every)
 
     def _process_due_triggers(self) -> None:
         for timestamp_ns in self._pending.due(time.monotonic(), self._caught_up):

@@ -146,8 +146,15 @@ class BackgroundPlanner:
     docstring). The loop calls :meth:`changed` on every change of what planning reads and
     :meth:`step` on every pass; neither waits for a plan."""
 
-    def __init__(self, job: Callable[[Request, Outcome | None], Outcome]) -> None:
+    def __init__(
+        self,
+        job: Callable[[Request, Outcome | None], Outcome],
+        done: Callable[[], None] = lambda: None,
+    ) -> None:
         self._job = job
+        self._done = done
+        """Called on the planning thread when an outcome is ready: the loop, which waits for
+        events, takes it at once instead of on its next pass (up to 50 ms later)."""
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
         self._request: Request | None = None
@@ -217,3 +224,4 @@ class BackgroundPlanner:
                 self._latest = outcome  # outdated or not, the base of the next increment
             with self._lock:
                 self._result = outcome
+            self._done()

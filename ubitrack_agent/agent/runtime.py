@@ -119,6 +119,8 @@ STOP_RESEND_S = 1.0
 """A stop put on a worker's control key by the agent is put again this often while the
 worker's token stays up."""
 PUT = "SampleKind.PUT"
+PLANNED = ("planned", "", "", 0)
+"""Queued by the planning thread when a plan is ready: wakes the loop, which applies it."""
 MAX_QUEUED_REPORTS = 10_000
 """Most liveness reports waiting for the agent's loop (providers put about one a second)."""
 STATUS_REFRESH_S = 0.25
@@ -148,7 +150,8 @@ class Agent:
         self._planner = BackgroundPlanner(
             lambda request, previous: make_outcome(
                 request, previous, self.templates, self.keys, self._plan_memo
-            )
+            ),
+            done=lambda: self._events.put(PLANNED),
         )
         self.counters: Counter[str] = Counter()
         self.problems = Problems(self.counters)
@@ -874,16 +877,20 @@ class Agent:
         finally:
             self._close(stop_workers=self._stop.is_set())
 
-    def _next_batch(self) -> list[tuple[str, str, str]]:
-        """The events queued within ``BATCH_WINDOW_S`` of the next one (none after 50 ms)."""
+    def _next_batch(self) -> list[tuple[str, str, str, int]]:
+        """The liveliness events queued within ``BATCH_WINDOW_S`` of the next one (none after
+        50 ms, or at once when a plan is ready: ``PLANNED``)."""
         try:
-            batch = [self._events.get(timeout=0.05)]
+            first = self._events.get(timeout=0.05)
         except queue.Empty:
             return []
+        if first is PLANNED:
+            return []
+        batch = [first]
         time.sleep(BATCH_WINDOW_S)
         while not self._events.empty():
             batch.append(self._events.get_nowait())
-        return batch
+        return [event for event in batch if event is not PLANNED]
 
     def _reap_hosts(self) -> None:
         """Apply host managers' tokens and exit reports: forget the instances that ended; send
