@@ -202,6 +202,9 @@ ANSWER_TIMEOUT_S = 0.15
 handling samples holds it), then it is answered with a time-out."""
 UPSTREAM_TIMEOUT_S = 0.1
 """Longest the thread answering such a query waits for an input's producer to answer it."""
+CURRENT_TIMEOUT_S = 0.5
+"""Longest a new component waits for its dynamic inputs' producers to answer their current
+value (:meth:`Worker._fetch_current`; they answer in milliseconds)."""
 NO_MODEL_S = 1.0
 """How long an input whose producer answered ``no_model`` (a measured edge) or nothing is not
 asked again: a renderer asking every frame must not cost the flow a round trip (or a
@@ -412,6 +415,7 @@ class Worker:
             self._bind(spec.inputs)
         if wires is not None:
             wires.produce(spec.instance, tuple(spec.outputs.values()))
+        self._fetch_current()
         declare = functools.partial(
             session.liveliness().declare_token, keys.worker(spec.instance, self.incarnation)
         )
@@ -512,6 +516,39 @@ class Worker:
             ),
             daemon=True,
         ).start()
+
+    def _fetch_current(self) -> None:
+        """Hand a new component each dynamic input's current value at once, off this thread:
+        a value handed over in the container, else its producer's latest (asked once, all
+        keys at once: ``net.transport.LatestValuePublisher``). Its first output then comes from
+        the newest instant its inputs share, without waiting up to a period for the next one
+        (issue 28: a query's first sample). One later than a sample the subscription took
+        meanwhile is an older instant: stale, ignored. O(dynamic inputs)."""
+        generation = self._generation
+        local, remote = [], []
+        for index, item in enumerate(self._inputs):
+            if item.binding.static:
+                continue
+            key = item.binding.key
+            if not self._local(key):
+                remote.append((index, key))
+            elif (value := self._wires.latest(key)) is not None:
+                local.append((index, value))
+        if not (local or remote):
+            return
+
+        def fetch() -> None:
+            for index, value in local:
+                self._deliver_values_guarded(generation, index, [value])
+            asked = [
+                (index, self._session.get(key, timeout=CURRENT_TIMEOUT_S)) for index, key in remote
+            ]
+            for index, replies in asked:
+                for reply in replies:
+                    if reply.ok is not None:
+                        self._deliver_guarded(generation, index, [reply.ok.payload.to_bytes()])
+
+        threading.Thread(target=self._guarded(fetch), daemon=True).start()
 
     def _fetch_static(
         self,
