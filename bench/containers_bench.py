@@ -6,8 +6,9 @@ Everything on loopback with real zenoh and real processes: an agent with its hos
 (``--pool-size``, default 2; one container per core of the machine, ``ubitrack host --cores``),
 ``--trackers`` providers (each a tracker ``T<k>`` in room ``R`` seeing bodies ``H<k>_1``,
 ``H<k>_2`` at ``--rate`` Hz, all published by one process: ``bench.agent_live_bench publish``),
-the static ``R -> T<k>`` of each, and applications (``io.application.Relation``) added one every
-``--every`` seconds, up to ``--applications`` or until the machine has less than 3 GB of
+the static ``R -> T<k>`` of each, and, once the host manager's warm pool is full (a
+container's cold start is measured apart), applications (``io.application.Relation``) added
+one every ``--every`` seconds, up to ``--applications`` or until the machine has less than 3 GB of
 memory available. ``--relations per-tracker``: five relations per tracker
 (``bench.agent_live_bench.relations_of``: about one component each); ``cross``: a body of one
 tracker seen from a body of another, ``H<k>_1 -> H<k+d>_2`` for d = 1, 2, ... (through the
@@ -55,6 +56,7 @@ from bench.agent_live_bench import (
 from bench.cpu_use import _stat
 from ubitrack_agent.agent.flows import plan_name
 from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import RelationId
 from ubitrack_agent.net.transport import fetch_latest
 
@@ -120,11 +122,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     """When each application asked and got its first sample (``time.time_ns``: the clock
     the agent's and the components' stamps use)."""
     asking: dict[str, RelationId] = {}
+    seen: dict[str, dict[str, Any]] = {}
+    """The agent's status ``--every`` seconds after each application asked (its stamps then:
+    a component's latest start or rewire may be a later application's at the end)."""
     rows: list[dict[str, Any]] = []
     try:
         publisher = start_publisher(hub, args.trackers, args.rate)
         room = add_rooms(hub, args.trackers)
         relations = (cross_relations if args.relations == "cross" else relations_of)(args.trackers)
+        warm_s = warm_pool(hub, args.pool_size)
+        print(f"  warm pool of {args.pool_size} after {warm_s:.1f} s", flush=True)
         for n, relation in enumerate(relations[: args.applications], 1):
             if available_bytes() < MIN_AVAILABLE_BYTES:
                 print(f"  stopping at {n - 1} applications: memory", flush=True)
@@ -132,7 +139,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             asking[f"app{n}"] = relation
             opened.append(open_stamped(hub, relation, f"app{n}", asked, first))
             time.sleep(args.every)
-            rows.append(measure(hub, n, len(first)))
+            seen[f"app{n}"] = hub.status() or {}
+            rows.append(measure(hub, n, len(first), seen[f"app{n}"]))
             r = rows[-1]
             print(
                 f"  {n:3d} applications ({r['with_data']} with data): {r['components']} "
@@ -144,8 +152,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         deadline = time.monotonic() + args.settle
         while len(first) < len(asked) and time.monotonic() < deadline:
             time.sleep(0.2)
-        final = measure(hub, len(asked), len(first))
-        breakdown = first_sample_parts(hub, asking, asked, first)
+        final = measure(hub, len(asked), len(first), hub.status() or {})
+        breakdown = first_sample_parts(hub, asking, asked, first, seen)
         final["cpu_percent"] = cpu_percent(hub, publisher.pid, CPU_S)
     finally:
         close_all(opened, room, publisher, hub)
@@ -166,6 +174,28 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "applications_without_data": len(asked) - len(first),
         "first_sample_parts": breakdown,
     }
+
+
+def warm_pool(hub: Hub, pool_size: int, timeout: float = 120.0) -> float:
+    """Wait until the host manager's warm pool is full (the steady state the figures are
+    for: a container's cold start is measured apart, ``bench/worker_start.py``); how long it
+    took from here (s)."""
+    started = time.monotonic()
+
+    def full() -> bool:
+        hosts = (hub.status() or {}).get("hosts", [])
+        if len(hosts) != 1:
+            return False
+        key = hub.keys.host_request(hosts[0])
+        replies = list(hub.session.get(key, payload=encode_request(Status()), timeout=1.0))
+        ok = [json.loads(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+        return bool(ok) and ok[0]["pool_ready"] >= pool_size
+
+    while not full():
+        if time.monotonic() - started > timeout:
+            raise RuntimeError(f"the warm pool not full within {timeout} s")
+        time.sleep(0.2)
+    return time.monotonic() - started
 
 
 def open_stamped(
@@ -214,33 +244,37 @@ running components rewired to publish on its key."""
 
 
 def first_sample_parts(
-    hub: Hub, asking: dict[str, RelationId], asked: dict[str, int], first: dict[str, int]
+    hub: Hub,
+    asking: dict[str, RelationId],
+    asked: dict[str, int],
+    first: dict[str, int],
+    seen: dict[str, dict[str, Any]],
 ) -> dict[str, Any]:
     """Each application's time to its first sample cut into the parts of :data:`PATHS`,
     from the stamps taken where each step happened (the agent's status, every component's
     status): per part the median, 90th percentile and largest (ms) over the applications with
-    data. The path of an application: the component publishing its relation key (its
-    *producer*), then, while the input of the component at hand whose first sample came last
-    came after the query and another component produces it, that component; the last one is
-    the *root*. If the root was created after the query, the path is ``started`` (the root's
-    start request, creation, ... its first inputs, then the producer's first output on the key),
-    else ``rewired``. Parts are differences of consecutive stamps, so they add up to the whole
-    (a negative part: a step done before the one listed first, say a component started for an
-    earlier application). O(applications x path length x inputs)."""
-    status = hub.status(timeout=5.0) or {}
-    components = status.get("components", {})
-    agent_stamps = status.get("stamps", {})
+    data.
+
+    The path of an application: the component publishing its relation key (its *producer*),
+    then, while the input of the component at hand whose first sample came last came after
+    the query and another component created after the query produces it, that component; the
+    last one is the *root*. If the root was created after the query, the path is ``started``
+    (the root's start request, creation, ... its first inputs, then the producer's first
+    output on the key), else ``rewired``. Parts are differences of consecutive stamps, so
+    they add up to the whole (a negative part: a step done before the one listed first, say
+    a component started for an earlier application).
+
+    The agent's stamps and components are those of its status taken after each application
+    asked (``seen``; one whose producer was not planned yet takes the status at the end), the
+    components' those of their statuses at the end (each stamps a step the first time).
+    O(applications x path length x inputs)."""
+    final = hub.status(timeout=5.0) or {}
     workers: dict[str, dict[str, Any]] = {}
     for payload in fetch_latest(hub.session, hub.keys.all_statuses(), timeout=5.0):
         answer = json.loads(payload)
         if "instance" in answer:
             workers[answer["instance"]] = answer
-    producer_of = {
-        key: instance
-        for instance, spec in components.items()
-        for keys in (spec["outputs"].values(), *spec["relations"].values())
-        for key in keys
-    }
+
     by_path: dict[str, list[dict[str, int]]] = {"started": [], "rewired": []}
     missing: dict[str, str] = {}
     """Applications with data left out, with why (their steps cannot be told apart)."""
@@ -249,6 +283,12 @@ def first_sample_parts(
         if name not in first:
             continue
         key = hub.keys.relation(relation)
+        status = seen.get(name, {})
+        producer_of = _producers(status.get("components", {}))
+        if key not in producer_of:
+            status = final
+            producer_of = _producers(status.get("components", {}))
+        components, agent_stamps = status.get("components", {}), status.get("stamps", {})
         query = agent_stamps.get("queries", {}).get(plan_name(relation), {}).get(name, {})
         producer = producer_of.get(key)
         stamps = workers.get(producer, {}).get("stamps") if producer else None
@@ -256,7 +296,7 @@ def first_sample_parts(
             missing[name] = "no stamps (the agent's, or its producer's on the key)"
             continue
         root, root_stamps = producer, stamps
-        seen = {producer}
+        visited = {producer}
         while True:
             firsts = root_stamps["first_sample_ns"]
             inputs = [b["key"] for b in components[root]["inputs"]]
@@ -264,13 +304,14 @@ def first_sample_parts(
             upstream = producer_of.get(latest) if latest else None
             if (
                 upstream is None
-                or upstream in seen
+                or upstream in visited
                 or firsts.get(latest, 0) < asked[name]
                 or upstream not in workers
+                or workers[upstream]["stamps"]["created_ns"] < asked[name]
             ):
                 break
             root, root_stamps = upstream, workers[upstream]["stamps"]
-            seen.add(root)
+            visited.add(root)
         path = "started" if root_stamps["created_ns"] > asked[name] else "rewired"
         firsts = root_stamps["first_sample_ns"]
         agent_component = agent_stamps.get("components", {})
@@ -315,6 +356,16 @@ def first_sample_parts(
         path: {"applications": len(rows), **_part_figures(rows, [p for p, _ in PATHS[path]])}
         for path, rows in by_path.items()
     } | {"left_out": dict(sorted(missing.items())), "each_ms": each}
+
+
+def _producers(components: dict[str, Any]) -> dict[str, str]:
+    """The component producing each data and relation key, from the agent's ``components``."""
+    return {
+        key: instance
+        for instance, spec in components.items()
+        for keys in (spec["outputs"].values(), *spec["relations"].values())
+        for key in keys
+    }
 
 
 def print_parts(breakdown: dict[str, Any]) -> None:
@@ -377,9 +428,9 @@ def cross_relations(trackers: int) -> list[RelationId]:
     ]
 
 
-def measure(hub: Hub, applications: int, with_data: int) -> dict[str, Any]:
-    """The agent's components, the host's worker processes and their memory, the load."""
-    status = hub.status() or {}
+def measure(hub: Hub, applications: int, with_data: int, status: dict[str, Any]) -> dict[str, Any]:
+    """The agent's components (from its ``status``), the host's worker processes and their
+    memory, the load."""
     components = status.get("components", {})
     workers = worker_processes(hub.agent.pid)
     return {
