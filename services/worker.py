@@ -522,8 +522,11 @@ class Worker:
         a value handed over in the container, else its producer's latest (asked once, all
         keys at once: ``net.transport.LatestValuePublisher``). Its first output then comes from
         the newest instant its inputs share, without waiting up to a period for the next one
-        (issue 28: a query's first sample). One later than a sample the subscription took
-        meanwhile is an older instant: stale, ignored. O(dynamic inputs)."""
+        (issue 28: a query's first sample). They are handed over once the static inputs have
+        their values (fetched at the same time, :meth:`_fetch_static`; at most
+        ``CURRENT_TIMEOUT_S``), which an input inverted and composed with them needs. One
+        later than a sample the subscription took meanwhile is an older instant: stale,
+        ignored. O(dynamic inputs)."""
         generation = self._generation
         local, remote = [], []
         for index, item in enumerate(self._inputs):
@@ -537,7 +540,13 @@ class Worker:
         if not (local or remote):
             return
 
+        statics = [item.buffer for item in self._inputs if item.binding.static]
+
         def fetch() -> None:
+            asked_at = time.monotonic()
+            while any(len(buffer) == 0 for buffer in statics):
+                if time.monotonic() - asked_at > CURRENT_TIMEOUT_S or self._stop.wait(0.002):
+                    break
             for index, value in local:
                 self._deliver_values_guarded(generation, index, [value])
             asked = [
