@@ -6,8 +6,9 @@ Everything on loopback with real zenoh and real processes: an agent with its hos
 (``--pool-size``, default 2; one container per core of the machine, ``ubitrack host --cores``),
 ``--trackers`` providers (each a tracker ``T<k>`` in room ``R`` seeing bodies ``H<k>_1``,
 ``H<k>_2`` at ``--rate`` Hz, all published by one process: ``bench.agent_live_bench publish``),
-the static ``R -> T<k>`` of each, and applications (``io.application.Relation``) added one every
-``--every`` seconds, up to ``--applications`` or until the machine has less than 3 GB of
+the static ``R -> T<k>`` of each, and, once the host manager's warm pool is full (a
+container's cold start is measured apart), applications (``io.application.Relation``) added
+one every ``--every`` seconds, up to ``--applications`` or until the machine has less than 3 GB of
 memory available. ``--relations per-tracker``: five relations per tracker
 (``bench.agent_live_bench.relations_of``: about one component each); ``cross``: a body of one
 tracker seen from a body of another, ``H<k>_1 -> H<k+d>_2`` for d = 1, 2, ... (through the
@@ -19,7 +20,9 @@ After each application: the components the agent wants and those alive, the work
 and their memory, as the unique set size (USS: private clean and dirty pages, from
 ``/proc/<pid>/smaps_rollup``) summed over them, and the machine's one-minute load average.
 At the end: each application's time from its query to its first sample (median, 90th
-percentile, largest), and the CPU each part used over ``CPU_S`` (percent of one core: the
+percentile, largest), broken into its parts (:func:`first_sample_parts`, from the stamps the
+agent and the components take where each step happens: ``agent.stamps``, a component's
+``stamps`` in its status), and the CPU each part used over ``CPU_S`` (percent of one core: the
 worker processes, the agent, its host manager, the publishing process). Run::
 
     .venv/bin/python -m bench.containers_bench [--applications 100] [--trackers 20] \\
@@ -47,13 +50,15 @@ from bench.agent_live_bench import (
     add_rooms,
     available_bytes,
     close_all,
-    open_application,
     relations_of,
     start_publisher,
 )
 from bench.cpu_use import _stat
+from ubitrack_agent.agent.flows import plan_name
 from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import RelationId
+from ubitrack_agent.net.transport import fetch_latest
 
 RESULTS = Path(__file__).parent / "results"
 CPU_S = 10.0
@@ -112,20 +117,30 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     hub = Hub(None, "--pool-size", str(args.pool_size))
     publisher = room = None
     opened: list[Relation] = []
-    first: dict[str, float] = {}
-    asked: dict[str, float] = {}
+    first: dict[str, int] = {}
+    asked: dict[str, int] = {}
+    """When each application asked and got its first sample (``time.time_ns``: the clock
+    the agent's and the components' stamps use)."""
+    asking: dict[str, RelationId] = {}
+    seen: dict[str, dict[str, Any]] = {}
+    """The agent's status ``--every`` seconds after each application asked (its stamps then:
+    a component's latest start or rewire may be a later application's at the end)."""
     rows: list[dict[str, Any]] = []
     try:
         publisher = start_publisher(hub, args.trackers, args.rate)
         room = add_rooms(hub, args.trackers)
         relations = (cross_relations if args.relations == "cross" else relations_of)(args.trackers)
+        warm_s = warm_pool(hub, args.pool_size)
+        print(f"  warm pool of {args.pool_size} after {warm_s:.1f} s", flush=True)
         for n, relation in enumerate(relations[: args.applications], 1):
             if available_bytes() < MIN_AVAILABLE_BYTES:
                 print(f"  stopping at {n - 1} applications: memory", flush=True)
                 break
-            opened.append(open_application(hub, relation, f"app{n}", asked, first))
+            asking[f"app{n}"] = relation
+            opened.append(open_stamped(hub, relation, f"app{n}", asked, first))
             time.sleep(args.every)
-            rows.append(measure(hub, n, len(first)))
+            seen[f"app{n}"] = hub.status() or {}
+            rows.append(measure(hub, n, len(first), seen[f"app{n}"]))
             r = rows[-1]
             print(
                 f"  {n:3d} applications ({r['with_data']} with data): {r['components']} "
@@ -137,11 +152,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         deadline = time.monotonic() + args.settle
         while len(first) < len(asked) and time.monotonic() < deadline:
             time.sleep(0.2)
-        final = measure(hub, len(asked), len(first))
+        final = measure(hub, len(asked), len(first), hub.status() or {})
+        breakdown = first_sample_parts(hub, asking, asked, first, seen)
         final["cpu_percent"] = cpu_percent(hub, publisher.pid, CPU_S)
     finally:
         close_all(opened, room, publisher, hub)
-    to_first = sorted(first[name] - asked[name] for name in first)
+    to_first = sorted((first[name] - asked[name]) / 1e9 for name in first)
     return {
         "applications": len(asked),
         "trackers": args.trackers,
@@ -156,7 +172,227 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         else None,
         "first_sample_max_s": round(to_first[-1], 3) if to_first else None,
         "applications_without_data": len(asked) - len(first),
+        "first_sample_parts": breakdown,
     }
+
+
+def warm_pool(hub: Hub, pool_size: int, timeout: float = 120.0) -> float:
+    """Wait until the host manager's warm pool is full (the steady state the figures are
+    for: a container's cold start is measured apart, ``bench/worker_start.py``); how long it
+    took from here (s)."""
+    started = time.monotonic()
+
+    def full() -> bool:
+        hosts = (hub.status() or {}).get("hosts", [])
+        if len(hosts) != 1:
+            return False
+        key = hub.keys.host_request(hosts[0])
+        replies = list(hub.session.get(key, payload=encode_request(Status()), timeout=1.0))
+        ok = [json.loads(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+        return bool(ok) and ok[0]["pool_ready"] >= pool_size
+
+    while not full():
+        if time.monotonic() - started > timeout:
+            raise RuntimeError(f"the warm pool not full within {timeout} s")
+        time.sleep(0.2)
+    return time.monotonic() - started
+
+
+def open_stamped(
+    hub: Hub, relation: RelationId, name: str, asked: dict[str, int], first: dict[str, int]
+) -> Relation:
+    """Application ``name`` asking for ``relation``: when it asked goes into ``asked``, when
+    its first sample came into ``first`` (``time.time_ns``)."""
+    asked[name] = time.time_ns()
+    return Relation(
+        hub.session,
+        hub.keys,
+        relation,
+        application=name,
+        callback=lambda _m: first.setdefault(name, time.time_ns()),
+    )
+
+
+PATHS = {
+    "started": (
+        ("to the agent", "received_ns"),
+        ("agent's loop takes it", "handled_ns"),
+        ("waits for the planning thread", "plan_asked_ns"),
+        ("planning", "plan_made_ns"),
+        ("plan applied on the loop", "planned_ns"),
+        ("to the start request", "requested_ns"),
+        ("host manager and container add it", "created_ns"),
+        ("component declares its keys", "ready_ns"),
+        ("its inputs' first samples", "inputs_ns"),
+        ("computed down the chain to the application's key", "published_ns"),
+        ("to the application", "first_ns"),
+    ),
+    "rewired": (
+        ("to the agent", "received_ns"),
+        ("agent's loop takes it", "handled_ns"),
+        ("waits for the planning thread", "plan_asked_ns"),
+        ("planning", "plan_made_ns"),
+        ("plan applied on the loop", "planned_ns"),
+        ("to the rewire command", "rewired_ns"),
+        ("producer's next output on the application's key", "published_ns"),
+        ("to the application", "first_ns"),
+    ),
+}
+"""The steps from an application's query to its first sample, in order, each with the stamp
+that ends it (``asked_ns`` begins the first): through a component started for it, or through
+running components rewired to publish on its key."""
+
+
+def first_sample_parts(
+    hub: Hub,
+    asking: dict[str, RelationId],
+    asked: dict[str, int],
+    first: dict[str, int],
+    seen: dict[str, dict[str, Any]],
+) -> dict[str, Any]:
+    """Each application's time to its first sample cut into the parts of :data:`PATHS`,
+    from the stamps taken where each step happened (the agent's status, every component's
+    status): per part the median, 90th percentile and largest (ms) over the applications with
+    data.
+
+    The path of an application: the component publishing its relation key (its *producer*),
+    then, while the input of the component at hand whose first sample came last came after
+    the query and another component created after the query produces it, that component; the
+    last one is the *root*. If the root was created after the query, the path is ``started``
+    (the root's start request, creation, ... its first inputs, then the producer's first
+    output on the key), else ``rewired``. Parts are differences of consecutive stamps, so
+    they add up to the whole (a negative part: a step done before the one listed first, say
+    a component started for an earlier application).
+
+    The agent's stamps and components are those of its status taken after each application
+    asked (``seen``; one whose producer was not planned yet takes the status at the end), the
+    components' those of their statuses at the end (each stamps a step the first time).
+    O(applications x path length x inputs)."""
+    final = hub.status(timeout=5.0) or {}
+    workers: dict[str, dict[str, Any]] = {}
+    for payload in fetch_latest(hub.session, hub.keys.all_statuses(), timeout=5.0):
+        answer = json.loads(payload)
+        if "instance" in answer:
+            workers[answer["instance"]] = answer
+
+    by_path: dict[str, list[dict[str, int]]] = {"started": [], "rewired": []}
+    missing: dict[str, str] = {}
+    """Applications with data left out, with why (their steps cannot be told apart)."""
+    each: list[dict[str, Any]] = []
+    for name, relation in asking.items():
+        if name not in first:
+            continue
+        key = hub.keys.relation(relation)
+        status = seen.get(name, {})
+        producer_of = _producers(status.get("components", {}))
+        if key not in producer_of:
+            status = final
+            producer_of = _producers(status.get("components", {}))
+        components, agent_stamps = status.get("components", {}), status.get("stamps", {})
+        query = agent_stamps.get("queries", {}).get(plan_name(relation), {}).get(name, {})
+        producer = producer_of.get(key)
+        stamps = workers.get(producer, {}).get("stamps") if producer else None
+        if not query or stamps is None or key not in stamps["first_published_ns"]:
+            missing[name] = "no stamps (the agent's, or its producer's on the key)"
+            continue
+        root, root_stamps = producer, stamps
+        visited = {producer}
+        while True:
+            firsts = root_stamps["first_sample_ns"]
+            inputs = [b["key"] for b in components[root]["inputs"]]
+            latest = max(inputs, key=lambda k: firsts.get(k, 0), default=None)
+            upstream = producer_of.get(latest) if latest else None
+            if (
+                upstream is None
+                or upstream in visited
+                or firsts.get(latest, 0) < asked[name]
+                or upstream not in workers
+                or workers[upstream]["stamps"]["created_ns"] < asked[name]
+            ):
+                break
+            root, root_stamps = upstream, workers[upstream]["stamps"]
+            visited.add(root)
+        path = "started" if root_stamps["created_ns"] > asked[name] else "rewired"
+        firsts = root_stamps["first_sample_ns"]
+        agent_component = agent_stamps.get("components", {})
+        times = {
+            "asked_ns": asked[name],
+            **query,
+            **agent_component.get(root, {}),
+            "rewired_ns": agent_component.get(producer, {}).get("rewired_ns", 0),
+            "created_ns": root_stamps["created_ns"],
+            "ready_ns": root_stamps["ready_ns"],
+            "inputs_ns": max(
+                (firsts.get(b["key"], 0) for b in components[root]["inputs"]), default=0
+            ),
+            "published_ns": stamps["first_published_ns"][key],
+            "first_ns": first[name],
+        }
+        steps = PATHS[path]
+        if any(times.get(stamp, 0) == 0 for _, stamp in steps):
+            missing[name] = "a step not stamped"
+            continue
+        if any(times[stamp] > first[name] for _, stamp in steps[:-2]):
+            # The query seen again (its token lost and declared again) or the component
+            # started again after the first sample: the stamps are of a later round.
+            missing[name] = "stamped after its first sample"
+            continue
+        previous = times["asked_ns"]
+        parts = {}
+        for part, stamp in steps:
+            parts[part] = times[stamp] - previous
+            previous = times[stamp]
+        by_path[path].append({**parts, "total": times["first_ns"] - times["asked_ns"]})
+        each.append(
+            {
+                "application": name,
+                "path": path,
+                "producer": producer,
+                "root": root,
+                **{part: round(ms / 1e6, 1) for part, ms in parts.items()},
+            }
+        )
+    return {
+        path: {"applications": len(rows), **_part_figures(rows, [p for p, _ in PATHS[path]])}
+        for path, rows in by_path.items()
+    } | {"left_out": dict(sorted(missing.items())), "each_ms": each}
+
+
+def _producers(components: dict[str, Any]) -> dict[str, str]:
+    """The component producing each data and relation key, from the agent's ``components``."""
+    return {
+        key: instance
+        for instance, spec in components.items()
+        for keys in (spec["outputs"].values(), *spec["relations"].values())
+        for key in keys
+    }
+
+
+def print_parts(breakdown: dict[str, Any]) -> None:
+    """The parts of the time to a first sample, one line each (:func:`first_sample_parts`)."""
+    for path in PATHS:
+        figures = breakdown[path]
+        print(f"first sample through a component {path}: {figures['applications']} applications")
+        for part, values in figures.items():
+            if part != "applications":
+                print(
+                    f"  {part:52s} median {values['median_ms']:7.1f} ms, "
+                    f"p90 {values['p90_ms']:7.1f}, max {values['max_ms']:7.1f}"
+                )
+
+
+def _part_figures(rows: list[dict[str, int]], parts: list[str]) -> dict[str, Any]:
+    """Median, 90th percentile and largest of each part and the total (ms)."""
+    figures = {}
+    for part in [*parts, "total"]:
+        values = sorted(row[part] / 1e6 for row in rows)
+        if values:
+            figures[part] = {
+                "median_ms": round(statistics.median(values), 1),
+                "p90_ms": round(values[int(0.9 * (len(values) - 1))], 1),
+                "max_ms": round(values[-1], 1),
+            }
+    return figures
 
 
 def cpu_percent(hub: Hub, publisher: int, seconds: float) -> dict[str, float]:
@@ -192,9 +428,9 @@ def cross_relations(trackers: int) -> list[RelationId]:
     ]
 
 
-def measure(hub: Hub, applications: int, with_data: int) -> dict[str, Any]:
-    """The agent's components, the host's worker processes and their memory, the load."""
-    status = hub.status() or {}
+def measure(hub: Hub, applications: int, with_data: int, status: dict[str, Any]) -> dict[str, Any]:
+    """The agent's components (from its ``status``), the host's worker processes and their
+    memory, the load."""
     components = status.get("components", {})
     workers = worker_processes(hub.agent.pid)
     return {
@@ -237,7 +473,9 @@ def main(argv: list[str] | None = None) -> int:
     RESULTS.mkdir(exist_ok=True)
     written = RESULTS / f"containers_{args.relations.replace('-', '_')}.json"
     written.write_text(json.dumps(results, indent=2) + "\n")
-    print(json.dumps({k: v for k, v in results.items() if k != "rows"}, indent=2))
+    print_parts(result["first_sample_parts"])
+    shown = {k: v for k, v in results.items() if k not in ("rows", "first_sample_parts")}
+    print(json.dumps(shown, indent=2))
     return 0
 
 

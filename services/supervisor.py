@@ -27,8 +27,9 @@ so the supervisor keeps a **warm pool** of idle members (``python -m services.wo
 
 **Containers** (:mod:`services.container`): a group's components run in one process named by
 the group. A start of a group whose container does not run hands the group to a ready pool
-member, which becomes the container (with none ready, a fresh member is spawned and given the
-group once its pool token is up: a group is too large for a command line); one whose container
+member, which becomes the container (with none ready, a member still starting, else a fresh
+one spawned, is given the group once its pool token is up: a group is too large for a command
+line); one whose container
 runs adds the components to it with an ``add`` command (no process start), sent once the
 container's token shows it takes commands. A stop of a component in a container removes it
 from there (``remove``); a container left with no component for ``EMPTY_GRACE_S`` is stopped.
@@ -241,6 +242,17 @@ class Supervisor:
                 return pool_id, process
         return None
 
+    def _take_starting(self) -> tuple[str, subprocess.Popen] | None:
+        """A pool member still starting (its imports under way), the one spawned first: a
+        container given to it runs sooner than in a process spawned now, which would compete
+        with it for the CPU."""
+        for pool_id in sorted(self._unready_since, key=self._unready_since.__getitem__):
+            process = self._members.get(pool_id)
+            if process is not None and process.poll() is None:
+                del self._members[pool_id], self._unready_since[pool_id]
+                return pool_id, process
+        return None
+
     # -- instances ----------------------------------------------------------------------------
 
     def start(self, spec: ComponentSpec) -> Started:
@@ -312,11 +324,16 @@ class Supervisor:
         """A container process for ``group``: a ready pool member given the group, else a
         member spawned to be given it once ready; :class:`ProtocolError` if none can start."""
         taken = self._take_ready()
+        starting = self._take_starting() if taken is None else None
         if taken is not None:
             pool_id, process = taken
             put_command(self._session, self._keys.pool(pool_id), group.to_json())
             pending_group = None
             self.counters["containers_from_pool"] += 1
+        elif starting is not None:
+            pool_id, process = starting
+            pending_group = group.to_json()
+            self.counters["containers_from_starting_members"] += 1
         else:
             pool_id = f"{self._tag}-{uuid.uuid4().hex[:8]}"
             try:

@@ -14,6 +14,15 @@ a period, and a frame published slowly (a loaded machine) is still waited for wh
 samples keep coming. Every dynamic binding may
 trigger: an instant is computed once, and a trigger older than the last instant computed is
 stale.
+
+An input that is *new* (fewer samples than it takes to know its period: none, or one or two)
+is waited for up to the cap when every input is needed to compute (``needed``: no space
+expansion, where a hidden feature may never come): without its next sample there is nothing to
+interpolate at the trigger's time, so not waiting would only drop the instant. Before, such an
+input counted as not live until its third sample, so the first instants of a flow whose inputs
+arrive at the same instants but one after the other (a component reading a tracker and another
+component's output derived from the same tracker frame) were dropped, three periods in all
+(300 ms at 10 Hz, issue 28's time to a first sample).
 """
 
 from __future__ import annotations
@@ -33,18 +42,32 @@ latest sample of that instant (5 ms: the samples of one frame are published back
 within a fraction of a millisecond on an idle machine; the margin is for a loaded one)."""
 
 
-def _live(buffer: SampleBuffer, timestamp_ns: int, default_period_ns: int) -> bool:
+def _live(
+    buffer: SampleBuffer, timestamp_ns: int, default_period_ns: int, needed: bool = False
+) -> bool:
+    """Whether a trigger at ``timestamp_ns`` waits for ``buffer``'s input (module docstring)."""
     newest = buffer.newest_time()
-    period = buffer.typical_period_ns() or default_period_ns
+    known = buffer.typical_period_ns()
+    if known is None and needed:
+        return True  # new: nothing can be computed without its next sample
+    period = known or default_period_ns
     return newest is not None and newest >= timestamp_ns - LIVE_PERIODS * period
 
 
-def lagging(buffers: Iterable[SampleBuffer], timestamp_ns: int, default_period_ns: int) -> bool:
-    """Whether some live input has no sample at or after ``timestamp_ns`` yet."""
-    return any(
-        _live(b, timestamp_ns, default_period_ns) and b.newest_time() < timestamp_ns
-        for b in buffers
-    )
+def lagging(
+    buffers: Iterable[SampleBuffer],
+    timestamp_ns: int,
+    default_period_ns: int,
+    needed: bool = False,
+) -> bool:
+    """Whether some live input has no sample at or after ``timestamp_ns`` yet (``needed``:
+    every input is needed to compute, module docstring)."""
+    for b in buffers:
+        if _live(b, timestamp_ns, default_period_ns, needed):
+            newest = b.newest_time()
+            if newest is None or newest < timestamp_ns:
+                return True
+    return False
 
 
 def _same_instants(buffer: SampleBuffer, trigger: SampleBuffer) -> bool:
@@ -58,16 +81,22 @@ def wait_for(
     default_period_ns: int,
     cap_ns: int,
     trigger: SampleBuffer | None = None,
+    needed: bool = False,
 ) -> float:
     """Seconds a trigger at ``timestamp_ns`` (on the input holding ``trigger``) may wait for
-    the live inputs' next samples."""
-    waits = [
-        SAME_INSTANT_WAIT_NS
-        if trigger is not None and _same_instants(b, trigger)
-        else WAIT_PERIODS * (b.typical_period_ns() or default_period_ns)
-        for b in buffers
-        if _live(b, timestamp_ns, default_period_ns)
-    ]
+    the live inputs' next samples (``needed``: every input is needed to compute, so a new one
+    is waited for up to ``cap_ns``: module docstring)."""
+    waits = []
+    for b in buffers:
+        if not _live(b, timestamp_ns, default_period_ns, needed):
+            continue
+        period = b.typical_period_ns()
+        if trigger is not None and _same_instants(b, trigger):
+            waits.append(SAME_INSTANT_WAIT_NS)
+        elif period is None and needed:
+            waits.append(cap_ns)
+        else:
+            waits.append(WAIT_PERIODS * (period or default_period_ns))
     return min(max(waits, default=0), cap_ns) * 1e-9
 
 

@@ -174,6 +174,9 @@ ANSWER_TIMEOUT_S = 0.15
 handling samples holds it), then it is answered with a time-out."""
 UPSTREAM_TIMEOUT_S = 0.1
 """Longest the thread answering such a query waits for an input's producer to answer it."""
+CURRENT_TIMEOUT_S = 0.5
+"""Longest a new component waits for its dynamic inputs' producers to answer their current
+value (:meth:`Worker._fetch_current`; they answer in milliseconds)."""
 NO_MODEL_S = 1.0
 """How long an input whose producer answered ``no_model`` (a measured edge) or nothing is not
 asked again: a renderer asking every frame must not cost the flow a round trip (or a
@@ -262,6 +265,7 @@ class Worker:
         wires: LocalWires | None = None,
         container: str | None = None,
     ) -> None:
+        created_ns = time.time_ns()
         self.spec = spec
         self.container = container
         """The container this component runs in with others (``services.container``), if
@@ -324,6 +328,8 @@ class Worker:
         self._latency: defaultdict[str, deque[float]] = defaultdict(
             lambda: deque(maxlen=LATENCY_SAMPLES)
         )
+        self._first_samples: dict[str, int] = {}
+        """Per input key, when its first sample was taken (wall clock): O(input keys ever)."""
         """Per input key, the latest samples' latency (ms): this host's clock when the worker
         takes the sample minus its timestamp (after the input's clock offset)."""
         self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
@@ -343,10 +349,14 @@ class Worker:
             self._bind(spec.inputs)
         if wires is not None:
             wires.produce(spec.instance, tuple(spec.outputs.values()))
+        self._fetch_current()
         declare = functools.partial(
             session.liveliness().declare_token, keys.worker(spec.instance, self.incarnation)
         )
         self._token = declare() if parent is None else parent.serve(declare)
+        self.stamps = {"created_ns": created_ns, "ready_ns": time.time_ns()}
+        """When this component was created and had declared everything (its token last), on
+        the wall clock (issue 28's time to a first sample: ``agent.stamps``)."""
 
     def _new_progress(self) -> bool:
         """Whether the service reports progress (:meth:`Service.progress` overridden): only
@@ -417,6 +427,48 @@ class Worker:
             ),
             daemon=True,
         ).start()
+
+    def _fetch_current(self) -> None:
+        """Hand a new component each dynamic input's current value at once, off this thread:
+        a value handed over in the container, else its producer's latest (asked once, all
+        keys at once: ``net.transport.LatestValuePublisher``). Its first output then comes from
+        the newest instant its inputs share, without waiting up to a period for the next one
+        (issue 28: a query's first sample). They are handed over once the static inputs have
+        their values (fetched at the same time, :meth:`_fetch_static`; at most
+        ``CURRENT_TIMEOUT_S``), which an input inverted and composed with them needs. One
+        later than a sample the subscription took meanwhile is an older instant: stale,
+        ignored. O(dynamic inputs)."""
+        generation = self._generation
+        local, remote = [], []
+        for index, item in enumerate(self._inputs):
+            if item.binding.static:
+                continue
+            key = item.binding.key
+            if not self._local(key):
+                remote.append((index, key))
+            elif (value := self._wires.latest(key)) is not None:
+                local.append((index, value))
+        if not (local or remote):
+            return
+
+        statics = [item.buffer for item in self._inputs if item.binding.static]
+
+        def fetch() -> None:
+            asked_at = time.monotonic()
+            while any(len(buffer) == 0 for buffer in statics):
+                if time.monotonic() - asked_at > CURRENT_TIMEOUT_S or self._stop.wait(0.002):
+                    break
+            for index, value in local:
+                self._deliver_values_guarded(generation, index, [value])
+            asked = [
+                (index, self._session.get(key, timeout=CURRENT_TIMEOUT_S)) for index, key in remote
+            ]
+            for index, replies in asked:
+                for reply in replies:
+                    if reply.ok is not None:
+                        self._deliver_guarded(generation, index, [reply.ok.payload.to_bytes()])
+
+        threading.Thread(target=self._guarded(fetch), daemon=True).start()
 
     def _fetch_static(
         self,
@@ -627,6 +679,8 @@ class Worker:
                 return None
             t = sample.timestamp_ns
         self._latency[key].append((now - t) / 1e6)
+        if key not in self._first_samples:
+            self._first_samples[key] = time.time_ns()
         return sample
 
     def _buffered(self, item: _Input, sample: Measurement) -> bool:
@@ -728,10 +782,12 @@ class Worker:
             self._service.min_correspondences() if self.spec.expansion == "space" else len(dynamic)
         )
         same_instant = trigger.buffer if present >= needed else None
-        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, same_instant)
+        every = self.spec.expansion != "space"  # each input needed (services.triggers)
+        return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, same_instant, every)
 
     def _caught_up(self, timestamp_ns: int) -> bool:
-        return not lagging(self._dynamic, timestamp_ns, self.spec.tolerance_ns)
+        every = self.spec.expansion != "space"
+        return not lagging(self._dynamic, timestamp_ns, self.spec.tolerance_ns, every)
 
     def _process_due_triggers(self) -> None:
         for timestamp_ns in self._pending.due(time.monotonic(), self._caught_up):
@@ -977,6 +1033,15 @@ class Worker:
             "latency_ms": self._latencies(),
             "handling_us": round(self._handling_s * 1e6, 1),
             "spec": self.spec.as_dict(),
+            "stamps": {
+                **self.stamps,
+                "first_sample_ns": dict(self._first_samples),
+                "first_published_ns": {
+                    key: publisher.first_put_ns
+                    for key, publisher in list(self._publishers.items())
+                    if publisher.first_put_ns is not None
+                },
+            },
             **({"container": self.container} if self.container is not None else {}),
         }
 

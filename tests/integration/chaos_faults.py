@@ -184,8 +184,12 @@ def worker_processes(domain: str) -> set[int]:
     }
 
 
-def whole(setup: Setup, pool_size: int = POOL_SIZE) -> str | None:
-    """None if the system is whole (see the module docstring), else what is wrong."""
+def whole(setup: Setup, pool_size: int = POOL_SIZE, pool_settled: bool = True) -> str | None:
+    """None if the system is whole (see the module docstring), else what is wrong. Without
+    ``pool_settled``, pool members still starting (the warm pool refilling, one process at a
+    time), or a host manager not answering yet (a restarted agent's, still importing) while
+    every worker process runs a wanted component, are no fault: the system is *healthy*
+    (issue 28: every wanted component alive, nothing unwanted running)."""
     status = setup.status()
     if not status or status["unsolved"]:
         return f"agent not serving: {status and status['unsolved']}"
@@ -200,11 +204,17 @@ def whole(setup: Setup, pool_size: int = POOL_SIZE) -> str | None:
     if any(len(p) != 1 for p in pids.values()):
         return f"status pids per instance: {pids}"
     host = host_status(setup)
-    if host is None or host["releasing"] or host["stopping"] or host["pool_starting"]:
-        return f"host manager busy: {host and {k: host[k] for k in ('releasing', 'stopping')}}"
+    if host is None and not pool_settled:
+        running = worker_processes(setup.domain)
+        unwanted = running - {pid for p in pids.values() for pid in p}
+        return f"no host manager; unwanted processes {sorted(unwanted)}" if unwanted else None
+    starting = 0 if host is None or pool_settled else host["pool_starting"]
+    if host is None or host["releasing"] or host["stopping"] or host["pool_starting"] > starting:
+        busy = ("releasing", "stopping", "pool_starting")
+        return f"host manager busy: {host and {k: host[k] for k in busy}}"
     running = worker_processes(setup.domain)
     idle = running - {pid for p in pids.values() for pid in p}
-    if len(idle) != host["pool_ready"] or len(idle) > pool_size:
+    if len(idle) != host["pool_ready"] + starting or len(idle) > pool_size:
         return f"worker processes {sorted(running)}, components' {pids}, host {host}"
     return None
 

@@ -119,7 +119,8 @@ def test_a_container_wires_in_the_process_adds_removes_and_contains_bad_input(pr
         # 2. a reader outside the process appears: zenoh carries first's output to it too
         outside = Collector(session, keys.data("first/AC"))
         assert decode(outside.next()).timestamp_ns == 2_004  # the latest, sent when it appeared
-        ht.put(encode(random_pose(3_000)))
+        current = random_pose(3_000)
+        ht.put(encode(current))
         assert decode(outside.next()).timestamp_ns == 3_000
         assert decode(application.next()).timestamp_ns == 3_000
         outside.subscriber.undeclare()
@@ -134,6 +135,9 @@ def test_a_container_wires_in_the_process_adds_removes_and_contains_bad_input(pr
         inverted = Collector(session, keys.data("third/BA"))
         session.put(keys.control("box0"), json.dumps({"add": [third.as_dict()]}))
         wait_until(lambda: PUT in tokens["third"])
+        # it is handed first's current value at once (no wait for the next sample)
+        result = decode(inverted.next())
+        assert close(result, invert_pose(compose_poses(static, current)))
         moving = random_pose(4_000)
         ht.put(encode(moving))
         result = decode(inverted.next())

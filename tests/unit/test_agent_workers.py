@@ -9,6 +9,7 @@ from types import SimpleNamespace
 
 from ubitrack_agent.agent.hosts import Placement
 from ubitrack_agent.agent.runtime import Agent
+from ubitrack_agent.agent.stamps import Stamps
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeySpace
 
@@ -29,6 +30,7 @@ def agent(placements: dict[str, Placement] | None = None) -> tuple[Agent, list]:
     bare._held = {}
     bare._retiring = {}
     bare.wanted = {}
+    bare.stamps = Stamps()
     placed = dict(placements or {})
     bare.hosts = SimpleNamespace(placements=placed, reports_exit_of=lambda i: i in placed)
     bare.session = SimpleNamespace(put=lambda key, payload, **_: puts.append((key, payload)))

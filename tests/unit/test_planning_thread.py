@@ -134,3 +134,19 @@ def test_make_outcome_reuses_the_specifications_when_the_plan_did_not_change():
         keys,
     )
     assert gone.wanted == {} and "ART->HT:6D" in gone.planned.plan.unsolved
+
+
+def test_a_finished_plan_wakes_the_loop():
+    """The loop waits for events; the planning thread calls ``done`` once an outcome is ready,
+    so the loop takes it at once rather than on its next pass (issue 28)."""
+    job, woken = Jobs(), threading.Event()
+    planner = BackgroundPlanner(job, done=woken.set)
+    try:
+        planner.step(snapshot)
+        job.started.get(timeout=WAIT_S)
+        assert not woken.is_set()  # not before the plan is made
+        job.release.put(None)
+        assert woken.wait(WAIT_S)
+        assert planner.step(snapshot) is not None  # taken on that wake-up
+    finally:
+        planner.close()

@@ -270,6 +270,18 @@ def test_a_cold_container_is_given_its_group_once_its_pool_token_is_up(make, clo
     assert len(commands(session, KEYS.pool(pool_id))) == 1
 
 
+def test_a_container_goes_to_a_member_still_starting_rather_than_a_new_process(make, clock):
+    supervisor, session, spawned = make(pool_size=1)
+    supervisor.fill_pool()  # importing: no pool token yet
+    supervisor.start_group(GroupSpec("lab-0", (spec("a"),)))
+    assert len(spawned) == 1  # no second cold process competing with the first
+    pool_id = spawned[0].arguments[0]
+    supervisor.on_pool_token(pool_id, appeared=True)
+    assert commands(session, KEYS.pool(pool_id)) == [GroupSpec("lab-0", (spec("a"),)).as_dict()]
+    assert supervisor.counters["containers_from_starting_members"] == 1
+    assert supervisor.status()["pool_starting"] == 0  # it is the container now, no member
+
+
 def test_stops_remove_components_and_an_empty_container_ends(make, clock):
     supervisor, session, spawned = make(pool_size=0)
     supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))))

@@ -80,3 +80,22 @@ def test_samples_of_a_pending_instant_extend_its_wait_while_they_keep_coming():
     assert not pending.add(100, now=0.003, wait_s=0.001, extend=True)  # from the latest
     assert pending.next_deadline() == pytest.approx(0.004)
     assert pending.due(now=0.0041, caught_up=lambda t: False) == [100]
+
+
+def test_a_new_input_is_waited_for_when_every_input_is_needed():
+    """An input without a known period (none, one or two samples) holds a trigger up to the
+    cap when nothing can be computed without it, and is not waited for in a space expansion
+    (a hidden feature may never come): the first instants of a new flow are not dropped."""
+    from services.triggers import lagging, wait_for
+
+    ms = 1_000_000
+    empty, one, two = _buffer([]), _buffer([0]), _buffer([0, 100 * ms])
+    trigger_time = 200 * ms
+    for new in (empty, one, two):
+        assert lagging([new], trigger_time, 5 * ms, needed=True)
+        assert not lagging([new], trigger_time, 5 * ms)
+        assert wait_for([new], trigger_time, 5 * ms, 50 * ms, needed=True) == pytest.approx(0.05)
+        assert wait_for([new], trigger_time, 5 * ms, 50 * ms) == 0.0
+    assert not lagging([_buffer([0, 200 * ms])], trigger_time, 5 * ms, needed=True)  # caught up
+    known = _buffer([0, 100 * ms, 200 * ms])  # its period is known: the usual rule
+    assert wait_for([known], 250 * ms, 5 * ms, 500 * ms, needed=True) == pytest.approx(0.15)

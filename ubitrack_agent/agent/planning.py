@@ -52,6 +52,8 @@ class Request:
     appeared: frozenset[str] = frozenset()
     """The workers nothing ran that appeared since the last plan applied (the relations they
     may serve are planned again: ``agent.replanning``)."""
+    taken_ns: int = 0
+    """When the snapshot was taken (``time.time_ns``: ``agent.stamps``)."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,8 @@ class Outcome:
     replanning_s: float = 0.0
     """Of ``seconds``, the time :func:`.replanning.replan` took (the rest: the SRG and the
     specifications)."""
+    made_ns: int = 0
+    """When it was finished (``time.time_ns``: ``agent.stamps``)."""
 
 
 def make_outcome(
@@ -121,7 +125,16 @@ def make_outcome(
         }
     seconds = time.perf_counter() - started
     return Outcome(
-        request, live, planned, wanted, labels, isolated, data_hosts, seconds, replanning_s
+        request,
+        live,
+        planned,
+        wanted,
+        labels,
+        isolated,
+        data_hosts,
+        seconds,
+        replanning_s,
+        time.time_ns(),
     )
 
 
@@ -143,8 +156,15 @@ class BackgroundPlanner:
     docstring). The loop calls :meth:`changed` on every change of what planning reads and
     :meth:`step` on every pass; neither waits for a plan."""
 
-    def __init__(self, job: Callable[[Request, Outcome | None], Outcome]) -> None:
+    def __init__(
+        self,
+        job: Callable[[Request, Outcome | None], Outcome],
+        done: Callable[[], None] = lambda: None,
+    ) -> None:
         self._job = job
+        self._done = done
+        """Called on the planning thread when an outcome is ready: the loop, which waits for
+        events, takes it at once instead of on its next pass (up to 50 ms later)."""
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
         self._request: Request | None = None
@@ -214,3 +234,4 @@ class BackgroundPlanner:
                 self._latest = outcome  # outdated or not, the base of the next increment
             with self._lock:
                 self._result = outcome
+            self._done()

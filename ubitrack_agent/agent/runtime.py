@@ -85,6 +85,7 @@ from ubitrack_agent.agent.plan_memo import PlanMemo
 from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, make_outcome
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import IN_PLACE, reconcile
+from ubitrack_agent.agent.stamps import Stamps
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.clock import Clock, ClockEstimate, serve_clock
 from ubitrack_agent.net.config import Settings
@@ -118,6 +119,8 @@ STOP_RESEND_S = 1.0
 """A stop put on a worker's control key by the agent is put again this often while the
 worker's token stays up."""
 PUT = "SampleKind.PUT"
+PLANNED = ("planned", "", "", 0)
+"""Queued by the planning thread when a plan is ready: wakes the loop, which applies it."""
 MAX_QUEUED_REPORTS = 10_000
 """Most liveness reports waiting for the agent's loop (providers put about one a second)."""
 STATUS_REFRESH_S = 0.25
@@ -147,7 +150,8 @@ class Agent:
         self._planner = BackgroundPlanner(
             lambda request, previous: make_outcome(
                 request, previous, self.templates, self.keys, self._plan_memo
-            )
+            ),
+            done=lambda: self._events.put(PLANNED),
         )
         self.counters: Counter[str] = Counter()
         self.problems = Problems(self.counters)
@@ -155,6 +159,8 @@ class Agent:
         self.last_plan_s: float | None = None
         self.loop_times = LoopTimes()
         """How long the loop's passes and handlers take (:mod:`.loop_times`, in the status)."""
+        self.stamps = Stamps()
+        """When each step from a query to its components' start happened (:mod:`.stamps`)."""
         """How long the latest plan applied took to make (on the planning thread)."""
         self.liveness = ProviderReports()
         self.stale: frozenset[str] = frozenset()
@@ -207,7 +213,8 @@ class Agent:
         self._restored: dict[str, int] = {}
         """Components whose container was restored, with its new pid: their current wiring is
         sent once their token from that process is up."""
-        self._events: queue.SimpleQueue[tuple[str, str, str]] = queue.SimpleQueue()
+        self._events: queue.SimpleQueue[tuple[str, str, str, int]] = queue.SimpleQueue()
+        """Liveliness events: kind, change, key and when zenoh handed it over (wall clock)."""
         self._stop = threading.Event()
         self._status_json = "{}"
         self.session = open_session(settings)
@@ -219,7 +226,7 @@ class Agent:
             liveliness.declare_subscriber(
                 selector,
                 lambda sample, kind=kind: self._events.put(
-                    (kind, str(sample.kind), str(sample.key_expr))
+                    (kind, str(sample.kind), str(sample.key_expr), time.time_ns())
                 ),
                 history=True,
             )
@@ -247,8 +254,9 @@ class Agent:
 
     # -- events -----------------------------------------------------------------------------
 
-    def _handle(self, kind: str, change: str, key: str) -> bool:
-        """Apply one liveliness event; True if the SRG or the queries changed."""
+    def _handle(self, kind: str, change: str, key: str, received_ns: int = 0) -> bool:
+        """Apply one liveliness event (``received_ns``: when zenoh handed it over); True if
+        the SRG or the queries changed."""
         token = self.keys.parse_token(kind, key)
         if isinstance(token, KeyRejection):
             self.problems.report(
@@ -257,7 +265,9 @@ class Agent:
             return False
         appeared = change == PUT
         if token.relation is not None:
-            return self._on_query(token.relation, token.name, token.host, token.labels, appeared)
+            return self._on_query(
+                token.relation, token.name, token.host, token.labels, appeared, received_ns
+            )
         if kind == "provider":
             return self._on_provider(token.name, appeared)
         if kind == "agent":
@@ -284,15 +294,20 @@ class Agent:
         host: str,
         labels: frozenset[str],
         appeared: bool,
+        received_ns: int = 0,
     ) -> bool:
         apps = self.queries[relation]
         before = bool(apps)
         if appeared:
+            name = plan_name(relation)
+            self.stamps.query(name, application, "received_ns", received_ns or None)
+            self.stamps.query(name, application, "handled_ns")
             apps.add(application)
             self.application_hosts[relation, application] = host
             self.application_labels[relation, application] = labels
         else:
             apps.discard(application)
+            self.stamps.forget_query(plan_name(relation), application)
             self.application_hosts.pop((relation, application), None)
             self.application_labels.pop((relation, application), None)
         if not apps:
@@ -451,6 +466,7 @@ class Agent:
             # takes over.
             follow=self.active,
             appeared=appeared,
+            taken_ns=time.time_ns(),
         )
 
     def _apply(self, outcome: Outcome) -> None:
@@ -467,10 +483,25 @@ class Agent:
         self.counters["parts_memoised"] = self._plan_memo.parts.hits
         self.counters["parts_planned"] = self._plan_memo.parts.misses
         self.last_plan_s = outcome.seconds
+        self._stamp_planned(outcome)
         for relation in sorted(planned.replanned, key=str):
             part = planned.parts[relation]
             if part.unsolved is not None:
                 log.warning("cannot serve %s: %s", part.name, part.unsolved)
+
+    def _stamp_planned(self, outcome: Outcome) -> None:
+        """Stamp the queries this plan serves first (:mod:`.stamps`); forget the components
+        no longer wanted or run. O(relations queried + components)."""
+        plan = outcome.planned.plan
+        for relation in outcome.request.relations:
+            name = plan_name(relation)
+            if name in plan.unsolved or name not in plan.relations:
+                continue
+            for steps in self.stamps.unplanned(name):
+                steps["plan_asked_ns"] = outcome.request.taken_ns
+                steps["plan_made_ns"] = outcome.made_ns
+                steps["planned_ns"] = time.time_ns()
+        self.stamps.keep_components(set(self.wanted) | set(self.running))
 
     def _queue_report(self, sample: Any) -> None:
         """Queue a liveness report (on zenoh's thread; bounded: a flood is dropped unread)."""
@@ -623,7 +654,12 @@ class Agent:
             by_container[host, containers.of(spec.instance)].append(spec)
         started: set[str] = set()
         for (host, container), members in sorted(by_container.items()):
-            started.update(self.hosts.start_group(GroupSpec(container, tuple(members)), host))
+            for spec in members:
+                self.stamps.component(spec.instance, "requested_ns")
+            done = self.hosts.start_group(GroupSpec(container, tuple(members)), host)
+            for instance in done:
+                self.stamps.component(instance, "started_ns")
+            started.update(done)
         return [spec for spec in specs if spec.instance in started]
 
     def _move(
@@ -722,6 +758,7 @@ class Agent:
 
     def _send_control(self, instance: str, command: dict[str, Any]) -> None:
         put_command(self.session, self.keys.control(instance), json.dumps(command))
+        self.stamps.component(instance, "rewired_ns")
 
     # -- one active agent per domain ----------------------------------------------------------
 
@@ -840,16 +877,20 @@ class Agent:
         finally:
             self._close(stop_workers=self._stop.is_set())
 
-    def _next_batch(self) -> list[tuple[str, str, str]]:
-        """The events queued within ``BATCH_WINDOW_S`` of the next one (none after 50 ms)."""
+    def _next_batch(self) -> list[tuple[str, str, str, int]]:
+        """The liveliness events queued within ``BATCH_WINDOW_S`` of the next one (none after
+        50 ms, or at once when a plan is ready: ``PLANNED``)."""
         try:
-            batch = [self._events.get(timeout=0.05)]
+            first = self._events.get(timeout=0.05)
         except queue.Empty:
             return []
+        if first is PLANNED:
+            return []
+        batch = [first]
         time.sleep(BATCH_WINDOW_S)
         while not self._events.empty():
             batch.append(self._events.get_nowait())
-        return batch
+        return [event for event in batch if event is not PLANNED]
 
     def _reap_hosts(self) -> None:
         """Apply host managers' tokens and exit reports: forget the instances that ended; send
@@ -935,6 +976,7 @@ class Agent:
                 "under_way": self._planner.in_flight is not None,
             },
             "loop": self.loop_times.last,
+            "stamps": self.stamps.as_dict(),
         }
 
     def _srg_status(self) -> list[dict[str, Any]]:

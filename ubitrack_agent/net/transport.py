@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -93,6 +94,8 @@ class LatestValuePublisher:
         self._latest: bytes | None = None
         self._listening = listening
         """Called (on zenoh's thread; it must not block) when a subscriber appears."""
+        self.first_put_ns: int | None = None
+        """When the first payload was put (wall clock): the first sample on its key."""
         self._publisher = session.declare_publisher(key, encoding=encoding)
         self._matching = False
         """Whether a subscriber listens, as zenoh last told the matching listener (asking
@@ -113,6 +116,8 @@ class LatestValuePublisher:
         the same link gets the sample, and its matching news after it)."""
         self._latest = payload
         self._publisher.put(payload)
+        if self.first_put_ns is None:
+            self.first_put_ns = time.time_ns()
 
     def _on_matching(self, status: Any) -> None:
         self._matching = bool(status.matching)
