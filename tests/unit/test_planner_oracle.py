@@ -125,9 +125,10 @@ def test_random_srgs_plan_no_worse_than_the_exhaustive_search(templates, edges, 
     parts fuse each side apart: :mod:`ubitrack_agent.graph.segments`): the bound still decides
     in dense graphs (five parallel estimates of one relation chained on two ways: 1.2967
     against 1.2924 with 16, the same with 32), and a group of more than ``EXACT_COPIES``
-    occurrences gets greedy sets of copies, not every maximal clique. Drawn at random from this distribution, 426 of 426 graphs planned at no higher cost
-    (both searches on 600 seeded draws, 426 within the time limit); hypothesis, searching for a
-    counterexample, finds such graphs."""
+    occurrences gets greedy sets of copies, not every maximal clique. Drawn at random from this
+    distribution, 426 of 426 graphs planned at no higher cost (both searches on 600 seeded
+    draws, 426 within the time limit); hypothesis, searching for a counterexample, finds such
+    graphs."""
     srg = new_srg()
     for a, b, edge_type, static in edges:
         add_measured_edge(srg, f"N{a}", f"N{b}", edge_type, static=static)
