@@ -293,7 +293,7 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="do not time the fusion hop: no subscriber of this process on the fusion's inputs "
         "and output, which makes their producers put them on zenoh as well as hand them over in "
-        "their container (an encode and a put on the flow's path)",
+        "their container (an encode and a put each, after the hand-over)",
     )
     config.add_arguments(parser)
     args = parser.parse_args(argv)
