@@ -1138,7 +1138,7 @@ class Worker:
                 self._guarded(self._send_unsent)()
             self._summarise(time.monotonic())
         self._flush()
-        self._put_outside()
+        self._guarded(self._put_outside)()
 
     def _summarise(self, now: float) -> None:
         """Every ``SUMMARY_S``, one warning for the expected conditions counted meanwhile
