@@ -35,8 +35,11 @@ handed to the fusion in their container (``services.local_wires``), read here as
 it to this process. Each fused phase also reports the fusion
 worker's counters over the phase (``fusion_counters``: what became of the samples it took).
 The probes are themselves readers outside the container: its components then put those
-values on zenoh too (an encode and a put on the flow's path, ``services.worker``), which no
-reader of the demo makes them do; ``--no-probes`` leaves them out.
+values on zenoh too, which no reader of the demo makes them do (an encode and a put each, made
+after the hand-over downstream has returned: ``services.worker``, ``Worker._publish``); so an
+estimate handed to the fusion in the container reaches this process after the fusion's output
+of it, and the fusion hop counts only the pairs whose input arrived first (estimates that came
+to the fusion over zenoh). ``--no-probes`` leaves the probes out.
 
 Per sample the application receives: latency (its arrival, ``time.time_ns()`` in the
 subscriber's callback, minus its timestamp; one host, one clock), the error against the
@@ -290,7 +293,7 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="do not time the fusion hop: no subscriber of this process on the fusion's inputs "
         "and output, which makes their producers put them on zenoh as well as hand them over in "
-        "their container (an encode and a put on the flow's path)",
+        "their container (an encode and a put each, after the hand-over)",
     )
     config.add_arguments(parser)
     args = parser.parse_args(argv)

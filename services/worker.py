@@ -276,6 +276,13 @@ class Worker:
         (``services.local_wires``); zenoh carries an output only where something outside the
         process reads it."""
         self._flush: Callable[[], None] = (lambda: None) if wires is None else wires.flush
+        self._outgoing: deque[tuple[tuple[LatestValuePublisher, ...], Measurement | bytes]]
+        self._outgoing = deque()
+        """The puts for readers outside the process, in the order the outputs were published
+        (queued under ``_lock``), each with its publishers and its payload, or the value to
+        encode (one handed over, checked finite): put by :meth:`_put_outside`."""
+        self._put_lock = threading.Lock()
+        """Held while the queued puts are put: one thread at a time, so none overtakes another."""
         self._unsent: set[str] = set()
         """Output keys read in the container whose latest value zenoh has not carried (no
         subscriber outside then): sent once one appears (:meth:`_send_unsent`)."""
@@ -519,6 +526,7 @@ class Worker:
         }
         answers = {key: port for port, keys in routes.items() for key in keys}
         wanted = {key for keys in (*routes.values(), *progress_routes.values()) for key in keys}
+        self._put_outside()  # what is queued goes out on the publishers it was queued for
         for key in set(self._publishers) - wanted:
             self._publishers.pop(key).undeclare()
         for key in wanted - set(self._publishers):
@@ -859,6 +867,12 @@ class Worker:
         self._publish(outputs, timestamp_ns)
 
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
+        """Hand each output to its readers in the container (delivered once this worker's lock
+        is free: ``services.local_wires``) and queue its puts for readers outside the process,
+        put after the hand-over (:meth:`_put_outside`), so the container's flow does not wait
+        for zenoh; under ``_lock``. A value handed over is checked finite here and encoded when
+        put; one only zenoh carries is encoded here, where a result's numbers are checked.
+        O(outputs x routes)."""
         wires = self._wires
         for port, value in outputs.items():
             routes = self._routes.get(port, ())
@@ -866,12 +880,13 @@ class Worker:
                 if not finite(value):
                     self._count("failed", "result of %s holds NaN or infinity", port)
                     continue
-                wires.hand_over(routes[0], value)  # delivered once this worker's lock is free
+                wires.hand_over(routes[0], value)
                 self.counters["handed_over"] += 1
                 routes = self._outside(routes)
-                if not routes:
-                    self.counters["published"] += 1
-                    continue
+                if routes:
+                    self._outgoing.append((self._publishers_of(routes), value))
+                self.counters["published"] += 1
+                continue
             try:
                 payload = encode(value)  # where a result's numbers are checked
             except MeasurementError as exc:
@@ -879,11 +894,32 @@ class Worker:
                 continue
             if wires is not None and routes:  # a reader bound later in the container starts here
                 wires.keep(routes[0], value)
-            for key in routes:
-                self._publishers[key].put(payload)
+            self._outgoing.append((self._publishers_of(routes), payload))
             self.counters["published"] += 1
         if self._reports_progress or self._batch_progress is not None:
             self._publish_progress(outputs, timestamp_ns)
+
+    def _publishers_of(self, routes: list[str]) -> tuple[LatestValuePublisher, ...]:
+        return tuple(self._publishers[key] for key in routes)
+
+    def _put_outside(self) -> None:
+        """Put what :meth:`_publish` queued, oldest first; called after the hand-over in the
+        container (``services.local_wires``), with ``_lock`` free or held (never taken here).
+        One thread at a time puts (``_put_lock``), each taking whatever is queued then, so the
+        samples of one key leave in the order they were published even where two threads
+        publish it. O(puts queued)."""
+        if self._outgoing:
+            with self._put_lock:
+                self._put_outside_held()
+
+    def _put_outside_held(self) -> None:
+        """:meth:`_put_outside`'s puts, ``_put_lock`` held."""
+        outgoing = self._outgoing
+        while outgoing:
+            publishers, value = outgoing.popleft()
+            payload = value if isinstance(value, bytes) else encode(value)
+            for publisher in publishers:
+                publisher.put(payload)
 
     def _outside(self, routes: list[str]) -> list[str]:
         """Of an output's ``routes`` (its data key first, then its relation keys), those zenoh
@@ -912,7 +948,7 @@ class Worker:
                 self._unsent.discard(key)
             elif publisher.matching:
                 self._unsent.discard(key)
-                publisher.put(encode(value))
+                self._outgoing.append(((publisher,), value))
 
     def _publish_progress(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         """The progress of each static estimate (``ubitrack_agent.net.progress``), also when
@@ -927,8 +963,9 @@ class Worker:
             progress = replace(progress, instance=self.spec.instance)
             self.progress[port] = progress
             payload = progress.to_json().encode()
-            for key in self._progress_routes.get(port, ()):
-                self._publishers[key].put(payload)
+            routes = self._progress_routes.get(port, ())
+            if routes:
+                self._outgoing.append((self._publishers_of(routes), payload))
 
     # -- values at a given time (net.time_queries) --------------------------------------------
 
@@ -1103,6 +1140,7 @@ class Worker:
             self._handling_s += HANDLING_GAIN * (each - self._handling_s)
             self._wake_for_held()
         self._flush()
+        self._put_outside()
         return True
 
     def _handle_each(
@@ -1119,6 +1157,7 @@ class Worker:
                 self._handle(handler, generation, index, item)
             self._wake_for_held()
         self._flush()
+        self._put_outside()
 
     def _wake_for_held(self) -> None:
         """Wake the worker thread if a trigger is held that is due before it would wake;
@@ -1164,6 +1203,7 @@ class Worker:
                 self._guarded(self._send_unsent)()
             self._summarise(time.monotonic())
         self._flush()
+        self._guarded(self._put_outside)()
 
     def _summarise(self, now: float) -> None:
         """Every ``SUMMARY_S``, one warning for the expected conditions counted meanwhile
@@ -1201,8 +1241,10 @@ class Worker:
             for control in self._controls:
                 control.undeclare()
             self._status.undeclare()
-            for publisher in self._publishers.values():
-                publisher.undeclare()
+            with self._put_lock:  # a thread still putting what it queued finishes first
+                self._put_outside_held()
+                for publisher in self._publishers.values():
+                    publisher.undeclare()
             self._status_thread.join(timeout=1.0)
 
 
