@@ -47,6 +47,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -491,18 +492,19 @@ def open_application(
     hub: Hub,
     relation: RelationId,
     name: str,
-    asked: dict[str, float],
-    first: dict[str, float],
+    asked: dict[str, Any],
+    first: dict[str, Any],
+    clock: Callable[[], float | int] = time.monotonic,
 ) -> Relation:
     """Application ``name`` asking for ``relation``: when it asked goes into ``asked``, when
-    its first sample came into ``first`` (``time.monotonic``)."""
-    asked[name] = time.monotonic()
+    its first sample came into ``first`` (read from ``clock``)."""
+    asked[name] = clock()
     return Relation(
         hub.session,
         hub.keys,
         relation,
         application=name,
-        callback=lambda _m: first.setdefault(name, time.monotonic()),
+        callback=lambda _m: first.setdefault(name, clock()),
     )
 
 

@@ -50,6 +50,7 @@ from bench.agent_live_bench import (
     add_rooms,
     available_bytes,
     close_all,
+    open_application,
     relations_of,
     start_publisher,
 )
@@ -137,7 +138,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 print(f"  stopping at {n - 1} applications: memory", flush=True)
                 break
             asking[f"app{n}"] = relation
-            opened.append(open_stamped(hub, relation, f"app{n}", asked, first))
+            opened.append(
+                open_application(hub, relation, f"app{n}", asked, first, clock=time.time_ns)
+            )
             time.sleep(args.every)
             seen[f"app{n}"] = hub.status() or {}
             rows.append(measure(hub, n, len(first), seen[f"app{n}"]))
@@ -196,21 +199,6 @@ def warm_pool(hub: Hub, pool_size: int, timeout: float = 120.0) -> float:
             raise RuntimeError(f"the warm pool not full within {timeout} s")
         time.sleep(0.2)
     return time.monotonic() - started
-
-
-def open_stamped(
-    hub: Hub, relation: RelationId, name: str, asked: dict[str, int], first: dict[str, int]
-) -> Relation:
-    """Application ``name`` asking for ``relation``: when it asked goes into ``asked``, when
-    its first sample came into ``first`` (``time.time_ns``)."""
-    asked[name] = time.time_ns()
-    return Relation(
-        hub.session,
-        hub.keys,
-        relation,
-        application=name,
-        callback=lambda _m: first.setdefault(name, time.time_ns()),
-    )
 
 
 PATHS = {
