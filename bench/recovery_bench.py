@@ -106,19 +106,19 @@ def observe(
     return {"recovery_s": worst, "applications": each, "restored_s": held, "arrivals": seen}
 
 
-def back(chaos: Chaos, reconfigurations: int) -> Callable[[], bool]:
+def back(chaos: Chaos, more: int, counter: str = "reconfigurations") -> Callable[[], bool]:
     """A condition, made before an event: the agent serves the components it serves now again
-    (every one alive, nothing unsolved), after at least ``reconfigurations`` more
-    reconfigurations (the event's stops and starts)."""
+    (every one alive, nothing unsolved), its ``counter`` at least ``more`` higher (the event's
+    reconfigurations, its stops and starts; or the components restored in place)."""
     now = chaos.setup.status() or {"components": {}, "counters": {}}
-    before, base = set(now["components"]), now["counters"].get("reconfigurations", 0)
+    before, base = set(now["components"]), now["counters"].get(counter, 0)
 
     def done() -> bool:
         status = agent_status(chaos.setup)
         return (
             serving(status)
             and set(status["components"]) == before
-            and status["counters"].get("reconfigurations", 0) >= base + reconfigurations
+            and status["counters"].get(counter, 0) >= base + more
         )
 
     return done
@@ -159,17 +159,7 @@ def container_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, An
     instances = (host_status(chaos.setup) or {"instances": {}})["instances"]
     members = Counter(entry["pid"] for entry in instances.values())
     pid, count = min(members.items(), key=lambda item: (-item[1], item[0]))
-    status = chaos.setup.status() or {"components": {}, "counters": {}}
-    before, told = set(status["components"]), status["counters"].get("restored", 0)
-
-    def restored() -> bool:
-        now = agent_status(chaos.setup)
-        return (
-            serving(now)
-            and set(now["components"]) == before
-            and now["counters"].get("restored", 0) >= told + count
-        )
-
+    restored = back(chaos, count, counter="restored")
     event = time.time()
     os.kill(pid, signal.SIGKILL)
     _CONTAINER_KILLED_AT[0] = time.monotonic()
