@@ -61,6 +61,7 @@ from ubitrack_agent.graph.planner import (
 )
 from ubitrack_agent.graph.srg import new_srg, remove_static_relation
 from ubitrack_agent.graph.templates import Template
+from ubitrack_agent.graph.ways import either_way, hop_distances
 from ubitrack_agent.net.keys import RelationId
 
 Edges = Mapping[str, tuple[str, str]]
@@ -111,32 +112,10 @@ def region_of(srg: nx.MultiDiGraph, templates: Sequence[Template], relation: Rel
         return Region(None)
     if new:
         return Region(frozenset(frames))
-    hops = _hops(srg, [query.source], math.inf, within=frames).get(query.target, math.inf)
+    around = either_way(srg)
+    inside = hop_distances(lambda f: (n for n in around(f) if n in frames), (query.source,))
+    hops = inside.get(query.target, math.inf)
     return Region(frozenset(frames), hops + DEFAULT_SLACK)
-
-
-def _hops(
-    srg: nx.MultiDiGraph,
-    sources: Iterable[str],
-    cutoff: float,
-    within: Set[str] | None = None,
-) -> dict[str, int]:
-    """Hops from the nearest of ``sources`` to every frame within ``cutoff`` (edges taken both
-    ways, only through ``within`` if given): breadth-first search, O(frames and edges
-    visited)."""
-    seen = {s: 0 for s in sources if s in srg}
-    layer = list(seen)
-    depth = 0
-    while layer and depth < cutoff:
-        depth += 1
-        following = []
-        for frame in layer:
-            for neighbour in (*srg.succ[frame], *srg.pred[frame]):
-                if neighbour not in seen and (within is None or neighbour in within):
-                    seen[neighbour] = depth
-                    following.append(neighbour)
-        layer = following
-    return seen
 
 
 def edge_changes(before: nx.MultiDiGraph, after: nx.MultiDiGraph) -> tuple[Edges, Edges]:
@@ -204,7 +183,7 @@ def _check_additions(
     open_regions = {r: g for r, g in regions.items() if r not in todo and g.bound >= 0}
     finite = [g.bound for g in open_regions.values() if math.isfinite(g.bound)]
     ends = {frame for edge in added.values() for frame in edge}
-    near = _hops(srg, ends, max(finite, default=0))
+    near = hop_distances(either_way(srg), (e for e in ends if e in srg), max(finite, default=0))
     computed = set()
     for relation, region in open_regions.items():
         reach = near.get(relation.source, math.inf) + near.get(relation.target, math.inf)

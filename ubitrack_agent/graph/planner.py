@@ -64,7 +64,7 @@ from ubitrack_agent.graph.matcher import (
 from ubitrack_agent.graph.segments import cut_frames
 from ubitrack_agent.graph.srg import EDGE_TYPES, EdgeAttrs, Quality, check_node_name, edge_ids
 from ubitrack_agent.graph.templates import Template
-from ubitrack_agent.graph.ways import short_way_frames
+from ubitrack_agent.graph.ways import either_way, hop_distances, short_way_frames
 
 SIGMA_REF = 1e-3
 """Reference error (m): a variance of SIGMA_REF**2 costs 1."""
@@ -255,42 +255,6 @@ def useful_types(templates: Sequence[Template], wanted: str) -> frozenset[str]:
     return frozenset(useful)
 
 
-def _either_way(srg: nx.MultiDiGraph) -> Callable[[str], Iterable[str]]:
-    """A frame's neighbours in ``srg``, whichever way their edges point."""
-    succ, pred = srg.succ, srg.pred
-    return lambda node: (*succ[node], *pred[node])
-
-
-def _hops(
-    around: Callable[[str], Iterable[str]],
-    start: str,
-    limit: float = math.inf,
-    goal: str | None = None,
-    slack: int = 0,
-    avoid: frozenset[str] = frozenset(),
-) -> dict[str, int]:
-    """Hop distances from ``start`` (breadth-first over the neighbours ``around`` gives), up to
-    ``limit`` hops, or up to ``slack`` hops beyond the distance of ``goal`` once it is
-    reached, never entering a frame of ``avoid``. ``O(frames + edges)`` visited."""
-    dist = {start: 0}
-    frontier = [start]
-    depth = 0
-    while frontier and depth < limit:
-        if goal in dist:
-            limit = min(limit, dist[goal] + slack)
-            if depth >= limit:
-                break
-        depth += 1
-        nxt = []
-        for node in frontier:
-            for other in around(node):
-                if other not in dist and other not in avoid:
-                    dist[other] = depth
-                    nxt.append(other)
-        frontier = nxt
-    return dist
-
-
 def _span(
     srg: nx.MultiDiGraph,
     frames: set[str],
@@ -309,13 +273,13 @@ def _span(
         if edge_type == wanted:
             along[u].add(v)
             along[v].add(u)
-    hops = _hops(along.__getitem__, source, goal=target).get(target)
+    hops = hop_distances(along.__getitem__, (source,), goal=target).get(target)
     if hops is None:
 
         def within(frame: str) -> Iterable[str]:
             return (other for other in around(frame) if other in frames)
 
-        hops = _hops(within, source, goal=target).get(target)
+        hops = hop_distances(within, (source,), goal=target).get(target)
     return math.inf if hops is None else hops
 
 
@@ -335,8 +299,8 @@ def _chain_distances(
     near = {}
     for end in goal:
         if end in frames:
-            anywhere = _hops(_either_way(sub), end)
-            along = _hops(_either_way(poses), end)
+            anywhere = hop_distances(either_way(sub), (end,))
+            along = hop_distances(either_way(poses), (end,))
             near[end] = {n: along.get(n, len(frames) + anywhere[n]) for n in frames}
     source, target = goal
     return near.get(source, near.get(target)), near.get(target, near.get(source))
@@ -380,19 +344,19 @@ def relevant_frames(
         raise NoSolutionError(f"frame(s) {', '.join(missing)} not in the SRG")
     present = [n for n in (source, target) if n in srg]
     if len(present) == 1:
-        return set(_hops(_either_way(srg), present[0], slack + 1))
-    around = _either_way(srg)
-    from_source = _hops(around, source, goal=target, slack=slack)
+        return set(hop_distances(either_way(srg), present[:1], slack + 1))
+    around = either_way(srg)
+    from_source = hop_distances(around, (source,), goal=target, slack=slack)
     if target not in from_source:
         part_a = sorted(from_source)
-        part_b = sorted(_hops(around, target))
+        part_b = sorted(hop_distances(around, (target,)))
         raise NoSolutionError(
             f"frames {source} and {target} are not connected in the SRG: "
             f"{source} is connected to {{{', '.join(part_a)}}}, "
             f"{target} to {{{', '.join(part_b)}}}"
         )
     bound = from_source[target] + slack
-    from_target = _hops(around, target, bound)
+    from_target = hop_distances(around, (target,), bound)
     near = {n for n, d in from_target.items() if d + from_source.get(n, bound + 1) <= bound}
     sub = nx.Graph()
     sub.add_edges_from((u, v) for u in near for v in (*srg.succ[u], *srg.pred[u]) if v in near)
@@ -432,7 +396,7 @@ class Workspace:
         ``O(frames + edges)`` once per frame)."""
         known = self._distances.get(a)
         if known is None:
-            known = self._distances[a] = _hops(self._around, a)
+            known = self._distances[a] = hop_distances(self._around, (a,))
         return known.get(b, len(self.neighbours) + 1)
 
     def _avoiding(self, start: str, goal: str, avoid: frozenset[str]) -> float:
@@ -446,7 +410,7 @@ class Workspace:
         key = (start, avoid)
         known = self._reach.get(key)
         if known is None:
-            known = self._reach[key] = _hops(self._around, start, avoid=avoid)
+            known = self._reach[key] = hop_distances(self._around, (start,), avoid=avoid)
         return known.get(goal, math.inf)
 
     def viable_chain(self, template: Template) -> Viable:
@@ -1015,7 +979,7 @@ def plan(
     frames = relevant_frames(srg, query.source, query.target, slack, new)
     goal = (query.source, query.target)
     if not query.static:  # its chains lie on short ways without a cycle (Workspace._on_a_way)
-        around = _either_way(srg)
+        around = either_way(srg)
         longest = _span(srg, frames, goal, query.type, around) + slack
         frames = short_way_frames(around, frames, *goal, longest)
     chain = next((t for t in templates if t.signature == "chain" and "6D" in _chain_types(t)), None)

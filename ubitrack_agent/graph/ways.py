@@ -19,10 +19,49 @@ is never smaller than the exact set, only sometimes larger.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable
+
+import networkx as nx
 
 DEFAULT_BUDGET = 20_000
 """Most steps of the enumeration before the region is kept whole."""
+
+
+def either_way(srg: nx.MultiDiGraph) -> Callable[[str], Iterable[str]]:
+    """A frame's neighbours in ``srg``, whichever way their edges point."""
+    succ, pred = srg.succ, srg.pred
+    return lambda node: (*succ[node], *pred[node])
+
+
+def hop_distances(
+    around: Callable[[str], Iterable[str]],
+    starts: Iterable[str],
+    limit: float = math.inf,
+    goal: str | None = None,
+    slack: int = 0,
+    avoid: frozenset[str] = frozenset(),
+) -> dict[str, int]:
+    """Hops from the nearest of ``starts`` (breadth-first over the neighbours ``around``
+    gives), up to ``limit`` hops, or up to ``slack`` hops beyond the distance of ``goal`` once
+    it is reached, never entering a frame of ``avoid``. ``O(frames + edges)`` visited."""
+    dist = dict.fromkeys(starts, 0)
+    frontier = list(dist)
+    depth = 0
+    while frontier and depth < limit:
+        if goal in dist:
+            limit = min(limit, dist[goal] + slack)
+            if depth >= limit:
+                break
+        depth += 1
+        nxt = []
+        for node in frontier:
+            for other in around(node):
+                if other not in dist and other not in avoid:
+                    dist[other] = depth
+                    nxt.append(other)
+        frontier = nxt
+    return dist
 
 
 def short_way_frames(
@@ -37,16 +76,7 @@ def short_way_frames(
     ``longest`` hops, over the neighbours ``around`` gives (module docstring); ``frames``
     itself if the enumeration takes more than ``budget`` steps or the two are not
     connected."""
-    to_target = {target: 0}
-    frontier = [target]
-    while frontier:
-        nxt = []
-        for node in frontier:
-            for other in around(node):
-                if other in frames and other not in to_target:
-                    to_target[other] = to_target[node] + 1
-                    nxt.append(other)
-        frontier = nxt
+    to_target = hop_distances(lambda node: (o for o in around(node) if o in frames), (target,))
     if source not in to_target:
         return frames
     limit = longest
