@@ -87,6 +87,9 @@ class EdgeIndex:
     dynamic_measured: set[str] = field(default_factory=set)
     retired: set[str] = field(default_factory=set)
     new_frames: tuple[str, ...] = ()
+    copies_fit: dict[tuple, bool] = field(default_factory=dict)
+    """:func:`compatible` of two occurrences, memoised: a group's occurrences are gathered into
+    sets again each time the group gains one, and their records never change."""
 
     def add(self, record: EdgeRecord) -> None:
         """Insert ``record`` into every index."""
@@ -334,7 +337,9 @@ def _extend(
         sources, clash = edge.sources, False
         for other in chosen:
             if not sources.isdisjoint(other.sources) and (
-                edge is other or not independent(edge, other, index, strict=False)
+                edge is other
+                or not (edge.time_integrated or other.time_integrated)  # independent()'s rule
+                or not independent(edge, other, index, strict=False)
             ):
                 clash = True
                 break
@@ -410,7 +415,16 @@ def _corr_edges(match: Match) -> list[str]:
 
 
 def compatible(a: Match, b: Match, index: EdgeIndex) -> bool:
-    """Two occurrences can be copies in one space expansion (section 5.1)."""
+    """Two occurrences can be copies in one space expansion (section 5.1); memoised in
+    :attr:`EdgeIndex.copies_fit`."""
+    key = (a.template.name, a.edges, a.roles, b.edges, b.roles)
+    known = index.copies_fit.get(key)
+    if known is None:
+        known = index.copies_fit[key] = _compatible(a, b, index)
+    return known
+
+
+def _compatible(a: Match, b: Match, index: EdgeIndex) -> bool:
     corr = a.template.correspondence
     assert corr is not None
     roles_a, roles_b = dict(a.roles), dict(b.roles)
@@ -536,6 +550,23 @@ CopySets = Callable[[list[Match], EdgeIndex], list[list[Match]]]
 """How a group's compatible occurrences are gathered into sets of copies (:func:`copy_sets`)."""
 
 
+def _may_expand(members: list[Match], index: EdgeIndex) -> bool:
+    """Whether a group of occurrences can yield an expansion at all, before its sets are
+    formed: a space expansion needs as many copies as the multiplicity's least, pairwise
+    compatible and so each with its own frames in the expanded roles (:func:`compatible`); a
+    time expansion needs an occurrence meeting :func:`_time_ok`. ``O(members)``."""
+    corr = members[0].template.correspondence
+    assert corr is not None
+    least = corr.multiplicity.lo
+    if "space" in corr.expansions and len(members) >= least:
+        if not corr.expand_roles:
+            return True
+        distinct = {tuple(dict(m.roles)[r] for r in corr.expand_roles) for m in members}
+        if len(distinct) >= least:
+            return True
+    return "time" in corr.expansions and any(_time_ok(m, index) for m in members)
+
+
 def expand_group(
     members: list[Match], index: EdgeIndex, copies: CopySets = copy_sets
 ) -> list[Instance]:
@@ -565,6 +596,8 @@ def expand_group(
             )
             for m in members
         ]
+    if not _may_expand(members, index):
+        return []
     instances = []
     for chosen in copies(members, index):
         expansions = []

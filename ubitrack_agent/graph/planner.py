@@ -391,13 +391,17 @@ class Workspace:
     def _around(self, frame: str) -> Iterable[str]:
         return self.neighbours.get(frame, ())
 
-    def _distance(self, a: str, b: str) -> int:
-        """Hops between frames ``a`` and ``b`` in the region, either direction (BFS from ``a``,
+    def _hops_from(self, a: str) -> dict[str, int]:
+        """Hops from frame ``a`` to each frame of the region it reaches, either direction (BFS,
         ``O(frames + edges)`` once per frame)."""
         known = self._distances.get(a)
         if known is None:
             known = self._distances[a] = hop_distances(self._around, (a,))
-        return known.get(b, len(self.neighbours) + 1)
+        return known
+
+    def _distance(self, a: str, b: str) -> int:
+        """Hops between frames ``a`` and ``b`` in the region (more than any if not joined)."""
+        return self._hops_from(a).get(b, len(self.neighbours) + 1)
 
     def _avoiding(self, start: str, goal: str, avoid: frozenset[str]) -> float:
         """Hops from ``start`` to ``goal`` in the region without entering a frame of ``avoid``
@@ -440,16 +444,14 @@ class Workspace:
             if len(bound) < links or not self.neighbours:
                 return True
             chained = [edges[e] for e in bound.values()]
-            hops = sum(link.hops for link in chained)
-            frames = frozenset().union(*(link.frames for link in chained))
-            return self._on_a_way(source, target, hops, frames)
+            return self._on_a_way(source, target, chained)
 
         return viable
 
-    def _on_a_way(self, x: str, y: str, hops: int, frames: frozenset[str]) -> bool:
-        """Whether a chain X->Y of ``hops`` links whose sources join ``frames`` can lie on a
-        derivation of a dynamic query S->T: "no concatenation that cannot lie on a derivation
-        of the query".
+    def _on_a_way(self, x: str, y: str, chained: list[EdgeRecord]) -> bool:
+        """Whether a chain X->Y of the ``chained`` links (``hops``: the sum of theirs; ``frames``:
+        the frames their sources join) can lie on a derivation of a dynamic query S->T: "no
+        concatenation that cannot lie on a derivation of the query".
 
         * S reaches X and Y reaches T (or, read inverted, the other way round) without passing
           a frame inside the chain (a frame of its sources other than X and Y): a derivation
@@ -466,15 +468,17 @@ class Workspace:
         so there a cycle can carry information.
         """
         start, end = self.goal
-        limit = self.span + self.detour - hops
+        limit = self.span + self.detour - sum(link.hops for link in chained)
+        from_start, from_end = self._hops_from(start), self._hops_from(end)
+        far = len(self.neighbours) + 1
         ends = [
             (a, b)
             for a, b in ((x, y), (y, x))
-            if self._distance(start, a) + self._distance(b, end) <= limit
+            if from_start.get(a, far) + from_end.get(b, far) <= limit
         ]
         if not ends:
             return False
-        inside = frames - {x, y}
+        inside = frozenset().union(*(link.frames for link in chained)) - {x, y}
         return any(
             self._avoiding(start, a, inside | {b}) + self._avoiding(b, end, inside | {a}) <= limit
             for a, b in ends
@@ -503,35 +507,43 @@ class Workspace:
         self.index.add(record)
         self.by_relation[(source, target, record.type, record.static)].append(edge_id)
 
-    def _admit(self, record: EdgeRecord) -> bool:
-        """The "new or better edge" rule: reject a re-bracketing of a known computation and an
-        edge that uses more sources than an existing one without being cheaper. Keep at most
-        ``per_relation`` alternatives per relation: a cheaper newcomer retires the most
-        expensive one (edges already derived from it stay).
+    def _outclassed(
+        self, key: tuple[str, str, str, bool], cost: float, sources: frozenset[str]
+    ) -> bool:
+        """The part of the "new or better edge" rule that needs no computation's signature, so
+        :meth:`apply` asks it before it builds a record: an edge of relation ``key`` that uses
+        more sources than a kept alternative without being cheaper, or that is no cheaper than
+        the dearest of ``per_relation`` kept ones, is not added.
 
         Where a static edge serves wherever a dynamic one does (:attr:`static_serves`), the
         static alternatives of the relation are rivals of a dynamic newcomer too: a dynamic edge
         on more sources than a static one and no cheaper is dominated (everything independent
         of it is independent of the static edge, which has no latency), e.g. a tracker's
         surveyed pose fused with a worse estimate of it through the bodies it tracks."""
+        existing = [self.index.edges[e] for e in self.by_relation[key]]
+        limit = cost * (1 + _TIE)
+        rivals = existing
+        if self.static_serves and not key[3]:
+            rivals = existing + [
+                self.index.edges[e] for e in self.by_relation.get((*key[:3], True), ())
+            ]
+        if any(other.cost <= limit and other.sources < sources for other in rivals):
+            return True
+        return len(existing) >= self.per_relation and cost >= max(e.cost for e in existing)
+
+    def _admit(self, record: EdgeRecord) -> bool:
+        """The rest of the "new or better edge" rule, for a record not :meth:`_outclassed`:
+        reject a re-bracketing of a known computation no cheaper than it. Keep at most
+        ``per_relation`` alternatives per relation: a cheaper newcomer retires the most
+        expensive one (edges already derived from it stay)."""
         key = (record.source, record.target, record.type, record.static)
         alternatives = self.by_relation[key]
         existing = [self.index.edges[e] for e in alternatives]
         limit = record.cost * (1 + _TIE)
-        rivals = existing
-        if self.static_serves and not record.static:
-            rivals = existing + [
-                self.index.edges[e] for e in self.by_relation.get((*key[:3], True), ())
-            ]
-        for other in rivals:
-            if other.cost <= limit and (
-                other.canon == record.canon or other.sources < record.sources
-            ):
-                return False
+        if any(other.cost <= limit and other.canon == record.canon for other in existing):
+            return False
         if len(existing) >= self.per_relation:
             worst = max(existing, key=lambda e: e.cost)
-            if record.cost >= worst.cost:
-                return False
             alternatives.remove(worst.id)
             self.index.retire(worst.id)
         return True
@@ -559,13 +571,14 @@ class Workspace:
         )
 
     def apply(self, instance: Instance) -> list[str]:
-        """Apply ``instance``: add its admissible outputs, record the step, return new edge ids."""
+        """Apply ``instance``: add its admissible outputs, record the step, return new edge ids.
+        An output no better than what its relation holds (:meth:`_outclassed`, most of those
+        rejected) is turned down before its record is built."""
         records = self.index.edges
         inputs = [records[e] for e in instance.input_edges()]
         quality = propagate(instance, records)
         step_id = f"{self.prefix}s{len(self.steps) + 1}"
         template = instance.template
-        pattern = template.pattern
         sources = frozenset().union(*(e.sources for e in inputs))
         # a new frame is defined by the one calibration introducing it: the frame counts as a
         # source, so no derivation combines two introductions (two tip calibrations may have
@@ -577,19 +590,8 @@ class Workspace:
             if frame in self.index.new_frames
         }
         providers = frozenset().union(*(e.providers for e in inputs))
-        frames = frozenset().union(*(e.frames for e in inputs))
         steps = frozenset({step_id}).union(*(e.steps for e in inputs))
-        # the computation's signature: an inverse is its input, a chain the sorted computations
-        # it chains (any bracketing), any other step its own on its inputs (Template.signature)
-        composed = template.signature != "step"
-        if template.signature == "inverse":
-            canon, leaves = inputs[0].canon, inputs[0].leaves
-        elif template.signature == "chain":
-            leaves = tuple(sorted(leaf for e in inputs for leaf in e.leaves))
-            canon = f"cat({','.join(leaves)})"
-        else:
-            canon = f"{pattern}/{instance.expansion}[{','.join(sorted(e.canon for e in inputs))}]"
-        chain_hops = sum(e.hops for e in inputs) if composed else 0
+        cost = edge_cost(quality, len(providers), len(steps))
         outputs, added = [], []
         for name, source, target, edge_type, static, mode in instance.outputs:
             edge_id = None
@@ -601,13 +603,17 @@ class Workspace:
                 self.index.is_rigid(source, target)
                 and not self.index.is_measured_rigid(source, target)
             )
+            key = (source, target, edge_type, static)
             if (
                 edge_type in self.useful_types
                 and kept
                 and self._wanted(template, edge_type, source, target)
+                and not self._outclassed(key, cost, sources)
             ):
-                pair = "-".join(sorted((source, target)))
-                out_canon = canon if composed else f"{canon}{pair}"
+                canon, leaves = _signature(instance, inputs)
+                if template.signature == "step":  # one computation, one record per output
+                    canon = f"{canon}{'-'.join(sorted((source, target)))}"
+                    leaves = (canon,)
                 record = EdgeRecord(
                     id=f"{source}->{target}:{edge_type}@{step_id}.{name}",
                     source=source,
@@ -619,21 +625,22 @@ class Workspace:
                     provider=template.service,
                     quality=quality,
                     sources=sources,
-                    frames=frames,
-                    cost=edge_cost(quality, len(providers), len(steps)),
-                    canon=out_canon,
-                    leaves=leaves if composed else (out_canon,),
-                    pattern=pattern,
+                    frames=frozenset().union(*(e.frames for e in inputs)),
+                    cost=cost,
+                    canon=canon,
+                    leaves=leaves,
+                    pattern=template.pattern,
                     step=step_id,
                     time_integrated=instance.expansion == "time",
                     steps=steps,
                     providers=providers,
-                    hops=chain_hops
-                    or (max(1, self._distance(source, target)) if self.neighbours else 1),
+                    hops=sum(e.hops for e in inputs)
+                    if template.signature != "step"
+                    else (max(1, self._distance(source, target)) if self.neighbours else 1),
                 )
                 if self._admit(record):
                     self.index.add(record)
-                    self.by_relation[(source, target, edge_type, static)].append(record.id)
+                    self.by_relation[key].append(record.id)
                     edge_id = record.id
                     added.append(record.id)
             outputs.append((name, source, target, edge_type, edge_id))
@@ -642,6 +649,20 @@ class Workspace:
                 step_id, template, instance.expansion, instance.inputs, tuple(outputs)
             )
         return added
+
+
+def _signature(instance: Instance, inputs: list[EdgeRecord]) -> tuple[str, tuple[str, ...]]:
+    """The computation's signature (``canon``) and the computations it chains (``leaves``): an
+    inverse is its input, a chain the sorted computations it chains (any bracketing), any other
+    step its own on its inputs (:attr:`Template.signature`)."""
+    template = instance.template
+    if template.signature == "inverse":
+        return inputs[0].canon, inputs[0].leaves
+    if template.signature == "chain":
+        leaves = tuple(sorted(leaf for e in inputs for leaf in e.leaves))
+        return f"cat({','.join(leaves)})", leaves
+    canon = f"{template.pattern}/{instance.expansion}[{','.join(sorted(e.canon for e in inputs))}]"
+    return canon, ()
 
 
 def saturate(
