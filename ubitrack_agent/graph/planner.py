@@ -554,11 +554,15 @@ class Workspace:
 
         Points (3D) are carried only into the query's frames: a point-based pose estimation on
         points carried into another frame X equals the one on the points' own frame followed by
-        the same concatenation. Chains (6D) must start or end at a query frame or lead towards
-        the query target: from a frame nearer the query source to one farther from it, or from
-        one farther from the query target to one nearer to it (hop distances along 6D edges,
-        :func:`_chain_distances`). A chain against that direction can only feed a derivation
-        that runs the other way round."""
+        the same concatenation. Chains (6D) must start or end at a query frame or join frames at
+        different distances from a query frame (hop distances along 6D edges,
+        :func:`_chain_distances`): a chain between frames as far from each query frame as each
+        other runs across every way between the two. Both directions are kept: a chain against
+        the query's direction feeds a derivation that runs the other way round and is inverted
+        once at its end, which can cost less than inverting every link before (in a room with
+        eight trackers, the fusion of the trackers' ways room -> head inverted once is five
+        inversions, 0.05, cheaper than the fusion of the ways head -> room). The rule is the
+        same for the query and its inverse, so one saturation serves both (:func:`_plan_parts`)."""
         if template.signature != "chain" or self.goal is None:
             return True
         if edge_type == "3D":
@@ -567,7 +571,8 @@ class Workspace:
             return True
         near_source, near_target = self.distances
         return (
-            near_source[source] < near_source[target] or near_target[source] > near_target[target]
+            near_source[source] != near_source[target]
+            or near_target[source] != near_target[target]
         )
 
     def apply(self, instance: Instance) -> list[str]:
