@@ -571,8 +571,7 @@ class Workspace:
             return True
         near_source, near_target = self.distances
         return (
-            near_source[source] != near_source[target]
-            or near_target[source] != near_target[target]
+            near_source[source] != near_source[target] or near_target[source] != near_target[target]
         )
 
     def apply(self, instance: Instance) -> list[str]:
