@@ -15,7 +15,20 @@ from hypothesis import strategies as st
 
 from bench.building import Building, body, build, camera, marker, room, tracker
 from tests.unit import exhaustive_planner, srg_strategies
-from ubitrack_agent.graph.planner import STEP_WEIGHT, NoSolutionError, PartCache, Query, plan
+from ubitrack_agent.graph.planner import (
+    DEFAULT_PER_RELATION,
+    DEFAULT_SLACK,
+    STEP_WEIGHT,
+    NoSolutionError,
+    PartCache,
+    PartNames,
+    Query,
+    _part_shape,
+    _renamed,
+    plan,
+    saturate,
+    solutions,
+)
 from ubitrack_agent.graph.srg import add_measured_edge, new_srg, remove_provider
 
 TOLERANCE = 1e-9
@@ -202,6 +215,33 @@ def test_parts_are_shared_across_queries_and_planned_again_when_their_edges_chan
     cached = [s.as_json() for s in plan(without, templates, queries[0], cache=cache)]
     assert cached == [s.as_json() for s in plan(without, templates, queries[0])]
     assert cache.misses == misses + 1  # room 0 changed (two trackers left); the rest did not
+
+
+def test_a_room_equipped_as_another_takes_its_derivations_renamed_either_way_round(templates):
+    """The derivations saturated for one room's part, renamed for a room equipped alike, are
+    record for record (ids, signatures, sources, steps) those a saturation of that room's part
+    gives, the query running into the room or out of it."""
+    srg = build(Building(rooms=2, bodies=3, redundant=1))
+
+    def part(r: int) -> set[str]:
+        return {room(r), tracker(r), tracker(r, 1), body(r, 1), body(r, 2), body(r, 3)}
+
+    def saturated(frames: set[str], ends: tuple[str, str]) -> tuple[dict, PartNames]:
+        _, names = _part_shape(srg, templates, frames, ends, DEFAULT_SLACK, DEFAULT_PER_RELATION)
+        ws = saturate(srg, templates, frames, "6D", (), goal=ends, prefix=names.prefix)
+        found = {way: solutions(ws, Query(*way, "6D")) for way in (ends, ends[::-1])}
+        return found, names
+
+    def records(found: list) -> list:
+        return [(s.edge, s.steps, sorted(s.records.items())) for s in found]
+
+    planned, planned_names = saturated(part(0), (body(0), room(0)))
+    fresh, names = saturated(part(1), (room(1), body(1)))
+    assert planned_names != names
+    for a, b in ((room(1), body(1)), (body(1), room(1))):
+        was = (a.replace("1", "0", 1), b.replace("1", "0", 1))
+        renamed = _renamed(planned[was], srg, planned_names, names)
+        assert renamed and records(renamed) == records(fresh[(a, b)])
 
 
 def test_the_part_cache_keeps_the_most_recently_used_parts():

@@ -486,24 +486,7 @@ class Workspace:
 
     def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
         """Index one measured SRG edge."""
-        providers = frozenset({data["provider"]})
-        record = EdgeRecord(
-            id=edge_id,
-            source=source,
-            target=target,
-            type=data["type"],
-            static=data["static"],
-            mode=data["mode"],
-            measured=True,
-            provider=data["provider"],
-            quality=data["quality"],
-            sources=frozenset({edge_id}),
-            frames=frozenset((source, target)),
-            cost=edge_cost(data["quality"], len(providers), 0),
-            canon=f"m:{edge_id}",
-            leaves=(f"m:{edge_id}",),
-            providers=providers,
-        )
+        record = measured_record(source, target, edge_id, data)
         self.index.add(record)
         self.by_relation[(source, target, record.type, record.static)].append(edge_id)
 
@@ -614,33 +597,21 @@ class Workspace:
                 and self._wanted(template, edge_type, source, target)
                 and not self._outclassed(key, cost, sources)
             ):
-                canon, leaves = _signature(instance, inputs)
-                if template.signature == "step":  # one computation, one record per output
-                    canon = f"{canon}{'-'.join(sorted((source, target)))}"
-                    leaves = (canon,)
-                record = EdgeRecord(
-                    id=f"{source}->{target}:{edge_type}@{step_id}.{name}",
-                    source=source,
-                    target=target,
-                    type=edge_type,
-                    static=static,
-                    mode=mode,
-                    measured=False,
-                    provider=template.service,
-                    quality=quality,
-                    sources=sources,
-                    frames=frozenset().union(*(e.frames for e in inputs)),
-                    cost=cost,
-                    canon=canon,
-                    leaves=leaves,
-                    pattern=template.pattern,
-                    step=step_id,
-                    time_integrated=instance.expansion == "time",
-                    steps=steps,
-                    providers=providers,
-                    hops=sum(e.hops for e in inputs)
+                hops = (
+                    sum(e.hops for e in inputs)
                     if template.signature != "step"
-                    else (max(1, self._distance(source, target)) if self.neighbours else 1),
+                    else (max(1, self._distance(source, target)) if self.neighbours else 1)
+                )
+                record = _derived(
+                    template,
+                    instance.expansion,
+                    inputs,
+                    step_id,
+                    (name, source, target, edge_type, static, mode),
+                    quality,
+                    (sources, providers, steps),
+                    cost,
+                    hops,
                 )
                 if self._admit(record):
                     self.index.add(record)
@@ -655,18 +626,77 @@ class Workspace:
         return added
 
 
-def _signature(instance: Instance, inputs: list[EdgeRecord]) -> tuple[str, tuple[str, ...]]:
-    """The computation's signature (``canon``) and the computations it chains (``leaves``): an
-    inverse is its input, a chain the sorted computations it chains (any bracketing), any other
-    step its own on its inputs (:attr:`Template.signature`)."""
-    template = instance.template
+def measured_record(source: str, target: str, edge_id: str, data: Mapping) -> EdgeRecord:
+    """The record of a measured SRG edge ``source -> target`` (its key and attributes)."""
+    providers = frozenset({data["provider"]})
+    return EdgeRecord(
+        id=edge_id,
+        source=source,
+        target=target,
+        type=data["type"],
+        static=data["static"],
+        mode=data["mode"],
+        measured=True,
+        provider=data["provider"],
+        quality=data["quality"],
+        sources=frozenset({edge_id}),
+        frames=frozenset((source, target)),
+        cost=edge_cost(data["quality"], len(providers), 0),
+        canon=f"m:{edge_id}",
+        leaves=(f"m:{edge_id}",),
+        providers=providers,
+    )
+
+
+def _derived(
+    template: Template,
+    expansion: str,
+    inputs: list[EdgeRecord],
+    step_id: str,
+    output: tuple[str, str, str, str, bool, str],
+    quality: Quality,
+    uses: tuple[frozenset[str], frozenset[str], frozenset[str]],
+    cost: float,
+    hops: int,
+) -> EdgeRecord:
+    """The record of ``output`` (name, source, target, type, static, mode) of the step
+    ``step_id`` that applies ``template`` to ``inputs``; ``uses`` are its sources, providers and
+    steps. Its computation's signature (``canon``): an inverse is its input, a chain the sorted
+    computations it chains (``leaves``, any bracketing), any other step its own on its inputs
+    and the output's frames (:attr:`Template.signature`)."""
+    name, source, target, edge_type, static, mode = output
     if template.signature == "inverse":
-        return inputs[0].canon, inputs[0].leaves
-    if template.signature == "chain":
+        canon, leaves = inputs[0].canon, inputs[0].leaves
+    elif template.signature == "chain":
         leaves = tuple(sorted(leaf for e in inputs for leaf in e.leaves))
-        return f"cat({','.join(leaves)})", leaves
-    canon = f"{template.pattern}/{instance.expansion}[{','.join(sorted(e.canon for e in inputs))}]"
-    return canon, ()
+        canon = f"cat({','.join(leaves)})"
+    else:
+        computed = ",".join(sorted(e.canon for e in inputs))
+        canon = f"{template.pattern}/{expansion}[{computed}]{'-'.join(sorted((source, target)))}"
+        leaves = (canon,)
+    sources, providers, steps = uses
+    return EdgeRecord(
+        id=f"{source}->{target}:{edge_type}@{step_id}.{name}",
+        source=source,
+        target=target,
+        type=edge_type,
+        static=static,
+        mode=mode,
+        measured=False,
+        provider=template.service,
+        quality=quality,
+        sources=sources,
+        frames=frozenset().union(*(e.frames for e in inputs)),
+        cost=cost,
+        canon=canon,
+        leaves=leaves,
+        pattern=template.pattern,
+        step=step_id,
+        time_integrated=expansion == "time",
+        steps=steps,
+        providers=providers,
+        hops=hops,
+    )
 
 
 def saturate(
@@ -795,8 +825,12 @@ def solutions(ws: Workspace, query: Query) -> list[Solution]:
             best = found.get(record.canon)
             if best is None or record.cost < best.cost:
                 found[record.canon] = record
-    ranked = sorted(found.values(), key=lambda e: (e.cost, len(e.steps), e.id))
-    return [_solution(ws, edge) for edge in ranked]
+    return [_solution(ws, edge) for edge in sorted(found.values(), key=_ranked)]
+
+
+def _ranked(edge: EdgeRecord) -> tuple[float, int, str]:
+    """The order of derivations: cheapest first, then fewest steps, then by id."""
+    return (edge.cost, len(edge.steps), edge.id)
 
 
 def with_solution(srg: nx.MultiDiGraph, solution: Solution) -> nx.MultiDiGraph:
@@ -824,19 +858,19 @@ def with_solution(srg: nx.MultiDiGraph, solution: Solution) -> nx.MultiDiGraph:
 
 class PartCache:
     """The derivations of parts (:func:`_plan_parts`) shared across queries and plans: a part
-    is saturated once for as long as its frames' edges, its ends and the templates are the
-    same (memoised sub-derivations: every query through a room reuses the room's part, and an
-    event elsewhere in the building leaves it valid). Keyed by :func:`_part_key`, ``O(edges
-    of the part)`` to compute; at most ``size`` parts, the least recently used dropped first.
-    Not thread-safe: one planner thread uses it."""
+    is saturated once for as long as its shape (:func:`_part_shape`: its frames' edges up to
+    names, its ends, the templates) is the same (memoised sub-derivations: every query through
+    a room reuses the room's part, an event elsewhere in the building leaves it valid, and a
+    room equipped as another takes that room's derivations, renamed). At most ``size`` parts,
+    the least recently used dropped first. Not thread-safe: one planner thread uses it."""
 
     def __init__(self, size: int = 4096) -> None:
         self.size = size
         self.hits = 0
         self.misses = 0
-        self._parts: OrderedDict[tuple, list[Solution]] = OrderedDict()
+        self._parts: OrderedDict[tuple, PartPlan] = OrderedDict()
 
-    def get(self, key: tuple) -> list[Solution] | None:
+    def get(self, key: tuple) -> PartPlan | None:
         found = self._parts.get(key)
         if found is None:
             self.misses += 1
@@ -845,30 +879,129 @@ class PartCache:
         self._parts.move_to_end(key)
         return found
 
-    def put(self, key: tuple, found: list[Solution]) -> None:
+    def put(self, key: tuple, found: PartPlan) -> None:
         self._parts[key] = found
         self._parts.move_to_end(key)
         while len(self._parts) > self.size:
             self._parts.popitem(last=False)
 
 
-def _part_key(
+@dataclass(frozen=True)
+class PartNames:
+    """The names a part's shape leaves out, each kind sorted: its frames, its edges' keys and
+    their providers; and the prefix of the ids of the steps planned for it."""
+
+    frames: tuple[str, ...]
+    edges: tuple[str, ...]
+    providers: tuple[str, ...]
+    prefix: str
+
+
+@dataclass(frozen=True)
+class PartPlan:
+    """A part's derivations between its ends, each way round (keyed by the ends' ranks among
+    its frames), as planned for the part named ``names``."""
+
+    names: PartNames
+    found: Mapping[tuple[int, int], list[Solution]]
+
+
+def _part_shape(
     srg: nx.MultiDiGraph,
     templates: Sequence[Template],
     part: set[str],
     ends: tuple[str, str],
     slack: int,
     per_relation: int,
-) -> tuple:
-    """What a part's derivations depend on: its ends, its frames' edges with every attribute
-    the planner reads, the templates (by name and object: templates loaded anew are another
-    catalogue) and the bounds."""
+) -> tuple[tuple, PartNames]:
+    """What a part's derivations depend on, up to names, and its names.
+
+    The shape holds its edges with every attribute the planner reads, each name replaced by its
+    rank among the part's names of its kind (frames, edge keys, providers), the ranks of its
+    two ends (either way round: one saturation serves both, :meth:`Workspace._wanted`), the
+    templates (by name and object: templates loaded anew are another catalogue) and the bounds.
+    Two parts of one shape are one part under a renaming that keeps the order of every kind
+    of name, so the planner, which breaks ties by names, takes the same steps for both (rooms
+    equipped alike, their frames and sensors named alike). ``O(E log E)`` for the part's ``E``
+    edges. The steps' prefix is a digest of the part with its names."""
+    frames = sorted(part)
     edges = sorted(
         (u, v, k, d["type"], d["static"], d["mode"], d["provider"], d["quality"])
         for u, v, k, d in srg.subgraph(part).edges(keys=True, data=True)
     )
-    names = tuple(t.name for t in templates)
-    return (ends, tuple(edges), names, tuple(map(id, templates)), slack, per_relation)
+    keys = sorted(e[2] for e in edges)
+    providers = sorted({e[6] for e in edges})
+    rank = {name: i for kind in (frames, keys, providers) for i, name in enumerate(kind)}
+    shape = sorted((rank[u], rank[v], rank[k], *rest, rank[p], q) for u, v, k, *rest, p, q in edges)
+    catalogue = (tuple(t.name for t in templates), tuple(map(id, templates)))
+    key = (tuple(sorted(rank[e] for e in ends)), tuple(shape), catalogue, slack, per_relation)
+    digest = repr((sorted(ends), edges, catalogue[0])).encode()
+    prefix = hashlib.sha1(digest).hexdigest()[:10] + "."
+    return key, PartNames(tuple(frames), tuple(keys), tuple(providers), prefix)
+
+
+def _renamed(
+    found: list[Solution], srg: nx.MultiDiGraph, old: PartNames, new: PartNames
+) -> list[Solution]:
+    """``found``, planned for the part named ``old``, for the part of the same shape named
+    ``new``: every name mapped to the one of its rank, the steps' ids to the new prefix, and
+    each inferred edge's record made again from its renamed inputs in data-flow order (so its
+    signature and id are those a plan of the new part gives). ``O(records + steps)``."""
+    frame = dict(zip(old.frames, new.frames, strict=True))
+    key = dict(zip(old.edges, new.edges, strict=True))
+    provider = dict(zip(old.providers, new.providers, strict=True))
+    records: dict[str, EdgeRecord] = {}  # by the old id
+    steps: dict[str, Step] = {}  # by the old id
+
+    def step_id(old_id: str) -> str:
+        return new.prefix + old_id.removeprefix(old.prefix)
+
+    def measured(record: EdgeRecord) -> EdgeRecord:
+        u, v, k = frame[record.source], frame[record.target], key[record.id]
+        return measured_record(u, v, k, srg.edges[u, v, k])
+
+    def rename(step: Step, made: Mapping[str, EdgeRecord]) -> Step:
+        inputs = tuple((n, tuple(records[e].id for e in ids)) for n, ids in step.inputs)
+        given = [records[e] for _, ids in step.inputs for e in ids]
+        outputs = []
+        for name, source, target, edge_type, edge_id in step.outputs:
+            if edge_id is not None:
+                was = made[edge_id]
+                records[edge_id] = _derived(
+                    step.template,
+                    step.expansion,
+                    given,
+                    step_id(step.id),
+                    (name, frame[source], frame[target], edge_type, was.static, was.mode),
+                    was.quality,
+                    (
+                        frozenset(key[s] for s in was.sources),
+                        frozenset(provider[p] for p in was.providers),
+                        frozenset(map(step_id, was.steps)),
+                    ),
+                    was.cost,
+                    was.hops,
+                )
+                edge_id = records[edge_id].id
+            outputs.append((name, frame[source], frame[target], edge_type, edge_id))
+        return Step(step_id(step.id), step.template, step.expansion, inputs, tuple(outputs))
+
+    renamed = []
+    for solution in found:
+        for record in solution.records.values():
+            if record.measured and record.id not in records:
+                records[record.id] = measured(record)
+        for step in solution.steps:
+            if step.id not in steps:
+                steps[step.id] = rename(step, solution.records)
+        renamed.append(
+            Solution(
+                records[solution.edge.id],
+                tuple(steps[step.id] for step in solution.steps),
+                {records[e].id: records[e] for e in solution.records},
+            )
+        )
+    return sorted(renamed, key=lambda s: _ranked(s.edge))
 
 
 def _plan_parts(
@@ -894,15 +1027,23 @@ def _plan_parts(
     """
     joined = Workspace(per_relation=sys.maxsize, prefix="j.")
     alternatives: list[list[EdgeRecord]] = []
+    cache = PartCache() if cache is None else cache  # parts alike within one plan too
     for a, b, part in parts:
-        key = _part_key(srg, templates, part, (a, b), slack, per_relation)
-        found = cache.get(key) if cache is not None else None
-        if found is None:
-            prefix = hashlib.sha1(repr(key[:3]).encode()).hexdigest()[:10] + "."
-            ws = saturate(srg, templates, part, "6D", (), per_relation, (a, b), (), slack, prefix)
-            found = solutions(ws, Query(a, b, "6D"))
-            if cache is not None:
-                cache.put(key, found)
+        key, names = _part_shape(srg, templates, part, (a, b), slack, per_relation)
+        planned = cache.get(key)
+        if planned is None:
+            ws = saturate(
+                srg, templates, part, "6D", (), per_relation, (a, b), (), slack, names.prefix
+            )
+            rank = {frame: i for i, frame in enumerate(names.frames)}
+            planned = PartPlan(
+                names,
+                {(rank[x], rank[y]): solutions(ws, Query(x, y, "6D")) for x, y in ((a, b), (b, a))},
+            )
+            cache.put(key, planned)
+        found = planned.found[(names.frames.index(a), names.frames.index(b))]
+        if planned.names != names:
+            found = _renamed(found, srg, planned.names, names)
         if not found:
             raise NoSolutionError(
                 f"no derivation of 6D {query.source}->{query.target}: every way passes "
