@@ -105,6 +105,34 @@ def errors(sample: Any, world: Any, at_ns: int) -> tuple[float, float]:
     )
 
 
+def demo_world(scratch: Path, seed: int, member: list[str]) -> tuple[Any, dict[str, list[str]]]:
+    """The demo's world without a calibration to run: the figure-1 scenario with ``C -> HT``
+    served true by the database (written into ``scratch``), and the ``ubitrack`` arguments of
+    its processes (``sim database``, ``sim camera``, ``sim art``, ``dtrack``) on the network of
+    the ``member`` flags, the simulators' noise drawn from ``seed``."""
+    path = scenario_with_true_calibration(scratch)
+    scenario = load_scenario(str(path))
+    flag = ["--scenario", str(path)]
+    art_port = _free_port("udp")
+    simulators = simulator_arguments(flag, art_port, seed)
+    quiet = "--quiet"  # the benches print their own figures
+    return scenario, {
+        "sim database": ["sim", "database", quiet, *flag, *member],
+        "sim camera": [*simulators["sim camera"], *member],
+        "sim art": simulators["sim art"],
+        "dtrack": ["dtrack", quiet, *dtrack_flags(scenario.art, art_port), *member],
+    }
+
+
+def own_network(args: argparse.Namespace, name: str) -> Any:
+    """The hub's configuration from the command line's ``args``; without ``--listen``, a network
+    of its own: a free loopback port and a domain named ``name`` and the port."""
+    if not args.listen:
+        port = _free_port("tcp")
+        args.listen, args.domain = [f"tcp/127.0.0.1:{port}"], args.domain or f"{name}{port}"
+    return config.from_arguments(args, role="hub")
+
+
 def components(session: Any, keys: KeySpace) -> dict[str, Any]:
     replies = fetch_latest(session, keys.agent_status(), timeout=1.0)
     return json.loads(replies[0])["components"] if replies else {}
@@ -299,20 +327,13 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.cycles < 1:
         parser.error("--cycles must be at least 1")
-    if not args.listen:  # a network of its own: a free port and domain
-        port = _free_port("tcp")
-        args.listen, args.domain = [f"tcp/127.0.0.1:{port}"], args.domain or f"bench{port}"
-    hub = config.from_arguments(args, role="hub")
+    hub = own_network(args, "bench")
     member = config.member_flags(hub)
     keys = KeySpace(hub.key_prefix)
     children = Processes()
     phases = []
     with tempfile.TemporaryDirectory() as scratch:
-        scenario_path = scenario_with_true_calibration(Path(scratch))
-        scenario = load_scenario(str(scenario_path))
-        scenario_flag = ["--scenario", str(scenario_path)]
-        art_port = _free_port("udp")
-        simulators = simulator_arguments(scenario_flag, art_port, args.seed)
+        scenario, commands = demo_world(Path(scratch), args.seed, member)
         arrivals: queue.SimpleQueue = queue.SimpleQueue()
         try:
             children.start("agent", ["agent", "--quiet", *config.as_flags(hub)])
@@ -331,12 +352,8 @@ def main(argv: list[str] | None = None) -> None:
                     keys.data(scenario.art.provider) + "/**",
                     lambda sample: art_times.add(decode(sample.payload.to_bytes()).timestamp_ns),
                 )
-                quiet = "--quiet"  # the bench prints its own figures
-                children.start("sim database", ["sim", "database", quiet, *scenario_flag, *member])
-                children.start("sim camera", [*simulators["sim camera"], *member])
-                children.start("sim art", simulators["sim art"])
-                art = dtrack_flags(scenario.art, art_port)
-                children.start("dtrack", ["dtrack", quiet, *art, *member])
+                for name in ("sim database", "sim camera", "sim art", "dtrack"):
+                    children.start(name, commands[name])
                 relation.wait_for(timeout=90)
                 wait_for_services(session, keys, present=True)
                 wait_for_warm_pool(session, keys)  # measure the steady state
@@ -368,7 +385,7 @@ def main(argv: list[str] | None = None) -> None:
                         wait_for_warm_pool(session, keys)
                         phases.append(measure("A.R.T. only"))
                         print(json.dumps(phases[-1]), flush=True)
-                    children.start("sim camera", [*simulators["sim camera"], *member])
+                    children.start("sim camera", commands["sim camera"])
                     wait_for_services(session, keys, present=True)
                     wait_for_warm_pool(session, keys)  # its refill's imports load the CPUs
                     phases.append(fused("asynchronous again", {}))

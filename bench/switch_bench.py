@@ -1,0 +1,390 @@
+"""Switches of the data flow as the application sees them (issue 29): every sample of ``C -> A``
+the application receives in the second after each change, against the simulator's truth.
+
+Run: ``python -m bench.switch_bench [--events N] [--seed S] [--dwell LO,HI]`` (defaults: 20
+events of each kind, seed 7, 2-4 s between events; about 8 minutes; ``--events 2`` for a smoke
+run of a minute). Prints a table and writes ``bench/results/switch.json``.
+
+The world is the demo's, as in :mod:`bench.fusion_latency_bench`: the paper's figure-1 scenario
+(``sim_trackers/scenarios/paper_figure1.yaml``) with ``C -> HT`` served by the database from the
+scenario's truth (no calibration runs first), the agent with its host manager, the simulated
+HMD camera and A.R.T. tracker with its DTrack adapter, and this process as the application
+asking for ``C -> A``. Events, each kind ``--events`` times, in an order drawn from ``--seed``
+among those the state allows:
+
+* **A.R.T. off** / **A.R.T. back**: the tracker's simulator and its DTrack adapter stopped
+  (SIGTERM; the provider leaves) / started again; the flow goes from fused to camera only and
+  back;
+* **camera off** / **camera back**: the camera's simulator stopped / started; fused to A.R.T.
+  only and back;
+* **worker killed**: the process running the fusion component (its container, with the other
+  components it holds) SIGKILLed while both sensors run; its host manager restores it.
+
+After each event the bench waits until the flow has the fusion component or not, as the new
+state wants, then for a time drawn from ``--dwell``. The simulator's truth is used only to
+print errors (the system gets nothing from it).
+
+What is recorded: every sample on the relation's key as a plain zenoh subscriber sees it (the
+wire), its arrival time, and whether :class:`~ubitrack_agent.io.application.Relation` passes it
+on (a sample stamped no later than one passed on is kept for lookups but not passed on, and
+counted ``out_of_order``: ``docs/protocol.md``). Per event, over the samples stamped in the
+second after it: the largest translation and rotation error, the p99, how many lie beyond "3
+sigma" of their own covariance (NEES above the chi-square quantile of 99.73 % for 6 degrees of
+freedom, 20.06), the mean NEES against its 95 % interval (``n`` samples: chi-square(6 n) / n),
+the largest gap between arrivals from 0.5 s before to 1 s after the event (ms and frames of the
+faster sensor), and duplicates (a timestamp seen before) and out-of-order samples on the wire.
+The steady state of each flow (fused, camera only, A.R.T. only) is every sample stamped from
+1.5 s after an event to the next event: its p99 errors are the issue's bound for a switch
+between two flows (the larger of the two).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import platform
+import random
+import signal
+import tempfile
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2
+
+from bench.fusion_latency_bench import (
+    components,
+    demo_world,
+    errors,
+    own_network,
+    wait_for_services,
+)
+from bench.steady_state import wait_for_warm_pool
+from bench.synthetic import left_error
+from ubitrack_agent.commands.demo import Processes
+from ubitrack_agent.core import decode
+from ubitrack_agent.core.errors import MeasurementError
+from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net import config
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.transport import fetch_latest
+
+RESULTS = Path(__file__).parent / "results" / "switch.json"
+C_A = RelationId("C", "A", "6D")
+WINDOW_S = 1.0
+"""The second after an event whose samples are judged."""
+BEFORE_S = 0.5
+"""How long before an event the gap is looked for (the old flow's last samples)."""
+STEADY_AFTER_S = 1.5
+"""Samples stamped this long after an event and before the next count as the steady state."""
+THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
+"""NEES of a 6D error "beyond 3 sigma": the chi-square quantile of a 3-sigma probability."""
+KINDS = ("A.R.T. off", "A.R.T. back", "camera off", "camera back", "worker killed")
+PROCESSES = {"art": ("sim art", "dtrack"), "camera": ("sim camera",)}
+"""The processes of each sensor: the A.R.T. tracker's simulator and its DTrack adapter."""
+FLOWS = {  # sensors running -> the flow serving C->A
+    frozenset({"art", "camera"}): "fused",
+    frozenset({"camera"}): "camera only",
+    frozenset({"art"}): "A.R.T. only",
+}
+
+
+@dataclass
+class Wire:
+    """Every sample on the relation's key: (arrival ns, timestamp ns, sample, passed on)."""
+
+    samples: list[tuple[int, int, Any, bool]] = field(default_factory=list)
+    newest: int = -1
+    rejected: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def take(self, zenoh_sample: Any) -> None:
+        arrived = time.time_ns()
+        try:
+            sample = decode(zenoh_sample.payload.to_bytes())
+        except MeasurementError:
+            self.rejected += 1
+            return
+        with self.lock:
+            passed = sample.timestamp_ns > self.newest
+            self.newest = max(self.newest, sample.timestamp_ns)
+            self.samples.append((arrived, sample.timestamp_ns, sample, passed))
+
+
+def nees(sample: Any, truth: Any) -> float | None:
+    """``e^T P^-1 e`` of the sample's left error against the truth, or ``None`` without a
+    covariance (a pose announced without one cannot be judged against it)."""
+    covariance = getattr(sample, "covariance", None)
+    if covariance is None:
+        return None
+    error = left_error(sample, truth)
+    return float(error @ np.linalg.solve(covariance, error))
+
+
+def truth_at(world: Any, at_ns: int) -> Any:
+    rotation, translation = world.pose("C", "A", at_ns)
+    return SimpleNamespace(rotation=rotation, translation=translation)
+
+
+def judge(
+    samples: list[tuple[int, int, Any, bool]], world: Any, since_ns: int | None = None
+) -> dict[str, Any]:
+    """Errors (mm, degrees), NEES and how many beyond 3 sigma, of the samples passed on; with
+    ``since_ns`` (an event's time) also the first ten beyond 3 sigma: ms from the event to their
+    stamp, mm, degrees and NEES."""
+    passed = [s for _, _, s, on in samples if on]
+    if not passed:
+        return {"samples": 0}
+    mm, deg = np.array([errors(s, world, s.timestamp_ns) for s in passed]).T
+    values = [nees(s, truth_at(world, s.timestamp_ns)) for s in passed]
+    judged = [v for v in values if v is not None]
+    n = len(judged)
+    beyond = [
+        [round((s.timestamp_ns - since_ns) / 1e6, 1), round(a, 1), round(b, 2), round(v, 1)]
+        for s, a, b, v in zip(passed, mm, deg, values, strict=True)
+        if v is not None and v > THREE_SIGMA_NEES
+    ]
+    return {
+        "samples": len(passed),
+        "error_mm_max": float(mm.max()),
+        "error_deg_max": float(deg.max()),
+        "error_mm_p99": float(np.percentile(mm, 99)),
+        "error_deg_p99": float(np.percentile(deg, 99)),
+        "beyond_3_sigma": sum(v > THREE_SIGMA_NEES for v in judged),
+        "without_covariance": len(values) - n,
+        "nees_mean": float(np.mean(judged)) if judged else None,
+        "nees_interval_95": [chi2.ppf(0.025, 6 * n) / n, chi2.ppf(0.975, 6 * n) / n] if n else None,
+        **({"beyond_3_sigma_samples": beyond[:10]} if since_ns is not None else {}),
+    }
+
+
+def largest_gap_ms(arrivals: list[int]) -> float:
+    return max((b - a for a, b in itertools.pairwise(arrivals)), default=0) / 1e6
+
+
+def kill_fusion(session: Any, keys: KeySpace) -> bool:
+    """SIGKILL the process running the fusion component; whether there was one."""
+    for instance, component in components(session, keys).items():
+        if component["service"] != "fusion":
+            continue
+        replies = fetch_latest(session, keys.status(instance), timeout=1.0)
+        if replies:
+            os.kill(json.loads(replies[0])["pid"], signal.SIGKILL)
+            return True
+    return False
+
+
+def next_kind(rng: random.Random, running: frozenset[str], done: Counter, wanted: int) -> str:
+    """An event the state allows, drawn among the kinds done least so far."""
+    allowed = {
+        frozenset({"art", "camera"}): ("A.R.T. off", "camera off", "worker killed"),
+        frozenset({"camera"}): ("A.R.T. back",),
+        frozenset({"art"}): ("camera back",),
+    }[running]
+    fewest = min(done[k] for k in allowed)
+    return rng.choice([k for k in allowed if done[k] == fewest and done[k] < wanted] or allowed)
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    hub = own_network(args, "switch")
+    member, keys = config.member_flags(hub), KeySpace(hub.key_prefix)
+    rng = random.Random(args.seed)
+    events: list[dict[str, Any]] = []
+    wire, children = Wire(), Processes()
+    with tempfile.TemporaryDirectory() as scratch:
+        scenario, commands = demo_world(Path(scratch), args.seed, member)
+
+        def start(sensor: str) -> None:
+            for name in PROCESSES[sensor]:
+                children.start(name, commands[name])
+
+        def stop(sensor: str) -> None:
+            children.stop(*PROCESSES[sensor])
+
+        try:
+            children.start("agent", ["agent", "--quiet", *config.as_flags(hub)])
+            with (
+                open_session(config.member_of(hub)) as session,
+                Relation(session, keys, C_A, application="switch-bench") as relation,
+            ):
+                watch = session.declare_subscriber(keys.relation(C_A), wire.take)
+                children.start("sim database", commands["sim database"])
+                start("camera")
+                start("art")
+                running = frozenset({"art", "camera"})
+                relation.wait_for(timeout=90)
+                wait_for_services(session, keys, present=True)
+                wait_for_warm_pool(session, keys)
+                done: Counter = Counter()
+                while any(done[k] < args.events for k in KINDS):
+                    kind = next_kind(rng, running, done, args.events)
+                    before = FLOWS[running]
+                    at = time.time_ns()
+                    if kind == "worker killed":
+                        if not kill_fusion(session, keys):
+                            raise RuntimeError("no fusion component to kill")
+                    elif kind.endswith("off"):
+                        sensor = "art" if kind.startswith("A.R.T.") else "camera"
+                        stop(sensor)
+                        running = running - {sensor}
+                    else:
+                        sensor = "art" if kind.startswith("A.R.T.") else "camera"
+                        start(sensor)
+                        running = running | {sensor}
+                    done[kind] += 1
+                    wait_for_services(session, keys, present=len(running) == 2)
+                    time.sleep(rng.uniform(*args.dwell))
+                    events.append({"kind": kind, "at_ns": at, "from": before, "to": FLOWS[running]})
+                    print(f"{len(events):3d} {kind:13s} {before} -> {FLOWS[running]}", flush=True)
+                watch.undeclare()
+                counters = dict(relation.counters)
+        finally:
+            children.stop_all()
+        return summarise(events, wire, scenario, counters)
+
+
+def summarise(
+    events: list[dict[str, Any]], wire: Wire, scenario: Any, counters: dict[str, int]
+) -> dict[str, Any]:
+    """Per event and per kind (module docstring), and each flow's steady state."""
+    world = scenario.world
+    faster_hz = max(scenario.art.rate, scenario.camera.rate)
+    samples = sorted(wire.samples, key=lambda s: s[0])
+    seen: set[int] = set()
+    duplicates = []
+    for arrived, stamp, _, _ in samples:
+        if stamp in seen:
+            duplicates.append(arrived)
+        seen.add(stamp)
+    ends = [e["at_ns"] for e in events[1:]] + [samples[-1][0] if samples else 0]
+    steady: dict[str, list] = {flow: [] for flow in FLOWS.values()}
+    for event, end in zip(events, ends, strict=True):
+        start = event["at_ns"]
+        after = [s for s in samples if start <= s[1] < start + int(WINDOW_S * 1e9)]
+        arrivals = [
+            s[0] for s in samples if start - BEFORE_S * 1e9 <= s[0] < start + WINDOW_S * 1e9
+        ]
+        event.update(judge(after, world, start))
+        event["gap_ms"] = largest_gap_ms(arrivals)
+        event["gap_frames"] = event["gap_ms"] / 1e3 * faster_hz
+        event["duplicates"] = sum(start <= d < start + WINDOW_S * 1e9 for d in duplicates)
+        event["out_of_order"] = sum(not on for _, _, _, on in after)
+        settled = [s for s in samples if start + STEADY_AFTER_S * 1e9 <= s[1] < end]
+        steady[event["to"]] += settled
+        if settled:  # where the steady state's outliers lie, from the event before them
+            event["steady_beyond_3_sigma_samples"] = judge(settled, world, start)[
+                "beyond_3_sigma_samples"
+            ]
+    steady_judged = {flow: judge(s, world) for flow, s in steady.items()}
+    kinds = {}
+    for kind in KINDS:
+        mine = [e for e in events if e["kind"] == kind and e.get("samples")]
+        if not mine:
+            continue
+        bound = [
+            max(steady_judged[f].get("error_mm_p99", 0) for f in (e["from"], e["to"])) for e in mine
+        ]
+        nees_values = [e["nees_mean"] * e["samples"] for e in mine if e["nees_mean"] is not None]
+        n = sum(e["samples"] - e["without_covariance"] for e in mine)
+        kinds[kind] = {
+            "events": len(mine),
+            "samples": sum(e["samples"] for e in mine),
+            "error_mm_max": max(e["error_mm_max"] for e in mine),
+            "error_deg_max": max(e["error_deg_max"] for e in mine),
+            "events_worse_than_steady_p99": sum(
+                e["error_mm_max"] > b for e, b in zip(mine, bound, strict=True)
+            ),
+            "beyond_3_sigma": sum(e["beyond_3_sigma"] for e in mine),
+            "nees_mean": sum(nees_values) / n if n else None,
+            "nees_interval_95": [chi2.ppf(0.025, 6 * n) / n, chi2.ppf(0.975, 6 * n) / n]
+            if n
+            else None,
+            "gap_ms_max": max(e["gap_ms"] for e in mine),
+            "gap_frames_max": max(e["gap_frames"] for e in mine),
+            "duplicates": sum(e["duplicates"] for e in mine),
+            "out_of_order": sum(e["out_of_order"] for e in mine),
+        }
+    return {
+        "faster_sensor_hz": faster_hz,
+        "three_sigma_nees": THREE_SIGMA_NEES,
+        "kinds": kinds,
+        "steady": steady_judged,
+        "relation_counters": counters,
+        "wire_rejected": wire.rejected,
+        "events": [{k: v for k, v in e.items()} for e in events],
+    }
+
+
+def print_tables(result: dict[str, Any]) -> None:
+    print(
+        "\n| event | events | samples in the second after | largest error mm / deg | events "
+        "over the flows' steady p99 | beyond 3 sigma | mean NEES (95 % interval) | largest gap "
+        "ms (frames) | duplicates | out of order |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for kind, k in result["kinds"].items():
+        interval = k["nees_interval_95"]
+        nees_text = (
+            f"{k['nees_mean']:.2f} ({interval[0]:.2f}-{interval[1]:.2f})"
+            if k["nees_mean"] is not None
+            else "-"
+        )
+        print(
+            f"| {kind} | {k['events']} | {k['samples']} | {k['error_mm_max']:.1f} / "
+            f"{k['error_deg_max']:.2f} | {k['events_worse_than_steady_p99']} | "
+            f"{k['beyond_3_sigma']} | {nees_text} | {k['gap_ms_max']:.0f} "
+            f"({k['gap_frames_max']:.1f}) | {k['duplicates']} | {k['out_of_order']} |"
+        )
+    print("\n| steady state | samples | p99 error mm / deg | largest mm / deg | mean NEES |")
+    print("|---|---|---|---|---|")
+    for flow, s in result["steady"].items():
+        if not s.get("samples"):
+            continue
+        mean = f"{s['nees_mean']:.2f}" if s["nees_mean"] is not None else "-"
+        print(
+            f"| {flow} | {s['samples']} | {s['error_mm_p99']:.1f} / {s['error_deg_p99']:.2f} | "
+            f"{s['error_mm_max']:.1f} / {s['error_deg_max']:.2f} | {mean} |"
+        )
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--events", type=int, default=20, help="events of each kind")
+    parser.add_argument("--seed", type=int, default=7, help="the events' order and the noise")
+    parser.add_argument(
+        "--dwell",
+        type=lambda text: tuple(float(x) for x in text.split(",")),
+        default=(2.0, 4.0),
+        help="seconds between one event's settled flow and the next event, drawn in LO,HI",
+    )
+    config.add_arguments(parser)
+    args = parser.parse_args(argv)
+    result = run(args)
+    print_tables(result)
+    RESULTS.parent.mkdir(exist_ok=True)
+    dwell = ",".join(f"{d:g}" for d in args.dwell)
+    RESULTS.write_text(
+        json.dumps(
+            {
+                "command": f"python -m bench.switch_bench --events {args.events} --seed "
+                f"{args.seed} --dwell {dwell}",
+                "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                "machine": {"python": platform.python_version(), "cpus": os.cpu_count()},
+                "load_average_end": os.getloadavg(),
+                **result,
+            },
+            indent=1,
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
