@@ -31,8 +31,9 @@ counted ``out_of_order``: ``docs/protocol.md``). Per event, over the samples sta
 second after it: the largest translation and rotation error, the p99, how many lie beyond "3
 sigma" of their own covariance (NEES above the chi-square quantile of 99.73 % for 6 degrees of
 freedom, 20.06), the mean NEES against its 95 % interval (``n`` samples: chi-square(6 n) / n),
-the largest gap between arrivals from 0.5 s before to 1 s after the event (ms and frames of the
-faster sensor), and duplicates (a timestamp seen before) and out-of-order samples on the wire.
+the largest gap between arrivals of samples passed on, from 0.5 s before to 1 s after the event
+(ms and frames of the faster sensor), and duplicates (a timestamp seen before) and out-of-order
+samples on the wire.
 The steady state of each flow (fused, camera only, A.R.T. only) is every sample stamped from
 1.5 s after an event to the next event: its p99 errors are the issue's bound for a switch
 between two flows (the larger of the two).
@@ -150,7 +151,7 @@ def judge(
     beyond = [
         [round((s.timestamp_ns - since_ns) / 1e6, 1), round(a, 1), round(b, 2), round(v, 1)]
         for s, a, b, v in zip(passed, mm, deg, values, strict=True)
-        if v is not None and v > THREE_SIGMA_NEES
+        if since_ns is not None and v is not None and v > THREE_SIGMA_NEES
     ]
     return {
         "samples": len(passed),
@@ -264,14 +265,13 @@ def summarise(
         if stamp in seen:
             duplicates.append(arrived)
         seen.add(stamp)
-    ends = [e["at_ns"] for e in events[1:]] + [samples[-1][0] if samples else 0]
+    ends = [e["at_ns"] for e in events[1:]] + [samples[-1][0] + 1 if samples else 0]
     steady: dict[str, list] = {flow: [] for flow in FLOWS.values()}
     for event, end in zip(events, ends, strict=True):
         start = event["at_ns"]
         after = [s for s in samples if start <= s[1] < start + int(WINDOW_S * 1e9)]
-        arrivals = [
-            s[0] for s in samples if start - BEFORE_S * 1e9 <= s[0] < start + WINDOW_S * 1e9
-        ]
+        near = (start - BEFORE_S * 1e9, start + WINDOW_S * 1e9)
+        arrivals = [s[0] for s in samples if near[0] <= s[0] < near[1] and s[3]]  # passed on
         event.update(judge(after, world, start))
         event["gap_ms"] = largest_gap_ms(arrivals)
         event["gap_frames"] = event["gap_ms"] / 1e3 * faster_hz

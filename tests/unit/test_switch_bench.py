@@ -1,0 +1,72 @@
+"""The switch benchmark's arithmetic (``bench/switch_bench.py``): what it counts from the samples
+it recorded, on samples made by hand against a world at rest."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from bench.switch_bench import Wire, summarise
+from ubitrack_agent.core import encode
+from ubitrack_agent.core.measurements import ErrorPose
+
+MS = 1_000_000
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+SIGMA_M = 1e-3
+"""Each sample's claimed error: 1 mm and 1 mrad, every axis."""
+
+
+class AtRest:
+    """A world where ``A`` stays at ``C``'s origin."""
+
+    def pose(self, source: str, target: str, at_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        return IDENTITY, np.zeros(3)
+
+
+def sample(stamp_ns: int, off_m: float) -> SimpleNamespace:
+    pose = ErrorPose(stamp_ns, IDENTITY, np.array([off_m, 0.0, 0.0]), np.eye(6) * SIGMA_M**2)
+    return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: encode(pose)))
+
+
+def recorded(stream: list[tuple[int, int, float]]) -> Wire:
+    """A wire that took ``(arrival ms, stamp ms, error m)`` samples in that order."""
+    wire = Wire()
+    for arrived, stamp, off in stream:
+        wire.take(sample(stamp * MS, off))
+        wire.samples[-1] = (arrived * MS, *wire.samples[-1][1:])
+    return wire
+
+
+def test_a_switch_is_judged_by_the_samples_stamped_in_the_second_after_it() -> None:
+    start = 10_000
+    stream = [(start - 100 + 10 * k, start - 100 + 10 * k, 0.0002) for k in range(10)]
+    stream += [
+        (start + 300, start + 290, 0.02),  # 20 sigma off: NEES 400
+        (start + 310, start + 290, 0.0002),  # the same instant again
+        (start + 320, start + 250, 0.0002),  # older than one passed on
+        (start + 330, start + 330, 0.0005),
+    ]
+    stream += [(start + 2_000 + 10 * k, start + 2_000 + 10 * k, 0.0003) for k in range(5)]
+    stream += [(start + 2_050, start + 2_050, 0.01)]  # the steady state's outlier
+    events = [{"kind": "A.R.T. off", "at_ns": start * MS, "from": "fused", "to": "camera only"}]
+    world = SimpleNamespace(
+        world=AtRest(), art=SimpleNamespace(rate=60.0), camera=SimpleNamespace(rate=30.0)
+    )
+    result = summarise(events, recorded(stream), world, {})
+    (event,) = result["events"]
+    assert event["samples"] == 2  # the 20 mm one and the last: the two others are not passed on
+    assert event["beyond_3_sigma"] == 1
+    assert event["beyond_3_sigma_samples"] == [[290.0, 20.0, 0.0, pytest.approx(400.0)]]
+    assert event["error_mm_max"] == pytest.approx(20.0)
+    assert (event["duplicates"], event["out_of_order"]) == (1, 2)
+    assert event["gap_ms"] == pytest.approx(310.0)  # the last sample before to the first after
+    assert event["gap_frames"] == pytest.approx(310.0 / 1e3 * 60.0)
+    steady = result["steady"]["camera only"]
+    assert steady["samples"] == 6 and steady["error_mm_max"] == pytest.approx(10.0)
+    assert steady["nees_mean"] == pytest.approx((5 * 0.09 + 100.0) / 6)
+    assert event["steady_beyond_3_sigma_samples"] == [[2050.0, 10.0, 0.0, pytest.approx(100.0)]]
+    kind = result["kinds"]["A.R.T. off"]
+    assert kind["events_worse_than_steady_p99"] == 1  # 20 mm against the steady state's p99
+    assert kind["nees_mean"] == pytest.approx((400.0 + 0.25) / 2)
