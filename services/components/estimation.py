@@ -72,7 +72,9 @@ class PoseEstimation2D3D(Service):
     ``CI`` is the camera's projection (3x4) from C to the image. The PnP solution is the pose of
     O in the optical frame; the result is re-expressed in C. Parameters: ``method`` (``auto``
     chooses by geometry; or an OpenCV method name), ``ransac`` for outlier-robust estimation,
-    ``pixel_sigma`` for the covariance (estimated from residuals if 0).
+    ``pixel_sigma`` for the covariance (if 0: the image points' own covariances when each
+    carries one, as a camera announces them, else estimated from the residuals, which from a few
+    points is often far too small: :mod:`services.algorithms.pnp`).
     """
 
     NAME = "pose_estimation_2d3d"
@@ -88,17 +90,19 @@ class PoseEstimation2D3D(Service):
         image, model = zip(*rows, strict=True)
         k, camera = decompose_projection(values["CI"].matrix)  # camera: C in the optical frame
         sigma = float(self.parameters["pixel_sigma"]) or None
+        announced = None
+        if sigma is None and all(p.covariance is not None for p in image):
+            announced = np.array([p.covariance for p in image])
+        noise = {"pixel_sigma": sigma, "pixel_covariances": announced}
         if self.parameters["ransac"]:
-            pnp, _ = solve_pnp_ransac(
-                _points(list(model)), _points(list(image)), k, pixel_sigma=sigma
-            )
+            pnp, _ = solve_pnp_ransac(_points(list(model)), _points(list(image)), k, **noise)
         else:
             pnp = solve_pnp(
                 _points(list(model)),
                 _points(list(image)),
                 k,
                 method=self.parameters["method"],
-                pixel_sigma=sigma,
+                **noise,
             )
         optical_to_c = se3.invert(camera.rotation, camera.translation)
         q, t = se3.compose(*optical_to_c, pnp.rotation, pnp.translation)

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from bench.synthetic import CAMERA_MATRIX, left_error, random_quaternion, rng_for, rotation_error
 from services.algorithms.estimate import PoseEstimate
@@ -68,6 +69,38 @@ def test_covariance_matches_monte_carlo_spread():
         errors.append(left_error(est, pose))
     ratio = np.diag(np.cov(np.array(errors).T)) / np.diag(predicted)
     assert np.all((ratio > 0.65) & (ratio < 1.5)), ratio
+
+
+def test_covariance_from_each_pixels_covariance_is_consistent():
+    """Pixels whose noise differs point by point and axis by axis: the covariance from their
+    own covariances (the sandwich of the unweighted estimate) has mean NEES within the
+    chi-square interval of 300 poses; the residuals' estimate from five points does not."""
+    rng = rng_for("pnp-pixel-covariances")
+    points = _cube(rng, 5)
+    sigmas = rng.uniform(0.2, 1.5, (5, 2))
+    covariances = np.array([np.diag(s**2) for s in sigmas])
+    given, estimated = [], []
+    for _ in range(300):
+        pose = PoseEstimate(random_quaternion(rng), np.array([0.05, -0.03, 1.0]))
+        pixels = project(points, pose, CAMERA_MATRIX) + rng.normal(0.0, sigmas)
+        for nees, options in ((given, {"pixel_covariances": covariances}), (estimated, {})):
+            est = solve_pnp(points, pixels, CAMERA_MATRIX, **options)
+            error = left_error(est, pose)
+            nees.append(error @ np.linalg.solve(est.covariance, error))
+    low, high = chi2.ppf([0.005, 0.995], 6 * 300) / 300
+    assert low < np.mean(given) < high
+    assert np.mean(estimated) > high
+
+
+def test_equal_pixel_covariances_give_the_covariance_of_pixel_sigma():
+    points = _cube(rng_for("pnp-equal"), 8)
+    _, _, pixels = _scene("pnp-equal", points)
+    by_sigma = solve_pnp(points, pixels, CAMERA_MATRIX, pixel_sigma=0.7).covariance
+    each = np.array([np.eye(2) * 0.49] * 8)
+    by_covariances = solve_pnp(points, pixels, CAMERA_MATRIX, pixel_covariances=each).covariance
+    np.testing.assert_allclose(by_covariances, by_sigma, rtol=1e-9)
+    with pytest.raises(ValueError, match="pixel_covariances"):
+        solve_pnp(points, pixels, CAMERA_MATRIX, pixel_covariances=each[:3])
 
 
 def test_ransac_rejects_outliers():

@@ -86,6 +86,23 @@ def test_pose_estimation_2d3d_reexpresses_pnp_in_the_camera_frame():
     assert_pose(robust, q_co, t_co, atol=1e-6)
 
 
+def test_pose_estimation_2d3d_takes_the_covariance_the_camera_announces():
+    projection, _, features, _, pixels = camera_scene("2d3d-announced")
+    announced = np.diag([0.3, 0.5]) ** 2
+    values = {
+        "CI": Projection(T, projection),
+        "IF": [Position2D(T, x, announced) for x in pixels],
+        "OF": [Position3D(T, f) for f in features],
+    }
+    with_covariances = make("pose_estimation_2d3d").compute(values, T)["CO"].covariance
+    given = make("pose_estimation_2d3d", pixel_sigma=0.4).compute(values, T)["CO"].covariance
+    values["IF"] = [Position2D(T, x) for x in pixels]  # none announced: from the residuals
+    from_residuals = make("pose_estimation_2d3d").compute(values, T)["CO"]
+    # noise-free pixels: the residuals say nothing is uncertain, the camera says otherwise
+    assert np.trace(from_residuals.covariance) < 1e-12 < np.trace(with_covariances)
+    assert 0.5 < np.trace(with_covariances) / np.trace(given) < 1.5
+
+
 def test_projective_calibration_recovers_the_projection():
     projection, _, _, in_c, pixels = camera_scene("dlt")
     values = {"IF": [Position2D(T, x) for x in pixels], "CF": [Position3D(T, p) for p in in_c]}
