@@ -13,7 +13,10 @@ In a room:
   ``features`` 2D features ``F<r>_<f>`` (``I -> F`` dynamic 2D, provider the camera; ``M -> F``
   static 3D): the loop of the paper's figure 1 in every room;
 * ``shared_targets``: each camera of room ``r`` also sees the marker of room ``r+1`` through
-  the door (its 2D features ``I<r>_<j> -> F<r+1>_<f>``), a target shared between rooms.
+  the door (its 2D features ``I<r>_<j> -> F<r+1>_<f>``), a target shared between rooms;
+* ``alike``: every room is equipped alike (the default), so the planner plans one room's part
+  for all (``graph.planner.PartCache``); without, room ``r``'s trackers announce an error
+  ``r`` percent larger, and each room is planned on its own.
 
 Everything static is a database edge, as a calibration store would serve it. The generator is
 pure (no randomness): the same arguments give the same SRG, edge ids included.
@@ -21,7 +24,7 @@ pure (no randomness): the same arguments give the same SRG, edge ids included.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import networkx as nx
 
@@ -46,6 +49,7 @@ class Building:
     features: int = 5
     layout: str = "star"
     shared_targets: bool = False
+    alike: bool = True
 
     def __post_init__(self) -> None:
         if self.layout not in ("star", "corridor"):
@@ -102,11 +106,13 @@ def build(shape: Building) -> nx.MultiDiGraph:
         static(room(r), marker(r))
         for f in range(1, shape.features + 1):
             static(marker(r), feature(r, f), "3D")
+        worse = 1.0 if shape.alike else (1 + r / 100) ** 2
+        pose = replace(TRACKER, variance=TRACKER.variance * worse)
         for k in range(shape.redundant + 1):
             t = tracker(r, k)
             static(room(r), t)
             for j in range(1, shape.bodies + 1):
-                add_measured_edge(srg, t, body(r, j), "6D", provider=t, quality=TRACKER)
+                add_measured_edge(srg, t, body(r, j), "6D", provider=t, quality=pose)
         for j in range(1, shape.cameras + 1):
             c, plane = camera(r, j), image(r, j)
             static(c, body(r, j))

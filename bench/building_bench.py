@@ -15,7 +15,9 @@ targets). The series, each a query on a growing setup:
 * ``in_building``: the same query in one room of a 50-room star, K = 2 and 4 (the region
   restriction should make it cost what a lone room costs);
 * ``head_to_head_k1`` / ``_k2``: head -> head across two rooms (``H0_1 -> H1_1``), 1, 2, 3, 4,
-  5, 6, 8, 10, 15, 20 bodies per room, each seen by K + 1 = 2 / 3 trackers;
+  5, 6, 8, 10, 15, 20 bodies per room, each seen by K + 1 = 2 / 3 trackers; the rooms are
+  equipped alike, so one room's part serves both; ``head_to_head_k2_unalike``: the same with
+  K = 2 and rooms whose trackers differ (``Building.alike``), each room planned on its own;
 * ``corridor``: rooms in a corridor (each also surveyed to the next), first room's camera to
   the last room's marker (``C0_1 -> M<n-1>``), n = 2, 3, 5, 10, 20, 50, 100, 200 rooms, K = 0;
 * ``shared_in_room`` / ``shared_cross_room``: shared targets (each camera also sees the next
@@ -158,9 +160,10 @@ def in_building(k: int) -> Row:
     return Row("in_building", k, shape, Query(camera(0), marker(0), "6D"))
 
 
-def head_to_head(bodies: int, k: int) -> Row:
-    shape = Building(rooms=2, bodies=bodies, redundant=k)
-    return Row(f"head_to_head_k{k}", bodies, shape, Query(body(0), body(1), "6D"))
+def head_to_head(bodies: int, k: int, alike: bool = True) -> Row:
+    shape = Building(rooms=2, bodies=bodies, redundant=k, alike=alike)
+    name = f"head_to_head_k{k}" + ("" if alike else "_unalike")
+    return Row(name, bodies, shape, Query(body(0), body(1), "6D"))
 
 
 def corridor(rooms: int) -> Row:
@@ -202,6 +205,11 @@ def all_series(quick: bool) -> list[Series]:
         Series("in_building", "tracker", tuple(in_building(k) for k in (2, 4))),
         Series("head_to_head_k1", "body", tuple(head_to_head(b, 1) for b in bodies)),
         Series("head_to_head_k2", "body", tuple(head_to_head(b, 2) for b in bodies)),
+        Series(
+            "head_to_head_k2_unalike",
+            "body",
+            tuple(head_to_head(b, 2, alike=False) for b in bodies),
+        ),
         Series("corridor", "room", tuple(corridor(n) for n in (2, 3, *rooms[1:], 200))),
         Series("shared_in_room", "room", tuple(shared(n, cross=False) for n in rooms)),
         Series("shared_cross_room", "room", tuple(shared(n, cross=True) for n in rooms)),
