@@ -357,6 +357,8 @@ def _extend(
 
 def _admissible(match: Match, index: EdgeIndex) -> bool:
     """Rigid links of a time-only pattern (independence is checked while binding)."""
+    if not match.template.time_only:
+        return True
     roles = dict(match.roles)
     return all(index.is_rigid(roles[a], roles[b]) for a, b in _rigid_links(match.template))
 
