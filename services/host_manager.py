@@ -20,6 +20,12 @@ takes commands once its token is up) and their reports of components that left
 While it runs it estimates its host's clock offset to the active agent's
 (:mod:`services.clock_sync`), shown in its status as ``clock``.
 
+One started by an agent (``services.host --started-by-agent``) outlives that agent
+(:meth:`HostManager.orphan`): its containers, the pool and the route of its client worker
+processes (``docs/services.md``, "Links") stay, and the agent's successor adopts it rather
+than starting another. It watches the active agent's tokens (``<root>/agents/*/active``) and
+ends once it has run no component and seen no active agent for ``ORPHAN_END_S``.
+
 Zenoh callbacks and the request thread only queue; one thread handles every event, request
 and process. Handling is total: a malformed request gets an error reply of its type, is
 counted and logged (rate-limited, :func:`ubitrack_agent.net.logs.rate_limited`), and never
@@ -33,6 +39,7 @@ import logging
 import os
 import queue
 import threading
+import time
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import replace
@@ -41,6 +48,7 @@ from typing import Any
 import zenoh
 
 from services.clock_sync import ClockSync
+from services.host import ORPHAN_END_S
 from services.registry import lookup
 from services.spec import check_spec
 from services.supervisor import Supervisor
@@ -93,7 +101,9 @@ class HostManager:
         self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
         self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
-        self._abandon = False
+        self._orphaned = threading.Event()
+        self._active_agents: set[str] = set()
+        self._unneeded_since: float | None = None
         self._request_slots = threading.Semaphore(MAX_PENDING_REQUESTS)
         liveliness = session.liveliness()
         self._pool_watch = liveliness.declare_subscriber(
@@ -104,6 +114,9 @@ class HostManager:
         )
         self._left = session.declare_subscriber(
             keys.all_container_left(), self._queue("left", "container report")
+        )
+        self._agent_watch = liveliness.declare_subscriber(
+            keys.all_active_agents(), self._queue("agent", "agent token"), history=True
         )
         self._exits = session.declare_publisher(keys.host_exited(name), encoding=JSON)
         self._requests = session.declare_queryable(keys.host_request(name))
@@ -149,17 +162,37 @@ class HostManager:
                     self._exits.put(exited.to_json())
                     self.counters["exits_reported"] += 1
                 self.supervisor.fill_pool()
+                self._end_if_unneeded()
         finally:
             self._close()
 
-    def stop(self, abandon_workers: bool = False) -> None:
-        """End :meth:`run`: terminate every worker, or with ``abandon_workers`` (the agent that
-        started this host manager died) leave the assigned ones running for a restarted agent
-        to adopt (those still starting exit by themselves once this process has ended,
-        :mod:`services.parent`). The first reason given wins."""
-        if not self._stop.is_set():
-            self._abandon = abandon_workers
-            self._stop.set()
+    def stop(self) -> None:
+        """End :meth:`run`, terminating every worker."""
+        self._stop.set()
+
+    def orphan(self) -> None:
+        """The agent that started this host manager is gone (died, or stood by): go on serving
+        for its successor, which adopts it; end once no component has run and no agent has
+        been active for ``ORPHAN_END_S`` (module docstring)."""
+        if not self._orphaned.is_set():
+            log.warning(
+                "the agent that started this host manager is gone: serving on for its successor"
+            )
+            self._orphaned.set()
+
+    def _end_if_unneeded(self) -> None:
+        """Stop an orphaned host manager that has been unneeded for ``ORPHAN_END_S``."""
+        busy = self.supervisor.assigned or self.supervisor.containers or self._active_agents
+        if not self._orphaned.is_set() or busy:
+            self._unneeded_since = None
+            return
+        now = time.monotonic()
+        if self._unneeded_since is None:
+            self._unneeded_since = now
+        elif now - self._unneeded_since > ORPHAN_END_S:
+            log.warning("no component and no active agent for %.0f s: ending", ORPHAN_END_S)
+            self.counters["ended_unneeded"] += 1
+            self.stop()
 
     def _handle(self, kind: str, event: Any) -> None:
         if kind == "request":
@@ -170,6 +203,9 @@ class HostManager:
             return
         if kind == "left":
             self._on_left(*event)
+            return
+        if kind == "agent":
+            self._on_agent_token(*event)
             return
         change, key = event
         try:
@@ -189,6 +225,17 @@ class HostManager:
             self._count_problem("rejected_container_keys", "ignored container key: %s", reason)
             return
         self.supervisor.on_container_token(token.name, token.incarnation, change == PUT)
+
+    def _on_agent_token(self, change: str, key: str) -> None:
+        try:
+            agent = self.keys.parse_active_agent(key)
+        except ValueError as exc:
+            self._count_problem("rejected_agent_keys", "ignored agent key: %s", exc)
+            return
+        if change == PUT:
+            self._active_agents.add(agent)
+        else:
+            self._active_agents.discard(agent)
 
     def _on_left(self, key: str, payload: bytes) -> None:
         try:
@@ -272,12 +319,13 @@ class HostManager:
             )
 
     def status(self) -> dict[str, Any]:
-        """Name, labels, capacity and CPU load (:class:`HostInfo`), pid, pool, instances, clock
-        offset and counters (JSON-ready)."""
+        """Name, labels, capacity and CPU load (:class:`HostInfo`), pid, whether its agent is
+        gone (``orphaned``), pool, instances, clock offset and counters (JSON-ready)."""
         cpu_load = os.getloadavg()[0] / (os.cpu_count() or 1)
         return {
             **replace(self.info, cpu_load=round(cpu_load, 3)).as_dict(),
             "pid": os.getpid(),
+            "orphaned": self._orphaned.is_set(),
             **self.supervisor.status(),
             "clock": self.clock_sync.status(),
             "counters": dict(self.counters),
@@ -293,15 +341,10 @@ class HostManager:
         self._pool_watch.undeclare()
         self._container_watch.undeclare()
         self._left.undeclare()
+        self._agent_watch.undeclare()
         while not self._events.empty():  # unanswered requests end now, not at their timeout
             kind, event = self._events.get_nowait()
             if kind == "request":
                 event.drop()
-        if self._abandon:
-            log.warning(
-                "leaving %d workers running for a restarted agent to adopt",
-                len(self.supervisor.assigned),
-            )
-        else:
-            self.supervisor.terminate_all()
+        self.supervisor.terminate_all()
         self._exits.undeclare()

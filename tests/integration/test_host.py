@@ -74,10 +74,10 @@ class Network:
         options: tuple[str, ...] = (),
     ) -> subprocess.Popen:
         """A host manager (``python -m services.host``, or ``via`` another entry point) with
-        ``options``; ``as the agent starts it``: reading a pipe from the test, and ending when
-        it closes."""
+        ``options``; ``as the agent starts it``: reading a pipe from the test (it closes when
+        the agent dies)."""
         entry = via or ("-m", "services.host")
-        options = (*options, "--exit-when-stdin-closes") if as_the_agent_starts_it else options
+        options = (*options, "--started-by-agent") if as_the_agent_starts_it else options
         process = self.start(
             *entry,
             "--name",
@@ -329,14 +329,16 @@ def sockets(pid: int) -> int:
     return sum(link.startswith("socket:") for link in links)
 
 
-def test_workers_as_clients_hold_one_link_and_reach_the_hub_when_their_host_manager_dies(hub):
-    """``--workers-as-clients`` (issue 28, "Fewer links"): a container is a zenoh client of
-    its host manager, one socket where a peer links to every other process, and its data
-    flows through the host manager; killed, the host manager no longer carries it, and the
-    container, which outlives it, reaches the network through the hub instead."""
+def test_workers_are_clients_holding_one_link_and_reach_the_hub_when_their_host_manager_dies(
+    hub,
+):
+    """Issue 28, "Fewer links": by default a container is a zenoh client of its host manager,
+    one socket where a peer links to every other process, and its data flows through the host
+    manager; killed, the host manager no longer carries it, and the container, which outlives
+    it, reaches the network through the hub instead."""
     keys = hub.keys
     tokens = hub.tokens()
-    host = hub.host("lab", pool_size=1, options=("--workers-as-clients",))
+    host = hub.host("lab", pool_size=1)
     wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=30)
     group = GroupSpec("lab-0", (relay(keys, "relay1"),))
     ok, reply = hub.ask("lab", encode_request(StartGroup(group)))
@@ -346,15 +348,66 @@ def test_workers_as_clients_hold_one_link_and_reach_the_hub_when_their_host_mana
     assert sockets(reply["pid"]) == 1
     host.kill()
     host.wait(timeout=10)
-    deadline, seen = time.monotonic() + 10, None
-    while seen is None and time.monotonic() < deadline:
-        source.put(encode(Pose(3_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    assert flows_again(source, output, 3_000)
+    assert running(reply["pid"])
+
+
+def test_workers_as_peers_link_to_every_process(hub):
+    """``--workers-as-peers``: the container is a peer, listening, linked to the hub, the host
+    manager and the test's session besides."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    hub.host("lab", pool_size=0, options=("--workers-as-peers",))
+    ok, reply = hub.ask("lab", encode_request(StartGroup(GroupSpec("lab-0", (relay(keys, "r"),)))))
+    assert ok, reply
+    wait_until(lambda: (PUT, "r") in [(k, i) for k, i, _ in tokens], timeout=30)
+    relayed(hub, "r")
+    assert sockets(reply["pid"]) >= 4  # its listener and a link to each of three peers
+
+
+def test_a_host_manager_outlives_the_agent_that_started_it(hub):
+    """The agent that started a host manager dies (its pipe closes): the host manager serves
+    on, so its client container keeps its route and its data flows, the host manager still
+    takes requests (from the agent's successor), and a second host manager of its name, as a
+    successor agent might start one, waits instead of serving beside it."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    host = hub.host("lab", pool_size=1, as_the_agent_starts_it=True)
+    group = GroupSpec("lab-0", (relay(keys, "relay1"),))
+    ok, reply = hub.ask("lab", encode_request(StartGroup(group)))
+    assert ok, reply
+    wait_until(lambda: (PUT, "relay1") in [(k, i) for k, i, _ in tokens], timeout=30)
+    output, source = relayed(hub, "relay1")
+    pid = hub.status("lab")["pid"]
+
+    host.stdin.close()  # as when the agent that started it dies
+    wait_until(lambda: hub.status("lab")["orphaned"], timeout=10)
+    assert flows_again(source, output, 4_000)
+    assert host.poll() is None and hub.status("lab")["pid"] == pid
+    ok, reply = hub.ask("lab", encode_request(StartGroup(GroupSpec("lab-0", (relay(keys, "r2"),)))))
+    assert ok, reply  # a successor agent's start
+    wait_until(lambda: (PUT, "r2") in [(k, i) for k, i, _ in tokens], timeout=30)
+
+    second = hub.start("-m", "services.host", "--name", "lab", "--pool-size", "0")
+    time.sleep(3.0)  # its imports, then it would serve
+    assert second.poll() is None
+    assert {hub.status("lab")["pid"]} == {pid}  # one host manager answers: the first
+    host.kill()
+    wait_until(lambda: hub.ask("lab", encode_request(Status()))[1].get("pid") == second.pid, 30)
+
+
+def flows_again(source, output: Collector, timestamp_ns: int, timeout: float = 10.0) -> bool:
+    """Whether a pose put on ``source`` (again every 0.2 s) reaches ``output`` within
+    ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        source.put(encode(Pose(timestamp_ns, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
         try:
-            seen = decode(output.next(timeout=0.2), expected=Pose)
+            if decode(output.next(timeout=0.2), expected=Pose).timestamp_ns == timestamp_ns:
+                return True
         except queue.Empty:
             continue
-    assert seen is not None and seen.timestamp_ns == 3_000
-    assert running(reply["pid"])
+    return False
 
 
 def running(pid: int) -> bool:
@@ -366,8 +419,7 @@ def running(pid: int) -> bool:
         return False
 
 
-@pytest.mark.parametrize("death", ["agent_killed", "host_manager_killed"])
-def test_workers_still_starting_when_their_host_manager_dies_exit(hub, death):
+def test_workers_still_starting_when_their_host_manager_dies_exit(hub):
     """Chaos seed 210 (issue 11): the agent was SIGKILLed while its host manager started ten
     workers cold on a loaded machine; its host manager ended with it, and those workers, starved
     of CPU, were still importing 40 s later, never having declared their tokens, while the
@@ -390,10 +442,7 @@ def test_workers_still_starting_when_their_host_manager_dies_exit(hub, death):
         assert ok, started
         os.kill(started["pid"], signal.SIGSTOP)
         starting.append(started["pid"])
-    if death == "agent_killed":
-        host.stdin.close()  # as when the agent that started it dies
-    else:
-        host.kill()
+    host.kill()
     host.wait(timeout=15)
     host.stdin.close()
     for pid in starting:
@@ -512,13 +561,17 @@ def test_the_agent_starts_its_host_manager_again_and_a_clean_stop_ends_every_wor
     (name,) = net.agent_status()["hosts"]
     first = net.status(name)["pid"]
 
-    os.kill(first, signal.SIGKILL)  # its workers keep running, adopted as they are
+    os.kill(first, signal.SIGKILL)  # its workers keep running, adopted as they are: they were
+    # its clients, and reach the network through the hub (their tokens come back within the
+    # agent's REROUTE_S)
     wait_until(lambda: net.ask(name, encode_request(Status()))[1].get("pid") not in (None, first))
     relation.wait_for(timeout=10)  # still flowing
 
     status = net.agent_status()
-    adopted = [i for i, c in status["components"].items() if c["host"] is None]
+    adopted = {i: c for i, c in status["components"].items() if c["host"] is None}
     assert adopted and status["counters"].get("restarts", 0) == 0  # none restarted
+    containers = {c["container"] for c in adopted.values()}
+    assert len(containers) == 1 and None not in containers  # recorded: the orphan's token
     assert workers(net.domain)
 
     agent.send_signal(signal.SIGTERM)

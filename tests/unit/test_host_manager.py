@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import pytest
 import zenoh
 
+from services.host import ORPHAN_END_S
 from services.host_manager import HostManager
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import HostInfo, Start, Status, encode_request
@@ -201,3 +202,37 @@ def test_a_fault_handling_a_pool_token_is_counted_not_raised(manager, monkeypatc
     manager.stop()
     thread.join(timeout=5)
     assert manager.counters["internal_errors"] == 2 and not thread.is_alive()
+
+
+def test_an_orphaned_host_manager_ends_only_once_unneeded(manager, monkeypatch):
+    """Started by an agent that is gone, it serves on while it runs a component or sees an
+    active agent (the successor that adopts it), and ends after ``ORPHAN_END_S`` of neither."""
+    clock = [100.0]
+    monkeypatch.setattr("services.host_manager.time.monotonic", lambda: clock[0])
+    manager._end_if_unneeded()
+    clock[0] += ORPHAN_END_S + 1
+    manager._end_if_unneeded()
+    assert not manager._stop.is_set()  # not orphaned: its agent runs
+    manager.orphan()
+    active = f"{KEYS.all_active_agents().replace('*', 'a1')}"
+    manager._handle("agent", ("SampleKind.PUT", active))
+    for _ in range(3):
+        manager._end_if_unneeded()
+        clock[0] += ORPHAN_END_S
+    assert not manager._stop.is_set()  # an active agent (its successor) uses it
+    manager._handle("agent", ("SampleKind.DELETE", active))
+    monkeypatch.setattr(manager.supervisor, "assigned", {"relay-a": object()})
+    for _ in range(3):
+        manager._end_if_unneeded()
+        clock[0] += ORPHAN_END_S
+    assert not manager._stop.is_set()  # a component runs: its applications' data flows on
+    monkeypatch.setattr(manager.supervisor, "assigned", {})
+    manager._end_if_unneeded()
+    clock[0] += ORPHAN_END_S - 1
+    manager._end_if_unneeded()
+    assert not manager._stop.is_set()
+    clock[0] += 2
+    manager._end_if_unneeded()
+    assert manager._stop.is_set() and manager.counters["ended_unneeded"] == 1
+    manager._handle("agent", ("SampleKind.PUT", "ubitrack/test/agents/a b/active"))
+    assert manager.counters["rejected_agent_keys"] == 1
