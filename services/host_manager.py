@@ -15,7 +15,11 @@ worker processes through a :class:`services.supervisor.Supervisor`. It declares
 
 It watches the tokens of containers (``<root>/container/<name>/<incarnation>``: a container
 takes commands once its token is up) and their reports of components that left
-(``<root>/left/<name>``), for the containers its supervisor runs.
+(``<root>/left/<name>``), for the containers its supervisor runs. It also reads the control
+commands on ``<root>/control/<instance>`` that rewire its components in place (inputs,
+relations, parameters: the agent sends them to the component directly), and keeps each
+component's specification current with them, so a container that dies is restored running
+what its components ran, not what they were started with (:func:`rewired`).
 
 While it runs it estimates its host's clock offset to the active agent's
 (:mod:`services.clock_sync`), shown in its status as ``clock``.
@@ -52,6 +56,7 @@ from services.host import ORPHAN_END_S
 from services.registry import lookup
 from services.spec import check_spec
 from services.supervisor import Supervisor
+from services.worker import CONTROL_FIELDS
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON
@@ -65,8 +70,9 @@ from ubitrack_agent.net.host_protocol import (
     Stop,
     parse_request,
 )
+from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import KeyRejection, KeySpace
-from ubitrack_agent.net.spec import SpecError
+from ubitrack_agent.net.spec import MAX_SPEC_BYTES, ComponentSpec, SpecError, parse_spec
 
 log = logging.getLogger("ubitrack.host")
 
@@ -115,6 +121,10 @@ class HostManager:
         self._left = session.declare_subscriber(
             keys.all_container_left(), self._queue("left", "container report")
         )
+        self._control_prefix = f"{keys.root}/control/"
+        self._controls = session.declare_subscriber(
+            f"{self._control_prefix}*", self._queue("control", "control command")
+        )
         self._agent_watch = liveliness.declare_subscriber(
             keys.all_active_agents(), self._queue("agent", "agent token"), history=True
         )
@@ -126,10 +136,11 @@ class HostManager:
 
     def _queue(self, kind: str, what: str) -> Any:
         """A zenoh callback queueing its sample for the handling thread as ``kind``: a token's
-        change and key, or (``left``) a report's key and payload; faults counted."""
+        change and key, or (``left``, ``control``) a message's key and payload; faults
+        counted."""
 
         def queue_sample(sample: Any) -> None:
-            if kind == "left":
+            if kind in ("left", "control"):
                 self._events.put((kind, (str(sample.key_expr), sample.payload.to_bytes())))
             else:
                 self._events.put((kind, (str(sample.kind), str(sample.key_expr))))
@@ -207,6 +218,9 @@ class HostManager:
         if kind == "agent":
             self._on_agent_token(*event)
             return
+        if kind == "control":
+            self._on_control(*event)
+            return
         change, key = event
         try:
             pool_id = self.keys.parse_pool(key)
@@ -236,6 +250,22 @@ class HostManager:
             self._active_agents.add(agent)
         else:
             self._active_agents.discard(agent)
+
+    def _on_control(self, key: str, payload: bytes) -> None:
+        """A control command to a component this host manager runs: its specification follows
+        a rewire (one the component refuses is ignored here too, counted)."""
+        spec = self.supervisor.spec_of(key.removeprefix(self._control_prefix))
+        if spec is None:
+            return  # not a component of ours (another host's, or a container's own key)
+        try:
+            current = rewired(spec, payload)
+        except (MessageError, SpecError) as exc:
+            reason = ValueError(f"{spec.instance}: {exc}")
+            self._count_problem("ignored_rewires", "ignored rewire: %s", reason)
+            return
+        if current != spec:
+            self.supervisor.rewire(current)
+            self.counters["rewires_followed"] += 1
 
     def _on_left(self, key: str, payload: bytes) -> None:
         try:
@@ -341,6 +371,7 @@ class HostManager:
         self._pool_watch.undeclare()
         self._container_watch.undeclare()
         self._left.undeclare()
+        self._controls.undeclare()
         self._agent_watch.undeclare()
         while not self._events.empty():  # unanswered requests end now, not at their timeout
             kind, event = self._events.get_nowait()
@@ -348,3 +379,20 @@ class HostManager:
                 event.drop()
         self.supervisor.terminate_all()
         self._exits.undeclare()
+
+
+def rewired(spec: ComponentSpec, payload: bytes) -> ComponentSpec:
+    """``spec`` as the control command ``payload`` leaves it: its inputs, relations and
+    parameters replaced by those the command names (``services.worker``'s in-place rewire; a
+    stop changes nothing), checked as a start's specification (``check_spec``).
+    :class:`MessageError` or :class:`SpecError` if the command is malformed or refused.
+    O(size of the specification)."""
+    command = load_object(payload, MAX_SPEC_BYTES)
+    if not command or set(command) - CONTROL_FIELDS:
+        raise SpecError(f"control: expected an object with some of {sorted(CONTROL_FIELDS)}")
+    changes = {name: value for name, value in command.items() if name != "stop"}
+    if not changes:
+        return spec
+    current = parse_spec({**spec.as_dict(), **changes})
+    check_spec(current)
+    return current

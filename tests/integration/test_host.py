@@ -4,6 +4,7 @@ did not start."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -321,6 +322,39 @@ def test_containers_start_with_a_group_take_additions_and_are_restored_when_kill
     wait_until(lambda: not running(new_pid), timeout=10)
     with pytest.raises(queue.Empty):  # nothing more was reported
         exits.next(timeout=0.5)
+
+
+def test_a_restored_container_runs_its_components_as_rewired(hub):
+    """A component rewired in place (a control command from the agent, not through the host
+    manager) runs as rewired after its container died and was restored, before anything
+    rewires it again: the host manager followed the command."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    exits = Collector(hub.session, keys.host_exited("lab"))
+    hub.host("lab", pool_size=1)
+    wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=30)
+    ok, reply = hub.ask("lab", encode_request(StartGroup(GroupSpec("lab-0", (relay(keys, "r"),)))))
+    assert ok, reply
+    wait_until(lambda: (PUT, "r") in [(k, i) for k, i, _ in tokens], timeout=30)
+    output, old_source = relayed(hub, "r")
+    inputs = [{"port": "in", "key": keys.data("src/moved"), "trigger": True}]
+    hub.session.put(keys.control("r"), json.dumps({"inputs": inputs}))
+    source = hub.session.declare_publisher(keys.data("src/moved"))
+    assert flows_again(source, output, 2_000)
+    assert hub.status("lab")["counters"]["rewires_followed"] == 1
+
+    os.kill(reply["pid"], signal.SIGKILL)
+    report = Exited.parse(exits.next(timeout=10))
+    assert (report.instance, report.reason) == ("r", "restored")
+    assert flows_again(source, output, 3_000)  # nobody rewired the restored one
+    output.drain()
+    old_source.put(encode(Pose(4_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    source.put(encode(Pose(5_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    later = []
+    with contextlib.suppress(queue.Empty):
+        while True:
+            later.append(decode(output.next(timeout=1.0), expected=Pose).timestamp_ns)
+    assert 5_000 in later and 4_000 not in later  # the input it was started with is unread
 
 
 def sockets(pid: int) -> int:
