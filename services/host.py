@@ -246,8 +246,8 @@ class OtherHostManagers:
 
 
 def free_loopback_port() -> int:
-    """A TCP port on loopback that was free a moment ago (where a host manager's clients
-    connect: ``--workers-as-clients``)."""
+    """A TCP port on loopback that was free a moment ago (where a host manager's worker
+    processes connect as its clients)."""
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
