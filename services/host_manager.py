@@ -96,15 +96,19 @@ class HostManager:
         pool_size: int,
         clock: Clock | None = None,
     ) -> None:
+        self.counters: Counter[str] = Counter()
+        self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
+        # The first pool member imports beside this process's own imports (two processes for
+        # the start-up's imports, not one after the other): a container asked for at once
+        # goes to it (``Supervisor._take_starting``), not to a cold process spawned later.
+        self.supervisor.fill_pool()
         lookup("relay")  # import every registered service now, not on the first request
         self.info = info
         self.name = name = info.name
         self.keys = keys
-        self.counters: Counter[str] = Counter()
         self.clock_sync = ClockSync(session, keys, clock or Clock(), self.counters)
         """This host's clock (the process's, ``Settings.clock_offset_ms`` applied) against
         the agent's."""
-        self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
         self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._orphaned = threading.Event()
