@@ -19,9 +19,8 @@ has run no component and seen no active agent for a while
 
 Its worker processes (containers, pool members) join the network as zenoh **clients** of it,
 one link each, where peers would each link to every other process (``docs/services.md``,
-"Links"); ``--workers-as-peers`` makes them peers. A host manager whose name another one
-already serves waits until that one is gone before it serves (a successor started while its
-predecessor still runs).
+"Links"); ``--workers-as-peers`` makes them peers. Of two host managers of one name the one
+started first serves; the other waits until it is gone (:mod:`services.host_claim`).
 """
 
 from __future__ import annotations
@@ -184,6 +183,7 @@ def serve(
         print(f"host: --cores must be 1 to {MAX_CORES}", file=sys.stderr)
         return 2
     # Imported here: the registry and zenoh are heavy, and ``ubitrack --help`` reads this module.
+    from services.host_claim import HostClaim
     from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.session import open_session
 
@@ -194,12 +194,13 @@ def serve(
         flags = config.as_flags(config.client_of(settings, gateway))
         settings = replace(settings, listen=(*settings.listen, gateway))
     with open_session(settings) as session:
-        others = OtherHostManagers(session, keys, name)
+        claim = HostClaim(session, keys, name)
         from services.host_manager import HostManager  # heavy: the registry, every service
 
-        others.wait_until_none(name)
+        claim.wait_until_first()
         info = HostInfo(name, labels, capacity, cores=cores, isolating=isolate)
         manager = HostManager(session, keys, info, flags, pool_size, Clock.of(settings))
+        manager.counters.update(claim.counters)
         on_termination(manager.stop)
         if started_by_agent:
             threading.Thread(target=_orphan_when_stdin_closes, args=(manager,), daemon=True).start()
@@ -214,35 +215,6 @@ def gateway_possible(settings: Settings) -> bool:
     without TLS. A client of a site's router, or a TLS network, keeps the workers as
     :func:`ubitrack_agent.net.config.member_of` makes them (a client is one link anyway)."""
     return settings.mode == "peer" and not settings.tls
-
-
-class OtherHostManagers:
-    """Whether another host manager serves a name, from its token (with history, declared as
-    the session opens so that the history is in by the time the imports are done): two of one
-    name would both take the agent's requests."""
-
-    def __init__(self, session: Any, keys: KeySpace, name: str) -> None:
-        self._serving: set[str] = set()
-        self._gone = threading.Condition()
-        self._watch = session.liveliness().declare_subscriber(
-            keys.host(name), self._on_token, history=True
-        )
-
-    def _on_token(self, sample: Any) -> None:
-        with self._gone:
-            if str(sample.kind) == "SampleKind.PUT":
-                self._serving.add(str(sample.key_expr))
-            else:
-                self._serving.discard(str(sample.key_expr))
-                self._gone.notify_all()
-
-    def wait_until_none(self, name: str) -> None:
-        """Return once no other host manager of ``name`` has its token up."""
-        with self._gone:
-            if self._serving:
-                print(f"host {name}: another host manager serves this name: waiting", flush=True)
-            self._gone.wait_for(lambda: not self._serving)
-        self._watch.undeclare()
 
 
 def free_loopback_port() -> int:
