@@ -26,10 +26,12 @@ started first serves; the other waits until it is gone (:mod:`services.host_clai
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import socket
 import sys
 import threading
+import time
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -193,18 +195,24 @@ def serve(
         gateway = f"tcp/127.0.0.1:{free_loopback_port()}"
         flags = config.as_flags(config.client_of(settings, gateway))
         settings = replace(settings, listen=(*settings.listen, gateway))
+    steps = [("started", time.monotonic())]
     with open_session(settings) as session:
+        steps.append(("session", time.monotonic()))
         claim = HostClaim(session, keys, name)
         from services.host_manager import HostManager  # heavy: the registry, every service
 
+        steps.append(("imports", time.monotonic()))
         claim.wait_until_first()
+        steps.append(("waited", time.monotonic()))
         info = HostInfo(name, labels, capacity, cores=cores, isolating=isolate)
         manager = HostManager(session, keys, info, flags, pool_size, Clock.of(settings))
+        steps.append(("services", time.monotonic()))
         manager.counters.update(claim.counters)
         on_termination(manager.stop)
         if started_by_agent:
             threading.Thread(target=_orphan_when_stdin_closes, args=(manager,), daemon=True).start()
-        print(f"host {name}: serving {keys.host_request(name)}", flush=True)
+        took = ", ".join(f"{b[0]} {b[1] - a[1]:.1f} s" for a, b in itertools.pairwise(steps))
+        print(f"host {name}: serving {keys.host_request(name)} ({took})", flush=True)
         with periodic_status(lambda: status_line(manager.status()), not quiet):
             manager.run()
     return 0
