@@ -115,11 +115,13 @@ stopping workers."""
 ORPHAN_GRACE_S = 2.0
 """A worker alive that no plan wants is stopped only after it has been unwanted this long
 (and start-up has settled): the fragment that makes it wanted may still be on its way."""
-REROUTE_S = 1.0
+REROUTE_S = 0.25
 """A component whose token vanished with no host manager to report its end (say, its host
 manager died with it) is started again only if its token has not come back within this long: a
-worker process that was a client of its host manager reaches the network through the hub
-within 0.1 s of losing it (``docs/services.md``, "Links"), and declares its token again."""
+worker process that was a client of its host manager reaches the network through the hub and
+declares its token again (gone for 2-8 ms in 5 trials at a load of 9-10: ``python -m
+bench.reroute_bench``, ``docs/services.md``, "Links"). A machine that is lost costs this much
+more before its components start elsewhere."""
 STOP_RESEND_S = 1.0
 """A stop put on a worker's control key by the agent is put again this often while the
 worker's token stays up."""
