@@ -1,13 +1,16 @@
 """Recovery after an agent SIGKILL: to every component alive and adopted (issue 11).
 
-Run: ``python -m bench.agent_restart_bench [--trials N] [--standby]``. Everything on loopback
-with real zenoh and real processes: an agent (with its host manager, pool size 2), two
+Run: ``python -m bench.agent_restart_bench [--trials N] [--standby] [--workers-as-peers]``.
+Everything on loopback with real zenoh and real processes: an agent (with its host manager,
+pool size 2; its worker processes the host manager's zenoh clients, or with
+``--workers-as-peers`` peers: ``docs/services.md``, "Links"), two
 noise-free trackers (``sim_trackers.exact_tracker``) and two applications (``WT->HT`` and
 ``HT->WT``, fused from both trackers: about ten workers). Each trial SIGKILLs the active agent
 and at once starts it again, then polls the active agent's status every 20 ms. With
 ``--standby`` a second agent stands by (``agent.election``) on its own port: the standby takes
 over, and the killed agent, started again, becomes the next trial's standby. Figures in
-seconds, printed and written to ``bench/results/agent_restart.json`` (``_standby.json``):
+seconds, printed and written to ``bench/results/agent_restart.json`` (``_standby.json``,
+``_peers.json``):
 
 * ``serving``: SIGKILL to the new agent's session open (interpreter, imports, session);
 * ``answering``: SIGKILL to an active agent answering its status again (without a standby:
@@ -15,9 +18,9 @@ seconds, printed and written to ``bench/results/agent_restart.json`` (``_standby
 * ``adopted``: SIGKILL to every wanted component alive and adopted by the active agent (its
   ``adopted`` counter counts all of them, the wanted set is the one before the kill, nothing
   unsolved): the figure the issue asks to be under 2 s;
-* ``host_ready``: SIGKILL to a host manager answering again, the active agent's own (the
-  killed agent's ended with it; a standby starts its own when it takes over): until then a
-  worker that ends cannot be started again;
+* ``host_ready``: SIGKILL to a host manager answering the active agent (until then a worker
+  that ends cannot be started again); ``same_host``: whether it is the one the killed agent
+  started (which outlives it and is adopted) rather than a new one;
 * ``same_pids``: whether every component still runs in the process it ran in before (adopted,
   not restarted);
 * ``longest_gap``: the longest time between two samples an application received on ``WT->HT``
@@ -80,7 +83,9 @@ def recovered(status: dict[str, Any] | None, before: set[str]) -> bool:
     )
 
 
-def trial(setup: Setup, agents: list[Any], arrivals: list[float]) -> dict[str, Any]:
+def trial(
+    setup: Setup, agents: list[Any], arrivals: list[float], peers: bool = False
+) -> dict[str, Any]:
     """One SIGKILL of the active agent, started again at once on its port (it replaces its
     entry in ``agents``); the figures."""
     before_status = wait_until(lambda: agent_status(setup))
@@ -92,8 +97,8 @@ def trial(setup: Setup, agents: list[Any], arrivals: list[float]) -> dict[str, A
     os.kill(agents[index].pid, signal.SIGKILL)
     agents[index].wait()
     others = [a.port for i, a in enumerate(agents) if i != index]
-    agents[index] = start_agent(setup, agents[index].port, others)
-    answering = adopted = host_ready = adopter = None
+    agents[index] = start_agent(setup, agents[index].port, others, peers)
+    answering = adopted = host_ready = adopter = new_host = None
     while adopted is None or host_ready is None:
         status = agent_status(setup)
         now = time.perf_counter()
@@ -101,7 +106,7 @@ def trial(setup: Setup, agents: list[Any], arrivals: list[float]) -> dict[str, A
             answering = now - killed
         if adopted is None and recovered(status, before):
             adopted, adopter = now - killed, status["agent"]["id"]
-        if host_ready is None and host_pid(setup) not in (None, old_host):
+        if host_ready is None and status is not None and (new_host := host_pid(setup)):
             host_ready = now - killed
         if now - killed > 60:
             raise RuntimeError(f"not recovered in 60 s: {status}")
@@ -114,6 +119,7 @@ def trial(setup: Setup, agents: list[Any], arrivals: list[float]) -> dict[str, A
         "answering": answering,
         "adopted": adopted,
         "host_ready": host_ready,
+        "same_host": new_host == old_host,
         "took_over": adopter != agents[index].agent_id,
         "components": len(before),
         "same_pids": status_pids(setup, sorted(before)) == pids,
@@ -121,10 +127,12 @@ def trial(setup: Setup, agents: list[Any], arrivals: list[float]) -> dict[str, A
     }
 
 
-def start_agent(setup: Setup, port: int, others: list[int]) -> Any:
+def start_agent(setup: Setup, port: int, others: list[int], peers: bool = False) -> Any:
     """An agent listening on ``port`` and connecting to the agents on ``others``, not waiting
-    for it (``Setup.start_agent`` waits)."""
+    for it (``Setup.start_agent`` waits); with ``peers``, its host manager's worker processes
+    are zenoh peers."""
     command = [sys.executable, "-m", "ubitrack_agent.cli", "agent", "--pool-size", "2"]
+    command += ["--workers-as-peers"] if peers else []
     command += ["--listen", f"tcp/127.0.0.1:{port}", "--domain", setup.domain]
     command += [flag for other in others for flag in ("--connect", f"tcp/127.0.0.1:{other}")]
     process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.PIPE, text=True)
@@ -150,7 +158,7 @@ def standing_by(setup: Setup, agent: Any) -> bool:
     return status is not None and agent.agent_id in status["agent"]["standby"]
 
 
-def run(trials: int, standby: bool) -> dict[str, Any]:
+def run(trials: int, standby: bool, peers: bool = False) -> dict[str, Any]:
     port = free_port()
     domain = f"restart{port}"
     settings = config.Settings(
@@ -160,9 +168,9 @@ def run(trials: int, standby: bool) -> dict[str, Any]:
     try:
         with open_session(settings) as session:
             setup = Setup(port, domain, KeySpace(settings.key_prefix), session, processes)
-            agents = [start_agent(setup, port, [])]
+            agents = [start_agent(setup, port, [], peers)]
             if standby:
-                agents.append(start_agent(setup, free_port(), [port]))
+                agents.append(start_agent(setup, free_port(), [port], peers))
             setup.tracker("art", "ART", 30.0, 2.0)
             setup.tracker("ir", "IR", 100.0, -1.0)
             arrivals: list[float] = []
@@ -179,7 +187,7 @@ def run(trials: int, standby: bool) -> dict[str, Any]:
                 time.sleep(3.0)  # the pool refills, the flows settle
                 if standby:
                     wait_until(lambda: any(standing_by(setup, a) for a in agents), timeout=60)
-                figures = trial(setup, agents, arrivals)
+                figures = trial(setup, agents, arrivals, peers)
                 rows.append(figures)
                 print(f"trial {index + 1}: " + ", ".join(f"{k} {v}" for k, v in figures.items()))
             for relation in relations:
@@ -191,20 +199,25 @@ def run(trials: int, standby: bool) -> dict[str, Any]:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
         kill_tagged(domain)
-    return summary(rows, standby)
+    return summary(rows, standby, peers)
 
 
-def summary(rows: list[dict[str, Any]], standby: bool) -> dict[str, Any]:
+def summary(rows: list[dict[str, Any]], standby: bool, peers: bool) -> dict[str, Any]:
     adopted = sorted(row["adopted"] for row in rows)
     host_ready = sorted(row["host_ready"] for row in rows)
+    gaps = sorted(row["longest_gap"] for row in rows if row["longest_gap"] is not None)
+    options = (" --standby" if standby else "") + (" --workers-as-peers" if peers else "")
     return {
-        "command": "python -m bench.agent_restart_bench" + (" --standby" if standby else ""),
+        "command": "python -m bench.agent_restart_bench" + options,
+        "load_average": os.getloadavg(),
         "date": time.strftime("%Y-%m-%d"),
         "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.python_version()}",
         "trials": rows,
         "adopted_median_s": adopted[len(adopted) // 2],
         "adopted_max_s": adopted[-1],
         "host_ready_median_s": host_ready[len(host_ready) // 2],
+        "longest_gap_median_s": gaps[len(gaps) // 2] if gaps else None,
+        "longest_gap_max_s": gaps[-1] if gaps else None,
         "all_same_pids": all(row["same_pids"] for row in rows),
     }
 
@@ -217,10 +230,18 @@ def main() -> int:
     parser.add_argument(
         "--standby", action="store_true", help="a standby agent takes over (module docstring)"
     )
+    parser.add_argument(
+        "--workers-as-peers",
+        action="store_true",
+        help="the host manager's worker processes as zenoh peers (`ubitrack agent "
+        "--workers-as-peers`), not its clients",
+    )
     args = parser.parse_args()
-    result = run(args.trials, args.standby)
+    result = run(args.trials, args.standby, args.workers_as_peers)
     print(json.dumps({k: v for k, v in result.items() if k != "trials"}, indent=1))
-    path = RESULTS.with_name("agent_restart_standby.json") if args.standby else RESULTS
+    suffix = "_standby" if args.standby else ""
+    suffix += "_peers" if args.workers_as_peers else ""
+    path = RESULTS.with_name(f"agent_restart{suffix}.json")
     path.parent.mkdir(exist_ok=True)
     path.write_text(json.dumps(result, indent=1) + "\n")
     return 0

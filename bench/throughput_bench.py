@@ -2,10 +2,10 @@
 concatenation chains on one 2-core host carry >= 20,000 samples/s with p99 <= 20 ms).
 
 Run: ``python -m bench.throughput_bench [--rates 1000,2000,5000,10000,20000,40000]
-[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--clients]``; prints the figures and writes
-them to ``bench/results/throughput.json`` (``throughput_clients.json`` with ``--clients``: the
-worker processes as zenoh clients of their host manager, ``ubitrack host
---workers-as-clients``).
+[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers]``; prints the figures and writes
+them to ``bench/results/throughput.json`` (the worker processes as zenoh clients of their host
+manager, the default; ``throughput_peers.json`` with ``--peers``: as peers, ``ubitrack host
+--workers-as-peers``).
 
 Everything is a real process on loopback with real zenoh (explicit endpoints, multicast off):
 
@@ -249,9 +249,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cores", type=int, default=2, help="containers (host --cores, 2)")
     parser.add_argument("--break-ms", type=float, default=200.0, help="p99 that breaks (200)")
     parser.add_argument(
-        "--clients",
+        "--peers",
         action="store_true",
-        help="the host manager's worker processes as its zenoh clients (host --workers-as-clients)",
+        help="the host manager's worker processes as zenoh peers (host --workers-as-peers)",
     )
     parser.add_argument("--idle-s", type=float, default=5.0, help="idle window (default 5)")
     sub = parser.add_subparsers(dest="part")
@@ -274,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.part == "apply":
         return apply(args)
     write_results(
-        RESULTS.with_name("throughput_clients.json") if args.clients else RESULTS, bench(args)
+        RESULTS.with_name("throughput_peers.json") if args.peers else RESULTS, bench(args)
     )
     return 0
 
@@ -314,7 +314,7 @@ def bench(args: argparse.Namespace) -> dict[str, Any]:
         "hops": args.hops,
         "containers": {name: len(group.components) for name, group in groups.items()},
         "seconds_per_step": args.seconds,
-        "workers_as_clients": args.clients,
+        "workers_as_peers": args.peers,
     }
     statics = []
     try:
@@ -341,7 +341,7 @@ def start(net: Any, args: argparse.Namespace, groups: dict[str, Any], components
     from tests.integration.zenoh_helpers import wait_until
 
     quiet = ("--log-level", "WARNING")
-    clients = ("--workers-as-clients",) if args.clients else ()
+    peers = ("--workers-as-peers",) if args.peers else ()
     manager = net.spawn(
         "-m",
         "services.host",
@@ -350,7 +350,7 @@ def start(net: Any, args: argparse.Namespace, groups: dict[str, Any], components
         "--cores",
         str(args.cores),
         "--quiet",
-        *clients,
+        *peers,
         *quiet,
     )
     watch = net.session.liveliness().declare_subscriber(net.keys.all_workers(), history=True)

@@ -11,19 +11,27 @@ imports of numpy, scipy and OpenCV and the zenoh session (``python -m bench.work
 measures both; figures in ``docs/performance.md``, "Worker start-up").
 
 The process ends on SIGTERM or SIGINT, terminating every worker it started. With
-``--exit-when-stdin-closes`` (how the agent starts it, with a pipe) it also ends when its
-standard input closes, i.e. when the agent dies; it then leaves the assigned workers running,
-so a restarted agent adopts them and the applications keep their data (those still starting,
-their token not up yet, exit by themselves: :mod:`services.parent`).
+``--started-by-agent`` (how the agent starts it, with a pipe as standard input) it outlives
+that agent: once the pipe closes (the agent died, or stood by for another) it serves on, its
+containers, pool and worker links kept, for the agent's successor to adopt, and ends once it
+has run no component and seen no active agent for a while
+(:meth:`services.host_manager.HostManager.orphan`).
+
+Its worker processes (containers, pool members) join the network as zenoh **clients** of it,
+one link each, where peers would each link to every other process (``docs/services.md``,
+"Links"); ``--workers-as-peers`` makes them peers. Of two host managers of one name the one
+started first serves; the other waits until it is gone (:mod:`services.host_claim`).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import socket
 import sys
 import threading
+import time
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -48,6 +56,12 @@ DEFAULT_POOL_SIZE = 2
 """Idle pool members by default: every component runs in a container (one per core), so a
 member is taken only to start a container or restore one that died (issue 28: worker
 processes at most the cores + 2)."""
+
+
+ORPHAN_END_S = 30.0
+"""A host manager whose agent is gone ends after running no component and seeing no active
+agent this long: a successor agent (its process start, 0.4-6 s, then 1.5 s settling; 20 s seen
+at a load of 29) adopts it with its warm pool; nothing waits for one that never comes."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -87,13 +101,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "or crash-prone code: a fault takes down no other component; more processes)",
     )
     parser.add_argument(
-        "--workers-as-clients",
+        "--workers-as-peers",
         action="store_true",
-        help="its worker processes (containers, pool members) join the network as zenoh "
-        "clients of this host manager, one link each, instead of peers linked to every other "
-        "process; it is their gateway, so they are cut off while it is down (an agent that "
-        "dies ends the host manager it started: its applications then get no data until it "
-        "restarts)",
+        help="its worker processes (containers, pool members) join the network as zenoh peers, "
+        "each linked to every other process, instead of clients of this host manager with one "
+        "link each (the default for a peer without TLS; they fall back to the hub while it is "
+        "down)",
     )
     parser.add_argument(
         "--quiet",
@@ -128,10 +141,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_arguments(parser)
     parser.add_argument(
-        "--exit-when-stdin-closes",
+        "--started-by-agent",
         action="store_true",
-        help="also end when standard input closes (the parent agent died), leaving assigned "
-        "workers running for a restarted agent to adopt",
+        help="standard input is a pipe from the agent that started it: once it closes (the "
+        "agent died or stood by), serve on for the agent's successor, and end after "
+        f"{ORPHAN_END_S:.0f} s without a component or an active agent",
     )
     logs.add_log_level_argument(parser)
     config.add_arguments(parser)
@@ -142,17 +156,17 @@ def serve(
     settings: Settings,
     name: str | None,
     pool_size: int,
-    exit_when_stdin_closes: bool = False,
+    started_by_agent: bool = False,
     quiet: bool = False,
     labels: frozenset[str] = frozenset(),
     capacity: int = DEFAULT_CAPACITY,
     cores: int = 1,
     isolate: bool = False,
-    workers_as_clients: bool = False,
+    workers_as_peers: bool = False,
 ) -> int:
-    """Run a host manager until SIGTERM or SIGINT (or, if asked, until standard input closes);
-    the exit status (2 for invalid options). ``name`` (default: the ``host_name`` setting)
-    is also the host name its workers are started with."""
+    """Run a host manager until SIGTERM or SIGINT (started by an agent: also once unneeded
+    after the agent is gone); the exit status (2 for invalid options). ``name`` (default: the
+    ``host_name`` setting) is also the host name its workers are started with."""
     if name is None:
         name = settings.host_name
     settings = replace(settings, host_name=name)
@@ -171,36 +185,49 @@ def serve(
         print(f"host: --cores must be 1 to {MAX_CORES}", file=sys.stderr)
         return 2
     # Imported here: the registry and zenoh are heavy, and ``ubitrack --help`` reads this module.
-    from services.host_manager import HostManager
+    from services.host_claim import HostClaim
     from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.session import open_session
 
     keys = KeySpace(settings.key_prefix)
     flags = config.member_flags(settings)
-    if workers_as_clients:
-        if settings.mode != "peer" or settings.tls:
-            print("host: --workers-as-clients needs a peer without TLS", file=sys.stderr)
-            return 2
+    if not workers_as_peers and gateway_possible(settings):
         gateway = f"tcp/127.0.0.1:{free_loopback_port()}"
         flags = config.as_flags(config.client_of(settings, gateway))
         settings = replace(settings, listen=(*settings.listen, gateway))
+    steps = [("started", time.monotonic())]
     with open_session(settings) as session:
+        steps.append(("session", time.monotonic()))
+        claim = HostClaim(session, keys, name)
+        from services.host_manager import HostManager  # heavy: the registry, every service
+
+        steps.append(("imports", time.monotonic()))
+        claim.wait_until_first()
+        steps.append(("waited", time.monotonic()))
         info = HostInfo(name, labels, capacity, cores=cores, isolating=isolate)
         manager = HostManager(session, keys, info, flags, pool_size, Clock.of(settings))
+        steps.append(("services", time.monotonic()))
+        manager.counters.update(claim.counters)
         on_termination(manager.stop)
-        if exit_when_stdin_closes:
-            threading.Thread(
-                target=_abandon_when_stdin_closes, args=(manager,), daemon=True
-            ).start()
-        print(f"host {name}: serving {keys.host_request(name)}", flush=True)
+        if started_by_agent:
+            threading.Thread(target=_orphan_when_stdin_closes, args=(manager,), daemon=True).start()
+        took = ", ".join(f"{b[0]} {b[1] - a[1]:.1f} s" for a, b in itertools.pairwise(steps))
+        print(f"host {name}: serving {keys.host_request(name)} ({took})", flush=True)
         with periodic_status(lambda: status_line(manager.status()), not quiet):
             manager.run()
     return 0
 
 
+def gateway_possible(settings: Settings) -> bool:
+    """Whether this host manager can be its workers' gateway (their zenoh router): as a peer
+    without TLS. A client of a site's router, or a TLS network, keeps the workers as
+    :func:`ubitrack_agent.net.config.member_of` makes them (a client is one link anyway)."""
+    return settings.mode == "peer" and not settings.tls
+
+
 def free_loopback_port() -> int:
-    """A TCP port on loopback that was free a moment ago (where a host manager's clients
-    connect: ``--workers-as-clients``)."""
+    """A TCP port on loopback that was free a moment ago (where a host manager's worker
+    processes connect as its clients)."""
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
@@ -223,12 +250,11 @@ def status_line(status: dict[str, Any]) -> str:
     )
 
 
-def _abandon_when_stdin_closes(manager: HostManager) -> None:
-    """Stop ``manager`` once standard input closes (the parent agent died), leaving the
-    assigned workers running."""
+def _orphan_when_stdin_closes(manager: HostManager) -> None:
+    """Tell ``manager`` once standard input closes that the agent that started it is gone."""
     while os.read(sys.stdin.fileno(), 4096):  # no buffered reader: its lock would hold up exit
         pass
-    manager.stop(abandon_workers=True)
+    manager.orphan()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -243,13 +269,13 @@ def main(argv: list[str] | None = None) -> int:
         settings,
         args.name,
         args.pool_size,
-        args.exit_when_stdin_closes,
+        args.started_by_agent,
         args.quiet,
         args.labels,
         args.capacity,
         args.cores,
         args.isolate,
-        args.workers_as_clients,
+        args.workers_as_peers,
     )
 
 

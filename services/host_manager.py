@@ -15,10 +15,20 @@ worker processes through a :class:`services.supervisor.Supervisor`. It declares
 
 It watches the tokens of containers (``<root>/container/<name>/<incarnation>``: a container
 takes commands once its token is up) and their reports of components that left
-(``<root>/left/<name>``), for the containers its supervisor runs.
+(``<root>/left/<name>``), for the containers its supervisor runs. It also reads the control
+commands on ``<root>/control/<instance>`` that rewire its components in place (inputs,
+relations, parameters: the agent sends them to the component directly), and keeps each
+component's specification current with them, so a container that dies is restored running
+what its components ran, not what they were started with (:func:`rewired`).
 
 While it runs it estimates its host's clock offset to the active agent's
 (:mod:`services.clock_sync`), shown in its status as ``clock``.
+
+One started by an agent (``services.host --started-by-agent``) outlives that agent
+(:meth:`HostManager.orphan`): its containers, the pool and the route of its client worker
+processes (``docs/services.md``, "Links") stay, and the agent's successor adopts it rather
+than starting another. It watches the active agent's tokens (``<root>/agents/*/active``) and
+ends once it has run no component and seen no active agent for ``ORPHAN_END_S``.
 
 Zenoh callbacks and the request thread only queue; one thread handles every event, request
 and process. Handling is total: a malformed request gets an error reply of its type, is
@@ -33,6 +43,7 @@ import logging
 import os
 import queue
 import threading
+import time
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import replace
@@ -41,9 +52,11 @@ from typing import Any
 import zenoh
 
 from services.clock_sync import ClockSync
+from services.host import ORPHAN_END_S
 from services.registry import lookup
 from services.spec import check_spec
 from services.supervisor import Supervisor
+from services.worker import CONTROL_FIELDS
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON
@@ -57,8 +70,9 @@ from ubitrack_agent.net.host_protocol import (
     Stop,
     parse_request,
 )
+from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import KeyRejection, KeySpace
-from ubitrack_agent.net.spec import SpecError
+from ubitrack_agent.net.spec import MAX_SPEC_BYTES, ComponentSpec, SpecError, parse_spec
 
 log = logging.getLogger("ubitrack.host")
 
@@ -82,18 +96,24 @@ class HostManager:
         pool_size: int,
         clock: Clock | None = None,
     ) -> None:
+        self.counters: Counter[str] = Counter()
+        self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
+        # The first pool member imports beside this process's own imports (two processes for
+        # the start-up's imports, not one after the other): a container asked for at once
+        # goes to it (``Supervisor._take_starting``), not to a cold process spawned later.
+        self.supervisor.fill_pool()
         lookup("relay")  # import every registered service now, not on the first request
         self.info = info
         self.name = name = info.name
         self.keys = keys
-        self.counters: Counter[str] = Counter()
         self.clock_sync = ClockSync(session, keys, clock or Clock(), self.counters)
         """This host's clock (the process's, ``Settings.clock_offset_ms`` applied) against
         the agent's."""
-        self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
         self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
-        self._abandon = False
+        self._orphaned = threading.Event()
+        self._active_agents: set[str] = set()
+        self._unneeded_since: float | None = None
         self._request_slots = threading.Semaphore(MAX_PENDING_REQUESTS)
         liveliness = session.liveliness()
         self._pool_watch = liveliness.declare_subscriber(
@@ -105,6 +125,13 @@ class HostManager:
         self._left = session.declare_subscriber(
             keys.all_container_left(), self._queue("left", "container report")
         )
+        self._control_prefix = f"{keys.root}/control/"
+        self._controls = session.declare_subscriber(
+            f"{self._control_prefix}*", self._queue("control", "control command")
+        )
+        self._agent_watch = liveliness.declare_subscriber(
+            keys.all_active_agents(), self._queue("agent", "agent token"), history=True
+        )
         self._exits = session.declare_publisher(keys.host_exited(name), encoding=JSON)
         self._requests = session.declare_queryable(keys.host_request(name))
         self._request_thread = threading.Thread(target=self._receive_requests, daemon=True)
@@ -113,10 +140,11 @@ class HostManager:
 
     def _queue(self, kind: str, what: str) -> Any:
         """A zenoh callback queueing its sample for the handling thread as ``kind``: a token's
-        change and key, or (``left``) a report's key and payload; faults counted."""
+        change and key, or (``left``, ``control``) a message's key and payload; faults
+        counted."""
 
         def queue_sample(sample: Any) -> None:
-            if kind == "left":
+            if kind in ("left", "control"):
                 self._events.put((kind, (str(sample.key_expr), sample.payload.to_bytes())))
             else:
                 self._events.put((kind, (str(sample.kind), str(sample.key_expr))))
@@ -149,17 +177,37 @@ class HostManager:
                     self._exits.put(exited.to_json())
                     self.counters["exits_reported"] += 1
                 self.supervisor.fill_pool()
+                self._end_if_unneeded()
         finally:
             self._close()
 
-    def stop(self, abandon_workers: bool = False) -> None:
-        """End :meth:`run`: terminate every worker, or with ``abandon_workers`` (the agent that
-        started this host manager died) leave the assigned ones running for a restarted agent
-        to adopt (those still starting exit by themselves once this process has ended,
-        :mod:`services.parent`). The first reason given wins."""
-        if not self._stop.is_set():
-            self._abandon = abandon_workers
-            self._stop.set()
+    def stop(self) -> None:
+        """End :meth:`run`, terminating every worker."""
+        self._stop.set()
+
+    def orphan(self) -> None:
+        """The agent that started this host manager is gone (died, or stood by): go on serving
+        for its successor, which adopts it; end once no component has run and no agent has
+        been active for ``ORPHAN_END_S`` (module docstring)."""
+        if not self._orphaned.is_set():
+            log.warning(
+                "the agent that started this host manager is gone: serving on for its successor"
+            )
+            self._orphaned.set()
+
+    def _end_if_unneeded(self) -> None:
+        """Stop an orphaned host manager that has been unneeded for ``ORPHAN_END_S``."""
+        busy = self.supervisor.assigned or self.supervisor.containers or self._active_agents
+        if not self._orphaned.is_set() or busy:
+            self._unneeded_since = None
+            return
+        now = time.monotonic()
+        if self._unneeded_since is None:
+            self._unneeded_since = now
+        elif now - self._unneeded_since > ORPHAN_END_S:
+            log.warning("no component and no active agent for %.0f s: ending", ORPHAN_END_S)
+            self.counters["ended_unneeded"] += 1
+            self.stop()
 
     def _handle(self, kind: str, event: Any) -> None:
         if kind == "request":
@@ -170,6 +218,12 @@ class HostManager:
             return
         if kind == "left":
             self._on_left(*event)
+            return
+        if kind == "agent":
+            self._on_agent_token(*event)
+            return
+        if kind == "control":
+            self._on_control(*event)
             return
         change, key = event
         try:
@@ -189,6 +243,33 @@ class HostManager:
             self._count_problem("rejected_container_keys", "ignored container key: %s", reason)
             return
         self.supervisor.on_container_token(token.name, token.incarnation, change == PUT)
+
+    def _on_agent_token(self, change: str, key: str) -> None:
+        try:
+            agent = self.keys.parse_active_agent(key)
+        except ValueError as exc:
+            self._count_problem("rejected_agent_keys", "ignored agent key: %s", exc)
+            return
+        if change == PUT:
+            self._active_agents.add(agent)
+        else:
+            self._active_agents.discard(agent)
+
+    def _on_control(self, key: str, payload: bytes) -> None:
+        """A control command to a component this host manager runs: its specification follows
+        a rewire (one the component refuses is ignored here too, counted)."""
+        spec = self.supervisor.spec_of(key.removeprefix(self._control_prefix))
+        if spec is None:
+            return  # not a component of ours (another host's, or a container's own key)
+        try:
+            current = rewired(spec, payload)
+        except (MessageError, SpecError) as exc:
+            reason = ValueError(f"{spec.instance}: {exc}")
+            self._count_problem("ignored_rewires", "ignored rewire: %s", reason)
+            return
+        if current != spec:
+            self.supervisor.rewire(current)
+            self.counters["rewires_followed"] += 1
 
     def _on_left(self, key: str, payload: bytes) -> None:
         try:
@@ -272,12 +353,13 @@ class HostManager:
             )
 
     def status(self) -> dict[str, Any]:
-        """Name, labels, capacity and CPU load (:class:`HostInfo`), pid, pool, instances, clock
-        offset and counters (JSON-ready)."""
+        """Name, labels, capacity and CPU load (:class:`HostInfo`), pid, whether its agent is
+        gone (``orphaned``), pool, instances, clock offset and counters (JSON-ready)."""
         cpu_load = os.getloadavg()[0] / (os.cpu_count() or 1)
         return {
             **replace(self.info, cpu_load=round(cpu_load, 3)).as_dict(),
             "pid": os.getpid(),
+            "orphaned": self._orphaned.is_set(),
             **self.supervisor.status(),
             "clock": self.clock_sync.status(),
             "counters": dict(self.counters),
@@ -293,15 +375,28 @@ class HostManager:
         self._pool_watch.undeclare()
         self._container_watch.undeclare()
         self._left.undeclare()
+        self._controls.undeclare()
+        self._agent_watch.undeclare()
         while not self._events.empty():  # unanswered requests end now, not at their timeout
             kind, event = self._events.get_nowait()
             if kind == "request":
                 event.drop()
-        if self._abandon:
-            log.warning(
-                "leaving %d workers running for a restarted agent to adopt",
-                len(self.supervisor.assigned),
-            )
-        else:
-            self.supervisor.terminate_all()
+        self.supervisor.terminate_all()
         self._exits.undeclare()
+
+
+def rewired(spec: ComponentSpec, payload: bytes) -> ComponentSpec:
+    """``spec`` as the control command ``payload`` leaves it: its inputs, relations and
+    parameters replaced by those the command names (``services.worker``'s in-place rewire; a
+    stop changes nothing), checked as a start's specification (``check_spec``).
+    :class:`MessageError` or :class:`SpecError` if the command is malformed or refused.
+    O(size of the specification)."""
+    command = load_object(payload, MAX_SPEC_BYTES)
+    if not command or set(command) - CONTROL_FIELDS:
+        raise SpecError(f"control: expected an object with some of {sorted(CONTROL_FIELDS)}")
+    changes = {name: value for name, value in command.items() if name != "stop"}
+    if not changes:
+        return spec
+    current = parse_spec({**spec.as_dict(), **changes})
+    check_spec(current)
+    return current

@@ -38,7 +38,8 @@ process exits unasked is started again with the components it ran (**restored**,
 as such with the new process's pid, under its old run: the agent sends their current wiring),
 at most ``MAX_QUICK_RESTORES`` times in a row within ``QUICK_RESTORE_S`` of its start; then its
 components are reported as exited. A component that left its container by its own stop
-command (``<root>/left/<name>``) is reported as released.
+command (``<root>/left/<name>``) is reported as released. A component rewired in place (its
+control command, which the host manager reads too) is restored as rewired (:meth:`rewire`).
 
 Only the worker module runs, without a shell, the specification as one argument; every member
 reads a pipe from this process as its standard input, so idle members, and workers still
@@ -412,6 +413,16 @@ class Supervisor:
                 log.info("%s: left container %s (%s)", instance, name, reason)
                 exits.append(Exited(instance, assignment.run, box.process.pid, None, reason))
         return exits
+
+    def spec_of(self, instance: str) -> ComponentSpec | None:
+        """The current specification of ``instance`` if it runs here, else None."""
+        assignment = self.assigned.get(instance)
+        return None if assignment is None else assignment.spec
+
+    def rewire(self, spec: ComponentSpec) -> None:
+        """``spec``'s instance, running here, was rewired in place to ``spec`` (its control
+        command): a restore or a repeated start goes by it."""
+        self.assigned[spec.instance].spec = spec
 
     def stop(self, instance: str) -> str:
         """Put the stop command on ``instance``'s control key (wherever it runs) and release

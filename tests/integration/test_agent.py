@@ -21,6 +21,7 @@ from tests.integration.zenoh_helpers import free_port, member_flags, wait_until
 from ubitrack_agent.core import se3
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net import config
+from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
@@ -205,9 +206,11 @@ def test_a_killed_agent_is_restarted_and_rebuilds_everything(setup):
     wait_until(lambda: relation.latest() is not None, timeout=20)
     before = setup.alive_services()
     pids = {instance: setup.worker_pid(instance) for instance in before}
+    placed = {i: (c["host"], c["container"]) for i, c in setup.status()["components"].items()}
+    host_pid = host_manager_pid(setup, placed)
 
-    os.kill(agent.pid, signal.SIGKILL)  # the agent dies; its workers keep the data flowing
-    agent.wait()
+    os.kill(agent.pid, signal.SIGKILL)  # the agent dies; its host manager and workers keep
+    agent.wait()  # the data flowing (the workers are the host manager's clients)
     fresh_samples(relation, 10)
 
     setup.start_agent()  # rebuilt from liveliness alone: adopts the running workers
@@ -215,13 +218,30 @@ def test_a_killed_agent_is_restarted_and_rebuilds_everything(setup):
         lambda: (setup.status() or {}).get("counters", {}).get("adopted", 0) == len(before),
         timeout=20,
     )
+    wait_until(lambda: components_placed(setup) == placed, timeout=10)
     status = setup.status()
     assert {i: c["service"] for i, c in status["components"].items()} == before
+    assert host_manager_pid(setup, placed) == host_pid  # adopted too, not started again
     assert {instance: setup.worker_pid(instance) for instance in before} == pids  # not restarted
     for sample in fresh_samples(relation, 10):
         assert_true_pose(sample)
     relation.close()
     wait_until(lambda: not setup.alive_services(), timeout=10)
+
+
+def components_placed(setup: Setup) -> dict[str, tuple[str | None, str | None]]:
+    """Each component's host and container, as the agent records them."""
+    status = setup.status() or {"components": {}}
+    return {i: (c["host"], c["container"]) for i, c in status["components"].items()}
+
+
+def host_manager_pid(setup: Setup, placed: dict[str, tuple[str | None, str | None]]) -> int:
+    """The pid of the one host manager the components are placed on."""
+    (host,) = {host for host, _ in placed.values()}
+    replies = setup.session.get(
+        setup.keys.host_request(host), payload=encode_request(Status()), timeout=2.0
+    )
+    return json.loads(next(r.ok for r in replies if r.ok is not None).payload.to_bytes())["pid"]
 
 
 def test_malformed_announcements_and_queries_are_rejected_and_counted(setup):

@@ -4,6 +4,7 @@ did not start."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -74,10 +75,10 @@ class Network:
         options: tuple[str, ...] = (),
     ) -> subprocess.Popen:
         """A host manager (``python -m services.host``, or ``via`` another entry point) with
-        ``options``; ``as the agent starts it``: reading a pipe from the test, and ending when
-        it closes."""
+        ``options``; ``as the agent starts it``: reading a pipe from the test (it closes when
+        the agent dies)."""
         entry = via or ("-m", "services.host")
-        options = (*options, "--exit-when-stdin-closes") if as_the_agent_starts_it else options
+        options = (*options, "--started-by-agent") if as_the_agent_starts_it else options
         process = self.start(
             *entry,
             "--name",
@@ -323,20 +324,55 @@ def test_containers_start_with_a_group_take_additions_and_are_restored_when_kill
         exits.next(timeout=0.5)
 
 
+def test_a_restored_container_runs_its_components_as_rewired(hub):
+    """A component rewired in place (a control command from the agent, not through the host
+    manager) runs as rewired after its container died and was restored, before anything
+    rewires it again: the host manager followed the command."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    exits = Collector(hub.session, keys.host_exited("lab"))
+    hub.host("lab", pool_size=1)
+    wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=30)
+    ok, reply = hub.ask("lab", encode_request(StartGroup(GroupSpec("lab-0", (relay(keys, "r"),)))))
+    assert ok, reply
+    wait_until(lambda: (PUT, "r") in [(k, i) for k, i, _ in tokens], timeout=30)
+    output, old_source = relayed(hub, "r")
+    inputs = [{"port": "in", "key": keys.data("src/moved"), "trigger": True}]
+    hub.session.put(keys.control("r"), json.dumps({"inputs": inputs}))
+    source = hub.session.declare_publisher(keys.data("src/moved"))
+    assert flows_again(source, output, 2_000)
+    assert hub.status("lab")["counters"]["rewires_followed"] == 1
+
+    os.kill(reply["pid"], signal.SIGKILL)
+    report = Exited.parse(exits.next(timeout=10))
+    assert (report.instance, report.reason) == ("r", "restored")
+    assert flows_again(source, output, 3_000)  # nobody rewired the restored one
+    output.drain()
+    old_source.put(encode(Pose(4_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    source.put(encode(Pose(5_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    later = []
+    with contextlib.suppress(queue.Empty):
+        while True:
+            later.append(decode(output.next(timeout=1.0), expected=Pose).timestamp_ns)
+    assert 5_000 in later and 4_000 not in later  # the input it was started with is unread
+
+
 def sockets(pid: int) -> int:
     """Open sockets of process ``pid`` (``/proc/<pid>/fd`` links to ``socket:``)."""
     links = (os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd"))
     return sum(link.startswith("socket:") for link in links)
 
 
-def test_workers_as_clients_hold_one_link_and_reach_the_hub_when_their_host_manager_dies(hub):
-    """``--workers-as-clients`` (issue 28, "Fewer links"): a container is a zenoh client of
-    its host manager, one socket where a peer links to every other process, and its data
-    flows through the host manager; killed, the host manager no longer carries it, and the
-    container, which outlives it, reaches the network through the hub instead."""
+def test_workers_are_clients_holding_one_link_and_reach_the_hub_when_their_host_manager_dies(
+    hub,
+):
+    """Issue 28, "Fewer links": by default a container is a zenoh client of its host manager,
+    one socket where a peer links to every other process, and its data flows through the host
+    manager; killed, the host manager no longer carries it, and the container, which outlives
+    it, reaches the network through the hub instead."""
     keys = hub.keys
     tokens = hub.tokens()
-    host = hub.host("lab", pool_size=1, options=("--workers-as-clients",))
+    host = hub.host("lab", pool_size=1)
     wait_until(lambda: hub.status("lab")["pool_ready"] == 1, timeout=30)
     group = GroupSpec("lab-0", (relay(keys, "relay1"),))
     ok, reply = hub.ask("lab", encode_request(StartGroup(group)))
@@ -346,15 +382,66 @@ def test_workers_as_clients_hold_one_link_and_reach_the_hub_when_their_host_mana
     assert sockets(reply["pid"]) == 1
     host.kill()
     host.wait(timeout=10)
-    deadline, seen = time.monotonic() + 10, None
-    while seen is None and time.monotonic() < deadline:
-        source.put(encode(Pose(3_000, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
+    assert flows_again(source, output, 3_000)
+    assert running(reply["pid"])
+
+
+def test_workers_as_peers_link_to_every_process(hub):
+    """``--workers-as-peers``: the container is a peer, listening, linked to the hub, the host
+    manager and the test's session besides."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    hub.host("lab", pool_size=0, options=("--workers-as-peers",))
+    ok, reply = hub.ask("lab", encode_request(StartGroup(GroupSpec("lab-0", (relay(keys, "r"),)))))
+    assert ok, reply
+    wait_until(lambda: (PUT, "r") in [(k, i) for k, i, _ in tokens], timeout=30)
+    relayed(hub, "r")
+    assert sockets(reply["pid"]) >= 4  # its listener and a link to each of three peers
+
+
+def test_a_host_manager_outlives_the_agent_that_started_it(hub):
+    """The agent that started a host manager dies (its pipe closes): the host manager serves
+    on, so its client container keeps its route and its data flows, the host manager still
+    takes requests (from the agent's successor), and a second host manager of its name, as a
+    successor agent might start one, waits instead of serving beside it."""
+    keys = hub.keys
+    tokens = hub.tokens()
+    host = hub.host("lab", pool_size=1, as_the_agent_starts_it=True)
+    group = GroupSpec("lab-0", (relay(keys, "relay1"),))
+    ok, reply = hub.ask("lab", encode_request(StartGroup(group)))
+    assert ok, reply
+    wait_until(lambda: (PUT, "relay1") in [(k, i) for k, i, _ in tokens], timeout=30)
+    output, source = relayed(hub, "relay1")
+    pid = hub.status("lab")["pid"]
+
+    host.stdin.close()  # as when the agent that started it dies
+    wait_until(lambda: hub.status("lab")["orphaned"], timeout=10)
+    assert flows_again(source, output, 4_000)
+    assert host.poll() is None and hub.status("lab")["pid"] == pid
+    ok, reply = hub.ask("lab", encode_request(StartGroup(GroupSpec("lab-0", (relay(keys, "r2"),)))))
+    assert ok, reply  # a successor agent's start
+    wait_until(lambda: (PUT, "r2") in [(k, i) for k, i, _ in tokens], timeout=30)
+
+    second = hub.start("-m", "services.host", "--name", "lab", "--pool-size", "0")
+    time.sleep(3.0)  # its imports, then it would serve
+    assert second.poll() is None
+    assert {hub.status("lab")["pid"]} == {pid}  # one host manager answers: the first
+    host.kill()
+    wait_until(lambda: hub.ask("lab", encode_request(Status()))[1].get("pid") == second.pid, 30)
+
+
+def flows_again(source, output: Collector, timestamp_ns: int, timeout: float = 10.0) -> bool:
+    """Whether a pose put on ``source`` (again every 0.2 s) reaches ``output`` within
+    ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        source.put(encode(Pose(timestamp_ns, [0, 0, 0, 1], [1.0, 2.0, 3.0])))
         try:
-            seen = decode(output.next(timeout=0.2), expected=Pose)
+            if decode(output.next(timeout=0.2), expected=Pose).timestamp_ns == timestamp_ns:
+                return True
         except queue.Empty:
             continue
-    assert seen is not None and seen.timestamp_ns == 3_000
-    assert running(reply["pid"])
+    return False
 
 
 def running(pid: int) -> bool:
@@ -366,8 +453,7 @@ def running(pid: int) -> bool:
         return False
 
 
-@pytest.mark.parametrize("death", ["agent_killed", "host_manager_killed"])
-def test_workers_still_starting_when_their_host_manager_dies_exit(hub, death):
+def test_workers_still_starting_when_their_host_manager_dies_exit(hub):
     """Chaos seed 210 (issue 11): the agent was SIGKILLed while its host manager started ten
     workers cold on a loaded machine; its host manager ended with it, and those workers, starved
     of CPU, were still importing 40 s later, never having declared their tokens, while the
@@ -390,10 +476,7 @@ def test_workers_still_starting_when_their_host_manager_dies_exit(hub, death):
         assert ok, started
         os.kill(started["pid"], signal.SIGSTOP)
         starting.append(started["pid"])
-    if death == "agent_killed":
-        host.stdin.close()  # as when the agent that started it dies
-    else:
-        host.kill()
+    host.kill()
     host.wait(timeout=15)
     host.stdin.close()
     for pid in starting:
@@ -512,13 +595,17 @@ def test_the_agent_starts_its_host_manager_again_and_a_clean_stop_ends_every_wor
     (name,) = net.agent_status()["hosts"]
     first = net.status(name)["pid"]
 
-    os.kill(first, signal.SIGKILL)  # its workers keep running, adopted as they are
+    os.kill(first, signal.SIGKILL)  # its workers keep running, adopted as they are: they were
+    # its clients, and reach the network through the hub (their tokens come back within the
+    # agent's REROUTE_S)
     wait_until(lambda: net.ask(name, encode_request(Status()))[1].get("pid") not in (None, first))
     relation.wait_for(timeout=10)  # still flowing
 
     status = net.agent_status()
-    adopted = [i for i, c in status["components"].items() if c["host"] is None]
+    adopted = {i: c for i, c in status["components"].items() if c["host"] is None}
     assert adopted and status["counters"].get("restarts", 0) == 0  # none restarted
+    containers = {c["container"] for c in adopted.values()}
+    assert len(containers) == 1 and None not in containers  # recorded: the orphan's token
     assert workers(net.domain)
 
     agent.send_signal(signal.SIGTERM)

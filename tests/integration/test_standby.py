@@ -3,9 +3,10 @@
 Two agents start together on one domain: one becomes active, the other a standby that changes
 nothing. The active one is SIGKILLed while an application listens: the standby takes over and
 adopts every worker (same processes, none started twice), and the application's stream has no
-gap longer than the whole takeover took (up to its own host manager answering: the one that
-ran ended with the killed agent) and no sample twice. The killed agent, started again, stands
-by; a clean stop of the active agent then hands over to it, again without stopping a worker.
+gap longer than the whole takeover took (up to the host manager answering it: the one the
+killed agent started, which outlives it and which it adopts) and no sample twice. The killed
+agent, started again, stands by; a clean stop of the active agent then hands over to it, again
+without stopping a worker.
 """
 
 from __future__ import annotations
@@ -118,16 +119,16 @@ def host_pid(setup: Setup) -> int | None:
 
 
 def adopted_by(setup: Setup, pid: int, instances: set[str], old_host: int | None) -> bool:
-    """The agent ``pid`` is active, runs exactly ``instances``, all alive, and its own host
-    manager (not ``old_host``, which ended with the agent that started it) answers, ready to
-    start what may end: the whole takeover."""
+    """The agent ``pid`` is active, runs exactly ``instances``, all alive, and the host
+    manager ``old_host`` answers it, ready to start what may end (the killed agent's, which
+    outlives it: adopted, not started again): the whole takeover."""
     status = setup.status()
     return (
         status is not None
         and status["agent"]["id"].endswith(f".{pid}")
         and set(setup.alive_services()) == instances
         and not status["unsolved"]
-        and host_pid(setup) not in (None, old_host)
+        and host_pid(setup) == old_host
     )
 
 

@@ -12,21 +12,24 @@ from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY
 
 def agent_options(*argv: str) -> HostOptions:
     args = build_parser().parse_args(["agent", *argv])
-    return HostOptions(args.pool_size, args.labels, args.capacity)
+    return HostOptions(args.pool_size, args.labels, args.capacity, args.workers_as_peers)
 
 
 def test_the_options_reach_the_host_manager_as_its_own_flags():
-    options = agent_options("--labels", "gpu,camera", "--capacity", "3", "--pool-size", "1")
-    assert options == HostOptions(1, frozenset({"camera", "gpu"}), 3)
+    argv = ("--labels", "gpu,camera", "--capacity", "3", "--pool-size", "1", "--workers-as-peers")
+    options = agent_options(*argv)
+    assert options == HostOptions(1, frozenset({"camera", "gpu"}), 3, workers_as_peers=True)
     host = host_parser().parse_args(options.flags())  # what the embedded host manager is given
-    assert (host.pool_size, host.labels, host.capacity) == (1, frozenset({"camera", "gpu"}), 3)
+    given = (host.pool_size, host.labels, host.capacity, host.workers_as_peers)
+    assert given == (1, frozenset({"camera", "gpu"}), 3, True)
     assert options.problem() is None
 
 
 def test_the_defaults_are_the_host_managers():
     options = agent_options()
     host = host_parser().parse_args([])
-    assert options == HostOptions(host.pool_size, host.labels, host.capacity)
+    assert options == HostOptions(host.pool_size, host.labels, host.capacity, host.workers_as_peers)
+    assert not options.workers_as_peers  # worker processes are the host manager's clients
     assert options.capacity == DEFAULT_CAPACITY and "--labels" not in options.flags()
 
 

@@ -245,7 +245,8 @@ def test_a_vanished_host_manager_restarts_its_instances_that_are_not_alive(world
     start(hosts, spec("a"), "lab")
     start(hosts, spec("b"), "lab")
     session.event(KEYS.all_hosts(), DELETE, KEYS.host("lab"))
-    assert hosts.reap(alive={"a"}) == ["b"]
+    assert hosts.reap(alive={"a"}) == []
+    assert hosts.take_lost() == ["b"] and hosts.take_lost() == []  # for the agent to restart
     assert hosts.placements == {}
     assert not hosts.reports_exit_of("a")  # now watched by its worker token
 
@@ -301,3 +302,25 @@ def test_a_restored_container_keeps_its_components_placed_and_lists_them(world):
     assert hosts.reap({"a", "b"}) == []  # nothing to start again
     assert hosts.restored == {"a": 99, "b": 99}
     assert hosts.placements["a"].pid == 99 and hosts.reports_exit_of("a")
+
+
+def test_the_container_of_a_component_whose_host_manager_is_gone_comes_from_its_token(world):
+    """A component adopted in a container whose host manager died (no placement) is recorded
+    in that container: the process of one of its incarnations runs it (its container token)."""
+    session, hosts, counters = world
+    session.answers["lab"] = started
+    host_appears(session, hosts, "lab")
+    start(hosts, spec("a"), "lab")
+    assert hosts.container_of("a", ["7.aaaa"]) == "lab-0"  # placed: the start's reply says
+    session.event(KEYS.all_hosts(), DELETE, KEYS.host("lab"))
+    session.event(KEYS.all_containers(), PUT, KEYS.container("lab-0", "7.cccc"))
+    session.event(KEYS.all_containers(), PUT, KEYS.container("other-0", "9.dddd"))
+    session.event(KEYS.all_containers(), PUT, "ubitrack/test/container/a b/1.x")
+    hosts.reap(alive={"a"})
+    assert hosts.placements == {}
+    assert hosts.container_of("a", ["7.aaaa"]) == "lab-0"
+    assert hosts.container_of("b", ["8.bbbb"]) is None  # a process of its own
+    assert counters["rejected_container_keys"] == 1
+    session.event(KEYS.all_containers(), DELETE, KEYS.container("lab-0", "7.cccc"))
+    hosts.reap(alive={"a"})
+    assert hosts.container_of("a", ["7.aaaa"]) is None

@@ -8,7 +8,7 @@ from collections import Counter, defaultdict
 from types import SimpleNamespace
 
 from ubitrack_agent.agent.hosts import Placement
-from ubitrack_agent.agent.runtime import Agent
+from ubitrack_agent.agent.runtime import REROUTE_S, Agent
 from ubitrack_agent.agent.stamps import Stamps
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeySpace
@@ -29,6 +29,7 @@ def agent(placements: dict[str, Placement] | None = None) -> tuple[Agent, list]:
     bare._duplicate_stops = {}
     bare._held = {}
     bare._retiring = {}
+    bare._unrouted = {}
     bare.wanted = {}
     bare.stamps = Stamps()
     placed = dict(placements or {})
@@ -47,7 +48,29 @@ def test_a_late_removal_of_an_earlier_process_token_leaves_the_current_one_alive
     assert bare.counters["earlier_incarnation_removals"] == 1
     assert bare.counters["restarts"] == 0
     bare._on_worker("concat-1", "200.bbbb", appeared=False)  # now it is gone
-    assert "concat-1" not in bare.alive and bare.counters["restarts"] == 1
+    assert "concat-1" not in bare.alive
+    bare._unrouted["concat-1"] = 0.0  # REROUTE_S is over: its token did not come back
+    bare._restart_unrouted()
+    assert bare.counters["restarts"] == 1 and "concat-1" not in bare.running
+
+
+def test_a_worker_back_within_the_reroute_time_is_not_started_again(monkeypatch):
+    """Its host manager died and it was that manager's client: its token vanishes, then comes
+    back through the hub (``REROUTE_S``); it keeps running, adopted as it is."""
+    clock = [50.0]
+    monkeypatch.setattr("ubitrack_agent.agent.runtime.time.monotonic", lambda: clock[0])
+    bare, _ = agent()
+    bare.running["concat-1"] = "spec"
+    bare._on_worker("concat-1", "100.aaaa", appeared=True)
+    bare._on_worker("concat-1", "100.aaaa", appeared=False)
+    clock[0] += REROUTE_S / 2
+    bare._restart_unrouted()
+    assert bare.running == {"concat-1": "spec"}  # not yet
+    bare._on_worker("concat-1", "100.aaaa", appeared=True)  # declared again, through the hub
+    clock[0] += REROUTE_S
+    bare._restart_unrouted()
+    assert bare.running == {"concat-1": "spec"} and bare.counters["restarts"] == 0
+    assert bare._unrouted == {}
 
 
 def test_a_duplicate_is_stopped_alone_keeping_the_placed_process():
@@ -90,7 +113,11 @@ def test_a_held_rewire_of_a_worker_that_ended_is_dropped():
     bare.running = {"concat-1": "spec"}
     bare._rewire("concat-1", {"inputs": []}, wait=True)
     bare._on_worker("concat-1", "100.aaaa", appeared=True)
-    bare._on_worker("concat-1", "100.aaaa", appeared=False)  # it vanished: started afresh
+    bare._on_worker("concat-1", "100.aaaa", appeared=False)  # it vanished
+    bare._retire()
+    assert puts == []  # not sent to a worker that is not alive
+    bare._unrouted["concat-1"] = 0.0  # and it did not come back: started afresh
+    bare._restart_unrouted()
     bare._retire()
     assert puts == [] and bare._held == {}
 

@@ -9,11 +9,13 @@ from types import SimpleNamespace
 import pytest
 import zenoh
 
-from services.host_manager import HostManager
+from services.host import ORPHAN_END_S
+from services.host_manager import HostManager, rewired
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import HostInfo, Start, Status, encode_request
+from ubitrack_agent.net.json_messages import MessageError
 from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError, parse_spec
 
 KEYS = KeySpace("ubitrack/test")
 
@@ -201,3 +203,67 @@ def test_a_fault_handling_a_pool_token_is_counted_not_raised(manager, monkeypatc
     manager.stop()
     thread.join(timeout=5)
     assert manager.counters["internal_errors"] == 2 and not thread.is_alive()
+
+
+def test_an_orphaned_host_manager_ends_only_once_unneeded(manager, monkeypatch):
+    """Started by an agent that is gone, it serves on while it runs a component or sees an
+    active agent (the successor that adopts it), and ends after ``ORPHAN_END_S`` of neither."""
+    clock = [100.0]
+    monkeypatch.setattr("services.host_manager.time.monotonic", lambda: clock[0])
+    manager._end_if_unneeded()
+    clock[0] += ORPHAN_END_S + 1
+    manager._end_if_unneeded()
+    assert not manager._stop.is_set()  # not orphaned: its agent runs
+    manager.orphan()
+    active = f"{KEYS.all_active_agents().replace('*', 'a1')}"
+    manager._handle("agent", ("SampleKind.PUT", active))
+    for _ in range(3):
+        manager._end_if_unneeded()
+        clock[0] += ORPHAN_END_S
+    assert not manager._stop.is_set()  # an active agent (its successor) uses it
+    manager._handle("agent", ("SampleKind.DELETE", active))
+    monkeypatch.setattr(manager.supervisor, "assigned", {"relay-a": object()})
+    for _ in range(3):
+        manager._end_if_unneeded()
+        clock[0] += ORPHAN_END_S
+    assert not manager._stop.is_set()  # a component runs: its applications' data flows on
+    monkeypatch.setattr(manager.supervisor, "assigned", {})
+    manager._end_if_unneeded()
+    clock[0] += ORPHAN_END_S - 1
+    manager._end_if_unneeded()
+    assert not manager._stop.is_set()
+    clock[0] += 2
+    manager._end_if_unneeded()
+    assert manager._stop.is_set() and manager.counters["ended_unneeded"] == 1
+    manager._handle("agent", ("SampleKind.PUT", "ubitrack/test/agents/a b/active"))
+    assert manager.counters["rejected_agent_keys"] == 1
+
+
+def test_a_rewire_changes_the_specification_a_restore_goes_by():
+    """The control commands the agent sends a component (inputs, relations, parameters) are
+    what its host manager restores it with; a stop or a refused command changes nothing."""
+    spec = parse_spec(json.dumps(SPEC))
+    inputs = [{"port": "in", "key": "ubitrack/test/data/src/other", "trigger": True}]
+    relations = {"out": ["ubitrack/test/relation/A/B/6D"]}
+    current = rewired(spec, json.dumps({"inputs": inputs, "relations": relations}).encode())
+    assert current.inputs[0].key == "ubitrack/test/data/src/other"
+    assert current.relations == {"out": ("ubitrack/test/relation/A/B/6D",)}
+    assert (current.outputs, current.service) == (spec.outputs, spec.service)
+    assert rewired(current, b'{"stop": true}') == current
+    for refused in (b'{"inputs": [{"port": "nope", "key": "a/b"}]}', b'{"evil": 1}', b"[1]"):
+        with pytest.raises((SpecError, MessageError)):
+            rewired(current, refused)
+
+
+def test_the_host_manager_follows_rewires_of_its_components(manager, monkeypatch):
+    spec = parse_spec(json.dumps(SPEC))
+    monkeypatch.setattr(manager.supervisor, "assigned", {})
+    manager.supervisor.assigned["r1"] = SimpleNamespace(spec=spec)
+    inputs = [{"port": "in", "key": "ubitrack/test/data/src/other", "trigger": True}]
+    manager._handle("control", (KEYS.control("r1"), json.dumps({"inputs": inputs}).encode()))
+    assert manager.supervisor.spec_of("r1").inputs[0].key == "ubitrack/test/data/src/other"
+    manager._handle("control", (KEYS.control("r1"), b"{garbage"))
+    manager._handle("control", (KEYS.control("elsewhere"), json.dumps({"inputs": []}).encode()))
+    assert manager.counters["rewires_followed"] == 1
+    assert manager.counters["ignored_rewires"] == 1
+    assert manager.counters.get("internal_errors", 0) == 0

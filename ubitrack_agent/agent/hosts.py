@@ -36,6 +36,7 @@ from __future__ import annotations
 import logging
 import queue
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -100,6 +101,7 @@ class Hosts:
         still run."""
         self._info_due: dict[str, float] = {}
         self.placements: dict[str, Placement] = {}
+        self._lost: list[str] = []
         self.restored: dict[str, int] = {}
         """Instances whose container died and was restored by its host manager, with the new
         process's pid: the agent takes them (and sends each its current wiring)."""
@@ -115,6 +117,13 @@ class Hosts:
         self._exits = session.declare_subscriber(
             keys.all_host_exits(),
             lambda s: self._events.put(("exited", str(s.key_expr), s.payload.to_bytes())),
+        )
+        self._containers: dict[str, str] = {}
+        """The container each container process runs, by pid (from the containers' tokens)."""
+        self._container_watch = session.liveliness().declare_subscriber(
+            keys.all_containers(),
+            lambda s: self._events.put(("container", str(s.key_expr), str(s.kind).encode())),
+            history=True,
         )
 
     def reports_exit_of(self, instance: str) -> bool:
@@ -253,6 +262,9 @@ class Hosts:
             if kind == "info":
                 self._on_info(key, payload)
                 continue
+            if kind == "container":
+                self._on_container(key, payload.decode() == PUT)
+                continue
             token = self._keys.parse_token("host_exited" if kind == "exited" else "host", key)
             if isinstance(token, KeyRejection):
                 self._problems.report(
@@ -261,7 +273,7 @@ class Hosts:
             elif kind == "exited":
                 ended += self._on_exited(token.name, payload)
             else:
-                ended += self._on_host(token.name, kind == PUT, alive)
+                self._on_host(token.name, kind == PUT, alive)
         self._ask_info()
         return ended
 
@@ -288,18 +300,45 @@ class Hosts:
         if info.clock is not None:
             self._clocks[host] = (info.clock, time.monotonic())
 
+    def _on_container(self, key: str, appeared: bool) -> None:
+        """A container's token: which container its process runs."""
+        token = self._keys.parse_token("container", key)
+        if isinstance(token, KeyRejection):
+            self._problems.report(
+                token.counter, "ignored %s key %r: %s", token.kind, token.key, token.reason
+            )
+            return
+        pid = token.incarnation.partition(".")[0]
+        if appeared:
+            self._containers[pid] = token.name
+        elif self._containers.get(pid) == token.name:
+            del self._containers[pid]
+
+    def container_of(self, instance: str, incarnations: Iterable[str]) -> str | None:
+        """The container ``instance`` runs in: its placement's, else (a component adopted
+        from a container whose host manager is gone) that of a process among its
+        ``incarnations`` (``<pid>.<nonce>``) whose container token is up. O(incarnations)."""
+        placement = self.placements.get(instance)
+        if placement is not None and placement.container is not None:
+            return placement.container
+        for incarnation in incarnations:
+            container = self._containers.get(incarnation.partition(".")[0])
+            if container is not None:
+                return container
+        return None
+
     def clocks(self) -> dict[str, ClockEstimate]:
         """Each host's latest clock estimate, aged since it came (its uncertainty grows with the
         drift the clocks may have had: ``ClockEstimate.aged``)."""
         now = time.monotonic()
         return {host: clock.aged(now - at) for host, (clock, at) in self._clocks.items()}
 
-    def _on_host(self, host: str, appeared: bool, alive: set[str]) -> list[str]:
+    def _on_host(self, host: str, appeared: bool, alive: set[str]) -> None:
         if appeared:
             self.live.add(host)
             self._waiting = False
             log.info("host manager %s is alive", host)
-            return []
+            return
         self.live.discard(host)
         self.info.pop(host, None)
         self._info_due.pop(host, None)
@@ -309,7 +348,14 @@ class Hosts:
             del self.placements[instance]
         if lost:  # those still alive run elsewhere (a move's old process): ask where now
             self._info_due.clear()
-        return [instance for instance in lost if instance not in alive]
+        self._lost += [instance for instance in lost if instance not in alive]
+
+    def take_lost(self) -> list[str]:
+        """The instances whose host manager vanished while their token was down, since last
+        asked: a process that was the host manager's client may come back through the hub
+        (the agent waits a moment before it starts them again)."""
+        lost, self._lost = self._lost, []
+        return lost
 
     def _on_exited(self, host: str, payload: bytes) -> list[str]:
         try:
@@ -334,6 +380,7 @@ class Hosts:
     def close(self) -> None:
         self._watch.undeclare()
         self._exits.undeclare()
+        self._container_watch.undeclare()
 
 
 def _parts(specs: list[ComponentSpec]) -> list[tuple[ComponentSpec, ...]]:

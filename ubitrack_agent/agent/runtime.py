@@ -115,6 +115,13 @@ stopping workers."""
 ORPHAN_GRACE_S = 2.0
 """A worker alive that no plan wants is stopped only after it has been unwanted this long
 (and start-up has settled): the fragment that makes it wanted may still be on its way."""
+REROUTE_S = 0.25
+"""A component whose token vanished with no host manager to report its end (say, its host
+manager died with it) is started again only if its token has not come back within this long: a
+worker process that was a client of its host manager reaches the network through the hub and
+declares its token again (gone for 2-8 ms in 5 trials at a load of 9-10: ``python -m
+bench.reroute_bench``, ``docs/services.md``, "Links"). A machine that is lost costs this much
+more before its components start elsewhere."""
 STOP_RESEND_S = 1.0
 """A stop put on a worker's control key by the agent is put again this often while the
 worker's token stays up."""
@@ -213,6 +220,9 @@ class Agent:
         self._restored: dict[str, int] = {}
         """Components whose container was restored, with its new pid: their current wiring is
         sent once their token from that process is up."""
+        self._unrouted: dict[str, float] = {}
+        """Components whose token vanished with no host manager to report their end, until
+        when they may come back before they are started again (``REROUTE_S``)."""
         self._events: queue.SimpleQueue[tuple[str, str, str, int]] = queue.SimpleQueue()
         """Liveliness events: kind, change, key and when zenoh handed it over (wall clock)."""
         self._stop = threading.Event()
@@ -333,11 +343,23 @@ class Agent:
         self._stopped.pop(instance, None)
         if self.hosts.reports_exit_of(instance):
             return False  # its host manager reports when the process ends: that restarts it
-        self._held.pop(instance, None)
-        if self.running.pop(instance, None) is not None:
-            self.counters["restarts"] += 1
-            log.warning("%s: worker vanished, starting it again", instance)
+        if instance in self.running:
+            self._unrouted.setdefault(instance, time.monotonic() + REROUTE_S)
         return False
+
+    def _restart_unrouted(self) -> None:
+        """Start again the components whose token vanished with no host manager to report
+        their end and has not come back within ``REROUTE_S``."""
+        now = time.monotonic()
+        for instance, deadline in list(self._unrouted.items()):
+            if instance in self.alive or instance not in self.running:
+                del self._unrouted[instance]  # back (through another link), or not wanted
+            elif now > deadline:
+                del self._unrouted[instance]
+                self._held.pop(instance, None)
+                del self.running[instance]
+                self.counters["restarts"] += 1
+                log.warning("%s: worker vanished, starting it again", instance)
 
     def _claim_unknown_workers(self) -> None:
         """Workers alive but not run by this agent (an earlier agent's, or one stopped that is
@@ -893,12 +915,17 @@ class Agent:
         return [event for event in batch if event is not PLANNED]
 
     def _reap_hosts(self) -> None:
-        """Apply host managers' tokens and exit reports: forget the instances that ended; send
-        the components of a restored container their current wiring once they are back."""
+        """Apply host managers' tokens and exit reports: forget the instances that ended (those
+        lost with their host manager after ``REROUTE_S``); send the components of a restored
+        container their current wiring once they are back."""
         for instance in self.hosts.reap(self.alive):
             self._held.pop(instance, None)
             if self.running.pop(instance, None) is not None:
                 self.counters["restarts"] += 1
+        for instance in self.hosts.take_lost():
+            if instance in self.running:
+                self._unrouted.setdefault(instance, time.monotonic() + REROUTE_S)
+        self._restart_unrouted()
         restored, self.hosts.restored = self.hosts.restored, {}
         for instance, pid in restored.items():
             if instance in self.running:
@@ -959,7 +986,9 @@ class Agent:
                     "processes": sorted(self.incarnations.get(instance, ())),
                     "host": placement.host if (placement := placements.get(instance)) else None,
                     "pid": placement.pid if placement else None,
-                    "container": placement.container if placement else None,
+                    "container": self.hosts.container_of(
+                        instance, self.incarnations.get(instance, ())
+                    ),
                     "derives": _derived_edges(plan, instance),
                 }
                 for instance, spec in self.wanted.items()

@@ -1,6 +1,8 @@
 """``ubitrack agent``: run the live agent (the zenoh hub of the embedded default), with a host
 manager for its own machine as a child process unless ``--no-host``; that host manager takes
-the capacity options of ``ubitrack host`` (``--pool-size``, ``--labels``, ``--capacity``)."""
+the capacity options of ``ubitrack host`` (``--pool-size``, ``--labels``, ``--capacity``,
+``--workers-as-peers``). A host manager of its machine that runs already (an earlier agent's,
+which outlives it, or one run on its own) is adopted instead of starting another."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import logging
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -26,6 +29,9 @@ HOST_EXIT_S = 10.0
 period) before it is killed itself."""
 HOST_RESTART_S = 1.0
 """Pause before starting the host manager again when it ended on its own."""
+HOST_CHECK_S = 1.0
+"""How often the active agent asks whether its machine's host manager serves (an adopted one
+may end: then it starts its own)."""
 INVALID_OPTIONS = 2
 """Exit status of a host manager given invalid options (it is not started again)."""
 
@@ -68,6 +74,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         f"hosts (as `ubitrack host --capacity`; default: %(default)s, 1 to {MAX_CAPACITY})",
     )
     parser.add_argument(
+        "--workers-as-peers",
+        action="store_true",
+        help="its host manager's worker processes join the network as zenoh peers, each linked "
+        "to every other process, instead of clients of the host manager (as `ubitrack host "
+        "--workers-as-peers`)",
+    )
+    parser.add_argument(
         "--quiet",
         action="store_true",
         help="no status line (every 10 s: role, queries, workers alive, reconfigurations, the "
@@ -89,10 +102,12 @@ class HostOptions:
     pool_size: int = DEFAULT_POOL_SIZE
     labels: frozenset[str] = frozenset()
     capacity: int = DEFAULT_CAPACITY
+    workers_as_peers: bool = False
 
     def flags(self) -> list[str]:
         """The host manager's command-line flags for these options."""
         flags = ["--pool-size", str(self.pool_size), "--capacity", str(self.capacity)]
+        flags += ["--workers-as-peers"] if self.workers_as_peers else []
         return [*flags, "--labels", ",".join(sorted(self.labels))] if self.labels else flags
 
     def problem(self) -> str | None:
@@ -107,15 +122,16 @@ class HostOptions:
 class EmbeddedHost:
     """The host manager for this machine (``python -m services.host``), joined to the agent's
     network, started again if it ends while the agent runs. Its standard input is a pipe from
-    this process, so it ends when the agent dies, leaving the assigned workers running for a
-    restarted agent to adopt (its idle pool workers end with it)."""
+    this process: when the agent dies (or stands by) the host manager serves on, with its
+    workers and warm pool, for the agent's successor to adopt (``services.host``,
+    ``--started-by-agent``)."""
 
     def __init__(self, settings: config.Settings, options: HostOptions, log_level: str) -> None:
         self._command = [
             sys.executable,
             "-m",
             "services.host",
-            "--exit-when-stdin-closes",
+            "--started-by-agent",
             "--quiet",  # the agent's status line counts its workers
             *options.flags(),
             "--log-level",
@@ -149,20 +165,19 @@ class EmbeddedHost:
         signal handler: takes no lock)."""
         self._stopping.set()
 
-    def stop(self) -> None:
-        """End the host manager, which ends every worker it started."""
-        self._end(subprocess.Popen.terminate)
-
     def abandon(self) -> None:
-        """End the host manager as if the agent had died (its standard input closes): it leaves
-        the assigned workers running for a restarted agent to adopt."""
-        self._end(lambda process: process.stdin.close())
-
-    def _end(self, how: Callable[[subprocess.Popen], None]) -> None:
+        """Leave the host manager as if the agent had died (its standard input closes): it
+        serves on for the agent's successor, and ends once unneeded."""
         with self._lock:  # no start is under way, and none follows
             self._stopping.set()
+            self.process.stdin.close()
+
+    def stop(self) -> None:
+        """End the host manager, which ends every worker it started."""
+        with self._lock:
+            self._stopping.set()
             process = self.process
-        how(process)
+        process.terminate()
         try:
             process.wait(timeout=HOST_EXIT_S)
         except subprocess.TimeoutExpired:
@@ -190,20 +205,50 @@ def status_line(status: dict[str, Any]) -> str:
 
 class HostWhileActive:
     """The agent's :class:`EmbeddedHost`, run while the agent is the active one of its domain
-    (``agent.election``): a standby's host manager would answer the active agent's requests
-    under the same host name. Stepping down abandons it (the workers keep running)."""
+    (``agent.election``) and no host manager of its machine's name serves already (``serving``:
+    an earlier agent's, which outlives it, is adopted with its workers and warm pool; asked
+    again every ``HOST_CHECK_S``). A standby's host manager would answer the active agent's
+    requests under the same host name; stepping down leaves it (it serves on for the agent
+    that takes over)."""
 
     def __init__(self, settings: config.Settings, options: HostOptions, log_level: str) -> None:
         self._options = (settings, options, log_level)
         self._stopping = False
+        self._active = False
+        self._adopted = False
+        self._lock = threading.Lock()
+        self.serving: Callable[[], bool] = lambda: False
+        """Whether a host manager of this machine's name serves (set once the agent runs)."""
         self.host: EmbeddedHost | None = None
+        threading.Thread(target=self._keep_one, daemon=True).start()
 
     def on_role(self, active: bool) -> None:
-        if active and self.host is None and not self._stopping:
-            self.host = EmbeddedHost(*self._options)
-        elif not active and self.host is not None:
-            self.host.abandon()
-            self.host = None
+        with self._lock:
+            self._active = active
+            if active:
+                self._start_unless_served()
+            elif self.host is not None:
+                self.host.abandon()
+                self.host = None
+
+    def _keep_one(self) -> None:
+        while not self._stopping:
+            time.sleep(HOST_CHECK_S)
+            with self._lock:
+                if self._active:
+                    self._start_unless_served()
+
+    def _start_unless_served(self) -> None:
+        """Start the host manager if none serves this machine's name (under the lock)."""
+        if self.host is not None or self._stopping:
+            return
+        if self.serving():
+            if not self._adopted:
+                log.info("the host manager of this machine runs already: using it")
+                self._adopted = True
+            return
+        self._adopted = False
+        self.host = EmbeddedHost(*self._options)
 
     def stop_restarting(self) -> None:
         """Safe in a signal handler (see :meth:`EmbeddedHost.stop_restarting`)."""
@@ -212,9 +257,11 @@ class HostWhileActive:
             self.host.stop_restarting()
 
     def end(self, keep_workers: bool) -> None:
-        """End the host manager: its workers keep running if ``keep_workers``."""
-        if self.host is not None:
-            self.host.abandon() if keep_workers else self.host.stop()
+        """End the host manager, or with ``keep_workers`` leave it serving them. An adopted one
+        is left: the agent stopped its components, and it ends once unneeded."""
+        with self._lock:
+            if self.host is not None:
+                self.host.abandon() if keep_workers else self.host.stop()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -229,7 +276,7 @@ def run(args: argparse.Namespace) -> int:
     except (config.ConfigError, TemplateError) as exc:
         print(f"ubitrack agent: {exc}", file=sys.stderr)
         return 2
-    options = HostOptions(args.pool_size, args.labels, args.capacity)
+    options = HostOptions(args.pool_size, args.labels, args.capacity, args.workers_as_peers)
     if (problem := options.problem()) is not None:
         print(f"ubitrack agent: {problem}", file=sys.stderr)
         return 2
@@ -239,6 +286,8 @@ def run(args: argparse.Namespace) -> int:
     except zenoh.ZError as exc:
         print(f"ubitrack agent: cannot open zenoh on {settings.listen}: {exc}", file=sys.stderr)
         return 2
+    if host is not None:
+        host.serving = lambda: settings.host_name in agent.hosts.live
 
     def stop() -> None:
         if host is not None:

@@ -38,5 +38,5 @@ def run(args: argparse.Namespace) -> int:
         capacity=args.capacity,
         cores=args.cores,
         isolate=args.isolate,
-        workers_as_clients=args.workers_as_clients,
+        workers_as_peers=args.workers_as_peers,
     )
