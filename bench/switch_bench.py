@@ -18,9 +18,13 @@ among those the state allows:
 * **camera off** / **camera back**: the camera's simulator stopped / started; fused to A.R.T.
   only and back;
 * **worker killed**: the process running the fusion component (its container, with the other
-  components it holds) SIGKILLed while both sensors run; its host manager restores it.
+  components it holds) SIGKILLed while both sensors run; its host manager restores it;
+* **better tracker joins** / **leaves**: a second A.R.T.-like tracker, placed elsewhere in the
+  room and with a third of the position noise (:func:`better_tracker`), started while both
+  sensors run and stopped before anything else happens: fused from two estimates to three and
+  back.
 
-After each event the bench waits until the flow has the fusion component or not, as the new
+After each event the bench waits until the flow has a fusion component or not, as the new
 state wants, then for a time drawn from ``--dwell``. The simulator's truth is used only to
 print errors (the system gets nothing from it).
 
@@ -34,7 +38,8 @@ freedom, 20.06), the mean NEES against its 95 % interval (``n`` samples: chi-squ
 the largest gap between arrivals of samples passed on, from 0.5 s before to 1 s after the event
 (ms and frames of the faster sensor), and duplicates (a timestamp seen before) and out-of-order
 samples on the wire.
-The steady state of each flow (fused, camera only, A.R.T. only) is every sample stamped from
+The steady state of each flow (fused, camera only, A.R.T. only, fused with the better tracker)
+is every sample stamped from
 1.5 s after an event to the next event: its p99 errors are the issue's bound for a switch
 between two flows (the larger of the two).
 """
@@ -58,9 +63,12 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
+import yaml
 from scipy.stats import chi2
 
+from bench.calibrated_tracking_bench import scenario_with_true_calibration
 from bench.fusion_latency_bench import (
+    _free_port,
     components,
     demo_world,
     errors,
@@ -69,7 +77,8 @@ from bench.fusion_latency_bench import (
 )
 from bench.steady_state import wait_for_warm_pool
 from bench.synthetic import left_error
-from ubitrack_agent.commands.demo import Processes
+from sim_trackers.scenario import load_scenario
+from ubitrack_agent.commands.demo import Processes, dtrack_flags, simulator_arguments
 from ubitrack_agent.core import decode
 from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.io.application import Relation
@@ -88,14 +97,47 @@ STEADY_AFTER_S = 1.5
 """Samples stamped this long after an event and before the next count as the steady state."""
 THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
 """NEES of a 6D error "beyond 3 sigma": the chi-square quantile of a 3-sigma probability."""
-KINDS = ("A.R.T. off", "A.R.T. back", "camera off", "camera back", "worker killed")
-PROCESSES = {"art": ("sim art", "dtrack"), "camera": ("sim camera",)}
-"""The processes of each sensor: the A.R.T. tracker's simulator and its DTrack adapter."""
+KINDS = (
+    "A.R.T. off",
+    "A.R.T. back",
+    "camera off",
+    "camera back",
+    "worker killed",
+    "better tracker joins",
+    "better tracker leaves",
+)
+SENSORS = {"A.R.T.": "art", "camera": "camera", "better tracker": "better"}
+"""The sensor each kind of event stops or starts, by the kind's first words."""
+PROCESSES = {
+    "art": ("sim art", "dtrack"),
+    "camera": ("sim camera",),
+    "better": ("sim better", "dtrack better"),
+}
+"""The processes of each sensor: a tracker's simulator and its DTrack adapter."""
 FLOWS = {  # sensors running -> the flow serving C->A
     frozenset({"art", "camera"}): "fused",
     frozenset({"camera"}): "camera only",
     frozenset({"art"}): "A.R.T. only",
+    frozenset({"art", "camera", "better"}): "fused with the better tracker",
 }
+ALLOWED = {
+    frozenset({"art", "camera"}): (
+        "A.R.T. off",
+        "camera off",
+        "worker killed",
+        "better tracker joins",
+    ),
+    frozenset({"camera"}): ("A.R.T. back",),
+    frozenset({"art"}): ("camera back",),
+    frozenset({"art", "camera", "better"}): ("better tracker leaves",),
+}
+"""The events each state allows: from two sensors one leaves, the fusion's container is
+killed or the better tracker joins; from one, the other comes back; the better tracker leaves
+before anything else happens."""
+BETTER = {"frame": "ART2", "translation": [0.4, -1.8, 2.2], "euler_deg": [0, 0, 35]}
+"""Where the better tracker hangs in the room (child of ART)."""
+BETTER_NOISE = {"position_mm": 0.1, "rotation_deg": 0.02}
+"""Its noise: a third of the A.R.T. tracker's position noise, under half its rotation noise."""
 
 
 @dataclass
@@ -184,12 +226,8 @@ def kill_fusion(session: Any, keys: KeySpace) -> bool:
 
 
 def next_kind(rng: random.Random, running: frozenset[str], done: Counter, wanted: int) -> str:
-    """An event the state allows, drawn among the kinds done least so far."""
-    allowed = {
-        frozenset({"art", "camera"}): ("A.R.T. off", "camera off", "worker killed"),
-        frozenset({"camera"}): ("A.R.T. back",),
-        frozenset({"art"}): ("camera back",),
-    }[running]
+    """An event the state allows (:data:`ALLOWED`), drawn among the kinds done least so far."""
+    allowed = ALLOWED[running]
     fewest = min(done[k] for k in allowed)
     return rng.choice([k for k in allowed if done[k] == fewest and done[k] < wanted] or allowed)
 
@@ -202,6 +240,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     wire, children = Wire(), Processes()
     with tempfile.TemporaryDirectory() as scratch:
         scenario, commands = demo_world(Path(scratch), args.seed, member)
+        commands |= better_tracker(Path(scratch), args.seed, member)
 
         def start(sensor: str) -> None:
             for name in PROCESSES[sensor]:
@@ -232,16 +271,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     if kind == "worker killed":
                         if not kill_fusion(session, keys):
                             raise RuntimeError("no fusion component to kill")
-                    elif kind.endswith("off"):
-                        sensor = "art" if kind.startswith("A.R.T.") else "camera"
-                        stop(sensor)
-                        running = running - {sensor}
                     else:
-                        sensor = "art" if kind.startswith("A.R.T.") else "camera"
-                        start(sensor)
-                        running = running | {sensor}
+                        sensor = next(v for k, v in SENSORS.items() if kind.startswith(k))
+                        if kind.endswith(("off", "leaves")):
+                            stop(sensor)
+                            running = running - {sensor}
+                        else:
+                            start(sensor)
+                            running = running | {sensor}
                     done[kind] += 1
-                    wait_for_services(session, keys, present=len(running) == 2)
+                    wait_for_services(session, keys, present=len(running) >= 2)
                     time.sleep(rng.uniform(*args.dwell))
                     events.append({"kind": kind, "at_ns": at, "from": before, "to": FLOWS[running]})
                     print(f"{len(events):3d} {kind:13s} {before} -> {FLOWS[running]}", flush=True)
@@ -250,6 +289,26 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         finally:
             children.stop_all()
         return summarise(events, wire, scenario, counters)
+
+
+def better_tracker(scratch: Path, seed: int, member: list[str]) -> dict[str, list[str]]:
+    """The ``ubitrack`` arguments of a second, better A.R.T.-like tracker (:data:`BETTER`,
+    :data:`BETTER_NOISE`) that tracks the same bodies: its own scenario (the demo's world with
+    its frame added, its tracker section instead of the A.R.T.'s), simulator and DTrack
+    adapter (``sim better``, ``dtrack better``)."""
+    document = yaml.safe_load(scenario_with_true_calibration(scratch).read_text())
+    frame, placement = BETTER["frame"], {k: v for k, v in BETTER.items() if k != "frame"}
+    document["frames"][frame] = {"parent": "ART", **placement}
+    port = _free_port("udp")
+    document["art"] |= {"provider": frame, "frame": frame, "port": port, "noise": BETTER_NOISE}
+    path = scratch / "better_tracker.yaml"
+    path.write_text(yaml.safe_dump(document))
+    art = load_scenario(str(path)).art
+    flag = ["--scenario", str(path)]
+    return {
+        "sim better": simulator_arguments(flag, port, seed + 2)["sim art"],
+        "dtrack better": ["dtrack", "--quiet", *dtrack_flags(art, port), *member],
+    }
 
 
 def summarise(
