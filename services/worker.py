@@ -75,7 +75,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from services.expansion import BatchProgress, TimeAccumulator
-from services.local_wires import LocalSubscription, LocalWires, finite
+from services.local_wires import Handed, LocalSubscription, LocalWires, deliver, finite
 from services.parent import Parent
 from services.registry import Pushed, Service, lookup
 from services.spec import check_bindings, check_parameters, check_relations, check_spec
@@ -186,6 +186,9 @@ LATENCY_SAMPLES = 64
 HANDLING_GAIN = 0.05
 """Weight of the latest sample in the running mean of the time to handle one (``handling_us``
 in the status)."""
+TIME_EVERY = 8
+"""One delivery of samples in this many is timed for ``handling_us`` (reading the clock twice
+costs a hop in a container about 2 % more)."""
 IDLE_S = 1.0
 """Longest the worker thread waits when nothing is due: commands, a trigger held, a stop and
 a subscriber appearing for an output read in the container wake it (``Worker.step``); every
@@ -249,6 +252,20 @@ class _Input:
     """The measurement types its port takes."""
     level: str
     """Its samples' validation level: ``WORKER`` from a known worker, else ``FULL``."""
+    latency: deque[int]
+    """Its key's latest latencies (``Worker._latency``)."""
+    seen: bool
+    """Whether its key's first sample is stamped (``Worker._first_samples``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Route:
+    """Where an output port's values go: its data key, the publishers of its data key and
+    relation keys (the data key's first), and those of its relation keys alone."""
+
+    key: str
+    publishers: tuple[LatestValuePublisher, ...]
+    relations: tuple[LatestValuePublisher, ...]
 
 
 class Worker:
@@ -275,7 +292,9 @@ class Worker:
         produces are handed its values as objects, and outputs read there are handed over
         (``services.local_wires``); zenoh carries an output only where something outside the
         process reads it."""
-        self._flush: Callable[[], None] = (lambda: None) if wires is None else wires.flush
+        self._handed: Handed = []
+        """Hand-overs to readers in the container queued under ``_lock``, taken before it is
+        released and delivered after (``services.local_wires``)."""
         self._outgoing: deque[tuple[tuple[LatestValuePublisher, ...], Measurement | bytes]]
         self._outgoing = deque()
         """The puts for readers outside the process, in the order the outputs were published
@@ -289,6 +308,10 @@ class Worker:
         self.clock = clock or Clock()
         """This host's clock (``Settings.clock_offset_ms`` applied), for samples stamped
         ahead of it."""
+        self._now_ns = self.clock.now_ns
+        self._space = spec.expansion == "space"
+        self._tolerance_ns = spec.tolerance_ns
+        """The specification's, read on every sample (no control command changes them)."""
         self.pool_counters = pool_counters
         """The counters of the pool this process belongs to, if any (shown in status)."""
         self.keys = keys
@@ -310,14 +333,10 @@ class Worker:
         self._wakes_at = -math.inf
         """When the worker thread wakes next unless woken (monotonic; minus infinity while it
         is awake: it looks at the triggers held before it waits again)."""
-        self._on_sample_guarded = self._guarded(self._on_sample)
-        self._on_value_guarded = self._guarded(self._on_value)
-        self._deliver_guarded = self._guarded(self._deliver)
-        self._deliver_values_guarded = self._guarded(self._deliver_values)
-        self._on_run_guarded = self._guarded(self._on_run)
-        self._on_value_run_guarded = self._guarded(self._on_value_run)
         self._handling_s = 0.0
-        """Running mean of the time to handle a sample (seconds)."""
+        """Running mean of the time to handle a sample (seconds), over every
+        :data:`TIME_EVERY` deliveries (the first among them)."""
+        self._deliveries = 0
         self._stop = threading.Event()
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
@@ -329,16 +348,19 @@ class Worker:
         self._generation = 0
         self._publishers: dict[str, LatestValuePublisher] = {}
         self._routes: dict[str, list[str]] = {}
+        self._out: dict[str, _Route] = {}
+        """By output port, where its values go (:meth:`_route_outputs`)."""
         self._progress_routes: dict[str, list[str]] = {}
         self.progress: dict[str, Progress] = {}
         """The latest progress of each static estimate, by output port (shown in status)."""
-        self._latency: defaultdict[str, deque[float]] = defaultdict(
+        self._latency: defaultdict[str, deque[int]] = defaultdict(
             lambda: deque(maxlen=LATENCY_SAMPLES)
         )
+        """Per input key, the latest samples' latency (ns): this host's clock when the worker
+        takes the sample minus its timestamp (after the input's clock offset); each input
+        holds its key's (``_Input.latency``)."""
         self._first_samples: dict[str, int] = {}
         """Per input key, when its first sample was taken (wall clock): O(input keys ever)."""
-        """Per input key, the latest samples' latency (ms): this host's clock when the worker
-        takes the sample minus its timestamp (after the input's clock offset)."""
         self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
         """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
         take = self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes())))
@@ -400,7 +422,8 @@ class Worker:
             subscriber = self._subscribe(generation, index, binding.key)
             expected = self._service_class.INPUTS[binding.port].types
             level = WORKER if binding.from_worker else FULL
-            inputs.append(_Input(binding, buffer, subscriber, expected, level))
+            latency, seen = self._latency[binding.key], binding.key in self._first_samples
+            inputs.append(_Input(binding, buffer, subscriber, expected, level, latency, seen))
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
@@ -409,7 +432,7 @@ class Worker:
         wanted = [
             (
                 item.binding.key,
-                lambda payload, i=index: self._deliver_guarded(generation, i, [payload]),
+                lambda payload, i=index: self._deliver(generation, i, [payload]),
                 lambda buffer=item.buffer: len(buffer) > 0,
             )
             for index, item in static
@@ -428,7 +451,7 @@ class Worker:
             args=(
                 wanted,
                 [
-                    functools.partial(self._deliver_values_guarded, generation, i, [value])
+                    functools.partial(self._deliver_values, generation, i, [value])
                     for i, value in latest
                 ],
             ),
@@ -466,14 +489,14 @@ class Worker:
                 if time.monotonic() - asked_at > CURRENT_TIMEOUT_S or self._stop.wait(0.002):
                     break
             for index, value in local:
-                self._deliver_values_guarded(generation, index, [value])
+                self._deliver_values(generation, index, [value])
             asked = [
                 (index, self._session.get(key, timeout=CURRENT_TIMEOUT_S)) for index, key in remote
             ]
             for index, replies in asked:
                 for reply in replies:
                     if reply.ok is not None:
-                        self._deliver_guarded(generation, index, [reply.ok.payload.to_bytes()])
+                        self._deliver(generation, index, [reply.ok.payload.to_bytes()])
 
         threading.Thread(target=self._guarded(fetch), daemon=True).start()
 
@@ -484,8 +507,8 @@ class Worker:
     ) -> None:
         """Hand the static inputs read in the container their producers' latest values, and
         fetch the others' (``net.transport.fetch_until_satisfied``)."""
-        for deliver in latest:
-            deliver()
+        for hand in latest:
+            hand()
         fetch_until_satisfied(self._session, wanted, self._stop)
 
     def _local(self, key: str) -> bool:
@@ -496,10 +519,10 @@ class Worker:
         """Input ``index``'s subscription: to the container's local wire if a component there
         produces ``key`` (``services.local_wires``), else to zenoh."""
         if self._local(key):
-            deliver = functools.partial(self._deliver_values_guarded, generation, index)
-            return self._wires.subscribe(key, deliver)
-        deliver = functools.partial(self._deliver_guarded, generation, index)
-        return subscribe_in_bursts(self._session, key, deliver)
+            handle = (self._on_value, self._on_value_run, generation, index)
+            return self._wires.subscribe(key, functools.partial(self._handle, *handle))
+        handle = (self._on_sample, self._on_run, generation, index)
+        return subscribe_in_bursts(self._session, key, functools.partial(self._handle, *handle))
 
     def rebind(self) -> bool:
         """Move the inputs whose producer joined or left this worker's container onto the
@@ -537,6 +560,10 @@ class Worker:
                 self._session, key, at, self.counters, encoding, self._wake
             )
         self._routes = routes
+        self._out = {
+            port: _Route(keys[0], self._publishers_of(keys), self._publishers_of(keys[1:]))
+            for port, keys in routes.items()
+        }
         self._progress_routes = progress_routes
 
     def _static_relations(self, relation_keys: tuple[str, ...]) -> list[RelationId]:
@@ -661,7 +688,9 @@ class Worker:
             self.counters["buffered"] += 1
         elif item.binding.static:
             self._evaluate(t)  # a new static value: recompute at once
-        elif (wait_s := self._wait_s(item, t)) == 0.0 and not self._pending.deadlines:
+        elif (
+            wait_s := 0.0 if len(self._dynamic) < 2 else self._wait_s(item, t)
+        ) == 0.0 and not self._pending.deadlines:
             if self._pending.finish(t):  # nothing to wait for: at once
                 self._evaluate(t, item, sample)
             else:
@@ -675,7 +704,7 @@ class Worker:
         latency recorded; None if it is stamped ahead of the clock or the offset takes it out
         of range (counted)."""
         key, t = item.binding.key, sample.timestamp_ns
-        now = self.clock.now_ns()
+        now = self._now_ns()
         if ahead_of_clock(t, now):  # on the sensor's clock: before correction
             self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
             return None
@@ -686,9 +715,10 @@ class Worker:
                 self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
                 return None
             t = sample.timestamp_ns
-        self._latency[key].append((now - t) / 1e6)
-        if key not in self._first_samples:
-            self._first_samples[key] = time.time_ns()
+        item.latency.append(now - t)
+        if not item.seen:
+            self._first_samples.setdefault(key, time.time_ns())
+            item.seen = True
         return sample
 
     def _buffered(self, item: _Input, sample: Measurement) -> bool:
@@ -824,8 +854,7 @@ class Worker:
         """The service's inputs at ``t`` by port (see :meth:`_evaluate`); None if one has no
         value then (counted ``dropped``)."""
         values: dict[str, Any] = {}
-        space = self.spec.expansion == "space"
-        tolerance_ns = self.spec.tolerance_ns
+        space, tolerance_ns = self._space, self._tolerance_ns
         for item in self._inputs:
             port = item.binding.port
             value = sample if item is trigger else item.buffer.value_at(t, tolerance_ns)
@@ -873,29 +902,29 @@ class Worker:
         for zenoh; under ``_lock``. A value handed over is checked finite here and encoded when
         put; one only zenoh carries is encoded here, where a result's numbers are checked.
         O(outputs x routes)."""
-        wires = self._wires
+        wires, counters = self._wires, self.counters
         for port, value in outputs.items():
-            routes = self._routes.get(port, ())
-            if wires is not None and routes and wires.has_readers(routes[0]):
+            route = self._out.get(port)
+            readers = None if wires is None or route is None else wires.readers.get(route.key)
+            if readers:
                 if not finite(value):
                     self._count("failed", "result of %s holds NaN or infinity", port)
                     continue
-                wires.hand_over(routes[0], value)
-                self.counters["handed_over"] += 1
-                routes = self._outside(routes)
-                if routes:
-                    self._outgoing.append((self._publishers_of(routes), value))
-                self.counters["published"] += 1
+                wires.hand_over(route.key, readers, value, self._handed)
+                counters["handed_over"] += 1
+                counters["published"] += 1
+                self._outside(route, value)
                 continue
             try:
                 payload = encode(value)  # where a result's numbers are checked
             except MeasurementError as exc:
                 self._count("failed", "result not published: %s", exc)
                 continue
-            if wires is not None and routes:  # a reader bound later in the container starts here
-                wires.keep(routes[0], value)
-            self._outgoing.append((self._publishers_of(routes), payload))
-            self.counters["published"] += 1
+            if route is not None:
+                if wires is not None:  # a reader bound later in the container starts here
+                    wires.keep(route.key, value)
+                self._outgoing.append((route.publishers, payload))
+            counters["published"] += 1
         if self._reports_progress or self._batch_progress is not None:
             self._publish_progress(outputs, timestamp_ns)
 
@@ -921,17 +950,19 @@ class Worker:
             for publisher in publishers:
                 publisher.put(payload)
 
-    def _outside(self, routes: list[str]) -> list[str]:
-        """Of an output's ``routes`` (its data key first, then its relation keys), those zenoh
-        must carry besides the hand-over in the container: the relation keys, and the data key
-        while a subscriber outside this process listens (zenoh's matching status, told to the
-        publisher: ``net.transport.LatestValuePublisher``; else it is remembered, to be sent
-        when one appears: :meth:`_send_unsent`)."""
-        if self._publishers[routes[0]].matching:
-            return routes
+    def _outside(self, route: _Route, value: Measurement) -> None:
+        """Queue the puts of ``value``, handed over in the container, that zenoh must carry
+        besides: on the relation keys, and on the data key while a subscriber outside this
+        process listens (zenoh's matching status, told to the publisher:
+        ``net.transport.LatestValuePublisher``; else it is remembered, to be sent when one
+        appears: :meth:`_send_unsent`)."""
+        if route.publishers[0].matching:
+            self._outgoing.append((route.publishers, value))
+            return
         self.counters["not_sent"] += 1
-        self._unsent.add(routes[0])
-        return routes[1:]
+        self._unsent.add(route.key)
+        if route.relations:
+            self._outgoing.append((route.relations, value))
 
     def _wake(self) -> None:
         """Wake the worker thread (a subscriber appeared: :meth:`_send_unsent`)."""
@@ -1086,7 +1117,7 @@ class Worker:
         """The median latency (ms) of each dynamic input's latest samples (see ``_latency``)."""
         keys = {item.binding.key for item in self._inputs if not item.binding.static}
         return {
-            key: round(statistics.median(list(values)), 3)
+            key: round(statistics.median(list(values)) / 1e6, 3)
             for key, values in list(self._latency.items())
             if key in keys and values
         }
@@ -1105,59 +1136,83 @@ class Worker:
         self._inbox.put(("wake",))  # the worker thread ends now, not after its idle wait
 
     def _deliver(self, generation: int, index: int, payloads: list[bytes]) -> None:
-        """Handle the samples of input ``index`` of binding ``generation`` taken together, on
-        the thread that took them (an input's, or the one fetching a static edge's value):
-        at least :data:`RUN_MIN` as one run where it may (:meth:`_takes_runs`), else one by
-        one, each followed by the triggers due; then wake the worker thread if a trigger is
-        held that is due before it would wake. Nothing after :meth:`stop`."""
-        if len(payloads) >= RUN_MIN and self._handled_as_run(
-            self._on_run_guarded, generation, index, payloads
-        ):
-            return
-        self._handle_each(self._on_sample_guarded, generation, index, payloads)
+        """Handle samples of input ``index`` of binding ``generation`` taken together
+        (:meth:`_handle`), on the thread that took them (an input's, or one fetching a
+        current value)."""
+        self._handle(self._on_sample, self._on_run, generation, index, payloads)
 
     def _deliver_values(self, generation: int, index: int, values: list[Measurement]) -> None:
         """Handle values handed over on input ``index`` of binding ``generation`` by another
-        component of the container, on that component's thread (``services.local_wires``), as
-        :meth:`_deliver` handles samples; then hand this one's outputs on."""
-        if len(values) >= RUN_MIN and self._handled_as_run(
-            self._on_value_run_guarded, generation, index, values
-        ):
-            return
-        self._handle_each(self._on_value_guarded, generation, index, values)
+        component of the container (``services.local_wires``), on that component's thread,
+        as :meth:`_deliver` handles samples."""
+        self._handle(self._on_value, self._on_value_run, generation, index, values)
 
-    def _handled_as_run(
-        self, handler: Callable[[int, int, list], None], generation: int, index: int, items: list
-    ) -> bool:
-        """Whether ``items`` were handled as one run (:meth:`_takes_runs`), timed per item
-        (``_handling_s``); then the outputs are handed on, the lock released."""
-        with self._lock:
-            if not self._takes_runs(generation, index) or self._stop.is_set():
-                return False
-            start = time.perf_counter()
-            handler(generation, index, items)
-            each = (time.perf_counter() - start) / len(items)
-            self._handling_s += HANDLING_GAIN * (each - self._handling_s)
-            self._wake_for_held()
-        self._flush()
-        self._put_outside()
-        return True
-
-    def _handle_each(
-        self, handler: Callable[[int, int, Any], None], generation: int, index: int, items: list
+    def _handle(
+        self,
+        each: Callable[[int, int, Any], None],
+        run: Callable[[int, int, list], None],
+        generation: int,
+        index: int,
+        items: list,
     ) -> None:
-        """Handle ``items`` (samples or values) of input ``index`` one by one, each followed by
-        the triggers due, under ``_lock``; then wake the worker thread if a trigger held is
-        due before it would wake, and, the lock released, hand the outputs to the container's
-        readers (``services.local_wires``). Nothing after :meth:`stop`."""
+        """Handle ``items`` (samples, or values handed over) of input ``index`` under
+        ``_lock``: at least :data:`RUN_MIN` as one run where it may (:meth:`_takes_runs`),
+        else one by one, each followed by the triggers due; then wake the worker thread if a
+        trigger is held that is due before it would wake, and, the lock released, hand the
+        outputs to the container's readers (``services.local_wires``) and put those for
+        readers outside. Total: an unexpected exception is counted (``internal_errors``) and
+        logged, and the next item handled. Every :data:`TIME_EVERY`-th call is timed
+        (``handling_us``). Nothing after :meth:`stop`. O(items + outputs)."""
         with self._lock:
-            for item in items:
-                if self._stop.is_set():
-                    break
-                self._handle(handler, generation, index, item)
+            self._deliveries += 1
+            timed = self._deliveries % TIME_EVERY == 1  # the first, then one in TIME_EVERY
+            start = time.perf_counter() if timed else 0.0
+            if len(items) >= RUN_MIN and self._takes_runs(generation, index):
+                try:
+                    if not self._stop.is_set():
+                        run(generation, index, items)
+                except Exception:
+                    self._internal_error()
+            else:
+                for item in items:
+                    if self._stop.is_set():
+                        break
+                    try:
+                        each(generation, index, item)
+                        if self._pending.deadlines:
+                            self._process_due_triggers()
+                    except Exception:
+                        self._internal_error()
+            if timed:
+                each_s = (time.perf_counter() - start) / len(items)
+                self._handling_s += HANDLING_GAIN * (each_s - self._handling_s)
             self._wake_for_held()
-        self._flush()
-        self._put_outside()
+            handed = self._handed
+            if handed:
+                self._handed = []
+        self._hand_on(handed)
+
+    def _hand_on(self, handed: Handed) -> None:
+        """Deliver ``handed`` to the readers in the container, then put what is queued for
+        readers outside (:meth:`_put_outside`); ``_lock`` free. Total."""
+        try:
+            if handed:
+                deliver(handed)
+            if self._outgoing:
+                self._put_outside()
+        except Exception:
+            self._internal_error()
+
+    def _internal_error(self) -> None:
+        """Count and log the exception being handled (``internal_errors``)."""
+        logs.count_problem(
+            self.counters,
+            "internal_errors",
+            log,
+            "%s: internal error",
+            self.spec.instance,
+            exc_info=True,
+        )
 
     def _wake_for_held(self) -> None:
         """Wake the worker thread if a trigger is held that is due before it would wake;
@@ -1167,17 +1222,6 @@ class Worker:
             if deadline is not None and deadline < self._wakes_at:
                 self._wakes_at = deadline
                 self._inbox.put(("wake",))
-
-    def _handle(
-        self, handler: Callable[[int, int, Any], None], generation: int, index: int, sample: Any
-    ) -> None:
-        """A sample (or a value handed over) and the triggers due after it, timed
-        (``_handling_s``); under ``_lock``."""
-        start = time.perf_counter()
-        handler(generation, index, sample)
-        if self._pending.deadlines:
-            self._guarded(self._process_due_triggers)()
-        self._handling_s += HANDLING_GAIN * (time.perf_counter() - start - self._handling_s)
 
     def step(self, longest_s: float = IDLE_S) -> None:
         """The worker thread's turn: wait at most ``longest_s``, or until the next trigger
@@ -1202,8 +1246,10 @@ class Worker:
             if self._unsent:
                 self._guarded(self._send_unsent)()
             self._summarise(time.monotonic())
-        self._flush()
-        self._guarded(self._put_outside)()
+            handed = self._handed
+            if handed:
+                self._handed = []
+        self._hand_on(handed)
 
     def _summarise(self, now: float) -> None:
         """Every ``SUMMARY_S``, one warning for the expected conditions counted meanwhile
