@@ -681,7 +681,8 @@ class Worker:
         if self._asynchronous:
             self._push(item.binding.port, sample)
             return
-        if not self._buffered(item, sample):
+        if not item.buffer.add(sample):
+            self._count_stale(item, sample)
             return
         t = sample.timestamp_ns
         if not item.binding.trigger:
@@ -721,13 +722,10 @@ class Worker:
             item.seen = True
         return sample
 
-    def _buffered(self, item: _Input, sample: Measurement) -> bool:
-        """Whether ``sample`` joined its input's buffer (else counted: beyond its horizon)."""
-        if item.buffer.add(sample):
-            return True
+    def _count_stale(self, item: _Input, sample: Measurement) -> None:
+        """Count ``sample``, which its input's buffer refused: older than all it holds."""
         key, t = item.binding.key, sample.timestamp_ns
         self._count("dropped_stale", "dropped sample on %s older than its buffer: %d", key, t)
-        return False
 
     def _takes_runs(self, generation: int, index: int) -> bool:
         """Whether samples of input ``index`` waiting together may be handled as one run
@@ -786,7 +784,10 @@ class Worker:
         instants: list[tuple[dict[str, Any], int]] = []
         for value in values:
             sample = self._admitted(item, value)
-            if sample is None or not self._buffered(item, sample):
+            if sample is None:
+                continue
+            if not item.buffer.add(sample):
+                self._count_stale(item, sample)
                 continue
             t = sample.timestamp_ns
             if not self._pending.finish(t):
@@ -888,7 +889,9 @@ class Worker:
         except (ValueError, MeasurementError, ArithmeticError) as exc:
             self._count("failed", "computation failed: %s", exc)
             return
-        self._publish_computed(outputs, timestamp_ns)
+        if not outputs:
+            self.counters["no_output"] += 1
+        self._publish(outputs, timestamp_ns)
 
     def _publish_computed(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         if not outputs:
@@ -1186,11 +1189,13 @@ class Worker:
             if timed:
                 each_s = (time.perf_counter() - start) / len(items)
                 self._handling_s += HANDLING_GAIN * (each_s - self._handling_s)
-            self._wake_for_held()
+            if self._pending.deadlines:
+                self._wake_for_held()
             handed = self._handed
             if handed:
                 self._handed = []
-        self._hand_on(handed)
+        if handed or self._outgoing:
+            self._hand_on(handed)
 
     def _hand_on(self, handed: Handed) -> None:
         """Deliver ``handed`` to the readers in the container, then put what is queued for
@@ -1217,11 +1222,10 @@ class Worker:
     def _wake_for_held(self) -> None:
         """Wake the worker thread if a trigger is held that is due before it would wake;
         under ``_lock``."""
-        if self._pending.deadlines:  # a dictionary's truth: a method call costs the hop
-            deadline = self._pending.next_deadline()
-            if deadline is not None and deadline < self._wakes_at:
-                self._wakes_at = deadline
-                self._inbox.put(("wake",))
+        deadline = self._pending.next_deadline()
+        if deadline is not None and deadline < self._wakes_at:
+            self._wakes_at = deadline
+            self._inbox.put(("wake",))
 
     def step(self, longest_s: float = IDLE_S) -> None:
         """The worker thread's turn: wait at most ``longest_s``, or until the next trigger
