@@ -41,9 +41,12 @@ sample: it decodes each (validated in full, or at level ``WORKER`` for a binding
 computes and publishes; a backlog of one input under load, where nothing holds a sample back,
 as one run (:meth:`Worker._on_run`: decoded and, where the service vectorises, computed
 together). The worker's state has one lock, held by whichever thread handles: an input's, a
-query's for a value at a given time, or the worker thread, which applies control commands
-(from zenoh's callbacks through a bounded inbox) and computes the triggers held for the other
-inputs when their time is up.
+query's for a value at a given time, or the worker thread, which answers status queries and
+applies control commands (from zenoh's callbacks, run on zenoh's thread, through a bounded
+inbox) and computes the triggers held for the other inputs when their time is up. In a
+container (:mod:`services.container`) the container's scheduler (:mod:`services.scheduler`)
+takes the worker thread's turns (:meth:`Worker.turn`) for every component, and its static
+inputs' samples and its fetches of current values: a component has no thread of its own.
 
 Handling is total (issue 11): bad input (a sample the codec refuses, one stamped too far ahead
 of this host's clock, a control command or specification that is not a bounded JSON object of
@@ -78,6 +81,7 @@ from services.expansion import BatchProgress, TimeAccumulator
 from services.local_wires import Handed, LocalSubscription, LocalWires, deliver, finite
 from services.parent import Parent
 from services.registry import Pushed, Service, lookup
+from services.scheduler import Scheduler, on_zenoh_thread
 from services.spec import check_bindings, check_parameters, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
@@ -109,6 +113,7 @@ from ubitrack_agent.net.spec import (
 )
 from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.net.transport import (
+    FETCH_RETRY_DELAYS,
     LatestValuePublisher,
     fetch_until_satisfied,
     subscribe_in_bursts,
@@ -151,7 +156,7 @@ COUNTERS = {
     "infinity (not published)",
     "too_few_correspondences": "instants with fewer complete correspondences than the pattern "
     "needs (a feature hidden): expected, logged as a summary every SUMMARY_S",
-    "overflow": "control commands dropped because the inbox was full",
+    "overflow": "control commands and status queries dropped because the inbox was full",
     "rejected_commands": "control commands refused",
     "rewired": "control commands applied",
     "internal_errors": "unexpected exceptions handling network input (logged with traceback)",
@@ -177,6 +182,12 @@ UPSTREAM_TIMEOUT_S = 0.1
 CURRENT_TIMEOUT_S = 0.5
 """Longest a new component waits for its dynamic inputs' producers to answer their current
 value (:meth:`Worker._fetch_current`; they answer in milliseconds)."""
+STATIC_POLL_S = 0.002
+"""How often a new component in a container looks whether its static inputs have their values
+before it is handed its dynamic inputs' current values (:meth:`Worker._hand_current`)."""
+FETCH_TIMEOUT_S = 0.5
+"""Longest a static input's producer is waited for to answer its latest value (one attempt of
+``net.transport.FETCH_RETRY_DELAYS``)."""
 NO_MODEL_S = 1.0
 """How long an input whose producer answered ``no_model`` (a measured edge) or nothing is not
 asked again: a renderer asking every frame must not cost the flow a round trip (or a
@@ -217,10 +228,15 @@ class Inbox:
     ``queue.Queue`` run a condition's Python code on both threads for every item handed over
     (issue 12; ``docs/performance.md``, "Data path")."""
 
-    def __init__(self, capacity: int, counters: Counter[str]) -> None:
+    def __init__(
+        self, capacity: int, counters: Counter[str], notify: Callable[[], None] | None = None
+    ) -> None:
         self._items: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
         self._capacity = capacity
         self._counters = counters
+        self._notify = notify
+        """Called after each item is put (a container's scheduler then gives the worker a
+        turn: ``services.scheduler``)."""
 
     def put(self, item: tuple[Any, ...]) -> None:
         if self._items.qsize() >= self._capacity:
@@ -231,6 +247,8 @@ class Inbox:
             else:
                 self._counters["overflow"] += 1
         self._items.put(item)
+        if self._notify is not None:
+            self._notify()
 
     def take(self, timeout: float) -> list[tuple[Any, ...]]:
         """Every item waiting, oldest first, once one waits or after ``timeout`` (then none)."""
@@ -238,8 +256,15 @@ class Inbox:
             items = [self._items.get(timeout=timeout)]
         except queue.Empty:
             return []
+        return self._waiting(items)
+
+    def take_waiting(self) -> list[tuple[Any, ...]]:
+        """Every item waiting, oldest first, without waiting for one."""
+        return self._waiting([])
+
+    def _waiting(self, items: list[tuple[Any, ...]]) -> list[tuple[Any, ...]]:
         get = self._items.get_nowait
-        items.extend(get() for _ in range(self._items.qsize()))  # only this thread takes
+        items.extend(get() for _ in range(self._items.qsize()))  # only one thread takes
         return items
 
 
@@ -281,6 +306,7 @@ class Worker:
         parent: Parent | None = None,
         wires: LocalWires | None = None,
         container: str | None = None,
+        scheduler: Scheduler | None = None,
     ) -> None:
         created_ns = time.time_ns()
         self.spec = spec
@@ -315,7 +341,11 @@ class Worker:
         self.pool_counters = pool_counters
         """The counters of the pool this process belongs to, if any (shown in status)."""
         self.keys = keys
-        self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        self._counts: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        """The counters but those counted on every sample (:attr:`counters` adds them)."""
+        self._received = self._published = self._handed_over = self._not_sent = 0
+        """Those counted on every sample, as integers (a ``Counter``'s increment costs a hop in
+        a container about 1 % each); changed under ``_lock`` only."""
         self._session = session
         self._service_class = lookup(spec.service)
         self._computes_runs = self._service_class.compute_run is not Service.compute_run
@@ -326,7 +356,12 @@ class Worker:
         self._accumulator = self._new_accumulator()
         self._pending = PendingTriggers()
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
-        self._inbox = Inbox(INBOX_CAPACITY, self.counters)
+        self._scheduler = scheduler
+        """The container's scheduler, which gives this component its turns (:meth:`turn`)
+        and runs its static inputs' samples and its fetches (``services.scheduler``); None for
+        a worker on a thread of its own (:meth:`run`)."""
+        notify = None if scheduler is None else functools.partial(scheduler.wake, self, self.turn)
+        self._inbox = Inbox(INBOX_CAPACITY, self._counts, notify)
         self._lock = threading.Lock()
         """Held while the worker's state is used: by an input's thread handling its samples,
         a query's thread answering for a time, the worker thread (commands, held triggers)."""
@@ -365,15 +400,15 @@ class Worker:
         """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
         take = self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes())))
         self._controls = [
-            session.declare_subscriber(key, take)
+            session.declare_subscriber(key, on_zenoh_thread(take))
             for key in (
                 keys.control(spec.instance),
                 keys.control_incarnation(spec.instance, self.incarnation),
             )
         ]
         self._route_outputs(spec.relations)
-        self._status = session.declare_queryable(keys.status(spec.instance))
-        self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
+        ask = self._guarded(lambda query: self._inbox.put(("status", query)))
+        self._status = session.declare_queryable(keys.status(spec.instance), on_zenoh_thread(ask))
         with self._lock:  # an input's first samples wait until every input is bound
             self._bind(spec.inputs)
         if wires is not None:
@@ -386,6 +421,21 @@ class Worker:
         self.stamps = {"created_ns": created_ns, "ready_ns": time.time_ns()}
         """When this component was created and had declared everything (its token last), on
         the wall clock (issue 28's time to a first sample: ``agent.stamps``)."""
+
+    @property
+    def counters(self) -> Counter[str]:
+        """Every counter of :data:`COUNTERS`, now (a copy: count in ``_counts``)."""
+        counters = self._counts.copy()
+        counters["received"] += self._received
+        counters["published"] += self._published
+        counters["handed_over"] += self._handed_over
+        counters["not_sent"] += self._not_sent
+        return counters
+
+    @property
+    def faults(self) -> int:
+        """Unexpected exceptions so far (``internal_errors``)."""
+        return self._counts["internal_errors"]
 
     def _new_progress(self) -> bool:
         """Whether the service reports progress (:meth:`Service.progress` overridden): only
@@ -419,7 +469,7 @@ class Worker:
                 moved = binding.clock_offset_ns - kept.binding.clock_offset_ns
                 buffer = kept.buffer.shifted(moved) if moved else kept.buffer
                 kept.subscriber.undeclare()
-            subscriber = self._subscribe(generation, index, binding.key)
+            subscriber = self._subscribe(generation, index, binding)
             expected = self._service_class.INPUTS[binding.port].types
             level = WORKER if binding.from_worker else FULL
             latency, seen = self._latency[binding.key], binding.key in self._first_samples
@@ -444,19 +494,15 @@ class Worker:
             if self._local(item.binding.key)
             and (value := self._wires.latest(item.binding.key)) is not None
         ]
+        hands = [
+            functools.partial(self._deliver_values, generation, i, [value]) for i, value in latest
+        ]
         # A static edge's value may have been published long ago: ask for it, off this thread
         # (which holds no lock: the one binding holds this worker's).
-        threading.Thread(
-            target=self._fetch_static,
-            args=(
-                wanted,
-                [
-                    functools.partial(self._deliver_values, generation, i, [value])
-                    for i, value in latest
-                ],
-            ),
-            daemon=True,
-        ).start()
+        if self._scheduler is None:
+            threading.Thread(target=self._fetch_static, args=(wanted, hands), daemon=True).start()
+        else:
+            self._scheduler.call(functools.partial(self._ask_static, wanted, hands))
 
     def _fetch_current(self) -> None:
         """Hand a new component each dynamic input's current value at once, off this thread:
@@ -498,7 +544,70 @@ class Worker:
                     if reply.ok is not None:
                         self._deliver(generation, index, [reply.ok.payload.to_bytes()])
 
-        threading.Thread(target=self._guarded(fetch), daemon=True).start()
+        if self._scheduler is None:
+            threading.Thread(target=self._guarded(fetch), daemon=True).start()
+        else:
+            hand = functools.partial(self._hand_current, generation, local, remote, statics)
+            self._scheduler.call(functools.partial(hand, time.monotonic()))
+
+    def _hand_current(
+        self,
+        generation: int,
+        local: list[tuple[int, Measurement]],
+        remote: list[tuple[int, str]],
+        statics: list[SampleBuffer],
+        asked_at: float,
+    ) -> None:
+        """:meth:`_fetch_current` in a container, on its scheduler's thread
+        (``services.scheduler``): looked at again every ``STATIC_POLL_S`` until the static
+        inputs have their values (at most ``CURRENT_TIMEOUT_S``), and the producers' answers
+        handled as they come, nothing waited for on the thread."""
+        if self._stop.is_set() or generation != self._generation:
+            return
+        waiting = any(len(buffer) == 0 for buffer in statics)
+        if waiting and time.monotonic() - asked_at <= CURRENT_TIMEOUT_S:
+            again = (generation, local, remote, statics, asked_at)
+            self._scheduler.later(STATIC_POLL_S, functools.partial(self._hand_current, *again))
+            return
+        for index, value in local:
+            self._deliver_values(generation, index, [value])
+        for index, key in remote:
+            deliver = functools.partial(self._deliver_one, generation, index)
+            self._ask_latest(key, deliver, CURRENT_TIMEOUT_S)
+
+    def _deliver_one(self, generation: int, index: int, payload: bytes) -> None:
+        self._deliver(generation, index, [payload])
+
+    def _ask_static(
+        self,
+        wanted: list[tuple[str, Callable[[bytes], None], Callable[[], bool]]],
+        hands: list[Callable[[], None]],
+        attempt: int = 0,
+    ) -> None:
+        """:meth:`_fetch_static` in a container, on its scheduler's thread: each attempt of
+        ``net.transport.FETCH_RETRY_DELAYS`` asks the producers of the inputs still without a
+        value and is over at once (:meth:`_ask_latest`); the next is a timer."""
+        for hand in hands:
+            hand()
+        if self._stop.is_set():
+            return
+        pending = [(key, take) for key, take, satisfied in wanted if not satisfied()]
+        for key, take in pending:
+            self._ask_latest(key, take, FETCH_TIMEOUT_S)
+        if pending and attempt + 1 < len(FETCH_RETRY_DELAYS):
+            again = functools.partial(self._ask_static, wanted, [], attempt + 1)
+            self._scheduler.later(FETCH_RETRY_DELAYS[attempt + 1], again)
+
+    def _ask_latest(self, key: str, deliver: Callable[[bytes], None], timeout: float) -> None:
+        """Ask the queryables on ``key`` for their latest value without waiting: each answer
+        is handed to ``deliver`` on the scheduler's thread."""
+        call = self._scheduler.call
+
+        def answer(reply: Any) -> None:
+            if reply.ok is not None:
+                call(functools.partial(deliver, reply.ok.payload.to_bytes()))
+
+        self._session.get(key, on_zenoh_thread(self._guarded(answer)), timeout=timeout)
 
     def _fetch_static(
         self,
@@ -515,12 +624,24 @@ class Worker:
         """Whether another component of this worker's container produces ``key``."""
         return self._wires is not None and self._wires.producer(key) is not None
 
-    def _subscribe(self, generation: int, index: int, key: str) -> Any:
+    def _subscribe(self, generation: int, index: int, binding: InputBinding) -> Any:
         """Input ``index``'s subscription: to the container's local wire if a component there
-        produces ``key`` (``services.local_wires``), else to zenoh."""
+        produces its key (``services.local_wires``), else to zenoh: a dynamic input's on a
+        thread of its own (``net.transport.subscribe_in_bursts``), a static one's in a
+        container on its scheduler's thread (a sample now and then: no thread for it)."""
+        key = binding.key
         if self._local(key):
             handle = (self._on_value, self._on_value_run, generation, index)
             return self._wires.subscribe(key, functools.partial(self._handle, *handle))
+        if binding.static and self._scheduler is not None:
+            call, deliver = (
+                self._scheduler.call,
+                functools.partial(self._deliver_one, generation, index),
+            )
+            take = self._guarded(
+                lambda sample: call(functools.partial(deliver, sample.payload.to_bytes()))
+            )
+            return self._session.declare_subscriber(key, on_zenoh_thread(take))
         handle = (self._on_sample, self._on_run, generation, index)
         return subscribe_in_bursts(self._session, key, functools.partial(self._handle, *handle))
 
@@ -535,7 +656,7 @@ class Worker:
             for index, item in enumerate(self._inputs):
                 if isinstance(item.subscriber, LocalSubscription) != self._local(item.binding.key):
                     item.subscriber.undeclare()
-                    item.subscriber = self._subscribe(self._generation, index, item.binding.key)
+                    item.subscriber = self._subscribe(self._generation, index, item.binding)
                     moved = True
         return moved
 
@@ -557,7 +678,7 @@ class Worker:
             at = None if port is None else (lambda t, port=port: self._ask(port, t))
             encoding = JSON if port is None else MSGPACK  # progress, or a measurement
             self._publishers[key] = LatestValuePublisher(
-                self._session, key, at, self.counters, encoding, self._wake
+                self._session, key, at, self._counts, encoding, self._wake
             )
         self._routes = routes
         self._out = {
@@ -631,25 +752,25 @@ class Worker:
         if command.relations is not None:
             self.spec = replace(self.spec, relations=command.relations)
             self._route_outputs(self.spec.relations)
-        self.counters["rewired"] += 1
+        self._counts["rewired"] += 1
         log.info("%s: reconfigured", self.spec.instance)
 
     def _count(self, counter: str, message: str, *details: Any) -> None:
         """Count a rejection or an input consumed without an output; log it, rate-limited."""
         logs.count_problem(
-            self.counters, counter, log, f"%s: {message}", self.spec.instance, *details
+            self._counts, counter, log, f"%s: {message}", self.spec.instance, *details
         )
 
     def _guarded(self, handler: Callable[..., None]) -> Callable[..., None]:
         """``handler`` made total (:func:`ubitrack_agent.net.logs.guarded`)."""
-        return logs.guarded(handler, self.counters, log, self.spec.instance)
+        return logs.guarded(handler, self._counts, log, self.spec.instance)
 
     # -- data path --------------------------------------------------------------------------
 
     def _on_sample(self, generation: int, index: int, payload: bytes) -> None:
-        self.counters["received"] += 1
+        self._received += 1
         if generation != self._generation:
-            self.counters["superseded"] += 1  # from a subscription a rewire replaced
+            self._counts["superseded"] += 1  # from a subscription a rewire replaced
             return
         item = self._inputs[index]
         try:
@@ -662,9 +783,9 @@ class Worker:
     def _on_value(self, generation: int, index: int, value: Measurement) -> None:
         """A value handed over by another component of the container (``services.local_wires``):
         handled as a sample (:meth:`_on_sample`), with nothing to decode."""
-        self.counters["received"] += 1
+        self._received += 1
         if generation != self._generation:
-            self.counters["superseded"] += 1  # from a wire a rewire replaced
+            self._counts["superseded"] += 1  # from a wire a rewire replaced
             return
         item = self._inputs[index]
         if not isinstance(value, item.expected):
@@ -686,7 +807,7 @@ class Worker:
             return
         t = sample.timestamp_ns
         if not item.binding.trigger:
-            self.counters["buffered"] += 1
+            self._counts["buffered"] += 1
         elif item.binding.static:
             self._evaluate(t)  # a new static value: recompute at once
         elif (
@@ -695,10 +816,10 @@ class Worker:
             if self._pending.finish(t):  # nothing to wait for: at once
                 self._evaluate(t, item, sample)
             else:
-                self.counters["stale_triggers"] += 1
+                self._counts["stale_triggers"] += 1
         elif not self._pending.add(t, time.monotonic(), wait_s, extend=True):
             # Held until the other inputs catch up; an instant already computed is ignored.
-            self.counters["stale_triggers"] += 1
+            self._counts["stale_triggers"] += 1
 
     def _admitted(self, item: _Input, sample: Measurement) -> Measurement | None:
         """``sample`` of ``item`` on this host's clock (its input's clock offset added), its
@@ -750,8 +871,8 @@ class Worker:
         """Samples of one input taken from the inbox together (:meth:`_takes_runs`), each
         handled as :meth:`_on_sample` would, decoded together (``core.codec.decode_run``) and
         computed together where the service vectorises (:meth:`_run`)."""
-        self.counters["received"] += len(payloads)
-        self.counters["in_runs"] += len(payloads)
+        self._received += len(payloads)
+        self._counts["in_runs"] += len(payloads)
         item = self._inputs[index]
         decoded = []
         for value in decode_run(payloads, item.expected, item.level):
@@ -765,8 +886,8 @@ class Worker:
         """Values handed over together by another component of the container (a run it
         computed, ``services.local_wires``), handled as :meth:`_on_value` would, computed
         together where the service vectorises (:meth:`_run`)."""
-        self.counters["received"] += len(values)
-        self.counters["in_runs"] += len(values)
+        self._received += len(values)
+        self._counts["in_runs"] += len(values)
         item = self._inputs[index]
         taken = []
         for value in values:
@@ -791,7 +912,7 @@ class Worker:
                 continue
             t = sample.timestamp_ns
             if not self._pending.finish(t):
-                self.counters["stale_triggers"] += 1
+                self._counts["stale_triggers"] += 1
             elif (inputs := self._values_at(t, item, sample)) is not None:
                 instants.append((inputs, t))
         if self._computes_runs and len(instants) > 1:
@@ -843,9 +964,9 @@ class Worker:
         if self._accumulator is None:
             self._compute(values, t)
         elif not self._accumulator.add(values):
-            self.counters["not_distinct"] += 1
+            self._counts["not_distinct"] += 1
         elif not self._accumulator.ready():
-            self.counters["accumulating"] += 1
+            self._counts["accumulating"] += 1
         else:
             self._compute(self._accumulator.expanded(values), t)
 
@@ -862,7 +983,7 @@ class Worker:
             if space and port in self._service_class.CORRESPONDENCE:
                 values.setdefault(port, []).append(value)
             elif value is None:
-                self.counters["dropped"] += 1
+                self._counts["dropped"] += 1
                 return None
             else:
                 values[port] = value
@@ -878,24 +999,24 @@ class Worker:
         if pushed.outputs:
             self._publish(pushed.outputs, sample.timestamp_ns)
         else:
-            self.counters[pushed.reason] += 1
+            self._counts[pushed.reason] += 1
 
     def _compute(self, values: dict[str, Any], timestamp_ns: int) -> None:
         try:
             outputs = self._service.compute(values, timestamp_ns)
         except TooFewCorrespondences:
-            self.counters["too_few_correspondences"] += 1  # expected: summarised
+            self._counts["too_few_correspondences"] += 1  # expected: summarised
             return
         except (ValueError, MeasurementError, ArithmeticError) as exc:
             self._count("failed", "computation failed: %s", exc)
             return
         if not outputs:
-            self.counters["no_output"] += 1
+            self._counts["no_output"] += 1
         self._publish(outputs, timestamp_ns)
 
     def _publish_computed(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         if not outputs:
-            self.counters["no_output"] += 1
+            self._counts["no_output"] += 1
         self._publish(outputs, timestamp_ns)
 
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
@@ -905,7 +1026,7 @@ class Worker:
         for zenoh; under ``_lock``. A value handed over is checked finite here and encoded when
         put; one only zenoh carries is encoded here, where a result's numbers are checked.
         O(outputs x routes)."""
-        wires, counters = self._wires, self.counters
+        wires = self._wires
         for port, value in outputs.items():
             route = self._out.get(port)
             readers = None if wires is None or route is None else wires.readers.get(route.key)
@@ -914,8 +1035,8 @@ class Worker:
                     self._count("failed", "result of %s holds NaN or infinity", port)
                     continue
                 wires.hand_over(route.key, readers, value, self._handed)
-                counters["handed_over"] += 1
-                counters["published"] += 1
+                self._handed_over += 1
+                self._published += 1
                 self._outside(route, value)
                 continue
             try:
@@ -927,7 +1048,7 @@ class Worker:
                 if wires is not None:  # a reader bound later in the container starts here
                     wires.keep(route.key, value)
                 self._outgoing.append((route.publishers, payload))
-            counters["published"] += 1
+            self._published += 1
         if self._reports_progress or self._batch_progress is not None:
             self._publish_progress(outputs, timestamp_ns)
 
@@ -962,7 +1083,7 @@ class Worker:
         if route.publishers[0].matching:
             self._outgoing.append((route.publishers, value))
             return
-        self.counters["not_sent"] += 1
+        self._not_sent += 1
         self._unsent.add(route.key)
         if route.relations:
             self._outgoing.append((route.relations, value))
@@ -1013,16 +1134,16 @@ class Worker:
         try:
             payload = encode(self._value_at(port, timestamp_ns))
         except (ValueError, LookupError, TimeoutError):
-            self.counters["time_queries_refused"] += 1
+            self._counts["time_queries_refused"] += 1
             raise
         except Exception:
             where = self.spec.instance
             logs.count_problem(
-                self.counters, "internal_errors", log, "%s: internal error", where, exc_info=True
+                self._counts, "internal_errors", log, "%s: internal error", where, exc_info=True
             )
             raise NoDataError("the worker could not answer") from None
         else:
-            self.counters["time_queries"] += 1
+            self._counts["time_queries"] += 1
         finally:
             self._lock.release()
         return payload
@@ -1125,14 +1246,10 @@ class Worker:
             if key in keys and values
         }
 
-    def _serve_status(self) -> None:
-        reply = self._guarded(self._reply_status)
-        for query in self._status:
-            with query:
-                reply(query)
-
     def _reply_status(self, query: Any) -> None:
-        query.reply(self.keys.status(self.spec.instance), json.dumps(self.status()), encoding=JSON)
+        with query:
+            status = json.dumps(self.status())
+            query.reply(self.keys.status(self.spec.instance), status, encoding=JSON)
 
     def stop(self) -> None:
         self._stop.set()
@@ -1211,7 +1328,7 @@ class Worker:
     def _internal_error(self) -> None:
         """Count and log the exception being handled (``internal_errors``)."""
         logs.count_problem(
-            self.counters,
+            self._counts,
             "internal_errors",
             log,
             "%s: internal error",
@@ -1229,15 +1346,36 @@ class Worker:
 
     def step(self, longest_s: float = IDLE_S) -> None:
         """The worker thread's turn: wait at most ``longest_s``, or until the next trigger
-        held is due, for control commands (or a wake-up); apply them in order, then compute
-        the triggers due; never raises (:meth:`_guarded`). The inputs' samples are handled
-        on their own threads (:meth:`_deliver`)."""
+        held is due, for control commands, status queries (or a wake-up); then do what is
+        due (:meth:`_turn`). The inputs' samples are handled on their own threads
+        (:meth:`_deliver`)."""
         with self._lock:
             deadline = self._pending.next_deadline()
             now = time.monotonic()
             timeout = longest_s if deadline is None else min(longest_s, max(0.0, deadline - now))
             self._wakes_at = now + timeout
-        items = self._inbox.take(timeout)
+        self._turn(self._inbox.take(timeout))
+
+    def turn(self) -> float | None:
+        """A turn given by the container's scheduler (``services.scheduler``), woken by an
+        item in the inbox or its deadline: do what is due (:meth:`_turn`) without waiting;
+        when the next turn is due (a trigger held, the next summary), None once stopped."""
+        self._turn(self._inbox.take_waiting())
+        with self._lock:
+            if self._stop.is_set():
+                return None
+            deadline = self._pending.next_deadline()
+            due = self._summary_due if deadline is None else min(deadline, self._summary_due)
+            self._wakes_at = due
+        return due
+
+    def _turn(self, items: list[tuple[Any, ...]]) -> None:
+        """Answer the status queries and apply the control commands among ``items`` in order,
+        then compute the triggers due, send the values a new subscriber outside waits for and
+        summarise; never raises (:meth:`_guarded`)."""
+        for item in items:
+            if item[0] == "status":
+                self._guarded(self._reply_status)(item[1])
         with self._lock:
             self._wakes_at = -math.inf  # awake: an input's thread need not wake it
             for item in items:
@@ -1260,7 +1398,7 @@ class Worker:
         (instants with too few correspondences), instead of one per instant."""
         if now < self._summary_due:
             return
-        counted = self.counters["too_few_correspondences"]
+        counted = self._counts["too_few_correspondences"]
         if counted > self._summarised:
             log.warning(
                 "%s: %d instant(s) with too few correspondences in the last %.0f s "
@@ -1274,28 +1412,38 @@ class Worker:
 
     def run(self) -> None:
         """Take commands and compute held triggers (:meth:`step`) until :meth:`stop`; then
-        undeclare everything."""
-        self._status_thread.start()
+        undeclare everything (:meth:`close`)."""
         try:
             while not self._stop.is_set():
                 self.step()
         finally:
-            self._stop.set()
-            with self._lock:  # no input's thread is handling a sample; none will after this
-                pass
-            self._token.undeclare()
-            if self._wires is not None:
-                self._wires.produce(self.spec.instance, ())
-            for item in self._inputs:
-                item.subscriber.undeclare()
-            for control in self._controls:
-                control.undeclare()
-            self._status.undeclare()
-            with self._put_lock:  # a thread still putting what it queued finishes first
-                self._put_outside_held()
-                for publisher in self._publishers.values():
-                    publisher.undeclare()
-            self._status_thread.join(timeout=1.0)
+            self.close()
+
+    @property
+    def stopped(self) -> bool:
+        """Whether :meth:`stop` was called (a stop command, or whoever runs it)."""
+        return self._stop.is_set()
+
+    def close(self) -> None:
+        """Stop, and undeclare everything; a container's component ends here (it has no
+        thread of its own: ``services.container``)."""
+        self._stop.set()
+        with self._lock:  # no thread is handling a sample or a turn; none will after this
+            pass
+        if self._scheduler is not None:
+            self._scheduler.forget(self)
+        self._token.undeclare()
+        if self._wires is not None:
+            self._wires.produce(self.spec.instance, ())
+        for item in self._inputs:
+            item.subscriber.undeclare()
+        for control in self._controls:
+            control.undeclare()
+        self._status.undeclare()
+        with self._put_lock:  # a thread still putting what it queued finishes first
+            self._put_outside_held()
+            for publisher in self._publishers.values():
+                publisher.undeclare()
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -193,6 +193,16 @@ class MatchingSession(FakeSession):
         super().__init__()
         self.quiet: set[str] = {KEYS.data("first/AC")}
         self.listeners: dict[str, list] = {}
+        self.scheduler = None
+
+    def deliver(self, key: str, payload: bytes, wait: bool = True) -> None:
+        """As zenoh delivers; a sample taken by a callback (a static input's, a command) is
+        handled on the container's scheduler (``services.scheduler``): waited for too."""
+        super().deliver(key, payload, wait)
+        if wait and self.scheduler is not None and key not in self.channels:
+            done = threading.Event()
+            self.scheduler.call(done.set)
+            assert done.wait(5)
 
     def listen(self, key: str) -> None:
         """A subscriber outside the process appears on ``key``."""
@@ -235,6 +245,7 @@ def running():
     """A container running on its own thread over a stand-in session; ended after the test."""
     session = MatchingSession()
     container = Container(session, KEYS, "c0")
+    session.scheduler = container.scheduler
     thread = threading.Thread(target=container.run, daemon=True)
     thread.start()
     yield container, session
