@@ -1377,6 +1377,8 @@ class Worker:
             if item[0] == "status":
                 self._guarded(self._reply_status)(item[1])
         with self._lock:
+            if self._stop.is_set():  # closed (a turn asked for before): nothing more
+                return
             self._wakes_at = -math.inf  # awake: an input's thread need not wake it
             for item in items:
                 if self._stop.is_set():
