@@ -25,6 +25,14 @@ writes them to ``bench/results/container_hop.json``.
    declared before): the command's trip, the component's start and its first computation, and
    up to a millisecond waiting for the provider's next sample. Removed again, ``--adds`` times.
    The container's cold start (spawn to its first component's liveliness token) beside it.
+4. **Threads**: a container in this process (a zenoh session with no peer) given
+   ``--components`` components, chains of two concatenations as in ``bench.throughput_bench``
+   (the first reading a provider's key over zenoh and a static edge, the second the first's
+   output in the process and a static edge, its output also on an application's relation
+   key), added one chain at a time: the threads of the process it added (``/proc/self/task``,
+   per component, by name), and the time an ``add`` took per component. The static edges
+   are not published, so each component keeps asking for them (as one waiting for a
+   calibration) while it is counted.
 """
 
 from __future__ import annotations
@@ -253,11 +261,68 @@ def _one_add(session: Any, keys: KeySpace, index: int) -> float:
     return (first - start) * 1e3
 
 
+def threads(components: int) -> dict[str, Any]:
+    """Part 4 of the module docstring."""
+    keys = KeySpace("ubitrack/containerthreads")
+
+    def chain(k: int) -> tuple[ComponentSpec, ComponentSpec]:
+        first = ComponentSpec(
+            f"c{k}a",
+            "concatenation",
+            (
+                InputBinding("AB", keys.data(f"static/{k}a"), static=True),
+                InputBinding("BC", keys.data(f"provider/{k}"), trigger=True),
+            ),
+            {"AC": keys.data(f"c{k}a/out")},
+        )
+        second = ComponentSpec(
+            f"c{k}b",
+            "concatenation",
+            (
+                InputBinding("AB", keys.data(f"static/{k}b"), static=True),
+                InputBinding("BC", keys.data(f"c{k}a/out"), trigger=True, from_worker=True),
+            ),
+            {"AC": keys.data(f"c{k}b/out")},
+            relations={"AC": (keys.data(f"relation/{k}"),)},
+        )
+        return first, second
+
+    with open_session(config.Settings(domain="containerthreads")) as session:
+        before = set(os.listdir("/proc/self/task"))
+        names_before = {thread.ident for thread in threading.enumerate()}
+        container = Container(session, keys, "threads")
+        start = time.perf_counter()
+        for k in range(components // 2):
+            container.add(chain(k))
+        add_s = time.perf_counter() - start
+        time.sleep(1.0)
+        added = len(set(os.listdir("/proc/self/task")) - before)
+        kinds: dict[str, int] = {}
+        for thread in threading.enumerate():
+            if thread.ident not in names_before:
+                kind = "zenoh callback" if "pyo3" in thread.name else thread.name.split(" ")[0]
+                kind = kind.split(":")[0].split("-")[0]
+                kinds[kind] = kinds.get(kind, 0) + 1
+        container.stop()
+        container.remove(list(container.components))
+    count = 2 * (components // 2)
+    return {
+        "components": count,
+        "threads_added": added,
+        "threads_per_component": round(added / count, 2),
+        "python_threads_by_kind": kinds,
+        "add_ms_per_component": round(add_s * 1e3 / count, 2),
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.container_hop_bench")
     parser.add_argument("--samples", type=int, default=2000, help="per way (default 2000)")
     parser.add_argument("--gap-ms", type=float, default=2.0, help="the gap (default 2)")
     parser.add_argument("--adds", type=int, default=30, help="add commands timed (default 30)")
+    parser.add_argument(
+        "--components", type=int, default=100, help="components for the threads (default 100)"
+    )
     args = parser.parse_args()
     results = {
         "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
@@ -267,6 +332,7 @@ def main() -> int:
         "gap_ms": args.gap_ms,
         "hops": hop_costs(args.samples, args.gap_ms),
         "add": add_latency(args.adds),
+        "threads": threads(args.components),
         "targets": {"hop_us": 30, "figure6_over_direct": 1.25, "add_ms": 20},
     }
     write_results(RESULTS, results)

@@ -5,12 +5,17 @@ Start: ``python -m services.container --name NAME [--group '<json>'] [zenoh flag
 one component per process, paying an interpreter, the imports of numpy, scipy and OpenCV and a
 zenoh session for each (issue 28: about 75 MB and a session linked to every other per
 component), a container runs many on one session, each a :class:`~services.worker.Worker` as
-before: its own control keys, status, counters, liveliness token and worker thread, so the
-agent, ``ubitrack status`` and the web view see one component as they always did (its status
-names its ``container``). The anchors are ROS 2's component containers (composable nodes
-loaded into a running process, ``ros2 component load``, with intra-process communication) and
-dora-rs's operators sharing a runtime process; the paper's service managers run the pattern
-instances of a host (Pustka et al. 2006, section 5.2.1).
+before: its own control keys, status, counters and liveliness token, so the agent, ``ubitrack
+status`` and the web view see one component as they always did (its status names its
+``container``). What a worker process does on a thread per component, a container does on one
+(:mod:`services.scheduler`): the components' control commands, status queries, held triggers,
+static inputs' samples and fetches, so adding a component starts no thread of its own (its
+dynamic inputs read over zenoh have one each, ``net.transport.subscribe_in_bursts``, and its
+publishers theirs, ``net.transport.LatestValuePublisher``). The anchors are ROS 2's
+component containers (composable nodes loaded into a running process, ``ros2 component
+load``, with intra-process communication) and dora-rs's operators sharing a runtime process;
+the paper's service managers run the pattern instances of a host (Pustka et al. 2006, section
+5.2.1).
 
 **Wires inside.** A component reading another's output in the same container is handed the
 measurement object (:mod:`services.local_wires`): no encoding, no decoding, no zenoh. Zenoh
@@ -38,10 +43,11 @@ history.
 
 **Failure containment.** Every handler of a component is total (its own counters); an
 unexpected exception is counted there (``internal_errors``) and the others go on. A component
-with :data:`RESTART_AFTER_FAULTS` such faults since it started, or whose thread ended without
-being stopped, is restarted in the process from its current specification (counted:
-``restarts``, per component in the container's status). SIGTERM or SIGINT ends the container
-cleanly.
+with :data:`RESTART_AFTER_FAULTS` such faults since it started, or that stopped without being
+asked, is restarted in the process from its current specification (counted: ``restarts``, per
+component in the container's status). A component whose code never returns on the
+scheduler's thread holds back the others' turns (not their data): isolation, a container of
+its own, is for such code. SIGTERM or SIGINT ends the container cleanly.
 
 The container's own status answers on ``<root>/status/<name>`` (no ``instance`` field: it is
 no component's). Once it takes commands it declares the liveliness token
@@ -51,8 +57,9 @@ exits while starting if the host manager is gone, and outlives it once its token
 restarted agent adopts its components), until its last component has left (then nobody would
 stop it).
 
-Growth: memory and zenoh declarations O(components + their inputs and outputs); a hand-over
-O(readers of the output).
+Growth: memory and zenoh declarations O(components + their inputs and outputs); threads O(1)
+for the container plus one per dynamic input read over zenoh and per output key (those of
+``net.transport``); a hand-over O(readers of the output).
 """
 
 from __future__ import annotations
@@ -74,6 +81,7 @@ from typing import Any
 
 from services.local_wires import LocalWires
 from services.parent import Parent
+from services.scheduler import Scheduler, on_zenoh_thread
 from services.spec import check_spec
 from services.worker import Worker
 from ubitrack_agent.net import config, logs
@@ -100,7 +108,7 @@ LOOP_S = 0.25
 """Longest wait of the container's thread for a command before it looks at its components
 (a stop wakes it)."""
 JOIN_S = 2.0
-"""How long a component stopped may take to end its run."""
+"""How long the scheduler's thread may take to end once the container stopped."""
 MAX_CONTROL_BYTES = 4 * 1024 * 1024
 """Largest container command read (an ``add`` of a thousand specifications)."""
 CONTROL_FIELDS = frozenset({"add", "remove", "stop"})
@@ -119,11 +127,10 @@ COUNTERS = {
 
 @dataclass
 class Running:
-    """A component running in the container: its worker, the thread running it, its faults
-    when it (re)started and how often it was restarted."""
+    """A component running in the container: its worker, its faults when it (re)started and
+    how often it was restarted."""
 
     worker: Worker
-    thread: threading.Thread
     faults_at_start: int = 0
     restarts: int = 0
 
@@ -154,16 +161,19 @@ class Container:
         self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._parent = parent
+        self.scheduler = Scheduler(self.name, self.counters)
+        """Gives every component its turns (``services.scheduler``): no thread per component."""
         take = self._guarded(
             lambda sample: self._events.put(("control", sample.payload.to_bytes()))
         )
         self._controls = [
-            session.declare_subscriber(key, take)
+            session.declare_subscriber(key, on_zenoh_thread(take))
             for key in (keys.control(self.name), keys.control_incarnation(name, self.incarnation))
         ]
-        self._status = session.declare_queryable(keys.status(self.name))
-        self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
-        self._status_thread.start()
+        ask = self._guarded(
+            lambda query: self.scheduler.call(functools.partial(self._reply, query))
+        )
+        self._status = session.declare_queryable(keys.status(self.name), on_zenoh_thread(ask))
         self._left = session.declare_publisher(keys.container_left(self.name), encoding=JSON)
         self.add(tuple(components))
         declare = functools.partial(
@@ -203,7 +213,8 @@ class Container:
             self._report_left(failed, "exited")
 
     def _start(self, spec: ComponentSpec, restarts: int = 0) -> Running | None:
-        """Run ``spec`` on a thread of its own; None if it could not start (counted)."""
+        """Run ``spec``, its turns on the container's scheduler; None if it could not start
+        (counted). O(its inputs and outputs): no thread started."""
         try:
             worker = Worker(
                 spec,
@@ -212,6 +223,7 @@ class Container:
                 clock=self.clock,
                 wires=self.wires,
                 container=self.name,
+                scheduler=self.scheduler,
             )
         except Exception:
             self.wires.produce(spec.instance, ())
@@ -225,11 +237,10 @@ class Container:
                 exc_info=True,
             )
             return None
-        thread = threading.Thread(target=worker.run, daemon=True, name=f"component {spec.instance}")
-        entry = Running(worker, thread, worker.counters["internal_errors"], restarts)
+        entry = Running(worker, worker.faults, restarts)
         with self._lock:
             self.components[spec.instance] = entry
-        thread.start()
+        self.scheduler.wake(worker, worker.turn)  # its first turn: its summaries' deadline
         log.info("%s: running %s (%s)", self.name, spec.instance, spec.service)
         return entry
 
@@ -244,8 +255,7 @@ class Container:
 
     @staticmethod
     def _end(entry: Running) -> None:
-        entry.worker.stop()
-        entry.thread.join(timeout=JOIN_S)
+        entry.worker.close()
 
     def _restart(self, instance: str, entry: Running, why: str) -> None:
         log.warning("%s: restarting %s (%s)", self.name, instance, why)
@@ -258,23 +268,24 @@ class Container:
         self._start(spec, entry.restarts + 1)
 
     def _look_after(self) -> None:
-        """Restart the components that faulted too often or whose thread ended unasked; forget
-        those a stop command on their own control key released (reported on
-        ``<root>/left/<name>``)."""
+        """Restart the components that faulted too often or stopped unasked; forget those a
+        stop command on their own control key released (reported on ``<root>/left/<name>``).
+        O(components)."""
         with self._lock:
             entries = list(self.components.items())
         left = []
         for instance, entry in entries:
             worker = entry.worker
-            if not entry.thread.is_alive():
+            if worker.stopped:
                 if worker.released:
                     with self._lock:
                         self.components.pop(instance, None)
+                    self._end(entry)
                     self.counters["removed"] += 1
                     left.append(instance)
                 else:
-                    self._restart(instance, entry, "its thread ended")
-            elif worker.counters["internal_errors"] - entry.faults_at_start >= RESTART_AFTER_FAULTS:
+                    self._restart(instance, entry, "it stopped unasked")
+            elif worker.faults - entry.faults_at_start >= RESTART_AFTER_FAULTS:
                 self._restart(instance, entry, f"{RESTART_AFTER_FAULTS} unexpected faults")
         if left:
             self._report_left(left, "released")
@@ -343,15 +354,9 @@ class Container:
             "counters": dict(self.counters),
         }
 
-    def _serve_status(self) -> None:
-        reply = self._guarded(
-            lambda query: query.reply(
-                self.keys.status(self.name), json.dumps(self.status()), encoding=JSON
-            )
-        )
-        for query in self._status:
-            with query:
-                reply(query)
+    def _reply(self, query: Any) -> None:
+        with query:
+            query.reply(self.keys.status(self.name), json.dumps(self.status()), encoding=JSON)
 
     def stop(self) -> None:
         self._stop.set()
@@ -378,7 +383,8 @@ class Container:
             self.remove(list(self.components))
             self._left.undeclare()
             self._status.undeclare()
-            self._status_thread.join(timeout=1.0)
+            self.scheduler.stop()
+            self.scheduler.join(timeout=JOIN_S)
 
     def _handle(self, kind: str, event: Any) -> None:
         if kind == "control":

@@ -9,8 +9,9 @@ This is the intra-process communication of ROS 2's component containers and the 
 of Ubitrack's single-process data flow (Pustka et al. 2006, section 5: the pattern instances
 of one host's data flow connected by their ports).
 
-A hand-over happens on the producer's thread, after the producer released its lock
-(:meth:`LocalWires.hand_over` queues it for the thread, :meth:`LocalWires.flush` delivers),
+A hand-over happens on the producer's thread, after the producer released its lock: the
+producer queues it while it holds its lock (its readers, :attr:`LocalWires.readers`, and the
+value), takes its queue before it releases the lock, and delivers it (:func:`deliver`) after,
 so no component ever waits for another's lock while holding its own: a reader's query for a
 value at a given time (``net.time_queries``), which goes upstream to the producer, cannot
 deadlock against the producer's hand-over downstream. A chain of components in one container
@@ -23,8 +24,11 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import operator
+import struct
 import threading
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -43,28 +47,42 @@ SHORT_VALUE_FLOATS = 256
 def finite(value: Measurement) -> bool:
     """Whether every number of ``value`` is finite: the check ``core.codec.encode`` makes of a
     result leaving the process, made here for one leaving its component. The sum of its
-    numbers first (a value of a fixed, short shape as Python floats, a long one's with numpy):
+    numbers first (a value of a short shape: its arrays' bytes read as Python floats at once):
     an infinity or a NaN anywhere makes the sum infinite or NaN, so a finite sum proves them
     all finite; only a sum that overflows (numbers near 1e308) is looked at number by number.
-    About a quarter of the time of checking each (``docs/performance.md``, "Throughput").
-    O(numbers)."""
-    names, short = _layout(type(value))
-    arrays = [array for name in names if (array := getattr(value, name)) is not None]
-    if short:
-        numbers = memoryview(b"".join([array.tobytes() for array in arrays])).cast("d")
-        return math.isfinite(sum(numbers)) or all(map(math.isfinite, numbers))
-    return all(bool(np.isfinite(array).all()) for array in arrays)
+    A long value's arrays are checked with numpy. A third of the time of reading each array
+    apart (``docs/performance.md``, "Throughput"). O(numbers)."""
+    arrays, numbers, short = _layout(type(value))
+    present = arrays(value)
+    if numbers is not None:  # every field required, of a fixed shape
+        floats = numbers.unpack(b"".join(map(np.ndarray.tobytes, present)))
+    elif short:
+        floats = memoryview(b"".join([a.tobytes() for a in present if a is not None])).cast("d")
+    else:
+        return all(bool(np.isfinite(array).all()) for array in present if array is not None)
+    return math.isfinite(sum(floats)) or all(map(math.isfinite, floats))
 
 
 @functools.cache
-def _layout(kind: type[Measurement]) -> tuple[tuple[str, ...], bool]:
-    """The names of a measurement type's array fields (float64: validated on creation), and
-    whether they hold at most :data:`SHORT_VALUE_FLOATS` numbers whatever the value."""
-    sizes = [
-        math.prod(spec.shape) if None not in spec.shape else None for spec in kind.ARRAY_FIELDS
-    ]
+def _layout(
+    kind: type[Measurement],
+) -> tuple[Callable[[Measurement], tuple[Any, ...]], struct.Struct | None, bool]:
+    """How :func:`finite` reads a measurement type: a getter of its array fields (float64:
+    validated on creation) as a tuple; the layout of their bytes where every field is
+    required and of a fixed shape; and whether they hold at most :data:`SHORT_VALUE_FLOATS`
+    numbers whatever the value."""
+    fields = kind.ARRAY_FIELDS
+    names = [spec.name for spec in fields]
+    sizes = [math.prod(spec.shape) if None not in spec.shape else None for spec in fields]
     short = None not in sizes and sum(sizes) <= SHORT_VALUE_FLOATS
-    return tuple(spec.name for spec in kind.ARRAY_FIELDS), short
+    fixed = short and not any(spec.optional for spec in fields)
+    many = len(names) > 1
+    getter = operator.attrgetter(*names) if many else functools.partial(_fields, names)
+    return getter, struct.Struct(f"{sum(sizes)}d") if fixed else None, short
+
+
+def _fields(names: list[str], value: Measurement) -> tuple[Any, ...]:
+    return tuple(getattr(value, name) for name in names)
 
 
 class LocalSubscription:
@@ -75,6 +93,10 @@ class LocalSubscription:
 
     def undeclare(self) -> None:
         self._wires._remove(self)
+
+
+Handed = list[tuple[tuple[LocalSubscription, ...], Measurement]]
+"""Hand-overs queued by a producer, oldest first: the readers of a key and a value of it."""
 
 
 class LocalWires:
@@ -88,12 +110,11 @@ class LocalWires:
         self._producers: dict[str, frozenset[str]] = {}
         """Data key -> the instances in this container producing it (two while a plan changes:
         ``net.spec.GroupSpec``)."""
-        self._readers: dict[str, tuple[LocalSubscription, ...]] = {}
+        self.readers: dict[str, tuple[LocalSubscription, ...]] = {}
+        """Data key -> its readers in the container (read without the lock: replaced whole)."""
         self._latest: dict[str, Measurement] = {}
         """The latest value handed over on each key (a static output's reader bound later
         starts from it)."""
-        self._queued: dict[int, list[tuple[Deliver, Measurement]]] = {}
-        """By thread (``threading.get_ident``), the hand-overs it queued and has not flushed."""
         self.changed: Callable[[set[str]], None] = lambda keys: None
         """Called with the keys whose producer in this container came or went (by the thread
         that changed it, holding no lock of this object): their readers bind again."""
@@ -131,25 +152,20 @@ class LocalWires:
     def subscribe(self, key: str, deliver: Deliver) -> LocalSubscription:
         subscription = LocalSubscription(self, key, deliver)
         with self._lock:
-            self._readers[key] = (*self._readers.get(key, ()), subscription)
+            self.readers[key] = (*self.readers.get(key, ()), subscription)
         return subscription
 
     def _remove(self, subscription: LocalSubscription) -> None:
         with self._lock:
-            kept = tuple(
-                s for s in self._readers.get(subscription.key, ()) if s is not subscription
-            )
+            kept = tuple(s for s in self.readers.get(subscription.key, ()) if s is not subscription)
             if kept:
-                self._readers[subscription.key] = kept
+                self.readers[subscription.key] = kept
             else:
-                self._readers.pop(subscription.key, None)
-
-    def has_readers(self, key: str) -> bool:
-        return key in self._readers
+                self.readers.pop(subscription.key, None)
 
     def keep(self, key: str, value: Measurement) -> None:
-        """Keep ``value`` (finite: the codec encoded it) as ``key``'s latest, for a reader
-        bound later, where no reader in the container took it."""
+        """Keep ``value`` (finite: the codec encoded it, or :func:`finite` checked it) as
+        ``key``'s latest, for a reader bound later."""
         self._latest[key] = value
 
     def latest(self, key: str) -> Measurement | None:
@@ -157,32 +173,31 @@ class LocalWires:
 
     # -- hand-over ------------------------------------------------------------------------------
 
-    def hand_over(self, key: str, value: Measurement) -> None:
-        """Queue ``value`` of ``key`` for its readers, delivered by this thread's next
-        :meth:`flush` (the producer calls it holding its lock, flushes after releasing it)."""
+    def hand_over(
+        self, key: str, readers: tuple[LocalSubscription, ...], value: Measurement, queue: Handed
+    ) -> None:
+        """Queue ``value`` of ``key`` for ``readers`` (``key``'s: :attr:`readers`) on the
+        producer's ``queue``, delivered by :func:`deliver` once the producer released its lock;
+        it is ``key``'s latest from now on. O(1)."""
         self._latest[key] = value
-        readers = self._readers.get(key)
-        if not readers:
-            return
-        ident = threading.get_ident()
-        queued = self._queued.get(ident)
-        if queued is None:
-            queued = self._queued[ident] = []
-        for reader in readers:
-            queued.append((reader.deliver, value))
+        queue.append((readers, value))
 
-    def flush(self) -> None:
-        """Deliver what this thread queued, in order, the consecutive values of one reader in
-        one call (a run of a backlog stays a run downstream: ``services.worker``); a reader's
-        own hand-overs are flushed by the reader before it returns. O(values queued)."""
-        queued = self._queued.pop(threading.get_ident(), None)
-        if not queued:
-            return
-        deliver, values = queued[0][0], [queued[0][1]]
-        for reader, value in queued[1:]:
-            if reader is deliver:
-                values.append(value)
-            else:
-                deliver(values)
-                deliver, values = reader, [value]
-        deliver(values)
+
+def deliver(queued: Handed) -> None:
+    """Deliver what a producer queued (:meth:`LocalWires.hand_over`), in order, the consecutive
+    values of one reader in one call (a run of a backlog stays a run downstream:
+    ``services.worker``); a reader's own hand-overs are delivered by the reader before it
+    returns. O(values queued x their readers)."""
+    if len(queued) == 1 and len(queued[0][0]) == 1:  # one value, one reader: a hop of a chain
+        readers, value = queued[0]
+        readers[0].deliver([value])
+        return
+    pairs = [(reader.deliver, value) for readers, value in queued for reader in readers]
+    reader, values = pairs[0][0], [pairs[0][1]]
+    for each, value in pairs[1:]:
+        if each is reader:
+            values.append(value)
+        else:
+            reader(values)
+            reader, values = each, [value]
+    reader(values)

@@ -41,9 +41,12 @@ sample: it decodes each (validated in full, or at level ``WORKER`` for a binding
 computes and publishes; a backlog of one input under load, where nothing holds a sample back,
 as one run (:meth:`Worker._on_run`: decoded and, where the service vectorises, computed
 together). The worker's state has one lock, held by whichever thread handles: an input's, a
-query's for a value at a given time, or the worker thread, which applies control commands
-(from zenoh's callbacks through a bounded inbox) and computes the triggers held for the other
-inputs when their time is up.
+query's for a value at a given time, or the worker thread, which answers status queries and
+applies control commands (from zenoh's callbacks, run on zenoh's thread, through a bounded
+inbox) and computes the triggers held for the other inputs when their time is up. In a
+container (:mod:`services.container`) the container's scheduler (:mod:`services.scheduler`)
+takes the worker thread's turns (:meth:`Worker.turn`) for every component, and its static
+inputs' samples and its fetches of current values: a component has no thread of its own.
 
 Handling is total (issue 11): bad input (a sample the codec refuses, one stamped too far ahead
 of this host's clock, a control command or specification that is not a bounded JSON object of
@@ -75,9 +78,10 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from services.expansion import BatchProgress, TimeAccumulator
-from services.local_wires import LocalSubscription, LocalWires, finite
+from services.local_wires import Handed, LocalSubscription, LocalWires, deliver, finite
 from services.parent import Parent
 from services.registry import Pushed, Service, lookup
+from services.scheduler import Scheduler, on_zenoh_thread
 from services.spec import check_bindings, check_parameters, check_relations, check_spec
 from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
@@ -109,6 +113,7 @@ from ubitrack_agent.net.spec import (
 )
 from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.net.transport import (
+    FETCH_RETRY_DELAYS,
     LatestValuePublisher,
     fetch_until_satisfied,
     subscribe_in_bursts,
@@ -151,7 +156,7 @@ COUNTERS = {
     "infinity (not published)",
     "too_few_correspondences": "instants with fewer complete correspondences than the pattern "
     "needs (a feature hidden): expected, logged as a summary every SUMMARY_S",
-    "overflow": "control commands dropped because the inbox was full",
+    "overflow": "control commands and status queries dropped because the inbox was full",
     "rejected_commands": "control commands refused",
     "rewired": "control commands applied",
     "internal_errors": "unexpected exceptions handling network input (logged with traceback)",
@@ -177,6 +182,12 @@ UPSTREAM_TIMEOUT_S = 0.1
 CURRENT_TIMEOUT_S = 0.5
 """Longest a new component waits for its dynamic inputs' producers to answer their current
 value (:meth:`Worker._fetch_current`; they answer in milliseconds)."""
+STATIC_POLL_S = 0.002
+"""How often a new component in a container looks whether its static inputs have their values
+before it is handed its dynamic inputs' current values (:meth:`Worker._hand_current`)."""
+FETCH_TIMEOUT_S = 0.5
+"""Longest a static input's producer is waited for to answer its latest value (one attempt of
+``net.transport.FETCH_RETRY_DELAYS``)."""
 NO_MODEL_S = 1.0
 """How long an input whose producer answered ``no_model`` (a measured edge) or nothing is not
 asked again: a renderer asking every frame must not cost the flow a round trip (or a
@@ -186,6 +197,9 @@ LATENCY_SAMPLES = 64
 HANDLING_GAIN = 0.05
 """Weight of the latest sample in the running mean of the time to handle one (``handling_us``
 in the status)."""
+TIME_EVERY = 8
+"""One delivery of samples in this many is timed for ``handling_us`` (reading the clock twice
+costs a hop in a container about 2 % more)."""
 IDLE_S = 1.0
 """Longest the worker thread waits when nothing is due: commands, a trigger held, a stop and
 a subscriber appearing for an output read in the container wake it (``Worker.step``); every
@@ -214,10 +228,15 @@ class Inbox:
     ``queue.Queue`` run a condition's Python code on both threads for every item handed over
     (issue 12; ``docs/performance.md``, "Data path")."""
 
-    def __init__(self, capacity: int, counters: Counter[str]) -> None:
+    def __init__(
+        self, capacity: int, counters: Counter[str], notify: Callable[[], None] | None = None
+    ) -> None:
         self._items: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
         self._capacity = capacity
         self._counters = counters
+        self._notify = notify
+        """Called after each item is put (a container's scheduler then gives the worker a
+        turn: ``services.scheduler``)."""
 
     def put(self, item: tuple[Any, ...]) -> None:
         if self._items.qsize() >= self._capacity:
@@ -228,6 +247,8 @@ class Inbox:
             else:
                 self._counters["overflow"] += 1
         self._items.put(item)
+        if self._notify is not None:
+            self._notify()
 
     def take(self, timeout: float) -> list[tuple[Any, ...]]:
         """Every item waiting, oldest first, once one waits or after ``timeout`` (then none)."""
@@ -235,8 +256,15 @@ class Inbox:
             items = [self._items.get(timeout=timeout)]
         except queue.Empty:
             return []
+        return self._waiting(items)
+
+    def take_waiting(self) -> list[tuple[Any, ...]]:
+        """Every item waiting, oldest first, without waiting for one."""
+        return self._waiting([])
+
+    def _waiting(self, items: list[tuple[Any, ...]]) -> list[tuple[Any, ...]]:
         get = self._items.get_nowait
-        items.extend(get() for _ in range(self._items.qsize()))  # only this thread takes
+        items.extend(get() for _ in range(self._items.qsize()))  # only one thread takes
         return items
 
 
@@ -249,6 +277,20 @@ class _Input:
     """The measurement types its port takes."""
     level: str
     """Its samples' validation level: ``WORKER`` from a known worker, else ``FULL``."""
+    latency: deque[int]
+    """Its key's latest latencies (``Worker._latency``)."""
+    seen: bool
+    """Whether its key's first sample is stamped (``Worker._first_samples``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Route:
+    """Where an output port's values go: its data key, the publishers of its data key and
+    relation keys (the data key's first), and those of its relation keys alone."""
+
+    key: str
+    publishers: tuple[LatestValuePublisher, ...]
+    relations: tuple[LatestValuePublisher, ...]
 
 
 class Worker:
@@ -264,6 +306,7 @@ class Worker:
         parent: Parent | None = None,
         wires: LocalWires | None = None,
         container: str | None = None,
+        scheduler: Scheduler | None = None,
     ) -> None:
         created_ns = time.time_ns()
         self.spec = spec
@@ -275,7 +318,9 @@ class Worker:
         produces are handed its values as objects, and outputs read there are handed over
         (``services.local_wires``); zenoh carries an output only where something outside the
         process reads it."""
-        self._flush: Callable[[], None] = (lambda: None) if wires is None else wires.flush
+        self._handed: Handed = []
+        """Hand-overs to readers in the container queued under ``_lock``, taken before it is
+        released and delivered after (``services.local_wires``)."""
         self._outgoing: deque[tuple[tuple[LatestValuePublisher, ...], Measurement | bytes]]
         self._outgoing = deque()
         """The puts for readers outside the process, in the order the outputs were published
@@ -289,10 +334,18 @@ class Worker:
         self.clock = clock or Clock()
         """This host's clock (``Settings.clock_offset_ms`` applied), for samples stamped
         ahead of it."""
+        self._now_ns = self.clock.now_ns
+        self._space = spec.expansion == "space"
+        self._tolerance_ns = spec.tolerance_ns
+        """The specification's, read on every sample (no control command changes them)."""
         self.pool_counters = pool_counters
         """The counters of the pool this process belongs to, if any (shown in status)."""
         self.keys = keys
-        self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        self._counts: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        """The counters but those counted on every sample (:attr:`counters` adds them)."""
+        self._received = self._published = self._handed_over = self._not_sent = 0
+        """Those counted on every sample, as integers (a ``Counter``'s increment costs a hop in
+        a container about 1 % each); changed under ``_lock`` only."""
         self._session = session
         self._service_class = lookup(spec.service)
         self._computes_runs = self._service_class.compute_run is not Service.compute_run
@@ -303,21 +356,22 @@ class Worker:
         self._accumulator = self._new_accumulator()
         self._pending = PendingTriggers()
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
-        self._inbox = Inbox(INBOX_CAPACITY, self.counters)
+        self._scheduler = scheduler
+        """The container's scheduler, which gives this component its turns (:meth:`turn`)
+        and runs its static inputs' samples and its fetches (``services.scheduler``); None for
+        a worker on a thread of its own (:meth:`run`)."""
+        notify = None if scheduler is None else functools.partial(scheduler.wake, self, self.turn)
+        self._inbox = Inbox(INBOX_CAPACITY, self._counts, notify)
         self._lock = threading.Lock()
         """Held while the worker's state is used: by an input's thread handling its samples,
         a query's thread answering for a time, the worker thread (commands, held triggers)."""
         self._wakes_at = -math.inf
         """When the worker thread wakes next unless woken (monotonic; minus infinity while it
         is awake: it looks at the triggers held before it waits again)."""
-        self._on_sample_guarded = self._guarded(self._on_sample)
-        self._on_value_guarded = self._guarded(self._on_value)
-        self._deliver_guarded = self._guarded(self._deliver)
-        self._deliver_values_guarded = self._guarded(self._deliver_values)
-        self._on_run_guarded = self._guarded(self._on_run)
-        self._on_value_run_guarded = self._guarded(self._on_value_run)
         self._handling_s = 0.0
-        """Running mean of the time to handle a sample (seconds)."""
+        """Running mean of the time to handle a sample (seconds), over every
+        :data:`TIME_EVERY` deliveries (the first among them)."""
+        self._deliveries = 0
         self._stop = threading.Event()
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
@@ -329,29 +383,32 @@ class Worker:
         self._generation = 0
         self._publishers: dict[str, LatestValuePublisher] = {}
         self._routes: dict[str, list[str]] = {}
+        self._out: dict[str, _Route] = {}
+        """By output port, where its values go (:meth:`_route_outputs`)."""
         self._progress_routes: dict[str, list[str]] = {}
         self.progress: dict[str, Progress] = {}
         """The latest progress of each static estimate, by output port (shown in status)."""
-        self._latency: defaultdict[str, deque[float]] = defaultdict(
+        self._latency: defaultdict[str, deque[int]] = defaultdict(
             lambda: deque(maxlen=LATENCY_SAMPLES)
         )
+        """Per input key, the latest samples' latency (ns): this host's clock when the worker
+        takes the sample minus its timestamp (after the input's clock offset); each input
+        holds its key's (``_Input.latency``)."""
         self._first_samples: dict[str, int] = {}
         """Per input key, when its first sample was taken (wall clock): O(input keys ever)."""
-        """Per input key, the latest samples' latency (ms): this host's clock when the worker
-        takes the sample minus its timestamp (after the input's clock offset)."""
         self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
         """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
         take = self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes())))
         self._controls = [
-            session.declare_subscriber(key, take)
+            session.declare_subscriber(key, on_zenoh_thread(take))
             for key in (
                 keys.control(spec.instance),
                 keys.control_incarnation(spec.instance, self.incarnation),
             )
         ]
         self._route_outputs(spec.relations)
-        self._status = session.declare_queryable(keys.status(spec.instance))
-        self._status_thread = threading.Thread(target=self._serve_status, daemon=True)
+        ask = self._guarded(lambda query: self._inbox.put(("status", query)))
+        self._status = session.declare_queryable(keys.status(spec.instance), on_zenoh_thread(ask))
         with self._lock:  # an input's first samples wait until every input is bound
             self._bind(spec.inputs)
         if wires is not None:
@@ -364,6 +421,21 @@ class Worker:
         self.stamps = {"created_ns": created_ns, "ready_ns": time.time_ns()}
         """When this component was created and had declared everything (its token last), on
         the wall clock (issue 28's time to a first sample: ``agent.stamps``)."""
+
+    @property
+    def counters(self) -> Counter[str]:
+        """Every counter of :data:`COUNTERS`, now (a copy: count in ``_counts``)."""
+        counters = self._counts.copy()
+        counters["received"] += self._received
+        counters["published"] += self._published
+        counters["handed_over"] += self._handed_over
+        counters["not_sent"] += self._not_sent
+        return counters
+
+    @property
+    def faults(self) -> int:
+        """Unexpected exceptions so far (``internal_errors``)."""
+        return self._counts["internal_errors"]
 
     def _new_progress(self) -> bool:
         """Whether the service reports progress (:meth:`Service.progress` overridden): only
@@ -397,10 +469,11 @@ class Worker:
                 moved = binding.clock_offset_ns - kept.binding.clock_offset_ns
                 buffer = kept.buffer.shifted(moved) if moved else kept.buffer
                 kept.subscriber.undeclare()
-            subscriber = self._subscribe(generation, index, binding.key)
+            subscriber = self._subscribe(generation, index, binding)
             expected = self._service_class.INPUTS[binding.port].types
             level = WORKER if binding.from_worker else FULL
-            inputs.append(_Input(binding, buffer, subscriber, expected, level))
+            latency, seen = self._latency[binding.key], binding.key in self._first_samples
+            inputs.append(_Input(binding, buffer, subscriber, expected, level, latency, seen))
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
@@ -409,7 +482,7 @@ class Worker:
         wanted = [
             (
                 item.binding.key,
-                lambda payload, i=index: self._deliver_guarded(generation, i, [payload]),
+                lambda payload, i=index: self._deliver(generation, i, [payload]),
                 lambda buffer=item.buffer: len(buffer) > 0,
             )
             for index, item in static
@@ -421,19 +494,15 @@ class Worker:
             if self._local(item.binding.key)
             and (value := self._wires.latest(item.binding.key)) is not None
         ]
+        hands = [
+            functools.partial(self._deliver_values, generation, i, [value]) for i, value in latest
+        ]
         # A static edge's value may have been published long ago: ask for it, off this thread
         # (which holds no lock: the one binding holds this worker's).
-        threading.Thread(
-            target=self._fetch_static,
-            args=(
-                wanted,
-                [
-                    functools.partial(self._deliver_values_guarded, generation, i, [value])
-                    for i, value in latest
-                ],
-            ),
-            daemon=True,
-        ).start()
+        if self._scheduler is None:
+            threading.Thread(target=self._fetch_static, args=(wanted, hands), daemon=True).start()
+        else:
+            self._scheduler.call(functools.partial(self._ask_static, wanted, hands))
 
     def _fetch_current(self) -> None:
         """Hand a new component each dynamic input's current value at once, off this thread:
@@ -466,16 +535,79 @@ class Worker:
                 if time.monotonic() - asked_at > CURRENT_TIMEOUT_S or self._stop.wait(0.002):
                     break
             for index, value in local:
-                self._deliver_values_guarded(generation, index, [value])
+                self._deliver_values(generation, index, [value])
             asked = [
                 (index, self._session.get(key, timeout=CURRENT_TIMEOUT_S)) for index, key in remote
             ]
             for index, replies in asked:
                 for reply in replies:
                     if reply.ok is not None:
-                        self._deliver_guarded(generation, index, [reply.ok.payload.to_bytes()])
+                        self._deliver(generation, index, [reply.ok.payload.to_bytes()])
 
-        threading.Thread(target=self._guarded(fetch), daemon=True).start()
+        if self._scheduler is None:
+            threading.Thread(target=self._guarded(fetch), daemon=True).start()
+        else:
+            hand = functools.partial(self._hand_current, generation, local, remote, statics)
+            self._scheduler.call(functools.partial(hand, time.monotonic()))
+
+    def _hand_current(
+        self,
+        generation: int,
+        local: list[tuple[int, Measurement]],
+        remote: list[tuple[int, str]],
+        statics: list[SampleBuffer],
+        asked_at: float,
+    ) -> None:
+        """:meth:`_fetch_current` in a container, on its scheduler's thread
+        (``services.scheduler``): looked at again every ``STATIC_POLL_S`` until the static
+        inputs have their values (at most ``CURRENT_TIMEOUT_S``), and the producers' answers
+        handled as they come, nothing waited for on the thread."""
+        if self._stop.is_set() or generation != self._generation:
+            return
+        waiting = any(len(buffer) == 0 for buffer in statics)
+        if waiting and time.monotonic() - asked_at <= CURRENT_TIMEOUT_S:
+            again = (generation, local, remote, statics, asked_at)
+            self._scheduler.later(STATIC_POLL_S, functools.partial(self._hand_current, *again))
+            return
+        for index, value in local:
+            self._deliver_values(generation, index, [value])
+        for index, key in remote:
+            deliver = functools.partial(self._deliver_one, generation, index)
+            self._ask_latest(key, deliver, CURRENT_TIMEOUT_S)
+
+    def _deliver_one(self, generation: int, index: int, payload: bytes) -> None:
+        self._deliver(generation, index, [payload])
+
+    def _ask_static(
+        self,
+        wanted: list[tuple[str, Callable[[bytes], None], Callable[[], bool]]],
+        hands: list[Callable[[], None]],
+        attempt: int = 0,
+    ) -> None:
+        """:meth:`_fetch_static` in a container, on its scheduler's thread: each attempt of
+        ``net.transport.FETCH_RETRY_DELAYS`` asks the producers of the inputs still without a
+        value and is over at once (:meth:`_ask_latest`); the next is a timer."""
+        for hand in hands:
+            hand()
+        if self._stop.is_set():
+            return
+        pending = [(key, take) for key, take, satisfied in wanted if not satisfied()]
+        for key, take in pending:
+            self._ask_latest(key, take, FETCH_TIMEOUT_S)
+        if pending and attempt + 1 < len(FETCH_RETRY_DELAYS):
+            again = functools.partial(self._ask_static, wanted, [], attempt + 1)
+            self._scheduler.later(FETCH_RETRY_DELAYS[attempt + 1], again)
+
+    def _ask_latest(self, key: str, deliver: Callable[[bytes], None], timeout: float) -> None:
+        """Ask the queryables on ``key`` for their latest value without waiting: each answer
+        is handed to ``deliver`` on the scheduler's thread."""
+        call = self._scheduler.call
+
+        def answer(reply: Any) -> None:
+            if reply.ok is not None:
+                call(functools.partial(deliver, reply.ok.payload.to_bytes()))
+
+        self._session.get(key, on_zenoh_thread(self._guarded(answer)), timeout=timeout)
 
     def _fetch_static(
         self,
@@ -484,22 +616,34 @@ class Worker:
     ) -> None:
         """Hand the static inputs read in the container their producers' latest values, and
         fetch the others' (``net.transport.fetch_until_satisfied``)."""
-        for deliver in latest:
-            deliver()
+        for hand in latest:
+            hand()
         fetch_until_satisfied(self._session, wanted, self._stop)
 
     def _local(self, key: str) -> bool:
         """Whether another component of this worker's container produces ``key``."""
         return self._wires is not None and self._wires.producer(key) is not None
 
-    def _subscribe(self, generation: int, index: int, key: str) -> Any:
+    def _subscribe(self, generation: int, index: int, binding: InputBinding) -> Any:
         """Input ``index``'s subscription: to the container's local wire if a component there
-        produces ``key`` (``services.local_wires``), else to zenoh."""
+        produces its key (``services.local_wires``), else to zenoh: a dynamic input's on a
+        thread of its own (``net.transport.subscribe_in_bursts``), a static one's in a
+        container on its scheduler's thread (a sample now and then: no thread for it)."""
+        key = binding.key
         if self._local(key):
-            deliver = functools.partial(self._deliver_values_guarded, generation, index)
-            return self._wires.subscribe(key, deliver)
-        deliver = functools.partial(self._deliver_guarded, generation, index)
-        return subscribe_in_bursts(self._session, key, deliver)
+            handle = (self._on_value, self._on_value_run, generation, index)
+            return self._wires.subscribe(key, functools.partial(self._handle, *handle))
+        if binding.static and self._scheduler is not None:
+            call, deliver = (
+                self._scheduler.call,
+                functools.partial(self._deliver_one, generation, index),
+            )
+            take = self._guarded(
+                lambda sample: call(functools.partial(deliver, sample.payload.to_bytes()))
+            )
+            return self._session.declare_subscriber(key, on_zenoh_thread(take))
+        handle = (self._on_sample, self._on_run, generation, index)
+        return subscribe_in_bursts(self._session, key, functools.partial(self._handle, *handle))
 
     def rebind(self) -> bool:
         """Move the inputs whose producer joined or left this worker's container onto the
@@ -512,7 +656,7 @@ class Worker:
             for index, item in enumerate(self._inputs):
                 if isinstance(item.subscriber, LocalSubscription) != self._local(item.binding.key):
                     item.subscriber.undeclare()
-                    item.subscriber = self._subscribe(self._generation, index, item.binding.key)
+                    item.subscriber = self._subscribe(self._generation, index, item.binding)
                     moved = True
         return moved
 
@@ -534,9 +678,13 @@ class Worker:
             at = None if port is None else (lambda t, port=port: self._ask(port, t))
             encoding = JSON if port is None else MSGPACK  # progress, or a measurement
             self._publishers[key] = LatestValuePublisher(
-                self._session, key, at, self.counters, encoding, self._wake
+                self._session, key, at, self._counts, encoding, self._wake
             )
         self._routes = routes
+        self._out = {
+            port: _Route(keys[0], self._publishers_of(keys), self._publishers_of(keys[1:]))
+            for port, keys in routes.items()
+        }
         self._progress_routes = progress_routes
 
     def _static_relations(self, relation_keys: tuple[str, ...]) -> list[RelationId]:
@@ -604,25 +752,25 @@ class Worker:
         if command.relations is not None:
             self.spec = replace(self.spec, relations=command.relations)
             self._route_outputs(self.spec.relations)
-        self.counters["rewired"] += 1
+        self._counts["rewired"] += 1
         log.info("%s: reconfigured", self.spec.instance)
 
     def _count(self, counter: str, message: str, *details: Any) -> None:
         """Count a rejection or an input consumed without an output; log it, rate-limited."""
         logs.count_problem(
-            self.counters, counter, log, f"%s: {message}", self.spec.instance, *details
+            self._counts, counter, log, f"%s: {message}", self.spec.instance, *details
         )
 
     def _guarded(self, handler: Callable[..., None]) -> Callable[..., None]:
         """``handler`` made total (:func:`ubitrack_agent.net.logs.guarded`)."""
-        return logs.guarded(handler, self.counters, log, self.spec.instance)
+        return logs.guarded(handler, self._counts, log, self.spec.instance)
 
     # -- data path --------------------------------------------------------------------------
 
     def _on_sample(self, generation: int, index: int, payload: bytes) -> None:
-        self.counters["received"] += 1
+        self._received += 1
         if generation != self._generation:
-            self.counters["superseded"] += 1  # from a subscription a rewire replaced
+            self._counts["superseded"] += 1  # from a subscription a rewire replaced
             return
         item = self._inputs[index]
         try:
@@ -635,9 +783,9 @@ class Worker:
     def _on_value(self, generation: int, index: int, value: Measurement) -> None:
         """A value handed over by another component of the container (``services.local_wires``):
         handled as a sample (:meth:`_on_sample`), with nothing to decode."""
-        self.counters["received"] += 1
+        self._received += 1
         if generation != self._generation:
-            self.counters["superseded"] += 1  # from a wire a rewire replaced
+            self._counts["superseded"] += 1  # from a wire a rewire replaced
             return
         item = self._inputs[index]
         if not isinstance(value, item.expected):
@@ -654,28 +802,31 @@ class Worker:
         if self._asynchronous:
             self._push(item.binding.port, sample)
             return
-        if not self._buffered(item, sample):
+        if not item.buffer.add(sample):
+            self._count_stale(item, sample)
             return
         t = sample.timestamp_ns
         if not item.binding.trigger:
-            self.counters["buffered"] += 1
+            self._counts["buffered"] += 1
         elif item.binding.static:
             self._evaluate(t)  # a new static value: recompute at once
-        elif (wait_s := self._wait_s(item, t)) == 0.0 and not self._pending.deadlines:
+        elif (
+            wait_s := 0.0 if len(self._dynamic) < 2 else self._wait_s(item, t)
+        ) == 0.0 and not self._pending.deadlines:
             if self._pending.finish(t):  # nothing to wait for: at once
                 self._evaluate(t, item, sample)
             else:
-                self.counters["stale_triggers"] += 1
+                self._counts["stale_triggers"] += 1
         elif not self._pending.add(t, time.monotonic(), wait_s, extend=True):
             # Held until the other inputs catch up; an instant already computed is ignored.
-            self.counters["stale_triggers"] += 1
+            self._counts["stale_triggers"] += 1
 
     def _admitted(self, item: _Input, sample: Measurement) -> Measurement | None:
         """``sample`` of ``item`` on this host's clock (its input's clock offset added), its
         latency recorded; None if it is stamped ahead of the clock or the offset takes it out
         of range (counted)."""
         key, t = item.binding.key, sample.timestamp_ns
-        now = self.clock.now_ns()
+        now = self._now_ns()
         if ahead_of_clock(t, now):  # on the sensor's clock: before correction
             self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
             return None
@@ -686,18 +837,16 @@ class Worker:
                 self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
                 return None
             t = sample.timestamp_ns
-        self._latency[key].append((now - t) / 1e6)
-        if key not in self._first_samples:
-            self._first_samples[key] = time.time_ns()
+        item.latency.append(now - t)
+        if not item.seen:
+            self._first_samples.setdefault(key, time.time_ns())
+            item.seen = True
         return sample
 
-    def _buffered(self, item: _Input, sample: Measurement) -> bool:
-        """Whether ``sample`` joined its input's buffer (else counted: beyond its horizon)."""
-        if item.buffer.add(sample):
-            return True
+    def _count_stale(self, item: _Input, sample: Measurement) -> None:
+        """Count ``sample``, which its input's buffer refused: older than all it holds."""
         key, t = item.binding.key, sample.timestamp_ns
         self._count("dropped_stale", "dropped sample on %s older than its buffer: %d", key, t)
-        return False
 
     def _takes_runs(self, generation: int, index: int) -> bool:
         """Whether samples of input ``index`` waiting together may be handled as one run
@@ -722,8 +871,8 @@ class Worker:
         """Samples of one input taken from the inbox together (:meth:`_takes_runs`), each
         handled as :meth:`_on_sample` would, decoded together (``core.codec.decode_run``) and
         computed together where the service vectorises (:meth:`_run`)."""
-        self.counters["received"] += len(payloads)
-        self.counters["in_runs"] += len(payloads)
+        self._received += len(payloads)
+        self._counts["in_runs"] += len(payloads)
         item = self._inputs[index]
         decoded = []
         for value in decode_run(payloads, item.expected, item.level):
@@ -737,8 +886,8 @@ class Worker:
         """Values handed over together by another component of the container (a run it
         computed, ``services.local_wires``), handled as :meth:`_on_value` would, computed
         together where the service vectorises (:meth:`_run`)."""
-        self.counters["received"] += len(values)
-        self.counters["in_runs"] += len(values)
+        self._received += len(values)
+        self._counts["in_runs"] += len(values)
         item = self._inputs[index]
         taken = []
         for value in values:
@@ -756,11 +905,14 @@ class Worker:
         instants: list[tuple[dict[str, Any], int]] = []
         for value in values:
             sample = self._admitted(item, value)
-            if sample is None or not self._buffered(item, sample):
+            if sample is None:
+                continue
+            if not item.buffer.add(sample):
+                self._count_stale(item, sample)
                 continue
             t = sample.timestamp_ns
             if not self._pending.finish(t):
-                self.counters["stale_triggers"] += 1
+                self._counts["stale_triggers"] += 1
             elif (inputs := self._values_at(t, item, sample)) is not None:
                 instants.append((inputs, t))
         if self._computes_runs and len(instants) > 1:
@@ -812,9 +964,9 @@ class Worker:
         if self._accumulator is None:
             self._compute(values, t)
         elif not self._accumulator.add(values):
-            self.counters["not_distinct"] += 1
+            self._counts["not_distinct"] += 1
         elif not self._accumulator.ready():
-            self.counters["accumulating"] += 1
+            self._counts["accumulating"] += 1
         else:
             self._compute(self._accumulator.expanded(values), t)
 
@@ -824,15 +976,14 @@ class Worker:
         """The service's inputs at ``t`` by port (see :meth:`_evaluate`); None if one has no
         value then (counted ``dropped``)."""
         values: dict[str, Any] = {}
-        space = self.spec.expansion == "space"
-        tolerance_ns = self.spec.tolerance_ns
+        space, tolerance_ns = self._space, self._tolerance_ns
         for item in self._inputs:
             port = item.binding.port
             value = sample if item is trigger else item.buffer.value_at(t, tolerance_ns)
             if space and port in self._service_class.CORRESPONDENCE:
                 values.setdefault(port, []).append(value)
             elif value is None:
-                self.counters["dropped"] += 1
+                self._counts["dropped"] += 1
                 return None
             else:
                 values[port] = value
@@ -848,22 +999,24 @@ class Worker:
         if pushed.outputs:
             self._publish(pushed.outputs, sample.timestamp_ns)
         else:
-            self.counters[pushed.reason] += 1
+            self._counts[pushed.reason] += 1
 
     def _compute(self, values: dict[str, Any], timestamp_ns: int) -> None:
         try:
             outputs = self._service.compute(values, timestamp_ns)
         except TooFewCorrespondences:
-            self.counters["too_few_correspondences"] += 1  # expected: summarised
+            self._counts["too_few_correspondences"] += 1  # expected: summarised
             return
         except (ValueError, MeasurementError, ArithmeticError) as exc:
             self._count("failed", "computation failed: %s", exc)
             return
-        self._publish_computed(outputs, timestamp_ns)
+        if not outputs:
+            self._counts["no_output"] += 1
+        self._publish(outputs, timestamp_ns)
 
     def _publish_computed(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         if not outputs:
-            self.counters["no_output"] += 1
+            self._counts["no_output"] += 1
         self._publish(outputs, timestamp_ns)
 
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
@@ -875,27 +1028,27 @@ class Worker:
         O(outputs x routes)."""
         wires = self._wires
         for port, value in outputs.items():
-            routes = self._routes.get(port, ())
-            if wires is not None and routes and wires.has_readers(routes[0]):
+            route = self._out.get(port)
+            readers = None if wires is None or route is None else wires.readers.get(route.key)
+            if readers:
                 if not finite(value):
                     self._count("failed", "result of %s holds NaN or infinity", port)
                     continue
-                wires.hand_over(routes[0], value)
-                self.counters["handed_over"] += 1
-                routes = self._outside(routes)
-                if routes:
-                    self._outgoing.append((self._publishers_of(routes), value))
-                self.counters["published"] += 1
+                wires.hand_over(route.key, readers, value, self._handed)
+                self._handed_over += 1
+                self._published += 1
+                self._outside(route, value)
                 continue
             try:
                 payload = encode(value)  # where a result's numbers are checked
             except MeasurementError as exc:
                 self._count("failed", "result not published: %s", exc)
                 continue
-            if wires is not None and routes:  # a reader bound later in the container starts here
-                wires.keep(routes[0], value)
-            self._outgoing.append((self._publishers_of(routes), payload))
-            self.counters["published"] += 1
+            if route is not None:
+                if wires is not None:  # a reader bound later in the container starts here
+                    wires.keep(route.key, value)
+                self._outgoing.append((route.publishers, payload))
+            self._published += 1
         if self._reports_progress or self._batch_progress is not None:
             self._publish_progress(outputs, timestamp_ns)
 
@@ -921,17 +1074,19 @@ class Worker:
             for publisher in publishers:
                 publisher.put(payload)
 
-    def _outside(self, routes: list[str]) -> list[str]:
-        """Of an output's ``routes`` (its data key first, then its relation keys), those zenoh
-        must carry besides the hand-over in the container: the relation keys, and the data key
-        while a subscriber outside this process listens (zenoh's matching status, told to the
-        publisher: ``net.transport.LatestValuePublisher``; else it is remembered, to be sent
-        when one appears: :meth:`_send_unsent`)."""
-        if self._publishers[routes[0]].matching:
-            return routes
-        self.counters["not_sent"] += 1
-        self._unsent.add(routes[0])
-        return routes[1:]
+    def _outside(self, route: _Route, value: Measurement) -> None:
+        """Queue the puts of ``value``, handed over in the container, that zenoh must carry
+        besides: on the relation keys, and on the data key while a subscriber outside this
+        process listens (zenoh's matching status, told to the publisher:
+        ``net.transport.LatestValuePublisher``; else it is remembered, to be sent when one
+        appears: :meth:`_send_unsent`)."""
+        if route.publishers[0].matching:
+            self._outgoing.append((route.publishers, value))
+            return
+        self._not_sent += 1
+        self._unsent.add(route.key)
+        if route.relations:
+            self._outgoing.append((route.relations, value))
 
     def _wake(self) -> None:
         """Wake the worker thread (a subscriber appeared: :meth:`_send_unsent`)."""
@@ -979,16 +1134,16 @@ class Worker:
         try:
             payload = encode(self._value_at(port, timestamp_ns))
         except (ValueError, LookupError, TimeoutError):
-            self.counters["time_queries_refused"] += 1
+            self._counts["time_queries_refused"] += 1
             raise
         except Exception:
             where = self.spec.instance
             logs.count_problem(
-                self.counters, "internal_errors", log, "%s: internal error", where, exc_info=True
+                self._counts, "internal_errors", log, "%s: internal error", where, exc_info=True
             )
             raise NoDataError("the worker could not answer") from None
         else:
-            self.counters["time_queries"] += 1
+            self._counts["time_queries"] += 1
         finally:
             self._lock.release()
         return payload
@@ -1086,111 +1241,144 @@ class Worker:
         """The median latency (ms) of each dynamic input's latest samples (see ``_latency``)."""
         keys = {item.binding.key for item in self._inputs if not item.binding.static}
         return {
-            key: round(statistics.median(list(values)), 3)
+            key: round(statistics.median(list(values)) / 1e6, 3)
             for key, values in list(self._latency.items())
             if key in keys and values
         }
 
-    def _serve_status(self) -> None:
-        reply = self._guarded(self._reply_status)
-        for query in self._status:
-            with query:
-                reply(query)
-
     def _reply_status(self, query: Any) -> None:
-        query.reply(self.keys.status(self.spec.instance), json.dumps(self.status()), encoding=JSON)
+        with query:
+            status = json.dumps(self.status())
+            query.reply(self.keys.status(self.spec.instance), status, encoding=JSON)
 
     def stop(self) -> None:
         self._stop.set()
         self._inbox.put(("wake",))  # the worker thread ends now, not after its idle wait
 
     def _deliver(self, generation: int, index: int, payloads: list[bytes]) -> None:
-        """Handle the samples of input ``index`` of binding ``generation`` taken together, on
-        the thread that took them (an input's, or the one fetching a static edge's value):
-        at least :data:`RUN_MIN` as one run where it may (:meth:`_takes_runs`), else one by
-        one, each followed by the triggers due; then wake the worker thread if a trigger is
-        held that is due before it would wake. Nothing after :meth:`stop`."""
-        if len(payloads) >= RUN_MIN and self._handled_as_run(
-            self._on_run_guarded, generation, index, payloads
-        ):
-            return
-        self._handle_each(self._on_sample_guarded, generation, index, payloads)
+        """Handle samples of input ``index`` of binding ``generation`` taken together
+        (:meth:`_handle`), on the thread that took them (an input's, or one fetching a
+        current value)."""
+        self._handle(self._on_sample, self._on_run, generation, index, payloads)
 
     def _deliver_values(self, generation: int, index: int, values: list[Measurement]) -> None:
         """Handle values handed over on input ``index`` of binding ``generation`` by another
-        component of the container, on that component's thread (``services.local_wires``), as
-        :meth:`_deliver` handles samples; then hand this one's outputs on."""
-        if len(values) >= RUN_MIN and self._handled_as_run(
-            self._on_value_run_guarded, generation, index, values
-        ):
-            return
-        self._handle_each(self._on_value_guarded, generation, index, values)
+        component of the container (``services.local_wires``), on that component's thread,
+        as :meth:`_deliver` handles samples."""
+        self._handle(self._on_value, self._on_value_run, generation, index, values)
 
-    def _handled_as_run(
-        self, handler: Callable[[int, int, list], None], generation: int, index: int, items: list
-    ) -> bool:
-        """Whether ``items`` were handled as one run (:meth:`_takes_runs`), timed per item
-        (``_handling_s``); then the outputs are handed on, the lock released."""
-        with self._lock:
-            if not self._takes_runs(generation, index) or self._stop.is_set():
-                return False
-            start = time.perf_counter()
-            handler(generation, index, items)
-            each = (time.perf_counter() - start) / len(items)
-            self._handling_s += HANDLING_GAIN * (each - self._handling_s)
-            self._wake_for_held()
-        self._flush()
-        self._put_outside()
-        return True
-
-    def _handle_each(
-        self, handler: Callable[[int, int, Any], None], generation: int, index: int, items: list
+    def _handle(
+        self,
+        each: Callable[[int, int, Any], None],
+        run: Callable[[int, int, list], None],
+        generation: int,
+        index: int,
+        items: list,
     ) -> None:
-        """Handle ``items`` (samples or values) of input ``index`` one by one, each followed by
-        the triggers due, under ``_lock``; then wake the worker thread if a trigger held is
-        due before it would wake, and, the lock released, hand the outputs to the container's
-        readers (``services.local_wires``). Nothing after :meth:`stop`."""
+        """Handle ``items`` (samples, or values handed over) of input ``index`` under
+        ``_lock``: at least :data:`RUN_MIN` as one run where it may (:meth:`_takes_runs`),
+        else one by one, each followed by the triggers due; then wake the worker thread if a
+        trigger is held that is due before it would wake, and, the lock released, hand the
+        outputs to the container's readers (``services.local_wires``) and put those for
+        readers outside. Total: an unexpected exception is counted (``internal_errors``) and
+        logged, and the next item handled. Every :data:`TIME_EVERY`-th call is timed
+        (``handling_us``). Nothing after :meth:`stop`. O(items + outputs)."""
         with self._lock:
-            for item in items:
-                if self._stop.is_set():
-                    break
-                self._handle(handler, generation, index, item)
-            self._wake_for_held()
-        self._flush()
-        self._put_outside()
+            self._deliveries += 1
+            timed = self._deliveries % TIME_EVERY == 1  # the first, then one in TIME_EVERY
+            start = time.perf_counter() if timed else 0.0
+            if len(items) >= RUN_MIN and self._takes_runs(generation, index):
+                try:
+                    if not self._stop.is_set():
+                        run(generation, index, items)
+                except Exception:
+                    self._internal_error()
+            else:
+                for item in items:
+                    if self._stop.is_set():
+                        break
+                    try:
+                        each(generation, index, item)
+                        if self._pending.deadlines:
+                            self._process_due_triggers()
+                    except Exception:
+                        self._internal_error()
+            if timed:
+                each_s = (time.perf_counter() - start) / len(items)
+                self._handling_s += HANDLING_GAIN * (each_s - self._handling_s)
+            if self._pending.deadlines:
+                self._wake_for_held()
+            handed = self._handed
+            if handed:
+                self._handed = []
+        if handed or self._outgoing:
+            self._hand_on(handed)
+
+    def _hand_on(self, handed: Handed) -> None:
+        """Deliver ``handed`` to the readers in the container, then put what is queued for
+        readers outside (:meth:`_put_outside`); ``_lock`` free. Total."""
+        try:
+            if handed:
+                deliver(handed)
+            if self._outgoing:
+                self._put_outside()
+        except Exception:
+            self._internal_error()
+
+    def _internal_error(self) -> None:
+        """Count and log the exception being handled (``internal_errors``)."""
+        logs.count_problem(
+            self._counts,
+            "internal_errors",
+            log,
+            "%s: internal error",
+            self.spec.instance,
+            exc_info=True,
+        )
 
     def _wake_for_held(self) -> None:
         """Wake the worker thread if a trigger is held that is due before it would wake;
         under ``_lock``."""
-        if self._pending.deadlines:  # a dictionary's truth: a method call costs the hop
-            deadline = self._pending.next_deadline()
-            if deadline is not None and deadline < self._wakes_at:
-                self._wakes_at = deadline
-                self._inbox.put(("wake",))
-
-    def _handle(
-        self, handler: Callable[[int, int, Any], None], generation: int, index: int, sample: Any
-    ) -> None:
-        """A sample (or a value handed over) and the triggers due after it, timed
-        (``_handling_s``); under ``_lock``."""
-        start = time.perf_counter()
-        handler(generation, index, sample)
-        if self._pending.deadlines:
-            self._guarded(self._process_due_triggers)()
-        self._handling_s += HANDLING_GAIN * (time.perf_counter() - start - self._handling_s)
+        deadline = self._pending.next_deadline()
+        if deadline is not None and deadline < self._wakes_at:
+            self._wakes_at = deadline
+            self._inbox.put(("wake",))
 
     def step(self, longest_s: float = IDLE_S) -> None:
         """The worker thread's turn: wait at most ``longest_s``, or until the next trigger
-        held is due, for control commands (or a wake-up); apply them in order, then compute
-        the triggers due; never raises (:meth:`_guarded`). The inputs' samples are handled
-        on their own threads (:meth:`_deliver`)."""
+        held is due, for control commands, status queries (or a wake-up); then do what is
+        due (:meth:`_turn`). The inputs' samples are handled on their own threads
+        (:meth:`_deliver`)."""
         with self._lock:
             deadline = self._pending.next_deadline()
             now = time.monotonic()
             timeout = longest_s if deadline is None else min(longest_s, max(0.0, deadline - now))
             self._wakes_at = now + timeout
-        items = self._inbox.take(timeout)
+        self._turn(self._inbox.take(timeout))
+
+    def turn(self) -> float | None:
+        """A turn given by the container's scheduler (``services.scheduler``), woken by an
+        item in the inbox or its deadline: do what is due (:meth:`_turn`) without waiting;
+        when the next turn is due (a trigger held, the next summary), None once stopped."""
+        self._turn(self._inbox.take_waiting())
         with self._lock:
+            if self._stop.is_set():
+                return None
+            deadline = self._pending.next_deadline()
+            due = self._summary_due if deadline is None else min(deadline, self._summary_due)
+            self._wakes_at = due
+        return due
+
+    def _turn(self, items: list[tuple[Any, ...]]) -> None:
+        """Answer the status queries and apply the control commands among ``items`` in order,
+        then compute the triggers due, send the values a new subscriber outside waits for and
+        summarise; never raises (:meth:`_guarded`)."""
+        for item in items:
+            if item[0] == "status":
+                self._guarded(self._reply_status)(item[1])
+        with self._lock:
+            if self._stop.is_set():  # closed (a turn asked for before): nothing more
+                return
             self._wakes_at = -math.inf  # awake: an input's thread need not wake it
             for item in items:
                 if self._stop.is_set():
@@ -1202,15 +1390,17 @@ class Worker:
             if self._unsent:
                 self._guarded(self._send_unsent)()
             self._summarise(time.monotonic())
-        self._flush()
-        self._guarded(self._put_outside)()
+            handed = self._handed
+            if handed:
+                self._handed = []
+        self._hand_on(handed)
 
     def _summarise(self, now: float) -> None:
         """Every ``SUMMARY_S``, one warning for the expected conditions counted meanwhile
         (instants with too few correspondences), instead of one per instant."""
         if now < self._summary_due:
             return
-        counted = self.counters["too_few_correspondences"]
+        counted = self._counts["too_few_correspondences"]
         if counted > self._summarised:
             log.warning(
                 "%s: %d instant(s) with too few correspondences in the last %.0f s "
@@ -1224,28 +1414,38 @@ class Worker:
 
     def run(self) -> None:
         """Take commands and compute held triggers (:meth:`step`) until :meth:`stop`; then
-        undeclare everything."""
-        self._status_thread.start()
+        undeclare everything (:meth:`close`)."""
         try:
             while not self._stop.is_set():
                 self.step()
         finally:
-            self._stop.set()
-            with self._lock:  # no input's thread is handling a sample; none will after this
-                pass
-            self._token.undeclare()
-            if self._wires is not None:
-                self._wires.produce(self.spec.instance, ())
-            for item in self._inputs:
-                item.subscriber.undeclare()
-            for control in self._controls:
-                control.undeclare()
-            self._status.undeclare()
-            with self._put_lock:  # a thread still putting what it queued finishes first
-                self._put_outside_held()
-                for publisher in self._publishers.values():
-                    publisher.undeclare()
-            self._status_thread.join(timeout=1.0)
+            self.close()
+
+    @property
+    def stopped(self) -> bool:
+        """Whether :meth:`stop` was called (a stop command, or whoever runs it)."""
+        return self._stop.is_set()
+
+    def close(self) -> None:
+        """Stop, and undeclare everything; a container's component ends here (it has no
+        thread of its own: ``services.container``)."""
+        self._stop.set()
+        with self._lock:  # no thread is handling a sample or a turn; none will after this
+            pass
+        if self._scheduler is not None:
+            self._scheduler.forget(self)
+        self._token.undeclare()
+        if self._wires is not None:
+            self._wires.produce(self.spec.instance, ())
+        for item in self._inputs:
+            item.subscriber.undeclare()
+        for control in self._controls:
+            control.undeclare()
+        self._status.undeclare()
+        with self._put_lock:  # a thread still putting what it queued finishes first
+            self._put_outside_held()
+            for publisher in self._publishers.values():
+                publisher.undeclare()
 
 
 def build_parser() -> argparse.ArgumentParser:

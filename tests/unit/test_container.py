@@ -19,10 +19,10 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from services.container import RESTART_AFTER_FAULTS, Container
-from services.local_wires import LocalWires, finite
+from services.local_wires import LocalWires, deliver, finite
 from services.worker import RUN_MIN
 from tests.unit.test_worker_inputs import KEYS, FakeSession
-from ubitrack_agent.core import ErrorPose, Pose, decode, encode
+from ubitrack_agent.core import ErrorPose, Pose, Position3D, decode, encode
 from ubitrack_agent.core.poses import compose_poses
 from ubitrack_agent.net.spec import (
     ComponentSpec,
@@ -109,7 +109,7 @@ def test_parsing_a_group_is_total(value):
 # -- local wires ------------------------------------------------------------------------------
 
 
-def test_a_hand_over_waits_for_the_flush_and_reaches_every_reader_in_order():
+def test_a_hand_over_waits_for_its_delivery_and_reaches_every_reader_in_order():
     wires = LocalWires()
     moved: list[set[str]] = []
     wires.changed = moved.append
@@ -118,34 +118,48 @@ def test_a_hand_over_waits_for_the_flush_and_reaches_every_reader_in_order():
     wires.subscribe("k", got_a.extend)
     subscription = wires.subscribe("k", got_b.extend)
     first, second = random_pose(1), random_pose(2)
-    wires.hand_over("k", first)
-    wires.hand_over("k", second)
+    queued: list = []
+    wires.hand_over("k", wires.readers["k"], first, queued)
+    wires.hand_over("k", wires.readers["k"], second, queued)
     assert got_a == [] and wires.latest("k") is second
-    wires.flush()
+    deliver(queued)
     assert got_a == [first, second] and got_b == [first, second]
     assert got_a[0] is first  # the object itself: nothing encoded or copied
     subscription.undeclare()
-    wires.hand_over("k", first)
-    wires.flush()
+    deliver([(wires.readers["k"], first)])
     assert len(got_b) == 2 and len(got_a) == 3
     wires.produce("p", ())
     assert moved == [{"k"}, {"k"}] and wires.producer("k") is None and wires.latest("k") is None
 
 
-def test_a_readers_own_hand_over_is_flushed_by_the_reader_on_the_same_thread():
+def test_consecutive_values_of_one_reader_arrive_in_one_call_and_the_order_is_kept():
+    wires = LocalWires()
+    calls: list[tuple[str, list[int]]] = []
+    for name in ("a", "b"):
+        wires.subscribe(
+            name, lambda values, n=name: calls.append((n, [v.timestamp_ns for v in values]))
+        )
+    queued: list = []
+    for key, t in (("a", 1), ("a", 2), ("b", 3), ("a", 4)):
+        wires.hand_over(key, wires.readers[key], random_pose(t), queued)
+    deliver(queued)
+    assert calls == [("a", [1, 2]), ("b", [3]), ("a", [4])]
+
+
+def test_a_readers_own_hand_over_is_delivered_by_the_reader_on_the_same_thread():
     wires = LocalWires()
     seen: list[tuple[str, int]] = []
 
     def relay(values):
+        queued: list = []
         for value in values:
             seen.append(("mid", value.timestamp_ns))
-            wires.hand_over("out", value)
-        wires.flush()
+            wires.hand_over("out", wires.readers["out"], value, queued)
+        deliver(queued)
 
     wires.subscribe("in", relay)
     wires.subscribe("out", lambda values: seen.extend(("end", v.timestamp_ns) for v in values))
-    wires.hand_over("in", random_pose(5))
-    wires.flush()
+    deliver([(wires.readers["in"], random_pose(5))])
     assert seen == [("mid", 5), ("end", 5)]
 
 
@@ -156,6 +170,15 @@ def test_finite_refuses_nan_and_infinity_in_any_field():
         value = good.__class__.__new__(good.__class__)  # bypass validation, as a bug would
         object.__setattr__(value, "__dict__", {**good.__dict__, name: np.asarray(bad, float)})
         assert not finite(value)
+    huge = ErrorPose(1, [0, 0, 0, 1], [1e308, 1e308, 0], np.eye(6))  # a sum that overflows
+    assert finite(huge)
+    point = Position3D(1, [1.0, 2.0, 3.0])  # an optional field left out
+    assert finite(point) and finite(Position3D(1, [1.0, 2.0, 3.0], np.eye(3)))
+    bad_point = Position3D.__new__(Position3D)
+    object.__setattr__(
+        bad_point, "__dict__", {**point.__dict__, "position": np.array([np.inf, 0, 0])}
+    )
+    assert not finite(bad_point)
 
 
 # -- a container on a stand-in session ---------------------------------------------------------
@@ -170,6 +193,16 @@ class MatchingSession(FakeSession):
         super().__init__()
         self.quiet: set[str] = {KEYS.data("first/AC")}
         self.listeners: dict[str, list] = {}
+        self.scheduler = None
+
+    def deliver(self, key: str, payload: bytes, wait: bool = True) -> None:
+        """As zenoh delivers; a sample taken by a callback (a static input's, a command) is
+        handled on the container's scheduler (``services.scheduler``): waited for too."""
+        super().deliver(key, payload, wait)
+        if wait and self.scheduler is not None and key not in self.channels:
+            done = threading.Event()
+            self.scheduler.call(done.set)
+            assert done.wait(5)
 
     def listen(self, key: str) -> None:
         """A subscriber outside the process appears on ``key``."""
@@ -212,6 +245,7 @@ def running():
     """A container running on its own thread over a stand-in session; ended after the test."""
     session = MatchingSession()
     container = Container(session, KEYS, "c0")
+    session.scheduler = container.scheduler
     thread = threading.Thread(target=container.run, daemon=True)
     thread.start()
     yield container, session

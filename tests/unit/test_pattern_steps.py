@@ -142,6 +142,7 @@ def test_the_art_chain_in_a_container_gives_the_values_of_the_maths_called_direc
     last = chain[-1].outputs["AC"]
     session.quiet = {key for spec in chain[:-1] for key in spec.outputs.values()}  # read inside
     container = Container(session, KEYS, "c0", components=chain)
+    session.scheduler = container.scheduler  # static samples handled there: waited for
     thread = threading.Thread(target=container.run, daemon=True)
     thread.start()
     try:
