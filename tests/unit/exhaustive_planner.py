@@ -2,7 +2,8 @@
 ``test_planner_oracle.py`` and nowhere else.
 
 It saturates the whole region (no chain is pruned for lying off every way of the query, no
-region is cut into parts) and expands every maximal clique of compatible copies
+region is cut into parts; chains only towards the query target, as then) and expands every
+maximal clique of compatible copies
 (Bron-Kerbosch, :func:`networkx.find_cliques`): exponential in the redundancy, exact within
 the paper's bookkeeping and the ``per_relation`` bound.
 """
@@ -63,6 +64,7 @@ def plan(
         new,
         prune=False,
         copies=every_maximal_clique,
+        either_way=False,
     )
     found = solutions(ws, query)
     if not found:

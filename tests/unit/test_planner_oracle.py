@@ -10,7 +10,7 @@ import random
 
 import networkx as nx
 import pytest
-from hypothesis import example, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from bench.building import Building, body, build, camera, marker, room, tracker
@@ -73,35 +73,60 @@ def building_query(shape: Building, kind: str) -> Query:
     return Query(camera(0), body(0), "6D", static=True)  # a calibration of the camera's mount
 
 
+def too_big_for_the_old_search(shape: Building, kind: str) -> bool:
+    """The shapes of ``buildings`` on which the exhaustive search does not finish in minutes
+    (all 192 shapes and kinds tried, 8 s each: only these two went over, and the first of them
+    took 236 s): head to head across two rooms of a star whose cameras see the next room's
+    target, with a redundant tracker. Its maximal cliques of copies explode (issue [scale]'s
+    reason); "the same answers" is asked where the old search finishes."""
+    return (
+        kind == "head_head"
+        and shape.rooms == 2
+        and shape.layout == "star"
+        and shape.shared_targets
+        and shape.features > 0
+        and shape.redundant > 0
+    )
+
+
 @settings(max_examples=25, deadline=None)
 @given(shape=buildings, kind=st.sampled_from(["camera_marker", "head_head", "calibration"]))
 def test_buildings_plan_no_worse_than_the_exhaustive_search(templates, shape, kind):
+    assume(not too_big_for_the_old_search(shape, kind))
     assert_no_worse(build(shape), templates, building_query(shape, kind))
 
 
 def test_a_room_with_redundant_trackers_fuses_the_best_three_not_all(templates):
-    """Up to three trackers the search finds the exhaustive one's derivation; from four on, the
-    old search fused every tracker (its copy sets were maximal), while each fused estimate adds
-    a sensor to the cost: the best three fused cost less, as many as the room has."""
+    """Without a redundant tracker the search finds the exhaustive one's derivation. With them
+    it is cheaper: the old search built chains towards the query target only, so it fused the
+    trackers' ways head -> room, each inverted link by link, where the fusion of the ways room
+    -> head inverted once has fewer inversions; and from four trackers on the old search fused
+    every tracker (its copy sets were maximal), while each fused estimate adds a sensor to the
+    cost: the best three fused cost less, as many as the room has."""
     query = Query(camera(0), marker(0), "6D")
 
     def fused(solution) -> list[int]:
         return [len(dict(s.inputs)["AB"]) for s in solution.steps if s.template.service == "fusion"]
 
+    def inversions(solution) -> int:
+        return sum(s.template.pattern == "Inversion" for s in solution.steps)
+
     best = {}
     for redundant in (0, 1, 2, 3, 5):
         srg = build(Building(redundant=redundant))
         new = best[redundant] = plan(srg, templates, query)[0]
-        if redundant <= 3:
-            old = exhaustive_planner.plan(srg, templates, query)[0]
-            assert new.cost <= old.cost * (1 + TOLERANCE)
-            if redundant <= 2:
-                assert new.cost == pytest.approx(old.cost, rel=TOLERANCE)
-                assert sorted(s.template.pattern for s in new.steps) == sorted(
-                    s.template.pattern for s in old.steps
-                )
-            else:
-                assert new.cost < old.cost and fused(old) == [4]
+        if redundant > 3:
+            continue
+        old = exhaustive_planner.plan(srg, templates, query)[0]
+        if redundant == 0:
+            assert new.cost == pytest.approx(old.cost, rel=TOLERANCE)
+            assert sorted(s.template.pattern for s in new.steps) == sorted(
+                s.template.pattern for s in old.steps
+            )
+            continue
+        assert new.cost < old.cost and inversions(new) < inversions(old)
+        assert fused(old) == ([redundant + 1] if redundant <= 2 else [4])
+    assert fused(best[1]) == [2]
     assert fused(best[2]) == fused(best[3]) == fused(best[5]) == [3]
     assert best[3].cost == pytest.approx(best[2].cost) == pytest.approx(best[5].cost)
 

@@ -384,6 +384,9 @@ class Workspace:
     detour: int = DEFAULT_SLACK
     prefix: str = ""
     static_serves: bool = False
+    either_way: bool = True
+    """Chains either way round between the query frames (:meth:`_wanted`); ``False``: only
+    towards the query target, the rule before session 15, which the test oracle keeps."""
     span: float = 0
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
@@ -553,6 +556,11 @@ class Workspace:
         if source in self.goal or target in self.goal:
             return True
         near_source, near_target = self.distances
+        if not self.either_way:
+            return (
+                near_source[source] < near_source[target]
+                or near_target[source] > near_target[target]
+            )
         return (
             near_source[source] != near_source[target] or near_target[source] != near_target[target]
         )
@@ -712,13 +720,15 @@ def saturate(
     prefix: str = "",
     prune: bool = True,
     copies: CopySets = copy_sets,
+    either_way: bool = True,
 ) -> Workspace:
     """Apply all templates to the SRG restricted to ``frames`` until nothing new is inferred.
 
     Only edges of types that can contribute to a ``wanted`` edge are inferred, and time-only
     patterns (calibrations) only run when some rigid relation is not measured. With a ``goal``
     (the query's source and target), chains (concatenations) are restricted as
-    :meth:`Workspace._wanted` explains. ``rigid`` adds frame pairs known to be rigid besides
+    :meth:`Workspace._wanted` explains (``either_way``). ``prune`` and ``copies`` are the
+    search's own (the test oracle turns them off). ``rigid`` adds frame pairs known to be rigid besides
     those joined by static edges. ``new_frames`` are frames without edges that patterns with
     introduced roles may bind (:func:`introducible_frames`); without them those patterns do not
     run. Each round only looks for occurrences that use an edge inferred in the previous round.
@@ -730,6 +740,7 @@ def saturate(
         goal=goal,
         detour=slack,
         prefix=prefix,
+        either_way=either_way,
     )
     ws.index.new_frames = tuple(new_frames)
     if goal is not None:
