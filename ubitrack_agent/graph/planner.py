@@ -728,10 +728,10 @@ def saturate(
     patterns (calibrations) only run when some rigid relation is not measured. With a ``goal``
     (the query's source and target), chains (concatenations) are restricted as
     :meth:`Workspace._wanted` explains (``either_way``). ``prune`` and ``copies`` are the
-    search's own (the test oracle turns them off). ``rigid`` adds frame pairs known to be rigid besides
-    those joined by static edges. ``new_frames`` are frames without edges that patterns with
-    introduced roles may bind (:func:`introducible_frames`); without them those patterns do not
-    run. Each round only looks for occurrences that use an edge inferred in the previous round.
+    search's own (the test oracle turns them off). ``rigid`` adds frame pairs known to be rigid
+    besides those joined by static edges. ``new_frames`` are frames without edges that patterns
+    with introduced roles may bind (:func:`introducible_frames`); without them those patterns do
+    not run. Each round only looks for occurrences that use an edge inferred in the previous round.
     """
     frames = set(frames)
     ws = Workspace(
