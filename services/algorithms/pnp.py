@@ -254,8 +254,7 @@ def solve_pnp(
         raise ValueError(f"{chosen}: no solution found")
     if refine:
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, dist, rvec, tvec)
-    if len(obj) == 4 and (pixel_sigma is not None or pixel_covariances is not None):
-        rvec, tvec = _decided(obj, img, k, dist, (rvec, tvec), pixel_sigma, pixel_covariances)
+    rvec, tvec = _decided(obj, img, k, dist, (rvec, tvec), pixel_sigma, pixel_covariances)
     return _estimate(obj, img, k, dist, rvec, tvec, pixel_sigma, pixel_covariances)
 
 
@@ -269,7 +268,10 @@ def _decided(
     pixel_covariances: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The best fit of four points among ``found`` and the P3P solutions of three of them
-    refined on all four; :class:`AmbiguousPose` if another fits as well (module docstring)."""
+    refined on all four; :class:`AmbiguousPose` if another fits as well (module docstring).
+    ``found`` as it is for more points than four or unknown pixel noise."""
+    if len(obj) != 4 or (pixel_sigma is None and pixel_covariances is None):
+        return found
     if pixel_covariances is None:
         weights = np.broadcast_to(np.eye(2) / positive("pixel_sigma", pixel_sigma) ** 2, (4, 2, 2))
     else:
@@ -338,6 +340,5 @@ def solve_pnp_ransac(
     obj, img = obj[mask], img[mask]
     rvec, tvec = cv2.solvePnPRefineLM(obj, img, k, dist, rvec, tvec)
     inlying = None if pixel_covariances is None else np.asarray(pixel_covariances)[mask]
-    if len(obj) == 4 and (pixel_sigma is not None or inlying is not None):
-        rvec, tvec = _decided(obj, img, k, dist, (rvec, tvec), pixel_sigma, inlying)
+    rvec, tvec = _decided(obj, img, k, dist, (rvec, tvec), pixel_sigma, inlying)
     return _estimate(obj, img, k, dist, rvec, tvec, pixel_sigma, inlying), mask

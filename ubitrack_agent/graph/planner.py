@@ -1041,18 +1041,18 @@ def _plan_parts(
     cache = PartCache() if cache is None else cache  # parts alike within one plan too
     for a, b, part in parts:
         key, names = _part_shape(srg, templates, part, (a, b), slack, per_relation)
+        rank = {frame: i for i, frame in enumerate(names.frames)}
         planned = cache.get(key)
         if planned is None:
             ws = saturate(
                 srg, templates, part, "6D", (), per_relation, (a, b), (), slack, names.prefix
             )
-            rank = {frame: i for i, frame in enumerate(names.frames)}
             planned = PartPlan(
                 names,
                 {(rank[x], rank[y]): solutions(ws, Query(x, y, "6D")) for x, y in ((a, b), (b, a))},
             )
             cache.put(key, planned)
-        found = planned.found[(names.frames.index(a), names.frames.index(b))]
+        found = planned.found[(rank[a], rank[b])]
         if planned.names != names:
             found = _renamed(found, srg, planned.names, names)
         if not found:
