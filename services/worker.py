@@ -114,6 +114,8 @@ from ubitrack_agent.net.transport import (
     subscribe_in_bursts,
 )
 from ubitrack_agent.services.expansion import BatchProgress, TimeAccumulator
+from ubitrack_agent.services.handover import COUNTERS as HAND_OVER_COUNTERS
+from ubitrack_agent.services.handover import Watch
 from ubitrack_agent.services.local_wires import (
     Handed,
     LocalSubscription,
@@ -178,6 +180,7 @@ COUNTERS = {
     "time_queries": "queries for the value at a given time answered",
     "time_queries_refused": "queries for the value at a given time answered with an error",
     "rejected_queries": "queries for a time that is no timestamp (net.time_queries)",
+    **HAND_OVER_COUNTERS,
 }
 """The worker's counters (its status), each with what it counts. Every sample received is
 ``rejected``, ``rejected_future``, ``rejected_clock``, ``dropped_stale``, ``superseded``,
@@ -395,6 +398,8 @@ class Worker:
         """Input keys whose producers answered ``no_model``, until when (monotonic)."""
         self._generation = 0
         self._publishers: dict[str, LatestValuePublisher] = {}
+        self._hand_overs: dict[str, Watch] = {}
+        """Each dynamic relation key's hand-over (``ubitrack_agent.services.handover``)."""
         self._routes: dict[str, list[str]] = {}
         self._out: dict[str, _Route] = {}
         """By output port, where its values go (:meth:`_route_outputs`)."""
@@ -693,12 +698,24 @@ class Worker:
             self._publishers[key] = LatestValuePublisher(
                 self._session, key, at, self._counts, encoding, self._wake
             )
+        self._watch_relations({key for keys in relations.values() for key in keys})
         self._routes = routes
         self._out = {
             port: _Route(keys[0], self._publishers_of(keys), self._publishers_of(keys[1:]))
             for port, keys in routes.items()
         }
         self._progress_routes = progress_routes
+
+    def _watch_relations(self, relation_keys: set[str]) -> None:
+        """Watch each dynamic relation key this worker puts on (make before break: one stream
+        while another producer takes it over or gives it up, ``services.handover``)."""
+        dynamic = set(relation_keys) - {
+            self.keys.relation(r) for r in self._static_relations(tuple(relation_keys))
+        }
+        for key in set(self._hand_overs) - dynamic:
+            self._hand_overs.pop(key).close()
+        for key in dynamic - set(self._hand_overs):
+            self._hand_overs[key] = Watch(self._session, key, self._counts)
 
     def _static_relations(self, relation_keys: tuple[str, ...]) -> list[RelationId]:
         """The static relations among ``relation_keys`` (a key that is no relation key of
@@ -1085,12 +1102,14 @@ class Worker:
 
     def _put_outside_held(self) -> None:
         """:meth:`_put_outside`'s puts, ``_put_lock`` held."""
-        outgoing = self._outgoing
+        outgoing, hand_overs = self._outgoing, self._hand_overs
         while outgoing:
             publishers, value = outgoing.popleft()
             payload = value if isinstance(value, bytes) else encode(value)
             for publisher in publishers:
-                publisher.put(payload)
+                hand_over = hand_overs.get(publisher.key)
+                if hand_over is None or hand_over.rules.admit(value):
+                    publisher.put(payload)
 
     def _outside(self, route: _Route, value: Measurement) -> None:
         """Queue the puts of ``value``, handed over in the container, that zenoh must carry
@@ -1464,6 +1483,8 @@ class Worker:
             self._put_outside_held()
             for publisher in self._publishers.values():
                 publisher.undeclare()
+            for hand_over in self._hand_overs.values():
+                hand_over.close()
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -12,6 +12,7 @@ from ubitrack_agent.agent.runtime import REROUTE_S, Agent
 from ubitrack_agent.agent.stamps import Stamps
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import HAND_OVER_HOLD_S
 
 KEYS = KeySpace("ubitrack/test")
 
@@ -29,6 +30,7 @@ def agent(placements: dict[str, Placement] | None = None) -> tuple[Agent, list]:
     bare._duplicate_stops = {}
     bare._held = {}
     bare._retiring = {}
+    bare._all_alive_since = None
     bare._unrouted = {}
     bare.wanted = {}
     bare.stamps = Stamps()
@@ -91,9 +93,12 @@ def test_without_a_placement_the_process_seen_first_is_kept():
     assert puts == [(KEYS.control_incarnation("concat-1", "100.aaaa"), STOP_COMMAND)]
 
 
-def test_a_rewire_decided_with_starts_waits_until_the_new_workers_are_alive():
+def test_a_rewire_decided_with_starts_waits_until_the_new_workers_are_alive(monkeypatch):
     """Regression (churn benchmark): a relation moved at once to a fusion still starting cold
-    was silent for 2-7 s."""
+    was silent for 2-7 s. A rewire of relation routes waits ``HAND_OVER_HOLD_S`` longer: the
+    new producer takes the key over once its estimate is ready (services.handover)."""
+    clock = [50.0]
+    monkeypatch.setattr("ubitrack_agent.agent.runtime.time.monotonic", lambda: clock[0])
     bare, puts = agent()
     bare.running = {"fusion-old": "spec", "fusion-new": "spec"}
     bare.wanted = {"fusion-old": "spec", "fusion-new": "spec"}
@@ -104,8 +109,31 @@ def test_a_rewire_decided_with_starts_waits_until_the_new_workers_are_alive():
     assert puts == []  # the old producer keeps publishing while the new one starts
     bare.alive.add("fusion-new")
     bare._retire()
+    assert puts == []  # the new producer's estimate may not be ready yet
+    clock[0] += HAND_OVER_HOLD_S
+    bare._retire()
     assert puts == [(KEYS.control("fusion-old"), '{"relations": {}, "inputs": []}')]
     assert bare.counters["held_rewires"] == 1 and bare._held == {}
+
+
+def test_a_replaced_worker_runs_on_until_the_new_producer_could_take_its_key(monkeypatch):
+    clock = [50.0]
+    monkeypatch.setattr("ubitrack_agent.agent.runtime.time.monotonic", lambda: clock[0])
+    bare, _ = agent()
+    bare.wanted, bare.alive = {"fusion-new": "spec"}, {"camera-only"}
+    bare._retiring = {"camera-only": clock[0] + 10.0}
+    stopped: list[str] = []
+    bare._stop_worker = stopped.append
+    bare._retire()  # the new flow is still starting
+    bare.alive.add("fusion-new")
+    clock[0] += 0.1
+    bare._retire()
+    clock[0] += HAND_OVER_HOLD_S * 0.9
+    bare._retire()
+    assert stopped == []  # the old flow keeps the key while the new one converges
+    clock[0] += HAND_OVER_HOLD_S * 0.1
+    bare._retire()
+    assert stopped == ["camera-only"] and bare._retiring == {}
 
 
 def test_a_held_rewire_of_a_worker_that_ended_is_dropped():

@@ -93,7 +93,7 @@ from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
-from ubitrack_agent.net.spec import ComponentSpec, GroupSpec
+from ubitrack_agent.net.spec import HAND_OVER_HOLD_S, ComponentSpec, GroupSpec
 from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.agent")
@@ -215,6 +215,8 @@ class Agent:
         """Instances stopped: when to put the stop again (None: a host manager owns it)."""
         self._unwanted_since: dict[str, float] = {}
         self._retiring: dict[str, float] = {}
+        self._all_alive_since: float | None = None
+        """Since when every wanted worker is alive (monotonic), for :meth:`_retire`."""
         self._held: dict[str, tuple[dict[str, Any], float]] = {}
         """Rewires waiting for the workers being started: command and deadline, by instance."""
         self._restored: dict[str, int] = {}
@@ -760,21 +762,30 @@ class Agent:
                 self._stopped[instance] = now + STOP_RESEND_S
 
     def _retire(self) -> None:
-        """Send the held rewires and stop the workers the plan no longer wants once every
-        wanted worker is alive (make before break: the old flow keeps the relation flowing
-        while the new one starts), or after ``RETIRE_S`` at the latest; a rewire goes only to
-        a worker that is alive."""
+        """Send the held rewires once every wanted worker is alive, and stop the workers the
+        plan no longer wants, and move relation routes, ``HAND_OVER_HOLD_S`` after that (make
+        before break: the old flow keeps the relation flowing while the new one starts, and
+        keeps the key until the new producer's estimate is ready,
+        ``ubitrack_agent.services.handover``); either after ``RETIRE_S`` at the latest. A
+        rewire goes only to a worker that is alive."""
         all_alive = set(self.wanted) <= self.alive
         now = time.monotonic()
+        if not all_alive:
+            self._all_alive_since = None
+        elif self._all_alive_since is None:
+            self._all_alive_since = now
+        handed_over = all_alive and now - self._all_alive_since >= HAND_OVER_HOLD_S
         for instance, (command, deadline) in list(self._held.items()):
+            # A change of relation routes may take a key from its producer: as a retirement.
+            due = handed_over if "relations" in command else all_alive
             if instance not in self.running:
                 del self._held[instance]  # stopped meanwhile: nothing to rewire
-            elif instance in self.alive and (all_alive or now > deadline):
+            elif instance in self.alive and (due or now > deadline):
                 del self._held[instance]
                 self._send_control(instance, command)
                 self.counters["held_rewires"] += 1
         for instance, deadline in list(self._retiring.items()):
-            if all_alive or now > deadline:
+            if handed_over or now > deadline:
                 del self._retiring[instance]
                 self._stop_worker(instance)
 

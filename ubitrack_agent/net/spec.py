@@ -51,6 +51,10 @@ sample on each side to interpolate between (a moving target at 1 m/s moves 5 mm 
 DEFAULT_WAIT_MS = 50.0
 """The longest a trigger waits for the other inputs' next samples (see
 ubitrack_agent.services.triggers)."""
+HAND_OVER_HOLD_S = 1.0
+"""The longest a new producer of a relation key holds back while its estimate is less certain
+than the current producer's (``ubitrack_agent.services.handover``); the agent keeps a replaced
+flow running this long after the new one is alive (``agent.runtime``, make before break)."""
 EXPANSIONS = ("none", "space", "time")
 TIME_EXPANSION_OPTIONS = ("min_motion", "min_rotation_deg", "max_samples")
 """Options of a time expansion (``ubitrack_agent.services.expansion``): least change of a position

@@ -1,0 +1,300 @@
+"""Who puts on a relation key while the data flow changes: make before break, one stream.
+
+The producer of a queried relation puts its output on the relation's stable key
+(``agent.materialise``). When the agent replaces a derivation, the new flow is started beside
+the old one, which is stopped ``HAND_OVER_HOLD_S`` after the new one runs (``agent.runtime``,
+``_retire``): for a while both producers compute the relation, often the same instants (both
+driven by one tracker's samples). Each watches the key (a subscriber: it sees its own puts and
+the other's) and its hand-over key (:func:`hand_over_key`), and keeps these rules, so that
+the application sees one stream (issue [seamless]; ``docs/protocol.md``, "While the data flow
+changes"):
+
+1. **Order.** A sample whose timestamp is not after the newest one seen on the key is not put:
+   no duplicate, no instant out of order.
+2. **Make before break.** A producer that finds another one putting on the key does not put
+   until its own estimate is ready: its covariance's trace at most :data:`READY_RATIO` times
+   that of the other's latest sample (measurements with covariances of one shape), or
+   :data:`~ubitrack_agent.net.spec.HAND_OVER_HOLD_S` after its first offer at the latest.
+3. **Claim, then put.** Ready, it puts a claim on the hand-over key and nothing on the
+   relation key until the producer holding it answers that it has stopped, and after which
+   instant (the newest it put); then it puts what comes after that instant. Two producers
+   computing the same instants never both put one: the holder stops before it answers. With
+   no answer within :data:`CLAIM_TIMEOUT_S` (a holder that died meanwhile) it puts anyway.
+4. **Yield.** A producer that receives a claim while it holds the key stops putting there and
+   answers; it puts again only once the claimer has been quiet (a newer flow that died). A
+   producer that finds the key quiet puts at once, and claims it all the same: a holder that
+   was only late (a fusion waiting for an input) yields instead of putting beside it.
+
+"Another producer is putting" means a sample not put by this one arrived within
+:meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded). With the old
+producer gone (its sensor died) the key is quiet and the new one puts at once, its covariance saying
+how good its first estimates are (issue [seamless], item 2). Each rule costs O(1) per sample, plus
+the decoding of every sample on the key by each producer watching it; a hand-over costs two
+messages. The hand-over key's last chunk is verbatim (``@``), so a subscriber to the relation
+keys' wildcard does not receive the hand-over's messages.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+import uuid
+from collections import Counter, deque
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ubitrack_agent.core.codec import decode
+from ubitrack_agent.core.errors import MeasurementError
+from ubitrack_agent.core.measurements import WORKER, Measurement
+from ubitrack_agent.net import logs
+from ubitrack_agent.net.json_messages import MessageError, load_object
+from ubitrack_agent.net.spec import HAND_OVER_HOLD_S
+
+log = logging.getLogger("ubitrack.worker")
+
+READY_RATIO = 1.0
+"""A new producer's estimate is ready when its covariance's trace is at most this times the
+current producer's latest (no less certain than what the application receives now)."""
+CLAIM_TIMEOUT_S = 0.25
+"""The longest a claimer waits for the holder's answer before it puts anyway."""
+QUIET_BOUNDS_S = (0.02, 0.5)
+"""Bounds of the quiet time after which another producer counts as gone."""
+QUIET_INTERVALS = 3.0
+"""Another producer is gone after this many of its longest recent sample intervals without a
+sample."""
+INTERVALS_REMEMBERED = 8
+"""How many of the other producer's latest sample intervals the quiet time is taken from."""
+DEFAULT_QUIET_S = 0.1
+"""The quiet time while the other producer's interval is not known yet (one sample seen)."""
+MINE_REMEMBERED = 64
+"""How many of its own puts' timestamps a producer remembers to tell them from the other's."""
+MAX_MESSAGE_BYTES = 256
+"""A hand-over message is a small JSON object; a longer one is refused unread."""
+
+COUNTERS = {
+    "relation_not_after": "relation samples not put: not after the newest on the key",
+    "relation_held": "relation samples not put: another producer puts, this estimate not ready",
+    "relation_claiming": "relation samples not put: the key claimed, the holder's answer awaited",
+    "relation_yielded": "relation samples not put: a newer producer claimed the key",
+    "relation_taken": "times this producer took a relation key over from another one",
+    "relation_claims_unanswered": "claims that had no answer in time (put anyway)",
+    "rejected_hand_over_messages": "hand-over messages refused (not a claim or an answer)",
+}
+"""The hand-over's counters, in the worker's status beside its own (``services.worker``)."""
+
+
+def hand_over_key(relation_key: str) -> str:
+    """The key of the hand-over messages of ``relation_key``."""
+    return f"{relation_key}/@handover"
+
+
+def _trace(value: Measurement | None) -> tuple[tuple[int, ...], float] | None:
+    covariance = getattr(value, "covariance", None)
+    if covariance is None:
+        return None
+    matrix = np.asarray(covariance)
+    return matrix.shape, float(np.trace(matrix))
+
+
+class KeyHandOver:
+    """The rules for one relation key of one producer: :meth:`admit` before each put;
+    :meth:`observe` for each sample seen on the key and :meth:`receive` for each hand-over
+    message (both on zenoh's thread); ``send`` puts a message on the hand-over key."""
+
+    def __init__(
+        self,
+        key: str,
+        counters: Counter[str],
+        send: Callable[[bytes], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.key = key
+        self.producer = uuid.uuid4().hex[:12]
+        self._counters = counters
+        self._send = send
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._newest_ns: int | None = None
+        self._mine: deque[int] = deque(maxlen=MINE_REMEMBERED)
+        self._other_at: float | None = None
+        """When another producer's latest sample arrived (monotonic)."""
+        self._other_intervals: deque[float] = deque(maxlen=INTERVALS_REMEMBERED)
+        self._other_trace: tuple[tuple[int, ...], float] | None = None
+        self._held_since: float | None = None
+        self._claimed_at: float | None = None
+        """When this producer claimed the key (monotonic), until answered or timed out."""
+        self._holds = False
+        """Whether this producer holds the key (puts on it)."""
+        self._yielded = False
+        """Whether this producer gave the key to a claimer that is still putting."""
+
+    def quiet_s(self) -> float:
+        """After how long without a sample another producer counts as gone: three of its
+        longest recent intervals (a fusion of a 60 Hz and a 30 Hz sensor puts samples 1 and
+        16 ms apart); a producer that gave the key to a claimer waits the longest (the agent
+        stops it soon; taking the key back from a claimer that is only late would make two
+        producers put)."""
+        low, high = QUIET_BOUNDS_S
+        if self._yielded:
+            return high
+        if not self._other_intervals:
+            return DEFAULT_QUIET_S
+        return min(high, max(low, QUIET_INTERVALS * max(self._other_intervals)))
+
+    def observe(self, payload: bytes) -> None:
+        """A sample seen on the key (this producer's own puts too); one that does not decode
+        is the application's problem, not the hand-over's, and is ignored here."""
+        try:
+            value = decode(payload, level=WORKER)
+        except MeasurementError:
+            return
+        now = self._clock()
+        with self._lock:
+            if self._newest_ns is None or value.timestamp_ns > self._newest_ns:
+                self._newest_ns = value.timestamp_ns
+            if value.timestamp_ns in self._mine:
+                return
+            if self._other_at is not None and now - self._other_at <= self.quiet_s():
+                self._other_intervals.append(now - self._other_at)
+            else:
+                self._other_intervals.clear()
+            self._other_at = now
+            self._other_trace = _trace(value)
+
+    def receive(self, payload: bytes) -> None:
+        """A hand-over message: another producer's claim (answered at once if this one holds
+        the key), or the answer to this one's claim. Anything else is refused and counted."""
+        try:
+            message = load_object(payload, MAX_MESSAGE_BYTES)
+            kind = "claim" if set(message) == {"claim", "after"} else "yield"
+            sender = message.get(kind)
+            if not isinstance(sender, str) or set(message) not in (
+                {"claim", "after"},
+                {"yield", "last"},
+            ):
+                raise MessageError("malformed", "neither a claim nor an answer")
+            if sender == self.producer:
+                return  # its own message, delivered to its own subscriber
+            if kind == "claim":
+                self._answer_claim()
+            else:
+                self._take_answer(message)
+        except MessageError as exc:
+            logs.count_problem(
+                self._counters, "rejected_hand_over_messages", log, "%s: %s", self.key, exc
+            )
+
+    def _answer_claim(self) -> None:
+        with self._lock:
+            if not self._holds:
+                return  # not the holder: the holder answers
+            self._holds, self._yielded = False, True
+            # The claimer counts as putting from now: quiet from here means it died.
+            self._other_at = self._clock()
+            self._other_intervals.clear()
+            last = self._newest_ns
+        self._send(json.dumps({"yield": self.producer, "last": last}).encode())
+
+    def _take_answer(self, message: dict[str, Any]) -> None:
+        last = message["last"]
+        if last is not None and (not isinstance(last, int) or isinstance(last, bool)):
+            raise MessageError("malformed", "an answer's 'last' is no timestamp")
+        with self._lock:
+            if self._claimed_at is None:
+                return  # an answer to another producer's claim
+            self._take(last)
+
+    def _take(self, after_ns: int | None) -> None:
+        """Hold the key from now on, putting only what comes after ``after_ns``; lock held."""
+        self._claimed_at, self._held_since = None, None
+        self._holds, self._yielded = True, False
+        if after_ns is not None and (self._newest_ns is None or after_ns > self._newest_ns):
+            self._newest_ns = after_ns
+
+    def admit(self, value: Measurement | bytes) -> bool:
+        """Whether to put ``value`` (a relay's: its payload) on the key now; counted when
+        not."""
+        if isinstance(value, bytes):
+            try:
+                value = decode(value, level=WORKER)
+            except MeasurementError:
+                return True  # checked where it came in; nothing here to judge it by
+        now = self._clock()
+        claim = wait = False
+        with self._lock:
+            other = self._other_at is not None and now - self._other_at <= self.quiet_s()
+            if self._yielded and other:
+                return self._refuse("relation_yielded")
+            if not other and not self._holds:
+                # Nobody else puts (any more, or the claimer died): at once, claiming the key
+                # all the same, so that a holder only late (a fusion waiting for an input)
+                # yields instead of putting beside this one.
+                self._take(None)
+                claim = True
+            elif self._claimed_at is not None:
+                if now - self._claimed_at < CLAIM_TIMEOUT_S:
+                    return self._refuse("relation_claiming")
+                self._counters["relation_claims_unanswered"] += 1
+                self._take(None)
+            elif not self._holds:
+                if self._held_since is None:
+                    self._held_since = now
+                if not self._ready(value) and now - self._held_since < HAND_OVER_HOLD_S:
+                    return self._refuse("relation_held")
+                self._claimed_at, claim, wait = now, True, True
+                self._counters["relation_taken"] += 1
+            admitted = wait or self._in_order(value)
+            after = self._newest_ns
+        if claim:
+            self._send(json.dumps({"claim": self.producer, "after": after}).encode())
+        if wait:
+            return self._refuse("relation_claiming")
+        return admitted
+
+    def _in_order(self, value: Measurement) -> bool:
+        """Rule 1, and the instant remembered as this producer's; lock held."""
+        if self._newest_ns is not None and value.timestamp_ns <= self._newest_ns:
+            return self._refuse("relation_not_after")
+        self._newest_ns = value.timestamp_ns
+        self._mine.append(value.timestamp_ns)
+        return True
+
+    def _ready(self, value: Measurement) -> bool:
+        mine, theirs = _trace(value), self._other_trace
+        if mine is None or theirs is None or mine[0] != theirs[0]:
+            return True  # nothing to compare: as good as can be told
+        return mine[1] <= READY_RATIO * theirs[1]
+
+    def _refuse(self, counter: str) -> bool:
+        self._counters[counter] += 1
+        return False
+
+
+class Watch:
+    """A :class:`KeyHandOver` wired to zenoh: subscribed to its relation key and its
+    hand-over key, putting its messages on the latter. Undeclare with :meth:`close`."""
+
+    def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
+        messages = hand_over_key(key)
+        self.rules = KeyHandOver(key, counters, lambda data: session.put(messages, data))
+        self._subscribers = (
+            session.declare_subscriber(key, lambda s: self.rules.observe(s.payload.to_bytes())),
+            session.declare_subscriber(
+                messages, lambda s: self.rules.receive(s.payload.to_bytes())
+            ),
+        )
+        # The holder's latest sample, if one holds the key (its queryable answers it): seen
+        # before this producer's first output, however late the holder's next sample comes.
+        session.get(key, self._latest)
+
+    def _latest(self, reply: Any) -> None:
+        if reply.ok is not None:
+            self.rules.observe(reply.ok.payload.to_bytes())
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()

@@ -1,0 +1,259 @@
+"""The hand-over rules of a relation key (``ubitrack_agent.services.handover``): one stream on
+the key while a new producer takes it over from an old one, or the old one dies."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+
+from ubitrack_agent.core import MeasurementError, decode, encode
+from ubitrack_agent.core.measurements import WORKER, ErrorPose, Pose
+from ubitrack_agent.net.spec import HAND_OVER_HOLD_S
+from ubitrack_agent.services.handover import CLAIM_TIMEOUT_S, KeyHandOver
+
+MS = 1_000_000
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def pose(t_ms: int, variance: float = 1e-6) -> ErrorPose:
+    return ErrorPose(t_ms * MS, [0, 0, 0, 1], [1, 2, 3], variance * np.eye(6))
+
+
+class Bus:
+    """The relation key and its hand-over key, delivered at once to every producer (zenoh
+    delivers a session's own puts to its own subscribers too)."""
+
+    def __init__(self) -> None:
+        self.clock = Clock()
+        self.producers: list[KeyHandOver] = []
+        self.counters: list[Counter[str]] = []
+        self.wire: list[tuple[int, str, bytes]] = []
+        self.messages: list[dict] = []
+
+    def producer(self) -> KeyHandOver:
+        """A producer starting: it asks the key's latest sample first (``Watch``)."""
+        counters: Counter[str] = Counter()
+        hand_over = KeyHandOver("ubitrack/d/relation/C/A", counters, self._send, self.clock)
+        if self.wire:
+            hand_over.observe(self.wire[-1][2])
+        self.producers.append(hand_over)
+        self.counters.append(counters)
+        return hand_over
+
+    def _send(self, data: bytes) -> None:
+        self.messages.append(json.loads(data))
+        for producer in self.producers:
+            producer.receive(data)
+
+    def offer(self, hand_over: KeyHandOver, value: ErrorPose) -> bool:
+        if not hand_over.admit(value):
+            return False
+        payload = encode(value)
+        self.wire.append((value.timestamp_ns, hand_over.producer, payload))
+        for producer in self.producers:
+            producer.observe(payload)
+        return True
+
+
+def test_a_lone_producer_puts_every_sample_in_order_and_never_one_twice():
+    bus = Bus()
+    alone = bus.producer()
+    assert [bus.offer(alone, pose(t)) for t in (10, 20, 20, 15, 30)] == [1, 1, 0, 0, 1]
+    assert bus.counters[0]["relation_not_after"] == 2
+    assert bus.messages == [{"claim": alone.producer, "after": 10 * MS}]  # nobody to answer
+
+
+def test_a_new_producer_holds_back_until_ready_then_claims_and_takes_over_after_the_answer():
+    bus = Bus()
+    old = bus.producer()
+    assert bus.offer(old, pose(0))
+    new = bus.producer()
+    for t in range(10, 100, 10):  # both compute every instant; the new one is converging
+        bus.clock.now += 0.01
+        assert bus.offer(old, pose(t))
+        assert not bus.offer(new, pose(t, variance=4e-6))
+    assert bus.counters[1]["relation_held"] == 9 and len(bus.messages) == 1  # the old one's
+    bus.clock.now += 0.01
+    assert not bus.offer(new, pose(100, variance=0.9e-6))  # ready: claims, puts nothing yet
+    claim, answer = bus.messages[1:]
+    assert claim["claim"] == new.producer and answer == {"yield": old.producer, "last": 90 * MS}
+    assert not bus.offer(old, pose(100))  # the old one stopped before it answered
+    assert bus.offer(new, pose(110, variance=2e-6))  # taken: no longer compared
+    assert [who for _, who, _ in bus.wire] == [old.producer] * 10 + [new.producer]
+    assert bus.counters[0]["relation_yielded"] == 1 and bus.counters[1]["relation_taken"] == 1
+
+
+def test_a_new_producer_claims_after_the_longest_hold_even_if_less_certain():
+    bus = Bus()
+    old, new = bus.producer(), bus.producer()
+    t = 0
+    while not any(m.get("claim") == new.producer for m in bus.messages):
+        bus.clock.now += 0.01
+        t += 10
+        bus.offer(old, pose(t))
+        bus.offer(new, pose(t, variance=1e-3))
+    assert bus.clock.now >= 100.0 + HAND_OVER_HOLD_S
+    assert bus.offer(new, pose(t + 10, variance=1e-3))
+
+
+def holding(bus: Bus) -> KeyHandOver:
+    """A producer that has put two samples, 10 ms apart."""
+    old = bus.producer()
+    for t in (0, 10):
+        bus.clock.now += 0.01
+        bus.offer(old, pose(t))
+    return old
+
+
+def test_with_the_old_producer_gone_the_new_one_puts_at_once():
+    bus = Bus()
+    old = holding(bus)
+    bus.producers.remove(old)  # its sensor died, then the agent stopped it
+    new = bus.producer()
+    bus.clock.now += 1.0
+    assert bus.offer(new, pose(1010, variance=1e-2))
+    assert bus.messages[-1] == {"claim": new.producer, "after": 1010 * MS}
+    assert bus.counters[1]["relation_held"] == 0
+
+
+def test_a_holder_only_late_yields_to_the_producer_that_found_the_key_quiet():
+    """A fusion waiting for an input that stopped is quiet for a while, then puts again."""
+    bus = Bus()
+    old = holding(bus)
+    new = bus.producer()
+    bus.clock.now += 0.2  # the old one waits for its camera
+    assert bus.offer(new, pose(210, variance=4e-6))  # the key is quiet: at once
+    bus.clock.now += 0.01
+    assert not bus.offer(old, pose(220))  # it yielded to the claim that came with that put
+    assert bus.offer(new, pose(220, variance=4e-6))
+    assert [who for _, who, _ in bus.wire][2:] == [new.producer] * 2
+
+
+def test_an_unanswered_claim_times_out():
+    """A holder that puts on but does not answer (a message lost)."""
+    bus = Bus()
+    old, new = bus.producer(), bus.producer()
+    old.receive = lambda data: None
+    bus.offer(old, pose(0))
+    bus.clock.now += 0.01
+    assert not bus.offer(new, pose(10, variance=0.5e-6))  # claims: nobody answers
+    t = 10
+    while not bus.counters[1]["relation_claims_unanswered"]:
+        assert bus.offer(old, pose(t))
+        bus.clock.now += 0.01
+        put = bus.offer(new, pose(t + 5))
+        assert put == (bus.clock.now - 100.01 >= CLAIM_TIMEOUT_S)
+        t += 10
+    assert bus.wire[-1][1] == new.producer
+
+
+def test_the_old_producer_puts_again_when_the_new_one_dies():
+    bus = Bus()
+    old = bus.producer()
+    bus.offer(old, pose(0))
+    new = bus.producer()
+    bus.clock.now += 0.01
+    bus.offer(old, pose(10))
+    bus.offer(new, pose(10, variance=0.5e-6))  # claims; old yields
+    bus.clock.now += 0.01
+    assert bus.offer(new, pose(20))
+    assert not bus.offer(old, pose(20)) and not bus.offer(old, pose(30))
+    bus.producers.remove(new)
+    bus.clock.now += 1.0
+    assert bus.offer(old, pose(1030))
+
+
+def two_producers(instants, new_from: int) -> tuple[Bus, KeyHandOver, KeyHandOver | None]:
+    """The old producer alone for ``new_from`` instants (at 60 Hz), then with a new one; at
+    each instant, in the order drawn, the old one offers it, and the new one if drawn too,
+    with a covariance drawn relative to the old one's."""
+    bus = Bus()
+    old = bus.producer()
+    new = None
+    for i, (old_first, both, ratio) in enumerate(instants):
+        bus.clock.now += 1 / 60
+        if i == new_from:
+            new = bus.producer()
+        offers = [(old, pose(i * 16))]
+        if new is not None and both:
+            offers.append((new, pose(i * 16, variance=ratio * 1e-6)))
+        for producer, value in offers if old_first else offers[::-1]:
+            bus.offer(producer, value)
+    return bus, old, new
+
+
+INSTANTS = st.lists(st.tuples(st.booleans(), st.booleans(), st.floats(0.1, 4.0)), max_size=80)
+
+
+@given(INSTANTS, st.integers(1, 60))
+def test_two_producers_of_the_same_instants_put_every_instant_at_most_once_in_order(
+    instants, new_from
+):
+    bus, _, _ = two_producers(instants, new_from)
+    stamps = [t for t, _, _ in bus.wire]
+    assert stamps == sorted(set(stamps))
+
+
+@given(
+    st.lists(st.tuples(st.booleans(), st.just(True), st.floats(0.1, 4.0)), max_size=80),
+    st.integers(1, 60),
+)
+def test_once_the_new_producer_puts_the_old_one_puts_no_more(instants, new_from):
+    """While the new one offers every instant (it does not die)."""
+    bus, old, new = two_producers(instants, new_from)
+    who = [producer for _, producer, _ in bus.wire]
+    if new is not None and new.producer in who:
+        assert old.producer not in who[who.index(new.producer) :]
+
+
+def test_a_relay_payload_is_judged_by_its_decoded_value_and_garbage_is_let_through():
+    bus = Bus()
+    relay = bus.producer()
+    assert relay.admit(encode(Pose(10 * MS, [0, 0, 0, 1], [0, 0, 0])))
+    assert not relay.admit(encode(Pose(10 * MS, [0, 0, 0, 1], [0, 0, 0])))
+    assert relay.admit(b"\xc1 not a measurement")  # refused where it came in, not here
+
+
+@given(st.binary(max_size=200))
+def test_what_does_not_decode_on_the_key_is_ignored(payload):
+    bus = Bus()
+    producer = bus.producer()
+    try:
+        decode(payload, level=WORKER)
+    except MeasurementError:
+        producer.observe(payload)  # never raises, and changes nothing
+        assert producer.admit(pose(1)) and not bus.counters[0]
+
+
+@given(
+    st.one_of(
+        st.binary(max_size=300),
+        st.dictionaries(
+            st.sampled_from(["claim", "yield", "last", "after", "x"]),
+            st.one_of(st.none(), st.integers(), st.text(max_size=5), st.booleans()),
+            max_size=3,
+        ).map(lambda d: json.dumps(d).encode()),
+    )
+)
+def test_hand_over_messages_of_any_form_are_answered_or_refused_and_counted(payload):
+    bus = Bus()
+    holder = bus.producer()
+    bus.offer(holder, pose(0))
+    before = sum(bus.counters[0].values())
+    holder.receive(payload)
+    counted = bus.counters[0]["rejected_hand_over_messages"]
+    message = bus.messages[-1] if bus.messages else None
+    # Either refused and counted, or a well-formed claim answered, or ignored as harmless.
+    assert counted or message is None or message.get("yield") == holder.producer
+    assert sum(bus.counters[0].values()) in (before, before + 1)
