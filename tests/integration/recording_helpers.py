@@ -106,10 +106,9 @@ def record_live(processes: list, path: Path, seconds: float, seed: int = 7) -> d
     for process in processes:
         process.wait(timeout=20)
     processes.clear()
-    lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
     return {
         "calibration": calibration,
-        "recorder": lines,
+        "recorder": json_lines(out),
         "recorder_status": recorder.returncode,
         "seconds": recorded,
     }
@@ -140,9 +139,14 @@ def replay_into_fresh_agent(processes: list, path: Path, track_seconds: float = 
     return {
         "calibration": calibration,
         "tracked_samples": len(tracked),
-        "replay": [json.loads(line) for line in out.splitlines() if line.startswith("{")],
+        "replay": json_lines(out),
         "replay_status": replay.returncode,
     }
+
+
+def json_lines(out: str) -> list[dict]:
+    """The JSON lines of a command's ``--json`` output."""
+    return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
 
 
 def difference(a: dict, b: dict) -> tuple[float, float]:

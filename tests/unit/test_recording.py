@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import sys
 
 import msgpack
 import numpy as np
@@ -299,3 +300,20 @@ def test_damaged_files_are_refused_or_read(data):
 def test_random_files_are_refused(blob):
     with pytest.raises(RecordingError):
         events(b"\x89MCAP0\r\n" + blob)
+
+
+@pytest.mark.parametrize("command", ["record", "replay"])
+def test_a_missing_extra_is_named(command, monkeypatch, capsys, tmp_path):
+    from ubitrack_agent import cli
+
+    for name in [n for n in sys.modules if n.startswith("ubitrack_agent.io.recording")]:
+        monkeypatch.delitem(sys.modules, name)
+    for name in [n for n in sys.modules if n == "mcap" or n.startswith("mcap.")]:
+        monkeypatch.setitem(sys.modules, name, None)  # as if not installed: imports fail
+    monkeypatch.setitem(sys.modules, "mcap", None)
+    # Should the import succeed after all, the command ends at once on a port nobody uses.
+    isolated = ["--connect", "tcp/127.0.0.1:9", "--domain", "nowhere"]
+    assert cli.main([command, str(tmp_path / "file.mcap"), *isolated]) == 2
+    err = capsys.readouterr().err
+    assert "needs the mcap extra (mcap" in err
+    assert 'pip install "ubitrack-agent[mcap]"' in err

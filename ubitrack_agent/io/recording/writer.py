@@ -136,4 +136,5 @@ class RecordingWriter:
 
     def _event(self, event: dict) -> None:
         payload = json.dumps(event, sort_keys=True).encode()
-        self._writer.add_message(self._announcements, self._clock(), payload, self._clock())
+        now = self._clock()
+        self._writer.add_message(self._announcements, now, payload, now)
