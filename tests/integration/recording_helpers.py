@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from sim_trackers.scenario import load_scenario
 from tests.integration.calibration_helpers import LiveCalibration
 from ubitrack_agent.commands.demo import _free_udp_port, dtrack_flags
 from ubitrack_agent.core import quaternions
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 PROVIDERS = ("database", "camera", "ART")
 """The figure-1 scenario's providers (its database, camera and art sections)."""

@@ -23,7 +23,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from ubitrack_agent.commands.record import member_settings, missing_extra, printer
 from ubitrack_agent.net import config
@@ -59,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         from ubitrack_agent.io.recording.layout import RecordingError
         from ubitrack_agent.io.recording.reader import check_recording, read_recording
-        from ubitrack_agent.io.recording.replayer import Replayer
+        from ubitrack_agent.io.recording.replayer import Replayer, live_providers
     except ImportError as exc:
         return missing_extra(prog, exc)
     from ubitrack_agent.net.keys import KeySpace
@@ -113,33 +116,54 @@ def run(args: argparse.Namespace) -> int:
         + (", looping" if args.loop else ""),
     )
     stop = stop_on_signals()
-    with (
-        open_session(settings) as session,
-        Replayer(
-            session, KeySpace(settings.key_prefix), settings.host_name, args.speed, shift, stop
-        ) as replayer,
-    ):
-        passes = 0
-        while not stop.is_set():
-            try:
-                finished = replayer.play(events())
-            except (OSError, RecordingError) as exc:  # the file changed since it was checked
-                print(f"{prog}: {path}: {exc}", file=sys.stderr)
-                return 1
-            passes += finished
-            if finished:
-                shifted = replayer.offset_ns / 1e9
-                say(
-                    {
-                        "event": "pass",
-                        "pass": passes,
-                        "shift_s": round(shifted, 3),
-                        **replayer.counters,
-                    },
-                    f"pass {passes} played: {replayer.counters['published']} samples published "
-                    f"so far, timestamps shifted by {shifted:+.3f} s",
-                )
-            if not args.loop:
-                break
+    keys = KeySpace(settings.key_prefix)
+    with open_session(settings) as session:
+        if clash := sorted(live_providers(session, keys) & set(contents.providers)):
+            print(
+                f"{prog}: warning: providers {clash} are live on {keys.root} already: the agent "
+                "will see two providers of one id (replay into a domain without them)",
+                file=sys.stderr,
+            )
+        with Replayer(session, keys, settings.host_name, args.speed, shift, stop) as replayer:
+            passes = _play(replayer, events, args.loop, stop, say, f"{prog}: {path}")
+    if passes is None:
+        return 1
     say({"event": "finished", "passes": passes}, f"replay finished after {passes} passes")
     return 0
+
+
+def _play(
+    replayer: Any,
+    events: Callable[[], Iterator[Any]],
+    loop: bool,
+    stop: threading.Event,
+    say: Callable[[dict, str], None],
+    where: str,
+) -> int | None:
+    """Play passes of ``events()`` (one, or until ``stop`` with ``loop``), saying each; the
+    number played, or ``None`` after printing why the file could not be read again."""
+    from ubitrack_agent.io.recording.layout import RecordingError
+
+    passes = 0
+    while not stop.is_set():
+        try:
+            finished = replayer.play(events())
+        except (OSError, RecordingError) as exc:  # the file changed since it was checked
+            print(f"{where}: {exc}", file=sys.stderr)
+            return None
+        if finished:
+            passes += 1
+            shifted = replayer.offset_ns / 1e9
+            say(
+                {
+                    "event": "pass",
+                    "pass": passes,
+                    "shift_s": round(shifted, 3),
+                    **replayer.counters,
+                },
+                f"pass {passes} played: {replayer.counters['published']} samples published "
+                f"so far, timestamps shifted by {shifted:+.3f} s",
+            )
+        if not loop:
+            break
+    return passes

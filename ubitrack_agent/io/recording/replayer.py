@@ -33,10 +33,22 @@ from ubitrack_agent.io.provider import Provider
 from ubitrack_agent.io.recording.fragments import Announced
 from ubitrack_agent.io.recording.reader import Announcement, Event, Sample, Withdrawal
 from ubitrack_agent.net import logs
-from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.keys import KeyRejection, KeySpace
 from ubitrack_agent.net.lifecycle import Closing
 
 log = logging.getLogger("ubitrack.replay")
+
+
+def live_providers(session: Any, keys: KeySpace, timeout: float = 1.0) -> set[str]:
+    """The providers whose liveliness tokens are on ``keys``' domain now (a replay of one of
+    them would make two providers of one id)."""
+    found = set()
+    for reply in session.liveliness().get(keys.all_providers(), timeout=timeout):
+        if reply.ok is not None:
+            token = keys.parse_token("provider", str(reply.ok.key_expr))
+            if not isinstance(token, KeyRejection):
+                found.add(token.name)
+    return found
 
 
 class Replayer(Closing):
