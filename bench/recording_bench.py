@@ -14,7 +14,8 @@ Run: ``python -m bench.recording_bench [--samples N] [--seconds S] [--figure1-se
 * **replay, paced:** the paced file replayed at speed 1 by :class:`Replayer` in this process,
   read by a subscriber here: the added latency of a sample is when it arrived minus when it
   was due (the recording's spacing from the replay's start), and the scheduler's own lateness;
-* **replay, flat out:** the flat-out file at ``--speed 1000``: samples/s published;
+* **replay, flat out:** the flat-out file at ``--speed 1000``: samples/s published (its samples
+  are due faster than they can go, so no latency is quoted);
 * **figure 1:** the demo's sensors recorded for ``--figure1-seconds`` while ``C -> HT`` is
   calibrated live, then replayed into a fresh agent with no simulator and calibrated again:
   the two results' difference, and ``C -> A`` samples on the replay
@@ -183,14 +184,18 @@ def replay(port: int, domain: str, path: Path, speed: float) -> dict[str, Any]:
         due_wall = first_log + replayer.offset_ns + round((log_time - first_log) / speed)
         added_us.append((arrived - due_wall) / 1e3)
     published = replayer.counters["published"]
-    return {
+    figures = {
         "speed": speed,
         "published": published,
         "received": received,
+        "recording_span_s": round((events[-1].log_time_ns - first_log) / 1e9, 3),
+        "replay_s": round(elapsed, 3),
         "published_per_s": round(published / elapsed),
-        "added_latency_us": percentiles(added_us),
-        "scheduler_lateness_us": percentiles([n / 1e3 for n in replayer.lateness_ns or []]),
     }
+    if speed == 1.0:  # faster, samples are due sooner than they can go: a backlog, not latency
+        figures["added_latency_us"] = percentiles(added_us)
+        figures["scheduler_lateness_us"] = percentiles([n / 1e3 for n in replayer.lateness_ns])
+    return figures
 
 
 def figure1(seconds: float, folder: Path) -> dict[str, Any]:
@@ -224,7 +229,11 @@ def main() -> None:
     )
     args = parser.parse_args()
     results: dict[str, Any] = {
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "load_average_1min_at_start": round(os.getloadavg()[0], 2),
+        },
         "command": "python -m bench.recording_bench " + " ".join(sys.argv[1:]),
         "file_alone": file_alone(args.samples),
     }

@@ -317,3 +317,17 @@ def test_a_missing_extra_is_named(command, monkeypatch, capsys, tmp_path):
     err = capsys.readouterr().err
     assert "needs the mcap extra (mcap" in err
     assert 'pip install "ubitrack-agent[mcap]"' in err
+
+
+def test_a_gap_of_centuries_is_waited_out_not_an_overflow():
+    import threading
+
+    from ubitrack_agent.io.recording.replayer import Replayer
+    from ubitrack_agent.net.keys import KeySpace
+
+    stop = threading.Event()
+    replayer = Replayer(None, KeySpace("ubitrack/test"), "lab", stop=stop)  # no provider opened
+    threading.Timer(0.2, stop.set).start()
+    far = [Withdrawal(0, "nobody"), Withdrawal(2**64 - 1, "nobody")]  # an MCAP log time's most
+    assert replayer.play(far) is False  # stopped while waiting
+    assert replayer.counters["withdrawn"] == 1 and replayer.counters["passes"] == 0

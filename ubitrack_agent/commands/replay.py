@@ -4,7 +4,8 @@ Reads a file of ``ubitrack record`` (``docs/recording.md``) and checks all of it
 malformed file (truncated, of another profile, wrong schemas, hostile contents) is refused with
 the reason and exit status 1 before anything is announced. Then it announces each recorded
 provider as the recording did (on this machine's host name) and publishes every recorded
-measurement, so the agent plans and calibrates on it as on the live system.
+measurement, so the agent plans and calibrates on it as on the live system. Replay into a
+domain where the recorded providers are not live: it warns if one is (two providers of one id).
 
 Pacing keeps the recorded spacing: an event is handed on as long after the first as it was
 received after it while recording, divided by ``--speed``. Timestamps keep their recorded

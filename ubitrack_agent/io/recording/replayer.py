@@ -38,6 +38,9 @@ from ubitrack_agent.net.lifecycle import Closing
 
 log = logging.getLogger("ubitrack.replay")
 
+MAX_WAIT_S = 3600.0
+"""Longest single wait of the pacing (see :meth:`Replayer._wait_until`)."""
+
 
 def live_providers(session: Any, keys: KeySpace, timeout: float = 1.0) -> set[str]:
     """The providers whose liveliness tokens are on ``keys``' domain now (a replay of one of
@@ -92,14 +95,22 @@ class Replayer(Closing):
                 offset = time.time_ns() - first if self.shift else 0
                 self.offset_ns = offset
             due = start + round((event.log_time_ns - first) / self.speed)
-            wait = (due - time.monotonic_ns()) / 1e9
-            if self._stop.wait(wait) if wait > 0 else self._stop.is_set():
+            if not self._wait_until(due):
                 return False
             self._apply(event, offset)
             if self.lateness_ns is not None and isinstance(event, Sample):
                 self.lateness_ns.append(time.monotonic_ns() - due)
         self.counters["passes"] += 1
         return True
+
+    def _wait_until(self, due_ns: int) -> bool:
+        """Wait until ``due_ns`` (monotonic); False if ``stop`` came first. Waits in steps of
+        at most ``MAX_WAIT_S``: a gap of years between two events (a file's log times are
+        anyone's) is waited out, not an overflow of the platform's timeout."""
+        while (wait := (due_ns - time.monotonic_ns()) / 1e9) > 0:
+            if self._stop.wait(min(wait, MAX_WAIT_S)):
+                return False
+        return not self._stop.is_set()
 
     def _apply(self, event: Event, offset: int) -> None:
         if isinstance(event, Sample):
