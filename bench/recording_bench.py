@@ -145,7 +145,7 @@ def recording_figures(published: list[bytes], recorded: list[Sample]) -> dict[st
         "published": len(published),
         "recorded": len(recorded),
         "lost": len(published) - len(recorded),
-        "bit_exact_suffix": exact,
+        "gapless_and_bit_exact": exact,
         "recorded_per_s": round(len(recorded) / span) if span > 0 else None,
         "latency_us": percentiles(latency_us),
     }
