@@ -32,6 +32,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "config",
     "certs",
     "demo",
+    "record",
+    "replay",
 )
 """Modules of :mod:`ubitrack_agent.commands`, in the order ``--help`` lists them."""
 
