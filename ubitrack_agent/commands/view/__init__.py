@@ -93,7 +93,9 @@ def run(args: argparse.Namespace) -> int:
         watcher = Watcher(session, keys, pattern_names(load_templates()), args.every, args.history)
         watcher.start()
         try:
-            pages = Pages(lambda: watcher.snapshot, render_svg, args.every)
+            pages = Pages(
+                lambda: watcher.snapshot, render_svg, args.every, watcher.frame_watch.frames
+            )
             return asyncio.run(_serve(pages, args.bind, args.port, keys.agent_status()))
         finally:
             watcher.close()
