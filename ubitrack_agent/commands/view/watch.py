@@ -4,7 +4,9 @@ counters, subscribes to the key of each relation the agent serves, turns what ar
 since the last poll into one point of the relation's series (rate, median latency) and asks a
 simulated world's ground truth (``<root>/truth/<from>/<to>?t=<ns>``, ``ubitrack sim world``)
 for the newest sample's time, for its error. It keeps the latest
-:class:`~ubitrack_agent.commands.view.snapshot.Snapshot` for the HTTP side.
+:class:`~ubitrack_agent.commands.view.snapshot.Snapshot` for the HTTP side, and hands each
+status to its :class:`~ubitrack_agent.commands.view.frame_watch.FrameWatch` (the 3D view's
+relations).
 
 The view subscribes with plain subscribers and declares no query token: it is no application,
 so watching never changes what the agent plans. Zenoh's callbacks only queue what arrives;
