@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ubitrack_agent.core import quaternions, uncertainty
+from ubitrack_agent.core import uncertainty
 from ubitrack_agent.core.measurements import ErrorPose, Measurement, Pose, Position3D
 from ubitrack_agent.core.poses import compose_poses, invert_pose, transform_position
 
@@ -111,11 +111,17 @@ def place(frames: Iterable[str], relations: Sequence[LiveRelation], root: str) -
         step = invert_pose(sample) if inverted else sample
         poses[frame] = (compose_poses(pose, step), [*via, name + (" inverted" if inverted else "")])
     placed = {frame: _pose_json(pose, via) for frame, (pose, via) in poses.items()}
+    covariances = {frame: _position_covariance(pose) for frame, (pose, _) in poses.items()}
     for relation in points:
         if relation.target not in placed and relation.source in poses:
             pose, via = poses[relation.source]
             point = transform_position(pose, relation.sample)  # type: ignore[arg-type]
             placed[relation.target] = _point_json(point, [*via, relation.name])
+            covariances[relation.target] = point.covariance
+    uncertain = [frame for frame, covariance in covariances.items() if covariance is not None]
+    shapes = ellipsoids([covariances[frame] for frame in uncertain])
+    for frame, shape in zip(uncertain, shapes, strict=True):
+        placed[frame]["ellipsoid"] = shape
     known = {*frames, *(r.source for r in relations), *(r.target for r in relations)}
     unplaced = sorted(known - set(placed))
     return {
@@ -136,44 +142,46 @@ def _why_unplaced(frame: str, relations: Sequence[LiveRelation]) -> str:
     return "its live 6D and 3D relations do not connect it to the root"
 
 
+def _position_covariance(pose: Pose | ErrorPose) -> np.ndarray | None:
+    """The covariance of ``pose``'s origin (its translation) under the left perturbation:
+    ``d t = -[t]x phi + rho``, so ``J Sigma J^T`` with ``J = [-[t]x, I]``."""
+    if not isinstance(pose, ErrorPose):
+        return None
+    jacobian = np.hstack((-uncertainty.skew(pose.translation), np.eye(3)))
+    return jacobian @ pose.covariance @ jacobian.T
+
+
 def _pose_json(pose: Pose | ErrorPose, via: list[str]) -> dict[str, Any]:
-    covariance = None
-    if isinstance(pose, ErrorPose):
-        # The origin's position under the left perturbation: d t = -[t]x phi + rho.
-        t = pose.translation
-        jacobian = np.hstack((-uncertainty.skew(t), np.eye(3)))
-        covariance = jacobian @ pose.covariance @ jacobian.T
     return {
         "position": _floats(pose.translation),
         "rotation": _floats(pose.rotation),
-        "ellipsoid": ellipsoid(covariance),
+        "ellipsoid": None,
         "via": via,
     }
 
 
 def _point_json(point: Position3D, via: list[str]) -> dict[str, Any]:
-    return {
-        "position": _floats(point.position),
-        "rotation": None,
-        "ellipsoid": ellipsoid(point.covariance),
-        "via": via,
-    }
+    return {"position": _floats(point.position), "rotation": None, "ellipsoid": None, "via": via}
+
+
+def ellipsoids(covariances: Sequence[np.ndarray]) -> list[dict[str, Any]]:
+    """The one-sigma ellipsoid of each 3x3 position covariance (m^2): its ``radii`` (m, the
+    square roots of the eigenvalues) and its ``axes``, the unit eigenvectors (a right-handed
+    basis, each axis with its radius). One stacked eigendecomposition for all."""
+    if not covariances:
+        return []
+    stack = np.stack(covariances)
+    values, vectors = np.linalg.eigh(0.5 * (stack + stack.transpose(0, 2, 1)))
+    vectors[np.linalg.det(vectors) < 0, :, 0] *= -1.0
+    radii = np.sqrt(np.clip(values, 0.0, None)).round(6).tolist()
+    axes = vectors.transpose(0, 2, 1).round(6).tolist()
+    return [{"radii": r, "axes": a} for r, a in zip(radii, axes, strict=True)]
 
 
 def ellipsoid(covariance: np.ndarray | None) -> dict[str, Any] | None:
-    """The one-sigma ellipsoid of a 3x3 position covariance (m^2): its ``radii`` (m, the
-    square roots of the eigenvalues) and the ``rotation`` (x, y, z, w) taking its axes to the
-    eigenvectors; None without a covariance."""
-    if covariance is None:
-        return None
-    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
-    if np.linalg.det(vectors) < 0:
-        vectors[:, 0] = -vectors[:, 0]
-    return {
-        "radii": _floats(np.sqrt(np.clip(values, 0.0, None))),
-        "rotation": _floats(quaternions.from_matrix(vectors)),
-    }
+    """:func:`ellipsoids` of one covariance; None without one."""
+    return None if covariance is None else ellipsoids([covariance])[0]
 
 
 def _floats(array: np.ndarray) -> list[float]:
-    return [round(float(value), 6) for value in array]
+    return np.round(array, 6).tolist()

@@ -108,7 +108,8 @@ class FrameMark {
     this.ellipsoid.visible = Boolean(ellipsoid);
     if (ellipsoid) {
       this.ellipsoid.position.set(x, y, z);
-      this.ellipsoid.quaternion.fromArray(ellipsoid.rotation);
+      const [u, v, w] = ellipsoid.axes.map((axis) => new THREE.Vector3(...axis));
+      this.ellipsoid.quaternion.setFromRotationMatrix(new THREE.Matrix4().makeBasis(u, v, w));
       const [a, b, c] = ellipsoid.radii.map((r) => Math.max(r * scale, size * 0.01));
       this.ellipsoid.scale.set(a, b, c);
     }
