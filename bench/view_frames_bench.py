@@ -22,10 +22,7 @@ frames, sending the axes as they are, 0.88, 2.10, 7.26 and 17.5 ms (70 to 80 us 
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
-import platform
 import statistics
 import time
 from collections import Counter
@@ -35,7 +32,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bench.report import write_results
+from bench.report import run_sizes
 from ubitrack_agent.commands.view.frame_watch import frames_from
 from ubitrack_agent.core.codec import encode
 from ubitrack_agent.core.measurements import ErrorPose, Position3D
@@ -92,21 +89,8 @@ def measure(n: int, repeat: int) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--frames", type=int, nargs="+", default=[11, 30, 100, 256])
-    parser.add_argument("--repeat", type=int, default=15, help="timed answers per size")
-    parser.add_argument("--output", type=Path, default=RESULTS)
-    args = parser.parse_args(argv)
-    rows = [measure(n, args.repeat) for n in args.frames]
-    write_results(
-        args.output,
-        {
-            "sizes": rows,
-            "machine": f"{platform.machine()}, {platform.python_version()}",
-            "load_average": os.getloadavg()[0],
-        },
-    )
-    return 0
+    description = __doc__.split("\n\n")[0]
+    return run_sizes(description, "frames", [11, 30, 100, 256], 15, RESULTS, measure, argv)
 
 
 if __name__ == "__main__":
