@@ -97,12 +97,14 @@ def frames_from(
     """The frames of ``srg`` (a status's) placed relative to ``root`` (default:
     :func:`~.frames.tracker_frame`) by the ``latest`` payload of each key :func:`spatial_keys`
     gave (``wanted``), with the frames the SRG knows and the default root; ``{"error": why,
-    "known": frames}`` for a root the SRG does not know. A payload that is no measurement is
-    counted (``undecodable_samples``) and left out. O(keys) decodes and one
-    :func:`~.frames.place`."""
+    "known": frames}`` for a root the SRG does not know, or none known yet. A payload that
+    is no measurement is counted (``undecodable_samples``) and left out. O(keys) decodes and
+    one :func:`~.frames.place`."""
     known = srg_frames(srg)
     default = tracker_frame(srg)
     chosen = root if root is not None else default
+    if not known:
+        return {"error": "no frames yet: no agent's status has named an SRG edge", "known": []}
     if chosen is None or chosen not in known:
         return {"error": f"no frame {str(chosen)[:100]!r} in the SRG", "known": known}
     relations = []

@@ -16,7 +16,7 @@
   without it;
 * ``/frames.json?root=FRAME``: every frame of the SRG placed relative to ``FRAME`` (default:
   the tracker's frame) by the live relations (:mod:`.frames`); 404 for a frame the SRG does
-  not know.
+  not know, 503 before any status has named one.
 
 Every request gets an answer: a path not listed is 404, a method other than GET or HEAD 405,
 a query string 400 (except ``root`` on ``/frames.json``), a status that cannot be drawn 502.
@@ -166,7 +166,9 @@ class Pages:
         if set(fields) - {"root"} or any(len(values) != 1 for values in fields.values()):
             return text(400, "/frames.json takes one parameter, ?root=FRAME")
         placed = self._frames(fields["root"][0] if fields else None)
-        return as_json(404 if "error" in placed else 200, placed)
+        if "error" not in placed:
+            return as_json(200, placed)
+        return as_json(404 if placed.get("known") else 503, placed)  # an unknown root; no SRG
 
     def _graph(self, snapshot: Snapshot) -> Reply:
         """``/flow.json``: the flow's nodes, wires and groups, for the page to lay out."""

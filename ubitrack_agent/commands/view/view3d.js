@@ -155,14 +155,17 @@ function fillRoots(known, chosen) {
   controls.root.value = chosen;
 }
 
+let retryAt = 0; // after an answer that is no placement, ask again a second later
+
 async function fetchFrames() {
-  if (busy) return;
+  if (busy || performance.now() < retryAt) return;
   busy = true;
   try {
     const query = root ? `?root=${encodeURIComponent(root)}` : "";
     const response = await fetch(`/frames.json${query}`, { cache: "no-store" });
     const answer = await response.json();
     if (!response.ok) {
+      retryAt = performance.now() + 1000;
       problem(answer.error || `the view answered ${response.status}`);
       if (root && Array.isArray(answer.known) && answer.known.length) root = null; // back to the default
       latest = null;
@@ -174,6 +177,7 @@ async function fetchFrames() {
     fillRoots(answer.known, answer.root);
     counts.answers += 1;
   } catch (error) {
+    retryAt = performance.now() + 1000;
     problem(`the view does not answer: ${error}`);
   } finally {
     busy = false;
