@@ -133,19 +133,27 @@ class FrameWatch:
         self._srg: list[Any] = []
 
     def follow(self, status: dict[str, Any]) -> None:
-        """Follow exactly the spatial relations of ``status`` (:func:`spatial_keys`)."""
+        """Follow exactly the spatial relations of ``status`` (:func:`spatial_keys`).
+        Subscribers are declared and undeclared outside the lock their callbacks take."""
         wanted = spatial_keys(status, self.keys)
         with self._lock:
             self._srg = _list(status.get("srg"))
             self._wanted = wanted
-            for key in [key for key in self._subscribers if key not in wanted]:
-                self._subscribers.pop(key).undeclare()
+            gone = [key for key in self._subscribers if key not in wanted]
+            dropped = [self._subscribers.pop(key) for key in gone]
+            for key in gone:
                 self._latest.pop(key, None)
             new = [key for key in wanted if key not in self._subscribers]
-            for key in new:
-                self._subscribers[key] = self.session.declare_subscriber(
-                    key, lambda sample, key=key: self._store(key, sample.payload.to_bytes())
-                )
+        for subscriber in dropped:
+            subscriber.undeclare()
+        declared = {
+            key: self.session.declare_subscriber(
+                key, lambda sample, key=key: self._store(key, sample.payload.to_bytes())
+            )
+            for key in new
+        }
+        with self._lock:
+            self._subscribers.update(declared)
             unanswered = [key for key in wanted if key not in self._latest]
         for key in unanswered:  # a static edge's value, or a dynamic one's before it moves
             self.session.get(key, handler=self._replied, timeout=GET_TIMEOUT_S)
@@ -173,6 +181,7 @@ class FrameWatch:
 
     def close(self) -> None:
         with self._lock:
-            for subscriber in self._subscribers.values():
-                subscriber.undeclare()
+            subscribers = list(self._subscribers.values())
             self._subscribers.clear()
+        for subscriber in subscribers:
+            subscriber.undeclare()
