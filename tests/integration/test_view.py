@@ -188,6 +188,12 @@ def test_the_view_shows_the_running_flow_in_headless_chromium(processes, tmp_pat
             profile = tmp_path / f"profile{suffix}"
             dom = html.unescape(browse(processes, binary, view, profile, "--dump-dom"))
             assert_the_flow_page_shows_the_running_flow(dom)
+            assert_graphviz_is_an_option(
+                html.unescape(
+                    browse(processes, binary, view + "#engine=graphviz", profile, "--dump-dom")
+                ),
+                installed=name == "with Graphviz",
+            )
             dom3d = html.unescape(browse(processes, binary, view + "3d", profile, "--dump-dom"))
             assert_the_3d_view_places_the_frames(dom3d, root="ART", default=True)
             chosen = html.unescape(
@@ -277,6 +283,24 @@ def assert_the_flow_page_shows_the_running_flow(dom: str) -> None:
     assert '<p id="flow-problem" class="problem" hidden=""' in dom
     legend = re.search(r'<svg id="flow-legend"[^>]*>(.*?)</svg>', dom, re.DOTALL)
     assert legend and "container: components run in one process" in legend.group(1)
+
+
+def assert_graphviz_is_an_option(dom: str, installed: bool) -> None:
+    """With Graphviz chosen (``#engine=graphviz``): its picture where ``dot`` is installed;
+    else the reason, and the flow drawn in the browser all the same."""
+    picture = re.search(r'<img id="flow-picture"[^>]*>', dom).group(0)
+    drawn = re.search(r'<svg id="flow"[^>]*>', dom).group(0)
+    problem = re.search(r'<p id="flow-problem"[^>]*>([^<]*)</p>', dom)
+    if installed:
+        assert 'src="blob:' in picture and "hidden" not in picture, picture
+        assert "hidden" in drawn and "hidden" in problem.group(0)
+    else:
+        assert "hidden" in picture and "hidden" not in drawn
+        assert problem.group(1) == (
+            "no picture: Graphviz's dot is not installed (Debian: apt install graphviz); "
+            "drawn in the browser instead"
+        )
+        assert re.search(r'<g class="node component"', dom)
 
 
 def assert_the_3d_view_places_the_frames(dom: str, root: str, default: bool) -> None:

@@ -352,14 +352,14 @@ async function drawFlow() {
       if (flowURL) URL.revokeObjectURL(flowURL);
       flowURL = url;
       picture.hidden = false;
-      svg.hidden = true;
+      svg.toggleAttribute("hidden", true); // an SVG element has no .hidden property
       return;
     }
     problem.textContent = `${(await response.text()).trim()}; drawn in the browser instead`;
     problem.hidden = false;
   }
   picture.hidden = true;
-  svg.hidden = false;
+  svg.toggleAttribute("hidden", false);
   const response = await fetch("/flow.json", { cache: "no-store" });
   const text = await response.text();
   if (!response.ok) {
@@ -415,6 +415,13 @@ async function tick() {
   }
 }
 
+// The drawing engine: the select, or the page's address (/#engine=graphviz).
+const engine = document.getElementById("flow-engine");
+if (new URLSearchParams(location.hash.slice(1)).get("engine") === "graphviz") engine.value = "graphviz";
+engine.addEventListener("change", () => {
+  location.hash = `engine=${engine.value}`;
+  flowShown = "";
+});
 drawLegend();
 tick();
 setInterval(tick, EVERY_MS);
