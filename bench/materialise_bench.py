@@ -19,9 +19,6 @@ alone, measured side by side (2026-11-27, ``docs/performance.md``).
 
 from __future__ import annotations
 
-import argparse
-import os
-import platform
 import statistics
 import time
 from pathlib import Path
@@ -29,7 +26,7 @@ from typing import Any
 
 from bench.agent_replan_bench import KEYS, fragments_of, queries_of
 from bench.building import Building
-from bench.report import write_results
+from bench.report import run_sizes
 from ubitrack_agent.agent.announcements import build_srg
 from ubitrack_agent.agent.flows import plan_relations
 from ubitrack_agent.agent.materialise import component_specs
@@ -67,22 +64,16 @@ def measure(rooms: int, templates: Any, repeat: int) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rooms", type=int, nargs="+", default=[5, 10, 25, 50])
-    parser.add_argument("--repeat", type=int, default=7, help="timed calls per size")
-    parser.add_argument("--output", type=Path, default=RESULTS)
-    args = parser.parse_args(argv)
     templates = load_templates()
-    rows = [measure(rooms, templates, args.repeat) for rooms in args.rooms]
-    write_results(
-        args.output,
-        {
-            "sizes": rows,
-            "machine": f"{platform.machine()}, {platform.python_version()}",
-            "load_average": os.getloadavg()[0],
-        },
+    return run_sizes(
+        __doc__.split("\n\n")[0],
+        "rooms",
+        [5, 10, 25, 50],
+        7,
+        RESULTS,
+        lambda rooms, repeat: measure(rooms, templates, repeat),
+        argv,
     )
-    return 0
 
 
 if __name__ == "__main__":

@@ -3,7 +3,11 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
+import platform
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -14,3 +18,32 @@ def write_results(path: Path, results: dict[str, Any]) -> None:
     path.parent.mkdir(exist_ok=True)
     path.write_text(text + "\n")
     print(text)
+
+
+def run_sizes(
+    description: str,
+    size: str,
+    sizes: list[int],
+    repeat: int,
+    output: Path,
+    measure: Callable[[int, int], dict[str, Any]],
+    argv: list[str] | None = None,
+) -> int:
+    """A bench of one figure by problem size: ``--<size> N ...`` (default ``sizes``),
+    ``--repeat`` and ``--output`` from ``argv``; ``measure(n, repeat)`` gives each size's row;
+    the rows, the machine and its load average are written by :func:`write_results`."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument(f"--{size}", type=int, nargs="+", default=sizes, dest="sizes")
+    parser.add_argument("--repeat", type=int, default=repeat, help="timed calls per size")
+    parser.add_argument("--output", type=Path, default=output)
+    args = parser.parse_args(argv)
+    rows = [measure(n, args.repeat) for n in args.sizes]
+    write_results(
+        args.output,
+        {
+            "sizes": rows,
+            "machine": f"{platform.machine()}, {platform.python_version()}",
+            "load_average": os.getloadavg()[0],
+        },
+    )
+    return 0

@@ -64,8 +64,13 @@ def test_the_wheel_carries_every_template_scenario_and_page(wheel):
     # One top-level name: nothing another distribution or a user's folder is likely to have.
     assert {name.split("/")[0].split("-")[0] for name in names} == {"ubitrack_agent"}
     view = "ubitrack_agent/commands/view"
-    pages = {f"{view}/{p.name}" for p in (ROOT / view).glob("*.*") if p.suffix != ".py"}
-    assert pages and pages <= names  # ubitrack view's page, script and style
+    pages = {
+        p.relative_to(ROOT).as_posix()
+        for p in (ROOT / view).rglob("*")
+        if p.is_file() and p.suffix not in (".py", ".pyc")
+    }
+    assert f"{view}/vendor/three/three.module.min.js" in pages
+    assert pages <= names  # ubitrack view's pages, scripts, style and bundled libraries
     assert not any(name.startswith(("tests/", "bench/")) for name in names)
 
 
@@ -136,3 +141,24 @@ def test_the_installed_package_plans_figure_6_from_another_directory(wheel, tmp_
     assert plan.stdout.startswith("6D C->A: 4 solution(s)")
     assert "MultiTrackerFusion (space)" in plan.stdout  # figure 6: both trackers fused
     assert "PoseEstimation2D3D (space)" in plan.stdout
+    # ubitrack view's pages and bundled libraries are served from the installed copy
+    served = subprocess.run(
+        [sys.executable, "-c", SERVE_EVERY_FILE],
+        cwd=work,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert served.returncode == 0, served.stderr
+    assert "/vendor/three/three.core.min.js 200" in served.stdout.splitlines()
+
+
+SERVE_EVERY_FILE = """
+from ubitrack_agent.commands.view.pages import FILES, Pages
+from ubitrack_agent.commands.view.snapshot import Snapshot
+pages = Pages(lambda: Snapshot(0, None, "none"), lambda dot: (None, "none"), 1.0, lambda root: {})
+for path in FILES:
+    reply = pages.respond("GET", path, "")
+    assert reply.status == 200 and reply.body, path
+    print(path, reply.status)
+"""

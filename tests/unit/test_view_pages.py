@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import json
 import re
+from collections import Counter
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.unit.test_status_dot import flow_status
+from ubitrack_agent.commands.view.frame_watch import frames_from
 from ubitrack_agent.commands.view.pages import PATHS, Pages
 from ubitrack_agent.commands.view.snapshot import (
     MAX_RELATIONS,
@@ -50,7 +52,15 @@ class Drawing:
 
 
 def pages(snapshot: Snapshot, drawing: Drawing | None = None) -> Pages:
-    return Pages(lambda: snapshot, drawing or Drawing(), every_s=1.0)
+    """The pages of ``snapshot``; its frames placed from its status's SRG, with no samples."""
+    srg = (snapshot.status or {}).get("srg")
+    srg = srg if isinstance(srg, list) else []
+    return Pages(
+        lambda: snapshot,
+        drawing or Drawing(),
+        every_s=1.0,
+        frames=lambda root: frames_from(srg, {}, {}, root, Counter()),
+    )
 
 
 def running() -> Snapshot:
@@ -71,6 +81,14 @@ def running() -> Snapshot:
         ("GET", "/", "t=1", 400),
         ("GET", "/status.json", "x", 400),
         ("GET", "/flow.svg", "%ff%00", 400),
+        ("GET", "/flow.json", "x=1", 400),
+        ("GET", "/frames.json", "x=1", 400),
+        ("GET", "/frames.json", "root=ART&root=HT", 400),
+        ("GET", "/frames.json", "root=ART&x=1", 400),
+        ("GET", "/frames.json", "root", 400),
+        ("GET", "/frames.json", "&" * 5000, 400),
+        ("GET", "/frames.json", "root=NOPE", 404),
+        ("GET", "/frames.json", "root=" + "x" * 10_000, 404),
     ],
 )
 def test_bad_requests_get_a_client_error(method, path, query, code):
@@ -144,19 +162,30 @@ def test_without_graphviz_or_an_agent_the_flow_says_why():
 )
 def test_a_status_that_cannot_be_drawn_is_a_bad_gateway(status):
     view = pages(Snapshot(3, status))
-    for path in ("/flow.svg", "/flow.dot"):
+    for path in ("/flow.svg", "/flow.dot", "/flow.json"):
         reply = view.respond("GET", path, "")
         assert reply.status == 502 and b"cannot be drawn" in reply.body
 
 
-def test_the_page_needs_nothing_from_outside_the_view():
+def test_the_pages_need_nothing_from_outside_the_view():
     view = pages(NO_AGENT)
-    for path in ("/", "/view.js", "/view.css"):
+    for path in ("/", "/view.js", "/view.css", "/3d", "/view3d.js"):
         text = view.respond("GET", path, "").body.decode()
         outside = re.findall(r"(?:https?:)?//[\w.-]+", text)
         assert set(outside) <= {"http://www.w3.org"}, (path, outside)  # the SVG namespace
-    script = view.respond("GET", "/view.js", "").body.decode()
-    assert "innerHTML" not in script and "eval(" not in script  # network text stays text
+        loaded = re.findall(r'(?:src|href)="([^"]+)"|from "([^"]+)"', text)
+        for name in {part for parts in loaded for part in parts if part}:
+            assert view.respond("GET", name.split("#")[0], "").status == 200, (path, name)
+    for path in ("/view.js", "/view3d.js"):
+        script = view.respond("GET", path, "").body.decode()
+        assert "innerHTML" not in script and "eval(" not in script  # network text stays text
+    module = view.respond("GET", "/vendor/three/three.module.min.js", "").body.decode()
+    assert set(re.findall(r'from\s*"([^"]+)"', module)) == {"./three.core.min.js"}  # beside it
+    for library in ("dagre", "three"):
+        assert (
+            b"Permission is hereby granted"
+            in view.respond("GET", f"/vendor/{library}/LICENSE", "").body
+        )
 
 
 def test_the_status_is_read_as_untrusted_input():
@@ -231,7 +260,7 @@ JSON = st.recursive(
 def test_any_status_gets_an_answer_on_every_path(status):
     for path in PATHS:
         reply = pages(Snapshot(4, enrich(status, {}, {}, {}))).respond("GET", path, "")
-        assert reply.status in (200, 502), (path, reply.body)
+        assert reply.status in ((200, 404, 503) if path == "/frames.json" else (200, 502)), path
         if reply.content_type == "application/json":
             json.loads(reply.body)
     watched_relations(status, KEYS)
@@ -270,3 +299,34 @@ def test_a_row_per_queried_relation_named_as_the_status_names_it():
         },
     }
     assert list(relation_rows({"queries": [1], "unsolved": 3}, {})) == []
+
+
+def test_flow_json_is_the_graph_the_page_lays_out_or_why_there_is_none():
+    status = flow_status()
+    for component in status["components"].values():
+        component["container"] = "room-0"
+    reply = pages(Snapshot(2, status, rates={"inversion-1": 59.6})).respond("GET", "/flow.json", "")
+    graph = json.loads(reply.body)
+    assert graph["groups"] == [{"id": "room-0", "lines": ["container room-0", "on room"]}]
+    grouped = {node["id"] for node in graph["nodes"] if node["group"] == "room-0"}
+    assert grouped == {"inversion-1", "fusion-2"}
+    assert {"from": "inversion-1", "to": "fusion-2", "label": "6D, 60 Hz", "static": False} in (
+        graph["wires"]
+    )
+    reply = pages(NO_AGENT).respond("GET", "/flow.json", "")
+    assert reply.status == 503 and "no agent answers" in json.loads(reply.body)["error"]
+
+
+def test_frames_json_places_relative_to_the_root_asked_for_or_the_trackers_frame():
+    view = pages(running())
+    default = json.loads(view.respond("GET", "/frames.json", "").body)
+    assert (default["root"], default["default_root"], default["known"]) == (
+        "ART",
+        "ART",
+        ["ART", "HT"],
+    )
+    assert default["frames"]["ART"]["position"] == [0.0, 0.0, 0.0]
+    assert "HT" in default["unplaced"]  # the status's SRG, no samples yet
+    assert pages(NO_AGENT).respond("GET", "/frames.json", "").status == 503
+    chosen = json.loads(view.respond("GET", "/frames.json", "root=HT").body)
+    assert chosen["root"] == "HT" and list(chosen["frames"]) == ["HT"]

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ubitrack_agent.commands.view.flow import flow_dot
 from ubitrack_agent.net import config
 
 
@@ -41,87 +42,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for answers")
     config.add_arguments(parser)
     parser.set_defaults(func=run)
-
-
-def flow_dot(status: dict[str, Any], rates: dict[str, float] | None = None) -> str:
-    """DOT of the live data flow in the style of the paper's figure 6: providers (sources),
-    components (boxes: pattern, instance, host; grey while starting), applications (sinks);
-    each wire labelled with the type it carries, its rate (a provider edge's announced rate,
-    a component's measured output rate from ``rates``, by instance, in Hz) and the latency its
-    consumer measures (:func:`wire_latency_ms`). A component is
-    named by its ``pattern`` when the status has one (``ubitrack view`` adds it), else by its
-    service."""
-    from ubitrack_agent.graph.dot import quote
-
-    rates = rates or {}
-    data = f"{status['key_prefix']}/data/"
-    edges = {edge["id"]: edge for edge in status.get("srg", [])}
-    lines = [f"digraph {quote(status['key_prefix'])} {{", "  rankdir=LR;"]
-    producers: dict[str, tuple[str, str]] = {}  # key -> (node, wire label)
-    for provider, edge_ids in status.get("providers", {}).items():
-        node = f"provider {provider}"
-        lines.append(f"  {quote(node)} [shape=house, label={quote(provider)}];")
-        for edge_id in edge_ids:
-            edge = edges.get(edge_id, {})
-            rate = edge.get("rate") or 0.0
-            label = edge.get("type", "?") + (" static" if edge.get("static") else "")
-            label += f", {rate:g} Hz" if rate else ""
-            producers[data + edge_id] = (node, label)
-    components = status.get("components", {})
-    for instance, component in components.items():
-        where = f"\non {component['host']}" if component.get("host") else ""
-        where += f"\nin {component['container']}" if component.get("container") else ""
-        colour = "black" if component.get("alive") else "grey"
-        name = component.get("pattern") or component["service"]
-        label = f"{name}\n{instance}{where}"
-        lines.append(
-            f"  {quote(instance)} [shape=box, color={colour}, fontcolor={colour}, "
-            f"label={quote(label)}];"
-        )
-        kinds = {typ for _, _, typ in component.get("derives", [])}
-        kind = kinds.pop() if len(kinds) == 1 else "?"
-        rate = f", {rates[instance]:.0f} Hz" if instance in rates else ""
-        for key in component.get("outputs", {}).values():
-            producers[key] = (instance, kind + rate)
-    for instance, component in components.items():
-        for binding in component.get("inputs", []):
-            node, label = producers.get(binding["key"], (binding["key"], "?"))
-            if binding["key"] not in producers:
-                lines.append(f"  {quote(node)} [shape=plaintext];")
-            latency = wire_latency_ms(status, component, binding)
-            label += f", {latency:.0f} ms" if latency is not None else ""
-            lines.append(f"  {quote(node)} -> {quote(instance)} [label={quote(label)}];")
-    for name, relation in status.get("relations", {}).items():
-        apps = status.get("queries", {}).get(name, [])
-        sink = f"application {name}"
-        label = "\n".join([*apps, name])
-        lines.append(f"  {quote(sink)} [shape=invhouse, label={quote(label)}];")
-        for instance, component in components.items():
-            routes = component.get("relations", {}).values()
-            if any(relation["key"] in keys for keys in routes):
-                _, wire = producers.get(next(iter(component["outputs"].values()), ""), ("", ""))
-                lines.append(f"  {quote(instance)} -> {quote(sink)} [label={quote(wire)}];")
-    lines.append("}")
-    return "\n".join(lines) + "\n"
-
-
-def wire_latency_ms(
-    status: dict[str, Any], component: dict[str, Any], binding: dict[str, Any]
-) -> float | None:
-    """The latency (ms) of the samples ``component`` takes on its input ``binding``, as its
-    worker measures it (``latency_ms``: its host's clock minus the samples' timestamps), put
-    on the agent's clock when the input's timestamps are (a ``clock_offset_ns`` set: add the
-    worker's host's offset, ``host_info``); None if not known."""
-    latency = component.get("latency_ms", {}).get(binding["key"])
-    if latency is None:
-        return None
-    if binding.get("clock_offset_ns"):
-        info = status.get("host_info", {}).get(component.get("host")) or {}
-        clock = info.get("clock")
-        if not clock:
-            return None  # on another clock than its worker's, by an offset not known here
-        latency += clock["offset_ns"] / 1e6
-    return latency
 
 
 def live_dot(status: dict[str, Any]) -> str:

@@ -1,15 +1,17 @@
-"""``ubitrack view``: a live web view of the agent's data flow.
+"""``ubitrack view``: a live web view of the agent's data flow, and of its frames in 3D.
 
 A small HTTP server (aiohttp: asynchronous, well kept, and the one HTTP dependency; the
 standard library's ``http.server`` is documented as not for production use) bound to
 ``--bind``:``--port`` (loopback by default), joined to the zenoh network as a member. Every
 ``--every`` seconds it asks the agent for its status and the workers for their counters and
 measures each served relation on its key (:mod:`.watch`); it serves one page that redraws,
-every second, the data flow as Graphviz draws it, the agent's id and role, the hosts, the
+every second, the data flow (laid out in the browser by the bundled dagre, or drawn by
+Graphviz's ``dot`` where installed, if chosen), the agent's id and role, the hosts, the
 components with their pattern and host, a row per queried relation with sparklines of its rate,
-latency and error against a simulator's ground truth, and the reasons of unsolved queries
-(:mod:`.pages` lists the paths). Everything is served by the view itself: the page needs no
-network beyond it.
+latency and error against a simulator's ground truth, and the reasons of unsolved queries; and
+a 3D view (``/3d``, the bundled three.js) of every frame of the SRG placed by the live
+relations (:mod:`.frame_watch`, :mod:`.frames`). :mod:`.pages` lists the paths. Everything is
+served by the view itself: the pages need no network beyond it.
 """
 
 from __future__ import annotations
@@ -31,15 +33,20 @@ DEFAULT_PORT = 8765
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "view",
-        help="a live web page of the data flow, with per-relation rate/latency/error sparklines",
+        help="a live web page of the data flow with per-relation rate/latency/error "
+        "sparklines, and the frames in 3D",
         description="Serve a live web view of the agent's state on http://BIND:PORT/: the data "
-        "flow in the style of the paper's figure 6 (drawn by Graphviz's dot when installed, "
-        "else shown as DOT), the agent's id and role, the hosts, the components with their "
-        "pattern and host, and for each queried relation sparklines of its rate (samples/s), "
-        "latency (ms, arrival minus the sample's timestamp) and error (mm, against the ground "
-        "truth of `ubitrack sim world`, where it runs), with the reasons of unsolved queries. "
-        "Also /status.json, /series.json, /flow.dot and /flow.svg. Watching never changes "
-        "the plan: the view declares no query.",
+        "flow in the style of the paper's figure 6 (laid out in the browser by the bundled "
+        "dagre, components grouped in their containers, with a legend; or drawn by Graphviz's "
+        "dot where installed, if chosen on the page), the agent's id and role, the hosts, the "
+        "components with their pattern and host, and for each queried relation sparklines of "
+        "its rate (samples/s), latency (ms, arrival minus the sample's timestamp) and error "
+        "(mm, against the ground truth of `ubitrack sim world`, where it runs), with the "
+        "reasons of unsolved queries. On http://BIND:PORT/3d, every frame of the SRG in 3D, "
+        "placed by the live 6D and 3D relations relative to a root you choose (default the "
+        "tracker's frame), with axes, names, trails and uncertainty ellipsoids. Also "
+        "/status.json, /series.json, /flow.json, /flow.dot, /flow.svg and "
+        "/frames.json?root=FRAME. Watching never changes the plan: the view declares no query.",
     )
     parser.add_argument(
         "--bind", default="127.0.0.1", help="address to serve on (default: %(default)s)"
@@ -93,7 +100,9 @@ def run(args: argparse.Namespace) -> int:
         watcher = Watcher(session, keys, pattern_names(load_templates()), args.every, args.history)
         watcher.start()
         try:
-            pages = Pages(lambda: watcher.snapshot, render_svg, args.every)
+            pages = Pages(
+                lambda: watcher.snapshot, render_svg, args.every, watcher.frame_watch.frames
+            )
             return asyncio.run(_serve(pages, args.bind, args.port, keys.agent_status()))
         finally:
             watcher.close()

@@ -4,7 +4,9 @@ counters, subscribes to the key of each relation the agent serves, turns what ar
 since the last poll into one point of the relation's series (rate, median latency) and asks a
 simulated world's ground truth (``<root>/truth/<from>/<to>?t=<ns>``, ``ubitrack sim world``)
 for the newest sample's time, for its error. It keeps the latest
-:class:`~ubitrack_agent.commands.view.snapshot.Snapshot` for the HTTP side.
+:class:`~ubitrack_agent.commands.view.snapshot.Snapshot` for the HTTP side, and hands each
+status to its :class:`~ubitrack_agent.commands.view.frame_watch.FrameWatch` (the 3D view's
+relations).
 
 The view subscribes with plain subscribers and declares no query token: it is no application,
 so watching never changes what the agent plans. Zenoh's callbacks only queue what arrives;
@@ -20,6 +22,7 @@ from collections import Counter
 from typing import Any
 
 from ubitrack_agent.commands.status import worker_statuses
+from ubitrack_agent.commands.view.frame_watch import FrameWatch
 from ubitrack_agent.commands.view.series import Period, Series, position_error_mm
 from ubitrack_agent.commands.view.snapshot import (
     Snapshot,
@@ -122,6 +125,8 @@ class Watcher:
         self.counters: Counter[str] = Counter()
         self.snapshot = Snapshot(time.time_ns(), None, "no answer asked for yet")
         self._watches: dict[str, RelationWatch] = {}
+        self.frame_watch = FrameWatch(session, keys, self.counters)
+        """The live spatial relations, for the 3D view (:mod:`.frame_watch`)."""
         self._workers: dict[str, dict[str, Any]] | None = None
         self._last = time.monotonic()
         self._stop = threading.Event()
@@ -136,6 +141,7 @@ class Watcher:
         for watch in self._watches.values():
             watch.close()
         self._watches.clear()
+        self.frame_watch.close()
 
     def _run(self) -> None:
         poll = logs.guarded(self.poll, self.counters, log, "view poll")
@@ -156,6 +162,7 @@ class Watcher:
         self._workers = workers
         if status is not None:  # without one, keep watching what was served
             self._follow(watched_relations(status, self.keys))
+            self.frame_watch.follow(status)
         now_ns = time.time_ns()
         for watch in self._watches.values():
             period = watch.drain(self.counters)
