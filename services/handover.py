@@ -6,8 +6,8 @@ the old one, which is stopped ``HAND_OVER_HOLD_S`` after the new one runs (``age
 ``_retire``): for a while both producers compute the relation, often the same instants (both
 driven by one tracker's samples). Each watches the key (a subscriber: it sees its own puts and
 the other's) and its hand-over key (:func:`hand_over_key`), and keeps these rules, so that
-the application sees one stream (issue [seamless]; ``docs/protocol.md``, "While the data flow
-changes"):
+the application sees one stream (issue [seamless]; ``docs/protocol.md``, "What an application
+sees while the flow behind its key changes"):
 
 1. **Order.** A sample whose timestamp is not after the newest one seen on the key is not put:
    no duplicate, no instant out of order.
