@@ -153,7 +153,7 @@ def rmw_attachment(sequence: int) -> bytes:
     ).to_bytes()  # fmt: skip
 
 
-def test_a_robots_tf_tree_becomes_srg_edges(processes):
+def test_a_robots_tf_tree_becomes_srg_edges(processes, tmp_path):
     port = free_port()
     settings = hub(port, domain=f"ros2in{port}")
     keys = KeySpace(settings.key_prefix)
@@ -167,11 +167,14 @@ def test_a_robots_tf_tree_becomes_srg_edges(processes):
             publisher_detection=True,
         )  # as rmw_zenoh declares a reliable transient-local publisher
         static.put(rosbags_tf("map", "odom", 0, (1, 2, 3)), attachment=rmw_attachment(1))
-        bridge = subprocess.Popen(
-            [sys.executable, "-m", "ubitrack_agent.cli", "ros2", "subscribe", "--quiet",
-             "--ros-domain-id", "3", "--provider", "robot", *config.member_flags(settings)],
-            start_new_session=True,
-        )  # fmt: skip
+        log = tmp_path / "bridge.log"
+        with log.open("w") as stderr:  # the child keeps its own descriptor
+            bridge = subprocess.Popen(
+                [sys.executable, "-m", "ubitrack_agent.cli", "ros2", "subscribe", "--quiet",
+                 "--ros-domain-id", "3", "--provider", "robot", *config.member_flags(settings)],
+                start_new_session=True,
+                stderr=stderr,
+            )  # fmt: skip
         processes.append(bridge)
         dynamic = session.declare_publisher(topic_key(3, "/tf"))
         sequence = 0
@@ -203,6 +206,9 @@ def test_a_robots_tf_tree_becomes_srg_edges(processes):
         dynamic.undeclare()
     bridge.terminate()
     assert bridge.wait(timeout=10) == 0
+    logged = log.read_text()  # the hostile samples: rejected, logged, not fatal
+    assert "rejected input" in logged
+    assert "attachment: no attachment" in logged and "payload: not a TFMessage" in logged
 
 
 def test_ros2_publish_follows_relations_onto_tf_and_tf_static(processes):
@@ -258,3 +264,15 @@ def test_ros2_publish_follows_relations_onto_tf_and_tf_static(processes):
     assert attachment[1] >= 1
     assert [(t.header.frame_id, t.child_frame_id) for t in static_transforms] == [("W", "A")]
     assert static_transforms[0].transform.translation.x == pytest.approx(7.0)
+
+
+def test_a_missing_extra_is_named():
+    """In a process of its own, where rosbags cannot be imported."""
+    code = (
+        "import sys; sys.modules['rosbags'] = None\n"  # as if rosbags were not installed
+        "from ubitrack_agent.cli import main\n"
+        "sys.exit(main(['ros2', 'publish', 'C/A']))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert 'needs the ros2 extra: pip install "ubitrack-agent[ros2]"' in out.stderr
