@@ -250,7 +250,7 @@ def test_ros2_publish_follows_relations_onto_tf_and_tf_static(processes):
         try:
             transforms, attachment = received(dynamic.get(timeout=90))
             time.sleep(1.0)  # then join /tf_static late
-            static_transforms, _ = first_static_message(session, topic_key(9, "/tf_static"), 30)
+            static_transforms, _ = first_static_message(session, topic_key(9, "/tf_static"), 60)
         finally:
             stop.set()
             sensor.join(timeout=2)
