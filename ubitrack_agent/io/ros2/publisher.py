@@ -15,7 +15,8 @@ What a tf2 ``TransformBroadcaster`` and ``StaticTransformBroadcaster`` do throug
 * **Discovery**: liveliness tokens for the node and both publishers (:mod:`.liveliness`).
 
 The gid is 16 bytes hashed from the publisher's token (BLAKE2b here, XXH3 in rmw_zenoh:
-subscribers only compare gids). O(transforms) per message; the static set is O(static frames).
+a subscriber passes it on as the publisher's id and never recomputes it). O(transforms) per
+message; the static set is O(static frames).
 """
 
 from __future__ import annotations
