@@ -38,9 +38,9 @@ def _layer(*allowed: str, forbidden: tuple[str, ...] = ()) -> Layer:
 
 
 CORE, GRAPH, NET, IO = (f"ubitrack_agent.{name}" for name in ("core", "graph", "net", "io"))
-AGENT, CAMERA = "ubitrack_agent.agent", f"{IO}.camera"
+AGENT, CAMERA, ROS2 = "ubitrack_agent.agent", f"{IO}.camera", f"{IO}.ros2"
 SERVICES, SIMULATORS, TEMPLATES = (f"ubitrack_agent.{name}" for name in MAPPED)
-EVERYTHING = (CORE, GRAPH, NET, IO, CAMERA, AGENT, SERVICES, SIMULATORS, TEMPLATES)
+EVERYTHING = (CORE, GRAPH, NET, IO, CAMERA, ROS2, AGENT, SERVICES, SIMULATORS, TEMPLATES)
 NO_PROCESSES = ("subprocess", "multiprocessing")
 LAYERS: dict[str, Layer] = {
     # Bottom to top.
@@ -51,6 +51,7 @@ LAYERS: dict[str, Layer] = {
     NET: _layer(CORE, forbidden=("networkx", "cv2", *NO_PROCESSES)),
     IO: _layer(CORE, NET, forbidden=("networkx", "cv2")),
     CAMERA: _layer(CORE, NET, IO, forbidden=("networkx",)),  # the one io package with OpenCV
+    ROS2: _layer(CORE, NET, IO, forbidden=("networkx", "cv2")),  # rosbags, lazily
     AGENT: _layer(CORE, GRAPH, NET, forbidden=("cv2", "scipy")),
     SERVICES: _layer(CORE, NET, forbidden=("networkx",)),
     SIMULATORS: _layer(CORE, NET, IO, forbidden=("networkx",)),
