@@ -145,6 +145,8 @@ CONTROL_FIELDS = frozenset({"inputs", "parameters", "relations", "stop"})
 MAX_CONTROL_BYTES = 64 * 1024
 """Largest control command read (a rewire of a dozen bindings takes a kilobyte)."""
 
+MAX_HELD_FOR_STATIC = 64
+"""Most triggers held until a static input's first value (about 1 s of a 60 Hz tracker)."""
 COUNTERS = {
     "received": "samples received on the input keys",
     "in_runs": "of those, samples handled in a run with others of their input (a backlog taken "
@@ -164,6 +166,8 @@ COUNTERS = {
     "buffered": "samples of inputs that do not trigger, kept for the next trigger",
     "stale_triggers": "trigger samples at an instant pending, computed, or before the last",
     "dropped": "triggers dropped: an input had no value at the trigger's time",
+    "held_for_static": "triggers held until a static input's first value came (then computed, "
+    "or dropped if more than MAX_HELD_FOR_STATIC waited)",
     "not_distinct": "time expansion: correspondence values too close to the last kept",
     "accumulating": "time expansion: fewer correspondences kept than the pattern needs",
     "no_output": "computations that published nothing (an estimate not yet ready)",
@@ -185,8 +189,9 @@ COUNTERS = {
 """The worker's counters (its status), each with what it counts. Every sample received is
 ``rejected``, ``rejected_future``, ``rejected_clock``, ``dropped_stale``, ``superseded``,
 ``buffered`` or a trigger; every trigger is ``stale_triggers``, ``dropped``, ``not_distinct``,
-``accumulating``, ``failed``, ``no_output`` or publishes: a worker that receives but does not
-publish shows why.
+``accumulating``, ``failed``, ``no_output`` or publishes (one that came before a static
+input's first value is counted ``held_for_static`` first, and ends so once computed): a worker
+that receives but does not publish shows why.
 For an asynchronous service every sample is a trigger and ends ``gated``, ``late``,
 ``dropped_stale``, ``failed`` or publishes."""
 
@@ -371,6 +376,9 @@ class Worker:
         self._reports_progress = self._new_progress()
         self._accumulator = self._new_accumulator()
         self._pending = PendingTriggers()
+        self._held_for_static: deque[tuple[int, _Input | None, Measurement | None]] = deque()
+        """Triggers that came before a static input's first value, oldest first: computed
+        when it comes (:meth:`_release_held`), so a flow's first outputs use every input."""
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
         self._scheduler = scheduler
         """The container's scheduler, which gives this component its turns (:meth:`turn`)
@@ -837,6 +845,8 @@ class Worker:
             self._count_stale(item, sample)
             return
         t = sample.timestamp_ns
+        if item.binding.static and self._held_for_static:
+            self._release_held()
         if not item.binding.trigger:
             self._counts["buffered"] += 1
         elif item.binding.static:
@@ -1018,11 +1028,35 @@ class Worker:
             if space and port in self._service_class.CORRESPONDENCE:
                 values.setdefault(port, []).append(value)
             elif value is None:
-                self._counts["dropped"] += 1
+                if item.binding.static and not len(item.buffer):
+                    self._hold_for_static(t, trigger, sample)
+                else:
+                    self._counts["dropped"] += 1
                 return None
             else:
                 values[port] = value
         return values
+
+    def _hold_for_static(self, t: int, trigger: _Input | None, sample: Measurement | None) -> None:
+        """Keep a trigger that came before a static input's first value (issue [seamless]:
+        a fusion's first A.R.T. samples were dropped while it waited for the static ART->WT);
+        the oldest beyond ``MAX_HELD_FOR_STATIC`` is dropped. O(1)."""
+        held = self._held_for_static
+        if held and held[-1][0] >= t:
+            self._counts["dropped"] += 1  # an instant held already, or older than the newest
+            return
+        held.append((t, trigger, sample))
+        self._counts["held_for_static"] += 1
+        if len(held) > MAX_HELD_FOR_STATIC:
+            held.popleft()
+            self._counts["dropped"] += 1
+
+    def _release_held(self) -> None:
+        """Compute the held triggers, oldest first, once every static input has a value (those
+        still short of one are held again)."""
+        held, self._held_for_static = self._held_for_static, deque()
+        for t, trigger, sample in held:
+            self._evaluate(t, trigger, sample)
 
     def _push(self, port: str, sample: Measurement) -> None:
         """An asynchronous service's update by one sample, published at once."""

@@ -20,7 +20,7 @@ from ubitrack_agent.core import ErrorPose, Pose, Position3D, decode, encode
 from ubitrack_agent.core.timeline import MAX_FUTURE_NS
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
-from ubitrack_agent.services.worker import COUNTERS, Pool, Worker
+from ubitrack_agent.services.worker import COUNTERS, MAX_HELD_FOR_STATIC, Pool, Worker
 
 KEYS = KeySpace("ubitrack/test")
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
@@ -219,14 +219,29 @@ def test_a_pose_with_six_translation_values_is_rejected(worker):
 def test_every_sample_consumed_without_output_is_counted(worker):
     w, session = worker
     now = time.time_ns()
-    feed(w, session, KEYS.data("ART/HT"), pose(now))  # no static value yet: dropped
+    feed(w, session, KEYS.data("ART/HT"), pose(now))  # no static value yet: held
     w.step(longest_s=0.0)
     feed(w, session, KEYS.data("ART/WT"), pose(now))  # a static input, not a trigger
     feed(w, session, KEYS.data("ART/HT"), pose(now))  # the instant already computed
     feed(w, session, KEYS.data("ART/HT"), pose(now + 1))
     c = w.counters
-    assert (c["received"], c["dropped"], c["buffered"], c["stale_triggers"]) == (4, 1, 1, 1)
-    assert c["published"] == 1
+    assert (c["received"], c["held_for_static"], c["buffered"], c["stale_triggers"]) == (4, 1, 1, 1)
+    assert c["dropped"] == 0 and c["published"] == 2
+
+
+def test_triggers_before_the_static_value_are_computed_with_it_in_order(worker):
+    """Issue [seamless]: a flow's first samples are not lost while a static edge it composes
+    with is still on its way; at most MAX_HELD_FOR_STATIC wait."""
+    w, session = worker
+    now = time.time_ns()
+    for i in range(MAX_HELD_FOR_STATIC + 3):
+        feed(w, session, KEYS.data("ART/HT"), pose(now + i, x=float(i)))
+    assert outputs(session) == [] and w.counters["dropped"] == 3  # the oldest three
+    feed(w, session, KEYS.data("ART/WT"), pose(now, 0.5))
+    results = outputs(session)
+    assert [r.timestamp_ns for r in results] == [now + i for i in range(3, MAX_HELD_FOR_STATIC + 3)]
+    np.testing.assert_allclose(results[0].translation, [3.5, 0.0, 0.0])
+    assert w.counters["held_for_static"] == MAX_HELD_FOR_STATIC + 3
 
 
 def test_a_sample_older_than_its_buffer_is_counted(worker):
