@@ -11,10 +11,10 @@ name, with streaming id = the DTrack body id + 1 (Motive counts from 1). Single 
   1 GHz, data port, transmission type); ``NAT_REQUEST_MODELDEF`` with ``NAT_MODELDEF``;
   ``NAT_KEEPALIVE`` keeps a unicast client; other requests get ``NAT_UNRECOGNIZED_REQUEST``.
   A malformed packet is counted (``rejected``) and logged rate-limited, never answered.
-* **Data channel**: every frame is sent from the data socket (source port = data port, as
-  libNatNet expects), to the multicast group (``multicast_group``, with ``multicast_ttl``: 0
-  keeps it on this host), or unicast to each client whose connect or keep-alive arrived in
-  the last :data:`CLIENT_TIMEOUT_S` seconds.
+* **Data channel**: every frame is sent to the multicast group's data port
+  (``multicast_group``, with ``multicast_ttl``: 0 keeps it on this host), or unicast from the
+  data port (the source libNatNet expects) to each client whose connect or keep-alive arrived
+  in the last :data:`CLIENT_TIMEOUT_S` seconds.
 * **Frames** (:meth:`NatNetSimulator.frame`): each body's pose in the tracker frame at the
   exposure time with in-place noise (:func:`sim_trackers.noise.perturb_in_place`), untracked
   (tracking-valid flag clear, pose zero) with probability ``art.dropout``, a mean marker
@@ -25,6 +25,7 @@ name, with streaming id = the DTrack body id + 1 (Motive counts from 1). Single 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import socket
 import threading
@@ -88,10 +89,10 @@ class NatNetSimulator:
             for body_id, frame in sorted(self.settings.bodies.items())
         ]
 
-    def frame(self, transmit_ns: int, monotonic_ns: int) -> natnet.Frame:
-        """The frame sent at the real time ``transmit_ns`` (monotonic clock reading
-        ``monotonic_ns``), exposed ``latency_ms`` earlier."""
-        exposure_ns = transmit_ns - self.latency_ns
+    def frame(self, exposure_ns: int, exposure_ticks: int) -> natnet.Frame:
+        """The frame exposed at the real time ``exposure_ns`` (monotonic clock reading
+        ``exposure_ticks``), its transmit stamp ``latency_ms`` later; the server restamps the
+        transmit time when it sends later than that (:meth:`NatNetServer.send_frame`)."""
         sigma_m = self.settings.noise.position_mm / 1000.0
         bodies = []
         for body_id, name in sorted(self.settings.bodies.items()):
@@ -116,10 +117,10 @@ class NatNetSimulator:
         return natnet.Frame(
             self.frame_number,
             tuple(bodies),
-            timestamp_s=monotonic_ns / 1e9,
-            mid_exposure_ticks=monotonic_ns - self.latency_ns,
-            data_received_ticks=monotonic_ns - self.latency_ns // 2,
-            transmit_ticks=monotonic_ns,
+            timestamp_s=exposure_ticks / 1e9,
+            mid_exposure_ticks=exposure_ticks,
+            data_received_ticks=exposure_ticks + self.latency_ns // 2,
+            transmit_ticks=exposure_ticks + self.latency_ns,
         )
 
 
@@ -149,7 +150,9 @@ class NatNetServer:
         self.data = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.command.bind((host, command_port))
-            self.data.bind((host, data_port))
+            # Unicast frames leave from the data port (libNatNet checks it); multicast ones
+            # from any port, so a client on this host can bind the data port to receive.
+            self.data.bind((host, data_port if multicast_group is None else 0))
             if multicast_group is not None:
                 self.data.setsockopt(
                     socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(host)
@@ -159,7 +162,7 @@ class NatNetServer:
             self.close()
             raise
         self.command.settimeout(0.1)
-        self.data_port = self.data.getsockname()[1]
+        self.data_port = data_port if multicast_group else self.data.getsockname()[1]
         self.info = natnet.ServerInfo(
             "Motive",
             NatNetVersion(3, 1),
@@ -240,9 +243,15 @@ class NatNetServer:
             log.debug("sim natnet: send to %s:%d failed: %s", *address, exc)
 
     def send_frame(self, now_ns: int) -> None:
-        """Send the frame of real time ``now_ns`` to the group or the live unicast clients."""
+        """Send the frame exposed ``latency_ms`` before the real time ``now_ns`` to the group
+        or the live unicast clients, its transmit stamp the moment it is built (so the
+        latency it reports includes the time spent making it, as Motive's does)."""
+        ticks_now = time.monotonic_ns() - (time.time_ns() - now_ns)
+        latency = self.simulator.latency_ns
+        frame = self.simulator.frame(now_ns - latency, ticks_now - latency)
+        transmit = max(frame.transmit_ticks, time.monotonic_ns())
         message = natnet.build_frame(
-            self.simulator.frame(now_ns, time.monotonic_ns()), self.version
+            dataclasses.replace(frame, transmit_ticks=transmit), self.version
         )
         self.counters["frames"] += 1
         if self.multicast_group is not None:

@@ -148,7 +148,8 @@ def test_the_simulated_optitrack_through_the_adapter_matches_ground_truth():
     errors_mm, errors_deg = [], []
     for i in range(200):
         sent = T0 + i * 16_666_667
-        frame = natnet.build_frame(simulator.frame(sent, 10**12 + i * 16_666_667), server.version)
+        exposure = simulator.frame(sent - 3_000_000, 10**12 + i * 16_666_667)
+        frame = natnet.build_frame(exposure, server.version)
         adapter.handle(frame, sent, recorder)  # received the instant it was sent
         for name, pose in recorder.published[-2:]:
             assert pose.timestamp_ns == sent - 3_000_000  # the exposure time
