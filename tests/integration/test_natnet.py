@@ -10,12 +10,15 @@ import ast
 import json
 import re
 import socket
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from sim_trackers.scenario import load_scenario
+from tests.integration.conftest import kill_tagged
 from tests.integration.test_simulators import collect, free_udp_port, start, stop_cleanly
 from tests.integration.zenoh_helpers import (
     Collector,
@@ -136,3 +139,37 @@ def test_a_bad_mapping_or_no_server_answer(processes):
     assert silent.returncode == 0, err
     counters = _counters(err)
     assert counters.get("received", 0) == 0
+
+
+def test_the_demo_with_an_optitrack_in_place_of_the_art_fuses(processes):
+    """``ubitrack demo --tracker natnet``: calibration, fusion of 2D-3D pose estimation with
+    the NatNet path beating the camera alone, reconfiguration both ways, nothing left over."""
+    port = free_port()
+    domain = f"demonatnet{port}"
+    demo = subprocess.Popen(
+        [
+            sys.executable, "-m", "ubitrack_agent.cli", "demo", "--tracker", "natnet",
+            "--phase-seconds", "4", "--json", "--seed", "5",
+            "--listen", f"tcp/127.0.0.1:{port}", "--domain", domain,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )  # fmt: skip
+    processes.append(demo)
+    out, err = demo.communicate(timeout=180)
+    assert demo.returncode == 0, err[-3000:]
+    lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+    assert any("natnet" in name for name in lines[0]["processes"]), lines[0]
+    (calibration,) = [line for line in lines if line["event"] == "calibration"]
+    assert calibration["outcome"] == "converged"
+    assert calibration["error_mm"] < 2.0 and calibration["error_deg"] < 0.2
+    summaries = {line["phase"]: line for line in lines if line["event"] == "summary"}
+    assert list(summaries) == ["fused", "camera only", "fused again"]
+    assert all(summary["samples"] > 20 for summary in summaries.values()), summaries
+    assert summaries["fused"]["error_mm_rms"] < summaries["camera only"]["error_mm_rms"]
+    for phase in ("camera only", "fused again"):
+        assert summaries[phase]["reconfiguration_ms"] is not None, summaries[phase]
+    assert lines[-1]["event"] == "verdict" and lines[-1]["fused_better_than_camera_only"]
+    assert kill_tagged(domain) == []

@@ -56,10 +56,14 @@ def test_negotiation_naming_and_publishing(version):
     assert adapter.version == (*version, 0, 0)
     # Before the model definitions only the body mapped by id is known.
     assert adapter.handle(frame, T0, recorder) == 1 and adapter.wants_models
-    assert recorder.published[-1][0] == "OT_TB" and adapter.counters["unmapped_body_1"] == 1
+    assert recorder.published[-1][0] == "OT_TB"
+    assert adapter.counters["before_model_definitions"] == 1
     adapter.handle(sdk_model_definitions(version, {1: "Head", 5: "Table"}), T0, recorder)
     assert adapter.names == {1: "Head", 5: "Table"} and not adapter.wants_models
     assert adapter.handle(frame, T0 + 1, recorder) == 2
+    adapter.handle(sdk_model_definitions(version, {1: "Head", 5: "Table", 9: "Cup"}), T0, recorder)
+    adapter.handle(sdk_frame(version, 2, [(9, *HEAD[1:])]), T0, recorder)
+    assert adapter.counters["unmapped_body_9"] == 1 and not adapter.wants_models
     (head_edge, head), (table_edge, _) = recorder.published[-2:]
     assert (head_edge, table_edge) == ("OT_HT", "OT_TB")
     assert isinstance(head, ErrorPose) and head.timestamp_ns == T0 + 1

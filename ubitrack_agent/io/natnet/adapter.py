@@ -25,7 +25,8 @@ connect and keep-alive live in :mod:`.link`.
   configured noise as covariance (``sigma_deg`` per axis about the body's origin, ``sigma_mm``
   per axis; :func:`ubitrack_agent.core.uncertainty.in_place_covariance`), as the DTrack adapter
   does. An id with no mapping is ignored and counted (``unmapped_body_<id>``, at most
-  :data:`MAX_UNMAPPED` counters).
+  :data:`MAX_UNMAPPED` counters; ``before_model_definitions`` for an id not yet named while
+  bodies are mapped by name).
 * **Timestamps.** ``"device"``: the receive time minus NatNet's own latency, the transmit
   minus the camera mid-exposure timestamp in ticks of the server's high-resolution clock
   (frequency from ``NAT_SERVERINFO``), which needs no clock synchronisation; without a usable
@@ -223,13 +224,16 @@ class NatNetAdapter(SensorAdapter[bytes]):
         return measurements
 
     def _unmapped(self, body_id: int) -> None:
+        """Count a body without an edge: one with no name yet while bodies are mapped by
+        name (the model definitions are asked for again), else an unmapped one."""
         if body_id not in self.names and self.by_name:
-            self.wants_models = True  # a body the model definitions did not name yet
+            self.wants_models = True
+            self.ignore("before_model_definitions", f"rigid body {body_id} has no name yet")
+            return
         if body_id not in self._unmapped_ids and len(self._unmapped_ids) < MAX_UNMAPPED:
             self._unmapped_ids.add(body_id)
-        counter = (
-            f"unmapped_body_{body_id}" if body_id in self._unmapped_ids else "unmapped_body_other"
-        )
+        known = body_id in self._unmapped_ids
+        counter = f"unmapped_body_{body_id}" if known else "unmapped_body_other"
         name = self.names.get(body_id)
         self.ignore(
             counter, f"rigid body {body_id}" + (f" ({name})" if name else "") + " is not mapped"
