@@ -21,6 +21,9 @@ name, with streaming id = the DTrack body id + 1 (Motive counts from 1). Single 
   error drawn as the length of a position-noise vector; the mid-exposure and transmit stamps
   on the host's monotonic clock in nanoseconds, ``latency_ms`` apart, so an adapter stamping
   "device" times (receive minus that latency) recovers the exposure time.
+
+A frame costs O(bodies) to make and O(clients) sends; a command O(bodies) (the model
+definitions) or O(1).
 """
 
 from __future__ import annotations
