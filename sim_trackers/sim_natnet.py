@@ -8,7 +8,8 @@ name, with streaming id = the DTrack body id + 1 (Motive counts from 1). Single 
 
 * **Command channel** (:meth:`NatNetServer.serve_commands`): ``NAT_CONNECT`` is answered with
   ``NAT_SERVERINFO`` (application "Motive", the configured NatNet version, clock frequency
-  1 GHz, data port, transmission type); ``NAT_REQUEST_MODELDEF`` with ``NAT_MODELDEF``;
+  1 GHz, data port, transmission type; a different version asked for in the connect is not
+  granted, counted ``version_not_granted``); ``NAT_REQUEST_MODELDEF`` with ``NAT_MODELDEF``;
   ``NAT_KEEPALIVE`` keeps a unicast client; other requests get ``NAT_UNRECOGNIZED_REQUEST``.
   A malformed packet is counted (``rejected``) and logged rate-limited, never answered.
 * **Data channel**: every frame is sent to the multicast group's data port

@@ -66,8 +66,6 @@ class NatNetLink:
         except OSError:
             self.close()
             raise
-        self.sent: dict[int, int] = {}
-        """Requests sent, by message id."""
         self._last_connect = self._last_models = self._last_keepalive = -float("inf")
 
     def __enter__(self) -> NatNetLink:
@@ -84,7 +82,6 @@ class NatNetLink:
     def _send(self, message: bytes) -> None:
         try:
             self.command.sendto(message, self.server_address)
-            self.sent[message[0]] = self.sent.get(message[0], 0) + 1
         except OSError as exc:  # e.g. no route; the next interval tries again
             log.debug("NatNet: sending to %s:%d failed: %s", *self.server_address, exc)
 
