@@ -37,12 +37,12 @@ from pathlib import Path
 import numpy as np
 
 from bench.report import write_results
-from sim_trackers.scenario import load_scenario
-from sim_trackers.sim_natnet import NatNetServer, NatNetSimulator, body_names
 from ubitrack_agent.io.natnet import format as natnet
 from ubitrack_agent.io.natnet.adapter import NatNetAdapter
 from ubitrack_agent.io.natnet.format import Frame, NatNetVersion, RigidBody, ServerInfo
 from ubitrack_agent.io.natnet.link import NatNetLink
+from ubitrack_agent.sim_trackers.scenario import load_scenario
+from ubitrack_agent.sim_trackers.sim_natnet import NatNetServer, NatNetSimulator, body_names
 
 RESULTS = Path(__file__).parent / "results" / "natnet.json"
 VERSIONS = (NatNetVersion(3, 1), NatNetVersion(4, 1))

@@ -17,7 +17,8 @@ name, with streaming id = the DTrack body id + 1 (Motive counts from 1). Single 
   data port (the source libNatNet expects) to each client whose connect or keep-alive arrived
   in the last :data:`CLIENT_TIMEOUT_S` seconds.
 * **Frames** (:meth:`NatNetSimulator.frame`): each body's pose in the tracker frame at the
-  exposure time with in-place noise (:func:`sim_trackers.noise.perturb_in_place`), untracked
+  exposure time with in-place noise
+  (:func:`ubitrack_agent.sim_trackers.noise.perturb_in_place`), untracked
   (tracking-valid flag clear, pose zero) with probability ``art.dropout``, a mean marker
   error drawn as the length of a position-noise vector; the mid-exposure and transmit stamps
   on the host's monotonic clock in nanoseconds, ``latency_ms`` apart, so an adapter stamping
@@ -39,14 +40,14 @@ from collections import Counter
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.noise import perturb_in_place
-from sim_trackers.scenario import ArtSettings
-from sim_trackers.world import World
 from ubitrack_agent.core.uncertainty import isotropic_pose_covariance
 from ubitrack_agent.io.adapter import MAX_DATAGRAM
 from ubitrack_agent.io.natnet import format as natnet
 from ubitrack_agent.io.natnet.format import NatNetFormatError, NatNetVersion
 from ubitrack_agent.net.logs import count_problem
+from ubitrack_agent.sim_trackers.noise import perturb_in_place
+from ubitrack_agent.sim_trackers.scenario import ArtSettings
+from ubitrack_agent.sim_trackers.world import World
 
 log = logging.getLogger("ubitrack.sim.natnet")
 

@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.scenario import load_scenario
 from tests.integration.conftest import kill_tagged
 from tests.integration.test_simulators import collect, free_udp_port, start, stop_cleanly
 from tests.integration.zenoh_helpers import (
@@ -32,6 +31,7 @@ from ubitrack_agent.core import ErrorPose
 from ubitrack_agent.io.natnet import format as natnet
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 pytestmark = pytest.mark.integration
 

@@ -12,8 +12,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.scenario import load_scenario
-from sim_trackers.sim_natnet import NatNetServer, NatNetSimulator, body_names
 from tests.unit.natnet_sdk_layout import (
     sdk_connect_request,
     sdk_frame,
@@ -24,6 +22,8 @@ from ubitrack_agent.core import ErrorPose
 from ubitrack_agent.io.natnet import format as natnet
 from ubitrack_agent.io.natnet.adapter import NatNetAdapter
 from ubitrack_agent.io.natnet.format import NatNetVersion
+from ubitrack_agent.sim_trackers.scenario import load_scenario
+from ubitrack_agent.sim_trackers.sim_natnet import NatNetServer, NatNetSimulator, body_names
 
 SCENARIO = load_scenario()
 T0 = 1_763_700_000_000_000_000

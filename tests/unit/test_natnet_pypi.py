@@ -10,10 +10,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim_trackers.scenario import load_scenario
-from sim_trackers.sim_natnet import NatNetServer, NatNetSimulator
 from ubitrack_agent.io.natnet import format as ours
 from ubitrack_agent.io.natnet.format import NatNetVersion
+from ubitrack_agent.sim_trackers.scenario import load_scenario
+from ubitrack_agent.sim_trackers.sim_natnet import NatNetServer, NatNetSimulator
 
 natnet = pytest.importorskip("natnet", reason="the 'test' extra's natnet package is missing")
 from natnet.data_descriptions import DataDescriptions  # noqa: E402

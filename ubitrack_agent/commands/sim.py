@@ -244,9 +244,9 @@ def _run_natnet(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from sim_trackers import sim_natnet
-    from sim_trackers.runtime import run_periodic
     from ubitrack_agent.net.lifecycle import stop_on_signals
+    from ubitrack_agent.sim_trackers import sim_natnet
+    from ubitrack_agent.sim_trackers.runtime import run_periodic
 
     prog = "ubitrack sim natnet"
     scenario = load(args, prog)

@@ -1,7 +1,8 @@
 """NatNet adapter: OptiTrack Motive's NatNet packets in, SRG edges and measurements out.
 
 A :class:`~ubitrack_agent.io.adapter.SensorAdapter` for a real Motive (Streaming pane: enable
-"Broadcast Frame Data", rigid bodies on) or its simulator (:mod:`sim_trackers.sim_natnet`).
+"Broadcast Frame Data", rigid bodies on) or its simulator
+(:mod:`ubitrack_agent.sim_trackers.sim_natnet`).
 It handles every packet the server sends on either channel (:mod:`.format`); the sockets,
 connect and keep-alive live in :mod:`.link`.
 
