@@ -24,7 +24,7 @@ bench: $(STAMP)
 	for name in plan_bench accuracy_bench calibration_bench dataflow_bench hop_cost_bench call_cost_bench \
 		worker_start static_estimate_bench calibration_flows_bench calibrated_tracking_bench fuzz_bench \
 		agent_restart_bench churn_bench recovery_bench camera_bench fusion_latency_bench \
-		clock_bench hosts_bench; do \
+		clock_bench hosts_bench natnet_bench; do \
 		$(VENV)/bin/python -m bench.$$name || exit 1; done
 
 clean:

@@ -7,8 +7,9 @@ its port 1511:
 * **Command.** The client sends ``NAT_CONNECT`` from one socket; the server replies
   ``NAT_SERVERINFO`` (its versions, clock frequency, data port) to that socket's address, and
   ``NAT_MODELDEF`` to ``NAT_REQUEST_MODELDEF``. Until the server info arrives the link resends
-  the connect once per ``interval_s``; it asks for the model definitions whenever the adapter
-  wants them (:attr:`~.adapter.NatNetAdapter.wants_models`), at most once per ``interval_s``.
+  the connect every :data:`CONNECT_RETRY_S` (or ``interval_s`` if shorter); it asks for the
+  model definitions whenever the adapter wants them
+  (:attr:`~.adapter.NatNetAdapter.wants_models`), at most once per ``interval_s``.
 * **Data, multicast** (Motive's default): frames go to a group (239.255.42.99) on the data
   port; the link joins the group on ``interface`` with a second socket bound to that port.
 * **Data, unicast**: the server sends frames, from its data port, to the address the connect
@@ -35,6 +36,10 @@ from ubitrack_agent.net.clock import Clock
 log = logging.getLogger("ubitrack.natnet")
 
 CLIENT_NAME = "ubitrack"
+
+CONNECT_RETRY_S = 0.25
+"""How often the connect is resent until the server answers: soon enough that an adapter
+started beside its server publishes well within the agent's data-liveness second."""
 
 
 class NatNetLink:
@@ -89,7 +94,7 @@ class NatNetLink:
         """Connect until the server answers, keep a unicast stream alive, and ask for the
         model definitions when the adapter wants them, each at most once per interval."""
         if adapter.server is None:
-            if now - self._last_connect >= self.interval_s:
+            if now - self._last_connect >= min(self.interval_s, CONNECT_RETRY_S):
                 self._send(natnet.build_connect(CLIENT_NAME, self.requested))
                 self._last_connect = now
             return
