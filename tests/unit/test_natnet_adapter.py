@@ -167,3 +167,15 @@ def test_the_simulated_optitrack_through_the_adapter_matches_ground_truth():
     assert np.std(errors_mm) == pytest.approx(0.3, rel=0.25)
     assert np.std(errors_deg) == pytest.approx(0.05, rel=0.25)
     assert abs(np.mean(errors_mm)) < 0.05
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=400))
+def test_the_simulated_server_answers_any_datagram_without_raising(datagram):
+    simulator = NatNetSimulator(SCENARIO.world, SCENARIO.art, np.random.default_rng(0))
+    with NatNetServer(simulator, "127.0.0.1", 0, 0, NatNetVersion(4, 1)) as server:
+        reply = server.answer(datagram, ("127.0.0.1", 40003))
+        if len(datagram) < 4:
+            assert reply is None and server.counters["rejected"] == 1
+        elif reply is not None:
+            natnet.split_packet(reply)  # a well-formed packet
