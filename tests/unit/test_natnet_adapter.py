@@ -179,3 +179,17 @@ def test_the_simulated_server_answers_any_datagram_without_raising(datagram):
             assert reply is None and server.counters["rejected"] == 1
         elif reply is not None:
             natnet.split_packet(reply)  # a well-formed packet
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.floats(width=32, allow_nan=False, allow_infinity=False), min_size=8, max_size=8),
+    st.booleans(),
+)
+def test_any_finite_rigid_body_is_published_or_rejected(values, valid):
+    """Huge positions, zero or tiny quaternions, negative errors: never an exception."""
+    adapter, recorder = _adapter()
+    adapter.handle(sdk_server_info((4, 1, 0, 0)), T0, recorder)
+    pose, error = tuple(values[:7]), values[7]
+    published = adapter.handle(sdk_frame((4, 1), 1, [(5, pose, error, valid)]), T0, recorder)
+    assert published + adapter.counters["rejected"] + adapter.counters["untracked_OT_TB"] == 1
