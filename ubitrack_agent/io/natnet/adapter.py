@@ -54,6 +54,7 @@ from ubitrack_agent.core.uncertainty import (
 from ubitrack_agent.io.adapter import RejectedInput, SensorAdapter, TimestampPolicy, pose_edges
 from ubitrack_agent.io.natnet import format as natnet
 from ubitrack_agent.io.natnet.format import NatNetFormatError, NatNetVersion
+from ubitrack_agent.net.logs import rate_limited
 
 DEFAULT_COMMAND_PORT = 1510
 DEFAULT_DATA_PORT = 1511
@@ -177,15 +178,19 @@ class NatNetAdapter(SensorAdapter[bytes]):
         return RejectedInput(f"malformed {kind}: {exc}")
 
     def _server_info(self, info: natnet.ServerInfo) -> None:
-        if self.server is None or info != self.server:
-            log_level = logging.INFO if natnet.supported(info.natnet_version) else logging.WARNING
-            logging.getLogger("ubitrack.adapter").log(
-                log_level,
-                "NatNet: server %s %s streams NatNet %s",
-                info.application,
-                info.application_version,
-                info.natnet_version,
-            )
+        """Take the server's description; a new one is counted (``server_info_changes``) and
+        logged rate-limited (a spoofed flood of them cannot flood the log)."""
+        if info != self.server:
+            self.counters["server_info_changes"] += 1
+            if rate_limited(self.counters["server_info_changes"]):
+                supported = natnet.supported(info.natnet_version)
+                logging.getLogger("ubitrack.adapter").log(
+                    logging.INFO if supported else logging.WARNING,
+                    "NatNet: server %s %s streams NatNet %s",
+                    info.application,
+                    info.application_version,
+                    info.natnet_version,
+                )
         self.server = info
 
     def _models(self, models: natnet.ModelDefinitions) -> None:
