@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "view",
     "sim",
     "dtrack",
+    "natnet",
     "ros2",
     "camera",
     "intrinsics",

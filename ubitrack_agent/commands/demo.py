@@ -2,11 +2,13 @@
 
 Starts the agent (the zenoh hub: peer mode on loopback, no router), the calibration database,
 a calibration store, the simulated HMD camera, the simulated A.R.T. tracker with its DTrack
-adapter (given the scenario's ``art`` section as flags: :func:`dtrack_flags`), all as separate
-processes. First it calibrates ``C -> HT`` (section 4.2) as ``ubitrack calibrate C HT --type
-6D --save`` would, with the progress shown, unless the database or the store already has it
-(the default scenario's database does not); then it acts as an application asking for ``C ->
-A`` (camera to augmentation, 6D), which runs on the stored calibration.
+adapter (given the scenario's ``art`` section as flags: :func:`dtrack_flags`; with ``--tracker
+natnet`` an OptiTrack in its place, ``ubitrack sim natnet`` read by ``ubitrack natnet``:
+:func:`natnet_flags`), all as separate processes. First it calibrates ``C -> HT`` (section
+4.2) as ``ubitrack calibrate C HT --type 6D --save`` would, with the progress shown, unless
+the database or the store already has it (the default scenario's database does not); then it
+acts as an application asking for ``C -> A`` (camera to augmentation, 6D), which runs on the
+stored calibration.
 Once a second it prints the pose it receives, its rate, its latency and its error against the
 scenario's ground truth. Three phases: both trackers (the agent builds the data flow of the
 paper's figure 6: 2D-3D pose estimation fused with the A.R.T. path); the A.R.T. tracker
@@ -41,6 +43,7 @@ if TYPE_CHECKING:
     from ubitrack_agent.sim_trackers.scenario import ArtSettings
 
 PHASES = ("fused", "camera only", "fused again")
+TRACKERS = ("art", "natnet")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -58,7 +61,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--json", action="store_true", help="print JSON lines instead of text")
     parser.add_argument("--scenario", help="scenario file (default: the paper's figure 1)")
-    parser.add_argument("--art-port", type=int, default=0, help="UDP port (default: a free one)")
+    parser.add_argument(
+        "--tracker",
+        choices=TRACKERS,
+        default="art",
+        help="the simulated outside-in tracker: art (DTrack UDP, ubitrack dtrack) or natnet "
+        "(an OptiTrack in its place: NatNet UDP, ubitrack natnet) (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--art-port", type=int, default=0, help="its UDP port (default: a free one)"
+    )
     parser.add_argument(
         "--calibration",
         metavar="FILE",
@@ -162,6 +174,49 @@ def dtrack_flags(art: ArtSettings, port: int) -> list[str]:
     return flags
 
 
+def natnet_flags(
+    art: ArtSettings, command_port: int, data_port: int, multicast: bool = False
+) -> list[str]:
+    """The ``ubitrack natnet`` flags that read ``ubitrack sim natnet`` of a scenario whose
+    ``art`` section is ``art`` on this host: its command port, unicast (or multicast on
+    127.0.0.1 to ``data_port``), the scenario's provider, tracker frame, rate and noise, each
+    body by its name in the simulated Motive (its frame), static bodies, and NatNet's latency
+    for timestamps."""
+    transport = (
+        ["--data-port", str(data_port), "--interface", "127.0.0.1"] if multicast else ["--unicast"]
+    )
+    flags = [
+        *("--server", "127.0.0.1", "--command-port", str(command_port), *transport),
+        *("--provider", art.provider, "--tracker-frame", art.frame, "--rate", str(art.rate)),
+        *("--sigma-mm", str(art.noise.position_mm), "--sigma-deg", str(art.noise.rotation_deg)),
+        *("--timestamps", "device"),
+    ]
+    for frame in art.bodies.values():
+        flags += ["--body", f"{frame}={frame}"]
+    for frame in art.static_bodies:
+        flags += ["--static", frame]
+    return flags
+
+
+def tracker_processes(
+    tracker: str, art: ArtSettings, port: int, seed: int, scenario_flag: list[str], member
+) -> dict[str, list[str]]:
+    """The adapter's and the simulator's arguments of the demo's tracker (``art`` or
+    ``natnet``), on UDP ``port`` (NatNet's command port; unicast frames leave from a free
+    data port)."""
+    if tracker == "art":
+        simulator = simulator_arguments(scenario_flag, port, seed)["sim art"]
+        return {
+            "dtrack": ["dtrack", "--quiet", *dtrack_flags(art, port), *member],
+            "sim art": simulator,
+        }
+    ports = ("--command-port", str(port), "--data-port", "0")
+    return {
+        "natnet": ["natnet", "--quiet", *natnet_flags(art, port, 0), *member],
+        "sim natnet": ["sim", "natnet", "--quiet", *ports, "--seed", str(seed), *scenario_flag],
+    }
+
+
 def simulator_arguments(scenario_flag: list[str], art_port: int, seed: int) -> dict[str, list[str]]:
     """The ``ubitrack sim camera`` and ``ubitrack sim art`` arguments of one run, with
     ``--seed``: ``seed`` for the tracker and ``seed + 1`` for the camera.
@@ -213,10 +268,7 @@ def run(args: argparse.Namespace) -> int:
     art_port = args.art_port or _free_udp_port()
     seed = fresh_seed() if args.seed is None else args.seed
     simulators = simulator_arguments(scenario_flag, art_port, seed)
-    art = {
-        "dtrack": ["dtrack", "--quiet", *dtrack_flags(scenario.art, art_port), *member],
-        "sim art": simulators["sim art"],
-    }
+    art = tracker_processes(args.tracker, scenario.art, art_port, seed, scenario_flag, member)
     keys = KeySpace(hub.key_prefix)
     say = _printer(args.json)
     children = Processes()
@@ -271,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
             phases = []
             for index, name in enumerate(PHASES):
                 if index == 1:
-                    children.stop("sim art", "dtrack")
+                    children.stop(*reversed(list(art)))
                 elif index == 2:
                     for process, arguments in art.items():
                         children.start(process, arguments)

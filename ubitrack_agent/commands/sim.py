@@ -1,4 +1,4 @@
-"""``ubitrack sim world|art|camera|database``: the simulators, one process each.
+"""``ubitrack sim world|art|natnet|camera|database``: the simulators, one process each.
 
 Each reads a scenario (``--scenario FILE``, default: the paper's figure-1 setup, see
 ``docs/simulators.md``) and runs until SIGINT/SIGTERM or ``--duration`` seconds, then closes
@@ -67,7 +67,8 @@ def _rate(value: float | None, default: float, prog: str) -> float | None:
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "sim",
-        help="run a simulator: world (ground truth), art (DTrack UDP), camera, database",
+        help="run a simulator: world (ground truth), art (DTrack UDP), natnet (OptiTrack NatNet "
+        "UDP), camera, database",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -87,6 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="for tests: the simulated controller's clock (its ts lines) reads this much ahead "
         "(a host whose clock is off; give its DTrack adapter the same; default: 0)",
     )
+    _add_natnet(commands)
     camera = _add(commands, "camera", _run_camera, "publish 2D marker features (IP->Fi)")
     camera.add_argument("--rate", type=float, help="frames per second (default: scenario)")
     camera.add_argument("--seed", type=int, help="noise seed (default: scenario seed)")
@@ -186,6 +188,112 @@ def _run_art(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"{prog}: cannot send to {args.host}:{port}: {exc}", file=sys.stderr)
         return 2
+    return 0
+
+
+def _add_natnet(commands: argparse._SubParsersAction) -> None:
+    from ubitrack_agent.commands.natnet import natnet_version
+
+    natnet = _add(
+        commands,
+        "natnet",
+        _run_natnet,
+        "serve OptiTrack NatNet over UDP: the scenario's art bodies, as Motive would",
+        zenoh=False,
+    )
+    natnet.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default: %(default)s)"
+    )
+    natnet.add_argument("--command-port", type=int, default=1510, help="(default: %(default)s)")
+    natnet.add_argument(
+        "--data-port",
+        type=int,
+        default=1511,
+        help="port frames are sent from (default: %(default)s)",
+    )
+    natnet.add_argument(
+        "--natnet-version",
+        type=natnet_version,
+        metavar="X.Y",
+        help="bitstream version (default: 4.1)",
+    )
+    natnet.add_argument(
+        "--multicast-group",
+        metavar="ADDRESS",
+        help="send frames to this group (e.g. 239.255.42.99) instead of unicast to connected "
+        "clients",
+    )
+    natnet.add_argument(
+        "--multicast-ttl",
+        type=int,
+        default=0,
+        help="multicast time-to-live: 0 keeps the frames on this host (default: %(default)s)",
+    )
+    natnet.add_argument(
+        "--latency-ms",
+        type=float,
+        default=2.0,
+        help="simulated time from camera exposure to transmission (default: %(default)s)",
+    )
+    natnet.add_argument("--rate", type=float, help="frames per second (default: scenario art.rate)")
+    natnet.add_argument("--seed", type=int, help="noise seed (default: scenario seed)")
+
+
+def _run_natnet(args: argparse.Namespace) -> int:
+    import threading
+
+    import numpy as np
+
+    from ubitrack_agent.net.lifecycle import stop_on_signals
+    from ubitrack_agent.sim_trackers import sim_natnet
+    from ubitrack_agent.sim_trackers.runtime import run_periodic
+
+    prog = "ubitrack sim natnet"
+    scenario = load(args, prog)
+    if scenario is None:
+        return 2
+    if (rate := _rate(args.rate, scenario.art.rate, prog)) is None:
+        return 2
+    if not 0.0 <= args.latency_ms <= 1000.0 or not 0 <= args.multicast_ttl <= 255:
+        print(
+            f"{prog}: --latency-ms must be in [0, 1000], --multicast-ttl in [0, 255]",
+            file=sys.stderr,
+        )
+        return 2
+    seed = scenario.seed if args.seed is None else args.seed
+    simulator = sim_natnet.NatNetSimulator(
+        scenario.world, scenario.art, np.random.default_rng(seed), args.latency_ms
+    )
+    try:
+        server = sim_natnet.NatNetServer(
+            simulator,
+            args.host,
+            args.command_port,
+            args.data_port,
+            args.natnet_version or sim_natnet.DEFAULT_VERSION,
+            args.multicast_group,
+            args.multicast_ttl,
+        )
+    except (OSError, ValueError) as exc:
+        print(f"{prog}: cannot serve on {args.host}: {exc}", file=sys.stderr)
+        return 2
+    stop = stop_on_signals()
+    sent = Rate(lambda: server.counters["frames"])
+
+    def line() -> str:
+        return (
+            f"sim natnet: {sent.per_second():.1f} frames/s to "
+            f"{args.multicast_group or f'{len(server.clients)} unicast client(s)'}, "
+            f"{server.counters['rejected']} packets rejected"
+        )
+
+    commands = threading.Thread(target=server.serve_commands, args=(stop,), daemon=True)
+    with server, periodic_status(line, not args.quiet):
+        commands.start()
+        frames = run_periodic(rate, server.send_frame, stop, args.duration)
+        stop.set()
+        commands.join(timeout=1.0)
+    log.info("sent %d NatNet frames; counters %s", frames, dict(server.counters))
     return 0
 
 

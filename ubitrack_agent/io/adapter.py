@@ -25,8 +25,9 @@ jobs, following the conventions of :mod:`ubitrack_agent.core.measurements`:
 
 4. **Publish and count.** :meth:`SensorAdapter.handle` converts, publishes and counts into
    :attr:`SensorAdapter.counters`: ``received`` inputs, ``rejected`` inputs (logged as
-   warnings), ``published`` measurements, and each ignored item under the subclass's name for
-   it (logged once). Nothing a device sends is fatal.
+   warnings, rate-limited: :func:`~ubitrack_agent.net.logs.rate_limited`), ``published``
+   measurements, and each ignored item under the subclass's name for it (logged once).
+   Nothing a device sends is fatal.
 
 Running one, for a device that sends UDP datagrams::
 
@@ -49,12 +50,16 @@ import threading
 import time
 from abc import ABC, abstractmethod
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from typing import ClassVar, Generic, Literal, Protocol, TypeVar, get_args
 
+import numpy as np
+
 from ubitrack_agent.core import Measurement
+from ubitrack_agent.core.uncertainty import expected_error
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.net.clock import Clock
+from ubitrack_agent.net.logs import count_problem
 
 log = logging.getLogger("ubitrack.adapter")
 
@@ -125,15 +130,44 @@ class SensorAdapter(ABC, Generic[RawInput]):
         try:
             measurements = self.convert(raw, received_ns)
         except RejectedInput as exc:
-            self.counters["rejected"] += 1
-            log.warning(
-                "%s: rejected input (%d so far): %s", self.device, self.counters["rejected"], exc
+            count_problem(
+                self.counters,
+                "rejected",
+                log,
+                "%s: rejected input (%d so far): %s",
+                self.device,
+                self.counters["rejected"] + 1,
+                exc,
             )
             return 0
         for edge_name, measurement in measurements:
             publisher.publish(edge_name, measurement)
             self.counters["published"] += 1
         return len(measurements)
+
+
+def pose_edges(
+    tracker: str,
+    frames: Iterable[str],
+    static_frames: Collection[str],
+    rate: float | None,
+    covariance: np.ndarray,
+) -> list[EdgeAnnouncement]:
+    """The 6D edges ``tracker -> frame`` of a tracker's bodies: static (no rate) for those in
+    ``static_frames``, and announcing as ``sigma`` the expected error of ``covariance``
+    (:func:`~ubitrack_agent.core.uncertainty.expected_error`)."""
+    sigma = expected_error(covariance)
+    return [
+        EdgeAnnouncement(
+            tracker,
+            frame,
+            "6D",
+            static=frame in static_frames,
+            rate=None if frame in static_frames else rate,
+            sigma=sigma,
+        )
+        for frame in frames
+    ]
 
 
 def open_udp_socket(host: str, port: int) -> socket.socket:

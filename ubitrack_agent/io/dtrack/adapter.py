@@ -50,11 +50,10 @@ from scipy.spatial.transform import Rotation
 
 from ubitrack_agent.core import ErrorPose, Measurement, MeasurementError, Position3D
 from ubitrack_agent.core.uncertainty import (
-    expected_error,
     in_place_covariance,
     isotropic_pose_covariance,
 )
-from ubitrack_agent.io.adapter import RejectedInput, SensorAdapter, TimestampPolicy
+from ubitrack_agent.io.adapter import RejectedInput, SensorAdapter, TimestampPolicy, pose_edges
 from ubitrack_agent.io.dtrack.format import (
     UNSUPPORTED_LINES,
     Body6D,
@@ -124,17 +123,7 @@ class DTrackAdapter(SensorAdapter[bytes]):
             raise ValueError("noise sigmas must be >= 0")
         sigma_m = sigma_mm / 1000.0
         self.pose_covariance = isotropic_pose_covariance(np.radians(sigma_deg), sigma_m)
-        edges = [
-            EdgeAnnouncement(
-                tracker,
-                frame,
-                "6D",
-                static=frame in static_bodies,
-                rate=None if frame in static_bodies else rate,
-                sigma=expected_error(self.pose_covariance),
-            )
-            for frame in poses
-        ]
+        edges = pose_edges(tracker, poses, static_bodies, rate, self.pose_covariance)
         edges += [
             EdgeAnnouncement(tracker, frame, "3D", rate=rate, sigma=sigma_m)
             for frame in markers.values()
