@@ -182,12 +182,16 @@ def test_no_agent_ends_a_long_wait_after_the_grace(monkeypatch):
         assert raised.value.timeout == 0.1  # kept waiting, to its timeout
 
 
-def test_a_sample_already_there_is_handed_over_whatever_the_answer():
+def test_once_samples_have_come_waits_run_to_their_timeout():
+    """A sample already there is handed over whatever the answer; after the first sample the
+    answer no longer ends a wait early (an agent restarting, a flow replanned)."""
     session = FakeSession()
     with Relation(session, KEYS, RELATION, application="app") as relation:
         now = time.time_ns()
         session.deliver(KEYS.relation(RELATION), pose(now))
         session.deliver(KEYS.answer(RELATION), UNSOLVED.encode().encode())
         assert relation.get(timeout=60.0).timestamp_ns == now
-        with pytest.raises(UnsolvedRelation):
-            relation.get(timeout=60.0)
+        assert relation.verdict() is None
+        with pytest.raises(UnsolvedRelation) as raised:
+            relation.get(timeout=0.05)
+        assert raised.value.timeout == 0.05

@@ -298,13 +298,15 @@ class Relation(Closing):
             self._lock.notify_all()
 
     def verdict(self) -> TimeoutError | None:
-        """Why waiting for a sample is pointless now, as the exception a wait raises at once:
-        :class:`UnsolvedRelation` if the agent's answer is that it cannot serve the relation
-        (not merely that it has not planned it yet), :class:`NoAgent` if no agent has been
-        active for :data:`NO_AGENT_AFTER_S`; None while there is reason to wait, and always
-        with ``keep_waiting``."""
+        """Why waiting for the first sample is pointless now, as the exception a wait raises
+        at once: :class:`UnsolvedRelation` if the agent's answer is that it cannot serve the
+        relation (not merely that it has not planned it yet), :class:`NoAgent` if no agent
+        has been active for :data:`NO_AGENT_AFTER_S`; None while there is reason to wait,
+        always with ``keep_waiting``, and once a sample has come (a flowing relation's waits
+        run to their timeout, as the workers keep the data flowing while an agent restarts,
+        and a flow that lost a sensor may be replanned)."""
         answer = self.answer
-        if self.keep_waiting:
+        if self.keep_waiting or self._received:
             return None
         if answer is not None and not answer.served and answer.reason != NOT_PLANNED:
             return UnsolvedRelation(self.relation, None, answer.reason or "")
