@@ -29,7 +29,8 @@ from bench.synthetic import (
     rotation_error,
     sample_poses,
 )
-from services.algorithms import (
+from ubitrack_agent.core.uncertainty import skew
+from ubitrack_agent.services.algorithms import (
     PoseEstimate,
     PoseKalmanFilter,
     absolute_orientation,
@@ -42,9 +43,8 @@ from services.algorithms import (
     solve_pnp_ransac,
     triangulate_points,
 )
-from services.algorithms.dlt import homogeneous
-from services.algorithms.pnp import OPENCV_METHODS
-from ubitrack_agent.core.uncertainty import skew
+from ubitrack_agent.services.algorithms.dlt import homogeneous
+from ubitrack_agent.services.algorithms.pnp import OPENCV_METHODS
 
 Errors = dict[str, dict[str, list[float]]]
 """method -> {"rot_deg": [...], "trans_mm": [...], "time_us": [...], ...}"""

@@ -4,8 +4,8 @@ Run: ``python -m bench.agent_restart_bench [--trials N] [--standby] [--workers-a
 Everything on loopback with real zenoh and real processes: an agent (with its host manager,
 pool size 2; its worker processes the host manager's zenoh clients, or with
 ``--workers-as-peers`` peers: ``docs/services.md``, "Links"), two
-noise-free trackers (``sim_trackers.exact_tracker``) and two applications (``WT->HT`` and
-``HT->WT``, fused from both trackers: about ten workers). Each trial SIGKILLs the active agent
+noise-free trackers (``ubitrack_agent.sim_trackers.exact_tracker``) and two applications (``WT->HT``
+and ``HT->WT``, fused from both trackers: about ten workers). Each trial SIGKILLs the active agent
 and at once starts it again, then polls the active agent's status every 20 ms. With
 ``--standby`` a second agent stands by (``agent.election``) on its own port: the standby takes
 over, and the killed agent, started again, becomes the next trial's standby. Figures in

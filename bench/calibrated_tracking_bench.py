@@ -39,9 +39,9 @@ import yaml
 from scipy import stats
 
 from bench.synthetic import left_error
-from services.algorithms.estimate import PoseEstimate
-from sim_trackers.scenario import load_scenario
 from ubitrack_agent.io.static_edges import read_static_edges
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 RESULTS = Path(__file__).parent / "results" / "calibrated_tracking.json"
 PHASES = ("fused", "camera only", "fused again")
@@ -52,7 +52,11 @@ one seed for all, every run would replay the same noise and the mean NEES would 
 
 def scenario_with_true_calibration(directory: Path) -> Path:
     """The default scenario with ``C -> HT`` in its database (served from the truth)."""
-    text = resources.files("sim_trackers").joinpath("scenarios/paper_figure1.yaml").read_text()
+    text = (
+        resources.files("ubitrack_agent.sim_trackers")
+        .joinpath("scenarios/paper_figure1.yaml")
+        .read_text()
+    )
     document = yaml.safe_load(text)
     document["database"]["edges"].append({"from": "C", "to": "HT", "type": "6D"})
     path = directory / "figure1_true_calibration.yaml"

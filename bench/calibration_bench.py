@@ -48,16 +48,16 @@ from bench.synthetic import (
     rng_for,
     rotation_error,
 )
-from services.algorithms.averaging import average_poses
-from services.algorithms.estimate import PoseEstimate, point_jacobian
-from services.algorithms.hand_eye import (
+from ubitrack_agent.core import se3
+from ubitrack_agent.core.uncertainty import adjoint, skew
+from ubitrack_agent.services.algorithms.averaging import average_poses
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate, point_jacobian
+from ubitrack_agent.services.algorithms.hand_eye import (
     hand_eye_calibration,
     hand_eye_daniilidis,
     hand_eye_park_martin,
 )
-from services.algorithms.tip_calibration import tip_calibration
-from ubitrack_agent.core import se3
-from ubitrack_agent.core.uncertainty import adjoint, skew
+from ubitrack_agent.services.algorithms.tip_calibration import tip_calibration
 
 OUTPUT = Path(__file__).parent / "results" / "calibration.json"
 POSE_COUNTS = (10, 30, 100)

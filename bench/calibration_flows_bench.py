@@ -18,26 +18,28 @@ Flows (``ubitrack plan examples/paper_calibration.yaml --from C --to HT --type 6
 * ``direct + averaging (live stream)``: per-sample ``C -> HT = (C -> WT)(WT -> ART)(ART ->
   HT)`` as the live flow computes it (90 Hz, PnP poses interpolated between camera frames:
   :func:`bench.figure1_recording.live_direct_samples`), fed one at a time to the averaging
-  service's :class:`services.algorithms.StaticEstimator` with its parameters
-  (:func:`services.components.averaging.static_estimator`: 50 samples, 0.5 mm, 0.1 degree, a
-  motion window of 1 s);
+  service's :class:`ubitrack_agent.services.algorithms.StaticEstimator` with its parameters
+  (:func:`ubitrack_agent.services.components.averaging.static_estimator`: 50 samples, 0.5 mm, 0.1
+  degree, a motion window of 1 s);
 * ``direct + averaging (camera rate)``: the same at the camera's instants only (30 Hz);
 * ``PnP through HT->Fi + averaging``: per-frame PnP of ``C -> HT`` on ``IP -> Fi`` and
   ``HT -> Fi = (HT -> ART)(ART -> WT)(WT -> Fi)``, averaged likewise;
-* ``hand-eye over time``: :func:`services.algorithms.hand_eye.hand_eye_calibration` on every
+* ``hand-eye over time``: :func:`ubitrack_agent.services.algorithms.hand_eye.hand_eye_calibration`
+on every
   third frame's ``ART -> HT`` and PnP ``C -> WT`` (the closed form costs O(N^2): 0.7 s at 600
   poses, 6 s at 1,800), noise from the residuals; ``C -> HT`` is the inverse of its ``X``;
 * ``hand-eye, live component``: the hand-eye service and its time expansion as the live worker
   runs them (:func:`live_hand_eye_run`: samples 5 degrees apart, at most 200, Park-Martin);
 * ``time-expanded PnP``: one PnP of ``C -> HT`` over every frame's ``IP -> Fi`` and ``HT ->
-  Fi`` at once (SQPNP + Levenberg-Marquardt, :func:`services.algorithms.pnp.solve_pnp` on the
-  stacked points: the paper's third solution expanded in space and time), with a covariance
-  clustered by frame (:func:`clustered_covariance`: the tracker's error is shared by a frame's
-  five points, so the pixels are not independent).
+  Fi`` at once (SQPNP + Levenberg-Marquardt,
+  :func:`ubitrack_agent.services.algorithms.pnp.solve_pnp` on the stacked points: the paper's third
+  solution expanded in space and time), with a covariance clustered by frame
+  (:func:`clustered_covariance`: the tracker's error is shared by a frame's five points, so the
+  pixels are not independent).
 
 For the averaging flows also the offline optimum of the averaging step on the same samples:
-the batch information-weighted mean (:func:`services.algorithms.fuse_poses`) of the samples
-the estimator accepted (the robust start's only when it rejected none of them: which ones it
+the batch information-weighted mean (:func:`ubitrack_agent.services.algorithms.fuse_poses`) of the
+samples the estimator accepted (the robust start's only when it rejected none of them: which ones it
 rejected is not reported). Reported per flow: error against time (RMS over seeds), mean NEES
 against time, time to convergence and the error then, motion-check false alarms; and the
 largest move of the estimate, in its stated standard deviations, at a PnP flip (3 % of the
@@ -70,20 +72,20 @@ from bench.figure1_recording import (
 )
 from bench.static_estimate_bench import pnp_flip
 from bench.synthetic import left_error, rng_for
-from services.algorithms import fuse_poses
-from services.algorithms.estimate import PoseEstimate, symmetric
-from services.algorithms.hand_eye import hand_eye_calibration
-from services.algorithms.pnp import _projected, solve_pnp
-from services.algorithms.static_estimate import (
+from ubitrack_agent.core import se3
+from ubitrack_agent.core.uncertainty import invert_covariance
+from ubitrack_agent.services.algorithms import fuse_poses
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate, symmetric
+from ubitrack_agent.services.algorithms.hand_eye import hand_eye_calibration
+from ubitrack_agent.services.algorithms.pnp import _projected, solve_pnp
+from ubitrack_agent.services.algorithms.static_estimate import (
     DEFAULT_INIT_SAMPLES,
     StaticState,
     Status,
 )
-from services.components.averaging import Averaging, static_estimator
-from services.expansion import TimeAccumulator
-from services.registry import lookup
-from ubitrack_agent.core import se3
-from ubitrack_agent.core.uncertainty import invert_covariance
+from ubitrack_agent.services.components.averaging import Averaging, static_estimator
+from ubitrack_agent.services.expansion import TimeAccumulator
+from ubitrack_agent.services.registry import lookup
 
 RESULTS = Path(__file__).parent / "results" / "calibration_flows.json"
 
@@ -214,9 +216,9 @@ def hand_eye_run(recording: Recording) -> dict[str, Any]:
 
 def live_hand_eye_run(recording: Recording) -> dict[str, Any]:
     """The hand-eye component as the live worker runs it: every camera frame's ``ART -> HT``
-    and ``C -> WT`` offered to its time expansion (:class:`services.expansion.TimeAccumulator`:
-    kept when 5 degrees from the last kept, at most 200, oldest dropped), Park-Martin on what
-    is kept; no covariance."""
+    and ``C -> WT`` offered to its time expansion
+    (:class:`ubitrack_agent.services.expansion.TimeAccumulator`: kept when 5 degrees from the last
+    kept, at most 200, oldest dropped), Park-Martin on what is kept; no covariance."""
     truth = PoseEstimate(recording.truth_q, recording.truth_t)
     head, camera = hand_eye_inputs(recording)
     service = lookup("hand_eye_calibration")({})

@@ -4,8 +4,8 @@ correct data while faults come at a given rate.
 Run: ``python -m bench.churn_bench [--rates 0,0.1,0.3,1,2] [--seconds 50] [--seed 11]``.
 Everything on loopback with real zenoh and real processes, as the chaos test
 (``tests/integration/test_chaos.py``): an agent with its host manager (warm pool of 3), two
-noise-free trackers (``sim_trackers.exact_tracker``, 100 Hz each) and two applications,
-``WT->HT`` and ``HT->WT``, each fused from both trackers (ten workers).
+noise-free trackers (``ubitrack_agent.sim_trackers.exact_tracker``, 100 Hz each) and two
+applications, ``WT->HT`` and ``HT->WT``, each fused from both trackers (ten workers).
 
 For each rate (events per second) the bench injects, for ``--seconds``, faults at the times of
 a Poisson process of that rate, each of a kind drawn with equal odds: the chaos test's faults

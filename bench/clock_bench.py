@@ -67,7 +67,7 @@ def host_managers(net: Network, seconds: float) -> dict[str, Any]:
     }
     for offset, host in hosts.items():
         net.spawn(
-            *("-m", "services.host", "--name", host, "--pool-size", "0", "--quiet"),
+            *("-m", "ubitrack_agent.services.host", "--name", host, "--pool-size", "0", "--quiet"),
             *("--clock-offset-ms", str(offset)),
         )
     seen: dict[int, list[dict[str, Any]]] = {offset: [] for offset in OFFSETS_MS}

@@ -6,8 +6,8 @@ writes them to ``bench/results/container_hop.json``.
 
 1. **Hop** (one process, one zenoh session with no peer: nothing leaves it). A container runs
    a chain of :data:`CHAIN` concatenations, each composing the previous one's output (handed
-   over as an object, ``services.local_wires``) with a static edge; a value handed to the
-   first runs down the chain on the calling thread to a sink reading the last one's output
+   over as an object, ``ubitrack_agent.services.local_wires``) with a static edge; a value handed to
+   the first runs down the chain on the calling thread to a sink reading the last one's output
    in the process. The time from the hand-over into the first to the sink, divided by the
    hops, is a hop's cost (each value timed alone, median); beside it, the same maths
    (``compose_poses`` with the static edge restamped) called directly in one loop. Interleaved
@@ -18,7 +18,8 @@ writes them to ``bench/results/container_hop.json``.
    with calibrations (paper, figure 6), each its own component in one container (as the agent
    runs them), against ``invert_pose`` and two ``compose_poses`` in a loop.
    The fusion that follows (two dynamic inputs, a trigger held for the other) is not in it.
-3. **Add**: a container process (``python -m services.container``) runs a relay of a provider
+3. **Add**: a container process (``python -m ubitrack_agent.services.container``) runs a relay of a
+provider
    publishing every millisecond; an ``{"add": [...]}`` command on its control key starts an
    inversion reading the relay's output in the process. Timed from just before the command is
    put to the first output of the new component arriving at this process (a subscriber
@@ -53,13 +54,13 @@ from typing import Any
 import numpy as np
 
 from bench.report import write_results
-from services.container import Container
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, encode
 from ubitrack_agent.core.poses import compose_poses, invert_pose
 from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
+from ubitrack_agent.services.container import Container
 
 RESULTS = Path(__file__).with_name("results") / "container_hop.json"
 CHAIN = 5
@@ -210,7 +211,7 @@ def add_latency(adds: int) -> dict[str, Any]:
             [
                 sys.executable,
                 "-m",
-                "services.container",
+                "ubitrack_agent.services.container",
                 "--group",
                 GroupSpec("box", (relay,)).to_json(),
                 *member_flags(port, domain),

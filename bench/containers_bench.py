@@ -16,8 +16,8 @@ room: an inversion, a composition with the static edges, about three components 
 shared).
 
 After each application: the components the agent wants and those alive, the worker processes
-(the host manager's children running ``services.worker``: containers and idle pool members)
-and their memory, as the unique set size (USS: private clean and dirty pages, from
+(the host manager's children running ``ubitrack_agent.services.worker``: containers and idle pool
+members) and their memory, as the unique set size (USS: private clean and dirty pages, from
 ``/proc/<pid>/smaps_rollup``) summed over them, and the machine's one-minute load average.
 At the end: each application's time from its query to its first sample (median, 90th
 percentile, largest), broken into its parts (:func:`first_sample_parts`, from the stamps the
@@ -111,7 +111,9 @@ def uss_bytes(pid: int) -> int:
 
 def worker_processes(agent_pid: int) -> list[int]:
     """The worker processes (containers, pool members) under the agent's host manager."""
-    return [pid for pid in children(agent_pid) if "services.worker" in command_line(pid)]
+    return [
+        pid for pid in children(agent_pid) if "ubitrack_agent.services.worker" in command_line(pid)
+    ]
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -386,7 +388,11 @@ def _part_figures(rows: list[dict[str, int]], parts: list[str]) -> dict[str, Any
 def cpu_percent(hub: Hub, publisher: int, seconds: float) -> dict[str, float]:
     """Percent of one core each part used over ``seconds``: the worker processes (containers
     and pool members), the agent, its host manager, the publishing process."""
-    host = [pid for pid in children(hub.agent.pid) if "services.host" in command_line(pid)]
+    host = [
+        pid
+        for pid in children(hub.agent.pid)
+        if "ubitrack_agent.services.host" in command_line(pid)
+    ]
     parts = {
         "workers": worker_processes(hub.agent.pid),
         "agent": [hub.agent.pid],

@@ -91,7 +91,7 @@ def module_of(pid: int) -> str:
 def namer(roles: Mapping[int, str], workers: Mapping[int, str]) -> Callable[[int], str]:
     """Names a pid: ``bench`` (this process), its role (a child this process started), the
     component a worker process runs, else the module it runs (an idle pool member is
-    ``services.worker``, the host manager ``services.host``)."""
+    ``ubitrack_agent.services.worker``, the host manager ``ubitrack_agent.services.host``)."""
     own = os.getpid()
 
     def name(pid: int) -> str:

@@ -23,7 +23,7 @@ figures are printed and written to ``bench/results/dataflow.json``.
     worker), with blocking congestion control: a hop that cannot keep up slows the sender
     (``sent_per_s`` below the rate offered) instead of zenoh dropping samples. ``dropped`` is
     what was sent and never published; ``in_runs``, what the worker handled in runs of a
-    backlog (``services.worker``).
+    backlog (``ubitrack_agent.services.worker``).
 (c) **Reconfiguration.** An agent serves ``WT->HT`` for an application; trials start once its
     warm pool is full (steady state). Sensor appears: from
     the tracker's liveliness token appearing (seen by the bench) to the first sample on the
@@ -121,6 +121,12 @@ def percentiles(values: list[float]) -> dict[str, float]:
     }
 
 
+def _worker_arguments(spec: ComponentSpec) -> tuple[str, ...]:
+    """The interpreter arguments running ``spec`` in a worker process of its own."""
+    worker = ("-m", "ubitrack_agent.services.worker")
+    return (*worker, "--spec", spec.to_json(), "--log-level", "WARNING")
+
+
 def _concatenation_spec(keys: KeySpace, name: str, from_worker: bool) -> ComponentSpec:
     """A concatenation whose static input is ``bench/<name>/static`` and whose trigger is
     ``bench/<name>/in``, published by this process standing in for a worker (``from_worker``,
@@ -174,15 +180,8 @@ def hop_latency(samples: int, compare_with: Path | None = None) -> dict[str, Any
                 )
             else:
                 spec = _concatenation_spec(net.keys, name, how)
-                worker = (
-                    "-m",
-                    "services.worker",
-                    "--spec",
-                    spec.to_json(),
-                    "--log-level",
-                    "WARNING",
-                )
-                net.spawn(*worker, tree=compare_with if name.endswith("_then") else None)
+                tree = compare_with if name.endswith("_then") else None
+                net.spawn(*_worker_arguments(spec), tree=tree)
         received: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         subscribers = [
             net.session.declare_subscriber(
@@ -300,7 +299,7 @@ def throughput(seconds: float, rates: list[float | None]) -> dict[str, Any]:
     results: dict[str, Any] = {}
     try:
         spec = _concatenation_spec(net.keys, "flood", from_worker=True)
-        net.spawn("-m", "services.worker", "--spec", spec.to_json(), "--log-level", "WARNING")
+        net.spawn(*_worker_arguments(spec))
         net.spawn("-m", "bench.raw_relay", net.keys.data("rawflood/in"), net.keys.data("raw/out"))
         relayed = [0]
 
@@ -341,7 +340,9 @@ def throughput(seconds: float, rates: list[float | None]) -> dict[str, Any]:
                         "published": published,
                         "dropped": sent - published,
                     }
-                    if hop == "flood":  # handled in runs of a backlog (services.worker)
+                    if (
+                        hop == "flood"
+                    ):  # handled in runs of a backlog (ubitrack_agent.services.worker)
                         results[label][name]["in_runs"] = after[2] - before[2]
                     time.sleep(0.5)
         subscriber.undeclare()
@@ -388,7 +389,7 @@ def reconfiguration(trials: int) -> dict[str, Any]:
     wait_for_warm_pool(net.session, net.keys)  # measure the steady state
     poor = net.spawn(
         "-m",
-        "sim_trackers.exact_tracker",
+        "ubitrack_agent.sim_trackers.exact_tracker",
         "--provider",
         "ir",
         "--tracker",
@@ -420,7 +421,7 @@ def reconfiguration(trials: int) -> dict[str, Any]:
         for _ in range(trials):
             good = net.spawn(
                 "-m",
-                "sim_trackers.exact_tracker",
+                "ubitrack_agent.sim_trackers.exact_tracker",
                 "--provider",
                 "art",
                 "--tracker",

@@ -2,10 +2,11 @@
 
 Runs the simulator models of ``sim_trackers`` offline (no zenoh, no clocks): the world of the
 scenario (default ``sim_trackers/scenarios/paper_figure1.yaml``), the simulated camera
-(:class:`sim_trackers.sim_camera.CameraSimulator`, 30 Hz) and the simulated A.R.T. tracker
-(:class:`sim_trackers.sim_art.ArtSimulator`, 60 Hz, at a seeded phase to the camera, as two
-unsynchronised devices), each with its own seeded generator. It records the measured inputs of
-the three section 4.2 solutions that ``ubitrack plan examples/paper_calibration.yaml --from C
+(:class:`ubitrack_agent.sim_trackers.sim_camera.CameraSimulator`, 30 Hz) and the simulated A.R.T.
+tracker (:class:`ubitrack_agent.sim_trackers.sim_art.ArtSimulator`, 60 Hz, at a seeded phase to the
+camera, as two unsynchronised devices), each with its own seeded generator. It records the measured
+inputs of the three section 4.2 solutions that ``ubitrack plan examples/paper_calibration.yaml
+--from C
 --to HT --type 6D --static --all`` lists:
 
 * ``IP -> F1..F5`` (2D, pixels; NaN where the feature is occluded or out of view) per camera
@@ -47,13 +48,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from services.algorithms.pnp import solve_pnp
-from sim_trackers.scenario import Scenario, load_scenario
-from sim_trackers.sim_art import ArtSimulator
-from sim_trackers.sim_camera import CameraSimulator
 from ubitrack_agent.core import ErrorPose, quaternions, se3
 from ubitrack_agent.core.poses import compose_poses, interpolate_pose, invert_pose
 from ubitrack_agent.core.uncertainty import in_place_covariance, isotropic_pose_covariance
+from ubitrack_agent.services.algorithms.pnp import solve_pnp
+from ubitrack_agent.sim_trackers.scenario import Scenario, load_scenario
+from ubitrack_agent.sim_trackers.sim_art import ArtSimulator
+from ubitrack_agent.sim_trackers.sim_camera import CameraSimulator
 
 SEED = 20240601
 """The bench's seed base (``bench.synthetic.SEED``); a recording's seed is combined with it."""

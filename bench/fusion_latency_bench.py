@@ -25,21 +25,21 @@ share the CPUs with the flow). Phases, in one run:
    A.R.T.-only phase lies between two asynchronous ones: the load of this shared machine
    drifts between phases); with ``--cycles N``, phases 3 and 4 run N times in turn;
 5. **camera only**: the A.R.T. tracker stopped; 2D-3D pose estimation alone, whose trigger no
-   longer waits a frame for a hidden feature (``services.triggers``).
+   longer waits a frame for a hidden feature (``ubitrack_agent.services.triggers``).
 
 In the fused phases the bench also times the fusion hop itself, paired per timestamp: the
 arrival of the fusion's output minus the arrival of the estimate it came from at the
 fusion's input, both seen by this process at the same moment; and the latency of the A.R.T.
 path's estimates at the fusion's input: the output of the A.R.T. chain's last concatenation,
-handed to the fusion in their container (``services.local_wires``), read here as zenoh carries
-it to this process. Each fused phase also reports the fusion
+handed to the fusion in their container (``ubitrack_agent.services.local_wires``), read here as
+zenoh carries it to this process. Each fused phase also reports the fusion
 worker's counters over the phase (``fusion_counters``: what became of the samples it took).
 The probes are themselves readers outside the container: its components then put those
 values on zenoh too, which no reader of the demo makes them do (an encode and a put each, made
-after the hand-over downstream has returned: ``services.worker``, ``Worker._publish``); so an
-estimate handed to the fusion in the container reaches this process after the fusion's output
-of it, and the fusion hop counts only the pairs whose input arrived first (estimates that came
-to the fusion over zenoh). ``--no-probes`` leaves the probes out.
+after the hand-over downstream has returned: ``ubitrack_agent.services.worker``,
+``Worker._publish``); so an estimate handed to the fusion in the container reaches this process
+after the fusion's output of it, and the fusion hop counts only the pairs whose input arrived first
+(estimates that came to the fusion over zenoh). ``--no-probes`` leaves the probes out.
 
 Per sample the application receives: latency (its arrival, ``time.time_ns()`` in the
 subscriber's callback, minus its timestamp; one host, one clock), the error against the
@@ -77,7 +77,6 @@ import numpy as np
 from bench.calibrated_tracking_bench import scenario_with_true_calibration
 from bench.cpu_use import CpuUse, namer
 from bench.steady_state import wait_for_warm_pool
-from sim_trackers.scenario import load_scenario
 from ubitrack_agent.commands.demo import Processes, dtrack_flags, simulator_arguments
 from ubitrack_agent.core import decode, quaternions
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
@@ -86,6 +85,7 @@ from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest, put_command
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 RESULTS = Path(__file__).parent / "results" / "fusion_latency.json"
 SETTLE_S = 1.0
@@ -247,7 +247,7 @@ def fused_phase(
 
 
 def worker_counters(session: Any, keys: KeySpace, instance: str) -> dict[str, int]:
-    """A worker's counters (``services.worker.COUNTERS``), from its status."""
+    """A worker's counters (``ubitrack_agent.services.worker.COUNTERS``), from its status."""
     replies = fetch_latest(session, keys.status(instance), timeout=1.0)
     return json.loads(replies[0])["counters"] if replies else {}
 

@@ -2,12 +2,12 @@
 
 Run: ``python -m bench.fuzz_bench [--seconds N] [--seed S]``. A live agent (with its host
 manager, warm pool and workers) serves ``WT->HT`` fused from two exact trackers
-(``sim_trackers.exact_tracker``) to an application, all on loopback. For ``--seconds`` the bench
-then drives every network entry point with hostile input drawn by the fuzz tests' hypothesis
-strategies (``tests/integration/fuzz_inputs.py``), seeded with ``--seed``: on the agent's side
-liveliness tokens of every kind, query keys, provider fragments, host exit reports and status
-queries; on the workers' side measurements on the keys the live workers read, control commands
-to them, specifications to the idle pool members and requests to the host manager.
+(``ubitrack_agent.sim_trackers.exact_tracker``) to an application, all on loopback. For
+``--seconds`` the bench then drives every network entry point with hostile input drawn by the fuzz
+tests' hypothesis strategies (``tests/integration/fuzz_inputs.py``), seeded with ``--seed``: on the
+agent's side liveliness tokens of every kind, query keys, provider fragments, host exit reports and
+status queries; on the workers' side measurements on the keys the live workers read, control
+commands to them, specifications to the idle pool members and requests to the host manager.
 
 Afterwards it records, printed and in ``bench/results/fuzz.json``: messages sent per kind and
 the time each send took, the processes that died (agent, host manager, workers), the counters
@@ -38,7 +38,6 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from bench.report import write_results
-from sim_trackers.exact_tracker import true_wt_ht
 from tests.integration import fuzz_inputs as fuzz
 from tests.integration.conftest import end_groups
 from tests.integration.test_agent import WT_HT, Setup, fresh_samples, opened
@@ -48,6 +47,7 @@ from ubitrack_agent.core import se3
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import Token
+from ubitrack_agent.sim_trackers.exact_tracker import true_wt_ht
 
 RESULTS = Path(__file__).with_name("results") / "fuzz.json"
 BATCH = 50

@@ -39,7 +39,6 @@ from scipy.linalg.lapack import dpotrf
 
 from bench.dataflow_bench import STATIC, _concatenation_spec
 from bench.report import write_results
-from services.worker import Worker
 from ubitrack_agent.core import ErrorPose, Pose, decode, encode, quaternions
 from ubitrack_agent.core.measurements import WORKER
 from ubitrack_agent.core.poses import compose_poses
@@ -47,6 +46,7 @@ from ubitrack_agent.core.uncertainty import adjoint as adjoint_of
 from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
+from ubitrack_agent.services.worker import Worker
 
 RESULTS = Path(__file__).with_name("results") / "hop_cost.json"
 

@@ -42,7 +42,6 @@ from typing import Any
 
 import yaml
 
-from sim_trackers.scenario import load_scenario
 from tests.integration.netns import Network, unavailable_reason
 from tests.integration.test_hosts_netns import (
     ART_PORT,
@@ -53,6 +52,7 @@ from tests.integration.test_hosts_netns import (
 from tests.integration.zenoh_probe import Probe
 from ubitrack_agent.commands.demo import dtrack_flags
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 RESULTS = Path(__file__).with_name("results") / "hosts.json"
 OFFSETS_MS = (-250.0, 0.0, 400.0)

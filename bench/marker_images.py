@@ -1,10 +1,10 @@
 """Synthetic camera images of ArUco markers in the simulated world, with their true corners;
 shared by the camera benchmark and the unit tests.
 
-A marker is a frame of a :class:`~sim_trackers.world.World`, placed as OpenCV's marker frame
-(:mod:`ubitrack_agent.io.camera.aruco`: centre, x right, y up, z out of the paper). Its true
-corners are its :func:`~ubitrack_agent.io.camera.aruco.corner_positions` projected through the
-image plane's camera model (:meth:`sim_trackers.world.ImagePlane.project`, i.e.
+A marker is a frame of a :class:`~ubitrack_agent.sim_trackers.world.World`, placed as OpenCV's
+marker frame (:mod:`ubitrack_agent.io.camera.aruco`: centre, x right, y up, z out of the paper). Its
+true corners are its :func:`~ubitrack_agent.io.camera.aruco.corner_positions` projected through the
+image plane's camera model (:meth:`ubitrack_agent.sim_trackers.world.ImagePlane.project`, i.e.
 ``cv2.projectPoints``). Its image is OpenCV's canonical marker
 (``cv2.aruco.generateImageMarker``) warped into the frame (``cv2.warpPerspective``) by the
 homography taking the canonical image's outer corners to those projections: exact for an image
@@ -22,9 +22,9 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.world import NEAR_PLANE_M, FixedPlacement, Frame, ImagePlane, World
 from ubitrack_agent.core import se3
 from ubitrack_agent.io.camera.aruco import DICTIONARIES, corner_positions
+from ubitrack_agent.sim_trackers.world import NEAR_PLANE_M, FixedPlacement, Frame, ImagePlane, World
 
 CAMERA_MATRIX = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
 """The synthetic camera of ``bench/synthetic.py``'s protocol: f = 800 px, 640 x 480."""

@@ -10,9 +10,9 @@ Each view puts the camera about 2 m in front of the target of
 from random directions within about 15 degrees and offsets of 0.2 m, with 0.5 px Gaussian pixel
 noise (the scenario's), once with all five features and once with one of them hidden (the
 camera's occlusion). Per case: views whose rotation is more than ``--far-deg`` (10) off, views
-refused (:class:`services.algorithms.pnp.AmbiguousPose`) and how many of those the plain solve
-(no ambiguity check: the residuals' noise estimate) had right, the accepted poses' mean NEES
-(6 is consistent) and how many lie beyond the 3-sigma bound (NEES 20.06).
+refused (:class:`ubitrack_agent.services.algorithms.pnp.AmbiguousPose`) and how many of those the
+plain solve (no ambiguity check: the residuals' noise estimate) had right, the accepted poses' mean
+NEES (6 is consistent) and how many lie beyond the 3-sigma bound (NEES 20.06).
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bench.synthetic import CAMERA_MATRIX, left_error, rotation_error
-from services.algorithms.estimate import PoseEstimate
-from services.algorithms.pnp import AmbiguousPose, project, solve_pnp
-from sim_trackers.scenario import load_scenario
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.pnp import AmbiguousPose, project, solve_pnp
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 RESULTS = Path(__file__).parent / "results" / "pnp_ambiguity.json"
 SCENARIO = Path(__file__).parents[1] / "sim_trackers" / "scenarios" / "paper_figure1.yaml"

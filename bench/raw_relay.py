@@ -10,8 +10,8 @@ worker, what the maths costs and what the worker adds.
 
 With ``--receive queue`` (and no ``--compose``), the raw relay takes each sample as a worker
 does: zenoh calls back on its own thread, the callback puts the payload on a
-``queue.SimpleQueue``, the loop's thread takes it (``services.worker.Inbox``); it tells what
-that hand-over costs against zenoh's own channel.
+``queue.SimpleQueue``, the loop's thread takes it (``ubitrack_agent.services.worker.Inbox``); it
+tells what that hand-over costs against zenoh's own channel.
 
 Run: ``python -m bench.raw_relay IN_KEY OUT_KEY [--compose minimal|package | --receive queue]
 [zenoh flags]``; ends on SIGTERM.

@@ -7,13 +7,14 @@ steady before every trial (whole, warm pool full, every application fresh). Each
 event of a kind, made by the chaos test's faults (``tests/integration/chaos_faults.py``):
 
 * ``tracker SIGKILL``: a tracker (ART and IR in turn) killed and started again at once;
-* ``container SIGKILL, warm pool``: the container (``services.container``: one process running
+* ``container SIGKILL, warm pool``: the container (``ubitrack_agent.services.container``: one
+process running
   several components) running the most components, killed; its host manager restores it with
   them (from its warm pool of 3) and the agent sends each its wiring (issue 28). Each container
   kill comes at least ``QUICK_RESTORE_S`` (10 s) after the one before: a container that dies
   sooner after its start more than three times in a row is not restored (a crash loop:
-  ``services.supervisor``), its components are started again by the agent instead, and the
-  fourth of trials 2-3 s apart used to meet that guard (``restored`` never came);
+  ``ubitrack_agent.services.supervisor``), its components are started again by the agent instead,
+  and the fourth of trials 2-3 s apart used to meet that guard (``restored`` never came);
 * ``agent SIGKILL and restart``: the agent killed and started again at once (its workers keep
   running and are adopted);
 * ``query open``: an application opens ``HT->ART``, which nothing else asks for (its first
@@ -56,7 +57,6 @@ from typing import Any
 from bench.agent_restart_bench import agent_status, recovered, serving
 from bench.availability import first_fresh, outages, recovery
 from bench.churn_bench import APPLICATIONS, FRESH_S, Applications, machine, steady, system
-from services.supervisor import QUICK_RESTORE_S
 from tests.integration.chaos_faults import (
     FLAPPING,
     POOL_SIZE,
@@ -66,6 +66,7 @@ from tests.integration.chaos_faults import (
     host_status,
 )
 from ubitrack_agent.net.keys import RelationId
+from ubitrack_agent.services.supervisor import QUICK_RESTORE_S
 
 RESULTS = Path(__file__).with_name("results") / "recovery.json"
 HOLD_S = 2.0

@@ -2,12 +2,12 @@
 SIGKILLed (issue 28, "Fewer links"; ``docs/services.md``, "Links").
 
 Run: ``python -m bench.reroute_bench [--trials 5]``. Real processes on loopback with real
-zenoh: this process is the hub; per trial a host manager (``python -m services.host``, its
-worker processes its zenoh clients, the default) starts one container with a relay, then is
-SIGKILLed; the container, which outlives it, reaches the network through the hub (the next
-endpoint in its connect list) and declares its token again. The figure per trial is the time
-from the token's removal to its return, as the hub's liveliness subscriber sees them: what
-the agent's ``REROUTE_S`` must cover before it starts such a component again. Printed and
+zenoh: this process is the hub; per trial a host manager (``python -m
+ubitrack_agent.services.host``, its worker processes its zenoh clients, the default) starts one
+container with a relay, then is SIGKILLed; the container, which outlives it, reaches the network
+through the hub (the next endpoint in its connect list) and declares its token again. The figure per
+trial is the time from the token's removal to its return, as the hub's liveliness subscriber sees
+them: what the agent's ``REROUTE_S`` must cover before it starts such a component again. Printed and
 written to ``bench/results/reroute.json``.
 """
 
@@ -42,7 +42,15 @@ def trial(session: Any, keys: KeySpace, port: int, domain: str, index: int) -> f
         keys.all_workers(), lambda s: events.append((str(s.kind), time.monotonic()))
     )
     flags = member_flags(port, domain)
-    command = [sys.executable, "-m", "services.host", "--name", "lab", "--pool-size", "1"]
+    command = [
+        sys.executable,
+        "-m",
+        "ubitrack_agent.services.host",
+        "--name",
+        "lab",
+        "--pool-size",
+        "1",
+    ]
     host = subprocess.Popen([*command, "--quiet", *flags], start_new_session=True)
 
     def granted(request: Request) -> bool:

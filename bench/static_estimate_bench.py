@@ -1,4 +1,4 @@
-"""Monte Carlo of the static estimator (:mod:`services.algorithms.static_estimate`).
+"""Monte Carlo of the static estimator (:mod:`ubitrack_agent.services.algorithms.static_estimate`).
 
 Run: ``python -m bench.static_estimate_bench [--trials N] [--long N]`` (defaults 500 trials,
 100 long runs). Prints one table and writes ``bench/results/static_estimate.json``:
@@ -32,8 +32,8 @@ from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from bench.synthetic import left_error, random_quaternion, rng_for
-from services.algorithms.estimate import PoseEstimate, perturb_left, rigid
-from services.algorithms.static_estimate import BATCHES, StaticEstimator, StaticState
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate, perturb_left, rigid
+from ubitrack_agent.services.algorithms.static_estimate import BATCHES, StaticEstimator, StaticState
 
 RESULTS = Path(__file__).parent / "results" / "static_estimate.json"
 

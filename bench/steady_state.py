@@ -7,9 +7,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from services.host import DEFAULT_POOL_SIZE
 from tests.integration.zenoh_helpers import wait_until
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.services.host import DEFAULT_POOL_SIZE
 
 
 def wait_for_warm_pool(

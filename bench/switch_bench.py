@@ -77,7 +77,6 @@ from bench.fusion_latency_bench import (
 )
 from bench.steady_state import wait_for_warm_pool
 from bench.synthetic import left_error
-from sim_trackers.scenario import load_scenario
 from ubitrack_agent.commands.demo import Processes, dtrack_flags, simulator_arguments
 from ubitrack_agent.core import decode
 from ubitrack_agent.core.errors import MeasurementError
@@ -86,6 +85,7 @@ from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 RESULTS = Path(__file__).parent / "results" / "switch.json"
 C_A = RelationId("C", "A", "6D")

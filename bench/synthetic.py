@@ -12,11 +12,16 @@ import zlib
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from services.algorithms.auxiliary import compose_projection
-from services.algorithms.dlt import homogeneous
-from services.algorithms.estimate import PoseEstimate, left_residuals, perturb_left, rigid
 from ubitrack_agent.core import quaternions, se3
 from ubitrack_agent.core.uncertainty import skew
+from ubitrack_agent.services.algorithms.auxiliary import compose_projection
+from ubitrack_agent.services.algorithms.dlt import homogeneous
+from ubitrack_agent.services.algorithms.estimate import (
+    PoseEstimate,
+    left_residuals,
+    perturb_left,
+    rigid,
+)
 
 SEED = 20240601
 CAMERA_MATRIX = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])

@@ -12,12 +12,13 @@ Everything is a real process on loopback with real zenoh (explicit endpoints, mu
 * this process is the hub (a peer listening on a free port, as the agent is) and the
   calibration database: it serves the static edges ``S<k>_<j>`` (a
   :class:`~ubitrack_agent.net.transport.LatestValuePublisher` each);
-* a host manager (``python -m services.host --cores N``) starts the components as the agent
+* a host manager (``python -m ubitrack_agent.services.host --cores N``) starts the components as the
+agent
   would: the chains grouped by ``agent.placement.group_containers`` (one container per core,
   a chain's components together) and sent in one ``start_group`` request per container;
 * chain ``k`` reads provider ``k``'s dynamic ErrorPose and composes it in turn with ``--hops``
-  static edges (one concatenation each, ``services.components.basic``), the last one also
-  published on the relation key of an application;
+  static edges (one concatenation each, ``ubitrack_agent.services.components.basic``), the last one
+  also published on the relation key of an application;
 * one provider process (``bench.throughput_bench provide``) runs the ``--chains`` providers
   (:class:`~ubitrack_agent.io.provider.Provider`), each publishing ErrorPoses stamped with
   the time they are made, together at the total rate of each step;
@@ -344,7 +345,7 @@ def start(net: Any, args: argparse.Namespace, groups: dict[str, Any], components
     peers = ("--workers-as-peers",) if args.peers else ()
     manager = net.spawn(
         "-m",
-        "services.host",
+        "ubitrack_agent.services.host",
         "--name",
         HOST,
         "--cores",

@@ -3,9 +3,11 @@
 Run: ``python -m bench.worker_start [--trials N]``. Everything on loopback with real zenoh;
 figures in ms are printed and written to ``bench/results/worker_start.json``.
 
-* **Cold:** from spawning ``python -m services.worker --spec ...`` to its liveliness token, as
+* **Cold:** from spawning ``python -m ubitrack_agent.services.worker --spec ...`` to its liveliness
+token, as
   seen by the bench: the interpreter, the imports (numpy, scipy, OpenCV), the zenoh session.
-* **Warm:** a host manager (``python -m services.host --pool-size 1``) with its pool member
+* **Warm:** a host manager (``python -m ubitrack_agent.services.host --pool-size 1``) with its pool
+member
   ready; from sending the start request to the worker's token. The instance is then stopped,
   its process returns to the pool, and the next trial waits until it is ready again.
 """
@@ -67,7 +69,7 @@ def cold(trials: int) -> list[float]:
         for trial in range(trials):
             spec = _relay(net, f"cold{trial}")
             spawned = time.perf_counter_ns()
-            process = net.spawn("-m", "services.worker", "--spec", spec.to_json())
+            process = net.spawn("-m", "ubitrack_agent.services.worker", "--spec", spec.to_json())
             times.append((tokens.wait(spec.instance) - spawned) / 1e6)
             process.terminate()
             process.wait()
@@ -79,7 +81,7 @@ def cold(trials: int) -> list[float]:
 def warm(trials: int) -> list[float]:
     net = Network()
     tokens = TokenClock(net)
-    net.spawn("-m", "services.host", "--name", HOST, "--pool-size", "1")
+    net.spawn("-m", "ubitrack_agent.services.host", "--name", HOST, "--pool-size", "1")
     request_key = net.keys.host_request(HOST)
 
     def ask(request: Any) -> dict[str, Any]:

@@ -1,25 +1,25 @@
 """A container: one worker process hosting any number of component instances.
 
-Start: ``python -m services.container --name NAME [--group '<json>'] [zenoh flags]`` (a
-:class:`~ubitrack_agent.net.spec.GroupSpec`). Where the worker (:mod:`services.worker`) runs
-one component per process, paying an interpreter, the imports of numpy, scipy and OpenCV and a
-zenoh session for each (issue 28: about 75 MB and a session linked to every other per
-component), a container runs many on one session, each a :class:`~services.worker.Worker` as
-before: its own control keys, status, counters and liveliness token, so the agent, ``ubitrack
-status`` and the web view see one component as they always did (its status names its
-``container``). What a worker process does on a thread per component, a container does on one
-(:mod:`services.scheduler`): the components' control commands, status queries, held triggers,
-static inputs' samples and fetches, so adding a component starts no thread of its own (its
-dynamic inputs read over zenoh have one each, ``net.transport.subscribe_in_bursts``, and its
-publishers theirs, ``net.transport.LatestValuePublisher``). The anchors are ROS 2's
-component containers (composable nodes loaded into a running process, ``ros2 component
-load``, with intra-process communication) and dora-rs's operators sharing a runtime process;
-the paper's service managers run the pattern instances of a host (Pustka et al. 2006, section
-5.2.1).
+Start: ``python -m ubitrack_agent.services.container --name NAME [--group '<json>'] [zenoh flags]``
+(a :class:`~ubitrack_agent.net.spec.GroupSpec`). Where the worker
+(:mod:`ubitrack_agent.services.worker`) runs one component per process, paying an interpreter, the
+imports of numpy, scipy and OpenCV and a zenoh session for each (issue 28: about 75 MB and a session
+linked to every other per component), a container runs many on one session, each a
+:class:`~ubitrack_agent.services.worker.Worker` as before: its own control keys, status, counters
+and liveliness token, so the agent, ``ubitrack status`` and the web view see one component as they
+always did (its status names its ``container``). What a worker process does on a thread per
+component, a container does on one (:mod:`ubitrack_agent.services.scheduler`): the components'
+control commands, status queries, held triggers, static inputs' samples and fetches, so adding a
+component starts no thread of its own (its dynamic inputs read over zenoh have one each,
+``net.transport.subscribe_in_bursts``, and its publishers theirs,
+``net.transport.LatestValuePublisher``). The anchors are ROS 2's component containers (composable
+nodes loaded into a running process, ``ros2 component load``, with intra-process communication) and
+dora-rs's operators sharing a runtime process; the paper's service managers run the pattern
+instances of a host (Pustka et al. 2006, section 5.2.1).
 
 **Wires inside.** A component reading another's output in the same container is handed the
-measurement object (:mod:`services.local_wires`): no encoding, no decoding, no zenoh. Zenoh
-carries an output only where something outside the process reads it: a subscriber in another
+measurement object (:mod:`ubitrack_agent.services.local_wires`): no encoding, no decoding, no zenoh.
+Zenoh carries an output only where something outside the process reads it: a subscriber in another
 process or host (the publisher's matching status), an application's relation key, a query
 for a value at a given time (answered by the producer's queryable, as before).
 
@@ -52,10 +52,10 @@ its own, is for such code. SIGTERM or SIGINT ends the container cleanly.
 The container's own status answers on ``<root>/status/<name>`` (no ``instance`` field: it is
 no component's). Once it takes commands it declares the liveliness token
 ``<root>/container/<name>/<incarnation>`` (``<pid>.<nonce>``): its host manager sends it
-commands only from then on. Started by a host manager (``parent``, :mod:`services.parent`), it
-exits while starting if the host manager is gone, and outlives it once its token is up (a
-restarted agent adopts its components), until its last component has left (then nobody would
-stop it).
+commands only from then on. Started by a host manager (``parent``,
+:mod:`ubitrack_agent.services.parent`), it exits while starting if the host manager is gone, and
+outlives it once its token is up (a restarted agent adopts its components), until its last component
+has left (then nobody would stop it).
 
 Growth: memory and zenoh declarations O(components + their inputs and outputs); threads O(1)
 for the container plus one per dynamic input read over zenoh and per output key (those of
@@ -79,11 +79,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from services.local_wires import LocalWires
-from services.parent import Parent
-from services.scheduler import Scheduler, on_zenoh_thread
-from services.spec import check_spec
-from services.worker import Worker
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON
@@ -98,6 +93,11 @@ from ubitrack_agent.net.spec import (
     parse_components,
     parse_group,
 )
+from ubitrack_agent.services.local_wires import LocalWires
+from ubitrack_agent.services.parent import Parent
+from ubitrack_agent.services.scheduler import Scheduler, on_zenoh_thread
+from ubitrack_agent.services.spec import check_spec
+from ubitrack_agent.services.worker import Worker
 
 log = logging.getLogger("ubitrack.container")
 
@@ -162,7 +162,8 @@ class Container:
         self._stop = threading.Event()
         self._parent = parent
         self.scheduler = Scheduler(self.name, self.counters)
-        """Gives every component its turns (``services.scheduler``): no thread per component."""
+        """Gives every component its turns (``ubitrack_agent.services.scheduler``): no thread per
+        component."""
         take = self._guarded(
             lambda sample: self._events.put(("control", sample.payload.to_bytes()))
         )
@@ -185,8 +186,8 @@ class Container:
 
     def check(self, specs: tuple[ComponentSpec, ...]) -> None:
         """:class:`SpecError` unless every one of ``specs`` may join the container: a
-        registered service wired as it declares (``services.spec.check_spec``), and no
-        instance name the container (or another of them) already has."""
+        registered service wired as it declares (``ubitrack_agent.services.spec.check_spec``), and
+        no instance name the container (or another of them) already has."""
         for index, spec in enumerate(specs):
             try:
                 check_spec(spec)
@@ -408,7 +409,7 @@ def _instances(raw: Any) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m services.container",
+        prog="python -m ubitrack_agent.services.container",
         description="Run many pattern instances in one process (a container), wired in the "
         "process where they read each other, over zenoh elsewhere.",
     )

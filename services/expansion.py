@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 
-from services.registry import Inputs, Service
 from ubitrack_agent.core import (
     ErrorPose,
     Measurement,
@@ -36,6 +35,7 @@ from ubitrack_agent.core import (
     to_json,
 )
 from ubitrack_agent.net.progress import Progress
+from ubitrack_agent.services.registry import Inputs, Service
 
 DEFAULT_MAX_SAMPLES = 200
 
@@ -116,8 +116,8 @@ class BatchProgress:
     its translation (or position) block, RMS rotation error of its rotation block. Converged
     when the correspondences reach the service's multiplicity, both errors are within the
     tolerances, and the result moved by less than them over the last ``window`` results (the
-    rule of :mod:`services.algorithms.static_estimate`, on results instead of samples).
-    Without a covariance it never converges: nothing says how good the result is.
+    rule of :mod:`ubitrack_agent.services.algorithms.static_estimate`, on results instead of
+    samples). Without a covariance it never converges: nothing says how good the result is.
     """
 
     def __init__(

@@ -1,26 +1,26 @@
 """The host manager process: starts, stops and supervises the pattern workers of one machine
 for the agent, which talks to it only over zenoh (``docs/protocol.md``, ``docs/services.md``).
 
-Run ``python -m services.host [--name NAME] [--pool-size N] [zenoh flags]``, or ``ubitrack host``;
-``ubitrack agent`` starts one for its own machine unless given ``--no-host``. One per machine,
-named after the machine by default; names must be unique in a domain.
+Run ``python -m ubitrack_agent.services.host [--name NAME] [--pool-size N] [zenoh flags]``, or
+``ubitrack host``; ``ubitrack agent`` starts one for its own machine unless given ``--no-host``. One
+per machine, named after the machine by default; names must be unique in a domain.
 
 A worker started cold is far slower to reach its liveliness token than one handed its
-specification from the warm pool (:mod:`services.supervisor`): it pays the interpreter, the
-imports of numpy, scipy and OpenCV and the zenoh session (``python -m bench.worker_start``
-measures both; figures in ``docs/performance.md``, "Worker start-up").
+specification from the warm pool (:mod:`ubitrack_agent.services.supervisor`): it pays the
+interpreter, the imports of numpy, scipy and OpenCV and the zenoh session (``python -m
+bench.worker_start`` measures both; figures in ``docs/performance.md``, "Worker start-up").
 
 The process ends on SIGTERM or SIGINT, terminating every worker it started. With
 ``--started-by-agent`` (how the agent starts it, with a pipe as standard input) it outlives
 that agent: once the pipe closes (the agent died, or stood by for another) it serves on, its
 containers, pool and worker links kept, for the agent's successor to adopt, and ends once it
 has run no component and seen no active agent for a while
-(:meth:`services.host_manager.HostManager.orphan`).
+(:meth:`ubitrack_agent.services.host_manager.HostManager.orphan`).
 
 Its worker processes (containers, pool members) join the network as zenoh **clients** of it,
 one link each, where peers would each link to every other process (``docs/services.md``,
 "Links"); ``--workers-as-peers`` makes them peers. Of two host managers of one name the one
-started first serves; the other waits until it is gone (:mod:`services.host_claim`).
+started first serves; the other waits until it is gone (:mod:`ubitrack_agent.services.host_claim`).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.status_line import periodic_status
 
 if TYPE_CHECKING:
-    from services.host_manager import HostManager
+    from ubitrack_agent.services.host_manager import HostManager
 
 DEFAULT_POOL_SIZE = 2
 """Idle pool members by default: every component runs in a container (one per core), so a
@@ -65,7 +65,7 @@ at a load of 29) adopts it with its warm pool; nothing waits for one that never 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The host manager's own options (shared by ``python -m services.host`` and
+    """The host manager's own options (shared by ``python -m ubitrack_agent.services.host`` and
     ``ubitrack host``)."""
     parser.add_argument(
         "--name",
@@ -136,7 +136,7 @@ def labels(text: str) -> frozenset[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m services.host",
+        prog="python -m ubitrack_agent.services.host",
         description="Start, stop and supervise this machine's pattern workers for the agent.",
     )
     add_arguments(parser)
@@ -185,9 +185,9 @@ def serve(
         print(f"host: --cores must be 1 to {MAX_CORES}", file=sys.stderr)
         return 2
     # Imported here: the registry and zenoh are heavy, and ``ubitrack --help`` reads this module.
-    from services.host_claim import HostClaim
     from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.session import open_session
+    from ubitrack_agent.services.host_claim import HostClaim
 
     keys = KeySpace(settings.key_prefix)
     flags = config.member_flags(settings)
@@ -199,7 +199,9 @@ def serve(
     with open_session(settings) as session:
         steps.append(("session", time.monotonic()))
         claim = HostClaim(session, keys, name)
-        from services.host_manager import HostManager  # heavy: the registry, every service
+        from ubitrack_agent.services.host_manager import (
+            HostManager,  # heavy: the registry, every service
+        )
 
         steps.append(("imports", time.monotonic()))
         claim.wait_until_first()

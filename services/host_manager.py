@@ -1,13 +1,15 @@
 """The host manager's zenoh side: its token, its request queryable and its exit reports.
 
-One host manager runs per machine (:mod:`services.host` starts it) and owns that machine's
-worker processes through a :class:`services.supervisor.Supervisor`. It declares
+One host manager runs per machine (:mod:`ubitrack_agent.services.host` starts it) and owns that
+machine's worker processes through a :class:`ubitrack_agent.services.supervisor.Supervisor`. It
+declares
 
 * the liveliness token ``<root>/host/<name>`` once it serves requests;
 * the queryable ``<root>/host/<name>/request``: start, start_group, stop and status requests
   (:mod:`ubitrack_agent.net.host_protocol`); a start's specification (each of a group's) is
   checked for form and against the registered service and its parameters
-  (``services.spec.check_spec``) before anything runs, so only registered services run;
+  (``ubitrack_agent.services.spec.check_spec``) before anything runs, so only registered services
+  run;
 * ``<root>/host/<name>/exited``: an :class:`~ubitrack_agent.net.host_protocol.Exited` for every
   instance that ended without being asked (its process exited, even before declaring its
   worker token, or a stop command from elsewhere released it), so the agent starts it again;
@@ -22,9 +24,9 @@ component's specification current with them, so a container that dies is restore
 what its components ran, not what they were started with (:func:`rewired`).
 
 While it runs it estimates its host's clock offset to the active agent's
-(:mod:`services.clock_sync`), shown in its status as ``clock``.
+(:mod:`ubitrack_agent.services.clock_sync`), shown in its status as ``clock``.
 
-One started by an agent (``services.host --started-by-agent``) outlives that agent
+One started by an agent (``ubitrack_agent.services.host --started-by-agent``) outlives that agent
 (:meth:`HostManager.orphan`): its containers, the pool and the route of its client worker
 processes (``docs/services.md``, "Links") stay, and the agent's successor adopts it rather
 than starting another. It watches the active agent's tokens (``<root>/agents/*/active``) and
@@ -51,12 +53,6 @@ from typing import Any
 
 import zenoh
 
-from services.clock_sync import ClockSync
-from services.host import ORPHAN_END_S
-from services.registry import lookup
-from services.spec import check_spec
-from services.supervisor import Supervisor
-from services.worker import CONTROL_FIELDS
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON
@@ -73,6 +69,12 @@ from ubitrack_agent.net.host_protocol import (
 from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import KeyRejection, KeySpace
 from ubitrack_agent.net.spec import MAX_SPEC_BYTES, ComponentSpec, SpecError, parse_spec
+from ubitrack_agent.services.clock_sync import ClockSync
+from ubitrack_agent.services.host import ORPHAN_END_S
+from ubitrack_agent.services.registry import lookup
+from ubitrack_agent.services.spec import check_spec
+from ubitrack_agent.services.supervisor import Supervisor
+from ubitrack_agent.services.worker import CONTROL_FIELDS
 
 log = logging.getLogger("ubitrack.host")
 
@@ -387,8 +389,8 @@ class HostManager:
 
 def rewired(spec: ComponentSpec, payload: bytes) -> ComponentSpec:
     """``spec`` as the control command ``payload`` leaves it: its inputs, relations and
-    parameters replaced by those the command names (``services.worker``'s in-place rewire; a
-    stop changes nothing), checked as a start's specification (``check_spec``).
+    parameters replaced by those the command names (``ubitrack_agent.services.worker``'s in-place
+    rewire; a stop changes nothing), checked as a start's specification (``check_spec``).
     :class:`MessageError` or :class:`SpecError` if the command is malformed or refused.
     O(size of the specification)."""
     command = load_object(payload, MAX_SPEC_BYTES)

@@ -1,7 +1,7 @@
 """The wires inside one container: outputs handed to readers in the same process as objects.
 
-A container (:mod:`services.container`) runs many components in one process. Where one of
-them reads another's output (a :class:`~ubitrack_agent.net.spec.LocalWire`: the reader's
+A container (:mod:`ubitrack_agent.services.container`) runs many components in one process. Where
+one of them reads another's output (a :class:`~ubitrack_agent.net.spec.LocalWire`: the reader's
 binding key is the producer's output key), the producer hands the measurement object to the
 reader, with no encoding, no decoding and no zenoh; the value is the one the producer
 computed, checked finite as the codec would check it on the way out (``core.codec.encode``).
@@ -186,8 +186,8 @@ class LocalWires:
 def deliver(queued: Handed) -> None:
     """Deliver what a producer queued (:meth:`LocalWires.hand_over`), in order, the consecutive
     values of one reader in one call (a run of a backlog stays a run downstream:
-    ``services.worker``); a reader's own hand-overs are delivered by the reader before it
-    returns. O(values queued x their readers)."""
+    ``ubitrack_agent.services.worker``); a reader's own hand-overs are delivered by the reader
+    before it returns. O(values queued x their readers)."""
     if len(queued) == 1 and len(queued[0][0]) == 1:  # one value, one reader: a hop of a chain
         readers, value = queued[0]
         readers[0].deliver([value])

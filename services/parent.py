@@ -1,6 +1,6 @@
 """A worker process's host manager, watched through the pipe it gives the process as standard
-input (``services.supervisor``): the pipe closes when the host manager ends, however it ends
-(SIGTERM, SIGKILL, or with the agent that started it).
+input (``ubitrack_agent.services.supervisor``): the pipe closes when the host manager ends, however
+it ends (SIGTERM, SIGKILL, or with the agent that started it).
 
 What the process does once its host manager is gone depends on where its run stands
 (``docs/protocol.md``, "When the host manager is gone"):

@@ -35,7 +35,7 @@ Inputs = Mapping[str, Measurement | list[Measurement]]
 class Pushed:
     """What an asynchronous service made of one input sample (:meth:`Service.push`): the
     outputs to publish at once, or none and the worker counter saying why (``gated``,
-    ``late``, ``dropped_stale``: ``services.worker.COUNTERS``)."""
+    ``late``, ``dropped_stale``: ``ubitrack_agent.services.worker.COUNTERS``)."""
 
     outputs: dict[str, Measurement] = field(default_factory=dict)
     reason: str = "no_output"
@@ -57,7 +57,8 @@ class Service(ABC):
     """Ports forming the correspondence set (section 3.3). Under space expansion each takes
     several bindings (in correspondence order) and ``compute`` gets aligned lists, with
     ``None`` where an input had no value at the trigger's time; under time expansion each takes
-    one binding and :mod:`services.expansion` builds the lists from accumulated samples."""
+    one binding and :mod:`ubitrack_agent.services.expansion` builds the lists from accumulated
+    samples."""
     MIN_CORRESPONDENCES: ClassVar[int] = 1
     """The lower bound of the correspondence's multiplicity (``3..*`` -> 3)."""
     INCREMENTAL: ClassVar[bool] = False
@@ -66,7 +67,8 @@ class Service(ABC):
     information-form estimator), instead of the whole accumulated history."""
     TIME_MIN_MOTION: ClassVar[float] = 0.0
     TIME_MIN_ROTATION_DEG: ClassVar[float] = 0.0
-    """Default distinctness thresholds under time expansion (:mod:`services.expansion`)."""
+    """Default distinctness thresholds under time expansion
+    (:mod:`ubitrack_agent.services.expansion`)."""
 
     def __init__(self, parameters: Mapping[str, Any]) -> None:
         unknown = sorted(set(parameters) - set(self.PARAMETERS))
@@ -86,10 +88,10 @@ class Service(ABC):
     ) -> list[dict[str, Measurement]]:
         """The outputs of several instants at once, equal to :meth:`compute`'s one by one to
         round-off: for a worker draining a backlog of its one dynamic input
-        (``services.worker``). A service whose maths vectorise overrides it
-        (:class:`~services.components.basic.Concatenation`); it must leave the service's
-        state as it was, since on an error the worker computes the instants one by one. Not
-        overridden, the worker calls :meth:`compute` for each instant."""
+        (``ubitrack_agent.services.worker``). A service whose maths vectorise overrides it
+        (:class:`~ubitrack_agent.services.components.basic.Concatenation`); it must leave the
+        service's state as it was, since on an error the worker computes the instants one by one.
+        Not overridden, the worker calls :meth:`compute` for each instant."""
         raise NotImplementedError(f"{self.NAME} computes one instant at a time")
 
     def asynchronous(self) -> bool:
@@ -146,9 +148,9 @@ def lookup(name: str) -> type[Service]:
 
 @functools.cache
 def load_components() -> None:
-    """Import every module of :mod:`services.components` (found by :func:`pkgutil.iter_modules`,
-    no list to keep); each registers its services on import."""
-    from services import components
+    """Import every module of :mod:`ubitrack_agent.services.components` (found by
+    :func:`pkgutil.iter_modules`, no list to keep); each registers its services on import."""
+    from ubitrack_agent.services import components
 
     for module in pkgutil.iter_modules(components.__path__, f"{components.__name__}."):
         importlib.import_module(module.name)

@@ -1,8 +1,8 @@
 """One thread serving the due work of every component of a container.
 
 A worker process running one component gives it a thread that waits for its control commands,
-status queries and held triggers (``services.worker``, ``Worker.step``). A container of a
-hundred components would run a hundred such threads, each started when its component is
+status queries and held triggers (``ubitrack_agent.services.worker``, ``Worker.step``). A container
+of a hundred components would run a hundred such threads, each started when its component is
 added, each woken on its own; on a loaded machine, creating a component with its threads took
 up to 2 s in a process of 80 (issue 28, ``docs/performance.md``, "Time from a query to its
 first sample"). A :class:`Scheduler` runs that work for all of them on one thread, as a ROS 2
@@ -12,7 +12,7 @@ the next one) and calls handed to it from other threads (:meth:`Scheduler.call`,
 :meth:`Scheduler.later`: a static input's sample, a value fetched, a retry). Samples of the
 dynamic inputs are not its work: each is handled on the thread that takes it
 (``net.transport.subscribe_in_bursts``), and handed on in the container on that thread
-(``services.local_wires``).
+(``ubitrack_agent.services.local_wires``).
 
 Failure containment: every call is total (an unexpected exception is counted in the
 container's ``internal_errors`` and logged; the next call runs). A call that never returns (a

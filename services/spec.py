@@ -13,8 +13,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from services.registry import Service, lookup
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError
+from ubitrack_agent.services.registry import Service, lookup
 
 
 def check_spec(spec: ComponentSpec) -> type[Service]:

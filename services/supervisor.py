@@ -1,11 +1,11 @@
 """The worker processes of one machine: a warm pool, the instances running, those stopping.
 
-The host manager (:mod:`services.host_manager`) owns one :class:`Supervisor` and calls it from
-its own thread only. Starting a worker cold costs an interpreter and the imports of numpy,
-scipy and OpenCV (``docs/performance.md``, "Worker start-up"), too slow for reconfiguration,
-so the supervisor keeps a **warm pool** of idle members (``python -m services.worker --pool-id ID``,
-:class:`services.worker.Pool`) that have imported everything and wait for a specification on
-``<root>/pool/<ID>``:
+The host manager (:mod:`ubitrack_agent.services.host_manager`) owns one :class:`Supervisor` and
+calls it from its own thread only. Starting a worker cold costs an interpreter and the imports of
+numpy, scipy and OpenCV (``docs/performance.md``, "Worker start-up"), too slow for reconfiguration,
+so the supervisor keeps a **warm pool** of idle members (``python -m ubitrack_agent.services.worker
+--pool-id ID``, :class:`ubitrack_agent.services.worker.Pool`) that have imported everything and wait
+for a specification on ``<root>/pool/<ID>``:
 
 * start: hand the specification to a ready member (its pool token is up); with none ready,
   start a fresh process with ``--spec`` (it joins the pool once released);
@@ -25,8 +25,8 @@ so the supervisor keeps a **warm pool** of idle members (``python -m services.wo
 * a pool token appearing for a process that runs an instance means a stop command from
   elsewhere released it: the instance ended (reported, like a process that exited).
 
-**Containers** (:mod:`services.container`): a group's components run in one process named by
-the group. A start of a group whose container does not run hands the group to a ready pool
+**Containers** (:mod:`ubitrack_agent.services.container`): a group's components run in one process
+named by the group. A start of a group whose container does not run hands the group to a ready pool
 member, which becomes the container (with none ready, a member still starting, else a fresh
 one spawned, is given the group once its pool token is up: a group is too large for a command
 line); one whose container
@@ -44,7 +44,7 @@ control command, which the host manager reads too) is restored as rewired (:meth
 Only the worker module runs, without a shell, the specification as one argument; every member
 reads a pipe from this process as its standard input, so idle members, and workers still
 starting (no worker token yet), exit with the host manager, while workers serving keep running
-(a restarted agent adopts them; :mod:`services.parent`).
+(a restarted agent adopts them; :mod:`ubitrack_agent.services.parent`).
 """
 
 from __future__ import annotations
@@ -60,6 +60,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from ubitrack_agent.core.interpreter import module_command
 from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
@@ -170,7 +171,11 @@ class Supervisor:
 
     def _spawn(self, pool_id: str, *arguments: str) -> subprocess.Popen:
         return subprocess.Popen(
-            [self._python, "-m", "services.worker", "--pool-id", pool_id, *arguments, *self._flags],
+            module_command(
+                "ubitrack_agent.services.worker",
+                *("--pool-id", pool_id, *arguments, *self._flags),
+                python=self._python,
+            ),
             stdin=subprocess.PIPE,  # closes when the host manager ends: idle members then exit
         )
 

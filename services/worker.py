@@ -1,10 +1,10 @@
 """The worker runtime: one OS process runs one pattern instance, wired over zenoh.
 
-Start: ``python -m services.worker --spec '<json>' [zenoh flags]`` (see :mod:`services.spec`).
-The worker opens its own zenoh session (explicit endpoints, multicast off: it opens in
-milliseconds), takes commands on ``<root>/control/<instance>`` and, for this process alone, on
-``<root>/control/<instance>/<incarnation>`` (subscribed first, before anything else is
-declared), subscribes to its input keys, publishes its outputs, answers its
+Start: ``python -m ubitrack_agent.services.worker --spec '<json>' [zenoh flags]`` (see
+:mod:`ubitrack_agent.services.spec`). The worker opens its own zenoh session (explicit endpoints,
+multicast off: it opens in milliseconds), takes commands on ``<root>/control/<instance>`` and, for
+this process alone, on ``<root>/control/<instance>/<incarnation>`` (subscribed first, before
+anything else is declared), subscribes to its input keys, publishes its outputs, answers its
 counters on ``<root>/status/<instance>`` and, last, declares the liveliness token
 ``<root>/worker/<instance>/<incarnation>`` (``<pid>.<nonce>``, new for every run):
 
@@ -23,9 +23,10 @@ A process a host manager started (``--pool-id``; its standard input a pipe from 
 manager) outlives the host manager only once its token is up: one still starting, from its
 spawn to its token (importing every service takes seconds on a loaded machine), exits as soon
 as the host manager is gone, which it watches from the start of :func:`main`, before any
-service is imported (:mod:`services.parent`); one serving keeps running, for a restarted agent
-to adopt. A pool member given a group (``net.spec.GroupSpec``) instead of one specification
-becomes that container (:mod:`services.container`) and exits when the container ends.
+service is imported (:mod:`ubitrack_agent.services.parent`); one serving keeps running, for a
+restarted agent to adopt. A pool member given a group (``net.spec.GroupSpec``) instead of one
+specification becomes that container (:mod:`ubitrack_agent.services.container`) and exits when the
+container ends.
 
 An input's ``clock_offset_ns`` (``net.spec``) is added to the timestamp of each of its samples
 as it is decoded, before anything else uses it: the agent sets it when the component's inputs
@@ -44,9 +45,10 @@ together). The worker's state has one lock, held by whichever thread handles: an
 query's for a value at a given time, or the worker thread, which answers status queries and
 applies control commands (from zenoh's callbacks, run on zenoh's thread, through a bounded
 inbox) and computes the triggers held for the other inputs when their time is up. In a
-container (:mod:`services.container`) the container's scheduler (:mod:`services.scheduler`)
-takes the worker thread's turns (:meth:`Worker.turn`) for every component, and its static
-inputs' samples and its fetches of current values: a component has no thread of its own.
+container (:mod:`ubitrack_agent.services.container`) the container's scheduler
+(:mod:`ubitrack_agent.services.scheduler`) takes the worker thread's turns (:meth:`Worker.turn`) for
+every component, and its static inputs' samples and its fetches of current values: a component has
+no thread of its own.
 
 Handling is total (issue 11): bad input (a sample the codec refuses, one stamped too far ahead
 of this host's clock, a control command or specification that is not a bounded JSON object of
@@ -77,13 +79,6 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from services.expansion import BatchProgress, TimeAccumulator
-from services.local_wires import Handed, LocalSubscription, LocalWires, deliver, finite
-from services.parent import Parent
-from services.registry import Pushed, Service, lookup
-from services.scheduler import Scheduler, on_zenoh_thread
-from services.spec import check_bindings, check_parameters, check_relations, check_spec
-from services.triggers import PendingTriggers, lagging, wait_for
 from ubitrack_agent.core import Measurement, MeasurementError, decode, encode
 from ubitrack_agent.core.codec import RUN_MIN, decode_run
 from ubitrack_agent.core.errors import (
@@ -118,6 +113,24 @@ from ubitrack_agent.net.transport import (
     fetch_until_satisfied,
     subscribe_in_bursts,
 )
+from ubitrack_agent.services.expansion import BatchProgress, TimeAccumulator
+from ubitrack_agent.services.local_wires import (
+    Handed,
+    LocalSubscription,
+    LocalWires,
+    deliver,
+    finite,
+)
+from ubitrack_agent.services.parent import Parent
+from ubitrack_agent.services.registry import Pushed, Service, lookup
+from ubitrack_agent.services.scheduler import Scheduler, on_zenoh_thread
+from ubitrack_agent.services.spec import (
+    check_bindings,
+    check_parameters,
+    check_relations,
+    check_spec,
+)
+from ubitrack_agent.services.triggers import PendingTriggers, lagging, wait_for
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -136,7 +149,7 @@ COUNTERS = {
     "at once under load: Worker._on_run)",
     "published": "outputs published",
     "handed_over": "of those, outputs handed as objects to components of the same container "
-    "(services.local_wires)",
+    "(ubitrack_agent.services.local_wires)",
     "not_sent": "of those, outputs handed over in the container that zenoh did not carry on "
     "their data key: no subscriber outside the process (a relation key is put for an "
     "application listening, as every key: net.transport.LatestValuePublisher)",
@@ -236,7 +249,7 @@ class Inbox:
         self._counters = counters
         self._notify = notify
         """Called after each item is put (a container's scheduler then gives the worker a
-        turn: ``services.scheduler``)."""
+        turn: ``ubitrack_agent.services.scheduler``)."""
 
     def put(self, item: tuple[Any, ...]) -> None:
         if self._items.qsize() >= self._capacity:
@@ -311,16 +324,16 @@ class Worker:
         created_ns = time.time_ns()
         self.spec = spec
         self.container = container
-        """The container this component runs in with others (``services.container``), if
-        any (shown in status)."""
+        """The container this component runs in with others (``ubitrack_agent.services.container``),
+        if any (shown in status)."""
         self._wires = wires
         """The container's local wires: inputs whose key another component of the container
         produces are handed its values as objects, and outputs read there are handed over
-        (``services.local_wires``); zenoh carries an output only where something outside the
-        process reads it."""
+        (``ubitrack_agent.services.local_wires``); zenoh carries an output only where something
+        outside the process reads it."""
         self._handed: Handed = []
         """Hand-overs to readers in the container queued under ``_lock``, taken before it is
-        released and delivered after (``services.local_wires``)."""
+        released and delivered after (``ubitrack_agent.services.local_wires``)."""
         self._outgoing: deque[tuple[tuple[LatestValuePublisher, ...], Measurement | bytes]]
         self._outgoing = deque()
         """The puts for readers outside the process, in the order the outputs were published
@@ -358,8 +371,8 @@ class Worker:
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
         self._scheduler = scheduler
         """The container's scheduler, which gives this component its turns (:meth:`turn`)
-        and runs its static inputs' samples and its fetches (``services.scheduler``); None for
-        a worker on a thread of its own (:meth:`run`)."""
+        and runs its static inputs' samples and its fetches (``ubitrack_agent.services.scheduler``);
+        None for a worker on a thread of its own (:meth:`run`)."""
         notify = None if scheduler is None else functools.partial(scheduler.wake, self, self.turn)
         self._inbox = Inbox(INBOX_CAPACITY, self._counts, notify)
         self._lock = threading.Lock()
@@ -559,8 +572,8 @@ class Worker:
         asked_at: float,
     ) -> None:
         """:meth:`_fetch_current` in a container, on its scheduler's thread
-        (``services.scheduler``): looked at again every ``STATIC_POLL_S`` until the static
-        inputs have their values (at most ``CURRENT_TIMEOUT_S``), and the producers' answers
+        (``ubitrack_agent.services.scheduler``): looked at again every ``STATIC_POLL_S`` until the
+        static inputs have their values (at most ``CURRENT_TIMEOUT_S``), and the producers' answers
         handled as they come, nothing waited for on the thread."""
         if self._stop.is_set() or generation != self._generation:
             return
@@ -626,8 +639,8 @@ class Worker:
 
     def _subscribe(self, generation: int, index: int, binding: InputBinding) -> Any:
         """Input ``index``'s subscription: to the container's local wire if a component there
-        produces its key (``services.local_wires``), else to zenoh: a dynamic input's on a
-        thread of its own (``net.transport.subscribe_in_bursts``), a static one's in a
+        produces its key (``ubitrack_agent.services.local_wires``), else to zenoh: a dynamic input's
+        on a thread of its own (``net.transport.subscribe_in_bursts``), a static one's in a
         container on its scheduler's thread (a sample now and then: no thread for it)."""
         key = binding.key
         if self._local(key):
@@ -781,8 +794,9 @@ class Worker:
         self._take(item, decoded)
 
     def _on_value(self, generation: int, index: int, value: Measurement) -> None:
-        """A value handed over by another component of the container (``services.local_wires``):
-        handled as a sample (:meth:`_on_sample`), with nothing to decode."""
+        """A value handed over by another component of the container
+        (``ubitrack_agent.services.local_wires``): handled as a sample (:meth:`_on_sample`), with
+        nothing to decode."""
         self._received += 1
         if generation != self._generation:
             self._counts["superseded"] += 1  # from a wire a rewire replaced
@@ -884,8 +898,8 @@ class Worker:
 
     def _on_value_run(self, generation: int, index: int, values: list[Measurement]) -> None:
         """Values handed over together by another component of the container (a run it
-        computed, ``services.local_wires``), handled as :meth:`_on_value` would, computed
-        together where the service vectorises (:meth:`_run`)."""
+        computed, ``ubitrack_agent.services.local_wires``), handled as :meth:`_on_value` would,
+        computed together where the service vectorises (:meth:`_run`)."""
         self._received += len(values)
         self._counts["in_runs"] += len(values)
         item = self._inputs[index]
@@ -928,10 +942,11 @@ class Worker:
             self._compute(inputs, t)
 
     def _wait_s(self, trigger: _Input, timestamp_ns: int) -> float:
-        """How long a trigger may wait for the other live dynamic inputs (services.triggers):
-        briefly for the missing samples of its own instant only once enough of them are in to
-        compute (the correspondences a space expansion needs, else all), so a frame whose
-        samples trickle in on a loaded machine is not computed from too few."""
+        """How long a trigger may wait for the other live dynamic inputs
+        (ubitrack_agent.services.triggers): briefly for the missing samples of its own instant only
+        once enough of them are in to compute (the correspondences a space expansion needs, else
+        all), so a frame whose samples trickle in on a loaded machine is not computed from too
+        few."""
         dynamic = self._dynamic
         if len(dynamic) < 2:
             return 0.0  # the trigger is the one dynamic input: nothing to wait for
@@ -942,7 +957,9 @@ class Worker:
             self._service.min_correspondences() if self.spec.expansion == "space" else len(dynamic)
         )
         same_instant = trigger.buffer if present >= needed else None
-        every = self.spec.expansion != "space"  # each input needed (services.triggers)
+        every = (
+            self.spec.expansion != "space"
+        )  # each input needed (ubitrack_agent.services.triggers)
         return wait_for(others, timestamp_ns, self.spec.tolerance_ns, cap_ns, same_instant, every)
 
     def _caught_up(self, timestamp_ns: int) -> bool:
@@ -956,8 +973,9 @@ class Worker:
     def _evaluate(
         self, t: int, trigger: _Input | None = None, sample: Measurement | None = None
     ) -> None:
-        """Evaluate every input at ``t`` and compute (see :mod:`services.triggers`); the value
-        of the ``trigger`` input, if given, is its ``sample`` stamped ``t`` (just added)."""
+        """Evaluate every input at ``t`` and compute (see :mod:`ubitrack_agent.services.triggers`);
+        the value of the ``trigger`` input, if given, is its ``sample`` stamped ``t`` (just
+        added)."""
         values = self._values_at(t, trigger, sample)
         if values is None:
             return
@@ -1021,9 +1039,9 @@ class Worker:
 
     def _publish(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         """Hand each output to its readers in the container (delivered once this worker's lock
-        is free: ``services.local_wires``) and queue its puts for readers outside the process,
-        put after the hand-over (:meth:`_put_outside`), so the container's flow does not wait
-        for zenoh; under ``_lock``. A value handed over is checked finite here and encoded when
+        is free: ``ubitrack_agent.services.local_wires``) and queue its puts for readers outside the
+        process, put after the hand-over (:meth:`_put_outside`), so the container's flow does not
+        wait for zenoh; under ``_lock``. A value handed over is checked finite here and encoded when
         put; one only zenoh carries is encoded here, where a result's numbers are checked.
         O(outputs x routes)."""
         wires = self._wires
@@ -1057,9 +1075,9 @@ class Worker:
 
     def _put_outside(self) -> None:
         """Put what :meth:`_publish` queued, oldest first; called after the hand-over in the
-        container (``services.local_wires``), with ``_lock`` free or held (never taken here).
-        One thread at a time puts (``_put_lock``), each taking whatever is queued then, so the
-        samples of one key leave in the order they were published even where two threads
+        container (``ubitrack_agent.services.local_wires``), with ``_lock`` free or held (never
+        taken here). One thread at a time puts (``_put_lock``), each taking whatever is queued then,
+        so the samples of one key leave in the order they were published even where two threads
         publish it. O(puts queued)."""
         if self._outgoing:
             with self._put_lock:
@@ -1263,8 +1281,8 @@ class Worker:
 
     def _deliver_values(self, generation: int, index: int, values: list[Measurement]) -> None:
         """Handle values handed over on input ``index`` of binding ``generation`` by another
-        component of the container (``services.local_wires``), on that component's thread,
-        as :meth:`_deliver` handles samples."""
+        component of the container (``ubitrack_agent.services.local_wires``), on that component's
+        thread, as :meth:`_deliver` handles samples."""
         self._handle(self._on_value, self._on_value_run, generation, index, values)
 
     def _handle(
@@ -1279,8 +1297,8 @@ class Worker:
         ``_lock``: at least :data:`RUN_MIN` as one run where it may (:meth:`_takes_runs`),
         else one by one, each followed by the triggers due; then wake the worker thread if a
         trigger is held that is due before it would wake, and, the lock released, hand the
-        outputs to the container's readers (``services.local_wires``) and put those for
-        readers outside. Total: an unexpected exception is counted (``internal_errors``) and
+        outputs to the container's readers (``ubitrack_agent.services.local_wires``) and put those
+        for readers outside. Total: an unexpected exception is counted (``internal_errors``) and
         logged, and the next item handled. Every :data:`TIME_EVERY`-th call is timed
         (``handling_us``). Nothing after :meth:`stop`. O(items + outputs)."""
         with self._lock:
@@ -1357,8 +1375,8 @@ class Worker:
         self._turn(self._inbox.take(timeout))
 
     def turn(self) -> float | None:
-        """A turn given by the container's scheduler (``services.scheduler``), woken by an
-        item in the inbox or its deadline: do what is due (:meth:`_turn`) without waiting;
+        """A turn given by the container's scheduler (``ubitrack_agent.services.scheduler``), woken
+        by an item in the inbox or its deadline: do what is due (:meth:`_turn`) without waiting;
         when the next turn is due (a trigger held, the next summary), None once stopped."""
         self._turn(self._inbox.take_waiting())
         with self._lock:
@@ -1428,7 +1446,7 @@ class Worker:
 
     def close(self) -> None:
         """Stop, and undeclare everything; a container's component ends here (it has no
-        thread of its own: ``services.container``)."""
+        thread of its own: ``ubitrack_agent.services.container``)."""
         self._stop.set()
         with self._lock:  # no thread is handling a sample or a turn; none will after this
             pass
@@ -1450,7 +1468,7 @@ class Worker:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m services.worker",
+        prog="python -m ubitrack_agent.services.worker",
         description="Run one pattern instance from a component specification (JSON).",
     )
     source = parser.add_mutually_exclusive_group()
@@ -1473,16 +1491,16 @@ class Pool:
     """Pool membership of a worker process: idles fully imported until a specification comes
     on ``<root>/pool/<id>``, runs it, and, when the agent releases it (a stop command),
     returns to the pool instead of exiting, so the process's imports are paid once. Given a
-    group instead, the process runs it as a container (:mod:`services.container`).
+    group instead, the process runs it as a container (:mod:`ubitrack_agent.services.container`).
 
-    The process lives on after its host manager (``parent``, :mod:`services.parent`) only while
-    it serves: idle, it leaves the pool when its host manager is gone, and it exits at once if
-    that happens while it starts (an assigned worker keeps running: a restarted agent adopts
+    The process lives on after its host manager (``parent``, :mod:`ubitrack_agent.services.parent`)
+    only while it serves: idle, it leaves the pool when its host manager is gone, and it exits at
+    once if that happens while it starts (an assigned worker keeps running: a restarted agent adopts
     it). SIGTERM or SIGINT ends it. A specification that is not a bounded JSON object
     (``net.json_messages``), is malformed, or names no registered service wired as it
-    declares (``services.spec.check_spec``) is rejected, logged rate-limited and counted in
-    :attr:`counters` (``rejected_specs``; shown in the status of the instances it runs); the
-    member keeps waiting.
+    declares (``ubitrack_agent.services.spec.check_spec``) is rejected, logged rate-limited and
+    counted in :attr:`counters` (``rejected_specs``; shown in the status of the instances it runs);
+    the member keeps waiting.
     """
 
     def __init__(self, session: Any, keys: KeySpace, pool_id: str, parent: Parent) -> None:
@@ -1579,8 +1597,9 @@ def main(argv: list[str] | None = None) -> int:
                 if spec is None:
                     return 0
             if isinstance(spec, GroupSpec):  # the member becomes a container; it ends with it
-                # Imported here, not at the top: services.container builds on this module.
-                from services.container import run_container
+                # Imported here, not at the top: ubitrack_agent.services.container builds on this
+                # module.
+                from ubitrack_agent.services.container import run_container
 
                 run_container(session, keys, spec, Clock.of(settings), parent)
                 return 0

@@ -18,10 +18,10 @@ The provider publishes each value once; its data keys keep answering queries wit
 
 from __future__ import annotations
 
-from sim_trackers.scenario import DatabaseEdge
-from sim_trackers.world import World
 from ubitrack_agent.core import CameraIntrinsics, Measurement, Pose, Position3D, Projection
 from ubitrack_agent.io.static_edges import StaticEdge, static_announcement
+from ubitrack_agent.sim_trackers.scenario import DatabaseEdge
+from ubitrack_agent.sim_trackers.world import World
 
 
 def _value(world: World, edge: DatabaseEdge, timestamp_ns: int) -> Measurement:

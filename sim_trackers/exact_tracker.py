@@ -6,7 +6,8 @@ told apart by it. The truth is a function of real time; samples are stamped on t
 clock (``--clock-offset-ms``: a tracker whose host's clock is off), so ``true_wt_ht`` of a
 sample's timestamp is the truth only once the timestamp is corrected to real time.
 
-Run: ``python -m sim_trackers.exact_tracker --provider art --tracker ART --yaw 30 ...``.
+Run: ``python -m ubitrack_agent.sim_trackers.exact_tracker --provider art --tracker ART --yaw 30
+...``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.trajectories import LissajousPath
 from ubitrack_agent.core import ErrorPose, se3
 from ubitrack_agent.io.provider import EdgeAnnouncement, Provider
 from ubitrack_agent.net import config
@@ -25,6 +25,7 @@ from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.lifecycle import stop_on_signals
 from ubitrack_agent.net.session import open_session
+from ubitrack_agent.sim_trackers.trajectories import LissajousPath
 
 PATH = LissajousPath(centre=(0.0, 0.0, 1.6), amplitude=(1.0, 0.5), frequency=(0.05, 0.1))
 """At most 0.45 m/s: a sample held for the 5 ms synchronisation tolerance is off by 2.2 mm."""
@@ -40,7 +41,7 @@ def true_wt_ht(timestamp_ns: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(prog="python -m sim_trackers.exact_tracker")
+    parser = argparse.ArgumentParser(prog="python -m ubitrack_agent.sim_trackers.exact_tracker")
     parser.add_argument("--provider", required=True, help="provider id")
     parser.add_argument("--tracker", required=True, help="tracker frame name")
     parser.add_argument("--yaw", type=float, default=0.0, help="tracker yaw about z, degrees")

@@ -6,11 +6,11 @@ augmented reality system", IEEE TVCG 1(3), 1995; Ubitrack's ``TipCalibration``).
 :class:`PivotMotion` is the ground truth, a pure function of time: the pose of the pointer's
 marker M in the tracker T while the tip, at a known offset in M, stays on the pivot. Run as a
 process it is a tracker that announces ``T -> M`` (6D, dynamic) and publishes ``ErrorPose``
-samples with noise about the marker's origin (:mod:`sim_trackers.noise`) and the covariance of
-that noise; the tip and the pivot are never published, so a test can check a calibration
-against them.
+samples with noise about the marker's origin (:mod:`ubitrack_agent.sim_trackers.noise`) and the
+covariance of that noise; the tip and the pivot are never published, so a test can check a
+calibration against them.
 
-Run: ``python -m sim_trackers.pivot --provider pointer --tracker T --marker M
+Run: ``python -m ubitrack_agent.sim_trackers.pivot --provider pointer --tracker T --marker M
 [--sigma-mm 0.2] [--sigma-deg 0.1] [--rate 60]`` plus the zenoh flags of ``ubitrack config``.
 """
 
@@ -22,14 +22,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.noise import perturb_in_place
-from sim_trackers.runtime import provider_session, run_periodic
 from ubitrack_agent.core import ErrorPose
 from ubitrack_agent.core.uncertainty import in_place_covariance, isotropic_pose_covariance
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.net import config
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.lifecycle import stop_on_signals
+from ubitrack_agent.sim_trackers.noise import perturb_in_place
+from ubitrack_agent.sim_trackers.runtime import provider_session, run_periodic
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 """Ratio of the tilt plane's turn to the tilt's period: irrational, so the motion never
@@ -70,7 +70,7 @@ class PivotMotion:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(prog="python -m sim_trackers.pivot")
+    parser = argparse.ArgumentParser(prog="python -m ubitrack_agent.sim_trackers.pivot")
     parser.add_argument("--provider", required=True, help="provider id")
     parser.add_argument("--tracker", default="T", help="tracker frame name")
     parser.add_argument("--marker", default="M", help="the pointer's marker frame name")

@@ -20,12 +20,19 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.trajectories import LissajousPath
-from sim_trackers.world import FixedPlacement, Frame, ImagePlane, Placement, World, WorldError
 from ubitrack_agent.core import MeasurementError
 from ubitrack_agent.core.measurements import normalise_typed_quaternion
 from ubitrack_agent.io.static_edges import VALUE_TYPES
 from ubitrack_agent.net.keys import validate_key_chunks
+from ubitrack_agent.sim_trackers.trajectories import LissajousPath
+from ubitrack_agent.sim_trackers.world import (
+    FixedPlacement,
+    Frame,
+    ImagePlane,
+    Placement,
+    World,
+    WorldError,
+)
 
 DEFAULT_SCENARIO = Path(__file__).with_name("scenarios") / "paper_figure1.yaml"
 

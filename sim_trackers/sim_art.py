@@ -2,9 +2,9 @@
 
 Each frame it measures the poses of the scenario's ``art.bodies`` in the tracker frame, adds
 noise (rotation about each body's origin and position noise, as an outside-in tracker's errors
-behave: :func:`sim_trackers.noise.perturb_in_place`), drops each body with probability
-``art.dropout`` (an untracked body is omitted from the ``6d`` line, as DTrack does, while
-``6dcal`` still counts it) and sends ``fr``/``ts``/``6dcal``/``6d``/``3d`` lines
+behave: :func:`ubitrack_agent.sim_trackers.noise.perturb_in_place`), drops each body with
+probability ``art.dropout`` (an untracked body is omitted from the ``6d`` line, as DTrack does,
+while ``6dcal`` still counts it) and sends ``fr``/``ts``/``6dcal``/``6d``/``3d`` lines
 (:mod:`ubitrack_agent.io.dtrack.format`). ``ts`` is the sample time in seconds since 00:00 UTC
 with microseconds, so sample times are whole microseconds: the DTrack adapter maps ``ts`` back
 to exactly the nanosecond timestamp the ground truth was evaluated at, on the controller's
@@ -22,10 +22,6 @@ from collections import Counter
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.noise import perturb_in_place
-from sim_trackers.runtime import run_periodic
-from sim_trackers.scenario import ArtSettings
-from sim_trackers.world import World
 from ubitrack_agent.core.uncertainty import isotropic_pose_covariance
 from ubitrack_agent.io.adapter import TimestampPolicy
 from ubitrack_agent.io.dtrack.adapter import DTrackAdapter
@@ -37,6 +33,10 @@ from ubitrack_agent.io.dtrack.format import (
     seconds_of_day,
 )
 from ubitrack_agent.net.clock import Clock
+from ubitrack_agent.sim_trackers.noise import perturb_in_place
+from ubitrack_agent.sim_trackers.runtime import run_periodic
+from ubitrack_agent.sim_trackers.scenario import ArtSettings
+from ubitrack_agent.sim_trackers.world import World
 
 log = logging.getLogger("ubitrack.sim.art")
 

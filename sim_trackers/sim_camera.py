@@ -1,12 +1,13 @@
 """Simulated camera: image positions of the marker points it sees, with pixel noise.
 
 Each frame the camera takes its pose from the world, projects the scenario's ``camera.features``
-through OpenCV's camera model of its image plane (:meth:`sim_trackers.world.ImagePlane.project`:
-field of view and points behind the camera), hides each visible feature with probability
-``camera.occlusion``, loses the whole frame with probability ``camera.dropout``, and adds
-Gaussian pixel noise ``camera.noise_px`` per axis. Each remaining feature ``F`` is one
-:class:`~ubitrack_agent.core.Position2D` on the 2D edge ``<image plane> -> F`` (the paper's
-``IP -> F1..F5``), all with the frame's timestamp and the covariance ``noise_px^2 I``.
+through OpenCV's camera model of its image plane
+(:meth:`ubitrack_agent.sim_trackers.world.ImagePlane.project`: field of view and points behind the
+camera), hides each visible feature with probability ``camera.occlusion``, loses the whole frame
+with probability ``camera.dropout``, and adds Gaussian pixel noise ``camera.noise_px`` per axis.
+Each remaining feature ``F`` is one :class:`~ubitrack_agent.core.Position2D` on the 2D edge ``<image
+plane> -> F`` (the paper's ``IP -> F1..F5``), all with the frame's timestamp and the covariance
+``noise_px^2 I``.
 
 The world moves on real time; a frame shows it at the real time it is taken and is stamped on
 the simulated host's clock (:class:`~ubitrack_agent.net.clock.Clock`: ``--clock-offset-ms``
@@ -17,11 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim_trackers.scenario import CameraSettings
-from sim_trackers.world import World
 from ubitrack_agent.core import Position2D
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.net.clock import Clock
+from ubitrack_agent.sim_trackers.scenario import CameraSettings
+from ubitrack_agent.sim_trackers.world import World
 
 METRIC_SAMPLES = 20
 """Instants (one every 3 s) at which :func:`metric_sigma` measures the features' depth."""

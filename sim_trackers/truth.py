@@ -25,11 +25,11 @@ import threading
 import time
 from typing import Any
 
-from sim_trackers.world import World
 from ubitrack_agent.core import Measurement, Pose, Position2D, Projection, encode
 from ubitrack_agent.core.measurements import MAX_TIMESTAMP_NS
 from ubitrack_agent.net.encodings import MSGPACK
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.sim_trackers.world import World
 
 log = logging.getLogger("ubitrack.sim.world")
 

@@ -3,9 +3,9 @@
 Conventions, common to every function here:
 
 * A **pose** is the pose of B in A, mapping ``x_B`` to ``x_A = R x_B + t``, returned as a
-  :class:`~services.algorithms.estimate.PoseEstimate` ``(rotation, translation, covariance)``:
-  a unit quaternion (x, y, z, w), a translation (the unit of the input points, normally
-  metres) and an optional 6x6 covariance over the left perturbation ``T = Exp(xi) T_mean``,
+  :class:`~ubitrack_agent.services.algorithms.estimate.PoseEstimate` ``(rotation, translation,
+  covariance)``: a unit quaternion (x, y, z, w), a translation (the unit of the input points,
+  normally metres) and an optional 6x6 covariance over the left perturbation ``T = Exp(xi) T_mean``,
   ``xi = (phi, rho)``, rotation first (the core's convention,
   :mod:`ubitrack_agent.core.measurements`). ``PoseEstimate.to_measurement(timestamp_ns)``
   gives the core ``Pose``/``ErrorPose``.
@@ -25,23 +25,32 @@ algorithm besides the Kalman filter), :mod:`.tangent` (left-perturbation log/exp
 positions, rotations), :mod:`.auxiliary`.
 """
 
-from services.algorithms.absolute_orientation import absolute_orientation
-from services.algorithms.auxiliary import compose_projection, decompose_projection, split_pose
-from services.algorithms.averaging import average_poses, average_positions
-from services.algorithms.dlt import projection_dlt
-from services.algorithms.estimate import PoseEstimate
-from services.algorithms.fusion import fuse_poses
-from services.algorithms.hand_eye import (
+from ubitrack_agent.services.algorithms.absolute_orientation import absolute_orientation
+from ubitrack_agent.services.algorithms.auxiliary import (
+    compose_projection,
+    decompose_projection,
+    split_pose,
+)
+from ubitrack_agent.services.algorithms.averaging import average_poses, average_positions
+from ubitrack_agent.services.algorithms.dlt import projection_dlt
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.fusion import fuse_poses
+from ubitrack_agent.services.algorithms.hand_eye import (
     HandEyeSolution,
     hand_eye_calibration,
     hand_eye_daniilidis,
     hand_eye_park_martin,
 )
-from services.algorithms.pnp import solve_pnp, solve_pnp_ransac
-from services.algorithms.pose_filter import FilterSettings, PoseKalmanFilter
-from services.algorithms.static_estimate import Motion, StaticEstimator, StaticState, Status
-from services.algorithms.tip_calibration import TipSolution, tip_calibration
-from services.algorithms.triangulation import Triangulation, triangulate_points
+from ubitrack_agent.services.algorithms.pnp import solve_pnp, solve_pnp_ransac
+from ubitrack_agent.services.algorithms.pose_filter import FilterSettings, PoseKalmanFilter
+from ubitrack_agent.services.algorithms.static_estimate import (
+    Motion,
+    StaticEstimator,
+    StaticState,
+    Status,
+)
+from ubitrack_agent.services.algorithms.tip_calibration import TipSolution, tip_calibration
+from ubitrack_agent.services.algorithms.triangulation import Triangulation, triangulate_points
 
 __all__ = [
     "FilterSettings",

@@ -23,8 +23,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from services.algorithms._checks import as_array, as_points, positive, require_spread, same_count
-from services.algorithms.estimate import PoseEstimate, point_jacobian, symmetric
+from ubitrack_agent.services.algorithms._checks import (
+    as_array,
+    as_points,
+    positive,
+    require_spread,
+    same_count,
+)
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate, point_jacobian, symmetric
 
 
 def absolute_orientation(

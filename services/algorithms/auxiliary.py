@@ -16,8 +16,13 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from services.algorithms._checks import as_array, as_camera_matrix, as_covariances, as_quaternions
-from services.algorithms.estimate import (
+from ubitrack_agent.services.algorithms._checks import (
+    as_array,
+    as_camera_matrix,
+    as_covariances,
+    as_quaternions,
+)
+from ubitrack_agent.services.algorithms.estimate import (
     PoseEstimate,
     from_rotation_matrix,
     point_jacobian,

@@ -15,8 +15,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from services.algorithms._checks import as_points, as_quaternions, same_count
-from services.algorithms.estimate import PoseEstimate, left_residuals, rigid, symmetric
+from ubitrack_agent.services.algorithms._checks import as_points, as_quaternions, same_count
+from ubitrack_agent.services.algorithms.estimate import (
+    PoseEstimate,
+    left_residuals,
+    rigid,
+    symmetric,
+)
 
 
 def _covariance_of_mean(samples: np.ndarray) -> np.ndarray | None:

@@ -19,9 +19,9 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from services.algorithms._checks import as_points, require_spread, same_count
-from services.algorithms.auxiliary import compose_projection, decompose_projection
-from services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms._checks import as_points, require_spread, same_count
+from ubitrack_agent.services.algorithms.auxiliary import compose_projection, decompose_projection
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
 
 
 def normalising_transform(points: np.ndarray) -> np.ndarray:

@@ -8,21 +8,26 @@ vanishes (Gauss-Newton on SE(3)). The fused covariance is ``(sum W_i)^-1``. Left
 all live in frame A, so the covariances need no transport to first order. Reference:
 Barfoot & Furgale, "Associating uncertainty with three-dimensional poses for use in
 estimation problems", IEEE T-RO 30(3), 2014, section IV (pose fusion). The maps are the
-hand-written float closed forms of :mod:`services.algorithms.tangent` (a few microseconds per
-pose, where scipy's ``RigidTransform`` costs 150 us a call on one pose); two estimates of one
-edge converge in two or three steps.
+hand-written float closed forms of :mod:`ubitrack_agent.services.algorithms.tangent` (a few
+microseconds per pose, where scipy's ``RigidTransform`` costs 150 us a call on one pose); two
+estimates of one edge converge in two or three steps.
 
-For trackers that measure at different times, :mod:`services.algorithms.pose_filter` fuses
-each measurement as it arrives instead.
+For trackers that measure at different times, :mod:`ubitrack_agent.services.algorithms.pose_filter`
+fuses each measurement as it arrives instead.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from services.algorithms._checks import as_covariances, as_points, as_quaternions, same_count
-from services.algorithms.estimate import PoseEstimate, symmetric
-from services.algorithms.tangent import PoseSpace
+from ubitrack_agent.services.algorithms._checks import (
+    as_covariances,
+    as_points,
+    as_quaternions,
+    same_count,
+)
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate, symmetric
+from ubitrack_agent.services.algorithms.tangent import PoseSpace
 
 _POSES = PoseSpace()
 _CONVERGED = 1e-13

@@ -40,10 +40,15 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.spatial.transform import RigidTransform, Rotation
 
-from services.algorithms._checks import as_covariances, as_points, as_quaternions, same_count
-from services.algorithms.estimate import PoseEstimate, rigid, symmetric, to_estimate
 from ubitrack_agent.core import quaternions, se3
 from ubitrack_agent.core.uncertainty import adjoint, skew
+from ubitrack_agent.services.algorithms._checks import (
+    as_covariances,
+    as_points,
+    as_quaternions,
+    same_count,
+)
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate, rigid, symmetric, to_estimate
 
 _PARALLEL_AXES = 1e-6
 _MAX_ITERATIONS = 50

@@ -52,7 +52,8 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from services.algorithms._checks import (
+from ubitrack_agent.core.uncertainty import skew
+from ubitrack_agent.services.algorithms._checks import (
     as_camera_matrix,
     as_distortion,
     as_points,
@@ -61,8 +62,11 @@ from services.algorithms._checks import (
     require_spread,
     same_count,
 )
-from services.algorithms.estimate import PoseEstimate, from_rotation_matrix, symmetric
-from ubitrack_agent.core.uncertainty import skew
+from ubitrack_agent.services.algorithms.estimate import (
+    PoseEstimate,
+    from_rotation_matrix,
+    symmetric,
+)
 
 PnpMethod = Literal["auto", "sqpnp", "ippe", "ippe_square", "epnp", "iterative"]
 

@@ -45,14 +45,14 @@ from typing import Literal, NamedTuple
 import numpy as np
 from scipy.linalg.lapack import dposv
 
-from services.algorithms._checks import as_array, as_quaternions, positive
-from services.algorithms.estimate import PoseEstimate, symmetric
-from services.algorithms.tangent import RotationSpace
 from ubitrack_agent.core import quaternions
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.measurements import check_timestamp
 from ubitrack_agent.core.timeline import MAX_AHEAD_NS
 from ubitrack_agent.core.uncertainty import skew
+from ubitrack_agent.services.algorithms._checks import as_array, as_quaternions, positive
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate, symmetric
+from ubitrack_agent.services.algorithms.tangent import RotationSpace
 
 GATE_9999 = 27.856
 """Chi-square quantile of 6 degrees of freedom at 99.99 %: the default innovation gate."""

@@ -12,9 +12,9 @@ R_mean``); either every sample has a covariance or none has.
 Estimate. The weighted mean on the manifold, ``T`` with ``sum_i W_i Log(T_i T^-1) = 0``,
 ``W_i = Sigma_i^-1`` (Barfoot & Furgale, "Associating uncertainty with three-dimensional poses
 for use in estimation problems", IEEE T-RO 30(3), 2014; the batch form is
-:func:`services.algorithms.fuse_poses`); for rotations the geodesic counterpart of the chordal
-quaternion mean of Markley et al. (2007), with which it agrees to second order in the spread.
-Without covariances ``W_i = I``: the plain mean in the tangent space. Information form over
+:func:`ubitrack_agent.services.algorithms.fuse_poses`); for rotations the geodesic counterpart of
+the chordal quaternion mean of Markley et al. (2007), with which it agrees to second order in the
+spread. Without covariances ``W_i = I``: the plain mean in the tangent space. Information form over
 every accepted sample since the start: at a linearisation point ``T_lin`` the sums ``n``,
 ``Lambda = sum W_i``, ``eta = sum W_i xi_i``, ``c = sum xi_i^T W_i xi_i``, ``s = sum xi_i``,
 ``S = sum xi_i xi_i^T`` and, for poses and rotations, ``M = sum W_i (x) xi_i`` (d^3 numbers),
@@ -133,9 +133,6 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import stats
 
-from services.algorithms._checks import as_array, positive
-from services.algorithms.estimate import symmetric
-from services.algorithms.tangent import SPACES, Vector
 from ubitrack_agent.core.measurements import (
     UNIT_QUATERNION_TOLERANCE,
     ErrorPose,
@@ -143,6 +140,9 @@ from ubitrack_agent.core.measurements import (
     Position3D,
     Rotation3D,
 )
+from ubitrack_agent.services.algorithms._checks import as_array, positive
+from ubitrack_agent.services.algorithms.estimate import symmetric
+from ubitrack_agent.services.algorithms.tangent import SPACES, Vector
 
 RELINEARISE = 0.5
 """Move the linearisation point when the estimate is this many standard deviations from it."""

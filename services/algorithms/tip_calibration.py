@@ -38,8 +38,13 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from services.algorithms._checks import as_covariances, as_points, as_quaternions, same_count
-from services.algorithms.estimate import point_jacobian, symmetric
+from ubitrack_agent.services.algorithms._checks import (
+    as_covariances,
+    as_points,
+    as_quaternions,
+    same_count,
+)
+from ubitrack_agent.services.algorithms.estimate import point_jacobian, symmetric
 
 _MAX_ITERATIONS = 50
 _CONVERGED = 1e-12

@@ -27,8 +27,8 @@ import numpy as np
 import scipy.sparse
 from scipy.optimize import least_squares
 
-from services.algorithms._checks import as_array, positive
-from services.algorithms.estimate import symmetric
+from ubitrack_agent.services.algorithms._checks import as_array, positive
+from ubitrack_agent.services.algorithms.estimate import symmetric
 
 _PARALLEL_RAYS = 1e-10
 

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from services.algorithms import split_pose
-from services.registry import Inputs, Port, Service, register
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D
+from ubitrack_agent.services.algorithms import split_pose
+from ubitrack_agent.services.registry import Inputs, Port, Service, register
 
 
 @register

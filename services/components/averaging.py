@@ -2,11 +2,11 @@
 
 The time expansion of a static edge (paper sections 3.3 and 4.2: "direct computation" of a
 calibration, a per-frame estimate composed of measured edges, integrated over time). Each
-sample enters :class:`services.algorithms.StaticEstimator` as it arrives: every accepted sample
-since the flow started counts (information form), outliers such as PnP flips are gated out,
-the covariance is checked against the samples' spread, and the estimate reports its progress
-(``ubitrack_agent.net.progress``): converged by the estimator's rule, or not static when the
-samples move more than their noise explains, in which case nothing is published.
+sample enters :class:`ubitrack_agent.services.algorithms.StaticEstimator` as it arrives: every
+accepted sample since the flow started counts (information form), outliers such as PnP flips are
+gated out, the covariance is checked against the samples' spread, and the estimate reports its
+progress (``ubitrack_agent.net.progress``): converged by the estimator's rule, or not static when
+the samples move more than their noise explains, in which case nothing is published.
 
 The estimator counts samples; errors are correlated over time. Its motion check compares the
 mean of a window of recent samples with the earlier ones, so the window is set to
@@ -23,11 +23,14 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from services.algorithms import StaticEstimator, StaticState, Status
-from services.algorithms.static_estimate import DEFAULT_INIT_SAMPLES, DEFAULT_MOTION_WINDOW
-from services.registry import Inputs, Port, Service, register
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D, to_json
 from ubitrack_agent.net.progress import Progress
+from ubitrack_agent.services.algorithms import StaticEstimator, StaticState, Status
+from ubitrack_agent.services.algorithms.static_estimate import (
+    DEFAULT_INIT_SAMPLES,
+    DEFAULT_MOTION_WINDOW,
+)
+from ubitrack_agent.services.registry import Inputs, Port, Service, register
 
 MOTION_WINDOW_S = 1.0
 """The motion check's window, seconds (never fewer samples than the estimator's default)."""
@@ -61,8 +64,8 @@ def static_estimator(
 class Averaging(Service):
     """The static estimate of edge A->B from its dynamic samples (time expansion): a robust,
     information-form mean with an honest covariance, a convergence rule and a motion check
-    (:mod:`services.algorithms.static_estimate`). Parameters: the tolerances at which the
-    estimate counts as converged (``translation_tolerance`` in metres,
+    (:mod:`ubitrack_agent.services.algorithms.static_estimate`). Parameters: the tolerances at which
+    the estimate counts as converged (``translation_tolerance`` in metres,
     ``rotation_tolerance_deg``) and the least number of accepted samples (``min_samples``)."""
 
     NAME = "averaging"

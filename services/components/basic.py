@@ -6,7 +6,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from services.registry import Inputs, Port, Service, register
 from ubitrack_agent.core import (
     MEASUREMENT_TYPES,
     ErrorPose,
@@ -25,6 +24,7 @@ from ubitrack_agent.core.poses import (
     invert_pose,
     transform_position,
 )
+from ubitrack_agent.services.registry import Inputs, Port, Service, register
 
 POSES = (Pose, ErrorPose)
 

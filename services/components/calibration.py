@@ -3,17 +3,23 @@
 A tracker T follows the marker M of a pointer whose tip rests on a fixed pivot while the user
 turns the pointer about it (Tuceryan et al., "Calibration requirements and procedures for a
 monitor-based augmented reality system", IEEE TVCG 1(3), 1995). Time expansion of the single
-input ``TM`` collects the marker's poses; :func:`services.algorithms.tip_calibration` gives the
-tip in the marker and the pivot in the tracker with their covariances.
+input ``TM`` collects the marker's poses; :func:`ubitrack_agent.services.algorithms.tip_calibration`
+gives the tip in the marker and the pivot in the tracker with their covariances.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from services.algorithms import tip_calibration
-from services.registry import Inputs, Port, Service, complete_correspondences, register
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D
+from ubitrack_agent.services.algorithms import tip_calibration
+from ubitrack_agent.services.registry import (
+    Inputs,
+    Port,
+    Service,
+    complete_correspondences,
+    register,
+)
 
 
 @register
@@ -38,7 +44,8 @@ class TipCalibration(Service):
     TIME_MIN_ROTATION_DEG = 2.0
     """A new sample is kept once the pointer has turned 2 degrees since the last kept one: far
     above tracker noise (about 0.1 degrees), and at a pivoting speed of 30 degrees per second
-    about 15 samples per second, so the 200 kept (``services.expansion``) span about 13 s."""
+    about 15 samples per second, so the 200 kept (``ubitrack_agent.services.expansion``) span about
+    13 s."""
     PARAMETERS = {"min_samples": 30, "min_spread_deg": 2.0}
 
     def min_correspondences(self) -> int:

@@ -2,25 +2,14 @@
 estimation, projective calibration, triangulation and hand-eye calibration.
 
 Each takes aligned correspondence lists (space expansion: one binding per copy; time
-expansion: samples accumulated by :mod:`services.expansion`) and uses only the rows where every
-correspondence edge has a value.
+expansion: samples accumulated by :mod:`ubitrack_agent.services.expansion`) and uses only the rows
+where every correspondence edge has a value.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from services.algorithms import (
-    absolute_orientation,
-    decompose_projection,
-    hand_eye_calibration,
-    projection_dlt,
-    solve_pnp,
-    solve_pnp_ransac,
-    triangulate_points,
-)
-from services.algorithms.estimate import PoseEstimate
-from services.registry import Inputs, Port, Service, complete_correspondences, register
 from ubitrack_agent.core import (
     ErrorPose,
     Measurement,
@@ -32,6 +21,23 @@ from ubitrack_agent.core import (
 )
 from ubitrack_agent.core.errors import TooFewCorrespondences
 from ubitrack_agent.core.uncertainty import compose_covariance
+from ubitrack_agent.services.algorithms import (
+    absolute_orientation,
+    decompose_projection,
+    hand_eye_calibration,
+    projection_dlt,
+    solve_pnp,
+    solve_pnp_ransac,
+    triangulate_points,
+)
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.registry import (
+    Inputs,
+    Port,
+    Service,
+    complete_correspondences,
+    register,
+)
 
 POSES = (Pose, ErrorPose)
 
@@ -74,7 +80,7 @@ class PoseEstimation2D3D(Service):
     chooses by geometry; or an OpenCV method name), ``ransac`` for outlier-robust estimation,
     ``pixel_sigma`` for the covariance (if 0: the image points' own covariances when each
     carries one, as a camera announces them, else estimated from the residuals, which from a few
-    points is often far too small: :mod:`services.algorithms.pnp`).
+    points is often far too small: :mod:`ubitrack_agent.services.algorithms.pnp`).
     """
 
     NAME = "pose_estimation_2d3d"
@@ -159,9 +165,9 @@ class HandEyeCalibration(Service):
     """``AX = XB`` from simultaneous poses of a hand H in R and of an object O in the eye C:
     the eye in the hand (``HC``) and the object in R (``RO``), each with its covariance.
 
-    :func:`services.algorithms.hand_eye_calibration`: Park & Martin's closed form over all
-    motion pairs, then a joint Gauss-Newton refinement of both poses over the absolute poses
-    (Dornaika & Horaud 1998), so ``RO``'s covariance includes the uncertainty of ``HC``. The
+    :func:`ubitrack_agent.services.algorithms.hand_eye_calibration`: Park & Martin's closed form
+    over all motion pairs, then a joint Gauss-Newton refinement of both poses over the absolute
+    poses (Dornaika & Horaud 1998), so ``RO``'s covariance includes the uncertainty of ``HC``. The
     samples' covariances weight it when every ``RH`` and ``CO`` sample carries one
     (``ErrorPose``); otherwise the noise is estimated from the residuals. Time expansion;
     motions must rotate about two or more axes.

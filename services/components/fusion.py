@@ -7,9 +7,16 @@ from typing import Any
 
 import numpy as np
 
-from services.algorithms import PoseKalmanFilter, fuse_poses
-from services.registry import Inputs, Port, Pushed, Service, complete_correspondences, register
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, Position3D, Rotation3D
+from ubitrack_agent.services.algorithms import PoseKalmanFilter, fuse_poses
+from ubitrack_agent.services.registry import (
+    Inputs,
+    Port,
+    Pushed,
+    Service,
+    complete_correspondences,
+    register,
+)
 
 POLICIES = ("asynchronous", "synchronised")
 
@@ -25,17 +32,17 @@ class Fusion(Service):
     * ``asynchronous`` (the default, 6D only): every estimate updates an error-state Kalman
       filter with a constant-velocity model as it arrives, and the filter's pose and
       covariance at the estimate's time are published at once
-      (:class:`services.algorithms.PoseKalmanFilter`, after Ubitrack's ``PoseKalmanFilter``
-      and Welch & Bishop's SCAAT): no estimate waits for another tracker. Estimates arriving
-      out of order within ``window_ms`` are re-filtered from the kept history (counted
-      ``late``: their effect is in the next output), outliers are refused by the innovation
+      (:class:`ubitrack_agent.services.algorithms.PoseKalmanFilter`, after Ubitrack's
+      ``PoseKalmanFilter`` and Welch & Bishop's SCAAT): no estimate waits for another tracker.
+      Estimates arriving out of order within ``window_ms`` are re-filtered from the kept history
+      (counted ``late``: their effect is in the next output), outliers are refused by the innovation
       gate ``gate`` (``gated``), the process noise is ``angular_noise`` (rad^2/s^3) and
       ``linear_noise`` (m^2/s^3). Its output also answers a query at a given time by the
       filter's prediction (:meth:`value_at`).
     * ``synchronised``: the worker synchronises the estimates at each trigger's time
-      (``services.triggers``) and they are fused as simultaneous: 6D on SE(3)
-      (:func:`services.algorithms.fuse_poses`), 3D positions by inverse-covariance weighting,
-      3R rotations on SO(3) by the same iteration (as poses without translation). Those
+      (``ubitrack_agent.services.triggers``) and they are fused as simultaneous: 6D on SE(3)
+      (:func:`ubitrack_agent.services.algorithms.fuse_poses`), 3D positions by inverse-covariance
+      weighting, 3R rotations on SO(3) by the same iteration (as poses without translation). Those
       available at the trigger's time are fused, so the output goes on while one tracker has
       lost the target. 3D and 3R estimates need this policy.
 

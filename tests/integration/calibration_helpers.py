@@ -1,10 +1,10 @@
 """Live calibration setups for integration tests: the agent, simulated trackers, a calibration
 store and ``ubitrack calibrate``, each a real process on a test's own loopback port and domain.
 
-Two noise-free trackers (``sim_trackers.exact_tracker --hide-world``) see the same moving head
-target HT but announce nothing about where they stand, so ``ART -> T2`` is a static relation
-only dynamic measurements reveal: ``ART->HT (T2->HT)^-1`` averaged over time. The truth used
-to check a result comes from the simulator (:func:`true_art_t2`), never from the system.
+Two noise-free trackers (``ubitrack_agent.sim_trackers.exact_tracker --hide-world``) see the same
+moving head target HT but announce nothing about where they stand, so ``ART -> T2`` is a static
+relation only dynamic measurements reveal: ``ART->HT (T2->HT)^-1`` averaged over time. The truth
+used to check a result comes from the simulator (:func:`true_art_t2`), never from the system.
 """
 
 from __future__ import annotations
@@ -17,13 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sim_trackers.exact_tracker import tracker_pose
 from tests.integration.zenoh_helpers import free_port, member_flags, wait_until
 from ubitrack_agent.core import quaternions, se3
 from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.sim_trackers.exact_tracker import tracker_pose
 
 ART, T2 = ("ART", 30.0, 2.0), ("T2", -40.0, -1.0)
 """Tracker frames with their simulated placement (yaw in degrees, x in metres)."""
@@ -78,7 +78,9 @@ class LiveCalibration:
         """A noise-free tracker ``placement = (frame, yaw, x)`` (``exact_tracker``)."""
         frame, yaw, x = placement
         tracker = ["--provider", provider, "--tracker", frame, "--yaw", str(yaw), "--x", str(x)]
-        self.start("-m", "sim_trackers.exact_tracker", *tracker, *extra, *self.member)
+        self.start(
+            "-m", "ubitrack_agent.sim_trackers.exact_tracker", *tracker, *extra, *self.member
+        )
 
     def hidden_trackers(self) -> None:
         """ART and T2, announcing only their view of HT."""

@@ -3,8 +3,9 @@
 ``bench/recovery_bench.py``).
 
 The system: an agent with its host manager (warm pool of ``pool_size``), two noise-free
-trackers (``sim_trackers.exact_tracker``, :data:`TRACKERS`) and the applications a caller opens.
-The faults (:class:`Chaos`), each drawing what it needs from a seeded ``random.Random``:
+trackers (``ubitrack_agent.sim_trackers.exact_tracker``, :data:`TRACKERS`) and the applications a
+caller opens. The faults (:class:`Chaos`), each drawing what it needs from a seeded
+``random.Random``:
 
 * a tracker killed (SIGKILL or SIGTERM) and started again after 0-1.5 s;
 * a worker killed (SIGKILL or SIGTERM; the agent starts it again);
@@ -33,12 +34,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 from tests.integration.test_agent import Setup
 from ubitrack_agent.core import se3
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import RelationId
+from ubitrack_agent.sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 
 POOL_SIZE = 3
 WT_HT = RelationId("WT", "HT", "6D")
@@ -180,7 +181,7 @@ def worker_processes(domain: str) -> set[int]:
     return {
         int(line.split()[0])
         for line in lines.splitlines()
-        if "services.worker" in line and domain in line
+        if "ubitrack_agent.services.worker" in line and domain in line
     }
 
 

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 import zenoh
 
-from sim_trackers.exact_tracker import true_wt_ht
 from tests.integration.zenoh_helpers import Collector, free_port, wait_until
 from ubitrack_agent.commands import certs
 from ubitrack_agent.core import ErrorPose, MeasurementError, se3
@@ -31,6 +30,7 @@ from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.sim_trackers.exact_tracker import true_wt_ht
 
 pytestmark = [
     pytest.mark.integration,
@@ -157,8 +157,8 @@ def test_only_authorised_certificates_write_and_the_application_stays_correct(se
     keys = secure.keys
     with open_session(secure.settings("operator")) as observer:
         wait_until(lambda: _status(observer, keys) is not None, timeout=30)
-        secure.start("-m", "sim_trackers.exact_tracker", "--provider", "ART", "--tracker",
-                     "ART", "--yaw", "30", "--x", "2", name="ART")  # fmt: skip
+        secure.start("-m", "ubitrack_agent.sim_trackers.exact_tracker", "--provider", "ART",
+                     "--tracker", "ART", "--yaw", "30", "--x", "2", name="ART")  # fmt: skip
         with (
             open_session(secure.settings("application")) as app_session,
             Relation(app_session, keys, WT_HT, application="app") as relation,

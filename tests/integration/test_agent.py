@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from sim_trackers.exact_tracker import true_wt_ht
 from tests.integration.conftest import kill_tagged
 from tests.integration.zenoh_helpers import free_port, member_flags, wait_until
 from ubitrack_agent.core import se3
@@ -25,6 +24,7 @@ from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.sim_trackers.exact_tracker import true_wt_ht
 
 pytestmark = pytest.mark.integration
 
@@ -73,7 +73,7 @@ class Setup:
     def tracker(self, provider: str, tracker: str, yaw: float, x: float) -> subprocess.Popen:
         return self.start(
             "-m",
-            "sim_trackers.exact_tracker",
+            "ubitrack_agent.sim_trackers.exact_tracker",
             "--provider",
             provider,
             "--tracker",
@@ -120,7 +120,7 @@ def assert_true_pose(sample) -> None:
     """Trackers publish exact poses, but fusing two unsynchronised trackers evaluates one of
     them at the other's instants: interpolated (errors far below 1 mm), or, when its next
     sample is late, its nearest sample within the 5 ms tolerance (up to 2.2 mm on this path,
-    ``sim_trackers.exact_tracker.PATH``). Hence 3 mm."""
+    ``ubitrack_agent.sim_trackers.exact_tracker.PATH``). Hence 3 mm."""
     q, t = true_wt_ht(sample.timestamp_ns)
     np.testing.assert_allclose(
         se3.to_matrix(sample.rotation, sample.translation), se3.to_matrix(q, t), atol=3e-3

@@ -13,7 +13,6 @@ import time
 import numpy as np
 import pytest
 
-from sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 from tests.integration.test_host import Network, network
 from tests.integration.test_worker import query_status, start_worker
 from tests.integration.zenoh_helpers import (
@@ -27,6 +26,7 @@ from ubitrack_agent.core import ErrorPose, decode, se3
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 
 pytestmark = pytest.mark.integration
 
@@ -46,7 +46,9 @@ def clock_of(net: Network, host: str) -> dict | None:
 def test_a_host_manager_300_ms_ahead_measures_its_offset_to_the_agent(net: Network):
     agent_host, offset_host = f"agent{net.port}", f"ahead{net.port}"
     net.agent("--pool-size", "0", "--host-name", agent_host)  # the hub: first
-    net.host(offset_host, 0, "-m", "services.host", "--clock-offset-ms", str(AHEAD_MS))
+    net.host(
+        offset_host, 0, "-m", "ubitrack_agent.services.host", "--clock-offset-ms", str(AHEAD_MS)
+    )
     ahead = wait_until(lambda: clock_of(net, offset_host), timeout=30)
     assert abs(ahead["offset_ns"] + AHEAD_MS * MS) <= ahead["uncertainty_ns"]
     assert ahead["rtt_ns"] >= 0 and ahead["samples"] >= 1 and ahead["age_s"] >= 0
@@ -62,7 +64,7 @@ def _tracker(processes, port: int, domain: str, provider: str, *extra: str) -> N
         subprocess.Popen(
             [
                 sys.executable,
-                *("-m", "sim_trackers.exact_tracker", "--provider", provider),
+                *("-m", "ubitrack_agent.sim_trackers.exact_tracker", "--provider", provider),
                 *("--tracker", "ART", "--yaw", "30", "--x", "2", "--hide-world"),
                 *extra,
                 *member_flags(port, domain),
@@ -129,15 +131,22 @@ def test_the_agent_aligns_the_clocks_of_a_fusion_across_hosts(net: Network):
     from the estimate, and the fused relation matches the truth."""
     agent_host, ahead_host = f"agent{net.port}", f"ahead{net.port}"
     net.agent("--pool-size", "1", "--host-name", agent_host)
-    net.host(ahead_host, 1, "-m", "services.host", "--clock-offset-ms", str(AHEAD_MS))
+    net.host(
+        ahead_host, 1, "-m", "ubitrack_agent.services.host", "--clock-offset-ms", str(AHEAD_MS)
+    )
     wait_until(lambda: clock_of(net, ahead_host), timeout=30)
     tracker = ("--tracker", "ART", "--yaw", "30", "--x", "2", "--hide-world")
     net.start(
-        "-m", "sim_trackers.exact_tracker", "--provider", "onTime", *tracker, host_name=agent_host
+        "-m",
+        "ubitrack_agent.sim_trackers.exact_tracker",
+        "--provider",
+        "onTime",
+        *tracker,
+        host_name=agent_host,
     )
     net.start(
         "-m",
-        "sim_trackers.exact_tracker",
+        "ubitrack_agent.sim_trackers.exact_tracker",
         "--provider",
         "ahead",
         *tracker,

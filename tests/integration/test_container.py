@@ -1,6 +1,6 @@
-"""A real container process (``services.container``) with real zenoh sessions: two components
-wired in the process, one reading a provider over zenoh, the application's relation on zenoh;
-a component added and removed in the running process; malformed input to one component leaves
+"""A real container process (``ubitrack_agent.services.container``) with real zenoh sessions: two
+components wired in the process, one reading a provider over zenoh, the application's relation on
+zenoh; a component added and removed in the running process; malformed input to one component leaves
 the other running; SIGTERM ends it cleanly."""
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def test_a_container_wires_in_the_process_adds_removes_and_contains_bad_input(pr
             [
                 sys.executable,
                 "-m",
-                "services.container",
+                "ubitrack_agent.services.container",
                 "--group",
                 group.to_json(),
                 *member_flags(port, domain),

@@ -11,12 +11,12 @@ import time
 import numpy as np
 import pytest
 
-from sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 from tests.integration.test_agent import WT_HT, assert_true_pose, fresh_samples, setup  # noqa: F401
 from tests.integration.zenoh_helpers import wait_until
 from ubitrack_agent.core import ErrorPose, se3
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.io.provider import STALE_MIN_S, EdgeAnnouncement, Provider
+from ubitrack_agent.sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 
 pytestmark = pytest.mark.integration
 
@@ -26,8 +26,8 @@ REWIRE_S = STALE_MIN_S + 4.0
 
 
 class PausableTracker:
-    """An exact tracker (as ``sim_trackers.exact_tracker``) in this process, through the
-    ``Provider`` API: ``T->WT`` static and ``T->HT`` at 100 Hz; :meth:`pause` stops publishing
+    """An exact tracker (as ``ubitrack_agent.sim_trackers.exact_tracker``) in this process, through
+    the ``Provider`` API: ``T->WT`` static and ``T->HT`` at 100 Hz; :meth:`pause` stops publishing
     ``T->HT`` while the provider and its token stay."""
 
     def __init__(self, session, keys, provider: str, tracker: str, yaw: float, x: float) -> None:

@@ -4,8 +4,10 @@ application, all real processes on loopback zenoh, through the three phases of t
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -15,9 +17,31 @@ from tests.integration.zenoh_helpers import free_port, hub_session
 pytestmark = pytest.mark.integration
 
 
-def test_demo_runs_three_phases_with_sensible_errors(processes):
+DECOYS = ("services", "sim_trackers", "templates")
+"""Top-level names the repository's folders have: a user's packages of these names must not
+replace the project's modules (issue [newcomer])."""
+
+
+def decoy_folder(where: Path) -> Path:
+    """A folder holding packages named as the repository's folders, each of which, imported,
+    leaves a mark (a file named after it) and fails."""
+    for name in DECOYS:
+        (where / name).mkdir(parents=True)
+        mark = where / f"{name}.imported"
+        (where / name / "__init__.py").write_text(
+            f"open({str(mark)!r}, 'w').close()\nraise ImportError('the decoy {name}')\n"
+        )
+    return where
+
+
+def test_demo_runs_three_phases_with_sensible_errors(processes, tmp_path):
+    """Run from a folder holding decoy packages, which is also on PYTHONPATH: every process
+    of the system (agent, host manager, workers, simulators, application) still runs the
+    project's own modules."""
     port = free_port()
     domain = f"demo{port}"
+    decoys = decoy_folder(tmp_path / "work")
+    path = os.pathsep.join(filter(None, (str(decoys), os.environ.get("PYTHONPATH"))))
     demo = subprocess.Popen(
         [
             sys.executable,
@@ -36,10 +60,13 @@ def test_demo_runs_three_phases_with_sensible_errors(processes):
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        cwd=decoys,
+        env={**os.environ, "PYTHONPATH": path},
     )
     processes.append(demo)
     out, err = demo.communicate(timeout=180)
     assert demo.returncode == 0, err[-3000:]
+    assert sorted(p.name for p in decoys.glob("*.imported")) == []
     lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
     (calibration,) = [line for line in lines if line["event"] == "calibration"]
     # The default database lacks C->HT: it is calibrated live before tracking on it.

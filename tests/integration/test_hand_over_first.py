@@ -1,10 +1,10 @@
 """A component of a container hands its output to the readers in its process first and puts it
-on zenoh for the readers outside after (``services.worker``, ``Worker._publish``): the flow in
-the container does not wait for zenoh. Where two threads publish one output (the asynchronous
-fusion's two inputs, each on its own thread), its samples leave in the order they were
+on zenoh for the readers outside after (``ubitrack_agent.services.worker``, ``Worker._publish``):
+the flow in the container does not wait for zenoh. Where two threads publish one output (the
+asynchronous fusion's two inputs, each on its own thread), its samples leave in the order they were
 published, never an older one after a newer one. Real zenoh sessions on loopback (a hub and
 the container's session), real threads; the reader in the container is a local wire's
-(``services.local_wires``)."""
+(``ubitrack_agent.services.local_wires``)."""
 
 from __future__ import annotations
 
@@ -14,14 +14,14 @@ import time
 import numpy as np
 import pytest
 
-from services.local_wires import LocalWires
-from services.worker import Worker
 from tests.integration.zenoh_helpers import Collector, free_port, hub_session, wait_until
 from ubitrack_agent.core import ErrorPose, decode, encode
 from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
+from ubitrack_agent.services.local_wires import LocalWires
+from ubitrack_agent.services.worker import Worker
 
 pytestmark = pytest.mark.integration
 

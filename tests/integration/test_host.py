@@ -74,10 +74,10 @@ class Network:
         as_the_agent_starts_it: bool = False,
         options: tuple[str, ...] = (),
     ) -> subprocess.Popen:
-        """A host manager (``python -m services.host``, or ``via`` another entry point) with
-        ``options``; ``as the agent starts it``: reading a pipe from the test (it closes when
-        the agent dies)."""
-        entry = via or ("-m", "services.host")
+        """A host manager (``python -m ubitrack_agent.services.host``, or ``via`` another entry
+        point) with ``options``; ``as the agent starts it``: reading a pipe from the test (it closes
+        when the agent dies)."""
+        entry = via or ("-m", "ubitrack_agent.services.host")
         options = (*options, "--started-by-agent") if as_the_agent_starts_it else options
         process = self.start(
             *entry,
@@ -142,7 +142,9 @@ class Network:
     def tracker(self, host_name: str | None = None) -> subprocess.Popen:
         """A noise-free tracker ART announcing ART->WT and ART->HT, on host ``host_name``."""
         tracker = ("--provider", "art", "--tracker", "ART", "--yaw", "30", "--x", "2")
-        return self.start("-m", "sim_trackers.exact_tracker", *tracker, host_name=host_name)
+        return self.start(
+            "-m", "ubitrack_agent.sim_trackers.exact_tracker", *tracker, host_name=host_name
+        )
 
     def agent_status(self) -> dict | None:
         replies = fetch_latest(self.session, self.keys.agent_status(), timeout=0.5)
@@ -424,7 +426,7 @@ def test_a_host_manager_outlives_the_agent_that_started_it(hub):
     assert ok, reply  # a successor agent's start
     wait_until(lambda: (PUT, "r2") in [(k, i) for k, i, _ in tokens], timeout=30)
 
-    second = hub.start("-m", "services.host", "--name", "lab", "--pool-size", "0")
+    second = hub.start("-m", "ubitrack_agent.services.host", "--name", "lab", "--pool-size", "0")
     time.sleep(3.0)  # its imports, then it would serve
     assert second.poll() is None
     assert {hub.status("lab")["pid"]} == {pid}  # one host manager answers: the first
@@ -618,7 +620,7 @@ def test_the_agent_starts_its_host_manager_again_and_a_clean_stop_ends_every_wor
 
 def workers(domain: str) -> list[str]:
     """Host managers and workers of the test's domain still running."""
-    return [pid for pid in tagged(domain) if "-m services." in command_line(pid)]
+    return [pid for pid in tagged(domain) if "-m ubitrack_agent.services." in command_line(pid)]
 
 
 def command_line(pid: str) -> str:

@@ -52,12 +52,12 @@ import numpy as np
 import pytest
 import yaml
 
-from sim_trackers.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 from tests.integration.netns import Network
 from tests.integration.zenoh_probe import Probe
 from ubitrack_agent.commands.demo import dtrack_flags
 from ubitrack_agent.core import quaternions
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.sim_trackers.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 
 pytestmark = pytest.mark.integration
 

@@ -85,7 +85,7 @@ def test_components_run_beside_their_data_move_with_their_host_and_come_back(net
 def test_a_query_may_require_labels_of_the_host_running_its_last_hop(net):
     net.agent("--no-host")
     net.host("room", 2)
-    net.host("screen", 2, "-m", "services.host", "--labels", "display,gpu")
+    net.host("screen", 2, "-m", "ubitrack_agent.services.host", "--labels", "display,gpu")
     net.tracker(host_name="room")
     relation = Relation(
         net.session, net.keys, WT_HT, application="app", host="room", host_labels={"display"}
@@ -141,7 +141,7 @@ def test_a_template_asking_for_isolation_runs_in_a_container_process_of_its_own(
     it runs in the host's shared container ``room-0`` and reads it over zenoh."""
     templates = isolating_templates(tmp_path / "templates")
     net.agent("--no-host", "--templates", str(templates))
-    net.host("room", 2, "-m", "services.host", "--cores", "1")
+    net.host("room", 2, "-m", "ubitrack_agent.services.host", "--cores", "1")
     net.tracker(host_name="room")
     with Relation(net.session, net.keys, WT_HT, application="app", host="room") as relation:
         where = containers_of(net, relation)
@@ -159,7 +159,7 @@ def test_a_template_asking_for_isolation_runs_in_a_container_process_of_its_own(
 def test_a_host_asking_for_isolation_runs_each_component_in_a_process_of_its_own(net):
     """``ubitrack host --isolate``: every component of the host alone in a container."""
     net.agent("--no-host")
-    net.host("room", 2, "-m", "services.host", "--isolate")
+    net.host("room", 2, "-m", "ubitrack_agent.services.host", "--isolate")
     net.tracker(host_name="room")
     with Relation(net.session, net.keys, WT_HT, application="app", host="room") as relation:
         where = containers_of(net, relation)

@@ -20,12 +20,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sim_trackers.scenario import load_scenario
 from tests.integration.netns import Network
 from tests.integration.zenoh_helpers import wait_until
 from tests.integration.zenoh_probe import Probe
 from ubitrack_agent.core import Position2D, decode
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 pytestmark = pytest.mark.integration
 

@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.scenario import load_scenario
 from tests.integration.zenoh_helpers import (
     Collector,
     free_port,
@@ -29,6 +28,7 @@ from ubitrack_agent.commands.demo import dtrack_flags
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, Projection, decode
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 pytestmark = pytest.mark.integration
 

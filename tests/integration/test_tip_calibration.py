@@ -1,7 +1,8 @@
-"""Tip calibration live: a simulated pointer pivoting on a fixed point (``sim_trackers.pivot``),
-real zenoh on loopback and real processes, and an application asking for the tip in the
-pointer's marker, a frame no provider announces. Once through the agent; once without it, the
-planned flow started on a host manager as the agent would start it."""
+"""Tip calibration live: a simulated pointer pivoting on a fixed point
+(``ubitrack_agent.sim_trackers.pivot``), real zenoh on loopback and real processes, and an
+application asking for the tip in the pointer's marker, a frame no provider announces. Once through
+the agent; once without it, the planned flow started on a host manager as the agent would start
+it."""
 
 from __future__ import annotations
 
@@ -15,7 +16,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sim_trackers.pivot import PivotMotion
 from tests.integration.conftest import kill_tagged
 from tests.integration.zenoh_helpers import free_port, member_flags, wait_until
 from ubitrack_agent.agent.materialise import component_specs
@@ -30,6 +30,7 @@ from ubitrack_agent.net.host_protocol import Start, Status, encode_request
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.sim_trackers.pivot import PivotMotion
 
 pytestmark = pytest.mark.integration
 
@@ -67,7 +68,7 @@ def _start(processes: list, *command: str) -> None:
 
 def _start_pointer(processes: list, port: int, domain: str) -> None:
     """The simulated pointer: ``T -> M`` at 60 Hz with 0.2 mm / 0.1 degree noise."""
-    pointer = ("-m", "sim_trackers.pivot", "--provider", "pointer", "--seed", "7")
+    pointer = ("-m", "ubitrack_agent.sim_trackers.pivot", "--provider", "pointer", "--seed", "7")
     _start(processes, *pointer, "--tracker", "T", "--marker", "M", *member_flags(port, domain))
 
 
@@ -109,7 +110,7 @@ def test_the_planned_tip_calibration_runs_on_a_host_manager(processes):
     assert [c.service for c in flow.components.values()] == ["tip_calibration"]
     with _network(as_hub=True) as (session, keys, port, domain):
         specs = component_specs(flow, srg, keys, {relation_name(query): TIP})
-        host = ("-m", "services.host", "--name", "lab", "--pool-size", "0")
+        host = ("-m", "ubitrack_agent.services.host", "--name", "lab", "--pool-size", "0")
         _start(processes, *host, *member_flags(port, domain))
 
         def ask(request: str) -> dict | None:

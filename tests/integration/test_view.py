@@ -25,7 +25,6 @@ from typing import Any
 import pytest
 
 from bench.calibrated_tracking_bench import scenario_with_true_calibration
-from sim_trackers.scenario import load_scenario
 from tests.integration.conftest import kill_tagged
 from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.commands.demo import dtrack_flags, simulator_arguments
@@ -33,6 +32,7 @@ from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 pytestmark = pytest.mark.integration
 

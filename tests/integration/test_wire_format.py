@@ -13,8 +13,8 @@ import pytest
 import zenoh
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.exact_tracker import true_wt_ht
 from tests.integration.test_agent import Setup, opened
+from ubitrack_agent.sim_trackers.exact_tracker import true_wt_ht
 
 pytestmark = pytest.mark.integration
 

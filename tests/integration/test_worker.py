@@ -153,7 +153,7 @@ def start_worker(processes, spec: ComponentSpec, port: int, domain: str, session
         [
             sys.executable,
             "-m",
-            "services.worker",
+            "ubitrack_agent.services.worker",
             "--spec",
             spec.to_json(),
             *member_flags(port, domain),

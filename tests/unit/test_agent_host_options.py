@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from services.host import build_parser as host_parser
 from ubitrack_agent.cli import build_parser
 from ubitrack_agent.commands.agent import HostOptions
 from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY
+from ubitrack_agent.services.host import build_parser as host_parser
 
 
 def agent_options(*argv: str) -> HostOptions:

@@ -3,8 +3,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bench.synthetic import left_error, random_quaternion, rng_for, rotation_error
-from services.algorithms.absolute_orientation import absolute_orientation
-from services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.absolute_orientation import absolute_orientation
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
 
 
 def _scene(name: str, n: int = 10):

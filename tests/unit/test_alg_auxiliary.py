@@ -2,8 +2,12 @@ import numpy as np
 import pytest
 
 from bench.synthetic import random_quaternion, rng_for, rotation_error
-from services.algorithms.auxiliary import compose_projection, decompose_projection, split_pose
-from services.algorithms.estimate import PoseEstimate, perturb_left, rigid
+from ubitrack_agent.services.algorithms.auxiliary import (
+    compose_projection,
+    decompose_projection,
+    split_pose,
+)
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate, perturb_left, rigid
 
 K = np.array([[810.0, 1.5, 322.0], [0.0, 790.0, 236.0], [0.0, 0.0, 1.0]])
 

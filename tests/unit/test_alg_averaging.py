@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from bench.synthetic import left_error, random_quaternion, rng_for, rotation_error, sample_poses
-from services.algorithms.averaging import average_poses, average_positions
-from services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.averaging import average_poses, average_positions
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
 
 COV = np.diag([1e-4, 1e-4, 4e-4, 1e-6, 4e-6, 1e-6])
 

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from bench.synthetic import CAMERA_MATRIX, random_quaternion, rng_for
-from services.algorithms.auxiliary import compose_projection
-from services.algorithms.dlt import homogeneous, projection_dlt
-from services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.auxiliary import compose_projection
+from ubitrack_agent.services.algorithms.dlt import homogeneous, projection_dlt
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
 
 PLANE = np.column_stack((np.arange(8.0), np.arange(8.0) ** 2, np.zeros(8)))
 

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from bench.synthetic import left_error, random_quaternion, rng_for, rotation_error, sample_poses
-from services.algorithms.estimate import PoseEstimate
-from services.algorithms.fusion import fuse_poses
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.fusion import fuse_poses
 
 COV = np.diag([1e-4, 2e-4, 1e-4, 1e-6, 1e-6, 4e-6])
 

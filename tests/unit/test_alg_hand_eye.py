@@ -13,16 +13,16 @@ from bench.synthetic import (
     rng_for,
     rotation_error,
 )
-from services.algorithms.averaging import average_poses
-from services.algorithms.estimate import PoseEstimate
-from services.algorithms.hand_eye import (
+from ubitrack_agent.core import quaternions, se3
+from ubitrack_agent.core.uncertainty import adjoint
+from ubitrack_agent.services.algorithms.averaging import average_poses
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.hand_eye import (
     _unit_orthogonal_combination,
     hand_eye_calibration,
     hand_eye_daniilidis,
     hand_eye_park_martin,
 )
-from ubitrack_agent.core import quaternions, se3
-from ubitrack_agent.core.uncertainty import adjoint
 
 SOLVERS = [hand_eye_park_martin, hand_eye_daniilidis]
 

@@ -4,8 +4,8 @@ from scipy.stats import chi2
 
 from bench.pnp_ambiguity_bench import target, view
 from bench.synthetic import CAMERA_MATRIX, left_error, random_quaternion, rng_for, rotation_error
-from services.algorithms.estimate import PoseEstimate
-from services.algorithms.pnp import (
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.pnp import (
     AmbiguousPose,
     choose_method,
     project,

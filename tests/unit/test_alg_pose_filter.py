@@ -6,10 +6,10 @@ import pytest
 from scipy import stats
 
 from bench.synthetic import left_error, random_quaternion, rng_for
-from services.algorithms.estimate import PoseEstimate
-from services.algorithms.pose_filter import PoseKalmanFilter
 from ubitrack_agent.core import quaternions
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.pose_filter import PoseKalmanFilter
 
 SECOND = 1_000_000_000
 MS = 1_000_000

@@ -25,15 +25,15 @@ from bench.static_estimate_bench import (
     run,
 )
 from bench.synthetic import left_error, random_quaternion, rng_for, sample_poses
-from services.algorithms import fuse_poses
-from services.algorithms.estimate import PoseEstimate
-from services.algorithms.static_estimate import (
+from ubitrack_agent.core import ErrorPose, Position3D, Rotation3D
+from ubitrack_agent.services.algorithms import fuse_poses
+from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+from ubitrack_agent.services.algorithms.static_estimate import (
     StaticEstimator,
     Status,
     batch_length_correction,
     block_difference_correction,
 )
-from ubitrack_agent.core import ErrorPose, Position3D, Rotation3D
 
 TRIALS = 100
 """Monte Carlo trials of the NEES tests (the bench runs 500)."""

@@ -3,8 +3,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bench.synthetic import random_quaternion, rng_for
-from services.algorithms.estimate import left_residuals, perturb_left, rigid
-from services.algorithms.tangent import SPACES
+from ubitrack_agent.services.algorithms.estimate import left_residuals, perturb_left, rigid
+from ubitrack_agent.services.algorithms.tangent import SPACES
 
 # Rotation sizes (per axis) from exactly zero through round-off-sized to about 2 rad.
 SCALES = [0.0, 1e-12, 1e-7, 1e-3, 0.3, 0.6]

@@ -9,8 +9,8 @@ from bench.synthetic import (
     pivot_scene,
     rng_for,
 )
-from services.algorithms.tip_calibration import tip_calibration
 from ubitrack_agent.core.uncertainty import skew
+from ubitrack_agent.services.algorithms.tip_calibration import tip_calibration
 
 SIGMA_ROT = np.radians(0.2)
 SIGMA_T = 0.25e-3

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from bench.synthetic import camera_ring, observe_points, rng_for
-from services.algorithms.triangulation import triangulate_points
+from ubitrack_agent.services.algorithms.triangulation import triangulate_points
 
 
 @pytest.mark.parametrize("n_views", [2, 3, 5])

@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim_trackers.database import static_edges
-from sim_trackers.scenario import DatabaseEdge, load_scenario
-from sim_trackers.sim_camera import CameraSimulator, announcements
 from ubitrack_agent.core import CameraIntrinsics, Pose, Position3D, Projection
+from ubitrack_agent.sim_trackers.database import static_edges
+from ubitrack_agent.sim_trackers.scenario import DatabaseEdge, load_scenario
+from ubitrack_agent.sim_trackers.sim_camera import CameraSimulator, announcements
 
 SCENARIO = load_scenario()
 WORLD = SCENARIO.world

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from collections import Counter
 
-from services.clock_sync import ClockSync
 from tests.integration.zenoh_helpers import wait_until
 from tests.unit.test_clock import LoopbackSession
 from ubitrack_agent.net.clock import Clock, parse_clock_status, serve_clock
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.services.clock_sync import ClockSync
 
 KEYS = KeySpace("ubitrack/test")
 MS = 10**6

@@ -13,10 +13,6 @@ from bench.synthetic import (
     pivot_scene,
     rng_for,
 )
-from services.algorithms import fuse_poses, hand_eye_calibration, tip_calibration
-from services.components.averaging import motion_window
-from services.expansion import BatchProgress, TimeAccumulator
-from services.registry import lookup
 from ubitrack_agent.core import (
     ErrorPose,
     Pose,
@@ -28,6 +24,10 @@ from ubitrack_agent.core import (
     se3,
 )
 from ubitrack_agent.net.spec import parse_time_expansion
+from ubitrack_agent.services.algorithms import fuse_poses, hand_eye_calibration, tip_calibration
+from ubitrack_agent.services.components.averaging import motion_window
+from ubitrack_agent.services.expansion import BatchProgress, TimeAccumulator
+from ubitrack_agent.services.registry import lookup
 
 T = 1_000
 

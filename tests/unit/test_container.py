@@ -18,9 +18,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from services.container import RESTART_AFTER_FAULTS, Container
-from services.local_wires import LocalWires, deliver, finite
-from services.worker import RUN_MIN
 from tests.unit.test_worker_inputs import KEYS, FakeSession
 from ubitrack_agent.core import ErrorPose, Pose, Position3D, decode, encode
 from ubitrack_agent.core.poses import compose_poses
@@ -32,6 +29,9 @@ from ubitrack_agent.net.spec import (
     SpecError,
     parse_group,
 )
+from ubitrack_agent.services.container import RESTART_AFTER_FAULTS, Container
+from ubitrack_agent.services.local_wires import LocalWires, deliver, finite
+from ubitrack_agent.services.worker import RUN_MIN
 
 RNG = np.random.default_rng(28)
 
@@ -197,7 +197,8 @@ class MatchingSession(FakeSession):
 
     def deliver(self, key: str, payload: bytes, wait: bool = True) -> None:
         """As zenoh delivers; a sample taken by a callback (a static input's, a command) is
-        handled on the container's scheduler (``services.scheduler``): waited for too."""
+        handled on the container's scheduler (``ubitrack_agent.services.scheduler``): waited for
+        too."""
         super().deliver(key, payload, wait)
         if wait and self.scheduler is not None and key not in self.channels:
             done = threading.Event()

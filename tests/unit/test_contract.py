@@ -32,9 +32,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bench.synthetic import CAMERA_MATRIX, rng_for
-from services.components.basic import Inversion
-from services.components.fusion import Fusion
-from services.registry import SERVICES, Service, lookup
 from ubitrack_agent.core import (
     MEASUREMENT_TYPES,
     CameraIntrinsics,
@@ -49,6 +46,9 @@ from ubitrack_agent.core import (
     se3,
 )
 from ubitrack_agent.graph.templates import InputSpec, Multiplicity, Template, load_templates
+from ubitrack_agent.services.components.basic import Inversion
+from ubitrack_agent.services.components.fusion import Fusion
+from ubitrack_agent.services.registry import SERVICES, Service, lookup
 
 Lookup = Callable[[str], type[Service]]
 Transform = tuple[np.ndarray, np.ndarray]

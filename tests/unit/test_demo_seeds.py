@@ -8,11 +8,11 @@ import dataclasses
 
 import numpy as np
 
-from sim_trackers.scenario import load_scenario
-from sim_trackers.sim_art import ArtSimulator
-from sim_trackers.sim_camera import CameraSimulator
 from ubitrack_agent.cli import build_parser
 from ubitrack_agent.commands.demo import fresh_seed, simulator_arguments
+from ubitrack_agent.sim_trackers.scenario import load_scenario
+from ubitrack_agent.sim_trackers.sim_art import ArtSimulator
+from ubitrack_agent.sim_trackers.sim_camera import CameraSimulator
 
 INSTANT_NS = 1_700_000_000_000_000_000
 

@@ -8,9 +8,9 @@ import sys
 
 import pytest
 
-from sim_trackers.scenario import load_scenario
 from ubitrack_agent.cli import build_parser
 from ubitrack_agent.commands.demo import dtrack_flags
+from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 
 def test_defaults_are_those_of_a_real_system_and_help_documents_them(capsys):
@@ -68,7 +68,7 @@ def test_the_real_dtrack_path_and_io_load_no_simulator():
         "import pkgutil, importlib, sys, ubitrack_agent.io, ubitrack_agent.commands.dtrack;"
         "[importlib.import_module(m.name) for m in"
         " pkgutil.walk_packages(ubitrack_agent.io.__path__, 'ubitrack_agent.io.')];"
-        "print(sorted(m for m in sys.modules if m.startswith('sim_trackers')))"
+        "print(sorted(m for m in sys.modules if m.startswith('ubitrack_agent.sim_trackers')))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

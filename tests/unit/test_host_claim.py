@@ -7,8 +7,8 @@ from __future__ import annotations
 import threading
 from types import SimpleNamespace
 
-from services.host_claim import HostClaim, parse_claim
 from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.services.host_claim import HostClaim, parse_claim
 
 KEYS = KeySpace("ubitrack/test")
 PREFIX = f"{KEYS.host('lab')}/claim/"

@@ -9,13 +9,13 @@ from types import SimpleNamespace
 import pytest
 import zenoh
 
-from services.host import ORPHAN_END_S
-from services.host_manager import HostManager, rewired
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import HostInfo, Start, Status, encode_request
 from ubitrack_agent.net.json_messages import MessageError
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError, parse_spec
+from ubitrack_agent.services.host import ORPHAN_END_S
+from ubitrack_agent.services.host_manager import HostManager, rewired
 
 KEYS = KeySpace("ubitrack/test")
 
@@ -209,7 +209,7 @@ def test_an_orphaned_host_manager_ends_only_once_unneeded(manager, monkeypatch):
     """Started by an agent that is gone, it serves on while it runs a component or sees an
     active agent (the successor that adopts it), and ends after ``ORPHAN_END_S`` of neither."""
     clock = [100.0]
-    monkeypatch.setattr("services.host_manager.time.monotonic", lambda: clock[0])
+    monkeypatch.setattr("ubitrack_agent.services.host_manager.time.monotonic", lambda: clock[0])
     manager._end_if_unneeded()
     clock[0] += ORPHAN_END_S + 1
     manager._end_if_unneeded()

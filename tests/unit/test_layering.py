@@ -19,7 +19,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PRODUCT = ("ubitrack_agent", "services", "sim_trackers", "templates")
-"""Top-level packages that ship; tests and benchmarks may import anything."""
+"""Top-level folders that ship; tests and benchmarks may import anything."""
+MAPPED = ("services", "sim_trackers", "templates")
+"""Folders that install as subpackages of ``ubitrack_agent`` (``setup.py``): a module's name
+there starts ``ubitrack_agent.``, and an import of the bare folder name is in no layer."""
 
 
 @dataclass(frozen=True)
@@ -36,20 +39,21 @@ def _layer(*allowed: str, forbidden: tuple[str, ...] = ()) -> Layer:
 
 CORE, GRAPH, NET, IO = (f"ubitrack_agent.{name}" for name in ("core", "graph", "net", "io"))
 AGENT, CAMERA = "ubitrack_agent.agent", f"{IO}.camera"
-EVERYTHING = (CORE, GRAPH, NET, IO, CAMERA, AGENT, "services", "sim_trackers", "templates")
+SERVICES, SIMULATORS, TEMPLATES = (f"ubitrack_agent.{name}" for name in MAPPED)
+EVERYTHING = (CORE, GRAPH, NET, IO, CAMERA, AGENT, SERVICES, SIMULATORS, TEMPLATES)
 NO_PROCESSES = ("subprocess", "multiprocessing")
 LAYERS: dict[str, Layer] = {
     # Bottom to top.
     "ubitrack_agent": _layer(),  # the package itself: its version only
-    "templates": _layer(forbidden=("ubitrack_agent", "services")),  # data
+    TEMPLATES: _layer(),  # data
     CORE: _layer(forbidden=("zenoh", "networkx", "cv2", *NO_PROCESSES)),
     GRAPH: _layer(CORE, forbidden=("zenoh", "cv2", *NO_PROCESSES)),
     NET: _layer(CORE, forbidden=("networkx", "cv2", *NO_PROCESSES)),
     IO: _layer(CORE, NET, forbidden=("networkx", "cv2")),
     CAMERA: _layer(CORE, NET, IO, forbidden=("networkx",)),  # the one io package with OpenCV
     AGENT: _layer(CORE, GRAPH, NET, forbidden=("cv2", "scipy")),
-    "services": _layer(CORE, NET, forbidden=("networkx",)),
-    "sim_trackers": _layer(CORE, NET, IO, forbidden=("networkx",)),
+    SERVICES: _layer(CORE, NET, forbidden=("networkx",)),
+    SIMULATORS: _layer(CORE, NET, IO, forbidden=("networkx",)),
     "ubitrack_agent.cli": _layer(*EVERYTHING, "ubitrack_agent.commands"),
     "ubitrack_agent.commands": _layer(*EVERYTHING, "ubitrack_agent.cli"),
 }
@@ -57,6 +61,8 @@ LAYERS: dict[str, Layer] = {
 
 def module_name(root: Path, path: Path) -> str:
     parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[0] in MAPPED:
+        parts.insert(0, "ubitrack_agent")
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
@@ -155,20 +161,24 @@ def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
             "ubitrack_agent.net may not import ubitrack_agent.graph",
         ),
         (
-            {"ubitrack_agent/agent/bad.py": "def f():\n    from services.registry import lookup\n"},
-            "ubitrack_agent.agent may not import services",
+            {
+                "ubitrack_agent/agent/bad.py": (
+                    "def f():\n    from ubitrack_agent.services.registry import lookup\n"
+                )
+            },
+            "ubitrack_agent.agent may not import ubitrack_agent.services",
         ),
         (
             {"services/bad.py": "from ubitrack_agent import cli\n"},
-            "services may not import ubitrack_agent.cli",
+            "ubitrack_agent.services may not import ubitrack_agent.cli",
         ),
         (
             {"sim_trackers/bad.py": "from ubitrack_agent.agent import runtime\n"},
-            "sim_trackers may not import ubitrack_agent.agent",
+            "ubitrack_agent.sim_trackers may not import ubitrack_agent.agent",
         ),
         (
-            {"ubitrack_agent/io/bad.py": "import sim_trackers.world\n"},
-            "ubitrack_agent.io may not import sim_trackers",
+            {"ubitrack_agent/io/bad.py": "import ubitrack_agent.sim_trackers.world\n"},
+            "ubitrack_agent.io may not import ubitrack_agent.sim_trackers",
         ),
         # Forbidden third-party modules.
         (
@@ -178,6 +188,11 @@ def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
         (
             {"ubitrack_agent/agent/bad.py": "import cv2\n"},
             "ubitrack_agent.agent may not import cv2",
+        ),
+        # The bare folder name (what the repository's root on sys.path would shadow).
+        (
+            {"sim_trackers/bad.py": "from services import registry\n"},
+            "imports services.registry, which is in no layer",
         ),
         # A module outside every layer.
         ({"ubitrack_agent/stray.py": "x = 1\n"}, "ubitrack_agent.stray: in no layer"),
@@ -194,7 +209,9 @@ def test_the_checker_accepts_downward_imports(tmp_path):
         {
             "ubitrack_agent/agent/ok.py": "from ubitrack_agent.graph import planner\n",
             "sim_trackers/ok.py": "from ubitrack_agent.io.provider import Provider\n",
-            "ubitrack_agent/commands/ok.py": "def run():\n    import sim_trackers.world\n",
+            "ubitrack_agent/commands/ok.py": (
+                "def run():\n    import ubitrack_agent.sim_trackers.world\n"
+            ),
         },
     )
     assert violations(tree) == []
@@ -204,10 +221,10 @@ def test_the_checker_accepts_downward_imports(tmp_path):
     "modules, absent",
     [
         ("ubitrack_agent.core, ubitrack_agent.core.poses", ("zenoh", "networkx", "cv2")),
-        ("ubitrack_agent.agent.runtime", ("cv2", "services", "sim_trackers")),
+        ("ubitrack_agent.agent.runtime", ("cv2", SERVICES, SIMULATORS)),
         # The agent's command runs on a small machine without OpenCV or SciPy (--no-host).
-        ("ubitrack_agent.commands.agent", ("cv2", "scipy", "services.host_manager")),
-        ("ubitrack_agent.agent.clocks", ("cv2", "scipy", "services")),  # for the runtime
+        ("ubitrack_agent.commands.agent", ("cv2", "scipy", f"{SERVICES}.host_manager")),
+        ("ubitrack_agent.agent.clocks", ("cv2", "scipy", SERVICES)),  # for the runtime
     ],
 )
 def test_importing_a_layer_loads_nothing_above_it(modules, absent):
@@ -215,3 +232,16 @@ def test_importing_a_layer_loads_nothing_above_it(modules, absent):
     code = f"import sys, {modules}; print(sorted(m for m in {absent!r} if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_tests_and_benchmarks_import_the_installed_names_only():
+    """``import services...`` from the repository's root would load a second copy of a module
+    (under another name) beside the ``ubitrack_agent.services`` one the product uses."""
+    bare = [
+        f"{path.relative_to(ROOT)}:{line}: {name}"
+        for top in ("tests", "bench")
+        for path in sorted((ROOT / top).rglob("*.py"))
+        for line, name in imports(path, module_name(ROOT, path))
+        if name.split(".")[0] in MAPPED
+    ]
+    assert not bare, "\n".join(bare)

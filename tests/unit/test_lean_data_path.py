@@ -18,7 +18,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from services.worker import RUN_MIN, Inbox, Worker
 from tests.unit.test_worker_inputs import (
     IDENTITY,
     KEYS,
@@ -49,6 +48,7 @@ from ubitrack_agent.core.measurements import (
 from ubitrack_agent.core.poses import compose_pose_pairs, compose_poses
 from ubitrack_agent.core.uncertainty import adjoint
 from ubitrack_agent.net.spec import InputBinding, SpecError, parse_bindings
+from ubitrack_agent.services.worker import RUN_MIN, Inbox, Worker
 
 COVARIANCE = np.eye(6) * 1e-6
 
@@ -358,8 +358,8 @@ def test_an_input_is_handled_on_its_own_thread_in_order():
 
 
 def test_a_trigger_held_for_a_lagging_input_is_computed_when_its_wait_is_over():
-    """A trigger that waits for another input (``services.triggers``) is computed when its
-    wait is over though no sample follows it: the input's thread that held it wakes the
+    """A trigger that waits for another input (``ubitrack_agent.services.triggers``) is computed
+    when its wait is over though no sample follows it: the input's thread that held it wakes the
     worker thread, which was waiting for commands far longer."""
     inputs = (
         InputBinding("AB", KEYS.data("ART/WT")),
@@ -576,7 +576,8 @@ FATES = (
     "dropped",
     "published",
 )
-"""Where each sample a concatenation worker receives ends (``services.worker.COUNTERS``)."""
+"""Where each sample a concatenation worker receives ends
+(``ubitrack_agent.services.worker.COUNTERS``)."""
 
 
 def test_rewires_while_an_input_thread_handles_bursts_lose_no_count_and_raise_nothing():

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from services.parent import Parent
+from ubitrack_agent.services.parent import Parent
 
 WAIT_S = 5.0
 """Longest wait for the watching thread (it reacts within milliseconds)."""

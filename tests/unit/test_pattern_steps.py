@@ -13,9 +13,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from services.container import Container
-from services.registry import lookup
-from services.spec import check_bindings, check_spec
 from tests.unit.test_container import MatchingSession, wait_for
 from tests.unit.test_worker_inputs import KEYS
 from ubitrack_agent.agent.materialise import component_specs
@@ -29,6 +26,9 @@ from ubitrack_agent.graph.planner import Query, plan
 from ubitrack_agent.graph.templates import load_templates
 from ubitrack_agent.net.keys import RelationId
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError, parse_bindings
+from ubitrack_agent.services.container import Container
+from ubitrack_agent.services.registry import lookup
+from ubitrack_agent.services.spec import check_bindings, check_spec
 
 C_A = Query("C", "A", "6D", False)
 C_A_KEY = KEYS.relation(RelationId("C", "A", "6D"))

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sim_trackers.scenario import DEFAULT_SCENARIO as SCENARIO
 from ubitrack_agent.cli import main
+from ubitrack_agent.sim_trackers.scenario import DEFAULT_SCENARIO as SCENARIO
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import yaml
 
-from sim_trackers.scenario import DEFAULT_SCENARIO
 from ubitrack_agent.commands.plan_inputs import (
     FORMATS,
     PlanEdge,
@@ -22,6 +21,7 @@ from ubitrack_agent.commands.plan_inputs import (
     stored_edges,
 )
 from ubitrack_agent.graph.srg import DEFAULT_SIGMA, SetupError
+from ubitrack_agent.sim_trackers.scenario import DEFAULT_SCENARIO
 
 COVARIANCE = np.diag([1e-6] * 3 + [4e-8] * 3).tolist()  # rotation (rad^2) first, then m^2
 STORED_C_HT = {

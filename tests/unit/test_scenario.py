@@ -8,7 +8,7 @@ import re
 import pytest
 import yaml
 
-from sim_trackers.scenario import DEFAULT_SCENARIO, ScenarioError, load_scenario
+from ubitrack_agent.sim_trackers.scenario import DEFAULT_SCENARIO, ScenarioError, load_scenario
 
 BASE = yaml.safe_load(DEFAULT_SCENARIO.read_text(encoding="utf-8"))
 

@@ -1,6 +1,6 @@
-"""The container's scheduler (``services.scheduler``): one thread running every component's
-turns at their deadlines and the calls handed to it, a fault in one counted while the others
-go on; and a container whose components need no thread of their own."""
+"""The container's scheduler (``ubitrack_agent.services.scheduler``): one thread running every
+component's turns at their deadlines and the calls handed to it, a fault in one counted while the
+others go on; and a container whose components need no thread of their own."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import threading
 import time
 from collections import Counter
 
-from services.container import Container
-from services.scheduler import Scheduler
 from tests.unit.test_container import MatchingSession, concatenation
 from tests.unit.test_worker_inputs import KEYS
+from ubitrack_agent.services.container import Container
+from ubitrack_agent.services.scheduler import Scheduler
 
 
 def settle(scheduler: Scheduler) -> None:

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from services import components, registry
-from services.registry import lookup
-from services.spec import check_spec
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D, Projection, Rotation3D, se3
 from ubitrack_agent.net.spec import SpecError, parse_spec
+from ubitrack_agent.services import components, registry
+from ubitrack_agent.services.registry import lookup
+from ubitrack_agent.services.spec import check_spec
 
 RNG = np.random.default_rng(5)
 Q = Rotation.random(rng=RNG).as_quat()
@@ -27,7 +27,7 @@ def test_lookup_lists_known_services_when_unknown():
 
 
 EXTRA_MODULE = """
-from services.registry import Port, Service, register
+from ubitrack_agent.services.registry import Port, Service, register
 from ubitrack_agent.core import Pose
 
 
@@ -50,10 +50,10 @@ def test_component_modules_are_discovered_without_a_list(tmp_path, monkeypatch):
     registry.load_components.cache_clear()
     try:
         assert lookup("extra_for_discovery_test").__module__ == (
-            "services.components.extra_for_discovery_test"
+            "ubitrack_agent.services.components.extra_for_discovery_test"
         )
     finally:
-        sys.modules.pop("services.components.extra_for_discovery_test", None)
+        sys.modules.pop("ubitrack_agent.services.components.extra_for_discovery_test", None)
         registry.load_components.cache_clear()
 
 

@@ -10,8 +10,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import RigidTransform, Rotation
 
-from sim_trackers.scenario import load_scenario
-from sim_trackers.sim_art import ArtSimulator, dtrack_adapter
 from ubitrack_agent.core import ErrorPose, Position3D
 from ubitrack_agent.io.dtrack.adapter import DTrackAdapter
 from ubitrack_agent.io.dtrack.format import (
@@ -21,6 +19,8 @@ from ubitrack_agent.io.dtrack.format import (
     seconds_of_day,
     timestamp_from_ts,
 )
+from ubitrack_agent.sim_trackers.scenario import load_scenario
+from ubitrack_agent.sim_trackers.sim_art import ArtSimulator, dtrack_adapter
 
 SCENARIO = load_scenario()
 T0 = 1_763_700_000_123_456_000  # a whole number of microseconds

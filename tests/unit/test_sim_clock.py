@@ -9,12 +9,12 @@ import dataclasses
 
 import numpy as np
 
-from sim_trackers.scenario import load_scenario
-from sim_trackers.sim_art import ArtSimulator, dtrack_adapter
-from sim_trackers.sim_camera import CameraSimulator
 from tests.unit.test_sim_art_adapter import Recorder
 from ubitrack_agent.io.dtrack.format import encode_frame
 from ubitrack_agent.net.clock import Clock
+from ubitrack_agent.sim_trackers.scenario import load_scenario
+from ubitrack_agent.sim_trackers.sim_art import ArtSimulator, dtrack_adapter
+from ubitrack_agent.sim_trackers.sim_camera import CameraSimulator
 
 SCENARIO = load_scenario()
 T0 = 1_763_700_000_123_456_000  # real time, whole microseconds

@@ -1,10 +1,11 @@
-"""The simulated pivoting pointer (``sim_trackers.pivot``): ground truth for tip calibration."""
+"""The simulated pivoting pointer (``ubitrack_agent.sim_trackers.pivot``): ground truth for tip
+calibration."""
 
 import numpy as np
 
-from services.algorithms import tip_calibration
-from sim_trackers.pivot import PivotMotion
 from ubitrack_agent.core import quaternions, se3
+from ubitrack_agent.services.algorithms import tip_calibration
+from ubitrack_agent.sim_trackers.pivot import PivotMotion
 
 
 def test_the_tip_stays_on_the_pivot_while_the_pointer_turns_about_it():

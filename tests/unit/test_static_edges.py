@@ -11,8 +11,6 @@ import numpy as np
 import pytest
 import yaml
 
-from sim_trackers.database import static_edges
-from sim_trackers.scenario import DatabaseEdge, load_scenario
 from ubitrack_agent.core import ErrorPose, Pose, Position2D, Position3D
 from ubitrack_agent.io import static_edges as static_edges_module
 from ubitrack_agent.io.static_edges import (
@@ -25,6 +23,8 @@ from ubitrack_agent.io.static_edges import (
     static_announcement,
     write_static_edges,
 )
+from ubitrack_agent.sim_trackers.database import static_edges
+from ubitrack_agent.sim_trackers.scenario import DatabaseEdge, load_scenario
 
 SCENARIO = load_scenario()
 T0 = 1_763_700_000_000_000_000

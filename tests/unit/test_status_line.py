@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import time
 
-from services.host import status_line as host_line
 from ubitrack_agent.commands.agent import status_line as agent_line
 from ubitrack_agent.net.status_line import Rate, periodic_status
+from ubitrack_agent.services.host import status_line as host_line
 
 
 def test_lines_come_periodically_and_once_at_the_end_and_never_raise():

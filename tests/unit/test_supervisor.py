@@ -6,11 +6,11 @@ from collections import Counter
 
 import pytest
 
-from services import supervisor as supervisor_module
-from services.supervisor import Supervisor
 from ubitrack_agent.net.host_protocol import STOP_COMMAND, ProtocolError
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
+from ubitrack_agent.services import supervisor as supervisor_module
+from ubitrack_agent.services.supervisor import Supervisor
 
 KEYS = KeySpace("ubitrack/test")
 

@@ -152,7 +152,7 @@ def _broken(path: str, value):
         ("signature", "twisted", "field 'signature': 'twisted' is not one of"),
         ("signature", "inverse", "field 'signature': an inverse has exactly one input"),
         ("inputs.0.not_from", ["no-pattern"], "inputs[0].not_from[0]: 'no-pattern' is not"),
-        ("service", "services.pose:Estimator", "field 'service'"),
+        ("service", "ubitrack_agent.services.pose:Estimator", "field 'service'"),
         ("service", KeyError, "missing field 'service'"),
         ("inputs.0.type", "$T", "type variable $T is not declared"),
         ("inputs.1.type", "4D", "inputs[1].type: '4D' is not one of"),

@@ -2,7 +2,7 @@
 
 import pytest
 
-from services.triggers import PendingTriggers
+from ubitrack_agent.services.triggers import PendingTriggers
 
 
 def test_trigger_waits_for_inputs_then_releases_in_order():
@@ -38,7 +38,7 @@ def _buffer(times):
 
 
 def test_only_live_inputs_are_waited_for():
-    from services.triggers import lagging, wait_for
+    from ubitrack_agent.services.triggers import lagging, wait_for
 
     ms = 1_000_000
     steady = _buffer([0, 10 * ms, 20 * ms])  # 10 ms period, newest 20 ms
@@ -56,7 +56,7 @@ def test_only_live_inputs_are_waited_for():
 def test_an_input_of_the_same_frame_is_waited_for_briefly():
     """Features of one camera frame share its instants: one missing from this frame (hidden)
     holds the trigger for SAME_INSTANT_WAIT_NS, not for one and a half frames."""
-    from services.triggers import SAME_INSTANT_WAIT_NS, wait_for
+    from ubitrack_agent.services.triggers import SAME_INSTANT_WAIT_NS, wait_for
 
     ms = 1_000_000
     frames = [0, 33 * ms, 66 * ms]
@@ -86,7 +86,7 @@ def test_a_new_input_is_waited_for_when_every_input_is_needed():
     """An input without a known period (none, one or two samples) holds a trigger up to the
     cap when nothing can be computed without it, and is not waited for in a space expansion
     (a hidden feature may never come): the first instants of a new flow are not dropped."""
-    from services.triggers import lagging, wait_for
+    from ubitrack_agent.services.triggers import lagging, wait_for
 
     ms = 1_000_000
     empty, one, two = _buffer([]), _buffer([0]), _buffer([0, 100 * ms])

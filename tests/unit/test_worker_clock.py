@@ -12,7 +12,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from services.worker import Worker
 from tests.unit.test_worker_inputs import IDENTITY, FakeSession, error_pose, feed, pose
 from ubitrack_agent.core import decode, encode
 from ubitrack_agent.core.measurements import Pose
@@ -20,6 +19,7 @@ from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 from ubitrack_agent.net.time_queries import requested_time
+from ubitrack_agent.services.worker import Worker
 
 KEYS = KeySpace("ubitrack/test")
 MS = 10**6

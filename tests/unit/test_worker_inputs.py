@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 import zenoh
 
-from services.worker import COUNTERS, Pool, Worker
 from ubitrack_agent.core import ErrorPose, Pose, Position3D, decode, encode
 from ubitrack_agent.core.timeline import MAX_FUTURE_NS
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
+from ubitrack_agent.services.worker import COUNTERS, Pool, Worker
 
 KEYS = KeySpace("ubitrack/test")
 IDENTITY = [0.0, 0.0, 0.0, 1.0]

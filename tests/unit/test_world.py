@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim_trackers.scenario import load_scenario
-from sim_trackers.trajectories import LissajousPath
-from sim_trackers.world import FixedPlacement, Frame, ImagePlane, World, WorldError
 from ubitrack_agent.core import se3
+from ubitrack_agent.sim_trackers.scenario import load_scenario
+from ubitrack_agent.sim_trackers.trajectories import LissajousPath
+from ubitrack_agent.sim_trackers.world import FixedPlacement, Frame, ImagePlane, World, WorldError
 
 SCENARIO = load_scenario()
 WORLD = SCENARIO.world

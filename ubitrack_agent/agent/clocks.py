@@ -2,17 +2,18 @@
 how much (``docs/protocol.md``, "Clocks").
 
 Measurements are stamped on their sensor host's clock; each host manager estimates its host's
-offset to the agent's clock (``net.clock``, ``services.clock_sync``). A *clock domain* is the
-clock a stream's timestamps are on: a measured edge's is its provider's host; a component's
-outputs are on the agent's clock (:data:`REFERENCE`) if its inputs were corrected, else on the
-clock of its inputs (of its first triggering one when they differ within its tolerance, as a
+offset to the agent's clock (``net.clock``, ``ubitrack_agent.services.clock_sync``). A *clock
+domain* is the clock a stream's timestamps are on: a measured edge's is its provider's host; a
+component's outputs are on the agent's clock (:data:`REFERENCE`) if its inputs were corrected, else
+on the clock of its inputs (of its first triggering one when they differ within its tolerance, as a
 synchronised output takes its trigger's time). Static inputs answer their value at any time,
 so their clock does not matter.
 
 A component whose dynamic inputs come from clock domains whose offsets differ by more than its
 tolerance (``ComponentSpec.tolerance_ms``, the synchronisation window) gets on each such input
 ``clock_offset_ns``, the offset of that input's domain to the agent's clock, which the worker
-adds to every sample (``services.worker``). What cannot be done well is reported per component:
+adds to every sample (``ubitrack_agent.services.worker``). What cannot be done well is reported per
+component:
 
 * a domain without an estimate (a host whose host manager has not measured yet, or runs none,
   or an edge whose host is not known): the inputs are left as they are;

@@ -1,5 +1,5 @@
-"""The agent's side of the host managers (``services.host``): where each instance runs, and
-starting and stopping workers over zenoh only (``docs/protocol.md``).
+"""The agent's side of the host managers (``ubitrack_agent.services.host``): where each instance
+runs, and starting and stopping workers over zenoh only (``docs/protocol.md``).
 
 * Host managers are known from their liveliness tokens ``<root>/host/<name>`` (with history).
   What each says of itself (labels, capacity, CPU load: :class:`HostInfo`) is asked with a

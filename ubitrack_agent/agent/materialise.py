@@ -1,11 +1,12 @@
-"""Data flow components into worker specifications (``services.spec.ComponentSpec``).
+"""Data flow components into worker specifications (``ubitrack_agent.services.spec.ComponentSpec``).
 
 * A port ``IF[2]`` of a space-expanded component is the third binding of port ``IF``.
 * An input bound to a measured edge ``<provider>/<name>`` reads that edge's data key; an input
   bound to a component's output reads ``<root>/data/<component>/<output>``.
 * An input is ``static`` if its edge is: a measured edge by its announcement; a component's
   output as the planner decided (``Component.static_outputs``).
-* Every dynamic input triggers (each instant is computed once, ``services.triggers``); a
+* Every dynamic input triggers (each instant is computed once,
+``ubitrack_agent.services.triggers``); a
   component whose inputs are all static recomputes whenever one of them changes.
 * The producer of a queried relation also publishes on the relation's stable key; a relation
   answered by a measured edge as it is gets a ``relay`` component.

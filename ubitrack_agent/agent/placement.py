@@ -188,8 +188,8 @@ def group_containers(
     isolating_hosts: Set[str] = frozenset(),
     current: Mapping[str, str] | None = None,
 ) -> dict[str, GroupSpec]:
-    """The containers (``services.container``) the placed components of ``specs`` run in,
-    by name: the rule of issue 28 ("Placement of groups").
+    """The containers (``ubitrack_agent.services.container``) the placed components of ``specs`` run
+    in, by name: the rule of issue 28 ("Placement of groups").
 
     1. **Derivations stay together**: on each host, the components wired to one another there
        (an input reading another's output key, ``GroupSpec.wires``) form one derivation, and

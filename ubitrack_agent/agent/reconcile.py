@@ -1,8 +1,8 @@
 """What turns the running workers into the wanted ones: start, stop, or update in place.
 
 Specifications are compared field by field. Inputs, relation routes and parameters can change
-in a running worker (a control command, ``services.worker``); a change of service, output
-keys, expansion or timing options needs a new one (output keys never change in practice: the
+in a running worker (a control command, ``ubitrack_agent.services.worker``); a change of service,
+output keys, expansion or timing options needs a new one (output keys never change in practice: the
 agent names each output after its component, ``agent.materialise``).
 """
 

@@ -12,8 +12,8 @@ processes of the host) each step it takes, and shows them in its status (``stamp
 * per component: ``requested_ns`` and ``started_ns`` (its latest start request sent to a host
   manager and the reply taken), ``rewired_ns`` (its latest control command put).
 
-Workers stamp the rest themselves (``services.worker``: created, ready, first sample per
-input, first publication per key); ``bench/containers_bench.py`` joins both.
+Workers stamp the rest themselves (``ubitrack_agent.services.worker``: created, ready, first sample
+per input, first publication per key); ``bench/containers_bench.py`` joins both.
 
 Growth: O(queries + components) entries, each dropped when its query or component goes.
 """

@@ -16,11 +16,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from services.host import DEFAULT_POOL_SIZE, labels
+from ubitrack_agent.core.interpreter import module_command
 from ubitrack_agent.net import config
 from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.status_line import periodic_status
+from ubitrack_agent.services.host import DEFAULT_POOL_SIZE, labels
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -43,11 +44,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Watch providers and application queries on zenoh, plan every queried "
         "relation with the pattern templates, and have host managers start, stop and rewire "
         "pattern workers so that each relation flows on its stable key. Starts a host manager "
-        "for this machine (python -m services.host) unless --no-host. One agent of a domain is "
-        "active; another one started on the domain (on its own endpoint) stands by, changing "
-        "nothing and starting no host manager, and takes over, adopting every worker, when the "
-        "active one ends. Ends cleanly on SIGTERM or Ctrl-C, stopping every worker it runs, "
-        "or, with a standby alive, handing them over.",
+        "for this machine (python -m ubitrack_agent.services.host) unless --no-host. One agent of "
+        "a domain is active; another one started on the domain (on its own endpoint) stands by, "
+        "changing nothing and starting no host manager, and takes over, adopting every worker, "
+        "when the active one ends. Ends cleanly on SIGTERM or Ctrl-C, stopping every worker it "
+        "runs, or, with a standby alive, handing them over.",
     )
     parser.add_argument(
         "--templates", metavar="DIR", help="template directory (default: the shipped templates/)"
@@ -120,24 +121,21 @@ class HostOptions:
 
 
 class EmbeddedHost:
-    """The host manager for this machine (``python -m services.host``), joined to the agent's
-    network, started again if it ends while the agent runs. Its standard input is a pipe from
-    this process: when the agent dies (or stands by) the host manager serves on, with its
-    workers and warm pool, for the agent's successor to adopt (``services.host``,
+    """The host manager for this machine (``python -m ubitrack_agent.services.host``), joined to the
+    agent's network, started again if it ends while the agent runs. Its standard input is a pipe
+    from this process: when the agent dies (or stands by) the host manager serves on, with its
+    workers and warm pool, for the agent's successor to adopt (``ubitrack_agent.services.host``,
     ``--started-by-agent``)."""
 
     def __init__(self, settings: config.Settings, options: HostOptions, log_level: str) -> None:
-        self._command = [
-            sys.executable,
-            "-m",
-            "services.host",
+        self._command = module_command(
+            "ubitrack_agent.services.host",
             "--started-by-agent",
             "--quiet",  # the agent's status line counts its workers
             *options.flags(),
-            "--log-level",
-            log_level,
+            *("--log-level", log_level),
             *config.member_flags(settings),
-        ]
+        )
         self._lock = threading.Lock()
         self._stopping = threading.Event()
         self.process = self._start()

@@ -34,10 +34,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ubitrack_agent.core.interpreter import module_command
 from ubitrack_agent.net import config
 
 if TYPE_CHECKING:
-    from sim_trackers.scenario import ArtSettings
+    from ubitrack_agent.sim_trackers.scenario import ArtSettings
 
 PHASES = ("fused", "camera only", "fused again")
 
@@ -116,7 +117,7 @@ class Processes:
 
     def start(self, name: str, arguments: list[str]) -> None:
         self.running[name] = subprocess.Popen(
-            [sys.executable, "-m", "ubitrack_agent.cli", *arguments], stdin=subprocess.DEVNULL
+            module_command("ubitrack_agent.cli", *arguments), stdin=subprocess.DEVNULL
         )
 
     def exited(self) -> list[str]:
@@ -192,11 +193,11 @@ def _free_udp_port() -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sim_trackers.scenario import ScenarioError, load_scenario
     from ubitrack_agent.core import quaternions
     from ubitrack_agent.io.application import Relation
     from ubitrack_agent.net.keys import KeySpace, RelationId
     from ubitrack_agent.net.session import open_session
+    from ubitrack_agent.sim_trackers.scenario import ScenarioError, load_scenario
 
     try:
         hub = config.from_arguments(args, role="hub")

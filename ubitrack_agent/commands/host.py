@@ -1,13 +1,13 @@
-"""``ubitrack host``: run this machine's host manager (``services.host``) on its own, for an
-agent started with ``--no-host`` or on another machine."""
+"""``ubitrack host``: run this machine's host manager (``ubitrack_agent.services.host``) on its own,
+for an agent started with ``--no-host`` or on another machine."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from services import host
 from ubitrack_agent.net import config
+from ubitrack_agent.services import host
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -10,8 +10,8 @@ keys, so it plans on exactly the files the live system uses:
   it: each entry is a measured static edge of the file's provider, announced as its server
   announces it (``StaticEdge.served_announcement``: the ``sigma`` of the value's covariance);
 * a **simulator scenario** (``frames``, ``art``, ``camera``, ``database``;
-  :mod:`sim_trackers.scenario`): the edges its simulators announce, i.e. the DTrack adapter's
-  (the ``art`` section), the camera's and the calibration database's.
+  :mod:`ubitrack_agent.sim_trackers.scenario`): the edges its simulators announce, i.e. the DTrack
+  adapter's (the ``art`` section), the camera's and the calibration database's.
 
 Announced edges (static-edges files and scenarios) become SRG edges as the live agent makes
 them (:func:`ubitrack_agent.agent.announcements.provider_entries`: id ``<provider>/<name>``).
@@ -31,14 +31,14 @@ from typing import Any
 
 import networkx as nx
 
-from sim_trackers.database import static_edges
-from sim_trackers.scenario import ScenarioError, load_scenario
-from sim_trackers.sim_art import dtrack_adapter
-from sim_trackers.sim_camera import announcements
 from ubitrack_agent.agent.announcements import AnnouncementError, provider_entries
 from ubitrack_agent.graph.srg import SetupError, add_setup_edge, new_srg, parse_setup, read_yaml
 from ubitrack_agent.io.provider import EdgeAnnouncement
 from ubitrack_agent.io.static_edges import StaticEdgesError, parse_static_edges
+from ubitrack_agent.sim_trackers.database import static_edges
+from ubitrack_agent.sim_trackers.scenario import ScenarioError, load_scenario
+from ubitrack_agent.sim_trackers.sim_art import dtrack_adapter
+from ubitrack_agent.sim_trackers.sim_camera import announcements
 
 FORMATS = (
     "a setup file (edges: [...], docs/planner.md), a static-edges file (provider: ..., "

@@ -35,7 +35,7 @@ def add_common_arguments(parser: argparse.ArgumentParser, zenoh: bool = True) ->
 
 def load(args: argparse.Namespace, prog: str) -> Any:
     """The scenario named by ``--scenario``; ``None`` after printing why it is invalid."""
-    from sim_trackers.scenario import ScenarioError, load_scenario
+    from ubitrack_agent.sim_trackers.scenario import ScenarioError, load_scenario
 
     try:
         return load_scenario(args.scenario)
@@ -118,10 +118,10 @@ def _add(
 
 
 def _run_world(args: argparse.Namespace) -> int:
-    from sim_trackers.truth import TruthServer
     from ubitrack_agent.net.keys import KeySpace
     from ubitrack_agent.net.lifecycle import stop_on_signals
     from ubitrack_agent.net.session import open_session
+    from ubitrack_agent.sim_trackers.truth import TruthServer
 
     prog = "ubitrack sim world"
     if (prepared := prepare(args, prog)) is None:
@@ -146,9 +146,9 @@ def _run_world(args: argparse.Namespace) -> int:
 def _run_art(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from sim_trackers import sim_art
     from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.lifecycle import stop_on_signals
+    from ubitrack_agent.sim_trackers import sim_art
 
     prog = "ubitrack sim art"
     scenario = load(args, prog)
@@ -192,10 +192,10 @@ def _run_art(args: argparse.Namespace) -> int:
 def _run_camera(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from sim_trackers.runtime import provider_session, run_periodic
-    from sim_trackers.sim_camera import CameraSimulator, announcements
     from ubitrack_agent.net.clock import Clock
     from ubitrack_agent.net.lifecycle import stop_on_signals
+    from ubitrack_agent.sim_trackers.runtime import provider_session, run_periodic
+    from ubitrack_agent.sim_trackers.sim_camera import CameraSimulator, announcements
 
     prog = "ubitrack sim camera"
     if (prepared := prepare(args, prog)) is None:
@@ -235,14 +235,14 @@ def _run_camera(args: argparse.Namespace) -> int:
 def _run_database(args: argparse.Namespace) -> int:
     import time
 
-    from sim_trackers.database import static_edges
-    from sim_trackers.runtime import provider_session
     from ubitrack_agent.io.static_edges import (
         StaticEdgesError,
         read_static_edges,
         write_static_edges,
     )
     from ubitrack_agent.net.lifecycle import stop_on_signals
+    from ubitrack_agent.sim_trackers.database import static_edges
+    from ubitrack_agent.sim_trackers.runtime import provider_session
 
     prog = "ubitrack sim database"
     if (prepared := prepare(args, prog)) is None:

@@ -55,7 +55,7 @@ M = TypeVar("M", bound=Measurement)
 
 RUN_MIN = 8
 """Samples taken together from which :func:`decode_run` is worth it (a worker's backlog,
-``services.worker``): below it a run's numpy calls cost about what they save."""
+``ubitrack_agent.services.worker``): below it a run's numpy calls cost about what they save."""
 SHORT_MESSAGE_FLOATS = 256
 """Up to this many numbers, :func:`_all_finite` checks them as Python floats."""
 
@@ -309,8 +309,8 @@ def decode_run(
 ) -> list[M | MeasurementError]:
     """Each of ``payloads`` as :func:`decode` decodes it: the same measurement, or the
     :class:`MeasurementError` it raises (returned in its place). For a worker draining a
-    backlog (``services.worker``): the messages of one type an encoder wrote are checked
-    together (:meth:`_Canonical.read_run`), a numpy call per check for the whole run instead
+    backlog (``ubitrack_agent.services.worker``): the messages of one type an encoder wrote are
+    checked together (:meth:`_Canonical.read_run`), a numpy call per check for the whole run instead
     of one per message; anything else goes to the general reader one by one."""
     results: list[Any] = [None] * len(payloads)
     messages: dict[int, dict[str, Any]] = {}

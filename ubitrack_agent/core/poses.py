@@ -87,8 +87,8 @@ def compose_pose_pairs(firsts: Sequence[AnyPose], seconds: Sequence[AnyPose]) ->
     """:func:`compose_poses` of each pair, equal to round-off. Where every first pose holds
     the same arrays (a static edge, restamped for each instant) and the second poses are of
     one type, by a few numpy calls over the stacked second poses instead of a dozen per pair:
-    for a worker draining a backlog (``services.worker``, ``docs/performance.md``, "Data
-    path"). Each result's arrays are read-only rows of the run's."""
+    for a worker draining a backlog (``ubitrack_agent.services.worker``, ``docs/performance.md``,
+    "Data path"). Each result's arrays are read-only rows of the run's."""
     first, kind = firsts[0], type(seconds[0])
     cov1 = getattr(first, "covariance", None)
     if len(seconds) < 2 or any(

@@ -429,7 +429,7 @@ def load_template(path: str | Path | Traversable) -> Template:
 def shipped_templates() -> Traversable:
     """The template directory shipped with the package: the top-level ``templates`` package's
     data files, found by :mod:`importlib.resources` in a wheel and in an editable install."""
-    return importlib.resources.files("templates")
+    return importlib.resources.files("ubitrack_agent.templates")
 
 
 def load_templates(directory: str | Path | Traversable | None = None) -> tuple[Template, ...]:

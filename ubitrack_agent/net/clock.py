@@ -20,9 +20,10 @@ as queueing only ever adds delay. An estimate's uncertainty grows with its age b
 frequency tolerance ``PHI`` of RFC 5905 (15 ppm), the drift two free-running clocks may have.
 
 The agent's side is :func:`serve_clock` (the queryable ``<root>/agent/clock``, declared while
-it is the active agent), the host manager's :func:`measure_offset` (``services.clock_sync``).
-A reply that is not a well-formed exchange is a :class:`ClockRejection`, counted and logged
-rate-limited by the caller; nothing from the network raises.
+it is the active agent), the host manager's :func:`measure_offset`
+(``ubitrack_agent.services.clock_sync``). A reply that is not a well-formed exchange is a
+:class:`ClockRejection`, counted and logged rate-limited by the caller; nothing from the network
+raises.
 
 ``Settings.clock_offset_ms`` (``--clock-offset-ms``, for tests) makes a process's clock read
 that much ahead of the real one: :class:`Clock` applies it, so a host manager, simulator or

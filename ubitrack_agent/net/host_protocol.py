@@ -1,5 +1,6 @@
 """The host manager protocol (``docs/protocol.md``): requests, replies and exit reports on the
-``<root>/host/<name>`` keys, defined once for both ends (the agent and ``services.host_manager``).
+``<root>/host/<name>`` keys, defined once for both ends (the agent and
+``ubitrack_agent.services.host_manager``).
 
 A request is one JSON object, the payload of a ``get`` on ``<root>/host/<name>/request``::
 
@@ -8,11 +9,11 @@ A request is one JSON object, the payload of a ``get`` on ``<root>/host/<name>/r
     {"op": "stop", "instance": "<instance>"}
     {"op": "status"}
 
-A ``start_group`` runs the group's components in the container it names (``services.container``,
-one process hosting many components): started with them if it does not run, else they are
-added to the running process (no process start). Starting N components on a host is one
-request. A stop of a component in a container removes it from there; the container ends with
-its last component.
+A ``start_group`` runs the group's components in the container it names
+(``ubitrack_agent.services.container``, one process hosting many components): started with them if
+it does not run, else they are added to the running process (no process start). Starting N
+components on a host is one request. A stop of a component in a container removes it from there; the
+container ends with its last component.
 
 Success is an ordinary reply holding a JSON object (:class:`Started` for a start,
 :class:`StartedGroup` for a start_group; see the host manager for stop and status); a refusal
@@ -65,7 +66,8 @@ container); or its container died and the host manager started it again with the
 specification it was started with, under the same run: the agent sends its current wiring)."""
 
 STOP_COMMAND = json.dumps({"stop": True})
-"""The control command that ends a worker (``services.worker``), put on its control key."""
+"""The control command that ends a worker (``ubitrack_agent.services.worker``), put on its
+control key."""
 
 
 class ProtocolError(ValueError):
@@ -132,7 +134,8 @@ def encode_request(request: Request) -> str:
 
 def parse_request(payload: bytes | None) -> Request:
     """The request in ``payload``; :class:`ProtocolError` if it is not one. The specification
-    of a start is checked for form only (``services.spec.check_spec`` checks the service)."""
+    of a start is checked for form only (``ubitrack_agent.services.spec.check_spec`` checks the
+    service)."""
     data = _json_object(payload)
     op = data.get("op")
     fields = {

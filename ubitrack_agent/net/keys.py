@@ -28,14 +28,15 @@ Layout (all below ``<prefix>/<domain>``, default ``ubitrack/default``)::
                                      standby (agent.election: one active agent per domain)
     <root>/agents/<id>/active        liveliness token the active agent adds to its own
     <root>/agents/<id>/status        queryable: that agent's state, a standby's too (JSON)
-    <root>/host/<name>               liveliness token of a host manager (services.host)
-    <root>/host/<name>/request       queryable: start, stop, status requests (JSON)
-    <root>/host/<name>/exited        a worker that ended without being asked (JSON, put)
-    <root>/pool/<id>                 an idle pre-started worker: its token, and where its
+    <root>/host/<name>               liveliness token of a host manager
+    (ubitrack_agent.services.host) <root>/host/<name>/request       queryable: start, stop, status
+    requests (JSON) <root>/host/<name>/exited        a worker that ended without being asked (JSON,
+    put) <root>/pool/<id>                 an idle pre-started worker: its token, and where its
                                      component specification (or group) is sent
     <root>/container/<name>/<incarnation>
-                                     liveliness token of a container (services.container) once
-                                     it takes commands on <root>/control/<name>
+                                     liveliness token of a container
+                                     (ubitrack_agent.services.container) once it takes commands on
+                                     <root>/control/<name>
     <root>/left/<name>               components that left container <name> by their own stop
                                      command (JSON, put): its host manager forgets them
     <root>/worker/<instance>/<incarnation>

@@ -16,11 +16,11 @@ object::
      "value": {"type": "ErrorPose", "rotation": [...], "translation": [...], "covariance": [...]}}
 
 ``status`` is one of :data:`STATUSES`: ``initialising`` (too few samples for an estimate),
-``averaging``, ``converged`` (the documented rule of ``services.algorithms.static_estimate``:
-final, the flow may stop) or ``not_static`` (the inputs move more than their noise explains:
-the relation is not static and nothing is averaged; ``motion`` says how far it moved).
-Lengths in metres, angles in radians. :func:`parse_progress` is total: it returns a
-:class:`Progress` or raises :class:`ProgressError`.
+``averaging``, ``converged`` (the documented rule of
+``ubitrack_agent.services.algorithms.static_estimate``: final, the flow may stop) or ``not_static``
+(the inputs move more than their noise explains: the relation is not static and nothing is averaged;
+``motion`` says how far it moved). Lengths in metres, angles in radians. :func:`parse_progress` is
+total: it returns a :class:`Progress` or raises :class:`ProgressError`.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ in correspondence order; under ``time`` one, and the worker accumulates samples 
 
 :func:`parse_spec` checks the form of every field and raises :class:`SpecError` naming the
 field; whether the service is registered and its ports match is checked where services are
-known, by ``services.spec.check_spec`` (the agent never imports a service).
+known, by ``ubitrack_agent.services.spec.check_spec`` (the agent never imports a service).
 """
 
 from __future__ import annotations
@@ -49,11 +49,12 @@ DEFAULT_TOLERANCE_MS = 5.0
 """How far from a trigger's time the nearest sample of an input may be when there is no
 sample on each side to interpolate between (a moving target at 1 m/s moves 5 mm in 5 ms)."""
 DEFAULT_WAIT_MS = 50.0
-"""The longest a trigger waits for the other inputs' next samples (see services.triggers)."""
+"""The longest a trigger waits for the other inputs' next samples (see
+ubitrack_agent.services.triggers)."""
 EXPANSIONS = ("none", "space", "time")
 TIME_EXPANSION_OPTIONS = ("min_motion", "min_rotation_deg", "max_samples")
-"""Options of a time expansion (``services.expansion``): least change of a position or
-translation (m, or px for 2D), least change of a rotation (degrees), the history's bound."""
+"""Options of a time expansion (``ubitrack_agent.services.expansion``): least change of a position
+or translation (m, or px for 2D), least change of a rotation (degrees), the history's bound."""
 
 
 class SpecError(ValueError):
@@ -164,7 +165,7 @@ BINDING_FIELDS = frozenset({"port", "key", "trigger", "static", "clock_offset_ns
 
 def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, ...]:
     """The form of a list of input bindings (ports are checked against the service by
-    ``services.spec.check_bindings``)."""
+    ``ubitrack_agent.services.spec.check_bindings``)."""
     if not isinstance(raw, list):
         raise SpecError(f"{where}: expected a list of bindings")
     bindings = []
@@ -194,7 +195,7 @@ def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, 
 
 def parse_outputs(raw: Any, where: str = "spec.outputs") -> dict[str, str]:
     """The form of ``{output port: data key}`` (ports are checked against the service by
-    ``services.spec.check_outputs``)."""
+    ``ubitrack_agent.services.spec.check_outputs``)."""
     if not isinstance(raw, dict):
         raise SpecError(f"{where}: expected an object")
     return {port: _key(key, f"{where}.{port}") for port, key in raw.items()}
@@ -311,7 +312,7 @@ MAX_GROUP_BYTES = 4 * 1024 * 1024
 class LocalWire:
     """A wire inside a container: output ``port`` of ``producer`` read by input ``index`` of
     ``reader`` (its binding's key is the producer's output key), handed over as the
-    measurement object, with no encoding and no zenoh (``services.local_wires``)."""
+    measurement object, with no encoding and no zenoh (``ubitrack_agent.services.local_wires``)."""
 
     producer: str
     port: str
@@ -322,7 +323,7 @@ class LocalWire:
 @dataclass(frozen=True)
 class GroupSpec:
     """The components one container (a worker process hosting many component instances,
-    ``services.container``) runs: their specifications, named by the container.
+    ``ubitrack_agent.services.container``) runs: their specifications, named by the container.
 
     JSON form: ``{"container": "<name>", "components": [<specification>, ...]}``.
     The local wires are not written out: they follow from the keys (:attr:`wires`), so a group
@@ -406,8 +407,8 @@ def parse_components(raw: Any, where: str) -> tuple[ComponentSpec, ...]:
 
 
 def parse_assignment(text: str | bytes | Mapping[str, Any]) -> ComponentSpec | GroupSpec:
-    """What a pool member is given to run (``services.worker.Pool``): a group (an object with a
-    ``container`` field, :func:`parse_group`) or one specification (:func:`parse_spec`).
-    Raises :class:`SpecError` and nothing else."""
+    """What a pool member is given to run (``ubitrack_agent.services.worker.Pool``): a group (an
+    object with a ``container`` field, :func:`parse_group`) or one specification
+    (:func:`parse_spec`). Raises :class:`SpecError` and nothing else."""
     data = _read_object(text, MAX_GROUP_BYTES, "assignment")
     return parse_group(data) if "container" in data else parse_spec(data)

@@ -4,8 +4,8 @@ A query ``<key>?t=<ns>`` asks the producer publishing on ``<key>`` (a worker's o
 a relation key) for the value at ``t`` nanoseconds: a worker answers by interpolation of its
 inputs, from its filter's motion model for the near future (at most
 :data:`ubitrack_agent.core.timeline.MAX_AHEAD_NS` after the newest measurement), or by asking
-its own inputs' producers the same question (``services.worker``). A reply is the encoded
-measurement stamped ``t`` (``core.codec``), or an error reply: a JSON object ``{"error":
+its own inputs' producers the same question (``ubitrack_agent.services.worker``). A reply is the
+encoded measurement stamped ``t`` (``core.codec``), or an error reply: a JSON object ``{"error":
 <kind>, "message": <text>}`` whose kind names the typed exception the asker raises
 (:data:`ERRORS`). A query without ``t`` gets the latest value, as before
 (:class:`ubitrack_agent.net.transport.LatestValuePublisher`).

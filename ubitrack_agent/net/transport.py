@@ -47,7 +47,8 @@ def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[list[bytes]],
     its receiving thread, which serves every subscription of the session, never runs Python,
     and the thread wakes once for a burst: a consumer that handles the burst on this thread
     takes each sample after one thread hand-off, and a backlog at once
-    (``services.worker``, ``docs/performance.md``, "Data path"). ``deliver`` must not raise."""
+    (``ubitrack_agent.services.worker``, ``docs/performance.md``, "Data path"). ``deliver`` must not
+    raise."""
     subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(INPUT_CHANNEL_CAPACITY))
     # The channel itself, not the subscriber: a call on the subscriber while another thread
     # undeclares it fails ("Already mutably borrowed", pyo3's check of the object's use).

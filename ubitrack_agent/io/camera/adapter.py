@@ -2,8 +2,8 @@
 
 A :class:`~ubitrack_agent.io.adapter.SensorAdapter` over frames (``numpy`` images, 8-bit grey
 or BGR, as ``cv2.VideoCapture.read`` gives them), following the simulated camera
-(:mod:`sim_trackers.sim_camera`) so that the agent's 2D-3D pose estimation consumes its
-measurements unchanged:
+(:mod:`ubitrack_agent.sim_trackers.sim_camera`) so that the agent's 2D-3D pose estimation consumes
+its measurements unchanged:
 
 * **Edges.** Each mapped marker id ``i`` with frame ``M`` (``M<i>`` by default,
   :mod:`.aruco`) gives four dynamic 2D edges ``<image plane> -> M_0 .. M_3``, one per corner

@@ -1,7 +1,8 @@
 """DTrack adapter: A.R.T. DTrack2/DTRACK3 ASCII UDP in, SRG edges and measurements out.
 
 A :class:`~ubitrack_agent.io.adapter.SensorAdapter` for a real A.R.T. system (point DTrack's
-output, *Settings -> Output*, at this host's port) or its simulator (:mod:`sim_trackers.sim_art`).
+output, *Settings -> Output*, at this host's port) or its simulator
+(:mod:`ubitrack_agent.sim_trackers.sim_art`).
 
 * **Edges.** Each mapped body id becomes a 6D edge ``<tracker> -> <frame>`` (dynamic, or static
   for a body fixed in the room, as the paper models ART->WT), and so does each mapped
