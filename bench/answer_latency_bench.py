@@ -4,10 +4,10 @@ a line it prints), as a user waits for it.
 
 Run: ``python -m bench.answer_latency_bench [--runs 5] [--label after] [--cap 15]``.
 Everything on loopback with real zenoh and real processes: an agent (with its host manager), the
-simulated calibration database (``ubitrack sim database``: frames C, IP, HT, WT, A, F1..F5) and
-a noise-free tracker (``sim_trackers.exact_tracker``: ART->WT, ART->HT). Cases, each ``--runs``
-times, a fresh command process each time (so every figure includes the interpreter's start and
-the imports, ``imports``):
+simulated calibration database (``ubitrack sim database``: frames C, IP, HT, WT, A, F1..F5)
+and a noise-free tracker (``ubitrack_agent.sim_trackers.exact_tracker``: ART->WT, ART->HT).
+Cases, each ``--runs`` times, a fresh command process each time (so every figure includes the
+interpreter's start and the imports, ``imports``):
 
 * ``imports``: ``python -c "import zenoh, ubitrack_agent.io.application"``, the floor under
   every other figure;
