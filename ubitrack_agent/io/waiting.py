@@ -94,11 +94,10 @@ def network_of(settings: Settings) -> str:
 
 def starting(answer: Answer | None, alive: Collection[str]) -> str | None:
     """The progress line of a served ``answer`` whose workers ``alive`` are running, or None
-    if the answer is not (yet) that the relation is served."""
-    if answer is None or not answer.served:
+    if the answer is not (yet) that the relation is served, or has no worker to start (a
+    measured edge answers it directly: its data is there as soon as it is published)."""
+    if answer is None or not answer.served or not answer.components:
         return None
-    if not answer.components:
-        return "planned: a measured edge answers it directly; waiting for its data"
     count = len(answer.components)
     running = sum(instance in alive for instance in answer.components)
     return f"planned: {count} component{'s' * (count != 1)}, {running} alive"
