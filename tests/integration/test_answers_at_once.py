@@ -88,7 +88,7 @@ def test_no_agent_is_said_as_such(setup: Setup):
     for command in ("subscribe", "calibrate"):
         out = ubitrack(command, "C", "A", *flags)
         assert out.returncode == 1, out.stderr
-        assert f"no agent on tcp/127.0.0.1:{port}/nobody{port} within 2 s" in out.stderr
+        assert f"no agent on tcp/127.0.0.1:{port}/nobody{port} within 1.5 s" in out.stderr
         assert "--wait waits for one" in out.stderr
     out = ubitrack("subscribe", "C", "A", "--wait", "--timeout", "3", *flags)
     assert out.returncode == 1, out.stderr

@@ -19,7 +19,7 @@ and every tracking flow use the new one.
 The agent's answer comes at once: if it cannot serve the relation, its reason (``ubitrack
 status`` lists the same) and exit 1, with a "did you mean" for a frame named almost like an
 announced one; while the flow computing it starts, a line as it comes up ("planned: 3
-components, 1 alive"), then the progress; if no agent is there within 2 s, "no agent on
+components, 1 alive"), then the progress; if no agent is there within 1.5 s, "no agent on
 ENDPOINT/DOMAIN" and exit 1. ``--wait`` waits on instead (up to ``--timeout``), for sensors or
 an agent still starting.
 

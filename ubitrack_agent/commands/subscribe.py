@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "derivation...), its reason and exit 1, with a 'did you mean' for a frame named almost "
         "like an announced one; if it starts a flow for it, a line on stderr as the flow comes "
         "up ('planned: 3 components, 1 alive'), then the samples; if no agent is there within "
-        "2 s, 'no agent on ENDPOINT/DOMAIN' and exit 1. --wait waits on instead, for sensors "
+        "1.5 s, 'no agent on ENDPOINT/DOMAIN' and exit 1. --wait waits on instead, for sensors "
         "or an agent still starting.",
     )
     parser.add_argument("source", metavar="FROM", help="source frame, e.g. C")

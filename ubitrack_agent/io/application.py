@@ -107,7 +107,7 @@ class NotStatic(RuntimeError):
         self.progress = progress
 
 
-NO_AGENT_AFTER_S = 2.0
+NO_AGENT_AFTER_S = 1.5
 """Seconds without an active agent's token after which a wait ends with :class:`NoAgent`
 (unless the relation keeps waiting): on a working network the token arrives with the first
 link, within milliseconds of the session opening."""
