@@ -345,6 +345,7 @@ def main(argv: list[str] | None = None) -> None:
                     RelationId("C", "A", "6D"),
                     application="fusion-bench",
                     callback=lambda m: arrivals.put((time.time_ns(), m)),
+                    keep_waiting=True,  # asked before the sensors start
                 ) as relation,
             ):
                 art_times: set[int] = set()  # the A.R.T. frames' timestamps

@@ -253,7 +253,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             children.start("agent", ["agent", "--quiet", *config.as_flags(hub)])
             with (
                 open_session(config.member_of(hub)) as session,
-                Relation(session, keys, C_A, application="switch-bench") as relation,
+                Relation(  # asked before the sensors start
+                    session, keys, C_A, application="switch-bench", keep_waiting=True
+                ) as relation,
             ):
                 watch = session.declare_subscriber(keys.relation(C_A), wire.take)
                 children.start("sim database", commands["sim database"])

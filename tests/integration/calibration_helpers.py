@@ -92,9 +92,9 @@ class LiveCalibration:
         return self.start("-m", "ubitrack_agent.cli", "store", str(path), *self.member)
 
     def run_calibrate(self, *arguments: str) -> subprocess.CompletedProcess:
-        """``ubitrack calibrate --json ARGUMENTS`` to its end (``--timeout 60`` unless the
-        arguments give another; at most 90 s)."""
-        command = ["calibrate", "--json", "--timeout", "60", *arguments, *self.member]
+        """``ubitrack calibrate --json --wait ARGUMENTS`` to its end (``--timeout 60`` unless
+        the arguments give another; at most 90 s): it waits for trackers still starting."""
+        command = ["calibrate", "--json", "--wait", "--timeout", "60", *arguments, *self.member]
         return subprocess.run(
             [sys.executable, "-m", "ubitrack_agent.cli", *command],
             capture_output=True,

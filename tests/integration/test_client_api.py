@@ -120,7 +120,9 @@ def test_relation_announces_query_and_delivers_samples():
             f"{keys.root}/query/**", lambda s: queries.append(str(s.key_expr))
         )
         seen = []
-        with Relation(app_side, keys, wanted, application="app1", callback=seen.append) as relation:
+        with Relation(  # no agent here: the test publishes the relation itself
+            app_side, keys, wanted, application="app1", callback=seen.append, keep_waiting=True
+        ) as relation:
             wait_until(lambda: queries)
             host = config.default_host_name()
             assert keys.parse_query(queries[0]) == (wanted, "app1", host, frozenset())

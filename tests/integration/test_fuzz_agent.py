@@ -176,7 +176,9 @@ def test_an_agent_started_among_hostile_tokens_keeps_running(setup):  # noqa: F8
     try:
         agent = setup.start_agent()
         setup.tracker("art", "ART", 30.0, 2.0)
-        with Relation(session, setup.keys, WT_HT, application="app") as relation:
+        with Relation(  # asked while the tracker starts
+            session, setup.keys, WT_HT, application="app", keep_waiting=True
+        ) as relation:
             for sample in fresh_samples(relation, 10, timeout=30):
                 assert_true_pose(sample)
         status = setup.status()

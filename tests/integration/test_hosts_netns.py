@@ -266,7 +266,9 @@ def deployment(netns, tmp_path_factory) -> Iterator[Deployment]:
     d.other("room", "art", "sim", "art", "--port", str(ART_PORT), *on_scenario, zenoh=False)
     d.other("room", "dtrack", "dtrack", *dtrack_flags(scenario.art, ART_PORT))
     d.other("hmd", "camera", "sim", "camera", *on_scenario)
-    d.other("hmd", "application", "subscribe", "C", "A", "--type", "6D", "--timeout", "inf")
+    d.other(
+        "hmd", "application", "subscribe", "C", "A", "--type", "6D", "--wait", "--timeout", "inf"
+    )
     yield d
 
 

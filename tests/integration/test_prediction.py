@@ -47,7 +47,9 @@ def test_pose_predicted_for_display_beats_the_latest_sample(processes, tmp_path:
     start("agent", *config.as_flags(hub))
     with (
         open_session(config.member_of(hub)) as session,
-        Relation(session, KeySpace(hub.key_prefix), RelationId("C", "A", "6D")) as relation,
+        Relation(
+            session, KeySpace(hub.key_prefix), RelationId("C", "A", "6D"), keep_waiting=True
+        ) as relation,  # asked before the sensors start
     ):
         start("sim", "database", *scenario_flag, *member)
         start(*simulators["sim camera"], *member)

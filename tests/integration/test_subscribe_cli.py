@@ -30,7 +30,8 @@ def test_an_unservable_relation_ends_with_the_agents_reason(processes):
         start_new_session=True,
     )
     processes.append(agent)
-    command = ["subscribe", "NOPE", "A", "--timeout", "4", *member_flags(port, domain)]
+    # the agent may still be starting: --wait, the reason at the time-out
+    command = ["subscribe", "NOPE", "A", "--wait", "--timeout", "4", *member_flags(port, domain)]
     out = subprocess.run(
         [sys.executable, "-m", "ubitrack_agent.cli", *command],
         capture_output=True,

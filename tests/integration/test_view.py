@@ -156,7 +156,9 @@ def test_the_view_shows_the_running_flow_in_headless_chromium(processes, tmp_pat
     keys = KeySpace(hub.key_prefix)
     with (
         open_session(config.member_of(hub)) as session,
-        Relation(session, keys, RelationId("C", "A", "6D")) as relation,
+        Relation(
+            session, keys, RelationId("C", "A", "6D"), keep_waiting=True
+        ) as relation,  # asked before the sensors start
     ):
         start("sim", "database", *scenario_flag, *member)
         start("sim", "world", "--quiet", *scenario_flag, *member)

@@ -10,10 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.unit.test_agent_pure import KEYS, paper_fragments, specs_for
-from ubitrack_agent.agent.answers import NOT_PLANNED, query_answers
+from ubitrack_agent.agent.answers import query_answers
 from ubitrack_agent.agent.flows import Plan
 from ubitrack_agent.graph.dataflow import DataFlow
-from ubitrack_agent.net.answer import Answer, AnswerError, parse_answer
+from ubitrack_agent.net.answer import NOT_PLANNED, Answer, AnswerError, parse_answer
 from ubitrack_agent.net.keys import RelationId
 
 C_A = RelationId("C", "A", "6D")

@@ -1,17 +1,20 @@
 """The application side's handling of samples (``ubitrack_agent/io/application.py``, issue 11):
 a sample stamped far ahead of the clock is rejected and counted, and never freezes
-``latest()``."""
+``latest()``; and of the agent's answer (issue 31): one that the relation cannot be served, or
+no agent, ends a wait at once unless the relation keeps waiting."""
 
 from __future__ import annotations
 
+import threading
 import time
 from types import SimpleNamespace
 
 import pytest
 
 from tests.unit.test_worker_inputs import FakeSession, pose
+from ubitrack_agent.io import application
 from ubitrack_agent.io.application import NoAgent, Relation, UnsolvedRelation
-from ubitrack_agent.net.answer import Answer
+from ubitrack_agent.net.answer import NOT_PLANNED, Answer
 from ubitrack_agent.net.keys import KeySpace, RelationId
 
 KEYS = KeySpace("ubitrack/test")
@@ -98,3 +101,97 @@ def test_a_static_relation_takes_each_new_value_whatever_its_stamp():
         session.deliver(KEYS.relation(static), pose(now))
         session.deliver(KEYS.relation(static), pose(now))
         assert relation.counters["out_of_order"] == 0 and relation.received == 2
+
+
+def deliver_later(session: FakeSession, key: str, payload: bytes) -> threading.Thread:
+    """``payload`` on ``key`` from another thread, as zenoh delivers it, a moment from now."""
+    thread = threading.Timer(0.05, session.deliver, (key, payload))
+    thread.start()
+    return thread
+
+
+def agent_token(session: FakeSession, kind: str = "SampleKind.PUT") -> None:
+    """The active agent's token appearing (or with ``kind`` DELETE going)."""
+    token = SimpleNamespace(key_expr=f"{KEYS.agent_active('18ea.1')}", kind=kind)
+    session.callbacks[KEYS.all_active_agents()](token)
+
+
+UNSOLVED = Answer(str(RELATION), False, KEYS.relation(RELATION), "no provider announces frame(s) A")
+
+
+def test_an_answer_that_the_relation_cannot_be_served_ends_a_long_wait_at_once():
+    """Issue 31: the reason as soon as it arrives, not at the wait's timeout (``timeout`` is
+    None on an exception that ended the wait before its timeout)."""
+    session = FakeSession()
+    with Relation(session, KEYS, RELATION, application="app") as relation:
+        agent_token(session)
+        delivering = deliver_later(session, KEYS.answer(RELATION), UNSOLVED.encode().encode())
+        with pytest.raises(UnsolvedRelation) as raised:
+            relation.wait_for(timeout=60.0)
+        delivering.join()
+        assert raised.value.timeout is None and raised.value.reason == UNSOLVED.reason
+        assert str(raised.value) == f"{RELATION}: the agent cannot serve it: {UNSOLVED.reason}"
+        with pytest.raises(UnsolvedRelation):  # and every later wait, while the answer holds
+            relation.get(timeout=60.0)
+        assert isinstance(relation.verdict(), UnsolvedRelation)
+
+
+def test_not_planned_yet_is_no_reason_to_stop_waiting():
+    session = FakeSession()
+    with Relation(session, KEYS, RELATION, application="app") as relation:
+        agent_token(session)
+        pending = Answer(str(RELATION), False, KEYS.relation(RELATION), NOT_PLANNED)
+        session.deliver(KEYS.answer(RELATION), pending.encode().encode())
+        assert relation.verdict() is None
+        with pytest.raises(UnsolvedRelation) as raised:
+            relation.wait_for(timeout=0.05)
+        assert raised.value.timeout == 0.05  # waited to its timeout, then said what it knew
+        assert raised.value.reason == NOT_PLANNED
+
+
+def test_a_relation_asked_to_keep_waiting_waits_to_its_timeout_and_then_says_why():
+    session = FakeSession()
+    with Relation(session, KEYS, RELATION, application="app", keep_waiting=True) as relation:
+        agent_token(session)
+        session.deliver(KEYS.answer(RELATION), UNSOLVED.encode().encode())
+        assert relation.verdict() is None
+        with pytest.raises(UnsolvedRelation) as raised:
+            relation.wait_for(timeout=0.05)
+        assert raised.value.timeout == 0.05  # it waited for its timeout
+        assert "no sample of C->A:6D within 0.05 s: the agent cannot serve it" in str(raised.value)
+
+
+def test_no_agent_ends_a_long_wait_after_the_grace(monkeypatch):
+    """With no active agent's token for ``NO_AGENT_AFTER_S`` (here shortened), a wait ends with
+    ``NoAgent`` whatever its timeout; as it does when the agent goes away."""
+    monkeypatch.setattr(application, "NO_AGENT_AFTER_S", 0.05)
+    session = FakeSession()
+    with Relation(session, KEYS, RELATION, application="app") as relation:
+        with pytest.raises(NoAgent) as raised:
+            relation.wait_for(timeout=60.0)
+        assert raised.value.timeout is None
+        agent_token(session)
+        assert relation.verdict() is None
+        agent_token(session, "SampleKind.DELETE")  # it went away
+        with pytest.raises(NoAgent) as raised:
+            relation.get(timeout=60.0)
+        assert raised.value.timeout is None
+    with Relation(session, KEYS, RELATION, application="app", keep_waiting=True) as relation:
+        with pytest.raises(NoAgent) as raised:
+            relation.wait_for(timeout=0.1)
+        assert raised.value.timeout == 0.1  # kept waiting, to its timeout
+
+
+def test_once_samples_have_come_waits_run_to_their_timeout():
+    """A sample already there is handed over whatever the answer; after the first sample the
+    answer no longer ends a wait early (an agent restarting, a flow replanned)."""
+    session = FakeSession()
+    with Relation(session, KEYS, RELATION, application="app") as relation:
+        now = time.time_ns()
+        session.deliver(KEYS.relation(RELATION), pose(now))
+        session.deliver(KEYS.answer(RELATION), UNSOLVED.encode().encode())
+        assert relation.get(timeout=60.0).timestamp_ns == now
+        assert relation.verdict() is None
+        with pytest.raises(UnsolvedRelation) as raised:
+            relation.get(timeout=0.05)
+        assert raised.value.timeout == 0.05

@@ -177,8 +177,13 @@ def test_the_frame_size_must_fit_the_intrinsics():
     intrinsics = CameraIntrinsics(0, np.diag([800.0, 800.0, 1.0]), np.zeros(5), (640, 480))
     check_frame_size(FakeSizes(640, 480), intrinsics)
     check_frame_size(FakeSizes(0, 0), intrinsics)  # the source does not tell
-    with pytest.raises(ValueError, match="1280x720 px but the intrinsics are for 640x480"):
+    with pytest.raises(ValueError, match="1280x720 px but the intrinsics are for 640x480") as e:
         check_frame_size(FakeSizes(1280, 720), intrinsics)
+    # the whole advice, both ways out, not a clause cut off after "the camera's"
+    assert str(e.value).endswith(
+        "calibrate the camera again at 1280x720 (`ubitrack intrinsics`, docs/camera.md) "
+        "or set the camera's resolution to 640x480"
+    )
 
 
 def test_the_intrinsics_come_from_a_static_edges_file(tmp_path: Path):

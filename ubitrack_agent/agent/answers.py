@@ -10,12 +10,9 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 
 from ubitrack_agent.agent.flows import Plan, plan_name
-from ubitrack_agent.net.answer import Answer
+from ubitrack_agent.net.answer import NOT_PLANNED, Answer
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.spec import ComponentSpec
-
-NOT_PLANNED = "not planned yet"
-"""The reason given for a query the agent has not planned (it arrived since the last plan)."""
 
 
 def query_answers(

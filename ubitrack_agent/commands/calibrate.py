@@ -16,11 +16,16 @@ using the stored value are not disturbed meanwhile. ``--save`` then replaces the
 (the store keeps the previous one in the entry's history), and from then on the static relation
 and every tracking flow use the new one.
 
-On a time-out it says why the agent cannot serve the relation, if it cannot (``ubitrack
-status`` lists the same reasons).
+The agent's answer comes at once: if it cannot serve the relation, its reason (``ubitrack
+status`` lists the same) and exit 1, with a "did you mean" for a frame named almost like an
+announced one; while the flow computing it starts, a line as it comes up ("planned: 3
+components, 1 alive"), then the progress; if no agent is there within 1.5 s, "no agent on
+ENDPOINT/DOMAIN" and exit 1. ``--wait`` waits on instead (up to ``--timeout``), for sensors or
+an agent still starting.
 
-Exit status: 0 converged (and saved with ``--save``) or already known; 1 not static, no
-convergence within ``--timeout``, or the store refused or did not answer; 2 bad arguments.
+Exit status: 0 converged (and saved with ``--save``) or already known; 1 the agent cannot serve
+the relation, no agent, not static, no convergence within ``--timeout``, or the store refused
+or did not answer; 2 bad arguments.
 """
 
 from __future__ import annotations
@@ -63,7 +68,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="give up after this many seconds without convergence (default: %(default)s)",
     )
     parser.add_argument(
-        "--json", action="store_true", help="one JSON object per progress report and result"
+        "--wait",
+        action="store_true",
+        help="keep waiting (up to --timeout) when the agent cannot serve the relation yet or "
+        "no agent is there yet, instead of exiting 1 at once",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="one JSON object per line: planned, progress, result (and the reason it ends "
+        "without one)",
     )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
@@ -113,8 +127,10 @@ def _known_from(recalibrate: bool) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ubitrack_agent.io.application import NotStatic, Relation
+    from ubitrack_agent.commands.subscribe import no_agent
+    from ubitrack_agent.io.application import NoAgent, NotStatic, Relation, UnsolvedRelation
     from ubitrack_agent.io.calibration import StoreError, follow, save, save_request
+    from ubitrack_agent.io.waiting import StartWatch, announced_frames, frame_hint, network_of
     from ubitrack_agent.net.keys import KeySpace, RelationId
     from ubitrack_agent.net.progress import Progress
     from ubitrack_agent.net.session import open_session
@@ -132,17 +148,41 @@ def run(args: argparse.Namespace) -> int:
     def say(document: dict[str, Any], text: str) -> None:
         print(json.dumps(document) if args.json else text, flush=True)
 
+    def fail(document: dict[str, Any], message: str) -> int:
+        """Say why it ends without a result (stderr; with --json also as a line on stdout)."""
+        if args.json:
+            print(json.dumps({**document, "message": message}), flush=True)
+        print(f"{prog}: {message}", file=sys.stderr)
+        return 1
+
     keys = KeySpace(settings.key_prefix)
+
+    def planned(line: str) -> None:
+        say({"event": "planned", "line": line}, f"{relation_id}: {line}")
+
     with (
         open_session(settings) as session,
-        Relation(session, keys, relation_id, host=settings.host_name) as relation,
+        StartWatch(session, keys, relation_id, planned) as watch,
+        Relation(
+            session, keys, relation_id, host=settings.host_name, keep_waiting=args.wait
+        ) as relation,
     ):
 
         def report(progress: Progress) -> None:
+            watch.close()  # the flow is up
             line = describe(progress, relation_id.source, relation_id.target)
             say({"event": "progress", **vars(progress)}, line)
 
-        outcome = follow(relation, args.timeout, report)
+        try:
+            outcome = follow(relation, args.timeout, report)
+        except UnsolvedRelation as exc:
+            hint = frame_hint(relation_id, announced_frames(session, keys))
+            message = f"{exc}" + (f"; {hint}" if hint else "")
+            return fail({"event": "unsolved", "reason": exc.reason, "hint": hint}, message)
+        except NoAgent as exc:
+            message = f"{relation_id}: {no_agent(network_of(settings), exc.timeout, args.wait)}"
+            return fail({"event": "no_agent", "message": message}, message)
+        watch.close()
         if outcome.kind == "known":
             say(
                 {"event": "known", "value": outcome.value},

@@ -424,7 +424,9 @@ def _calibrate(session, keys, world, say, timeout: float) -> None:
             "[calibration] " + describe(progress, "C", "HT"),
         )
 
-    with Relation(session, keys, relation_id, application="demo-calibration") as relation:
+    with Relation(  # the trackers it needs may still be starting
+        session, keys, relation_id, application="demo-calibration", keep_waiting=True
+    ) as relation:
         outcome = follow(relation, timeout, report)
         if outcome.kind == "not_static":
             raise DemoFailed(str(NotStatic(relation_id, outcome.progress)))

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from ubitrack_agent.net import config
 from ubitrack_agent.net.status_line import periodic_status
+
+if TYPE_CHECKING:
+    from ubitrack_agent.io.calibration_store import CalibrationStore
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -17,7 +21,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "'Static-edges files') as a measured static edge, one provider '<name>.<edge>' each, "
         "and save the calibrations that `ubitrack calibrate --save` sends: written atomically "
         "to FILE with their provenance, the previous value kept in the entry's history, then "
-        "served. A missing FILE is an empty store, created on the first save. Runs until "
+        "served. A missing FILE is a new, empty store (it says so), created on the first save; "
+        "a missing folder is an error. Runs until "
         "SIGINT/SIGTERM.",
     )
     parser.add_argument("file", metavar="FILE", help="static-edges file (YAML)")
@@ -31,6 +36,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
+
+
+def serving(store: CalibrationStore, file: str, key: str) -> str:
+    """What the store serves, said once at its start: a missing file is a new, empty store."""
+    if store.new:
+        return (
+            f"{file} does not exist: a new, empty store (0 edges), on {key}; the first "
+            "`ubitrack calibrate ... --save` creates the file"
+        )
+    return f"serving {len(store.edges)} edge(s) of {file} on {key}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -52,15 +67,11 @@ def run(args: argparse.Namespace) -> int:
     with open_session(settings) as session:
         try:
             store = CalibrationStore(session, keys, args.file, args.name, settings.host_name)
-        except StaticEdgesError as exc:
+        except (StaticEdgesError, OSError) as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return 2
         with store:
-            print(
-                f"{prog}: serving {len(store.edges)} edge(s) of {args.file} on "
-                f"{keys.store(args.name)}",
-                flush=True,
-            )
+            print(f"{prog}: {serving(store, args.file, keys.store(args.name))}", flush=True)
             with periodic_status(
                 lambda: (
                     f"store {args.name}: serving {len(store.edges)} edge(s); "

@@ -16,6 +16,19 @@ DEFAULT_TIMEOUT_S = 10.0
 sensors are there (docs/performance.md), so ten seconds of silence means something is wrong."""
 
 
+def no_agent(network: str, timeout: float | None, waited: bool) -> str:
+    """What ``subscribe`` and ``calibrate`` say when no agent answered on ``network``
+    (``io.waiting.network_of``), at once (``timeout`` None) or at their time-out."""
+    from ubitrack_agent.io.application import NO_AGENT_AFTER_S
+
+    seconds = NO_AGENT_AFTER_S if timeout is None else timeout
+    wait = "" if waited else "; --wait waits for one"
+    return (
+        f"no agent on {network} within {seconds:g} s (start `ubitrack agent`, or give the "
+        f"--connect and --domain it uses{wait})"
+    )
+
+
 def labels(text: str) -> frozenset[str]:
     """``--host-labels``: comma-separated labels."""
     try:
@@ -24,15 +37,29 @@ def labels(text: str) -> frozenset[str]:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def relation_types() -> list[str]:
+    """The types a relation can be asked for: those a measurement is delivered as (the SRG's
+    edge types, ``graph.srg.EDGE_TYPES``, without importing the graph layer's networkx: a
+    command that exits at once should not spend a sixth of its time on imports it does not
+    use)."""
+    from ubitrack_agent.core import MEASUREMENT_TYPES
+
+    return sorted({cls.SRG_TYPE for cls in MEASUREMENT_TYPES.values()})
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "subscribe",
         help="ask the agent for a relationship and print its samples as JSON lines",
         description="Announce a query for FROM->TO and print every sample delivered on its "
         "relation key as one JSON object (type, timestamp_ns, value fields, covariance if any) "
-        "until interrupted, --count samples, or --timeout seconds without a sample; then exit 1 "
-        "with the agent's reason when it cannot serve the relation (unknown frame, no "
-        "derivation...).",
+        "until interrupted, --count samples, or --timeout seconds without a sample. The agent's "
+        "answer comes at once: if it cannot serve the relation (unknown frame, no "
+        "derivation...), its reason and exit 1, with a 'did you mean' for a frame named almost "
+        "like an announced one; if it starts a flow for it, a line on stderr as the flow comes "
+        "up ('planned: 3 components, 1 alive'), then the samples; if no agent is there within "
+        "1.5 s, 'no agent on ENDPOINT/DOMAIN' and exit 1. --wait waits on instead, for sensors "
+        "or an agent still starting.",
     )
     parser.add_argument("source", metavar="FROM", help="source frame, e.g. C")
     parser.add_argument("target", metavar="TO", help="target frame, e.g. A")
@@ -46,6 +73,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="give up (exit 1, saying why) after this many seconds without a sample "
         "(default: %(default)s; inf waits for ever; a static relation still being calibrated "
         "has no sample until it converges: `ubitrack calibrate` shows its progress)",
+    )
+    parser.add_argument(
+        "--wait",
+        action="store_true",
+        help="keep waiting (up to --timeout) when the agent cannot serve the relation yet or "
+        "no agent is there yet, instead of exiting 1 at once",
     )
     parser.add_argument("--app-id", help="application id in the query key (default: generated)")
     parser.add_argument(
@@ -62,14 +95,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ubitrack_agent.core import to_json
-    from ubitrack_agent.graph.srg import EDGE_TYPES
-    from ubitrack_agent.io.application import Relation
+    from ubitrack_agent.io.application import NoAgent, Relation, UnsolvedRelation
+    from ubitrack_agent.io.waiting import StartWatch, announced_frames, frame_hint, network_of
     from ubitrack_agent.net.keys import KeySpace, RelationId
     from ubitrack_agent.net.session import open_session
 
     try:
-        if args.type not in EDGE_TYPES:
-            raise ValueError(f"--type: unknown type {args.type!r}, expected {sorted(EDGE_TYPES)}")
+        if args.type not in (types := relation_types()):
+            raise ValueError(f"--type: unknown type {args.type!r}, expected {types}")
         if not args.timeout > 0:
             raise ValueError("--timeout must be positive (inf waits for ever)")
         settings = config.from_arguments(args, role="member")
@@ -81,8 +114,13 @@ def run(args: argparse.Namespace) -> int:
         print("ubitrack subscribe: --count must be at least 1", file=sys.stderr)
         return 2
     keys = KeySpace(settings.key_prefix)
+
+    def say(line: str) -> None:
+        print(f"ubitrack subscribe: {relation_id}: {line}", file=sys.stderr, flush=True)
+
     with (
         open_session(settings) as session,
+        StartWatch(session, keys, relation_id, say) as watch,
         Relation(
             session,
             keys,
@@ -90,17 +128,26 @@ def run(args: argparse.Namespace) -> int:
             args.app_id,
             host=settings.host_name,
             host_labels=args.host_labels,
+            keep_waiting=args.wait,
         ) as relation,
     ):
         printed = 0
         try:
             while args.count is None or printed < args.count:
                 sample = relation.get(timeout=None if math.isinf(args.timeout) else args.timeout)
+                watch.close()  # the flow is up
                 latency_ms = (time.time_ns() - sample.timestamp_ns) / 1e6
                 line = {**to_json(sample), "latency_ms": round(latency_ms, 3)}
                 print(json.dumps(line), flush=True)
                 printed += 1
-        except TimeoutError as exc:  # with the agent's reason (UnsolvedRelation, NoAgent)
+        except NoAgent as exc:
+            say(no_agent(network_of(settings), exc.timeout, args.wait))
+            return 1
+        except UnsolvedRelation as exc:
+            hint = frame_hint(relation_id, announced_frames(session, keys))
+            print(f"ubitrack subscribe: {exc}" + (f"; {hint}" if hint else ""), file=sys.stderr)
+            return 1
+        except TimeoutError as exc:
             print(f"ubitrack subscribe: {exc}", file=sys.stderr)
             return 1
     return 0

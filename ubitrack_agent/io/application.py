@@ -45,10 +45,17 @@ measured static edges between its two frames (a stored calibration), on relation
 keys of its own, while the plain static relation keeps serving the stored value.
 
 Why nothing arrives: the active agent answers each query (``net.answer``: the flow serving
-it, or why none can), kept in :attr:`Relation.answer`. When no sample comes within a timeout,
-:meth:`Relation.wait_for` and :meth:`Relation.get` raise :class:`UnsolvedRelation` with the
-planner's reason if the agent cannot serve the relation, :class:`NoAgent` if no agent is
-active on the domain, and a plain ``TimeoutError`` otherwise (the two are subclasses of it).
+it, or why none can), kept in :attr:`Relation.answer`, and the answer ends a wait as soon as
+it comes (issue 31): while no sample has come, :meth:`Relation.wait_for` and
+:meth:`Relation.get` raise :class:`UnsolvedRelation` with the planner's reason the moment the
+agent answers that it cannot serve the relation, and :class:`NoAgent` once no agent has been
+active on the domain for :data:`NO_AGENT_AFTER_S` (:meth:`Relation.verdict`), whatever their
+timeout. ``Relation(..., keep_waiting=True)`` waits on instead, for a relation that may become
+servable (its sensors still starting, the agent not yet up); its waits then end only at their
+timeout, with the same exceptions, or a plain ``TimeoutError`` if the agent serves the
+relation but no sample came (the two are subclasses of it). ``ubitrack_agent.io.waiting``
+says what a flow being started has done so far ("planned: 3 components, 1 alive") and which
+announced frame a mistyped name may have meant.
 
 A static relation computed from dynamic inputs (a calibration) also reports its progress
 (``ubitrack_agent.net.progress``): :attr:`Relation.progress` is the latest report, and
@@ -72,7 +79,7 @@ from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import logs
-from ubitrack_agent.net.answer import Answer, AnswerError, parse_answer
+from ubitrack_agent.net.answer import NOT_PLANNED, Answer, AnswerError, parse_answer
 from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
@@ -100,26 +107,41 @@ class NotStatic(RuntimeError):
         self.progress = progress
 
 
+NO_AGENT_AFTER_S = 1.5
+"""Seconds without an active agent's token after which a wait ends with :class:`NoAgent`
+(unless the relation keeps waiting): on a working network the token arrives with the first
+link, within milliseconds of the session opening."""
+
+
+def _no_sample(relation: RelationId, timeout: float | None) -> str:
+    """The start of the message: the time-out that ended the wait, or only the relation when
+    the wait ended before it (``timeout`` None)."""
+    return str(relation) if timeout is None else f"no sample of {relation} within {timeout} s"
+
+
 class UnsolvedRelation(TimeoutError):
     """No sample came because the agent cannot serve the relation; ``reason`` is the planner's
-    explanation (``"no provider announces frame(s) X"``, ...), ``cause`` says it in a clause."""
+    explanation (``"no provider announces frame(s) X"``, ...), ``cause`` says it in a clause.
+    ``timeout`` is None when the answer ended the wait before its timeout."""
 
     def __init__(self, relation: RelationId, timeout: float | None, reason: str) -> None:
+        self.timeout = timeout
         self.reason = reason
         self.cause = f"the agent cannot serve it: {reason}"
-        super().__init__(f"no sample of {relation} within {timeout} s: {self.cause}")
+        super().__init__(f"{_no_sample(relation, timeout)}: {self.cause}")
 
 
 class NoAgent(TimeoutError):
     """No sample came and no agent is active on the domain to plan the relation; ``cause``
-    says it in a clause."""
+    says it in a clause. ``timeout`` is None when the wait ended before its timeout."""
 
     def __init__(self, relation: RelationId, timeout: float | None, root: str) -> None:
+        self.timeout = timeout
         self.cause = (
             f"no agent is active on {root} (is `ubitrack agent` running, with the same "
             "--domain and network settings?)"
         )
-        super().__init__(f"no sample of {relation} within {timeout} s: {self.cause}")
+        super().__init__(f"{_no_sample(relation, timeout)}: {self.cause}")
 
 
 def _describe_motion(motion: dict[str, Any]) -> str:
@@ -139,6 +161,8 @@ class Relation(Closing):
     """A subscription to one queried relationship (see the module docstring).
 
     A context manager: ``with Relation(...) as relation:`` closes it on leaving the block.
+    ``keep_waiting``: whether a wait goes on to its timeout when the agent answers that it
+    cannot serve the relation, or no agent is there (:meth:`verdict`).
     """
 
     def __init__(
@@ -152,8 +176,10 @@ class Relation(Closing):
         queue_size: int = 1024,
         host: str | None = None,
         host_labels: frozenset[str] = frozenset(),
+        keep_waiting: bool = False,
     ) -> None:
         self.relation = relation
+        self.keep_waiting = keep_waiting
         self.host = validate_key_chunks(host or default_host_name(), single_chunk=True)
         """The machine this application runs on (default: its host name), named in the query:
         the agent places the relation's last hop near it when that saves a network crossing
@@ -191,6 +217,8 @@ class Relation(Closing):
         """The active agent's latest answer to this query (``net.answer``), or None."""
         self._root = keys.root
         self._agents: set[str] = set()
+        self._agentless_since = time.monotonic()
+        """Since when no active agent's token is known (while ``_agents`` is empty)."""
         answer_key = keys.answer(relation)
         receive_answer = self._guarded(self._receive_answer)
         self._answer_subscriber = session.declare_subscriber(
@@ -246,22 +274,63 @@ class Relation(Closing):
             self._lock.notify_all()
 
     def _receive_answer(self, payload: bytes) -> None:
-        """Runs on zenoh's thread: keep the latest valid answer (waiters still wait for their
-        timeout: a relation unsolved now may be served once its sensors announce)."""
+        """Runs on zenoh's thread: keep the latest valid answer and wake the waiters (one that
+        says the relation cannot be served ends their wait: :meth:`verdict`)."""
         try:
             answer = parse_answer(payload)
         except AnswerError as exc:
             self._count("rejected", "rejected answer: %s", exc)
             return
-        self.answer = answer
+        with self._lock:
+            self.answer = answer
+            self._lock.notify_all()
 
     def _on_agent(self, sample: Any) -> None:
         """Runs on zenoh's thread: an active agent's token appeared or went."""
         key = str(sample.key_expr)
-        if str(sample.kind) == "SampleKind.PUT":
-            self._agents.add(key)
-        else:
-            self._agents.discard(key)
+        with self._lock:
+            if str(sample.kind) == "SampleKind.PUT":
+                self._agents.add(key)
+            else:
+                self._agents.discard(key)
+                if not self._agents:
+                    self._agentless_since = time.monotonic()
+            self._lock.notify_all()
+
+    def verdict(self) -> TimeoutError | None:
+        """Why waiting for the first sample is pointless now, as the exception a wait raises
+        at once: :class:`UnsolvedRelation` if the agent's answer is that it cannot serve the
+        relation (not merely that it has not planned it yet), :class:`NoAgent` if no agent
+        has been active for :data:`NO_AGENT_AFTER_S`; None while there is reason to wait,
+        always with ``keep_waiting``, and once a sample has come (a flowing relation's waits
+        run to their timeout, as the workers keep the data flowing while an agent restarts,
+        and a flow that lost a sensor may be replanned)."""
+        answer = self.answer
+        if self.keep_waiting or self._received:
+            return None
+        if answer is not None and not answer.served and answer.reason != NOT_PLANNED:
+            return UnsolvedRelation(self.relation, None, answer.reason or "")
+        if not self._agents and time.monotonic() - self._agentless_since >= NO_AGENT_AFTER_S:
+            return NoAgent(self.relation, None, self._root)
+        return None
+
+    def _wait(self, ready: Callable[[], bool], timeout: float | None) -> None:
+        """Under ``_lock``: return once ``ready()``; raise :meth:`verdict` as soon as there is
+        one, :meth:`silence` at ``timeout``. Woken by samples, answers and agent tokens, and
+        at the moment a missing agent becomes a verdict."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not ready():
+            verdict = self.verdict()
+            if verdict is not None:
+                raise verdict
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
+                raise self.silence(timeout)
+            wake = deadline
+            if not self._agents and not self.keep_waiting:  # when a missing agent is a verdict
+                verdict_at = self._agentless_since + NO_AGENT_AFTER_S
+                wake = verdict_at if wake is None else min(wake, verdict_at)
+            self._lock.wait(None if wake is None else max(0.0, wake - now))
 
     def silence(self, timeout: float | None) -> TimeoutError:
         """Why no sample came within ``timeout``, as the exception to raise: the agent's
@@ -354,12 +423,7 @@ class Relation(Closing):
         or :class:`NotStatic` for a static relation whose inputs move."""
         with self._lock:
             seen = self._received
-
-            def done() -> bool:
-                return self._received > seen or self._moving()
-
-            if not self._lock.wait_for(done, timeout=timeout):
-                raise self.silence(timeout)
+            self._wait(lambda: self._received > seen or self._moving(), timeout)
             if self._received == seen and self.progress is not None:
                 raise NotStatic(self.relation, self.progress)
             return self._buffer.latest()
@@ -374,10 +438,10 @@ class Relation(Closing):
             yield self.get()
 
     def get(self, timeout: float | None = None) -> Measurement:
-        """The next queued sample; ``TimeoutError`` if none arrives in time."""
+        """The next queued sample; ``TimeoutError`` if none arrives in time, or at once the
+        :meth:`verdict` that none will."""
         with self._lock:
-            if not self._lock.wait_for(lambda: self._queue, timeout=timeout):
-                raise self.silence(timeout)
+            self._wait(lambda: bool(self._queue), timeout)
             return self._queue.popleft()
 
     def close(self) -> None:

@@ -5,7 +5,9 @@ progress until it converges, then keep the result in a calibration store.
 its progress (``ubitrack_agent.net.progress``) at most every ``report_every_s`` and on each
 change of status; it ends with an :class:`Outcome`: ``converged`` (the estimator's rule),
 ``known`` (a value arrives but no progress: the relation is a measured static edge, e.g. one
-stored earlier), ``not_static`` or ``timeout``. :func:`save` sends a converged result to the
+stored earlier), ``not_static`` or ``timeout``; unless the relation keeps waiting, it raises at
+once what the agent's answer makes pointless to wait for (``Relation.verdict``:
+``UnsolvedRelation``, ``NoAgent``). :func:`save` sends a converged result to the
 calibration store (``docs/protocol.md``, "Calibration"). ``ubitrack calibrate`` and the demo
 use both. Following a recalibration (a ``Relation`` of a ``RelationId(..., recalibrate=True)``)
 is the same; saving its result replaces the stored value, the previous one going to the
@@ -56,16 +58,18 @@ def follow(
     report: Callable[[Progress], None],
     report_every_s: float = 0.5,
 ) -> Outcome:
-    """Follow the static ``relation`` until one of the outcomes (see the module docstring)."""
+    """Follow the static ``relation`` until one of the outcomes (see the module docstring);
+    ``UnsolvedRelation`` or ``NoAgent`` as soon as :meth:`Relation.verdict` has one."""
     deadline = time.monotonic() + timeout
     reported, reported_at, value_at = None, 0.0, None
     while time.monotonic() < deadline:
         try:
             relation.wait_for(timeout=0.5)
-        except TimeoutError:
-            pass
         except NotStatic as exc:
             return Outcome("not_static", exc.progress, None)
+        except TimeoutError:
+            if (verdict := relation.verdict()) is not None:
+                raise verdict from None
         progress = relation.progress
         if value_at is None and relation.latest() is not None:
             value_at = time.monotonic()

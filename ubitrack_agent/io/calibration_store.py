@@ -62,8 +62,9 @@ MAX_REQUEST_BYTES = 64 * 1024
 
 class CalibrationStore(Closing):
     """Serves the static edges of ``path`` under provider ids ``<name>.<edge>`` and saves new
-    ones to it (see the module docstring). A missing file is an empty store (created on the
-    first save). Use as a context manager, or call :meth:`close`."""
+    ones to it (see the module docstring). A missing file is a new, empty store (:attr:`new`;
+    the file is created on the first save); a missing folder, where no save could ever write,
+    is a ``FileNotFoundError``. Use as a context manager, or call :meth:`close`."""
 
     def __init__(
         self,
@@ -80,7 +81,13 @@ class CalibrationStore(Closing):
         self._session = session
         self._keys = keys
         self.edges: dict[str, StaticEdge] = {}
-        if self.path.exists():
+        if not self.path.parent.is_dir():
+            raise FileNotFoundError(
+                f"{self.path.parent} is not a folder: the store could never save {self.path}"
+            )
+        self.new = not self.path.exists()
+        """Whether ``path`` did not exist: a new, empty store (a mistyped path shows here)."""
+        if not self.new:
             _, edges = read_static_edges(self.path, time.time_ns())
             self.edges = {edge.announcement.name: edge for edge in edges}
         self._providers: dict[str, Provider] = {}

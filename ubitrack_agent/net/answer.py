@@ -24,6 +24,10 @@ from dataclasses import asdict, dataclass, field
 from ubitrack_agent.net import json_messages
 from ubitrack_agent.net.json_messages import MessageError, load_object
 
+NOT_PLANNED = "not planned yet"
+"""The reason given for a query the agent has not planned (it arrived since the last plan):
+an application waits on (``io.application``), where any other reason ends its wait."""
+
 MAX_ANSWER_BYTES = 64 * 1024
 """An answer names a relation and a few components: well under a kilobyte."""
 

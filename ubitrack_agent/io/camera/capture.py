@@ -70,7 +70,9 @@ def check_frame_size(capture: cv2.VideoCapture, intrinsics: CameraIntrinsics) ->
     if expected is not None and min(size) > 0 and size != tuple(expected):
         raise ValueError(
             f"the frames are {size[0]}x{size[1]} px but the intrinsics are for "
-            f"{expected[0]}x{expected[1]}: calibrate at this resolution or set the camera's"
+            f"{expected[0]}x{expected[1]}: calibrate the camera again at "
+            f"{size[0]}x{size[1]} (`ubitrack intrinsics`, docs/camera.md) or set the camera's "
+            f"resolution to {expected[0]}x{expected[1]}"
         )
 
 
