@@ -72,6 +72,8 @@ DEFAULT_QUIET_S = 0.1
 """The quiet time while the other producer's interval is not known yet (one sample seen)."""
 MINE_REMEMBERED = 64
 """How many of its own puts' timestamps a producer remembers to tell them from the other's."""
+MESSAGE_KINDS = {frozenset({"claim", "after"}): "claim", frozenset({"yield", "last"}): "yield"}
+"""A hand-over message's kind by its fields: a claim, or the holder's answer."""
 MAX_MESSAGE_BYTES = 256
 """A hand-over message is a small JSON object; a longer one is refused unread."""
 
@@ -170,12 +172,9 @@ class KeyHandOver:
         the key), or the answer to this one's claim. Anything else is refused and counted."""
         try:
             message = load_object(payload, MAX_MESSAGE_BYTES)
-            kind = "claim" if set(message) == {"claim", "after"} else "yield"
+            kind = MESSAGE_KINDS.get(frozenset(message))
             sender = message.get(kind)
-            if not isinstance(sender, str) or set(message) not in (
-                {"claim", "after"},
-                {"yield", "last"},
-            ):
+            if kind is None or not isinstance(sender, str):
                 raise MessageError("malformed", "neither a claim nor an answer")
             if sender == self.producer:
                 return  # its own message, delivered to its own subscriber

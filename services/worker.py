@@ -717,9 +717,7 @@ class Worker:
     def _watch_relations(self, relation_keys: set[str]) -> None:
         """Watch each dynamic relation key this worker puts on (make before break: one stream
         while another producer takes it over or gives it up, ``services.handover``)."""
-        dynamic = set(relation_keys) - {
-            self.keys.relation(r) for r in self._static_relations(tuple(relation_keys))
-        }
+        dynamic = {key for key in relation_keys if not self._static_relations((key,))}
         for key in set(self._hand_overs) - dynamic:
             self._hand_overs.pop(key).close()
         for key in dynamic - set(self._hand_overs):
