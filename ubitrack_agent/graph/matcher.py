@@ -316,7 +316,11 @@ def _extend(
     roles: dict[str, str],
     types: dict[str, str],
     viable: Viable = _any_binding,
+    seeds: frozenset[str] = frozenset(),
+    seeded_at: int = 0,
 ) -> Iterator[Match]:
+    """Occurrences completing the partial one (``bound``, ``roles``, ``types``); an input before
+    ``seeded_at`` binds no edge of ``seeds`` (:func:`find_matches`)."""
     if len(bound) == len(template.inputs):
         for introduced in _introductions(template, index, roles):
             yield Match(
@@ -330,7 +334,10 @@ def _extend(
     spec = template.inputs[i]
     edges = index.edges
     chosen = [edges[b] for b in bound.values()]
+    not_seeds = i < seeded_at
     for edge_id in _candidates(spec, roles, types, template, index):
+        if not_seeds and edge_id in seeds:
+            continue
         edge = edges[edge_id]
         # bookkeeping of section 5.1: inputs of one occurrence must not share a measured edge
         # (which also keeps an edge from binding twice); a plain loop: the hottest of the search
@@ -350,7 +357,7 @@ def _extend(
             continue
         bound[i] = edge_id
         if viable(roles, types, bound):
-            yield from _extend(template, index, bound, roles, types, viable)
+            yield from _extend(template, index, bound, roles, types, viable, seeds, seeded_at)
         del bound[i]
         _unbind(made)
 
@@ -372,15 +379,19 @@ def find_matches(
     """Occurrences of the unexpanded ``template`` in ``index`` that pass the bookkeeping rules.
 
     With ``seeds`` (edge ids, e.g. the edges inferred in the last round), only occurrences using
-    at least one seed are found (semi-naive evaluation); a match may be yielded more than once
-    if it uses several seeds. ``viable`` prunes partial occurrences (the planner's test of
-    which chains serve a query), checked after each bound input.
+    at least one seed are found, each once (semi-naive evaluation with the delta rule of
+    Bancilhon and Ramakrishnan, "An amateur's introduction to recursive query processing
+    strategies", SIGMOD 1986: an occurrence is found from its first input bound to a seed,
+    the inputs before that one bind no seed). ``viable`` prunes partial occurrences (the
+    planner's test of which chains serve a query), checked after each bound input.
     """
     if seeds is None:
         start = _extend(template, index, {}, {}, {}, viable)
         yield from (m for m in start if _admissible(m, index))
         return
-    for seed in seeds:
+    seeds = list(seeds)
+    fresh = frozenset(seeds)
+    for seed in dict.fromkeys(seeds):
         edge = index.edges[seed]
         for i, spec in enumerate(template.inputs):
             roles: dict[str, str] = {}
@@ -389,7 +400,7 @@ def find_matches(
             if _bind(spec, edge, template, roles, types) is not None and viable(
                 roles, types, bound
             ):
-                for match in _extend(template, index, bound, roles, types, viable):
+                for match in _extend(template, index, bound, roles, types, viable, fresh, i):
                     if _admissible(match, index):
                         yield match
 
