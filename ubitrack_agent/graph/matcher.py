@@ -370,6 +370,16 @@ def _admissible(match: Match, index: EdgeIndex) -> bool:
     return all(index.is_rigid(roles[a], roles[b]) for a, b in _rigid_links(match.template))
 
 
+def _inputs_of_type(template: Template, edge_type: str) -> list[tuple[int, InputSpec]]:
+    """The inputs (index, specification) an edge of ``edge_type`` may bind."""
+    return [
+        (i, spec)
+        for i, spec in enumerate(template.inputs)
+        if spec.type == edge_type
+        or (spec.type.startswith("$") and edge_type in template.type_vars[spec.type[1:]])
+    ]
+
+
 def find_matches(
     template: Template,
     index: EdgeIndex,
@@ -391,9 +401,13 @@ def find_matches(
         return
     seeds = list(seeds)
     fresh = frozenset(seeds)
+    inputs_of_type: dict[str, list[tuple[int, InputSpec]]] = {}
     for seed in dict.fromkeys(seeds):
         edge = index.edges[seed]
-        for i, spec in enumerate(template.inputs):
+        fitting = inputs_of_type.get(edge.type)
+        if fitting is None:
+            fitting = inputs_of_type[edge.type] = _inputs_of_type(template, edge.type)
+        for i, spec in fitting:
             roles: dict[str, str] = {}
             types: dict[str, str] = {}
             bound = {i: seed}
