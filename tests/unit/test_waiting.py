@@ -1,6 +1,5 @@
 """What a command says while it waits for a relation (``ubitrack_agent/io/waiting.py``, issue
-31): "did you mean" for frames named almost like announced ones, the progress line of a flow
-being started, where it looked for the agent."""
+31): the progress line of a flow being started, where it looked for the agent."""
 
 from __future__ import annotations
 
@@ -9,13 +8,7 @@ from types import SimpleNamespace
 from tests.unit.test_worker_inputs import FakeSession
 from ubitrack_agent.commands.subscribe import relation_types
 from ubitrack_agent.graph.srg import EDGE_TYPES
-from ubitrack_agent.io.waiting import (
-    StartWatch,
-    close_frames,
-    frame_hint,
-    network_of,
-    starting,
-)
+from ubitrack_agent.io.waiting import StartWatch, network_of, starting
 from ubitrack_agent.net.answer import Answer
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.keys import KeySpace, RelationId
@@ -23,30 +16,6 @@ from ubitrack_agent.net.keys import KeySpace, RelationId
 KEYS = KeySpace("ubitrack/test")
 ANNOUNCED = {"C", "A", "HT", "WT", "IP", "F1", "F2", "ART", "Marker1", "Marker2"}
 C_A = RelationId("C", "A", "6D")
-
-
-def test_close_frames_differ_in_case_or_by_a_small_edit():
-    assert close_frames("c", ANNOUNCED) == ["C"]
-    assert close_frames("ht", ANNOUNCED) == ["HT"]
-    assert close_frames("HTT", ANNOUNCED) == ["HT"]
-    assert close_frames("marker3", ANNOUNCED) == ["Marker1", "Marker2"]
-    assert close_frames("F3", ANNOUNCED) == []  # one of two characters: too far
-    assert close_frames("ARTT", ANNOUNCED) == ["ART"]
-    assert close_frames("NOPE", ANNOUNCED) == []
-    assert close_frames("C", ANNOUNCED) == []  # announced itself: nothing to suggest
-    assert close_frames("x", ["X", "x2"]) == ["X", "x2"]  # the same but for case comes first
-
-
-def test_a_hint_names_the_relation_meant():
-    assert frame_hint(RelationId("c", "a", "6D"), ANNOUNCED) == "did you mean C->A?"
-    assert frame_hint(RelationId("C", "ht", "6D"), ANNOUNCED) == "did you mean C->HT?"
-    assert (
-        frame_hint(RelationId("C", "marker3", "6D"), ANNOUNCED)
-        == "did you mean C->Marker1 (or Marker2 for marker3)?"
-    )
-    assert frame_hint(RelationId("C", "NOPE", "6D"), ANNOUNCED) is None
-    assert frame_hint(C_A, ANNOUNCED) is None  # both announced: the reason is another
-    assert frame_hint(RelationId("c", "a", "6D"), set()) is None  # no agent's SRG to go by
 
 
 def test_the_progress_line_counts_the_planned_components_alive():

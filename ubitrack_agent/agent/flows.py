@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import networkx as nx
 
 from ubitrack_agent.graph.dataflow import DataFlow, from_solution, merge, relation_name
+from ubitrack_agent.graph.frame_names import frame_hint
 from ubitrack_agent.graph.planner import (
     PlanningError,
     Query,
@@ -146,7 +147,9 @@ def plan_relation(
         solutions = planner(srg, templates, query)
     except PlanningError as exc:
         without = f"without the measured static edge(s) {', '.join(ignored)}: " if ignored else ""
-        return RelationPlan(relation, name, unsolved=without + str(exc), relations=names)
+        hint = frame_hint(relation.source, relation.target, srg.nodes)  # a frame not announced
+        reason = without + str(exc) + (f"; {hint}" if hint else "")
+        return RelationPlan(relation, name, unsolved=reason, relations=names)
     solution = choose(query, solutions)
     flow = from_solution(solution, query)
     return RelationPlan(

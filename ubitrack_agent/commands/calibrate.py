@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     from ubitrack_agent.commands.subscribe import no_agent
     from ubitrack_agent.io.application import NoAgent, NotStatic, Relation, UnsolvedRelation
     from ubitrack_agent.io.calibration import StoreError, follow, save, save_request
-    from ubitrack_agent.io.waiting import StartWatch, announced_frames, frame_hint, network_of
+    from ubitrack_agent.io.waiting import StartWatch, network_of
     from ubitrack_agent.net.keys import KeySpace, RelationId
     from ubitrack_agent.net.progress import Progress
     from ubitrack_agent.net.session import open_session
@@ -175,10 +175,8 @@ def run(args: argparse.Namespace) -> int:
 
         try:
             outcome = follow(relation, args.timeout, report)
-        except UnsolvedRelation as exc:
-            hint = frame_hint(relation_id, announced_frames(session, keys))
-            message = f"{exc}" + (f"; {hint}" if hint else "")
-            return fail({"event": "unsolved", "reason": exc.reason, "hint": hint}, message)
+        except UnsolvedRelation as exc:  # the reason ends with a "did you mean", if one fits
+            return fail({"event": "unsolved", "reason": exc.reason}, str(exc))
         except NoAgent as exc:
             message = f"{relation_id}: {no_agent(network_of(settings), exc.timeout, args.wait)}"
             return fail({"event": "no_agent", "message": message}, message)

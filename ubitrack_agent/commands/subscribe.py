@@ -95,8 +95,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ubitrack_agent.core import to_json
-    from ubitrack_agent.io.application import NoAgent, Relation, UnsolvedRelation
-    from ubitrack_agent.io.waiting import StartWatch, announced_frames, frame_hint, network_of
+    from ubitrack_agent.io.application import NoAgent, Relation
+    from ubitrack_agent.io.waiting import StartWatch, network_of
     from ubitrack_agent.net.keys import KeySpace, RelationId
     from ubitrack_agent.net.session import open_session
 
@@ -143,11 +143,7 @@ def run(args: argparse.Namespace) -> int:
         except NoAgent as exc:
             say(no_agent(network_of(settings), exc.timeout, args.wait))
             return 1
-        except UnsolvedRelation as exc:
-            hint = frame_hint(relation_id, announced_frames(session, keys))
-            print(f"ubitrack subscribe: {exc}" + (f"; {hint}" if hint else ""), file=sys.stderr)
-            return 1
-        except TimeoutError as exc:
+        except TimeoutError as exc:  # UnsolvedRelation with the agent's reason and hint too
             print(f"ubitrack subscribe: {exc}", file=sys.stderr)
             return 1
     return 0

@@ -9,22 +9,16 @@ rest, for ``ubitrack subscribe`` and ``ubitrack calibrate`` and for any applicat
   and each running component holds a worker token (``<root>/worker/<instance>/<incarnation>``,
   ``net.keys``), which the watch follows as the agent does (an instance is alive while it has
   a token);
-* :func:`frame_hint`: ``did you mean C->A?`` for a relation whose frames the agent does not know
-  but that differ from announced ones only in case or by a small edit (``difflib``'s ratio,
-  Ratcliff and Obershelp's gestalt pattern matching); :func:`announced_frames` reads the frames
-  of the active agent's SRG from its status;
 * :func:`network_of`: where a command looked for the agent, ``tcp/127.0.0.1:7448/default``, for
   its "no agent" message.
 """
 
 from __future__ import annotations
 
-import difflib
-import json
 import logging
 import threading
 from collections import Counter
-from collections.abc import Callable, Collection, Iterable
+from collections.abc import Callable, Collection
 from typing import Any
 
 from ubitrack_agent.net import logs
@@ -32,57 +26,9 @@ from ubitrack_agent.net.answer import Answer, AnswerError, parse_answer
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.lifecycle import Closing
-from ubitrack_agent.net.transport import fetch_latest, fetch_until_satisfied
+from ubitrack_agent.net.transport import fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.waiting")
-
-CLOSE_RATIO = 0.6
-"""Least ``difflib.SequenceMatcher`` ratio of a frame name to an announced one for a "did you
-mean" (``difflib.get_close_matches``' default: ``HT`` for ``HTT``, ``Marker1`` for
-``marker3``, not ``F1`` for ``F3``)."""
-
-
-def close_frames(name: str, announced: Iterable[str], limit: int = 3) -> list[str]:
-    """Announced frames ``name`` may have meant, best first (ties in name order): those equal
-    but for case, then those within :data:`CLOSE_RATIO` of it, compared in lower case.
-    O(announced x name length^2)."""
-    wanted = name.lower()
-    matcher = difflib.SequenceMatcher(b=wanted)
-    scored = []
-    for frame in set(announced) - {name}:
-        matcher.set_seq1(frame.lower())
-        if frame.lower() == wanted:
-            scored.append((-2.0, frame))  # the same but for case: first
-        elif matcher.real_quick_ratio() >= CLOSE_RATIO and matcher.ratio() >= CLOSE_RATIO:
-            scored.append((-matcher.ratio(), frame))
-    return [frame for _, frame in sorted(scored)[:limit]]
-
-
-def frame_hint(relation: RelationId, announced: Collection[str]) -> str | None:
-    """``did you mean C->A?`` when a frame of ``relation`` is not announced but one close to it
-    is (each unknown frame replaced by its best match; the other matches follow), else None."""
-    source, target, others = relation.source, relation.target, []
-    for frame in (relation.source, relation.target):
-        if frame in announced or not (matches := close_frames(frame, announced)):
-            continue
-        source, target = (matches[0], target) if frame == source else (source, matches[0])
-        others += [f"{match} for {frame}" for match in matches[1:]]
-    if (source, target) == (relation.source, relation.target):
-        return None
-    alternatives = f" (or {', '.join(others)})" if others else ""
-    return f"did you mean {source}->{target}{alternatives}?"
-
-
-def announced_frames(session: Any, keys: KeySpace, timeout: float = 1.0) -> set[str]:
-    """The frames of the active agent's SRG, from its status (empty if none answers or the
-    status is not what it should be). O(edges of the SRG)."""
-    for payload in fetch_latest(session, keys.agent_status(), timeout=timeout):
-        try:
-            edges = json.loads(payload).get("srg", [])
-            return {e[end] for e in edges for end in ("from", "to") if isinstance(e[end], str)}
-        except (ValueError, AttributeError, TypeError, KeyError):
-            continue
-    return set()
 
 
 def network_of(settings: Settings) -> str:
