@@ -93,9 +93,10 @@ from ubitrack_agent.net.spec import (
     parse_components,
     parse_group,
 )
+from ubitrack_agent.net.transport import on_zenoh_thread
 from ubitrack_agent.services.local_wires import LocalWires
 from ubitrack_agent.services.parent import Parent
-from ubitrack_agent.services.scheduler import Scheduler, on_zenoh_thread
+from ubitrack_agent.services.scheduler import Scheduler
 from ubitrack_agent.services.spec import check_spec
 from ubitrack_agent.services.worker import Worker
 

@@ -111,6 +111,7 @@ from ubitrack_agent.net.transport import (
     FETCH_RETRY_DELAYS,
     LatestValuePublisher,
     fetch_until_satisfied,
+    on_zenoh_thread,
     subscribe_in_bursts,
 )
 from ubitrack_agent.services.expansion import BatchProgress, TimeAccumulator
@@ -125,7 +126,7 @@ from ubitrack_agent.services.local_wires import (
 )
 from ubitrack_agent.services.parent import Parent
 from ubitrack_agent.services.registry import Pushed, Service, lookup
-from ubitrack_agent.services.scheduler import Scheduler, on_zenoh_thread
+from ubitrack_agent.services.scheduler import Scheduler
 from ubitrack_agent.services.spec import (
     check_bindings,
     check_parameters,
