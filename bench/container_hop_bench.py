@@ -34,6 +34,12 @@ provider
    per component, by name), and the time an ``add`` took per component. The static edges
    are not published, so each component keeps asking for them (as one waiting for a
    calibration) while it is counted.
+5. **Time queries** (in part 1's process, its chain of concatenations): the last component
+   asked for times between its newest samples (each answer interpolated, composed and
+   encoded), 200 times whatever ``--samples``: its ``at`` called directly
+   (``Worker._ask``), and a query ``<key>?t=`` through zenoh in the same session, answered on
+   the process's answering threads (``net.transport.ANSWERS``): what a query costs beyond the
+   lookup (the hand-off from zenoh's thread, the reply).
 """
 
 from __future__ import annotations
@@ -60,6 +66,7 @@ from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
+from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.services.container import Container
 
 RESULTS = Path(__file__).with_name("results") / "container_hop.json"
@@ -182,9 +189,38 @@ def hop_costs(samples: int, gap_ms: float) -> dict[str, Any]:
                 "after_a_gap": per_hop(cold, len(services)),
                 "encoded_by_first": first.counters["published"] - first.counters["not_sent"],
             }
+            if name == "concatenation_chain":
+                results["time_queries"] = time_queries(session, keys, container, values)
             container.stop()
             container.remove(list(container.components))
     return results
+
+
+def time_queries(
+    session: Any, keys: KeySpace, container: Container, values: list[Measurement]
+) -> dict[str, Any]:
+    """Part 5 of the module docstring: the chain's last component asked for times between
+    its newest samples (interpolated), its ``at`` called directly and as a query."""
+    last = f"hop{CHAIN - 1}"
+    worker = container.components[last].worker
+    key = keys.data(f"{last}/out")
+    times = [value.timestamp_ns + 500 for value in values[-41:-1]] * 5  # between two samples
+    direct, asked = [], []
+    for t in times:
+        start = time.perf_counter()
+        worker._ask("AC", t)
+        direct.append((time.perf_counter() - start) * 1e6)
+        start = time.perf_counter()
+        fetch_at(session, key, t, timeout=1.0)
+        asked.append((time.perf_counter() - start) * 1e6)
+    return {
+        "queries": len(times),
+        "at_us": {"median": round(statistics.median(direct), 1), "max": round(max(direct), 1)},
+        "query_us": {
+            "median": round(statistics.median(asked), 1),
+            "p90": round(float(np.percentile(asked, 90)), 1),
+        },
+    }
 
 
 def add_latency(adds: int) -> dict[str, Any]:
@@ -302,7 +338,7 @@ def threads(components: int) -> dict[str, Any]:
         for thread in threading.enumerate():
             if thread.ident not in names_before:
                 kind = "zenoh callback" if "pyo3" in thread.name else thread.name.split(" ")[0]
-                kind = kind.split(":")[0].split("-")[0]
+                kind = kind.split(":")[0].split("-")[0].rstrip("_0123456789")
                 kinds[kind] = kinds.get(kind, 0) + 1
         container.stop()
         container.remove(list(container.components))

@@ -1195,10 +1195,10 @@ class Worker:
     # -- values at a given time (net.time_queries) --------------------------------------------
 
     def _ask(self, port: str, timestamp_ns: int) -> bytes:
-        """Runs on a publisher's thread: output ``port``'s value at a time, encoded, or a
-        typed error (``ValueError``, ``LookupError``, ``TimeoutError``: ``net.time_queries``);
-        an unexpected fault is logged and counted (``internal_errors``) and answered as
-        :class:`NoDataError`."""
+        """Runs on an answering thread (``net.transport.ANSWERS``): output ``port``'s value at
+        a time, encoded, or a typed error (``ValueError``, ``LookupError``, ``TimeoutError``:
+        ``net.time_queries``); an unexpected fault is logged and counted (``internal_errors``)
+        and answered as :class:`NoDataError`."""
         if not self._lock.acquire(timeout=ANSWER_TIMEOUT_S):
             raise TimeoutError(f"no answer within {ANSWER_TIMEOUT_S} s (the worker is busy)")
         try:

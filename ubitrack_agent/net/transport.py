@@ -27,7 +27,6 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import zenoh
@@ -35,6 +34,7 @@ import zenoh
 from ubitrack_agent.core.errors import ExtrapolationError, NoMotionModel
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.encodings import JSON, MSGPACK
+from ubitrack_agent.net.thread_pool import ThreadPool
 from ubitrack_agent.net.time_queries import error_payload, requested_time
 
 log = logging.getLogger("ubitrack.transport")
@@ -58,12 +58,12 @@ chain of components in one process asked for a time beyond their samples holds a
 link while the next answers. A query arriving while all are busy waits for one (its asker's
 own timeout bounds that)."""
 
-ANSWERS = ThreadPoolExecutor(max_workers=ANSWERING_THREADS, thread_name_prefix="answers")
+ANSWERS = ThreadPool("answers", ANSWERING_THREADS)
 """The threads answering the queries of every :class:`LatestValuePublisher` of the process:
-started one at a time, only when a query comes while none is idle (``concurrent.futures``),
-then kept. Not zenoh's thread (zenoh-python's guide, "Channels and callbacks": calling zenoh
-from a callback, or blocking in it, "may lead to deadlocks", and a reply is a zenoh call; a
-time query may block, above), and not a container's scheduler
+started one at a time, only when a query comes while none is idle, then kept
+(``net.thread_pool``). Not zenoh's thread (zenoh-python's guide, "Channels and callbacks":
+calling zenoh from a callback, or blocking in it, "may lead to deadlocks", and a reply is a
+zenoh call; a time query may block, above), and not a container's scheduler
 (``services.scheduler``), whose one thread would hold back every component's turns while a
 query waited, and would wait on itself where a time query goes upstream to a producer in the
 same container."""
@@ -176,10 +176,10 @@ class LatestValuePublisher:
         return self._matching
 
     def _on_query(self, query: Any) -> None:
-        """On zenoh's thread: hand ``query`` to :data:`ANSWERS` (a lock and a queue's put; a
-        thread started only if none is idle). While the process ends, the pool takes no more
-        and the query goes unanswered (zenoh tells its asker it is finished)."""
-        # RuntimeError: "cannot schedule new futures after interpreter shutdown"
+        """On zenoh's thread: hand ``query`` to :data:`ANSWERS` (a queue's put; a thread
+        started only if none is idle). While the interpreter ends, no thread starts and the
+        query goes unanswered (zenoh tells its asker it is finished)."""
+        # RuntimeError: "can't create new thread at interpreter shutdown"
         with contextlib.suppress(RuntimeError):
             ANSWERS.submit(self._answer_and_finish, query)
 
