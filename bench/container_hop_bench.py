@@ -39,7 +39,9 @@ provider
    encoded), 200 times whatever ``--samples``: its ``at`` called directly
    (``Worker._ask``), and a query ``<key>?t=`` through zenoh in the same session, answered on
    the process's answering threads (``net.transport.ANSWERS``): what a query costs beyond the
-   lookup (the hand-off from zenoh's thread, the reply).
+   lookup (the hand-off from zenoh's thread, the reply). Then a publisher whose ``at`` does
+   nothing, asked 1,000 times for a time and for its latest value from a second session in
+   the process (loopback) and from its own: the hand-over alone.
 """
 
 from __future__ import annotations
@@ -67,6 +69,7 @@ from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 from ubitrack_agent.net.time_queries import fetch_at
+from ubitrack_agent.net.transport import LatestValuePublisher, fetch_latest
 from ubitrack_agent.services.container import Container
 
 RESULTS = Path(__file__).with_name("results") / "container_hop.json"
@@ -193,6 +196,7 @@ def hop_costs(samples: int, gap_ms: float) -> dict[str, Any]:
                 results["time_queries"] = time_queries(session, keys, container, values)
             container.stop()
             container.remove(list(container.components))
+    results["query_hand_over"] = query_hand_over()
     return results
 
 
@@ -221,6 +225,40 @@ def time_queries(
             "p90": round(float(np.percentile(asked, 90)), 1),
         },
     }
+
+
+def query_hand_over(queries: int = 1000) -> dict[str, Any]:
+    """Part 5, second half: a publisher whose ``at`` does nothing, asked ``queries`` times
+    for a time and for its latest value from a second session in this process (over
+    loopback), and from its own session (the callback then runs on the asking thread)."""
+    from tests.integration.zenoh_helpers import free_port
+
+    port = free_port()
+    hub = config.Settings(listen=(f"tcp/127.0.0.1:{port}",), domain="handover")
+    member = config.Settings(
+        connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",), domain="handover"
+    )
+    results: dict[str, Any] = {"queries": queries}
+    with open_session(hub) as asker, open_session(member) as session:
+        publisher = LatestValuePublisher(session, "bench/handover", lambda t: b"x")
+        publisher.put(b"latest")
+        for name, querier in (("across_sessions", asker), ("same_session", session)):
+            while not fetch_latest(querier, "bench/handover"):
+                time.sleep(0.01)
+            timed_at, latest = [], []
+            for _ in range(queries):
+                start = time.perf_counter()
+                fetch_at(querier, "bench/handover", 5, timeout=1.0)
+                timed_at.append((time.perf_counter() - start) * 1e6)
+                start = time.perf_counter()
+                fetch_latest(querier, "bench/handover")
+                latest.append((time.perf_counter() - start) * 1e6)
+            results[name] = {
+                "time_query_median_us": round(statistics.median(timed_at), 1),
+                "latest_median_us": round(statistics.median(latest), 1),
+            }
+        publisher.undeclare()
+    return results
 
 
 def add_latency(adds: int) -> dict[str, Any]:
