@@ -149,9 +149,9 @@ class LatestValuePublisher:
         )
         if self._publisher.matching_status.matching:  # one already listening: no change told
             self._matching = True
-        self._answer = logs.guarded(self._reply, self.counters, log, key)
-        """:meth:`_reply` made total: a failed reply (the querier gone) or a fault is counted
-        (``internal_errors``) and logged, and the next query is answered."""
+        self._answer = logs.guarded(self._reply_and_finish, self.counters, log, key)
+        """:meth:`_reply_and_finish` made total: a failed reply (the querier gone) or a fault is
+        counted (``internal_errors``) and logged, and the next query is answered."""
         self._queryable = session.declare_queryable(key, on_zenoh_thread(self._on_query))
 
     def put(self, payload: bytes) -> None:
@@ -181,13 +181,13 @@ class LatestValuePublisher:
         query goes unanswered (zenoh tells its asker it is finished)."""
         # RuntimeError: "can't create new thread at interpreter shutdown"
         with contextlib.suppress(RuntimeError):
-            ANSWERS.submit(self._answer_and_finish, query)
+            ANSWERS.submit(self._answer, query)
 
-    def _answer_and_finish(self, query: Any) -> None:
+    def _reply_and_finish(self, query: Any) -> None:
         """On a thread of :data:`ANSWERS`: answer ``query``, then finish it at once (zenoh
         sends its final message when the query is dropped)."""
         with query:
-            self._answer(query)
+            self._reply(query)
 
     def _reply(self, query: Any) -> None:
         try:
