@@ -34,6 +34,14 @@ provider
    per component, by name), and the time an ``add`` took per component. The static edges
    are not published, so each component keeps asking for them (as one waiting for a
    calibration) while it is counted.
+5. **Time queries** (in part 1's process, its chain of concatenations): the last component
+   asked for times between its newest samples (each answer interpolated, composed and
+   encoded), 200 times whatever ``--samples``: its ``at`` called directly
+   (``Worker._ask``), and a query ``<key>?t=`` through zenoh in the same session, answered on
+   the process's answering threads (``net.transport.ANSWERS``): what a query costs beyond the
+   lookup (the hand-off from zenoh's thread, the reply). Then a publisher whose ``at`` does
+   nothing, asked 1,000 times for a time and for its latest value from a second session in
+   the process (loopback) and from its own: the hand-over alone.
 """
 
 from __future__ import annotations
@@ -60,6 +68,8 @@ from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
+from ubitrack_agent.net.time_queries import fetch_at
+from ubitrack_agent.net.transport import LatestValuePublisher, fetch_latest
 from ubitrack_agent.services.container import Container
 
 RESULTS = Path(__file__).with_name("results") / "container_hop.json"
@@ -182,8 +192,72 @@ def hop_costs(samples: int, gap_ms: float) -> dict[str, Any]:
                 "after_a_gap": per_hop(cold, len(services)),
                 "encoded_by_first": first.counters["published"] - first.counters["not_sent"],
             }
+            if name == "concatenation_chain":
+                results["time_queries"] = time_queries(session, keys, container, values)
             container.stop()
             container.remove(list(container.components))
+    results["query_hand_over"] = query_hand_over()
+    return results
+
+
+def time_queries(
+    session: Any, keys: KeySpace, container: Container, values: list[Measurement]
+) -> dict[str, Any]:
+    """Part 5 of the module docstring: the chain's last component asked for times between
+    its newest samples (interpolated), its ``at`` called directly and as a query."""
+    last = f"hop{CHAIN - 1}"
+    worker = container.components[last].worker
+    key = keys.data(f"{last}/out")
+    times = [value.timestamp_ns + 500 for value in values[-41:-1]] * 5  # between two samples
+    direct, asked = [], []
+    for t in times:
+        start = time.perf_counter()
+        worker._ask("AC", t)
+        direct.append((time.perf_counter() - start) * 1e6)
+        start = time.perf_counter()
+        fetch_at(session, key, t, timeout=1.0)
+        asked.append((time.perf_counter() - start) * 1e6)
+    return {
+        "queries": len(times),
+        "at_us": {"median": round(statistics.median(direct), 1), "max": round(max(direct), 1)},
+        "query_us": {
+            "median": round(statistics.median(asked), 1),
+            "p90": round(float(np.percentile(asked, 90)), 1),
+        },
+    }
+
+
+def query_hand_over(queries: int = 1000) -> dict[str, Any]:
+    """Part 5, second half: a publisher whose ``at`` does nothing, asked ``queries`` times
+    for a time and for its latest value from a second session in this process (over
+    loopback), and from its own session (the callback then runs on the asking thread)."""
+    from tests.integration.zenoh_helpers import free_port
+
+    port = free_port()
+    hub = config.Settings(listen=(f"tcp/127.0.0.1:{port}",), domain="handover")
+    member = config.Settings(
+        connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",), domain="handover"
+    )
+    results: dict[str, Any] = {"queries": queries}
+    with open_session(hub) as asker, open_session(member) as session:
+        publisher = LatestValuePublisher(session, "bench/handover", lambda t: b"x")
+        publisher.put(b"latest")
+        for name, querier in (("across_sessions", asker), ("same_session", session)):
+            while not fetch_latest(querier, "bench/handover"):
+                time.sleep(0.01)
+            timed_at, latest = [], []
+            for _ in range(queries):
+                start = time.perf_counter()
+                fetch_at(querier, "bench/handover", 5, timeout=1.0)
+                timed_at.append((time.perf_counter() - start) * 1e6)
+                start = time.perf_counter()
+                fetch_latest(querier, "bench/handover")
+                latest.append((time.perf_counter() - start) * 1e6)
+            results[name] = {
+                "time_query_median_us": round(statistics.median(timed_at), 1),
+                "latest_median_us": round(statistics.median(latest), 1),
+            }
+        publisher.undeclare()
     return results
 
 
@@ -302,7 +376,7 @@ def threads(components: int) -> dict[str, Any]:
         for thread in threading.enumerate():
             if thread.ident not in names_before:
                 kind = "zenoh callback" if "pyo3" in thread.name else thread.name.split(" ")[0]
-                kind = kind.split(":")[0].split("-")[0]
+                kind = kind.split(":")[0].split("-")[0].rstrip("_0123456789")
                 kinds[kind] = kinds.get(kind, 0) + 1
         container.stop()
         container.remove(list(container.components))

@@ -11,11 +11,11 @@ always did (its status names its ``container``). What a worker process does on a
 component, a container does on one (:mod:`ubitrack_agent.services.scheduler`): the components'
 control commands, status queries, held triggers, static inputs' samples and fetches, so adding a
 component starts no thread of its own (its dynamic inputs read over zenoh have one each,
-``net.transport.subscribe_in_bursts``, and its publishers theirs,
-``net.transport.LatestValuePublisher``). The anchors are ROS 2's component containers (composable
-nodes loaded into a running process, ``ros2 component load``, with intra-process communication) and
-dora-rs's operators sharing a runtime process; the paper's service managers run the pattern
-instances of a host (Pustka et al. 2006, section 5.2.1).
+``net.transport.subscribe_in_bursts``; its publishers' queries are answered by the process's
+answering threads, ``net.transport.ANSWERS``). The anchors are ROS 2's component containers
+(composable nodes loaded into a running process, ``ros2 component load``, with intra-process
+communication) and dora-rs's operators sharing a runtime process; the paper's service managers
+run the pattern instances of a host (Pustka et al. 2006, section 5.2.1).
 
 **Wires inside.** A component reading another's output in the same container is handed the
 measurement object (:mod:`ubitrack_agent.services.local_wires`): no encoding, no decoding, no zenoh.
@@ -58,8 +58,10 @@ outlives it once its token is up (a restarted agent adopts its components), unti
 has left (then nobody would stop it).
 
 Growth: memory and zenoh declarations O(components + their inputs and outputs); threads O(1)
-for the container plus one per dynamic input read over zenoh and per output key (those of
-``net.transport``); a hand-over O(readers of the output).
+for the container (its scheduler and at most ``net.transport.ANSWERING_THREADS`` answering
+queries) plus one per dynamic input read over zenoh (``net.transport.subscribe_in_bursts``)
+and two per dynamic relation key it puts on (the callbacks of ``services.handover.Watch``); a
+hand-over O(readers of the output).
 """
 
 from __future__ import annotations
@@ -93,9 +95,10 @@ from ubitrack_agent.net.spec import (
     parse_components,
     parse_group,
 )
+from ubitrack_agent.net.transport import on_zenoh_thread
 from ubitrack_agent.services.local_wires import LocalWires
 from ubitrack_agent.services.parent import Parent
-from ubitrack_agent.services.scheduler import Scheduler, on_zenoh_thread
+from ubitrack_agent.services.scheduler import Scheduler
 from ubitrack_agent.services.spec import check_spec
 from ubitrack_agent.services.worker import Worker
 

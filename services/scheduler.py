@@ -36,8 +36,6 @@ from collections import Counter
 from collections.abc import Callable, Hashable
 from typing import Any
 
-import zenoh
-
 from ubitrack_agent.net import logs
 
 log = logging.getLogger("ubitrack.container")
@@ -149,12 +147,3 @@ class Scheduler:
             self._name,
             exc_info=True,
         )
-
-
-def on_zenoh_thread(callback: Callable[[Any], None]) -> zenoh.handlers.Callback:
-    """``callback`` as a zenoh handler run on zenoh's own thread: zenoh-python runs a plain
-    Python callable on a thread it starts for each declaration (a subscriber, a queryable, a
-    query), which made a component's control keys, status and fetches cost a thread each. Only
-    for rare messages (commands, queries, a static edge's value, an answer) and a callback
-    that only hands them on: it holds zenoh's thread while it waits for Python's lock."""
-    return zenoh.handlers.Callback(callback, indirect=False)

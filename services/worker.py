@@ -111,6 +111,7 @@ from ubitrack_agent.net.transport import (
     FETCH_RETRY_DELAYS,
     LatestValuePublisher,
     fetch_until_satisfied,
+    on_zenoh_thread,
     subscribe_in_bursts,
 )
 from ubitrack_agent.services.expansion import BatchProgress, TimeAccumulator
@@ -125,7 +126,7 @@ from ubitrack_agent.services.local_wires import (
 )
 from ubitrack_agent.services.parent import Parent
 from ubitrack_agent.services.registry import Pushed, Service, lookup
-from ubitrack_agent.services.scheduler import Scheduler, on_zenoh_thread
+from ubitrack_agent.services.scheduler import Scheduler
 from ubitrack_agent.services.spec import (
     check_bindings,
     check_parameters,
@@ -1194,10 +1195,10 @@ class Worker:
     # -- values at a given time (net.time_queries) --------------------------------------------
 
     def _ask(self, port: str, timestamp_ns: int) -> bytes:
-        """Runs on a publisher's thread: output ``port``'s value at a time, encoded, or a
-        typed error (``ValueError``, ``LookupError``, ``TimeoutError``: ``net.time_queries``);
-        an unexpected fault is logged and counted (``internal_errors``) and answered as
-        :class:`NoDataError`."""
+        """Runs on an answering thread (``net.transport.ANSWERS``): output ``port``'s value at
+        a time, encoded, or a typed error (``ValueError``, ``LookupError``, ``TimeoutError``:
+        ``net.time_queries``); an unexpected fault is logged and counted (``internal_errors``)
+        and answered as :class:`NoDataError`."""
         if not self._lock.acquire(timeout=ANSWER_TIMEOUT_S):
             raise TimeoutError(f"no answer within {ANSWER_TIMEOUT_S} s (the worker is busy)")
         try:

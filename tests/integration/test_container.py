@@ -38,6 +38,24 @@ def close(result: Pose, want: Pose) -> bool:
     )
 
 
+def start_container(processes, group: GroupSpec, port: int, domain: str) -> subprocess.Popen:
+    """A container process running ``group``, joined to the test's hub (ended by the
+    ``processes`` fixture)."""
+    container = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ubitrack_agent.services.container",
+            "--group",
+            group.to_json(),
+            *member_flags(port, domain),
+        ],
+        start_new_session=True,
+    )
+    processes.append(container)
+    return container
+
+
 def test_a_container_wires_in_the_process_adds_removes_and_contains_bad_input(processes):
     port = free_port()
     domain = f"c{port}"
@@ -74,18 +92,7 @@ def test_a_container_wires_in_the_process_adds_removes_and_contains_bad_input(pr
             for name in tokens
         ]
         application = Collector(session, relation)
-        container = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "ubitrack_agent.services.container",
-                "--group",
-                group.to_json(),
-                *member_flags(port, domain),
-            ],
-            start_new_session=True,
-        )
-        processes.append(container)
+        container = start_container(processes, group, port, domain)
         wait_until(lambda: PUT in tokens["first"] and PUT in tokens["second"], timeout=30)
         wt, cal, ht = (
             session.declare_publisher(keys.data(k)) for k in ("ART/WT", "CAL/X", "ART/HT")

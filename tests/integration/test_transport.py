@@ -1,18 +1,27 @@
-"""``net.transport.subscribe_in_bursts`` between two real zenoh sessions on loopback: every
-sample handed on once and in order, a backlog as bursts, and its thread gone once the
-subscriber is undeclared."""
+"""``net.transport`` between two real zenoh sessions on loopback: ``subscribe_in_bursts`` hands
+every sample on once and in order, a backlog as bursts, and its thread is gone once the
+subscriber is undeclared; ``LatestValuePublisher`` answers queries on shared threads."""
 
 from __future__ import annotations
 
 import threading
 import time
 
+import pytest
 import zenoh
 
 from tests.integration.zenoh_helpers import free_port, hub_session, wait_until
+from ubitrack_agent.core.errors import ExtrapolationError
 from ubitrack_agent.net import config
 from ubitrack_agent.net.session import open_session
-from ubitrack_agent.net.transport import INPUT_CHANNEL_CAPACITY, subscribe_in_bursts
+from ubitrack_agent.net.time_queries import fetch_at, raise_error, selector
+from ubitrack_agent.net.transport import (
+    ANSWERING_THREADS,
+    INPUT_CHANNEL_CAPACITY,
+    LatestValuePublisher,
+    fetch_latest,
+    subscribe_in_bursts,
+)
 
 
 def test_a_backlog_is_handed_on_whole_in_order_and_the_thread_ends_with_the_subscriber():
@@ -85,3 +94,54 @@ def test_undeclaring_while_a_burst_is_drained_ends_the_thread_quietly(monkeypatc
         stop.set()
         flooding.join(timeout=5.0)
     assert raised == []
+
+
+def test_a_time_query_is_answered_while_another_keys_answer_waits_or_fails():
+    """Publishers share the process's answering threads (``net.transport.ANSWERS``) and start
+    none of their own: while one key's ``at`` is still computing (then fails unexpectedly:
+    counted, the query left unanswered), another key's time query, its latest value and a
+    third key's typed refusal are answered; a hostile time is refused and counted."""
+    port = free_port()
+    member = config.Settings(connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",))
+    release = threading.Event()
+    entered = threading.Event()
+
+    def stuck(t: int) -> bytes:
+        entered.set()
+        release.wait(timeout=10.0)
+        raise RuntimeError("a bug in the answer")
+
+    def refuses(t: int) -> bytes:
+        raise ExtrapolationError("beyond the motion model")
+
+    with hub_session(port) as asker, open_session(member) as session:
+        before = {thread.ident for thread in threading.enumerate()}
+        slow = LatestValuePublisher(session, "test/at/slow", stuck)
+        fine = LatestValuePublisher(session, "test/at/fine", lambda t: b"%d" % t)
+        far = LatestValuePublisher(session, "test/at/far", refuses)
+        more = [LatestValuePublisher(session, f"test/at/more/{k}") for k in range(50)]
+        assert {thread.ident for thread in threading.enumerate()} <= before  # none started
+        fine.put(b"latest")
+        wait_until(lambda: fetch_latest(asker, "test/at/fine") == [b"latest"])
+        waiting = threading.Thread(
+            target=lambda: list(asker.get(selector("test/at/slow", 5), timeout=10.0))
+        )
+        waiting.start()
+        assert entered.wait(timeout=5.0)
+        assert fetch_at(asker, "test/at/fine", 7, timeout=2.0) == b"7"
+        assert fetch_latest(asker, "test/at/fine") == [b"latest"]
+        with pytest.raises(ExtrapolationError, match="motion model"):
+            fetch_at(asker, "test/at/far", 7, timeout=2.0)
+        with pytest.raises(ValueError, match="integer nanoseconds"):
+            for reply in asker.get("test/at/fine?t=soon", timeout=2.0):
+                raise_error(reply.err.payload.to_bytes(), "test/at/fine")
+        assert waiting.is_alive()  # slow's at still runs
+        release.set()
+        waiting.join(timeout=10.0)
+        wait_until(lambda: slow.counters["internal_errors"] == 1)
+        assert fine.counters["rejected_queries"] == 1 and fine.counters["internal_errors"] == 0
+        assert fetch_at(asker, "test/at/fine", 9, timeout=2.0) == b"9"  # and the next
+        answering = [t for t in threading.enumerate() if t.name.startswith("answers")]
+        assert 2 <= len(answering) <= ANSWERING_THREADS
+        for publisher in (slow, fine, far, *more):
+            publisher.undeclare()

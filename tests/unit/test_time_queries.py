@@ -82,15 +82,9 @@ def publisher(at=None) -> LatestValuePublisher:
             matching_status=SimpleNamespace(matching=False),
             declare_matching_listener=lambda callback: SimpleNamespace(undeclare=lambda: None),
         ),
-        declare_queryable=lambda key: SimpleNamespace(__iter__=None),
+        declare_queryable=lambda key, handler: SimpleNamespace(undeclare=lambda: None),
     )
-    session.declare_queryable = lambda key: FakeQueryable()
     return LatestValuePublisher(session, "k", at)
-
-
-class FakeQueryable(list):
-    def undeclare(self) -> None:
-        pass
 
 
 def answer(publisher_: LatestValuePublisher, parameters: dict[str, str]) -> FakeQuery:

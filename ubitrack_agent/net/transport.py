@@ -8,10 +8,20 @@ still marked unstable in zenoh-python. Given an ``at`` function, it also answers
 for the value at a given time (``<key>?t=<ns>``, :mod:`ubitrack_agent.net.time_queries`);
 without one such a query gets an ``extrapolation`` error reply (a measured edge has no motion
 model).
+
+Threads: a publisher starts none. Its queryable and its matching listener are zenoh callbacks
+run on zenoh's own thread (:func:`on_zenoh_thread`), which only hand the query on; the
+queries of every publisher of the process are answered by one pool of at most
+:data:`ANSWERING_THREADS` threads (:data:`ANSWERS`). Growth: threads O(1) per process (none
+until the first query; as many as were answering at once, at most ``ANSWERING_THREADS``),
+not O(output keys): a container of a hundred components had two threads per output key, one
+answering its queries and one of zenoh-python's for its matching listener
+(``docs/performance.md``, "Threads of a container").
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -24,6 +34,7 @@ import zenoh
 from ubitrack_agent.core.errors import ExtrapolationError, NoMotionModel
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.encodings import JSON, MSGPACK
+from ubitrack_agent.net.thread_pool import ThreadPool
 from ubitrack_agent.net.time_queries import error_payload, requested_time
 
 log = logging.getLogger("ubitrack.transport")
@@ -37,6 +48,38 @@ and an upstream worker started at the same moment computes its static result a l
 INPUT_CHANNEL_CAPACITY = 4096
 """Samples zenoh queues for :func:`subscribe_in_bursts` before it holds the sender back; also
 the most one burst hands on."""
+
+
+ANSWERING_THREADS = 8
+"""Most threads answering queries at once in a process (:data:`ANSWERS`). A query for a time
+may wait: for a worker's lock (``services.worker.ANSWER_TIMEOUT_S``, 150 ms), then for its
+inputs' producers, asked the same question in turn (up to ``UPSTREAM_TIMEOUT_S`` each); a
+chain of components in one process asked for a time beyond their samples holds a thread per
+link while the next answers. A query arriving while all are busy waits for one (its asker's
+own timeout bounds that)."""
+
+ANSWERS = ThreadPool("answers", ANSWERING_THREADS)
+"""The threads answering the queries of every :class:`LatestValuePublisher` of the process:
+started one at a time, only when a query comes while none is idle, then kept
+(``net.thread_pool``). Not zenoh's thread (zenoh-python's guide, "Channels and callbacks":
+calling zenoh from a callback, or blocking in it, "may lead to deadlocks", and a reply is a
+zenoh call; a time query may block, above), and not a container's scheduler
+(``services.scheduler``), whose one thread would hold back every component's turns while a
+query waited, and would wait on itself where a time query goes upstream to a producer in the
+same container."""
+
+
+def on_zenoh_thread(callback: Callable[[Any], None]) -> zenoh.handlers.Callback:
+    """``callback`` as a zenoh handler run on zenoh's own thread: zenoh-python runs a plain
+    Python callable on a thread it starts for each declaration (a subscriber, a queryable, a
+    query, a matching listener: ``Callback(..., indirect=True)``, its default, which drains a
+    channel on a ``threading.Thread`` of its own; ``indirect=False`` calls it where zenoh
+    receives: zenoh-python ``src/handlers.rs``, ``python_callback``, and the ``Callback``
+    docstring in ``zenoh/handlers.pyi``). Only for rare messages (commands, queries, a static
+    edge's value, an answer, a matching status) and a callback that only hands them on: it
+    holds zenoh's thread while it waits for Python's lock, and calls no zenoh function
+    (zenoh-python's guide, "Channels and callbacks")."""
+    return zenoh.handlers.Callback(callback, indirect=False)
 
 
 def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[list[bytes]], None]) -> Any:
@@ -102,13 +145,14 @@ class LatestValuePublisher:
         """Whether a subscriber listens, as zenoh last told the matching listener (asking
         zenoh costs about 8 us)."""
         self._listener = self._publisher.declare_matching_listener(
-            logs.guarded(self._on_matching, self.counters, log, key)
+            on_zenoh_thread(logs.guarded(self._on_matching, self.counters, log, key))
         )
         if self._publisher.matching_status.matching:  # one already listening: no change told
             self._matching = True
-        self._queryable = session.declare_queryable(key)
-        self._thread = threading.Thread(target=self._serve, daemon=True, name=f"latest:{key}")
-        self._thread.start()
+        self._answer = logs.guarded(self._reply_and_finish, self.counters, log, key)
+        """:meth:`_reply_and_finish` made total: a failed reply (the querier gone) or a fault is
+        counted (``internal_errors``) and logged, and the next query is answered."""
+        self._queryable = session.declare_queryable(key, on_zenoh_thread(self._on_query))
 
     def put(self, payload: bytes) -> None:
         """Keep ``payload`` as the latest (answered to queries) and publish it. Put even while
@@ -131,13 +175,19 @@ class LatestValuePublisher:
         its listener last reported it)."""
         return self._matching
 
-    def _serve(self) -> None:
-        # Replies from this thread, never from a zenoh callback; a failed reply (the querier
-        # gone) is counted and logged, and the next query is answered.
-        reply = logs.guarded(self._reply, self.counters, log, self.key)
-        for query in self._queryable:
-            with query:
-                reply(query)
+    def _on_query(self, query: Any) -> None:
+        """On zenoh's thread: hand ``query`` to :data:`ANSWERS` (a queue's put; a thread
+        started only if none is idle). While the interpreter ends, no thread starts and the
+        query goes unanswered (zenoh tells its asker it is finished)."""
+        # RuntimeError: "can't create new thread at interpreter shutdown"
+        with contextlib.suppress(RuntimeError):
+            ANSWERS.submit(self._answer, query)
+
+    def _reply_and_finish(self, query: Any) -> None:
+        """On a thread of :data:`ANSWERS`: answer ``query``, then finish it at once (zenoh
+        sends its final message when the query is dropped)."""
+        with query:
+            self._reply(query)
 
     def _reply(self, query: Any) -> None:
         try:
@@ -162,10 +212,11 @@ class LatestValuePublisher:
         query.reply(self.key, payload, encoding=self._encoding)
 
     def undeclare(self) -> None:
+        """Undeclare the listener, the queryable and the publisher (a query being answered
+        still gets its reply)."""
         self._listener.undeclare()
         self._queryable.undeclare()
         self._publisher.undeclare()
-        self._thread.join(timeout=1.0)
 
 
 def put_command(session: Any, key: str, payload: str | bytes) -> None:
