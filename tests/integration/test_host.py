@@ -14,6 +14,7 @@ import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from subprocess import PIPE
 
 import pytest
 
@@ -37,6 +38,7 @@ from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.services.host_claim import NAME_TAKEN
 
 pytestmark = pytest.mark.integration
 
@@ -53,15 +55,22 @@ class Network:
     watches: list = field(default_factory=list)
 
     def start(
-        self, *command: str, host_name: str | None = None, stdin: int | None = None
+        self,
+        *command: str,
+        host_name: str | None = None,
+        stdin: int | None = None,
+        stderr: int | None = None,
     ) -> subprocess.Popen:
         """A process joining the network, on host ``host_name`` (default this machine's), with
-        ``stdin`` as its standard input (``subprocess.PIPE``: a pipe from the test)."""
+        ``stdin`` as its standard input (``subprocess.PIPE``: a pipe from the test) and
+        ``stderr`` as its standard error (``PIPE``: read as text by the test)."""
         named = [] if host_name is None else ["--host-name", host_name]
         process = subprocess.Popen(
             [sys.executable, *command, *member_flags(self.port, self.domain), *named],
             start_new_session=True,
             stdin=stdin,
+            stderr=stderr,
+            text=stderr is not None,
         )
         self.processes.append(process)
         return process
@@ -407,7 +416,9 @@ def test_a_host_manager_outlives_the_agent_that_started_it(hub):
     """The agent that started a host manager dies (its pipe closes): the host manager serves
     on, so its client container keeps its route and its data flows, the host manager still
     takes requests (from the agent's successor), and a second host manager of its name, as a
-    successor agent might start one, waits instead of serving beside it."""
+    successor agent might start one, gives way (exits saying so) instead of serving beside it.
+    Killed (SIGKILL), the host manager leaves its container serving; the next one of its name
+    adopts it, and restores it with its components when it dies in turn."""
     keys = hub.keys
     tokens = hub.tokens()
     host = hub.host("lab", pool_size=1, as_the_agent_starts_it=True)
@@ -426,12 +437,41 @@ def test_a_host_manager_outlives_the_agent_that_started_it(hub):
     assert ok, reply  # a successor agent's start
     wait_until(lambda: (PUT, "r2") in [(k, i) for k, i, _ in tokens], timeout=30)
 
-    second = hub.start("-m", "ubitrack_agent.services.host", "--name", "lab", "--pool-size", "0")
-    time.sleep(3.0)  # its imports, then it would serve
-    assert second.poll() is None
+    second = hub.start(
+        "-m", "ubitrack_agent.services.host", "--name", "lab", "--pool-size", "0", stderr=PIPE
+    )
+    assert second.wait(timeout=30) == NAME_TAKEN
+    assert "another host manager of this name serves already: exiting" in second.stderr.read()
     assert {hub.status("lab")["pid"]} == {pid}  # one host manager answers: the first
+
+    # Killed: its container serves on; the next host manager of its name adopts it.
+    container = hub.status("lab")["containers"]["lab-0"]["pid"]
     host.kill()
-    wait_until(lambda: hub.ask("lab", encode_request(Status()))[1].get("pid") == second.pid, 30)
+    host.wait(timeout=10)
+    assert flows_again(source, output, 5_000)
+    third = hub.host("lab", pool_size=1)
+    status = wait_until(lambda: adopted(hub.status("lab"), 2), timeout=20)
+    assert status["pid"] == third.pid
+    assert status["containers"] == {"lab-0": {"pid": container, "ready": True}}
+    assert {i: s["container"] for i, s in status["instances"].items()} == {
+        "relay1": "lab-0",
+        "r2": "lab-0",
+    }
+    exits = Collector(hub.session, keys.host_exited("lab"))
+    os.kill(container, signal.SIGKILL)  # dies: restored by its adopter, with both components
+    reports = [Exited.parse(exits.next(timeout=10)) for _ in range(2)]
+    assert {(r.instance, r.reason) for r in reports} == {("relay1", "restored"), ("r2", "restored")}
+    assert {r.run for r in reports} == {s["run"] for s in status["instances"].values()}
+    assert flows_again(source, output, 6_000, timeout=30)
+    assert hub.status("lab")["counters"]["containers_restored"] == 1
+
+
+def adopted(status: dict, components: int) -> dict | None:
+    """``status`` if its host manager adopted a container with ``components`` components."""
+    counters = status["counters"]
+    if counters.get("containers_adopted") == 1 and counters["components_adopted"] == components:
+        return status
+    return None
 
 
 def flows_again(source, output: Collector, timestamp_ns: int, timeout: float = 10.0) -> bool:
