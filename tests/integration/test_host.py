@@ -497,6 +497,44 @@ def running(pid: int) -> bool:
         return False
 
 
+def test_of_two_host_managers_of_one_name_started_together_exactly_one_serves(hub):
+    """Five pairs of ``ubitrack host`` of one name each, every process started at the same
+    instant (ten at once on this machine: the links come up slowly): in every pair exactly one
+    serves, and the other exits with ``NAME_TAKEN`` naming the one that came first."""
+    pairs = {
+        f"twin{index}": [
+            hub.start(
+                *("-m", "ubitrack_agent.cli", "host", "--name", f"twin{index}"),
+                *("--pool-size", "0", "--quiet"),
+                stderr=PIPE,
+            )
+            for _ in range(2)
+        ]
+        for index in range(5)
+    }
+    for name, pair in pairs.items():
+        wait_until(lambda pair=pair: any(p.poll() is not None for p in pair), timeout=60)
+        (loser,) = [p for p in pair if p.poll() is not None]
+        (winner,) = [p for p in pair if p is not loser]
+        message = loser.stderr.read()
+        assert loser.returncode == NAME_TAKEN, (name, loser.returncode, message)
+        came_first = f"host {name}: another host manager of this name (pid {winner.pid}) "
+        assert came_first + "started first: exiting" in message or (
+            f"host {name}: another host manager of this name serves already: exiting" in message
+        ), message
+        wait_until(lambda name=name: hub.ask(name, encode_request(Status()))[0], timeout=30)
+        time.sleep(1.0)  # a second host manager serving would answer by now too
+        replies = list(
+            hub.session.get(
+                hub.keys.host_request(name), payload=encode_request(Status()), timeout=5.0
+            )
+        )
+        assert [json.loads(r.ok.payload.to_bytes())["pid"] for r in replies] == [winner.pid]
+        assert winner.poll() is None
+        winner.terminate()
+        assert winner.wait(timeout=15) == 0
+
+
 def test_workers_still_starting_when_their_host_manager_dies_exit(hub):
     """Chaos seed 210 (issue 11): the agent was SIGKILLed while its host manager started ten
     workers cold on a loaded machine; its host manager ended with it, and those workers, starved
@@ -631,30 +669,90 @@ def test_workers_killed_before_and_after_their_token_are_started_again(net):
     relation.close()
 
 
-def test_the_agent_starts_its_host_manager_again_and_a_clean_stop_ends_every_worker(net):
-    agent = net.agent()  # with its own host manager
+def test_the_agent_starts_its_host_manager_again_which_adopts_and_restores_the_orphans(net):
+    """Its host manager SIGKILLed, the agent's container serves on (it was its client and
+    reaches the network through the hub); the host manager the agent starts again adopts it
+    (its components are placed there again, none restarted), and restores it when it is
+    killed in turn, the relation flowing again. With ``--stop-host-on-exit`` a clean stop
+    then ends every worker and the host manager."""
+    agent = net.agent("--stop-host-on-exit")  # with its own host manager
     net.tracker()
     relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
     wait_until(lambda: relation.latest() is not None, timeout=30)
     (name,) = net.agent_status()["hosts"]
     first = net.status(name)["pid"]
+    components = set(net.agent_status()["components"])
 
-    os.kill(first, signal.SIGKILL)  # its workers keep running, adopted as they are: they were
-    # its clients, and reach the network through the hub (their tokens come back within the
-    # agent's REROUTE_S)
+    os.kill(first, signal.SIGKILL)
     wait_until(lambda: net.ask(name, encode_request(Status()))[1].get("pid") not in (None, first))
     relation.wait_for(timeout=10)  # still flowing
+    host = wait_until(
+        lambda: net.status(name)["counters"].get("containers_adopted") and net.status(name),
+        timeout=20,
+    )
+    assert set(host["instances"]) == components
+    (container,) = host["containers"].values()
 
+    def placed_again() -> bool:  # the agent found them in the new host manager's status
+        status = net.agent_status()
+        return all(c["host"] == name and c["alive"] for c in status["components"].values())
+
+    wait_until(placed_again, timeout=20)
     status = net.agent_status()
-    adopted = {i: c for i, c in status["components"].items() if c["host"] is None}
-    assert adopted and status["counters"].get("restarts", 0) == 0  # none restarted
-    containers = {c["container"] for c in adopted.values()}
-    assert len(containers) == 1 and None not in containers  # recorded: the orphan's token
-    assert workers(net.domain)
+    assert set(status["components"]) == components
+    assert status["counters"].get("restarts", 0) == 0  # none restarted
+    assert {c["pid"] for c in status["components"].values()} == {container["pid"]}
+
+    os.kill(container["pid"], signal.SIGKILL)  # its adopter restores it, the agent rewires
+    restored = wait_until(
+        lambda: net.status(name)["counters"].get("containers_restored") and net.status(name),
+        timeout=20,
+    )
+    (again,) = restored["containers"].values()
+    assert again["pid"] != container["pid"] and set(restored["instances"]) == components
+    wait_until(lambda: net.agent_status()["counters"].get("restored", 0) >= len(components), 20)
+    relation.wait_for(timeout=20)  # flows again
+    relation.wait_for(timeout=5)
+    status = net.agent_status()
+    assert status["counters"].get("restarts", 0) == 0  # restored in place, not started again
+    assert {c["pid"] for c in status["components"].values()} == {again["pid"]}
 
     agent.send_signal(signal.SIGTERM)
     assert agent.wait(timeout=20) == 0
     wait_until(lambda: not workers(net.domain), timeout=10)
+    relation.close()
+
+
+def test_a_clean_agent_stop_leaves_its_host_manager_and_workers_serving_the_next_agent(net):
+    """``ubitrack agent`` stopped cleanly (SIGTERM) stops no data: its workers and its host
+    manager serve on, and the agent started again adopts both, every component in the
+    process it ran in."""
+    agent = net.agent()
+    net.tracker()
+    relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
+    wait_until(lambda: relation.latest() is not None, timeout=30)
+    (name,) = net.agent_status()["hosts"]
+    wait_until(lambda: all(c["host"] == name for c in net.agent_status()["components"].values()))
+    before = net.status(name)
+    pids = {i: c["pid"] for i, c in before["instances"].items()}
+
+    agent.send_signal(signal.SIGTERM)
+    assert agent.wait(timeout=20) == 0
+    for _ in range(3):
+        relation.wait_for(timeout=5)  # no agent: the data goes on
+    host = net.status(name)
+    assert host["pid"] == before["pid"] and host["orphaned"]
+    assert {i: c["pid"] for i, c in host["instances"].items()} == pids
+
+    net.agent()
+    wait_until(lambda: net.agent_status()["counters"].get("adopted", 0) == len(pids), timeout=20)
+    status = net.agent_status()
+    assert all(c["alive"] for c in status["components"].values())
+    assert status["counters"].get("restarts", 0) == 0
+    host = net.status(name)
+    assert host["pid"] == before["pid"]  # adopted, with its components
+    assert {i: c["pid"] for i, c in host["instances"].items()} == pids
+    relation.wait_for(timeout=5)
     relation.close()
 
 
