@@ -1069,8 +1069,10 @@ class Agent:
 
     def _close(self, stop_workers: bool) -> None:
         """Leave the network after a clean stop (``stop_workers``) or a failure of the loop.
-        A clean stop of the active agent stops every worker it runs, unless a standby agent is
-        alive to adopt them (then it hands over: they keep running, as after a failure)."""
+        A clean stop of the active agent stops every worker it runs (every stop sent at once:
+        ``Hosts.stop_all``), unless it was asked to keep them (``stop(keep_workers=True)``) or
+        a standby agent is alive to adopt them (then it hands over: they keep running, as
+        after a failure)."""
         standby = bool(set(self.election.standbys) - {self.id})
         self.handed_over = stop_workers and self.active and standby
         was_active = self.active
@@ -1078,8 +1080,7 @@ class Agent:
         for declared in (*self._declared, *self._watches):
             declared.undeclare()
         if stop_workers and was_active and not standby and not self._keep_workers:
-            for instance in sorted({*self.running, *self._retiring}):
-                self.hosts.stop(instance)
+            self.hosts.stop_all(sorted({*self.running, *self._retiring}))
         elif self.handed_over:
             log.warning("handing over to the standby agent: the workers keep running")
         elif stop_workers and was_active:
