@@ -30,13 +30,14 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import logging
 import os
 import socket
 import sys
 import threading
 import time
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from ubitrack_agent.core.names import parse_labels
 from ubitrack_agent.net import config, logs
@@ -288,5 +289,17 @@ def main(argv: list[str] | None = None) -> int:
     )
 
 
+def exit_at_once(status: int) -> NoReturn:
+    """End the process with ``status`` once :func:`serve` has returned (every declaration
+    undeclared, the session closed, every worker ended), flushing the output and the logs but
+    skipping the interpreter's teardown of the modules: with numpy, scipy and OpenCV loaded it
+    took 0.7-3.8 s at a load of 7-10 on two cores (more under a test suite's load), which the
+    agent's clean stop waited for (``ubitrack agent --stop-host-on-exit``)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    logging.shutdown()
+    os._exit(status)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_at_once(main())
