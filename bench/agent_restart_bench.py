@@ -37,7 +37,9 @@ time between two samples from that kill until every component is alive again in 
 other than the killed one, plus ``HOLD_S``; ``restored``: the host manager restored it rather
 than the agent starting its components anew). For these two, a trial ends once every wanted
 component is alive and nothing is unsolved, then ``HOLD_S`` more (``back``); ``longest_gap``
-is over that span. Written to ``agent_restart_sigterm.json`` and ``agent_restart_host.json``.
+is over that span. Written to ``agent_restart_sigterm.json`` and ``agent_restart_host.json``;
+``--stop-host-on-exit`` gives the agents that option (a clean stop ends every worker and the
+host manager: ``agent_restart_sigterm_stop_host.json``).
 """
 
 from __future__ import annotations
@@ -231,11 +233,16 @@ def host_kill_trial(setup: Setup, arrivals: list[float]) -> dict[str, Any]:
     }
 
 
+AGENT_FLAGS: list[str] = []
+"""More options of every agent started (``--stop-host-on-exit``)."""
+
+
 def start_agent(setup: Setup, port: int, others: list[int], peers: bool = False) -> Any:
     """An agent listening on ``port`` and connecting to the agents on ``others``, not waiting
     for it (``Setup.start_agent`` waits); with ``peers``, its host manager's worker processes
     are zenoh peers."""
     command = [sys.executable, "-m", "ubitrack_agent.cli", "agent", "--pool-size", "2"]
+    command += AGENT_FLAGS
     command += ["--workers-as-peers"] if peers else []
     command += ["--listen", f"tcp/127.0.0.1:{port}", "--domain", setup.domain]
     command += [flag for other in others for flag in ("--connect", f"tcp/127.0.0.1:{other}")]
@@ -324,7 +331,7 @@ def event_summary(rows: list[dict[str, Any]], event: str) -> dict[str, Any]:
             figures[f"{name}_median_s"] = values[len(values) // 2]
             figures[f"{name}_max_s"] = values[-1]
     return {
-        "command": f"python -m bench.agent_restart_bench --event {event}",
+        "command": " ".join(["python -m bench.agent_restart_bench --event", event, *AGENT_FLAGS]),
         "load_average": os.getloadavg(),
         "date": time.strftime("%Y-%m-%d %H:%M"),
         "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.python_version()}",
@@ -375,15 +382,23 @@ def main() -> int:
         "its host manager and then a container (module docstring)",
     )
     parser.add_argument(
+        "--stop-host-on-exit",
+        action="store_true",
+        help="the agents' own option: a clean stop ends every worker and the host manager "
+        "(with --event agent-sigterm: the old clean stop, its exit time and gap)",
+    )
+    parser.add_argument(
         "--output", type=Path, help="where to write the figures (default: by the options)"
     )
     args = parser.parse_args()
     if args.event != EVENTS[0] and args.standby:
         parser.error("--standby goes with --event agent-sigkill only")
+    AGENT_FLAGS.extend(["--stop-host-on-exit"] if args.stop_host_on_exit else [])
     result = run(args.trials, args.standby, args.workers_as_peers, args.event)
     print(json.dumps({k: v for k, v in result.items() if k != "trials"}, indent=1))
     suffix = "_standby" if args.standby else ""
     suffix += {"agent-sigterm": "_sigterm", "host-sigkill": "_host"}.get(args.event, "")
+    suffix += "_stop_host" if args.stop_host_on_exit else ""
     suffix += "_peers" if args.workers_as_peers else ""
     path = args.output or RESULTS.with_name(f"agent_restart{suffix}.json")
     path.parent.mkdir(exist_ok=True)
