@@ -1,16 +1,29 @@
 """What a host manager reads in ``/proc`` to adopt an orphaned container
 (``services/adoption.py``), on this test's own process: a command line's flags, whether a
-process is an orphaned worker of a host, and an adopted process's life."""
+process is an orphaned worker of a host, and an adopted process's life; and what it accepts
+of the orphan's status."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
+from types import SimpleNamespace
 
 import pytest
 
+from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError
 from ubitrack_agent.services import adoption
-from ubitrack_agent.services.adoption import UNKNOWN_EXIT, AdoptedProcess, orphan_worker
+from ubitrack_agent.services.adoption import (
+    UNKNOWN_EXIT,
+    AdoptedProcess,
+    LocalWorker,
+    ask_orphan,
+    orphan_worker,
+)
+
+KEYS = KeySpace("ubitrack/test")
 
 
 def test_flags_are_read_with_the_argument_after_them():
@@ -45,3 +58,43 @@ def test_an_adopted_process_runs_while_its_pid_has_its_start_time():
     assert reused.poll() == UNKNOWN_EXIT
     reused.kill()  # signals nothing: it is not the process adopted
     assert reused.wait(timeout=0.0) == UNKNOWN_EXIT
+
+
+def reply(status: object) -> SimpleNamespace:
+    data = status if isinstance(status, bytes) else json.dumps(status).encode()
+    return SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: data)))
+
+
+def relay(instance: str) -> ComponentSpec:
+    return ComponentSpec(
+        instance=instance,
+        service="relay",
+        inputs=(InputBinding("in", KEYS.data("art/HT"), trigger=True),),
+        outputs={"out": KEYS.data(f"{instance}/out")},
+    )
+
+
+def test_an_orphan_is_asked_for_its_components_and_only_its_own_answer_counts():
+    worker = LocalWorker("old-pool", 77)
+    mine = {"incarnation": "42.ab", "components": {"a": {"spec": relay("a").as_dict()}}}
+    other = {"incarnation": "43.cd", "components": {"b": {"spec": relay("b").as_dict()}}}
+    session = SimpleNamespace(get=lambda key, timeout: [reply(other), reply(mine)])
+    orphan = ask_orphan(session, KEYS, "lab-0", "42.ab", worker)
+    assert (orphan.name, orphan.pid, orphan.specs) == ("lab-0", 42, (relay("a"),))
+
+    hostile = [
+        b"{not json",
+        {"incarnation": "42.ab", "components": []},
+        {
+            "incarnation": "42.ab",
+            "components": {"a": {"spec": {**relay("a").as_dict(), "service": "os.system"}}},
+        },
+        {"incarnation": "42.ab", "components": {"a": "no spec"}},
+    ]
+    for status in hostile:
+        session = SimpleNamespace(get=lambda key, timeout, status=status: [reply(status)])
+        with pytest.raises(SpecError):
+            ask_orphan(session, KEYS, "lab-0", "42.ab", worker)
+    silent = SimpleNamespace(get=lambda key, timeout: [reply(other)])
+    with pytest.raises(SpecError, match="did not answer"):
+        ask_orphan(silent, KEYS, "lab-0", "42.ab", worker)
