@@ -12,8 +12,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError
+from tests.unit.test_agent_hosts import KEYS, spec
+from ubitrack_agent.net.spec import SpecError
 from ubitrack_agent.services import adoption
 from ubitrack_agent.services.adoption import (
     UNKNOWN_EXIT,
@@ -22,8 +22,6 @@ from ubitrack_agent.services.adoption import (
     ask_orphan,
     orphan_worker,
 )
-
-KEYS = KeySpace("ubitrack/test")
 
 
 def test_flags_are_read_with_the_argument_after_them():
@@ -65,29 +63,20 @@ def reply(status: object) -> SimpleNamespace:
     return SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: data)))
 
 
-def relay(instance: str) -> ComponentSpec:
-    return ComponentSpec(
-        instance=instance,
-        service="relay",
-        inputs=(InputBinding("in", KEYS.data("art/HT"), trigger=True),),
-        outputs={"out": KEYS.data(f"{instance}/out")},
-    )
-
-
 def test_an_orphan_is_asked_for_its_components_and_only_its_own_answer_counts():
     worker = LocalWorker("old-pool", 77)
-    mine = {"incarnation": "42.ab", "components": {"a": {"spec": relay("a").as_dict()}}}
-    other = {"incarnation": "43.cd", "components": {"b": {"spec": relay("b").as_dict()}}}
+    mine = {"incarnation": "42.ab", "components": {"a": {"spec": spec("a").as_dict()}}}
+    other = {"incarnation": "43.cd", "components": {"b": {"spec": spec("b").as_dict()}}}
     session = SimpleNamespace(get=lambda key, timeout: [reply(other), reply(mine)])
     orphan = ask_orphan(session, KEYS, "lab-0", "42.ab", worker)
-    assert (orphan.name, orphan.pid, orphan.specs) == ("lab-0", 42, (relay("a"),))
+    assert (orphan.name, orphan.pid, orphan.specs) == ("lab-0", 42, (spec("a"),))
 
     hostile = [
         b"{not json",
         {"incarnation": "42.ab", "components": []},
         {
             "incarnation": "42.ab",
-            "components": {"a": {"spec": {**relay("a").as_dict(), "service": "os.system"}}},
+            "components": {"a": {"spec": {**spec("a").as_dict(), "service": "os.system"}}},
         },
         {"incarnation": "42.ab", "components": {"a": "no spec"}},
     ]
