@@ -84,6 +84,7 @@ class HostClaim:
     def __init__(self, session: Any, keys: KeySpace, name: str, settle_s: float = SETTLE_S) -> None:
         self.name = name
         self._prefix = f"{keys.host(name)}/claim/"
+        self._host_key = keys.host(name)
         self.own = Claim(time.time_ns(), secrets.randbits(63), os.getpid())
         self._claims: set[Claim] = set()
         self._served = False
@@ -121,7 +122,16 @@ class HostClaim:
                 self._claims.discard(claim)
 
     def _on_host(self, sample: Any) -> None:
-        """The host token of one serving appeared or vanished (on zenoh's thread)."""
+        """The host token of one serving appeared or vanished (on zenoh's thread). A token
+        declared on a wildcard that matches the host's key (``<root>/host/*``) is no host
+        manager's: ignored, counted (``rejected_host_tokens``), so it cannot hold every host
+        manager back."""
+        key = str(sample.key_expr)
+        if key != self._host_key:
+            logs.count_problem(
+                self.counters, "rejected_host_tokens", log, "ignored host token %r", key[:200]
+            )
+            return
         with self._lock:
             self._served = str(sample.kind) == PUT
 

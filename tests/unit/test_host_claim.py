@@ -81,5 +81,12 @@ def test_a_claim_decides_once_its_window_has_passed_on_what_it_heard():
 
     late = FakeSession()
     latecomer = HostClaim(late, KEYS, "lab", settle_s=0.0)
+    host = KEYS.host("lab")
+    wildcard = SimpleNamespace(kind="SampleKind.PUT", key_expr=f"{KEYS.root}/host/*")
+    hostile = FakeSession()
+    unmoved = HostClaim(hostile, KEYS, "lab", settle_s=0.0)
+    hostile.callbacks[host](wildcard)  # a hostile token matching every host: no host manager's
+    assert unmoved.counters["rejected_host_tokens"] == 1
+    assert unmoved.settle() is None
     late.host("PUT")  # one serves (its claim may even look later, across clocks)
     assert "serves already" in latecomer.settle()
