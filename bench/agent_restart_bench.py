@@ -1,6 +1,9 @@
-"""Recovery after an agent SIGKILL: to every component alive and adopted (issue 11).
+"""Recovery after an agent SIGKILL: to every component alive and adopted (issue 11); and the
+gap an application sees when the agent is restarted cleanly or its host manager is killed
+(issue 28).
 
-Run: ``python -m bench.agent_restart_bench [--trials N] [--standby] [--workers-as-peers]``.
+Run: ``python -m bench.agent_restart_bench [--trials N] [--standby] [--workers-as-peers]
+[--event agent-sigkill|agent-sigterm|host-sigkill]``.
 Everything on loopback with real zenoh and real processes: an agent (with its host manager,
 pool size 2; its worker processes the host manager's zenoh clients, or with
 ``--workers-as-peers`` peers: ``docs/services.md``, "Links"), two
@@ -25,6 +28,18 @@ seconds, printed and written to ``bench/results/agent_restart.json`` (``_standby
   not restarted);
 * ``longest_gap``: the longest time between two samples an application received on ``WT->HT``
   from the kill to the adoption (the workers keep the data flowing while the agent is away).
+
+``--event agent-sigterm`` stops the agent cleanly (SIGTERM; ``exited``: until its process
+ended) and starts it again once it has ended; ``--event host-sigkill`` SIGKILLs the agent's
+host manager (the agent starts it again) and, once every component is alive and a host
+manager answers, the container running the most components (``container_gap``: the longest
+time between two samples from that kill until every component is alive again in a process
+other than the killed one, plus ``HOLD_S``; ``restored``: the host manager restored it rather
+than the agent starting its components anew). For these two, a trial ends once every wanted
+component is alive and nothing is unsolved, then ``HOLD_S`` more (``back``); ``longest_gap``
+is over that span. Written to ``agent_restart_sigterm.json`` and ``agent_restart_host.json``;
+``--stop-host-on-exit`` gives the agents that option (a clean stop ends every worker and the
+host manager: ``agent_restart_sigterm_stop_host.json``).
 """
 
 from __future__ import annotations
@@ -42,6 +57,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from tests.integration.chaos_faults import host_status
 from tests.integration.conftest import kill_tagged
 from tests.integration.test_agent import WT_HT, Setup
 from tests.integration.test_standby import host_pid
@@ -54,6 +70,10 @@ from ubitrack_agent.net.transport import fetch_latest
 
 RESULTS = Path(__file__).with_name("results") / "agent_restart.json"
 POLL_S = 0.02
+HOLD_S = 2.0
+"""After a clean restart or a host manager's kill, samples are watched this long after every
+component is alive again (a gap may open just after)."""
+EVENTS = ("agent-sigkill", "agent-sigterm", "host-sigkill")
 
 
 def agent_status(setup: Setup) -> dict[str, Any] | None:
@@ -127,11 +147,102 @@ def trial(
     }
 
 
+def longest_gap(arrivals: list[float], begin: float, end: float) -> float | None:
+    """The longest time between two samples that arrived within ``[begin, end]``, counting
+    ``end`` as one (a flow that has not come back by then has a gap to it)."""
+    window = [t for t in arrivals if begin <= t <= end] + [end]
+    return max((b - a for a, b in itertools.pairwise(window)), default=None)
+
+
+def until_serving(setup: Setup, before: set[str], event: float, *also: Any) -> float:
+    """Seconds from ``event`` until every component of ``before`` (and no other) is alive,
+    nothing is unsolved and every one of ``also`` (conditions) holds; ``RuntimeError`` after
+    60 s."""
+    while True:
+        status = agent_status(setup)
+        now = time.perf_counter()
+        if serving(status) and set(status["components"]) == before and all(c() for c in also):
+            return now - event
+        if now - event > 60:
+            raise RuntimeError(f"not serving again in 60 s: {status}")
+        time.sleep(POLL_S)
+
+
+def clean_restart_trial(
+    setup: Setup, agents: list[Any], arrivals: list[float], peers: bool = False
+) -> dict[str, Any]:
+    """One SIGTERM of the agent, started again once it has ended; the figures."""
+    before_status = wait_until(lambda: agent_status(setup))
+    before = set(before_status["components"])
+    pids = status_pids(setup, sorted(before))
+    old_host = host_pid(setup)
+    stopped = time.perf_counter()
+    agents[0].send_signal(signal.SIGTERM)
+    agents[0].wait(timeout=60)
+    exited = time.perf_counter() - stopped
+    agents[0] = start_agent(setup, agents[0].port, [], peers)
+    back = until_serving(setup, before, stopped, lambda: host_pid(setup) is not None)
+    time.sleep(HOLD_S)
+    status = agent_status(setup) or {"counters": {}}
+    return {
+        "exited": exited,
+        "back": back,
+        "same_host": host_pid(setup) == old_host,
+        "adopted": status["counters"].get("adopted", 0),
+        "components": len(before),
+        "same_pids": status_pids(setup, sorted(before)) == pids,
+        "longest_gap": longest_gap(arrivals, stopped - 1.0, time.perf_counter()),
+    }
+
+
+def host_kill_trial(setup: Setup, arrivals: list[float]) -> dict[str, Any]:
+    """One SIGKILL of the host manager, then one of the container running the most
+    components once the agent serves again with a host manager; the figures."""
+    before = set(wait_until(lambda: agent_status(setup))["components"])
+    old_host = host_pid(setup)
+    killed = time.perf_counter()
+    os.kill(old_host, signal.SIGKILL)
+    back = until_serving(setup, before, killed, lambda: host_pid(setup) not in (None, old_host))
+    host_ready = time.perf_counter() - killed
+    time.sleep(HOLD_S)
+    first_gap = longest_gap(arrivals, killed - 1.0, time.perf_counter())
+    pids = status_pids(setup, sorted(before))
+    victim = max(set(pids.values()), key=list(pids.values()).count)
+    restored_before = (host_status(setup) or {"counters": {}})["counters"].get(
+        "containers_restored", 0
+    )
+    crashed = time.perf_counter()
+    os.kill(victim, signal.SIGKILL)
+
+    def moved() -> bool:  # every component answers from a process, none the killed one
+        now = status_pids(setup, sorted(before)).values()
+        return all(pid not in (None, victim) for pid in now)
+
+    container_back = until_serving(setup, before, crashed, moved)
+    time.sleep(HOLD_S)
+    counters = (host_status(setup) or {"counters": {}})["counters"]
+    return {
+        "back": back,
+        "host_ready": host_ready,
+        "components": len(before),
+        "longest_gap": first_gap,
+        "container_back": container_back,
+        "container_gap": longest_gap(arrivals, crashed - 1.0, time.perf_counter()),
+        "restored": counters.get("containers_restored", 0) > restored_before,
+        "adopted_by_host": counters.get("components_adopted", 0),
+    }
+
+
+AGENT_FLAGS: list[str] = []
+"""More options of every agent started (``--stop-host-on-exit``)."""
+
+
 def start_agent(setup: Setup, port: int, others: list[int], peers: bool = False) -> Any:
     """An agent listening on ``port`` and connecting to the agents on ``others``, not waiting
     for it (``Setup.start_agent`` waits); with ``peers``, its host manager's worker processes
     are zenoh peers."""
     command = [sys.executable, "-m", "ubitrack_agent.cli", "agent", "--pool-size", "2"]
+    command += AGENT_FLAGS
     command += ["--workers-as-peers"] if peers else []
     command += ["--listen", f"tcp/127.0.0.1:{port}", "--domain", setup.domain]
     command += [flag for other in others for flag in ("--connect", f"tcp/127.0.0.1:{other}")]
@@ -158,7 +269,9 @@ def standing_by(setup: Setup, agent: Any) -> bool:
     return status is not None and agent.agent_id in status["agent"]["standby"]
 
 
-def run(trials: int, standby: bool, peers: bool = False) -> dict[str, Any]:
+def run(
+    trials: int, standby: bool, peers: bool = False, event: str = "agent-sigkill"
+) -> dict[str, Any]:
     port = free_port()
     domain = f"restart{port}"
     settings = config.Settings(
@@ -187,7 +300,12 @@ def run(trials: int, standby: bool, peers: bool = False) -> dict[str, Any]:
                 time.sleep(3.0)  # the pool refills, the flows settle
                 if standby:
                     wait_until(lambda: any(standing_by(setup, a) for a in agents), timeout=60)
-                figures = trial(setup, agents, arrivals, peers)
+                if event == "agent-sigterm":
+                    figures = clean_restart_trial(setup, agents, arrivals, peers)
+                elif event == "host-sigkill":
+                    figures = host_kill_trial(setup, arrivals)
+                else:
+                    figures = trial(setup, agents, arrivals, peers)
                 rows.append(figures)
                 print(f"trial {index + 1}: " + ", ".join(f"{k} {v}" for k, v in figures.items()))
             for relation in relations:
@@ -199,7 +317,27 @@ def run(trials: int, standby: bool, peers: bool = False) -> dict[str, Any]:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
         kill_tagged(domain)
+    if event != "agent-sigkill":
+        return event_summary(rows, event)
     return summary(rows, standby, peers)
+
+
+def event_summary(rows: list[dict[str, Any]], event: str) -> dict[str, Any]:
+    """Medians and maxima of a clean restart's or a host manager kill's trials."""
+    figures = {}
+    for name in ("exited", "back", "longest_gap", "container_back", "container_gap"):
+        values = sorted(row[name] for row in rows if row.get(name) is not None)
+        if values:
+            figures[f"{name}_median_s"] = values[len(values) // 2]
+            figures[f"{name}_max_s"] = values[-1]
+    return {
+        "command": " ".join(["python -m bench.agent_restart_bench --event", event, *AGENT_FLAGS]),
+        "load_average": os.getloadavg(),
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, {platform.python_version()}",
+        "trials": rows,
+        **figures,
+    }
 
 
 def summary(rows: list[dict[str, Any]], standby: bool, peers: bool) -> dict[str, Any]:
@@ -236,12 +374,33 @@ def main() -> int:
         help="the host manager's worker processes as zenoh peers (`ubitrack agent "
         "--workers-as-peers`), not its clients",
     )
+    parser.add_argument(
+        "--event",
+        choices=EVENTS,
+        default=EVENTS[0],
+        help="what each trial does: SIGKILL the agent (default), stop it cleanly, or SIGKILL "
+        "its host manager and then a container (module docstring)",
+    )
+    parser.add_argument(
+        "--stop-host-on-exit",
+        action="store_true",
+        help="the agents' own option: a clean stop ends every worker and the host manager "
+        "(with --event agent-sigterm: the old clean stop, its exit time and gap)",
+    )
+    parser.add_argument(
+        "--output", type=Path, help="where to write the figures (default: by the options)"
+    )
     args = parser.parse_args()
-    result = run(args.trials, args.standby, args.workers_as_peers)
+    if args.event != EVENTS[0] and args.standby:
+        parser.error("--standby goes with --event agent-sigkill only")
+    AGENT_FLAGS.extend(["--stop-host-on-exit"] if args.stop_host_on_exit else [])
+    result = run(args.trials, args.standby, args.workers_as_peers, args.event)
     print(json.dumps({k: v for k, v in result.items() if k != "trials"}, indent=1))
     suffix = "_standby" if args.standby else ""
+    suffix += {"agent-sigterm": "_sigterm", "host-sigkill": "_host"}.get(args.event, "")
+    suffix += "_stop_host" if args.stop_host_on_exit else ""
     suffix += "_peers" if args.workers_as_peers else ""
-    path = RESULTS.with_name(f"agent_restart{suffix}.json")
+    path = args.output or RESULTS.with_name(f"agent_restart{suffix}.json")
     path.parent.mkdir(exist_ok=True)
     path.write_text(json.dumps(result, indent=1) + "\n")
     return 0

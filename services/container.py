@@ -50,12 +50,15 @@ scheduler's thread holds back the others' turns (not their data): isolation, a c
 its own, is for such code. SIGTERM or SIGINT ends the container cleanly.
 
 The container's own status answers on ``<root>/status/<name>`` (no ``instance`` field: it is
-no component's). Once it takes commands it declares the liveliness token
+no component's; each component's current specification, by which a host manager adopts a
+container whose own host manager died: :mod:`ubitrack_agent.services.adoption`). Once it
+takes commands it declares the liveliness token
 ``<root>/container/<name>/<incarnation>`` (``<pid>.<nonce>``): its host manager sends it
 commands only from then on. Started by a host manager (``parent``,
 :mod:`ubitrack_agent.services.parent`), it exits while starting if the host manager is gone, and
-outlives it once its token is up (a restarted agent adopts its components), until its last component
-has left (then nobody would stop it).
+outlives it once its token is up (a restarted agent adopts its components, and the next host
+manager of its name the container), until its last component has left (then nobody would stop
+it).
 
 Growth: memory and zenoh declarations O(components + their inputs and outputs); threads O(1)
 for the container (its scheduler and at most ``net.transport.ANSWERING_THREADS`` answering
@@ -349,6 +352,7 @@ class Container:
                     "service": entry.worker.spec.service,
                     "incarnation": entry.worker.incarnation,
                     "restarts": entry.restarts,
+                    "spec": entry.worker.spec.as_dict(),
                 }
                 for instance, entry in entries.items()
             },

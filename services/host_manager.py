@@ -23,6 +23,13 @@ relations, parameters: the agent sends them to the component directly), and keep
 component's specification current with them, so a container that dies is restored running
 what its components ran, not what they were started with (:func:`rewired`).
 
+A container that a host manager of its name left running when it died (killed: its containers
+outlive it) is adopted as it starts, or when its token appears later: found by its token,
+confirmed in ``/proc`` (a worker process of this machine, host name and key space; no host
+manager its parent), asked for its components' specifications, and run from then on as if
+started here, so it is restored when it dies (:mod:`ubitrack_agent.services.adoption`; asking
+blocks the handling thread up to ``ASK_TIMEOUT_S``, once per orphan).
+
 While it runs it estimates its host's clock offset to the active agent's
 (:mod:`ubitrack_agent.services.clock_sync`), shown in its status as ``clock``.
 
@@ -69,6 +76,7 @@ from ubitrack_agent.net.host_protocol import (
 from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import KeyRejection, KeySpace
 from ubitrack_agent.net.spec import MAX_SPEC_BYTES, ComponentSpec, SpecError, parse_spec
+from ubitrack_agent.services.adoption import ASK_TIMEOUT_S, LocalWorker, ask_orphan, orphan_worker
 from ubitrack_agent.services.clock_sync import ClockSync
 from ubitrack_agent.services.host import ORPHAN_END_S
 from ubitrack_agent.services.registry import lookup
@@ -135,10 +143,53 @@ class HostManager:
             keys.all_active_agents(), self._queue("agent", "agent token"), history=True
         )
         self._exits = session.declare_publisher(keys.host_exited(name), encoding=JSON)
+        self._session = session
+        self._prefix, _, self._domain = keys.root.rpartition("/")
+        self._orphans_asked: set[str] = set()
+        """Incarnations of containers asked whether they are orphans (once each)."""
+        self._adopt_running_orphans(liveliness)
         self._requests = session.declare_queryable(keys.host_request(name))
         self._request_thread = threading.Thread(target=self._receive_requests, daemon=True)
         self._request_thread.start()
         self._token = liveliness.declare_token(keys.host(name))
+
+    def _adopt_running_orphans(self, liveliness: Any) -> None:
+        """Adopt the containers a host manager of this name left running here when it died
+        (:mod:`ubitrack_agent.services.adoption`), before serving: the first status the agent
+        asks names their components. One found later (its token came back late) is adopted
+        when its token appears (:meth:`_on_container_token`)."""
+        try:
+            replies = list(liveliness.get(self.keys.all_containers(), timeout=ASK_TIMEOUT_S))
+        except zenoh.ZError as exc:
+            log.warning("could not look for orphaned containers: %s", exc)
+            return
+        for reply in replies:
+            if reply.ok is not None:
+                self._on_container_token(PUT, str(reply.ok.key_expr))
+
+    def _orphan(self, name: str, incarnation: str) -> LocalWorker | None:
+        """The process of container ``name`` (``incarnation``) if it is an orphan of this
+        host's not asked yet (``/proc``, not the network, says so), else None."""
+        pid = incarnation.partition(".")[0]
+        if incarnation in self._orphans_asked or not pid.isdigit():
+            return None
+        if self.supervisor.knows_container(name, int(pid)):
+            return None
+        worker = orphan_worker(int(pid), self.name, self._prefix, self._domain)
+        if worker is None:
+            return None
+        self._orphans_asked.add(incarnation)
+        return worker
+
+    def _adopt(self, name: str, incarnation: str, worker: LocalWorker) -> None:
+        """Ask orphan container ``name`` what it runs (blocks up to ``ASK_TIMEOUT_S``) and
+        adopt it (on the handling thread, or before it runs)."""
+        try:
+            orphan = ask_orphan(self._session, self.keys, name, incarnation, worker)
+        except SpecError as exc:
+            self._count_problem("rejected_orphans", "orphaned container not adopted: %s", exc)
+            return
+        self.supervisor.adopt(orphan)
 
     def _queue(self, kind: str, what: str) -> Any:
         """A zenoh callback queueing its sample for the handling thread as ``kind``: a token's
@@ -244,7 +295,10 @@ class HostManager:
             reason = ValueError(f"{token.key!r}: {token.reason}")
             self._count_problem("rejected_container_keys", "ignored container key: %s", reason)
             return
-        self.supervisor.on_container_token(token.name, token.incarnation, change == PUT)
+        name, incarnation = token.name, token.incarnation
+        self.supervisor.on_container_token(name, incarnation, change == PUT)
+        if change == PUT and (worker := self._orphan(name, incarnation)) is not None:
+            self._adopt(name, incarnation, worker)
 
     def _on_agent_token(self, change: str, key: str) -> None:
         try:

@@ -40,6 +40,9 @@ at most ``MAX_QUICK_RESTORES`` times in a row within ``QUICK_RESTORE_S`` of its 
 components are reported as exited. A component that left its container by its own stop
 command (``<root>/left/<name>``) is reported as released. A component rewired in place (its
 control command, which the host manager reads too) is restored as rewired (:meth:`rewire`).
+A container that a host manager of this name left running when it died is **adopted**
+(:meth:`adopt`, :mod:`ubitrack_agent.services.adoption`): its components are assigned to it
+under new runs, and it is stopped, emptied and restored as if started here.
 
 Only the worker module runs, without a shell, the specification as one argument; every member
 reads a pipe from this process as its standard input, so idle members, and workers still
@@ -72,6 +75,7 @@ from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec
 from ubitrack_agent.net.transport import put_command
+from ubitrack_agent.services.adoption import UNKNOWN_EXIT, AdoptedProcess, Orphan
 
 log = logging.getLogger("ubitrack.host")
 
@@ -104,7 +108,7 @@ class Assignment:
     spec: ComponentSpec
     run: str
     pool_id: str
-    process: subprocess.Popen
+    process: subprocess.Popen | AdoptedProcess
     container: str | None = None
 
 
@@ -116,7 +120,8 @@ class ContainerRun:
 
     name: str
     pool_id: str
-    process: subprocess.Popen
+    process: subprocess.Popen | AdoptedProcess
+    """Its process: this supervisor's child, or an adopted one (:meth:`Supervisor.adopt`)."""
     started: float
     incarnation: str | None = None
     """Its process's incarnation once its token is up (it takes commands)."""
@@ -164,7 +169,7 @@ class Supervisor:
         """Processes told to stop, by pool id, until they confirm."""
         self.assigned: dict[str, Assignment] = {}
         self.containers: dict[str, ContainerRun] = {}
-        self._stopping: list[tuple[subprocess.Popen, float]] = []
+        self._stopping: list[tuple[subprocess.Popen | AdoptedProcess, float]] = []
         self._last_start = -REFILL_QUIET_S
 
     # -- pool ---------------------------------------------------------------------------------
@@ -419,6 +424,41 @@ class Supervisor:
                 exits.append(Exited(instance, assignment.run, box.process.pid, None, reason))
         return exits
 
+    def adopt(self, orphan: Orphan) -> int:
+        """Take ``orphan``, a container a host manager of this name left running when it died,
+        as if this supervisor had started it: each component assigned under a new run (the
+        agent learns them from the status), its process watched in ``/proc``. The components
+        adopted: none if the process has ended, or its name or a component of it runs here
+        already (then the agent, which stops a duplicate process, decides). O(components)."""
+        process = AdoptedProcess(orphan.pid, orphan.worker.started)
+        taken = orphan.name in self.containers or any(
+            spec.instance in self.assigned for spec in orphan.specs
+        )
+        if taken or not orphan.specs or process.poll() is not None:
+            self.counters["orphans_left"] += 1
+            log.warning("container %s (process %d) not adopted", orphan.name, orphan.pid)
+            return 0
+        pool_id = orphan.worker.pool_id
+        box = ContainerRun(orphan.name, pool_id, process, time.monotonic(), orphan.incarnation)
+        self.containers[orphan.name] = box
+        for spec in orphan.specs:
+            run = uuid.uuid4().hex[:12]
+            self.assigned[spec.instance] = Assignment(spec, run, pool_id, process, orphan.name)
+        self.counters["containers_adopted"] += 1
+        self.counters["components_adopted"] += len(orphan.specs)
+        log.warning(
+            "container %s (process %d) adopted with %d components",
+            orphan.name,
+            orphan.pid,
+            len(orphan.specs),
+        )
+        return len(orphan.specs)
+
+    def knows_container(self, name: str, pid: int) -> bool:
+        """Whether container ``name`` runs here in process ``pid``."""
+        box = self.containers.get(name)
+        return box is not None and box.process.pid == pid
+
     def spec_of(self, instance: str) -> ComponentSpec | None:
         """The current specification of ``instance`` if it runs here, else None."""
         assignment = self.assigned.get(instance)
@@ -463,7 +503,7 @@ class Supervisor:
                 del self._releasing[pool_id]
                 self._terminate(release.process)
 
-    def _terminate(self, process: subprocess.Popen) -> None:
+    def _terminate(self, process: subprocess.Popen | AdoptedProcess) -> None:
         if process.poll() is None:
             process.terminate()
             self._stopping.append((process, time.monotonic() + STOP_GRACE_S))
@@ -540,11 +580,17 @@ class Supervisor:
         return exits
 
     def _restore(
-        self, box: ContainerRun, members: list[tuple[str, Assignment]], returncode: int, now: float
+        self,
+        box: ContainerRun,
+        members: list[tuple[str, Assignment]],
+        returncode: int | None,
+        now: float,
     ) -> list[Exited]:
         """Start ``box``'s container again with ``members``; their reports."""
         quick = box.quick_restores + 1 if now - box.started < QUICK_RESTORE_S else 0
         group = GroupSpec(box.name, tuple(assignment.spec for _, assignment in members))
+        if returncode == UNKNOWN_EXIT:  # an adopted process: its status was its parent's
+            returncode = None
         try:
             if quick > MAX_QUICK_RESTORES:
                 raise ProtocolError(
@@ -607,9 +653,10 @@ class Supervisor:
         for process in everything:
             if process.poll() is None:
                 process.terminate()
+        deadline = time.monotonic() + STOP_GRACE_S  # one grace for all, not one each
         for process in everything:
             try:
-                process.wait(timeout=STOP_GRACE_S)
+                process.wait(timeout=max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()

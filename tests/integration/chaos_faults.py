@@ -10,7 +10,7 @@ caller opens. The faults (:class:`Chaos`), each drawing what it needs from a see
 * a tracker killed (SIGKILL or SIGTERM) and started again after 0-1.5 s;
 * a worker killed (SIGKILL or SIGTERM; the agent starts it again);
 * the agent killed (SIGKILL: its workers keep running and the restarted agent adopts them;
-  or SIGTERM: a clean stop ends every worker) and started again at once;
+  or SIGTERM: a clean stop, which leaves them running too) and started again at once;
 * a flapping application: a query (:data:`FLAPPING`) opened and closed again within
   0.05-0.4 s, so workers are told to stop while they are starting.
 

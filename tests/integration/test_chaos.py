@@ -8,7 +8,7 @@ Faults (``chaos_faults.Chaos``, shared with the churn and recovery benchmarks), 
 * a tracker killed (SIGKILL or SIGTERM) and started again;
 * a worker killed (SIGKILL or SIGTERM; the agent starts it again);
 * the agent killed (SIGKILL: its workers keep running and the restarted agent adopts them;
-  or SIGTERM: a clean stop ends every worker) and started again;
+  or SIGTERM: a clean stop, which leaves them running too) and started again;
 * a flapping application: a query opened and closed again within 0.05-0.4 s, so workers are
   told to stop while they are starting.
 

@@ -14,6 +14,7 @@ import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from subprocess import PIPE
 
 import pytest
 
@@ -37,6 +38,7 @@ from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.services.host_claim import NAME_TAKEN
 
 pytestmark = pytest.mark.integration
 
@@ -53,15 +55,22 @@ class Network:
     watches: list = field(default_factory=list)
 
     def start(
-        self, *command: str, host_name: str | None = None, stdin: int | None = None
+        self,
+        *command: str,
+        host_name: str | None = None,
+        stdin: int | None = None,
+        stderr: int | None = None,
     ) -> subprocess.Popen:
         """A process joining the network, on host ``host_name`` (default this machine's), with
-        ``stdin`` as its standard input (``subprocess.PIPE``: a pipe from the test)."""
+        ``stdin`` as its standard input (``subprocess.PIPE``: a pipe from the test) and
+        ``stderr`` as its standard error (``PIPE``: read as text by the test)."""
         named = [] if host_name is None else ["--host-name", host_name]
         process = subprocess.Popen(
             [sys.executable, *command, *member_flags(self.port, self.domain), *named],
             start_new_session=True,
             stdin=stdin,
+            stderr=stderr,
+            text=stderr is not None,
         )
         self.processes.append(process)
         return process
@@ -407,7 +416,9 @@ def test_a_host_manager_outlives_the_agent_that_started_it(hub):
     """The agent that started a host manager dies (its pipe closes): the host manager serves
     on, so its client container keeps its route and its data flows, the host manager still
     takes requests (from the agent's successor), and a second host manager of its name, as a
-    successor agent might start one, waits instead of serving beside it."""
+    successor agent might start one, gives way (exits saying so) instead of serving beside it.
+    Killed (SIGKILL), the host manager leaves its container serving; the next one of its name
+    adopts it, and restores it with its components when it dies in turn."""
     keys = hub.keys
     tokens = hub.tokens()
     host = hub.host("lab", pool_size=1, as_the_agent_starts_it=True)
@@ -426,12 +437,41 @@ def test_a_host_manager_outlives_the_agent_that_started_it(hub):
     assert ok, reply  # a successor agent's start
     wait_until(lambda: (PUT, "r2") in [(k, i) for k, i, _ in tokens], timeout=30)
 
-    second = hub.start("-m", "ubitrack_agent.services.host", "--name", "lab", "--pool-size", "0")
-    time.sleep(3.0)  # its imports, then it would serve
-    assert second.poll() is None
+    second = hub.start(
+        "-m", "ubitrack_agent.services.host", "--name", "lab", "--pool-size", "0", stderr=PIPE
+    )
+    assert second.wait(timeout=30) == NAME_TAKEN
+    assert "another host manager of this name serves already: exiting" in second.stderr.read()
     assert {hub.status("lab")["pid"]} == {pid}  # one host manager answers: the first
+
+    # Killed: its container serves on; the next host manager of its name adopts it.
+    container = hub.status("lab")["containers"]["lab-0"]["pid"]
     host.kill()
-    wait_until(lambda: hub.ask("lab", encode_request(Status()))[1].get("pid") == second.pid, 30)
+    host.wait(timeout=10)
+    assert flows_again(source, output, 5_000)
+    third = hub.host("lab", pool_size=1)
+    status = wait_until(lambda: adopted(hub.status("lab"), 2), timeout=20)
+    assert status["pid"] == third.pid
+    assert status["containers"] == {"lab-0": {"pid": container, "ready": True}}
+    assert {i: s["container"] for i, s in status["instances"].items()} == {
+        "relay1": "lab-0",
+        "r2": "lab-0",
+    }
+    exits = Collector(hub.session, keys.host_exited("lab"))
+    os.kill(container, signal.SIGKILL)  # dies: restored by its adopter, with both components
+    reports = [Exited.parse(exits.next(timeout=10)) for _ in range(2)]
+    assert {(r.instance, r.reason) for r in reports} == {("relay1", "restored"), ("r2", "restored")}
+    assert {r.run for r in reports} == {s["run"] for s in status["instances"].values()}
+    assert flows_again(source, output, 6_000, timeout=30)
+    assert hub.status("lab")["counters"]["containers_restored"] == 1
+
+
+def adopted(status: dict, components: int) -> dict | None:
+    """``status`` if its host manager adopted a container with ``components`` components."""
+    counters = status["counters"]
+    if counters.get("containers_adopted") == 1 and counters["components_adopted"] == components:
+        return status
+    return None
 
 
 def flows_again(source, output: Collector, timestamp_ns: int, timeout: float = 10.0) -> bool:
@@ -455,6 +495,44 @@ def running(pid: int) -> bool:
             return file.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def test_of_two_host_managers_of_one_name_started_together_exactly_one_serves(hub):
+    """Five pairs of ``ubitrack host`` of one name each, every process started at the same
+    instant (ten at once on this machine: the links come up slowly): in every pair exactly one
+    serves, and the other exits with ``NAME_TAKEN`` naming the one that came first."""
+    pairs = {
+        f"twin{index}": [
+            hub.start(
+                *("-m", "ubitrack_agent.cli", "host", "--name", f"twin{index}"),
+                *("--pool-size", "0", "--quiet"),
+                stderr=PIPE,
+            )
+            for _ in range(2)
+        ]
+        for index in range(5)
+    }
+    for name, pair in pairs.items():
+        wait_until(lambda pair=pair: any(p.poll() is not None for p in pair), timeout=60)
+        (loser,) = [p for p in pair if p.poll() is not None]
+        (winner,) = [p for p in pair if p is not loser]
+        message = loser.stderr.read()
+        assert loser.returncode == NAME_TAKEN, (name, loser.returncode, message)
+        came_first = f"host {name}: another host manager of this name (pid {winner.pid}) "
+        assert came_first + "started first: exiting" in message or (
+            f"host {name}: another host manager of this name serves already: exiting" in message
+        ), message
+        wait_until(lambda name=name: hub.ask(name, encode_request(Status()))[0], timeout=30)
+        time.sleep(1.0)  # a second host manager serving would answer by now too
+        replies = list(
+            hub.session.get(
+                hub.keys.host_request(name), payload=encode_request(Status()), timeout=5.0
+            )
+        )
+        assert [json.loads(r.ok.payload.to_bytes())["pid"] for r in replies] == [winner.pid]
+        assert winner.poll() is None
+        winner.terminate()
+        assert winner.wait(timeout=15) == 0
 
 
 def test_workers_still_starting_when_their_host_manager_dies_exit(hub):
@@ -554,10 +632,13 @@ def test_an_agent_without_a_host_manager_waits_for_one_then_serves(net):
     assert {c["host"] for c in status["components"].values()} == {"separate"}
     assert set(net.status("separate")["instances"]) == set(status["components"])
 
-    # A clean stop of the agent stops its workers; the host manager stays, its pool too.
+    # A clean stop of the agent leaves its workers running (for the agent started again) and
+    # the host manager serving.
+    running = net.status("separate")["instances"]
     agent.send_signal(signal.SIGTERM)
     assert agent.wait(timeout=15) == 0
-    wait_until(lambda: net.status("separate")["instances"] == {}, timeout=10)
+    relation.wait_for(timeout=10)
+    assert net.status("separate")["instances"] == running
     relation.close()
 
 
@@ -591,30 +672,92 @@ def test_workers_killed_before_and_after_their_token_are_started_again(net):
     relation.close()
 
 
-def test_the_agent_starts_its_host_manager_again_and_a_clean_stop_ends_every_worker(net):
-    agent = net.agent()  # with its own host manager
+def test_the_agent_starts_its_host_manager_again_which_adopts_and_restores_the_orphans(net):
+    """Its host manager SIGKILLed, the agent's container serves on (it was its client and
+    reaches the network through the hub); the host manager the agent starts again adopts it
+    (its components are placed there again, none restarted), and restores it when it is
+    killed in turn, the relation flowing again. With ``--stop-host-on-exit`` a clean stop
+    then ends every worker and the host manager."""
+    agent = net.agent("--stop-host-on-exit")  # with its own host manager
     net.tracker()
     relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
     wait_until(lambda: relation.latest() is not None, timeout=30)
     (name,) = net.agent_status()["hosts"]
     first = net.status(name)["pid"]
+    components = set(net.agent_status()["components"])
 
-    os.kill(first, signal.SIGKILL)  # its workers keep running, adopted as they are: they were
-    # its clients, and reach the network through the hub (their tokens come back within the
-    # agent's REROUTE_S)
-    wait_until(lambda: net.ask(name, encode_request(Status()))[1].get("pid") not in (None, first))
+    os.kill(first, signal.SIGKILL)
+    wait_until(  # the new host manager's start: 10 s seen at a load of 16
+        lambda: net.ask(name, encode_request(Status()))[1].get("pid") not in (None, first), 30
+    )
     relation.wait_for(timeout=10)  # still flowing
+    host = wait_until(
+        lambda: net.status(name)["counters"].get("containers_adopted") and net.status(name),
+        timeout=20,
+    )
+    assert set(host["instances"]) == components
+    (container,) = host["containers"].values()
 
+    def placed_again() -> bool:  # the agent found them in the new host manager's status
+        status = net.agent_status() or {"components": {"-": {"host": None}}}
+        return all(c["host"] == name and c["alive"] for c in status["components"].values())
+
+    wait_until(placed_again, timeout=20)
     status = net.agent_status()
-    adopted = {i: c for i, c in status["components"].items() if c["host"] is None}
-    assert adopted and status["counters"].get("restarts", 0) == 0  # none restarted
-    containers = {c["container"] for c in adopted.values()}
-    assert len(containers) == 1 and None not in containers  # recorded: the orphan's token
-    assert workers(net.domain)
+    assert set(status["components"]) == components
+    assert status["counters"].get("restarts", 0) == 0  # none restarted
+    assert {c["pid"] for c in status["components"].values()} == {container["pid"]}
+
+    os.kill(container["pid"], signal.SIGKILL)  # its adopter restores it, the agent rewires
+    restored = wait_until(
+        lambda: net.status(name)["counters"].get("containers_restored") and net.status(name),
+        timeout=20,
+    )
+    (again,) = restored["containers"].values()
+    assert again["pid"] != container["pid"] and set(restored["instances"]) == components
+    wait_until(lambda: net.agent_status()["counters"].get("restored", 0) >= len(components), 20)
+    relation.wait_for(timeout=20)  # flows again
+    relation.wait_for(timeout=5)
+    status = net.agent_status()
+    assert status["counters"].get("restarts", 0) == 0  # restored in place, not started again
+    assert {c["pid"] for c in status["components"].values()} == {again["pid"]}
 
     agent.send_signal(signal.SIGTERM)
     assert agent.wait(timeout=20) == 0
     wait_until(lambda: not workers(net.domain), timeout=10)
+    relation.close()
+
+
+def test_a_clean_agent_stop_leaves_its_host_manager_and_workers_serving_the_next_agent(net):
+    """``ubitrack agent`` stopped cleanly (SIGTERM) stops no data: its workers and its host
+    manager serve on, and the agent started again adopts both, every component in the
+    process it ran in."""
+    agent = net.agent()
+    net.tracker()
+    relation = Relation(net.session, net.keys, RelationId("WT", "HT", "6D"), application="app")
+    wait_until(lambda: relation.latest() is not None, timeout=30)
+    (name,) = net.agent_status()["hosts"]
+    wait_until(lambda: all(c["host"] == name for c in net.agent_status()["components"].values()))
+    before = net.status(name)
+    pids = {i: c["pid"] for i, c in before["instances"].items()}
+
+    agent.send_signal(signal.SIGTERM)
+    assert agent.wait(timeout=20) == 0
+    for _ in range(3):
+        relation.wait_for(timeout=5)  # no agent: the data goes on
+    host = net.status(name)
+    assert host["pid"] == before["pid"] and host["orphaned"]
+    assert {i: c["pid"] for i, c in host["instances"].items()} == pids
+
+    net.agent()
+    wait_until(lambda: net.agent_status()["counters"].get("adopted", 0) == len(pids), timeout=20)
+    status = net.agent_status()
+    assert all(c["alive"] for c in status["components"].values())
+    assert status["counters"].get("restarts", 0) == 0
+    host = net.status(name)
+    assert host["pid"] == before["pid"]  # adopted, with its components
+    assert {i: c["pid"] for i, c in host["instances"].items()} == pids
+    relation.wait_for(timeout=5)
     relation.close()
 
 

@@ -1,11 +1,17 @@
-"""``ubitrack agent`` gives its own host manager the capacity options of ``ubitrack host``."""
+"""``ubitrack agent`` gives its own host manager the capacity options of ``ubitrack host``,
+leaves it serving on a clean stop unless asked, and uses the host manager of its machine's
+name that serves when its own gave way."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import pytest
 
 from ubitrack_agent.cli import build_parser
-from ubitrack_agent.commands.agent import HostOptions
+from ubitrack_agent.commands import agent as agent_command
+from ubitrack_agent.commands.agent import HostOptions, HostWhileActive
+from ubitrack_agent.net import config
 from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY
 from ubitrack_agent.services.host import build_parser as host_parser
 
@@ -48,3 +54,32 @@ def test_invalid_capacities_are_refused(argv, problem):
 def test_invalid_labels_are_refused_by_the_parser():
     with pytest.raises(SystemExit):
         agent_options("--labels", "a b")
+
+
+def test_a_clean_stop_leaves_the_host_manager_serving_unless_asked():
+    assert not build_parser().parse_args(["agent"]).stop_host_on_exit
+    assert build_parser().parse_args(["agent", "--stop-host-on-exit"]).stop_host_on_exit
+
+
+def test_an_agent_whose_host_manager_gave_way_uses_the_one_serving(monkeypatch):
+    """Its host manager exited because another of its name came first (``NAME_TAKEN``): the
+    agent starts none while that one serves, and starts its own again once none does."""
+    started: list[SimpleNamespace] = []
+
+    def embedded(*_options):
+        started.append(SimpleNamespace(gave_way=False, stop_restarting=lambda: None))
+        return started[-1]
+
+    monkeypatch.setattr(agent_command, "EmbeddedHost", embedded)
+    host = HostWhileActive(config.Settings(), HostOptions(), "INFO")
+    serving = [False]
+    host.serving = lambda: serving[0]
+    host.on_role(True)
+    assert len(started) == 1
+    started[0].gave_way, serving[0] = True, True  # exited with NAME_TAKEN; the other serves
+    host.on_role(True)
+    assert len(started) == 1 and host.host is None
+    serving[0] = False  # the other one is gone
+    host.on_role(True)
+    assert len(started) == 2 and host.host is started[1]
+    host.stop_restarting()

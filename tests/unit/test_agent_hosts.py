@@ -62,11 +62,15 @@ class FakeSession:
     def get(self, key, payload=None, timeout=None, handler=None):
         host = KEYS.parse_host(key.removesuffix("/request"))
         request = parse_request(payload.encode())
-        if handler is not None:  # a status request: the reply comes through the handler
-            assert isinstance(request, Status)
+        if handler is not None and isinstance(request, Status):  # the reply: to the handler
             self.status_requests.append(host)
             if host in self.statuses:
                 handler(self.statuses[host])
+            return None
+        if handler is not None:  # a stop of a clean stop: answered through the handler
+            self.requests.append((host, request))
+            if (answer := self.answers.get(host)) is not None:
+                handler(answer(request))
             return None
         self.requests.append((host, request))
         answer = self.answers.get(host)
@@ -261,6 +265,37 @@ def test_stops_go_through_the_host_manager_else_on_the_control_key(world):
     assert session.requests[-1][0] == "lab" and session.puts == []
     hosts.stop("adopted")  # never placed: the stop command itself
     assert session.puts == [(KEYS.control("adopted"), STOP_COMMAND)]
+
+
+def test_a_clean_stop_sends_every_stop_at_once_and_waits_for_the_replies_together(
+    world, monkeypatch
+):
+    """``stop_all``: one wait for every reply (``REQUEST_TIMEOUT_S`` in all); a stop that was
+    refused, unanswered or had no host manager is put on the control key."""
+    monkeypatch.setattr(hosts_module, "REQUEST_TIMEOUT_S", 0.05)
+    session, hosts, counters = world
+    for host in ("lab", "quiet", "picky"):
+        session.answers[host] = started
+        host_appears(session, hosts, host)
+        start(hosts, spec(f"on-{host}"), host)
+    start(hosts, spec("also-on-lab"), "lab")
+    session.answers.update(lab=stopped, quiet=None, picky=refused)
+    taken = hosts.stop_all(["on-lab", "also-on-lab", "on-quiet", "on-picky", "adopted"])
+    assert taken == 2
+    stops = [(host, r.instance) for host, r in session.requests if hasattr(r, "instance")]
+    assert sorted(stops) == [
+        ("lab", "also-on-lab"),
+        ("lab", "on-lab"),
+        ("picky", "on-picky"),
+        ("quiet", "on-quiet"),
+    ]
+    assert sorted(key for key, _ in session.puts) == [
+        KEYS.control("adopted"),
+        KEYS.control("on-picky"),
+        KEYS.control("on-quiet"),
+    ]
+    assert counters["failed_stops"] == 1  # the unanswered one
+    assert hosts.placements == {}
 
 
 def test_a_container_s_components_start_in_one_request_split_only_by_size(world):

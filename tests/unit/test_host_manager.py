@@ -34,6 +34,7 @@ class FakeSession:
         return SimpleNamespace(
             declare_subscriber=lambda *args, **kwargs: SimpleNamespace(undeclare=lambda: None),
             declare_token=lambda key: SimpleNamespace(undeclare=lambda: None),
+            get=lambda key, timeout=None: [],  # no container left running by another
         )
 
     def declare_subscriber(self, key, callback):

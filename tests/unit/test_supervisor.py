@@ -10,6 +10,7 @@ from ubitrack_agent.net.host_protocol import STOP_COMMAND, ProtocolError
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding
 from ubitrack_agent.services import supervisor as supervisor_module
+from ubitrack_agent.services.adoption import UNKNOWN_EXIT, LocalWorker, Orphan
 from ubitrack_agent.services.supervisor import Supervisor
 
 KEYS = KeySpace("ubitrack/test")
@@ -366,3 +367,65 @@ def test_a_component_that_left_by_its_own_stop_is_reported_released(make, clock)
     ):
         with pytest.raises(ProtocolError):
             supervisor.on_left("lab-0", bad)
+
+
+class FakeAdopted(FakeProcess):
+    """An adopted process (``services.adoption.AdoptedProcess``): ended when told."""
+
+    instances: list["FakeAdopted"] = []
+
+    def __init__(self, pid: int, started: int) -> None:
+        super().__init__(())
+        self.pid, self.started = pid, started
+        FakeAdopted.instances.append(self)
+
+    def end(self) -> None:
+        self.returncode = UNKNOWN_EXIT
+
+
+def test_an_adopted_container_is_run_as_if_started_here_and_restored_when_it_dies(
+    make, clock, monkeypatch
+):
+    monkeypatch.setattr(supervisor_module, "AdoptedProcess", FakeAdopted)
+    supervisor, session, spawned = make(pool_size=0)
+    orphan = Orphan("lab-0", "4242.abcd", LocalWorker("old-pool", 77), (spec("a"), spec("b")))
+    assert supervisor.adopt(orphan) == 2
+    (process,) = FakeAdopted.instances[-1:]
+    assert (process.pid, process.started) == (4242, 77)
+    status = supervisor.status()
+    assert status["containers"] == {"lab-0": {"pid": 4242, "ready": True}}
+    assert {i: s["container"] for i, s in status["instances"].items()} == {
+        "a": "lab-0",
+        "b": "lab-0",
+    }
+    runs = {i: s["run"] for i, s in status["instances"].items()}
+    assert supervisor.counters["containers_adopted"] == 1
+    assert supervisor.knows_container("lab-0", 4242) and not supervisor.knows_container("lab-0", 1)
+
+    # adopted again, or one of its components taken: left alone
+    assert supervisor.adopt(orphan) == 0
+    assert supervisor.counters["orphans_left"] == 1
+
+    # commands reach this process alone; a stop removes a component
+    assert supervisor.stop("b") == "removed"
+    assert commands(session, KEYS.control_incarnation("lab-0", "4242.abcd")) == [{"remove": ["b"]}]
+
+    process.end()  # dies: restored with what it ran, in a process of this supervisor's
+    reports = supervisor.reap()
+    assert [(r.instance, r.run, r.returncode, r.reason) for r in reports] == [
+        ("a", runs["a"], None, "restored")
+    ]
+    assert reports[0].pid == spawned[-1].pid != 4242
+    assert supervisor.counters["containers_restored"] == 1
+
+
+def test_an_adopted_process_that_has_ended_is_not_adopted(make, clock, monkeypatch):
+    class Gone(FakeAdopted):
+        def poll(self) -> int | None:
+            return UNKNOWN_EXIT
+
+    monkeypatch.setattr(supervisor_module, "AdoptedProcess", Gone)
+    supervisor, _, _ = make(pool_size=0)
+    orphan = Orphan("lab-0", "4242.abcd", LocalWorker("old-pool", 77), (spec("a"),))
+    assert supervisor.adopt(orphan) == 0
+    assert supervisor.status()["instances"] == {}

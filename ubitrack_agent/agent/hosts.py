@@ -18,7 +18,9 @@ runs, and starting and stopping workers over zenoh only (``docs/protocol.md``).
   a repeated start of a running instance with the same run.
 * A stop goes to the instance's host manager; an instance without one (adopted from an earlier
   agent, or whose host manager vanished or does not answer) is stopped by putting the stop
-  command on its control key.
+  command on its control key. A clean stop of the agent sends every stop at once and waits
+  ``REQUEST_TIMEOUT_S`` for all the replies together (:meth:`Hosts.stop_all`), so its exit
+  does not grow with the components.
 * Host managers report instances that ended without being asked on
   ``<root>/host/<name>/exited``; a report matching the instance's placement (same host, same
   run) means it must be started again. Only those reports end a placed instance: its worker
@@ -193,6 +195,49 @@ class Hosts:
                 self._problems.report("failed_stops", "%s: host did not stop it: %s", instance, exc)
         put_command(self._session, self._keys.control(instance), STOP_COMMAND)
         return False
+
+    def stop_all(self, instances: Iterable[str]) -> int:
+        """Stop ``instances`` as :meth:`stop` does, every request sent at once and their
+        replies awaited together, ``REQUEST_TIMEOUT_S`` in all (not each: a clean stop of the
+        agent ends in bounded time); an instance whose host manager did not take its stop in
+        time, or that has none, gets the stop command. How many host managers took.
+        O(instances)."""
+        answering = set(self._answering())
+        replies: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
+        asked: set[str] = set()
+        for instance in instances:
+            self._retry_at.pop(instance, None)
+            placement = self.placements.pop(instance, None)
+            if placement is not None and placement.host in answering:
+                try:
+                    self._session.get(
+                        self._keys.host_request(placement.host),
+                        payload=encode_request(Stop(instance)),
+                        timeout=REQUEST_TIMEOUT_S,
+                        handler=lambda reply, instance=instance: replies.put(
+                            (instance, reply.ok is not None)
+                        ),
+                    )
+                    asked.add(instance)
+                    continue
+                except zenoh.ZError as exc:
+                    log.warning("%s: could not ask its host manager to stop it: %s", instance, exc)
+            put_command(self._session, self._keys.control(instance), STOP_COMMAND)
+        taken, deadline = 0, time.monotonic() + REQUEST_TIMEOUT_S
+        while asked and (left := deadline - time.monotonic()) > 0:
+            try:
+                instance, ok = replies.get(timeout=left)
+            except queue.Empty:
+                break
+            if instance in asked:
+                asked.discard(instance)
+                taken += ok
+                if not ok:
+                    put_command(self._session, self._keys.control(instance), STOP_COMMAND)
+        for instance in sorted(asked):  # no reply in time
+            self._problems.report("failed_stops", "%s: host did not answer its stop", instance)
+            put_command(self._session, self._keys.control(instance), STOP_COMMAND)
+        return taken
 
     def _answering(self) -> list[str]:
         """Live host managers by name, less those that did not answer lately."""

@@ -47,8 +47,10 @@ and every fragment by :func:`.announcements.fragment_entries`, which return a va
 rejection; rejections are counted, logged rate-limited and shown in the status
 (:mod:`.problems`). Every handler runs under a :class:`.problems.Guard`, so even an unforeseen
 exception is counted (``failed_<handler>``) and the agent carries on; a handler run on every
-pass backs off while it keeps failing. A clean stop stops every worker it runs; should the
-loop itself ever fail, the workers are left running for a restarted agent to adopt.
+pass backs off while it keeps failing. A clean stop stops every worker it runs unless asked to
+keep them (``stop(keep_workers=True)``, how ``ubitrack agent`` stops by default: a restart
+then interrupts no data); should the loop itself ever fail, the workers are left running for
+a restarted agent to adopt.
 """
 
 from __future__ import annotations
@@ -150,6 +152,7 @@ class Agent:
         self.active = False
         self.handed_over = False
         """Whether a clean stop left the workers running for a standby agent to adopt."""
+        self._keep_workers = False
         self._on_role = on_role
         self.templates = tuple(templates)
         self._plan_memo = PlanMemo()
@@ -958,7 +961,10 @@ class Agent:
         self.loop_times.window()
         self._status_json = json.dumps(self.status())
 
-    def stop(self) -> None:
+    def stop(self, keep_workers: bool = False) -> None:
+        """End :meth:`run` (safe in a signal handler); a clean stop stops every worker it runs
+        unless ``keep_workers`` (they serve on, for the agent started again to adopt)."""
+        self._keep_workers = keep_workers
         self._stop.set()
 
     def latest_status(self) -> dict[str, Any]:
@@ -1063,19 +1069,22 @@ class Agent:
 
     def _close(self, stop_workers: bool) -> None:
         """Leave the network after a clean stop (``stop_workers``) or a failure of the loop.
-        A clean stop of the active agent stops every worker it runs, unless a standby agent is
-        alive to adopt them (then it hands over: they keep running, as after a failure)."""
+        A clean stop of the active agent stops every worker it runs (every stop sent at once:
+        ``Hosts.stop_all``), unless it was asked to keep them (``stop(keep_workers=True)``) or
+        a standby agent is alive to adopt them (then it hands over: they keep running, as
+        after a failure)."""
         standby = bool(set(self.election.standbys) - {self.id})
         self.handed_over = stop_workers and self.active and standby
         was_active = self.active
         self._undeclare_active()
         for declared in (*self._declared, *self._watches):
             declared.undeclare()
-        if stop_workers and was_active and not standby:
-            for instance in sorted({*self.running, *self._retiring}):
-                self.hosts.stop(instance)
+        if stop_workers and was_active and not standby and not self._keep_workers:
+            self.hosts.stop_all(sorted({*self.running, *self._retiring}))
         elif self.handed_over:
             log.warning("handing over to the standby agent: the workers keep running")
+        elif stop_workers and was_active:
+            log.warning("stopped: the workers keep running for the agent started again")
         elif not stop_workers:
             log.error("the agent failed: its workers keep running for a restarted agent")
         self._planner.close()

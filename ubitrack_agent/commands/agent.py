@@ -2,7 +2,14 @@
 manager for its own machine as a child process unless ``--no-host``; that host manager takes
 the capacity options of ``ubitrack host`` (``--pool-size``, ``--labels``, ``--capacity``,
 ``--workers-as-peers``). A host manager of its machine that runs already (an earlier agent's,
-which outlives it, or one run on its own) is adopted instead of starting another."""
+which outlives it, or one run on its own) is adopted instead of starting another.
+
+Stopping the agent, cleanly (SIGTERM, Ctrl-C) or not (SIGKILL, a crash), stops no data: its
+workers keep running and its host manager serves on (it outlives the agent, and ends once it
+has run no component and seen no active agent for 30 s), so the agent started again adopts
+both and the applications see no gap (``docs/architecture.md``). ``--stop-host-on-exit`` makes
+a clean stop end everything instead: every worker the agent runs is stopped and its own host
+manager ended (``ubitrack demo`` stops its agent so)."""
 
 from __future__ import annotations
 
@@ -22,6 +29,7 @@ from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.status_line import periodic_status
 from ubitrack_agent.services.host import DEFAULT_POOL_SIZE, labels
+from ubitrack_agent.services.host_claim import NAME_TAKEN
 
 log = logging.getLogger("ubitrack.agent")
 
@@ -47,8 +55,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "for this machine (python -m ubitrack_agent.services.host) unless --no-host. One agent of "
         "a domain is active; another one started on the domain (on its own endpoint) stands by, "
         "changing nothing and starting no host manager, and takes over, adopting every worker, "
-        "when the active one ends. Ends cleanly on SIGTERM or Ctrl-C, stopping every worker it "
-        "runs, or, with a standby alive, handing them over.",
+        "when the active one ends. Ends on SIGTERM or Ctrl-C leaving its workers running and "
+        "its host manager serving (the agent started again adopts them: the applications' data "
+        "goes on), unless --stop-host-on-exit.",
     )
     parser.add_argument(
         "--templates", metavar="DIR", help="template directory (default: the shipped templates/)"
@@ -91,6 +100,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--no-host",
         action="store_true",
         help="start no host manager: workers run where `ubitrack host` runs",
+    )
+    parser.add_argument(
+        "--stop-host-on-exit",
+        action="store_true",
+        help="on SIGTERM or Ctrl-C, stop every worker this agent runs and end its own host "
+        "manager (default: leave both running for the agent started again to adopt, so a "
+        "restart interrupts no data; a host manager left so ends once it has run no "
+        "component and seen no active agent for 30 s)",
     )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
@@ -138,6 +155,9 @@ class EmbeddedHost:
         )
         self._lock = threading.Lock()
         self._stopping = threading.Event()
+        self.gave_way = False
+        """Whether it exited because another host manager of its name came first (it is
+        not started again: the agent adopts that one)."""
         self.process = self._start()
         threading.Thread(target=self._restart_when_ended, daemon=True).start()
 
@@ -149,6 +169,10 @@ class EmbeddedHost:
             returncode = self.process.wait()
             if returncode == INVALID_OPTIONS:
                 log.error("host manager refused its options: no workers can start")
+                return
+            if returncode == NAME_TAKEN:
+                log.info("another host manager of this machine's name came first: using it")
+                self.gave_way = True
                 return
             if self._stopping.wait(HOST_RESTART_S):
                 return
@@ -238,6 +262,8 @@ class HostWhileActive:
 
     def _start_unless_served(self) -> None:
         """Start the host manager if none serves this machine's name (under the lock)."""
+        if self.host is not None and self.host.gave_way:
+            self.host = None
         if self.host is not None or self._stopping:
             return
         if self.serving():
@@ -290,7 +316,7 @@ def run(args: argparse.Namespace) -> int:
     def stop() -> None:
         if host is not None:
             host.stop_restarting()
-        agent.stop()
+        agent.stop(keep_workers=not args.stop_host_on_exit)
 
     on_termination(stop)
     listening = f"on {', '.join(settings.listen)}" if settings.listen else ""
@@ -309,5 +335,5 @@ def run(args: argparse.Namespace) -> int:
             host.end(keep_workers=True)
         return 1
     if host is not None:
-        host.end(keep_workers=agent.handed_over)
+        host.end(keep_workers=agent.handed_over or not args.stop_host_on_exit)
     return 0

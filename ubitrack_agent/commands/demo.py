@@ -282,6 +282,7 @@ def run(args: argparse.Namespace) -> int:
                 args.log_level,
                 "agent",
                 "--quiet",  # the demo prints its own lines
+                "--stop-host-on-exit",  # the demo leaves no process behind
                 *config.as_flags(hub),
             ],
         )

@@ -15,8 +15,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "host",
         help="run this machine's host manager: starts and stops workers for the agent",
         description="Start, stop and supervise this machine's pattern workers for the agent, "
-        "over zenoh, keeping a warm pool of idle workers. One per machine. Ends on SIGTERM or "
-        "Ctrl-C, ending every worker it started.",
+        "over zenoh, keeping a warm pool of idle workers. One per machine: one started while "
+        "another of its name serves, or started with it and second by start time, exits with "
+        "status 3. Adopts the containers a host manager of its name that died left running. "
+        "Ends on SIGTERM or Ctrl-C, ending every worker it started.",
     )
     host.add_arguments(parser)
     config.add_arguments(parser)
