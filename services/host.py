@@ -12,9 +12,10 @@ bench.worker_start`` measures both; figures in ``docs/performance.md``, "Worker 
 
 The process ends on SIGTERM or SIGINT, terminating every worker it started. With
 ``--started-by-agent`` (how the agent starts it, with a pipe as standard input) it outlives
-that agent: once the pipe closes (the agent died, or stood by for another) it serves on, its
-containers, pool and worker links kept, for the agent's successor to adopt, and ends once it
-has run no component and seen no active agent for a while
+that agent: once the pipe closes (the agent died, stopped, or stood by for another) it serves
+on, its containers, pool and worker links kept, for the agent's successor to adopt, and ends
+once it has run no component and seen no active agent for a while (``ORPHAN_END_S``), or seen
+no active agent for longer (``ABANDONED_END_S``), its components stopped
 (:meth:`ubitrack_agent.services.host_manager.HostManager.orphan`).
 
 Its worker processes (containers, pool members) join the network as zenoh **clients** of it,
@@ -66,6 +67,11 @@ ORPHAN_END_S = 30.0
 """A host manager whose agent is gone ends after running no component and seeing no active
 agent this long: a successor agent (its process start, 0.4-6 s, then 1.5 s settling; 20 s seen
 at a load of 29) adopts it with its warm pool; nothing waits for one that never comes."""
+ABANDONED_END_S = 300.0
+"""A host manager whose agent is gone ends, stopping its components, after seeing no active
+agent this long even while it runs components: their applications' data goes on through an
+agent's restart (seconds) and an upgrade (minutes), but an agent stopped for good (Ctrl-C on
+``ubitrack agent``) leaves no process running for ever."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -37,7 +37,8 @@ One started by an agent (``ubitrack_agent.services.host --started-by-agent``) ou
 (:meth:`HostManager.orphan`): its containers, the pool and the route of its client worker
 processes (``docs/services.md``, "Links") stay, and the agent's successor adopts it rather
 than starting another. It watches the active agent's tokens (``<root>/agents/*/active``) and
-ends once it has run no component and seen no active agent for ``ORPHAN_END_S``.
+ends once it has run no component and seen no active agent for ``ORPHAN_END_S``, or, running
+components, once it has seen no active agent for ``ABANDONED_END_S`` (they end with it).
 
 Zenoh callbacks and the request thread only queue; one thread handles every event, request
 and process. Handling is total: a malformed request gets an error reply of its type, is
@@ -78,7 +79,7 @@ from ubitrack_agent.net.keys import KeyRejection, KeySpace
 from ubitrack_agent.net.spec import MAX_SPEC_BYTES, ComponentSpec, SpecError, parse_spec
 from ubitrack_agent.services.adoption import ASK_TIMEOUT_S, LocalWorker, ask_orphan, orphan_worker
 from ubitrack_agent.services.clock_sync import ClockSync
-from ubitrack_agent.services.host import ORPHAN_END_S
+from ubitrack_agent.services.host import ABANDONED_END_S, ORPHAN_END_S
 from ubitrack_agent.services.registry import lookup
 from ubitrack_agent.services.spec import check_spec
 from ubitrack_agent.services.supervisor import Supervisor
@@ -124,6 +125,7 @@ class HostManager:
         self._orphaned = threading.Event()
         self._active_agents: set[str] = set()
         self._unneeded_since: float | None = None
+        self._agentless_since: float | None = None
         self._request_slots = threading.Semaphore(MAX_PENDING_REQUESTS)
         liveliness = session.liveliness()
         self._pool_watch = liveliness.declare_subscriber(
@@ -249,12 +251,22 @@ class HostManager:
             self._orphaned.set()
 
     def _end_if_unneeded(self) -> None:
-        """Stop an orphaned host manager that has been unneeded for ``ORPHAN_END_S``."""
-        busy = self.supervisor.assigned or self.supervisor.containers or self._active_agents
-        if not self._orphaned.is_set() or busy:
-            self._unneeded_since = None
+        """Stop an orphaned host manager that has been unneeded for ``ORPHAN_END_S``, or has
+        seen no active agent for ``ABANDONED_END_S`` (its components stopped with it)."""
+        if not self._orphaned.is_set() or self._active_agents:
+            self._unneeded_since = self._agentless_since = None
             return
         now = time.monotonic()
+        if self._agentless_since is None:
+            self._agentless_since = now
+        elif now - self._agentless_since > ABANDONED_END_S:
+            log.warning("no active agent for %.0f s: ending with its components", ABANDONED_END_S)
+            self.counters["ended_abandoned"] += 1
+            self.stop()
+            return
+        if self.supervisor.assigned or self.supervisor.containers:
+            self._unneeded_since = None
+            return
         if self._unneeded_since is None:
             self._unneeded_since = now
         elif now - self._unneeded_since > ORPHAN_END_S:

@@ -14,7 +14,7 @@ from ubitrack_agent.net.host_protocol import HostInfo, Start, Status, encode_req
 from ubitrack_agent.net.json_messages import MessageError
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError, parse_spec
-from ubitrack_agent.services.host import ORPHAN_END_S
+from ubitrack_agent.services.host import ABANDONED_END_S, ORPHAN_END_S
 from ubitrack_agent.services.host_manager import HostManager, rewired
 
 KEYS = KeySpace("ubitrack/test")
@@ -268,3 +268,30 @@ def test_the_host_manager_follows_rewires_of_its_components(manager, monkeypatch
     assert manager.counters["rewires_followed"] == 1
     assert manager.counters["ignored_rewires"] == 1
     assert manager.counters.get("internal_errors", 0) == 0
+
+
+def test_an_orphaned_host_manager_running_components_ends_once_abandoned(manager, monkeypatch):
+    """Its components keep their applications' data flowing while no agent is active, but not
+    for ever: after ``ABANDONED_END_S`` without an active agent it ends, stopping them (an
+    agent stopped with Ctrl-C leaves nothing running); an agent seen meanwhile starts the
+    count again."""
+    clock = [100.0]
+    monkeypatch.setattr("ubitrack_agent.services.host_manager.time.monotonic", lambda: clock[0])
+    monkeypatch.setattr(manager.supervisor, "assigned", {"relay-a": object()})
+    manager.orphan()
+    manager._end_if_unneeded()
+    clock[0] += ABANDONED_END_S - 1
+    manager._end_if_unneeded()
+    assert not manager._stop.is_set()
+    active = f"{KEYS.all_active_agents().replace('*', 'a1')}"
+    manager._handle("agent", ("SampleKind.PUT", active))  # a successor came, then went
+    manager._end_if_unneeded()
+    manager._handle("agent", ("SampleKind.DELETE", active))
+    manager._end_if_unneeded()
+    clock[0] += ABANDONED_END_S - 1
+    manager._end_if_unneeded()
+    assert not manager._stop.is_set()
+    clock[0] += 2
+    manager._end_if_unneeded()
+    assert manager._stop.is_set() and manager.counters["ended_abandoned"] == 1
+    assert manager.counters["ended_unneeded"] == 0

@@ -107,7 +107,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="on SIGTERM or Ctrl-C, stop every worker this agent runs and end its own host "
         "manager (default: leave both running for the agent started again to adopt, so a "
         "restart interrupts no data; a host manager left so ends once it has run no "
-        "component and seen no active agent for 30 s)",
+        "component and seen no active agent for 30 s, and with its components after 5 "
+        "minutes without an active agent)",
     )
     config.add_arguments(parser)
     parser.set_defaults(func=run)
