@@ -259,20 +259,26 @@ class HostManager:
         now = time.monotonic()
         if self._agentless_since is None:
             self._agentless_since = now
-        elif now - self._agentless_since > ABANDONED_END_S:
-            log.warning("no active agent for %.0f s: ending with its components", ABANDONED_END_S)
-            self.counters["ended_abandoned"] += 1
-            self.stop()
-            return
         if self.supervisor.assigned or self.supervisor.containers:
             self._unneeded_since = None
-            return
-        if self._unneeded_since is None:
+        elif self._unneeded_since is None:
             self._unneeded_since = now
-        elif now - self._unneeded_since > ORPHAN_END_S:
-            log.warning("no component and no active agent for %.0f s: ending", ORPHAN_END_S)
-            self.counters["ended_unneeded"] += 1
-            self.stop()
+        if now - self._agentless_since > ABANDONED_END_S:
+            waited = now - self._agentless_since
+            self._end(
+                "ended_abandoned", f"no active agent for {waited:.0f} s: ending with its components"
+            )
+        elif self._unneeded_since is not None and now - self._unneeded_since > ORPHAN_END_S:
+            waited = now - self._unneeded_since
+            self._end(
+                "ended_unneeded", f"no component and no active agent for {waited:.0f} s: ending"
+            )
+
+    def _end(self, counter: str, message: str) -> None:
+        """Stop, counted in ``counter`` and logged with ``message``."""
+        log.warning(message)
+        self.counters[counter] += 1
+        self.stop()
 
     def _handle(self, kind: str, event: Any) -> None:
         if kind == "request":
