@@ -57,6 +57,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from ubitrack_agent.core.codec import decode
 from ubitrack_agent.core.errors import MeasurementError
@@ -165,6 +166,9 @@ class KeyHandOver:
         """The other producer that claimed the key last (holds it, as far as this one knows)."""
         self._alive: set[str] = set()
         """The other producers of the key whose tokens are up."""
+        self.asking = False
+        """Whether this producer's question who holds the key is still open (``Watch``): while
+        it is, a quiet key may have a holder only late."""
         self._waiting: tuple[int, Callable[[], None]] | None = None
         """The newest sample held back (its timestamp and its put), put if the key becomes free
         before a newer one comes (rule 5)."""
@@ -282,7 +286,7 @@ class KeyHandOver:
                 self._take(None)
             after = self._newest_ns
         if taken:  # the others waiting beside it, if any, yield
-            self._send(json.dumps({"claim": self.producer, "after": after}).encode())
+            self._claim(after)
 
     def holding(self) -> bytes | None:
         """What this producer replies to one starting that asks who holds the key: itself, if
@@ -290,6 +294,23 @@ class KeyHandOver:
         with self._lock:
             holds = self._holds
         return json.dumps({"holds": self.producer}).encode() if holds else None
+
+    def asked(self) -> None:
+        """The question who holds the key is closed (its replies given to :meth:`receive`):
+        with none alive and the key quiet, a claim awaiting an answer takes the key now."""
+        with self._lock:
+            self.asking = False
+            quiet = self._other_at is None or self._clock() - self._other_at > self.quiet_s()
+            taken = self._claimed_at is not None and quiet and not self._holder_alive()
+            if taken:
+                self._take(None)
+            after = self._newest_ns
+        if taken:
+            self._claim(after)
+
+    def _claim(self, after_ns: int | None) -> None:
+        """Put a claim of the key, for what comes after ``after_ns``; lock not held."""
+        self._send(json.dumps({"claim": self.producer, "after": after_ns}).encode())
 
     def _holder_alive(self) -> bool:
         """Whether another producer holds the key, as far as this one knows, and is alive;
@@ -311,7 +332,7 @@ class KeyHandOver:
             other = self._other_at is not None and now - self._other_at <= self.quiet_s()
             if self._yielded and other:
                 return self._refuse("relation_yielded")
-            if self._claimed_at is not None and (other or self._holder_alive()):
+            if self._claimed_at is not None and (other or self._holder_alive() or self.asking):
                 # The answer awaited: the holder puts on, or is only late (it stops before
                 # it answers, so nothing it puts comes after what this one puts then).
                 if now - self._claimed_at < CLAIM_TIMEOUT_S:
@@ -319,7 +340,7 @@ class KeyHandOver:
                 self._counters["relation_claims_unanswered"] += 1
                 self._take(None)
             elif not other and not self._holds:
-                if self._holder_alive():  # only late (a fusion waiting for an input)
+                if self._holder_alive() or self.asking:  # maybe only late (a fusion waiting)
                     self._claimed_at, claim, wait = now, True, True
                 else:  # nobody puts any more: at once, claiming the key all the same
                     self._take(None)
@@ -336,7 +357,7 @@ class KeyHandOver:
             admitted = wait or self._in_order(value)
             after = self._newest_ns
         if claim:
-            self._send(json.dumps({"claim": self.producer, "after": after}).encode())
+            self._claim(after)
         if wait:
             return self._refuse("relation_claiming")
         return admitted
@@ -384,7 +405,12 @@ class Watch:
             liveliness.declare_token(producer_token(key, self.rules.producer)),
             session.declare_queryable(messages, self._holding),
         )
-        session.get(messages, self._holder)  # who holds the key, if one does
+        self.rules.asking = True  # who holds the key, if one does
+        session.get(
+            messages,
+            zenoh.handlers.Callback(self._holder, self.rules.asked),
+            timeout=CLAIM_TIMEOUT_S,
+        )
         # The holder's latest sample, if one holds the key (its queryable answers it): seen
         # before this producer's first output, however late the holder's next sample comes.
         session.get(key, self._latest)

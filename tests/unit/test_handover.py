@@ -276,6 +276,22 @@ def test_the_old_producer_puts_again_when_the_new_one_dies():
     assert bus.offer(old, pose(40))
 
 
+def test_a_producer_starting_waits_for_its_question_who_holds_a_quiet_key():
+    """Its question still open (the reply in flight), a quiet key may have a holder only late:
+    claimed and held back; the question closed with no holder alive, the key is taken with the
+    sample held back."""
+    bus = Bus()
+    old = holding(bus)
+    bus.die(old)
+    new = bus.producer()
+    new.asking = True
+    bus.clock.now += 0.2
+    assert not bus.offer(new, pose(210)) and bus.stamps() == [0, 10]
+    new.asked()
+    assert bus.stamps() == [0, 10, 210] and bus.wire[-1][1] == new.producer
+    assert bus.offer(new, pose(220))
+
+
 def test_a_quiet_holder_alive_that_does_not_answer_loses_the_key_after_the_claim_timeout():
     """Its token up, its messages lost (or its process hung)."""
     bus = Bus()
