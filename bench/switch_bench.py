@@ -1,9 +1,13 @@
 """Switches of the data flow as the application sees them (issue 29): every sample of ``C -> A``
 the application receives in the second after each change, against the simulator's truth.
 
-Run: ``python -m bench.switch_bench [--events N] [--seed S] [--dwell LO,HI]`` (defaults: 20
-events of each kind, seed 7, 2-4 s between events; about 8 minutes; ``--events 2`` for a smoke
-run of a minute). Prints a table and writes ``bench/results/switch.json``.
+Run: ``python -m bench.switch_bench [--events N] [--seed S] [--dwell LO,HI] [--kinds K;K]
+[--trace]`` (defaults: 20 events of each kind, seed 7, 2-4 s between events; about 8 minutes;
+``--events 2`` for a smoke run of a minute; ``--kinds`` only those kinds, with the ways back they
+need; ``--trace`` also records, from each event to the next, the liveliness tokens of workers,
+containers and providers, control commands, the hand-over's messages, each input's first and
+last sample and the relation's gaps: where a gap's time goes). Prints tables and writes
+``bench/results/switch.json``.
 
 The world is the demo's, as in :mod:`bench.fusion_latency_bench`: the paper's figure-1 scenario
 (``sim_trackers/scenarios/paper_figure1.yaml``) with ``C -> HT`` served by the database from the
@@ -36,12 +40,14 @@ second after it: the largest translation and rotation error, the p99, how many l
 sigma" of their own covariance (NEES above the chi-square quantile of 99.73 % for 6 degrees of
 freedom, 20.06), the mean NEES against its 95 % interval (``n`` samples: chi-square(6 n) / n),
 the largest gap between arrivals of samples passed on, from 0.5 s before to 1 s after the event
-(ms and frames of the faster sensor), and duplicates (a timestamp seen before) and out-of-order
-samples on the wire.
+(ms and frames of the faster sensor), the same up to the next event (the old flow is retired,
+and relation routes move, ``HAND_OVER_HOLD_S`` after the new one is alive: after that second),
+and duplicates (a timestamp seen before) and out-of-order samples on the wire.
 The steady state of each flow (fused, camera only, A.R.T. only, fused with the better tracker)
 is every sample stamped from
 1.5 s after an event to the next event: its p99 errors are the issue's bound for a switch
-between two flows (the larger of the two).
+between two flows (the larger of the two), and its gaps between arrivals (p99, largest) the
+flow's own, to compare a switch's gap with.
 """
 
 from __future__ import annotations
@@ -362,6 +368,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     before = FLOWS[running]
                     at = time.time_ns()
                     if kind == "worker killed":
+                        # On a loaded machine the agent may have planned without a sensor
+                        # whose data came late meanwhile: the fusion back first.
+                        wait_for_services(session, keys, present=True)
                         killed = kill_fusion(session, keys)
                         if killed is None:
                             raise RuntimeError("no fusion component to kill")
