@@ -1,9 +1,13 @@
 """Switches of the data flow as the application sees them (issue 29): every sample of ``C -> A``
 the application receives in the second after each change, against the simulator's truth.
 
-Run: ``python -m bench.switch_bench [--events N] [--seed S] [--dwell LO,HI]`` (defaults: 20
-events of each kind, seed 7, 2-4 s between events; about 8 minutes; ``--events 2`` for a smoke
-run of a minute). Prints a table and writes ``bench/results/switch.json``.
+Run: ``python -m bench.switch_bench [--events N] [--seed S] [--dwell LO,HI] [--kinds K;K]
+[--trace]`` (defaults: 20 events of each kind, seed 7, 2-4 s between events; about 8 minutes;
+``--events 2`` for a smoke run of a minute; ``--kinds`` only those kinds, with the ways back they
+need; ``--trace`` also records, from each event to the next, the liveliness tokens of workers,
+containers and providers, control commands, the hand-over's messages, each input's first and
+last sample and the relation's gaps: where a gap's time goes). Prints tables and writes
+``bench/results/switch.json``.
 
 The world is the demo's, as in :mod:`bench.fusion_latency_bench`: the paper's figure-1 scenario
 (``sim_trackers/scenarios/paper_figure1.yaml``) with ``C -> HT`` served by the database from the
@@ -36,12 +40,17 @@ second after it: the largest translation and rotation error, the p99, how many l
 sigma" of their own covariance (NEES above the chi-square quantile of 99.73 % for 6 degrees of
 freedom, 20.06), the mean NEES against its 95 % interval (``n`` samples: chi-square(6 n) / n),
 the largest gap between arrivals of samples passed on, from 0.5 s before to 1 s after the event
-(ms and frames of the faster sensor), and duplicates (a timestamp seen before) and out-of-order
-samples on the wire.
+(ms and frames of the faster sensor; a silence that outlasts that window is not in it, and an
+event with no sample in the second after is left out of its kind's figures but counted), the
+same up to the next event, over every event (the old flow is retired, and relation routes move,
+``HAND_OVER_HOLD_S`` after the new one is alive: after that second; a silence ends before the
+next event, which waits for the flow), and duplicates (a timestamp seen before) and
+out-of-order samples on the wire.
 The steady state of each flow (fused, camera only, A.R.T. only, fused with the better tracker)
 is every sample stamped from
 1.5 s after an event to the next event: its p99 errors are the issue's bound for a switch
-between two flows (the larger of the two).
+between two flows (the larger of the two), and its gaps between arrivals (p99, largest) the
+flow's own, to compare a switch's gap with.
 """
 
 from __future__ import annotations
@@ -85,6 +94,7 @@ from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
+from ubitrack_agent.services.handover import hand_over_key
 from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 RESULTS = Path(__file__).parent / "results" / "switch.json"
@@ -95,6 +105,8 @@ BEFORE_S = 0.5
 """How long before an event the gap is looked for (the old flow's last samples)."""
 STEADY_AFTER_S = 1.5
 """Samples stamped this long after an event and before the next count as the steady state."""
+TRACED_GAP_MS = 25
+"""Gaps between samples on the relation's key that ``--trace`` shows."""
 THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
 """NEES of a 6D error "beyond 3 sigma": the chi-square quantile of a 3-sigma probability."""
 KINDS = (
@@ -162,6 +174,71 @@ class Wire:
             self.samples.append((arrived, sample.timestamp_ns, sample, passed))
 
 
+@dataclass
+class Trace:
+    """With ``--trace``: what else happens on the network, to find where a gap's time goes
+    (arrival ns, what, key): samples on the relation's key either side of a gap longer than
+    :data:`TRACED_GAP_MS`, liveliness tokens of workers, containers and providers coming and
+    going, the agent's and host managers' control commands, the hand-over's claims and answers,
+    and the latest sample on each data key (the inputs of the flows)."""
+
+    items: list[tuple[int, str, str]] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def note(self, what: str, zenoh_sample: Any) -> None:
+        with self.lock:
+            self.items.append((time.time_ns(), what, str(zenoh_sample.key_expr)))
+
+    def declare(self, session: Any, keys: KeySpace) -> list[Any]:
+        """Its subscribers (undeclared by the caller)."""
+        root, liveliness = keys.root, session.liveliness()
+        tokens = [
+            liveliness.declare_subscriber(
+                selector, lambda s: self.note(f"token {str(s.kind).rsplit('.', 1)[-1]}", s)
+            )
+            for selector in (keys.all_workers(), keys.all_containers(), keys.all_providers())
+        ]
+        return [
+            *tokens,
+            session.declare_subscriber(f"{root}/control/**", lambda s: self.note("control", s)),
+            session.declare_subscriber(
+                hand_over_key(keys.relation(C_A)),
+                lambda s: self.note(f"hand-over {s.payload.to_bytes().decode()[:60]}", s),
+            ),
+            session.declare_subscriber(f"{root}/data/**", lambda s: self.note("data", s)),
+            session.declare_subscriber(keys.relation(C_A), lambda s: self.note("relation", s)),
+        ]
+
+    def around(self, start_ns: int, end_ns: int) -> list[list[Any]]:
+        """The items from ``start_ns`` to ``end_ns``: ms after ``start_ns``, what, key; of the
+        data keys only the first and the last sample of each in the span, and the last before."""
+        with self.lock:
+            span = [i for i in self.items if start_ns <= i[0] < end_ns]
+            before = {}
+            for item in self.items:
+                if item[1] == "data" and item[0] < start_ns:
+                    before[item[2]] = item
+        firsts: dict[str, tuple[int, str, str]] = {}
+        lasts: dict[str, tuple[int, str, str]] = {}
+        for item in span:
+            if item[1] == "data":
+                firsts.setdefault(item[2], item)
+                lasts[item[2]] = item
+        kept = [i for i in span if i[1] not in ("data", "relation")]
+        relation = [i for i in span if i[1] == "relation"]
+        for a, b in itertools.pairwise(relation):  # the samples either side of a gap
+            if b[0] - a[0] > TRACED_GAP_MS * 1e6:
+                kept += [(a[0], "relation before a gap", a[2]), (b[0], "relation after it", b[2])]
+        kept += [(t, "last data before", k) for t, _, k in before.values()]
+        kept += [(t, "first data", k) for t, _, k in firsts.values()]
+        kept += [
+            (t, "last data", k)
+            for t, _, k in lasts.values()
+            if (t, "data", k) not in firsts.values()
+        ]
+        return [[round((t - start_ns) / 1e6, 1), what, key] for t, what, key in sorted(kept)]
+
+
 def nees(sample: Any, truth: Any) -> float | None:
     """``e^T P^-1 e`` of the sample's left error against the truth, or ``None`` without a
     covariance (a pose announced without one cannot be judged against it)."""
@@ -213,21 +290,43 @@ def largest_gap_ms(arrivals: list[int]) -> float:
     return max((b - a for a, b in itertools.pairwise(arrivals)), default=0) / 1e6
 
 
-def kill_fusion(session: Any, keys: KeySpace) -> bool:
-    """SIGKILL the process running the fusion component; whether there was one."""
+def steady_gaps(samples: list[tuple[int, int, Any, bool]]) -> dict[str, float]:
+    """The gaps between arrivals of samples passed on in a flow's steady state (ms): its p99
+    and largest, the flow's own gaps to compare a switch's with (pairs across two stretches of
+    steady state, which lie seconds apart, are left out)."""
+    arrivals = sorted(arrived for arrived, _, _, on in samples if on)
+    gaps = [b - a for a, b in itertools.pairwise(arrivals) if b - a < STEADY_AFTER_S * 1e9]
+    if not gaps:
+        return {}
+    return {"gap_ms_p99": float(np.percentile(gaps, 99)) / 1e6, "gap_ms_max": max(gaps) / 1e6}
+
+
+def kill_fusion(session: Any, keys: KeySpace) -> int | None:
+    """SIGKILL the process running the fusion component; when (ns), if there was one (the
+    event's time: finding the process takes a status query, half a second on a loaded
+    machine)."""
     for instance, component in components(session, keys).items():
         if component["service"] != "fusion":
             continue
         replies = fetch_latest(session, keys.status(instance), timeout=1.0)
         if replies:
+            at = time.time_ns()
             os.kill(json.loads(replies[0])["pid"], signal.SIGKILL)
-            return True
-    return False
+            return at
+    return None
 
 
-def next_kind(rng: random.Random, running: frozenset[str], done: Counter, wanted: int) -> str:
-    """An event the state allows (:data:`ALLOWED`), drawn among the kinds done least so far."""
-    allowed = ALLOWED[running]
+def next_kind(
+    rng: random.Random,
+    running: frozenset[str],
+    done: Counter,
+    wanted: int,
+    kinds: tuple[str, ...] = KINDS,
+) -> str:
+    """An event the state allows (:data:`ALLOWED`), drawn among the kinds done least so far;
+    only ``kinds`` where the state allows one of them (else the way back, e.g. the A.R.T.
+    tracker back after it went off, not counted towards ``wanted``)."""
+    allowed = [k for k in ALLOWED[running] if k in kinds] or list(ALLOWED[running])
     fewest = min(done[k] for k in allowed)
     return rng.choice([k for k in allowed if done[k] == fewest and done[k] < wanted] or allowed)
 
@@ -237,7 +336,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     member, keys = config.member_flags(hub), KeySpace(hub.key_prefix)
     rng = random.Random(args.seed)
     events: list[dict[str, Any]] = []
-    wire, children = Wire(), Processes()
+    wire, trace, children = Wire(), Trace(), Processes()
     with tempfile.TemporaryDirectory() as scratch:
         scenario, commands = demo_world(Path(scratch), args.seed, member)
         commands |= better_tracker(Path(scratch), args.seed, member)
@@ -258,6 +357,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 ) as relation,
             ):
                 watch = session.declare_subscriber(keys.relation(C_A), wire.take)
+                traced = trace.declare(session, keys) if args.trace else []
                 children.start("sim database", commands["sim database"])
                 start("camera")
                 start("art")
@@ -266,13 +366,18 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 wait_for_services(session, keys, present=True)
                 wait_for_warm_pool(session, keys)
                 done: Counter = Counter()
-                while any(done[k] < args.events for k in KINDS):
-                    kind = next_kind(rng, running, done, args.events)
+                while any(done[k] < args.events for k in args.kinds):
+                    kind = next_kind(rng, running, done, args.events, args.kinds)
                     before = FLOWS[running]
                     at = time.time_ns()
                     if kind == "worker killed":
-                        if not kill_fusion(session, keys):
+                        # On a loaded machine the agent may have planned without a sensor
+                        # whose data came late meanwhile: the fusion back first.
+                        wait_for_services(session, keys, present=True)
+                        killed = kill_fusion(session, keys)
+                        if killed is None:
                             raise RuntimeError("no fusion component to kill")
+                        at = killed
                     else:
                         sensor = next(v for k, v in SENSORS.items() if kind.startswith(k))
                         if kind.endswith(("off", "leaves")):
@@ -286,11 +391,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     time.sleep(rng.uniform(*args.dwell))
                     events.append({"kind": kind, "at_ns": at, "from": before, "to": FLOWS[running]})
                     print(f"{len(events):3d} {kind:13s} {before} -> {FLOWS[running]}", flush=True)
-                watch.undeclare()
+                for subscriber in [watch, *traced]:
+                    subscriber.undeclare()
                 counters = dict(relation.counters)
         finally:
             children.stop_all()
-        return summarise(events, wire, scenario, counters)
+        result = summarise(events, wire, scenario, counters)
+        if args.trace:  # up to the next event: the old flow is retired after the second
+            ends = [e["at_ns"] for e in result["events"][1:]] + [time.time_ns()]
+            for event, end in zip(result["events"], ends, strict=True):
+                event["trace"] = trace.around(event["at_ns"] - int(BEFORE_S * 1e9), end)
+        return result
 
 
 def better_tracker(scratch: Path, seed: int, member: list[str]) -> dict[str, list[str]]:
@@ -336,6 +447,12 @@ def summarise(
         event.update(judge(after, world, start))
         event["gap_ms"] = largest_gap_ms(arrivals)
         event["gap_frames"] = event["gap_ms"] / 1e3 * faster_hz
+        # The old flow is retired, and relation routes move, HAND_OVER_HOLD_S after the new
+        # one is alive: later than the second after the event, so looked for up to the next.
+        event["gap_ms_until_next"] = largest_gap_ms(
+            [s[0] for s in samples if near[0] <= s[0] < end and s[3]]
+        )
+        event["duplicates_until_next"] = sum(start <= d < end for d in duplicates)
         event["duplicates"] = sum(start <= d < start + WINDOW_S * 1e9 for d in duplicates)
         event["out_of_order"] = sum(not on for _, _, _, on in after)
         settled = [s for s in samples if start + STEADY_AFTER_S * 1e9 <= s[1] < end]
@@ -344,10 +461,11 @@ def summarise(
             event["steady_beyond_3_sigma_samples"] = judge(settled, world, start)[
                 "beyond_3_sigma_samples"
             ]
-    steady_judged = {flow: judge(s, world) for flow, s in steady.items()}
+    steady_judged = {flow: judge(s, world) | steady_gaps(s) for flow, s in steady.items()}
     kinds = {}
     for kind in KINDS:
-        mine = [e for e in events if e["kind"] == kind and e.get("samples")]
+        every = [e for e in events if e["kind"] == kind]
+        mine = [e for e in every if e.get("samples")]
         if not mine:
             continue
         bound = [
@@ -370,6 +488,12 @@ def summarise(
             else None,
             "gap_ms_max": max(e["gap_ms"] for e in mine),
             "gap_frames_max": max(e["gap_frames"] for e in mine),
+            "gap_ms_median": float(np.median([e["gap_ms"] for e in mine])),
+            # every event: one with no sample in the second after has its gap only here
+            "events_without_samples": len(every) - len(mine),
+            "gap_ms_until_next_max": max(e["gap_ms_until_next"] for e in every),
+            "gap_ms_until_next_median": float(np.median([e["gap_ms_until_next"] for e in every])),
+            "duplicates_until_next": sum(e["duplicates_until_next"] for e in every),
             "duplicates": sum(e["duplicates"] for e in mine),
             "out_of_order": sum(e["out_of_order"] for e in mine),
         }
@@ -404,15 +528,31 @@ def print_tables(result: dict[str, Any]) -> None:
             f"{k['beyond_3_sigma']} | {nees_text} | {k['gap_ms_max']:.0f} "
             f"({k['gap_frames_max']:.1f}) | {k['duplicates']} | {k['out_of_order']} |"
         )
-    print("\n| steady state | samples | p99 error mm / deg | largest mm / deg | mean NEES |")
+    print(
+        "\n| event | largest gap ms in the second after: median / largest | until the next "
+        "event (every event): median / largest | events without a sample in the second after | "
+        "duplicates until the next |"
+    )
     print("|---|---|---|---|---|")
+    for kind, k in result["kinds"].items():
+        print(
+            f"| {kind} | {k['gap_ms_median']:.0f} / {k['gap_ms_max']:.0f} | "
+            f"{k['gap_ms_until_next_median']:.0f} / {k['gap_ms_until_next_max']:.0f} | "
+            f"{k['events_without_samples']} | {k['duplicates_until_next']} |"
+        )
+    print(
+        "\n| steady state | samples | p99 error mm / deg | largest mm / deg | mean NEES | gap ms "
+        "p99 / largest |"
+    )
+    print("|---|---|---|---|---|---|")
     for flow, s in result["steady"].items():
         if not s.get("samples"):
             continue
         mean = f"{s['nees_mean']:.2f}" if s["nees_mean"] is not None else "-"
         print(
             f"| {flow} | {s['samples']} | {s['error_mm_p99']:.1f} / {s['error_deg_p99']:.2f} | "
-            f"{s['error_mm_max']:.1f} / {s['error_deg_max']:.2f} | {mean} |"
+            f"{s['error_mm_max']:.1f} / {s['error_deg_max']:.2f} | {mean} | "
+            f"{s.get('gap_ms_p99', 0):.0f} / {s.get('gap_ms_max', 0):.0f} |"
         )
 
 
@@ -426,8 +566,23 @@ def main(argv: list[str] | None = None) -> None:
         default=(2.0, 4.0),
         help="seconds between one event's settled flow and the next event, drawn in LO,HI",
     )
+    parser.add_argument(
+        "--kinds",
+        type=lambda text: tuple(k.strip() for k in text.split(";")),
+        default=KINDS,
+        help="only these kinds of event, ';'-separated (and the ways back they need, not "
+        f"counted); default all: {'; '.join(KINDS)}",
+    )
+    parser.add_argument(
+        "--trace",
+        action="store_true",
+        help="record tokens, control commands, hand-over messages and inputs from each event to "
+        "the next (each event's 'trace' in the results)",
+    )
     config.add_arguments(parser)
     args = parser.parse_args(argv)
+    if unknown := set(args.kinds) - set(KINDS):
+        parser.error(f"unknown kinds {sorted(unknown)}; known: {'; '.join(KINDS)}")
     result = run(args)
     print_tables(result)
     RESULTS.parent.mkdir(exist_ok=True)
@@ -436,7 +591,9 @@ def main(argv: list[str] | None = None) -> None:
         json.dumps(
             {
                 "command": f"python -m bench.switch_bench --events {args.events} --seed "
-                f"{args.seed} --dwell {dwell}",
+                f"{args.seed} --dwell {dwell}"
+                + (f" --kinds '{';'.join(args.kinds)}'" if args.kinds != KINDS else "")
+                + (" --trace" if args.trace else ""),
                 "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                 "machine": {"python": platform.python_version(), "cpus": os.cpu_count()},
                 "load_average_end": os.getloadavg(),

@@ -22,16 +22,27 @@ sees while the flow behind its key changes"):
    no answer within :data:`CLAIM_TIMEOUT_S` (a holder that died meanwhile) it puts anyway.
 4. **Yield.** A producer that receives a claim while it holds the key stops putting there and
    answers; it puts again only once the claimer has been quiet (a newer flow that died). A
-   producer that finds the key quiet puts at once, and claims it all the same: a holder that
-   was only late (a fusion waiting for an input) yields instead of putting beside it.
+   producer that finds the key quiet while the producer holding it is alive (a fusion waiting
+   for an input that stopped) claims it and puts nothing until the answer: the holder, only
+   late, stops before it answers, so the two never put one instant each (the repeated instants
+   a put at once caused). A producer that finds the key quiet with no holder alive puts at once
+   and claims it all the same. The holder is the producer that claimed the key last: the
+   others see its claim, and one starting asks (the holder replies ``{"holds": <producer>}`` to
+   a query on the hand-over key).
+5. **A holder gone is gone at once.** Each producer declares a liveliness token
+   (:func:`producer_token`). When the holder's token leaves (its process killed, or stopped by
+   the agent), the key is free at once, not after the quiet time: a producer waiting beside it
+   (held back, or claiming) puts its newest sample not yet put, if that is after the newest on
+   the key (rule 1), and goes on.
 
 "Another producer is putting" means a sample not put by this one arrived within
-:meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded). With the old
-producer gone (its sensor died) the key is quiet and the new one puts at once, its covariance saying
-how good its first estimates are (issue [seamless], item 2). Each rule costs O(1) per sample, plus
-the decoding of every sample on the key by each producer watching it; a hand-over costs two
-messages. The hand-over key's last chunk is verbatim (``@``), so a subscriber to the relation
-keys' wildcard does not receive the hand-over's messages.
+:meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded), or until
+the holder's token leaves (rule 5). With the old producer gone (its sensor died) the key is quiet
+and the new one puts at once, its covariance saying how good its first estimates are (issue
+[seamless], item 2). Each rule costs O(1) per sample, plus the decoding of every sample on the key
+by each producer watching it; a hand-over costs two messages, and each producer one token, so
+O(producers) per key. The hand-over key's chunk is verbatim (``@``), so a subscriber to the
+relation keys' wildcard does not receive the hand-over's messages nor its tokens.
 """
 
 from __future__ import annotations
@@ -46,6 +57,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from ubitrack_agent.core.codec import decode
 from ubitrack_agent.core.errors import MeasurementError
@@ -72,8 +84,15 @@ DEFAULT_QUIET_S = 0.1
 """The quiet time while the other producer's interval is not known yet (one sample seen)."""
 MINE_REMEMBERED = 64
 """How many of its own puts' timestamps a producer remembers to tell them from the other's."""
-MESSAGE_KINDS = {frozenset({"claim", "after"}): "claim", frozenset({"yield", "last"}): "yield"}
-"""A hand-over message's kind by its fields: a claim, or the holder's answer."""
+MESSAGE_KINDS = {
+    frozenset({"claim", "after"}): "claim",
+    frozenset({"yield", "last"}): "yield",
+    frozenset({"holds"}): "holds",
+}
+"""A hand-over message's kind by its fields: a claim, the holder's answer, or the holder's
+reply to a producer starting (:meth:`KeyHandOver.holding`)."""
+PUT = "SampleKind.PUT"
+"""A token sample's kind when the token appeared (zenoh's ``SampleKind``, as text)."""
 MAX_MESSAGE_BYTES = 256
 """A hand-over message is a small JSON object; a longer one is refused unread."""
 
@@ -84,6 +103,8 @@ COUNTERS = {
     "relation_yielded": "relation samples not put: a newer producer claimed the key",
     "relation_taken": "times this producer took a relation key over from another one",
     "relation_claims_unanswered": "claims that had no answer in time (put anyway)",
+    "relation_holder_left": "times the producer holding a relation key left (its token gone)",
+    "relation_put_when_free": "relation samples held back, put when the key became free",
     "rejected_hand_over_messages": "hand-over messages refused (not a claim or an answer)",
 }
 """The hand-over's counters, in the worker's status beside its own (``services.worker``)."""
@@ -92,6 +113,11 @@ COUNTERS = {
 def hand_over_key(relation_key: str) -> str:
     """The key of the hand-over messages of ``relation_key``."""
     return f"{relation_key}/@handover"
+
+
+def producer_token(relation_key: str, producer: str) -> str:
+    """The liveliness token of ``producer`` of ``relation_key`` (rule 5)."""
+    return f"{hand_over_key(relation_key)}/{producer}"
 
 
 def _trace(value: Measurement | None) -> tuple[tuple[int, ...], float] | None:
@@ -104,8 +130,9 @@ def _trace(value: Measurement | None) -> tuple[tuple[int, ...], float] | None:
 
 class KeyHandOver:
     """The rules for one relation key of one producer: :meth:`admit` before each put;
-    :meth:`observe` for each sample seen on the key and :meth:`receive` for each hand-over
-    message (both on zenoh's thread); ``send`` puts a message on the hand-over key."""
+    :meth:`observe` for each sample seen on the key, :meth:`receive` for each hand-over
+    message, :meth:`joined` and :meth:`left` for the other producers' tokens (all on zenoh's
+    thread); ``send`` puts a message on the hand-over key."""
 
     def __init__(
         self,
@@ -119,7 +146,9 @@ class KeyHandOver:
         self._counters = counters
         self._send = send
         self._clock = clock
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
+        """Re-entered where a put held back is made under it: zenoh may deliver the sample to
+        this producer's own subscriber (:meth:`observe`) on the putting thread."""
         self._newest_ns: int | None = None
         self._mine: deque[int] = deque(maxlen=MINE_REMEMBERED)
         self._other_at: float | None = None
@@ -133,6 +162,16 @@ class KeyHandOver:
         """Whether this producer holds the key (puts on it)."""
         self._yielded = False
         """Whether this producer gave the key to a claimer that is still putting."""
+        self._holder: str | None = None
+        """The other producer that claimed the key last (holds it, as far as this one knows)."""
+        self._alive: set[str] = set()
+        """The other producers of the key whose tokens are up."""
+        self.asking = False
+        """Whether this producer's question who holds the key is still open (``Watch``): while
+        it is, a quiet key may have a holder only late."""
+        self._waiting: tuple[int, Callable[[], None]] | None = None
+        """The newest sample held back (its timestamp and its put), put if the key becomes free
+        before a newer one comes (rule 5)."""
 
     def quiet_s(self) -> float:
         """After how long without a sample another producer counts as gone: three of its
@@ -169,17 +208,21 @@ class KeyHandOver:
 
     def receive(self, payload: bytes) -> None:
         """A hand-over message: another producer's claim (answered at once if this one holds
-        the key), or the answer to this one's claim. Anything else is refused and counted."""
+        the key), the answer to this one's claim, or a holder's reply to this one starting.
+        Anything else is refused and counted."""
         try:
             message = load_object(payload, MAX_MESSAGE_BYTES)
             kind = MESSAGE_KINDS.get(frozenset(message))
             sender = message.get(kind)
             if kind is None or not isinstance(sender, str):
-                raise MessageError("malformed", "neither a claim nor an answer")
+                raise MessageError("malformed", "not a claim, an answer or a holder's reply")
             if sender == self.producer:
                 return  # its own message, delivered to its own subscriber
             if kind == "claim":
-                self._answer_claim()
+                self._answer_claim(sender)
+            elif kind == "holds":
+                with self._lock:
+                    self._holder = self._holder or sender
             else:
                 self._take_answer(message)
         except MessageError as exc:
@@ -187,8 +230,9 @@ class KeyHandOver:
                 self._counters, "rejected_hand_over_messages", log, "%s: %s", self.key, exc
             )
 
-    def _answer_claim(self) -> None:
+    def _answer_claim(self, claimer: str) -> None:
         with self._lock:
+            self._holder = claimer
             if not self._holds:
                 return  # not the holder: the holder answers
             self._holds, self._yielded = False, True
@@ -208,15 +252,75 @@ class KeyHandOver:
             self._take(last)
 
     def _take(self, after_ns: int | None) -> None:
-        """Hold the key from now on, putting only what comes after ``after_ns``; lock held."""
+        """Hold the key from now on, putting only what comes after ``after_ns``, and the sample
+        held back last if it does; lock held."""
         self._claimed_at, self._held_since = None, None
-        self._holds, self._yielded = True, False
+        self._holds, self._yielded, self._holder = True, False, self.producer
         if after_ns is not None and (self._newest_ns is None or after_ns > self._newest_ns):
             self._newest_ns = after_ns
+        waiting, self._waiting = self._waiting, None
+        if waiting is not None and (self._newest_ns is None or waiting[0] > self._newest_ns):
+            self._newest_ns = waiting[0]
+            self._mine.append(waiting[0])
+            self._counters["relation_put_when_free"] += 1
+            waiting[1]()  # under the lock: before any later sample of this producer
 
-    def admit(self, value: Measurement | bytes) -> bool:
+    def joined(self, producer: str) -> None:
+        """Another producer's token appeared (this one's own is ignored)."""
+        if producer != self.producer:
+            with self._lock:
+                self._alive.add(producer)
+
+    def left(self, producer: str) -> None:
+        """Another producer's token left: if it held the key, the key is free now (rule 5),
+        and a producer claiming it, or held back beside it, takes it with its newest sample."""
+        with self._lock:
+            self._alive.discard(producer)
+            if producer != self._holder or producer == self.producer:
+                return
+            self._counters["relation_holder_left"] += 1
+            self._holder, self._other_at, self._yielded = None, None, False
+            self._other_intervals.clear()
+            taken = self._claimed_at is not None or self._waiting is not None
+            if taken:
+                self._take(None)
+            after = self._newest_ns
+        if taken:  # the others waiting beside it, if any, yield
+            self._claim(after)
+
+    def holding(self) -> bytes | None:
+        """What this producer replies to one starting that asks who holds the key: itself, if
+        it does (so a newcomer finding the key quiet claims it from a holder only late)."""
+        with self._lock:
+            holds = self._holds
+        return json.dumps({"holds": self.producer}).encode() if holds else None
+
+    def asked(self) -> None:
+        """The question who holds the key is closed (its replies given to :meth:`receive`):
+        with none alive and the key quiet, a claim awaiting an answer takes the key now."""
+        with self._lock:
+            self.asking = False
+            quiet = self._other_at is None or self._clock() - self._other_at > self.quiet_s()
+            taken = self._claimed_at is not None and quiet and not self._holder_alive()
+            if taken:
+                self._take(None)
+            after = self._newest_ns
+        if taken:
+            self._claim(after)
+
+    def _claim(self, after_ns: int | None) -> None:
+        """Put a claim of the key, for what comes after ``after_ns``; lock not held."""
+        self._send(json.dumps({"claim": self.producer, "after": after_ns}).encode())
+
+    def _holder_alive(self) -> bool:
+        """Whether another producer holds the key, as far as this one knows, and is alive;
+        lock held."""
+        return self._holder is not None and self._holder in self._alive
+
+    def admit(self, value: Measurement | bytes, put: Callable[[], None] | None = None) -> bool:
         """Whether to put ``value`` (a relay's: its payload) on the key now; counted when
-        not."""
+        not. ``put`` puts it: kept while the sample is held back, for the key becoming free
+        before the next one (rule 5)."""
         if isinstance(value, bytes):
             try:
                 value = decode(value, level=WORKER)
@@ -228,31 +332,41 @@ class KeyHandOver:
             other = self._other_at is not None and now - self._other_at <= self.quiet_s()
             if self._yielded and other:
                 return self._refuse("relation_yielded")
-            if not other and not self._holds:
-                # Nobody else puts (any more, or the claimer died): at once, claiming the key
-                # all the same, so that a holder only late (a fusion waiting for an input)
-                # yields instead of putting beside this one.
-                self._take(None)
-                claim = True
-            elif self._claimed_at is not None:
+            if self._claimed_at is not None and (other or self._holder_alive() or self.asking):
+                # The answer awaited: the holder puts on, or is only late (it stops before
+                # it answers, so nothing it puts comes after what this one puts then).
                 if now - self._claimed_at < CLAIM_TIMEOUT_S:
-                    return self._refuse("relation_claiming")
+                    return self._hold_back(value, put, "relation_claiming")
                 self._counters["relation_claims_unanswered"] += 1
                 self._take(None)
+            elif not other and not self._holds:
+                if self._holder_alive() or self.asking:  # maybe only late (a fusion waiting)
+                    self._claimed_at, claim, wait = now, True, True
+                else:  # nobody puts any more: at once, claiming the key all the same
+                    self._take(None)
+                    claim = True
             elif not self._holds:
                 if self._held_since is None:
                     self._held_since = now
                 if not self._ready(value) and now - self._held_since < HAND_OVER_HOLD_S:
-                    return self._refuse("relation_held")
+                    return self._hold_back(value, put, "relation_held")
                 self._claimed_at, claim, wait = now, True, True
                 self._counters["relation_taken"] += 1
+            if wait:
+                self._waiting = None if put is None else (value.timestamp_ns, put)
             admitted = wait or self._in_order(value)
             after = self._newest_ns
         if claim:
-            self._send(json.dumps({"claim": self.producer, "after": after}).encode())
+            self._claim(after)
         if wait:
             return self._refuse("relation_claiming")
         return admitted
+
+    def _hold_back(self, value: Measurement, put: Callable[[], None] | None, counter: str) -> bool:
+        """Refuse ``value`` for now, keeping its put for the key becoming free; lock held."""
+        if put is not None:
+            self._waiting = (value.timestamp_ns, put)
+        return self._refuse(counter)
 
     def _in_order(self, value: Measurement) -> bool:
         """Rule 1, and the instant remembered as this producer's; lock held."""
@@ -274,21 +388,48 @@ class KeyHandOver:
 
 
 class Watch:
-    """A :class:`KeyHandOver` wired to zenoh: subscribed to its relation key and its
-    hand-over key, putting its messages on the latter. Undeclare with :meth:`close`."""
+    """A :class:`KeyHandOver` wired to zenoh: subscribed to its relation key, its hand-over key
+    and the producers' tokens, putting its messages on the hand-over key and declaring its own
+    token. Undeclare with :meth:`close`."""
 
     def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
         messages = hand_over_key(key)
         self.rules = KeyHandOver(key, counters, lambda data: session.put(messages, data))
+        liveliness = session.liveliness()
         self._subscribers = (
             session.declare_subscriber(key, lambda s: self.rules.observe(s.payload.to_bytes())),
             session.declare_subscriber(
                 messages, lambda s: self.rules.receive(s.payload.to_bytes())
             ),
+            liveliness.declare_subscriber(producer_token(key, "*"), self._token, history=True),
+            liveliness.declare_token(producer_token(key, self.rules.producer)),
+            session.declare_queryable(messages, self._holding),
+        )
+        self.rules.asking = True  # who holds the key, if one does
+        session.get(
+            messages,
+            zenoh.handlers.Callback(self._holder, self.rules.asked),
+            timeout=CLAIM_TIMEOUT_S,
         )
         # The holder's latest sample, if one holds the key (its queryable answers it): seen
         # before this producer's first output, however late the holder's next sample comes.
         session.get(key, self._latest)
+
+    def _token(self, sample: Any) -> None:
+        producer = str(sample.key_expr).rsplit("/", 1)[-1]
+        if str(sample.kind) == PUT:
+            self.rules.joined(producer)
+        else:
+            self.rules.left(producer)
+
+    def _holding(self, query: Any) -> None:
+        reply = self.rules.holding()
+        if reply is not None:
+            query.reply(hand_over_key(self.rules.key), reply)
+
+    def _holder(self, reply: Any) -> None:
+        if reply.ok is not None:
+            self.rules.receive(reply.ok.payload.to_bytes())
 
     def _latest(self, reply: Any) -> None:
         if reply.ok is not None:

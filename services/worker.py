@@ -1141,8 +1141,9 @@ class Worker:
             payload = value if isinstance(value, bytes) else encode(value)
             for publisher in publishers:
                 hand_over = hand_overs.get(publisher.key)
-                if hand_over is None or hand_over.rules.admit(value):
-                    publisher.put(payload)
+                put = functools.partial(publisher.put, payload)
+                if hand_over is None or hand_over.rules.admit(value, put):
+                    put()
 
     def _outside(self, route: _Route, value: Measurement) -> None:
         """Queue the puts of ``value``, handed over in the container, that zenoh must carry

@@ -32,7 +32,9 @@ def pose(t_ms: int, variance: float = 1e-6) -> ErrorPose:
 
 class Bus:
     """The relation key and its hand-over key, delivered at once to every producer (zenoh
-    delivers a session's own puts to its own subscribers too)."""
+    delivers a session's own puts to its own subscribers too), or, with ``held``, the
+    hand-over's messages kept until :meth:`deliver` (a message in flight); the producers'
+    tokens, which :meth:`die` takes away."""
 
     def __init__(self) -> None:
         self.clock = Clock()
@@ -40,30 +42,62 @@ class Bus:
         self.counters: list[Counter[str]] = []
         self.wire: list[tuple[int, str, bytes]] = []
         self.messages: list[dict] = []
+        self.held: list[bytes] | None = None
 
     def producer(self) -> KeyHandOver:
-        """A producer starting: it asks the key's latest sample first (``Watch``)."""
+        """A producer starting: it sees the others' tokens, asks who holds the key and the
+        key's latest sample first (``Watch``)."""
         counters: Counter[str] = Counter()
         hand_over = KeyHandOver("ubitrack/d/relation/C/A", counters, self._send, self.clock)
+        for other in self.producers:
+            other.joined(hand_over.producer)
+            hand_over.joined(other.producer)
+            if (reply := other.holding()) is not None:
+                hand_over.receive(reply)
         if self.wire:
             hand_over.observe(self.wire[-1][2])
         self.producers.append(hand_over)
         self.counters.append(counters)
         return hand_over
 
+    def die(self, producer: KeyHandOver) -> None:
+        """Its process ends: its token leaves."""
+        self.producers.remove(producer)
+        for other in self.producers:
+            other.left(producer.producer)
+
     def _send(self, data: bytes) -> None:
         self.messages.append(json.loads(data))
+        if self.held is not None:
+            self.held.append(data)
+            return
         for producer in self.producers:
             producer.receive(data)
 
+    def deliver(self) -> None:
+        """The messages in flight arrive, and from now on at once."""
+        held, self.held = self.held or [], None
+        for data in held:
+            for producer in self.producers:
+                producer.receive(data)
+
     def offer(self, hand_over: KeyHandOver, value: ErrorPose) -> bool:
-        if not hand_over.admit(value):
-            return False
+        """Whether ``value`` was put at once (one held back may be put later, when the key
+        becomes free)."""
         payload = encode(value)
-        self.wire.append((value.timestamp_ns, hand_over.producer, payload))
-        for producer in self.producers:
-            producer.observe(payload)
+
+        def put() -> None:
+            self.wire.append((value.timestamp_ns, hand_over.producer, payload))
+            for producer in self.producers:
+                producer.observe(payload)
+
+        if not hand_over.admit(value, put):
+            return False
+        put()
         return True
+
+    def stamps(self) -> list[int]:
+        return [t // MS for t, _, _ in self.wire]
 
 
 def test_a_lone_producer_puts_every_sample_in_order_and_never_one_twice():
@@ -85,12 +119,14 @@ def test_a_new_producer_holds_back_until_ready_then_claims_and_takes_over_after_
         assert not bus.offer(new, pose(t, variance=4e-6))
     assert bus.counters[1]["relation_held"] == 9 and len(bus.messages) == 1  # the old one's
     bus.clock.now += 0.01
-    assert not bus.offer(new, pose(100, variance=0.9e-6))  # ready: claims, puts nothing yet
+    assert not bus.offer(new, pose(100, variance=0.9e-6))  # ready: claims, not put at once
     claim, answer = bus.messages[1:]
     assert claim["claim"] == new.producer and answer == {"yield": old.producer, "last": 90 * MS}
+    assert bus.stamps()[-1] == 100  # put when the answer came: after the holder's last
     assert not bus.offer(old, pose(100))  # the old one stopped before it answered
     assert bus.offer(new, pose(110, variance=2e-6))  # taken: no longer compared
-    assert [who for _, who, _ in bus.wire] == [old.producer] * 10 + [new.producer]
+    assert [who for _, who, _ in bus.wire] == [old.producer] * 10 + [new.producer] * 2
+    assert bus.stamps() == list(range(0, 120, 10))
     assert bus.counters[0]["relation_yielded"] == 1 and bus.counters[1]["relation_taken"] == 1
 
 
@@ -133,11 +169,77 @@ def test_a_holder_only_late_yields_to_the_producer_that_found_the_key_quiet():
     old = holding(bus)
     new = bus.producer()
     bus.clock.now += 0.2  # the old one waits for its camera
-    assert bus.offer(new, pose(210, variance=4e-6))  # the key is quiet: at once
+    assert not bus.offer(new, pose(210, variance=4e-6))  # quiet, its holder alive: claims
+    assert bus.wire[-1][:2] == (210 * MS, new.producer)  # put on the answer (after 10)
     bus.clock.now += 0.01
-    assert not bus.offer(old, pose(220))  # it yielded to the claim that came with that put
+    assert not bus.offer(old, pose(200))  # it yielded to the claim
+    assert not bus.offer(old, pose(220))
     assert bus.offer(new, pose(220, variance=4e-6))
     assert [who for _, who, _ in bus.wire][2:] == [new.producer] * 2
+
+
+def test_a_holder_only_late_and_one_finding_the_key_quiet_never_put_one_instant_each():
+    """The claim and its answer in flight while the late holder puts the instants it held:
+    the repeated instants of the switch bench (a fusion, its camera gone, quiet, then putting
+    the instant the A.R.T.-only flow had put at once)."""
+    bus = Bus()
+    old = holding(bus)
+    new = bus.producer()
+    bus.clock.now += 0.2
+    bus.held = []
+    assert not bus.offer(new, pose(210, variance=4e-6))  # claims; nothing put before the answer
+    for t in range(20, 220, 10):  # the old one's held triggers, computed late
+        assert bus.offer(old, pose(t))
+    bus.deliver()  # it yields after 210: what the new one held back is not after that
+    bus.clock.now += 0.01
+    assert not bus.offer(old, pose(220))
+    assert bus.offer(new, pose(220, variance=4e-6))
+    assert bus.stamps() == list(range(0, 230, 10))  # each instant once, in order
+    assert bus.wire[-1][1] == new.producer and bus.counters[1]["relation_put_when_free"] == 0
+
+
+def test_a_producer_held_back_puts_its_newest_sample_as_soon_as_the_holders_token_leaves():
+    """Rule 5: the holder killed (or stopped by the agent) frees the key at once, not after
+    the quiet time; the sample held back goes out then, if it is after the newest."""
+    bus = Bus()
+    old = holding(bus)
+    standby = bus.producer()
+    bus.clock.now += 0.01
+    assert bus.offer(old, pose(20))
+    assert not bus.offer(standby, pose(20, variance=4e-6))  # not after the newest
+    bus.clock.now += 0.01
+    assert not bus.offer(standby, pose(30, variance=4e-6))  # less certain: held back
+    bus.die(old)  # before it put 30
+    assert bus.stamps() == [0, 10, 20, 30] and bus.wire[-1][1] == standby.producer
+    assert bus.messages[-1] == {"claim": standby.producer, "after": 30 * MS}
+    assert bus.counters[1]["relation_holder_left"] == 1
+    assert bus.counters[1]["relation_put_when_free"] == 1
+    bus.clock.now += 0.001  # well within the quiet time of the old one's intervals
+    assert bus.offer(standby, pose(40, variance=4e-6))
+
+
+def test_a_producer_that_is_not_the_holder_leaving_frees_nothing():
+    bus = Bus()
+    old = holding(bus)
+    first, second = bus.producer(), bus.producer()
+    bus.clock.now += 0.01
+    assert bus.offer(old, pose(20))
+    assert not bus.offer(second, pose(30, variance=4e-6))
+    bus.die(first)
+    assert bus.stamps()[-1] == 20 and not bus.counters[2]["relation_holder_left"]
+    assert not bus.offer(second, pose(30, variance=4e-6))  # still held back beside the holder
+
+
+def test_a_sample_held_back_is_not_put_when_the_holder_put_a_newer_one_before_it_left():
+    bus = Bus()
+    old = holding(bus)
+    standby = bus.producer()
+    bus.clock.now += 0.01
+    assert not bus.offer(standby, pose(15, variance=4e-6))
+    assert bus.offer(old, pose(20))
+    bus.die(old)
+    assert bus.stamps() == [0, 10, 20]  # rule 1 first
+    assert bus.offer(standby, pose(30, variance=4e-6))
 
 
 def test_an_unanswered_claim_times_out():
@@ -169,9 +271,39 @@ def test_the_old_producer_puts_again_when_the_new_one_dies():
     bus.clock.now += 0.01
     assert bus.offer(new, pose(20))
     assert not bus.offer(old, pose(20)) and not bus.offer(old, pose(30))
-    bus.producers.remove(new)
-    bus.clock.now += 1.0
-    assert bus.offer(old, pose(1030))
+    bus.die(new)
+    bus.clock.now += 0.001  # its token gone: at once, not after the quiet time
+    assert bus.offer(old, pose(40))
+
+
+def test_a_producer_starting_waits_for_its_question_who_holds_a_quiet_key():
+    """Its question still open (the reply in flight), a quiet key may have a holder only late:
+    claimed and held back; the question closed with no holder alive, the key is taken with the
+    sample held back."""
+    bus = Bus()
+    old = holding(bus)
+    bus.die(old)
+    new = bus.producer()
+    new.asking = True
+    bus.clock.now += 0.2
+    assert not bus.offer(new, pose(210)) and bus.stamps() == [0, 10]
+    new.asked()
+    assert bus.stamps() == [0, 10, 210] and bus.wire[-1][1] == new.producer
+    assert bus.offer(new, pose(220))
+
+
+def test_a_quiet_holder_alive_that_does_not_answer_loses_the_key_after_the_claim_timeout():
+    """Its token up, its messages lost (or its process hung)."""
+    bus = Bus()
+    old = holding(bus)
+    new = bus.producer()
+    old.receive = lambda data: None
+    bus.clock.now += 0.2
+    assert not bus.offer(new, pose(210))  # claims
+    bus.clock.now += CLAIM_TIMEOUT_S / 2
+    assert not bus.offer(new, pose(220))
+    bus.clock.now += CLAIM_TIMEOUT_S / 2
+    assert bus.offer(new, pose(230)) and bus.counters[1]["relation_claims_unanswered"] == 1
 
 
 def two_producers(instants, new_from: int) -> tuple[Bus, KeyHandOver, KeyHandOver | None]:
@@ -240,7 +372,7 @@ def test_what_does_not_decode_on_the_key_is_ignored(payload):
     st.one_of(
         st.binary(max_size=300),
         st.dictionaries(
-            st.sampled_from(["claim", "yield", "last", "after", "x"]),
+            st.sampled_from(["claim", "yield", "last", "after", "holds", "x"]),
             st.one_of(st.none(), st.integers(), st.text(max_size=5), st.booleans()),
             max_size=3,
         ).map(lambda d: json.dumps(d).encode()),
