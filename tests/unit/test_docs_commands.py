@@ -32,9 +32,10 @@ SYNOPSIS = re.compile(r"\$|\[|\.\.\.")
 
 def _commands_in(text: str) -> list[tuple[str, bool]]:
     """``(command, whole)`` for each command line of ``text``: a shell block's lines
-    (continuations joined, each part of a pipe or list, a trailing ``&`` and comments dropped;
-    ``whole``) and inline spans (not ``whole``), those starting with ``ubitrack`` or ``python
-    -m bench.``."""
+    (continuations joined; each command of a pipe or list, a trailing ``&`` and comments
+    dropped; ``whole``) and inline spans (not ``whole``), those starting with ``ubitrack`` or
+    ``python -m bench.``. A line is split as the shell would (``shlex``): a ``;`` inside quotes
+    is an argument's."""
     lines = [
         (line, True)
         for block in SHELL_BLOCK.findall(text)
@@ -43,11 +44,29 @@ def _commands_in(text: str) -> list[tuple[str, bool]]:
     lines += [(span, False) for span in INLINE_CODE.findall(text.replace("\n", " "))]
     commands = []
     for line, whole in lines:
-        for part in re.split(r"\s*(?:\|\||&&|\||;)\s*", line.strip().removeprefix("$ ")):
-            part = part.split(" #", 1)[0].strip().removesuffix("&").strip()
+        for part in _shell_commands(line.strip().removeprefix("$ ")):
             if COMMAND.match(part):
                 commands.append((part, whole and not SYNOPSIS.search(part)))
     return commands
+
+
+def _shell_commands(line: str) -> list[str]:
+    """The commands of a shell line, split at ``;``, ``|``, ``&``, ``&&``, ``||`` outside
+    quotes, comments dropped; a line ``shlex`` cannot split (an open quote) is kept whole, so a
+    command in it fails the check below rather than going unchecked."""
+    lexer = shlex.shlex(line, posix=True, punctuation_chars=";|&")
+    lexer.whitespace_split = True
+    try:
+        tokens = list(lexer)
+    except ValueError:
+        return [line]
+    commands: list[list[str]] = [[]]
+    for token in tokens:
+        if set(token) <= set(";|&"):
+            commands.append([])
+        else:
+            commands[-1].append(token)
+    return [shlex.join(words) for words in commands if words]
 
 
 def documented_commands() -> list[tuple[str, str, bool]]:
