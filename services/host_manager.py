@@ -241,9 +241,9 @@ class HostManager:
         self._stop.set()
 
     def orphan(self) -> None:
-        """The agent that started this host manager is gone (died, or stood by): go on serving
-        for its successor, which adopts it; end once no component has run and no agent has
-        been active for ``ORPHAN_END_S`` (module docstring)."""
+        """The agent that started this host manager is gone (died, stopped, or stood by): go
+        on serving for its successor, which adopts it; end as :meth:`_end_if_unneeded` says
+        (module docstring)."""
         if not self._orphaned.is_set():
             log.warning(
                 "the agent that started this host manager is gone: serving on for its successor"
