@@ -23,6 +23,7 @@ the start; ``--seed`` repeats a run's noise), so repeated runs are independent.
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
 import queue
 import secrets
@@ -30,6 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -93,21 +95,86 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+STEADY_AFTER_S = 1.0
+"""A phase's steady state is what arrived from this long after it began on: its first second
+holds whatever the change that began it left behind."""
+WINDOW_S = 1.0
+"""The length of the window whose RMS error is a phase's worst second."""
+STEADY_TOLERANCE = 0.2
+"""A phase's RMS error is as good as its steady state's within this fraction (issue 29)."""
+
+
+def _rounded(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(value, digits)
+
+
+def rms(values: Sequence[float]) -> float | None:
+    """The root mean square of ``values`` (None without any)."""
+    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else None
+
+
+def worst_window_rms(arrivals_ns: Sequence[int], values: Sequence[float]) -> float | None:
+    """The largest RMS of ``values`` over the windows of :data:`WINDOW_S` that begin at a
+    sample's arrival and end by the last one's (the whole span if it is shorter): a phase's
+    worst second. ``arrivals_ns`` ascending; O(n), two indices and running sums of squares."""
+    if not len(values):
+        return None
+    arrivals, squares = np.asarray(arrivals_ns), np.square(values)
+    window_ns = int(WINDOW_S * 1e9)
+    if arrivals[-1] - arrivals[0] < window_ns:
+        return rms(values)
+    sums = np.concatenate(([0.0], np.cumsum(squares)))
+    starts = np.flatnonzero(arrivals <= arrivals[-1] - window_ns)
+    ends = np.searchsorted(arrivals, arrivals[starts] + window_ns)  # exclusive
+    return float(np.sqrt(np.max((sums[ends] - sums[starts]) / (ends - starts))))
+
+
 @dataclass
 class Phase:
-    """What the application saw during one phase."""
+    """What the application received during one phase: every sample that arrived from
+    ``started_ns`` (wall clock) until the next phase began, with its error against the truth."""
 
     name: str
-    started: float
+    started_ns: int
+    ended_ns: int | None = None
+    arrivals_ns: list[int] = field(default_factory=list)
     errors_mm: list[float] = field(default_factory=list)
     errors_deg: list[float] = field(default_factory=list)
     latencies_ms: list[float] = field(default_factory=list)
     reconfiguration_ms: float | None = None
 
-    def summary(self, seconds: float) -> dict[str, Any]:
-        def rms(values: list[float]) -> float | None:
-            return round(float(np.sqrt(np.mean(np.square(values)))), 3) if values else None
+    def add(self, arrived_ns: int, error_mm: float, error_deg: float, latency_ms: float) -> None:
+        self.arrivals_ns.append(arrived_ns)
+        self.errors_mm.append(error_mm)
+        self.errors_deg.append(error_deg)
+        self.latencies_ms.append(latency_ms)
 
+    def hand_on(self, successor: Phase) -> None:
+        """End this phase where ``successor`` begins; the samples that arrived from then on
+        move to it."""
+        self.ended_ns = successor.started_ns
+        keep = bisect.bisect_left(self.arrivals_ns, successor.started_ns)
+        for name in ("arrivals_ns", "errors_mm", "errors_deg", "latencies_ms"):
+            mine = getattr(self, name)
+            getattr(successor, name)[:0] = mine[keep:]
+            del mine[keep:]
+
+    def since(self, index: int, started_ns: int) -> Phase:
+        """The part of this phase from its ``index``-th sample on, as one begun at
+        ``started_ns`` (for the once-a-second reports)."""
+        return Phase(
+            self.name,
+            started_ns,
+            None,
+            self.arrivals_ns[index:],
+            self.errors_mm[index:],
+            self.errors_deg[index:],
+            self.latencies_ms[index:],
+        )
+
+    def report(self, ended_ns: int) -> dict[str, Any]:
+        """Its samples, rate until ``ended_ns``, median latency and RMS errors."""
+        seconds = (ended_ns - self.started_ns) / 1e9
         return {
             "phase": self.name,
             "samples": len(self.errors_mm),
@@ -115,10 +182,30 @@ class Phase:
             "latency_ms_median": (
                 round(float(np.median(self.latencies_ms)), 2) if self.latencies_ms else None
             ),
-            "error_mm_rms": rms(self.errors_mm),
-            "error_deg_rms": rms(self.errors_deg),
-            "reconfiguration_ms": self.reconfiguration_ms,
+            "error_mm_rms": _rounded(rms(self.errors_mm), 3),
+            "error_deg_rms": _rounded(rms(self.errors_deg), 4),
         }
+
+    def summary(self) -> dict[str, Any]:
+        """Its :meth:`report`, with the RMS errors of its steady state (:data:`STEADY_AFTER_S`)
+        and of its worst second (:func:`worst_window_rms`), whether its RMS errors are within
+        :data:`STEADY_TOLERANCE` of the steady state's, and its reconfiguration time."""
+        line = self.report(self.ended_ns or time.time_ns())
+        steady = bisect.bisect_left(self.arrivals_ns, self.started_ns + int(STEADY_AFTER_S * 1e9))
+        for unit, errors, digits in (("mm", self.errors_mm, 3), ("deg", self.errors_deg, 4)):
+            whole, settled = rms(errors), rms(errors[steady:])
+            line |= {
+                f"steady_error_{unit}_rms": _rounded(settled, digits),
+                f"worst_second_{unit}_rms": _rounded(
+                    worst_window_rms(self.arrivals_ns, errors), digits
+                ),
+                f"{unit}_within_steady": (
+                    None
+                    if whole is None or settled is None
+                    else whole <= (1 + STEADY_TOLERANCE) * settled
+                ),
+            }
+        return line | {"reconfiguration_ms": self.reconfiguration_ms}
 
 
 class Processes:
@@ -207,13 +294,13 @@ def tracker_processes(
     if tracker == "art":
         simulator = simulator_arguments(scenario_flag, port, seed)["sim art"]
         return {
-            "dtrack": ["dtrack", "--quiet", *dtrack_flags(art, port), *member],
             "sim art": simulator,
+            "dtrack": ["dtrack", "--quiet", *dtrack_flags(art, port), *member],
         }
     ports = ("--command-port", str(port), "--data-port", "0")
     return {
-        "natnet": ["natnet", "--quiet", *natnet_flags(art, port, 0), *member],
         "sim natnet": ["sim", "natnet", "--quiet", *ports, "--seed", str(seed), *scenario_flag],
+        "natnet": ["natnet", "--quiet", *natnet_flags(art, port, 0), *member],
     }
 
 
@@ -248,7 +335,6 @@ def _free_udp_port() -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ubitrack_agent.core import quaternions
     from ubitrack_agent.io.application import Relation
     from ubitrack_agent.net.keys import KeySpace, RelationId
     from ubitrack_agent.net.session import open_session
@@ -321,30 +407,13 @@ def run(args: argparse.Namespace) -> int:
             _calibrate(session, keys, scenario.world, say, args.calibration_timeout)
             while not samples.empty():  # what arrived while calibrating is not a phase's
                 samples.get_nowait()
-            phases = []
-            for index, name in enumerate(PHASES):
-                if index == 1:
-                    children.stop(*reversed(list(art)))
-                elif index == 2:
-                    for process, arguments in art.items():
-                        children.start(process, arguments)
-                phase = Phase(name, time.monotonic())
-                phases.append(phase)
-                rewired = None
-                if index > 0:
-                    uses_art = index == 2
-                    rewired = _flow_check(session, keys, scenario.art.provider, uses_art)
-                _run_phase(
-                    phase,
-                    args.phase_seconds,
-                    samples,
-                    events,
-                    scenario.world,
-                    quaternions,
-                    say,
-                    rewired,
-                    ("", "DELETE", "PUT")[index],
-                )
+            phases = _run_phases(
+                args.phase_seconds,
+                _Feed(samples, events, scenario.world, say, children),
+                children,
+                art,
+                lambda uses_art: _flow_check(session, keys, scenario.art.provider, uses_art),
+            )
             watch.undeclare()
     except DemoFailed as exc:
         print(f"ubitrack demo: {exc}", file=sys.stderr)
@@ -352,7 +421,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         children.stop_all()
         scratch.cleanup()
-    summary = [phase.summary(args.phase_seconds) for phase in phases]
+    summary = [phase.summary() for phase in phases]
     for line in summary:
         say({"event": "summary", **line}, _summary_text(line))
     fused, camera = summary[0]["error_mm_rms"], summary[1]["error_mm_rms"]
@@ -360,11 +429,16 @@ def run(args: argparse.Namespace) -> int:
         "event": "verdict",
         "every_phase_delivered": all(s["samples"] for s in summary),
         "fused_better_than_camera_only": bool(fused and camera and fused < camera),
+        "every_phase_within_steady": all(
+            s["mm_within_steady"] and s["deg_within_steady"] for s in summary
+        ),
     }
     say(
         verdict,
         f"every phase delivered: {verdict['every_phase_delivered']}; fused better than "
-        f"camera only: {verdict['fused_better_than_camera_only']}",
+        f"camera only: {verdict['fused_better_than_camera_only']}; every phase's RMS error "
+        f"within {STEADY_TOLERANCE:.0%} of its steady state's: "
+        f"{verdict['every_phase_within_steady']}",
     )
     return 0 if verdict["every_phase_delivered"] else 1
 
@@ -502,63 +576,128 @@ def _flow_check(session, keys, provider: str, uses_provider: bool):
     return rewired
 
 
-def _run_phase(
-    phase: Phase,
-    seconds: float,
-    samples,
-    events,
-    world,
-    quaternions,
-    say,
-    rewired,
-    expected_change: str,
-) -> None:
-    """Consume samples for one phase, reporting once a second. With ``rewired``, also time
-    the reconfiguration: from the provider's liveliness event to the first sample that
-    arrives after the agent applied the rewired flow (wall-clock nanoseconds throughout)."""
-    change_ns = rewired_ns = None
-    started_ns = time.time_ns()
-    last_report, reported = phase.started, 0
-    while (now := time.monotonic()) - phase.started < seconds:
-        if rewired is not None and change_ns is None:
+TRACKER_BACK_S = 60.0
+"""How long the restarted tracker may take to announce itself again (its processes start)."""
+
+
+def _run_phases(seconds: float, feed: _Feed, children: Processes, art: dict, flow_check) -> list:
+    """The three phases, each begun where its change reaches the network, and every sample
+    the application receives in one of them: "fused" from now; "camera only" from the moment
+    the tracker's simulator is stopped (its measurements end there; its adapter is stopped
+    after it), for ``seconds``, then while the tracker's processes start again, simulator first
+    (a tracker switched back on measures as it joins); "fused again" from its adapter's
+    liveliness token appearing (the tracker back: the agent rewires from there), for
+    ``seconds``. ``flow_check(uses_art)`` makes :func:`_flow_check`'s check."""
+    fused = Phase(PHASES[0], time.time_ns())
+    feed.run(fused, fused.started_ns + int(seconds * 1e9))
+    camera = Phase(PHASES[1], time.time_ns())
+    fused.hand_on(camera)
+    children.stop(*art)  # the simulator first
+    left = _Timing("DELETE", flow_check(False))
+    feed.run(camera, camera.started_ns + int(seconds * 1e9), left)
+    for process, arguments in art.items():
+        children.start(process, arguments)
+    back_ns = feed.run(camera, None, left, until="PUT")
+    again = Phase(PHASES[2], back_ns)
+    camera.hand_on(again)
+    feed.run(again, back_ns + int(seconds * 1e9), _Timing("PUT", flow_check(True), back_ns))
+    again.ended_ns = time.time_ns()
+    return [fused, camera, again]
+
+
+@dataclass
+class _Timing:
+    """A reconfiguration's time: from the tracker's liveliness ``change`` (``"PUT"`` or
+    ``"DELETE"``, at ``change_ns``) to the first sample that arrives after the agent applied
+    the rewired flow (``rewired()``: the agent status's last change, once the flow is as
+    wanted); wall-clock nanoseconds throughout."""
+
+    change: str
+    rewired: Any
+    change_ns: int | None = None
+    rewired_ns: int | None = None
+
+    def see(self, kind: str, at_ns: int) -> None:
+        """A liveliness event of the tracker."""
+        if self.change_ns is None and kind.endswith(self.change):
+            self.change_ns = at_ns
+
+    def check(self) -> None:
+        """Ask the agent once whether the flow is rewired, after the change."""
+        if self.change_ns is not None and self.rewired_ns is None:
+            self.rewired_ns = self.rewired()
+
+    def measured(self, arrived_ns: int) -> float | None:
+        """The reconfiguration time in ms if the sample arriving at ``arrived_ns`` is the first
+        of the rewired flow."""
+        if self.rewired_ns is None or arrived_ns <= self.rewired_ns or self.change_ns is None:
+            return None
+        return round((arrived_ns - self.change_ns) / 1e6, 1)
+
+
+class _Feed:
+    """The application's samples and the tracker's liveliness events, taken into phases, with
+    a report of the last second's samples once a second (the truth serves only the errors)."""
+
+    def __init__(self, samples, events, world, say, children: Processes) -> None:
+        self.samples, self.events, self.world, self.say = samples, events, world, say
+        self.children = children
+        self.phase: Phase | None = None
+        self.reported, self.reported_ns = 0, 0
+        self.last_sample: Any = None
+
+    def run(
+        self, phase: Phase, until_ns: int | None, timing: _Timing | None = None, until: str = ""
+    ) -> int:
+        """Take what arrives into ``phase`` until ``until_ns``, or with ``until`` until the
+        tracker's liveliness event of that kind (``"PUT"``), whose time it returns (failing
+        after :data:`TRACKER_BACK_S`)."""
+        from ubitrack_agent.core import quaternions
+
+        if phase is not self.phase:
+            self.phase, self.reported, self.reported_ns = phase, 0, phase.started_ns
+        deadline = until_ns or time.time_ns() + int(TRACKER_BACK_S * 1e9)
+        while (now := time.time_ns()) < deadline:
+            while not self.events.empty():
+                kind, at = self.events.get_nowait()
+                if timing is not None:
+                    timing.see(kind, at)
+                if until and kind.endswith(until):
+                    return at
+            if timing is not None:
+                timing.check()
             try:
-                kind, at = events.get_nowait()
+                arrived, sample = self.samples.get(timeout=0.05)
             except queue.Empty:
-                kind = ""
-            if kind.endswith(expected_change):
-                change_ns = at
-        elif rewired is not None and rewired_ns is None:
-            rewired_ns = rewired()
-        try:
-            arrived, sample = samples.get(timeout=0.05)
-        except queue.Empty:
-            arrived = None
-        timed = arrived is not None and rewired_ns is not None and arrived > rewired_ns
-        if timed and phase.reconfiguration_ms is None:
-            # samples queued while the phase's sensors were being stopped count here too
-            phase.reconfiguration_ms = round((arrived - change_ns) / 1e6, 1)
-        if arrived is not None and arrived >= started_ns:
-            q, t = world.pose("C", "A", sample.timestamp_ns)
-            phase.errors_mm.append(float(np.linalg.norm(sample.translation - t)) * 1000)
-            relative = quaternions.multiply(quaternions.conjugate(q), sample.rotation)
-            phase.errors_deg.append(float(np.degrees(quaternions.angle(relative))))
-            phase.latencies_ms.append((time.time_ns() - sample.timestamp_ns) / 1e6)
-            last_sample = sample
-        if now - last_report >= 1.0 and phase.errors_mm:
-            recent = Phase(
-                phase.name,
-                last_report,
-                phase.errors_mm[reported:],
-                phase.errors_deg[reported:],
-                phase.latencies_ms[reported:],
+                arrived = None
+            if arrived is not None and arrived >= phase.started_ns:
+                if timing is not None and phase.reconfiguration_ms is None:
+                    # samples queued while the tracker's processes were stopping count too
+                    phase.reconfiguration_ms = timing.measured(arrived)
+                q, t = self.world.pose("C", "A", sample.timestamp_ns)
+                relative = quaternions.multiply(quaternions.conjugate(q), sample.rotation)
+                phase.add(
+                    arrived,
+                    float(np.linalg.norm(sample.translation - t)) * 1000,
+                    float(np.degrees(quaternions.angle(relative))),
+                    (time.time_ns() - sample.timestamp_ns) / 1e6,
+                )
+                self.last_sample = sample
+            if now - self.reported_ns >= 1e9 and len(phase.errors_mm) > self.reported:
+                line = {
+                    "event": "report",
+                    **phase.since(self.reported, self.reported_ns).report(now),
+                    "translation_m": [round(float(v), 4) for v in self.last_sample.translation],
+                }
+                self.say(line, _report_text(line))
+                self.reported, self.reported_ns = len(phase.errors_mm), now
+        if until:
+            ended = self.children.exited()
+            raise DemoFailed(
+                f"the tracker did not come back within {TRACKER_BACK_S:.0f} s"
+                + (f": {', '.join(ended)} ended" if ended else "")
             )
-            line = {
-                "event": "report",
-                **recent.summary(now - last_report),
-                "translation_m": [round(float(v), 4) for v in last_sample.translation],
-            }
-            say(line, _report_text(line))
-            last_report, reported = now, len(phase.errors_mm)
+        return deadline
 
 
 def _printer(as_json: bool):
@@ -581,6 +720,8 @@ def _summary_text(line: dict[str, Any]) -> str:
     after = f", flowing again {reconfiguration} ms after the change" if reconfiguration else ""
     return (
         f"summary {line['phase']}: {line['samples']} samples, {line['rate_hz']} Hz, error "
-        f"{line['error_mm_rms']} mm / {line['error_deg_rms']} deg RMS, latency "
+        f"{line['error_mm_rms']} mm / {line['error_deg_rms']} deg RMS (steady state "
+        f"{line['steady_error_mm_rms']} mm / {line['steady_error_deg_rms']} deg, worst second "
+        f"{line['worst_second_mm_rms']} mm / {line['worst_second_deg_rms']} deg), latency "
         f"{line['latency_ms_median']} ms{after}"
     )
