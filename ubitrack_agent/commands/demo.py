@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import argparse
 import bisect
+import contextlib
 import json
 import queue
 import secrets
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -413,6 +415,7 @@ def run(args: argparse.Namespace) -> int:
                 children,
                 art,
                 lambda uses_art: _flow_check(session, keys, scenario.art.provider, uses_art),
+                lambda events: _first_measurement(session, keys, scenario.art.provider, events),
             )
             watch.undeclare()
     except DemoFailed as exc:
@@ -577,45 +580,75 @@ def _flow_check(session, keys, provider: str, uses_provider: bool):
 
 
 TRACKER_BACK_S = 60.0
-"""How long the restarted tracker may take to announce itself again (its processes start)."""
+"""How long the restarted tracker may take to measure again (its processes start)."""
 
 
-def _run_phases(seconds: float, feed: _Feed, children: Processes, art: dict, flow_check) -> list:
+MEASURED = "MEASURED"
+"""The event of the restarted tracker's first measurement on the network."""
+
+
+def _run_phases(
+    seconds: float, feed: _Feed, children: Processes, art: dict, flow_check, measurements
+) -> list[Phase]:
     """The three phases, each begun where its change reaches the network, and every sample
     the application receives in one of them: "fused" from now; "camera only" from the moment
     the tracker's simulator is stopped (its measurements end there; its adapter is stopped
-    after it), for ``seconds``, then while the tracker's processes start again, simulator first
-    (a tracker switched back on measures as it joins); "fused again" from its adapter's
-    liveliness token appearing (the tracker back: the agent rewires from there), for
-    ``seconds``. ``flow_check(uses_art)`` makes :func:`_flow_check`'s check."""
+    after it), for ``seconds``, then on while the tracker's processes start again (simulator
+    first); "fused again" from the tracker's first measurement on the network (its adapter
+    announces it before, as soon as it runs; the agent may rewire the flow before any
+    measurement comes, and nothing could be fused before one), for ``seconds``. Reconfiguration
+    times count from the tracker's liveliness token (:class:`_Timing`).
+    ``flow_check(uses_art)`` makes :func:`_flow_check`'s check; ``measurements(events)`` is a
+    context in which the tracker's first measurement puts :data:`MEASURED` on ``events``."""
     fused = Phase(PHASES[0], time.time_ns())
     feed.run(fused, fused.started_ns + int(seconds * 1e9))
     camera = Phase(PHASES[1], time.time_ns())
     fused.hand_on(camera)
+    left, back = _Timing("DELETE", flow_check(False)), _Timing("PUT", flow_check(True))
     children.stop(*art)  # the simulator first
-    left = _Timing("DELETE", flow_check(False))
-    feed.run(camera, camera.started_ns + int(seconds * 1e9), left)
-    for process, arguments in art.items():
-        children.start(process, arguments)
-    back_ns = feed.run(camera, None, left, until="PUT")
-    again = Phase(PHASES[2], back_ns)
+    feed.run(camera, camera.started_ns + int(seconds * 1e9), (left,))
+    with measurements(feed.events):
+        for process, arguments in art.items():
+            children.start(process, arguments)
+        measured_ns = feed.run(camera, None, (left, back), until=MEASURED)
+    again = Phase(PHASES[2], measured_ns)
     camera.hand_on(again)
-    feed.run(again, back_ns + int(seconds * 1e9), _Timing("PUT", flow_check(True), back_ns))
+    feed.run(again, measured_ns + int(seconds * 1e9), (left, back))
     again.ended_ns = time.time_ns()
+    camera.reconfiguration_ms, again.reconfiguration_ms = left.ms, back.ms
     return [fused, camera, again]
+
+
+@contextlib.contextmanager
+def _first_measurement(session, keys, provider: str, events: queue.SimpleQueue):
+    """While open, the first sample on ``provider``'s measured edges puts (:data:`MEASURED`,
+    its arrival in wall-clock ns) on ``events``."""
+    seen = threading.Event()
+
+    def first(_sample) -> None:
+        if not seen.is_set():
+            seen.set()
+            events.put((MEASURED, time.time_ns()))
+
+    subscriber = session.declare_subscriber(keys.data(provider) + "/*", first)
+    try:
+        yield
+    finally:
+        subscriber.undeclare()
 
 
 @dataclass
 class _Timing:
     """A reconfiguration's time: from the tracker's liveliness ``change`` (``"PUT"`` or
-    ``"DELETE"``, at ``change_ns``) to the first sample that arrives after the agent applied
-    the rewired flow (``rewired()``: the agent status's last change, once the flow is as
-    wanted); wall-clock nanoseconds throughout."""
+    ``"DELETE"``) to the first sample that arrives after the agent applied the rewired flow
+    (``rewired()``: the agent status's last change, once the flow is as wanted); wall-clock
+    nanoseconds throughout. ``ms`` holds it, once measured."""
 
     change: str
     rewired: Any
     change_ns: int | None = None
     rewired_ns: int | None = None
+    ms: float | None = None
 
     def see(self, kind: str, at_ns: int) -> None:
         """A liveliness event of the tracker."""
@@ -627,12 +660,10 @@ class _Timing:
         if self.change_ns is not None and self.rewired_ns is None:
             self.rewired_ns = self.rewired()
 
-    def measured(self, arrived_ns: int) -> float | None:
-        """The reconfiguration time in ms if the sample arriving at ``arrived_ns`` is the first
-        of the rewired flow."""
-        if self.rewired_ns is None or arrived_ns <= self.rewired_ns or self.change_ns is None:
-            return None
-        return round((arrived_ns - self.change_ns) / 1e6, 1)
+    def take(self, arrived_ns: int) -> None:
+        """A sample arrived (its samples queued while the processes stopped count too)."""
+        if self.ms is None and self.rewired_ns is not None and arrived_ns > self.rewired_ns:
+            self.ms = round((arrived_ns - self.change_ns) / 1e6, 1)
 
 
 class _Feed:
@@ -647,11 +678,11 @@ class _Feed:
         self.last_sample: Any = None
 
     def run(
-        self, phase: Phase, until_ns: int | None, timing: _Timing | None = None, until: str = ""
+        self, phase: Phase, until_ns: int | None, timings: tuple[_Timing, ...] = (), until: str = ""
     ) -> int:
         """Take what arrives into ``phase`` until ``until_ns``, or with ``until`` until the
-        tracker's liveliness event of that kind (``"PUT"``), whose time it returns (failing
-        after :data:`TRACKER_BACK_S`)."""
+        event of that kind (:data:`MEASURED`), whose time it returns (failing after
+        :data:`TRACKER_BACK_S`); ``timings`` see the events and the samples."""
         from ubitrack_agent.core import quaternions
 
         if phase is not self.phase:
@@ -660,20 +691,19 @@ class _Feed:
         while (now := time.time_ns()) < deadline:
             while not self.events.empty():
                 kind, at = self.events.get_nowait()
-                if timing is not None:
+                for timing in timings:
                     timing.see(kind, at)
-                if until and kind.endswith(until):
+                if until and kind == until:
                     return at
-            if timing is not None:
+            for timing in timings:
                 timing.check()
             try:
                 arrived, sample = self.samples.get(timeout=0.05)
             except queue.Empty:
                 arrived = None
             if arrived is not None and arrived >= phase.started_ns:
-                if timing is not None and phase.reconfiguration_ms is None:
-                    # samples queued while the tracker's processes were stopping count too
-                    phase.reconfiguration_ms = timing.measured(arrived)
+                for timing in timings:
+                    timing.take(arrived)
                 q, t = self.world.pose("C", "A", sample.timestamp_ns)
                 relative = quaternions.multiply(quaternions.conjugate(q), sample.rotation)
                 phase.add(

@@ -1,0 +1,218 @@
+"""The demo's three phases against their steady state (issue 29): ``ubitrack demo`` run N times
+in a row, each phase's RMS error beside its steady state's, and whether within 20 %.
+
+Run: ``python -m bench.demo_phases_bench [--runs N] [--phase-seconds S] [--ubitrack PATH]
+[--label NAME]`` (defaults: 10 runs of 5 s phases, this checkout's ``ubitrack``, label
+``branch``; about 45 s a run). Each run is ``nice -n 10 ubitrack demo --json`` on a network of
+its own (a free loopback port, its own domain) with a fresh simulator seed; another checkout's
+``ubitrack`` (``--ubitrack <its venv>/bin/ubitrack``, ``--label main``) gives the figures
+before a change. Prints a table per label and writes ``bench/results/demo_phases.json``, where
+the runs of every label run so far are kept side by side (a label run again replaces its own).
+
+Figures per run and phase, from the demo's JSON lines (the simulator's truth serves only the
+errors; the demo's docstring says where each phase begins):
+
+* the phase's RMS translation and rotation error (its ``summary`` line);
+* its steady state and worst second **from its once-a-second ``report`` lines**, the same way
+  for every checkout: the RMS over the lines after the phase's first (each line's RMS weighted
+  by its samples), and the largest line RMS. The demo's own figures, where it prints them
+  (``steady_error_*``, ``worst_second_*``: from the phase's first second on, and a 1 s window
+  sliding over the samples), are kept too;
+* ``within``: the phase's RMS at most 1.2 times its steady state's, translation and rotation
+  each (the issue's "Done when").
+
+The bench runs processes and reads their output: O(runs) demos, O(samples) arithmetic.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.report import write_results
+
+RESULTS = Path(__file__).parent / "results" / "demo_phases.json"
+PHASES = ("fused", "camera only", "fused again")
+TOLERANCE = 0.2
+"""A phase's RMS error is within its steady state's when at most (1 + this) times it."""
+UNITS = ("mm", "deg")
+RUN_TIMEOUT_S = 300.0
+"""The longest one demo may take (calibration included)."""
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def run_demo(ubitrack: str, phase_seconds: float) -> list[dict[str, Any]]:
+    """One ``ubitrack demo --json`` on its own network: its JSON lines (a failed run raises)."""
+    port = free_port()
+    command = [
+        *("nice", "-n", "10", ubitrack, "demo", "--json"),
+        *("--phase-seconds", str(phase_seconds)),
+        *("--listen", f"tcp/127.0.0.1:{port}", "--domain", f"demophases{port}"),
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} exited {done.returncode}: {done.stderr[-2000:]}")
+    return [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+
+
+def from_reports(reports: list[dict[str, Any]], unit: str) -> tuple[float | None, float | None]:
+    """A phase's steady-state RMS (its report lines after the first, each weighted by its
+    samples) and worst second (the largest line RMS), from its once-a-second lines."""
+    later = [r for r in reports[1:] if r["samples"] and r[f"error_{unit}_rms"] is not None]
+    steady = (
+        float(
+            np.sqrt(
+                sum(r["samples"] * r[f"error_{unit}_rms"] ** 2 for r in later)
+                / sum(r["samples"] for r in later)
+            )
+        )
+        if later
+        else None
+    )
+    values = [r[f"error_{unit}_rms"] for r in reports if r[f"error_{unit}_rms"] is not None]
+    return steady, (max(values) if values else None)
+
+
+def judge_run(lines: list[dict[str, Any]]) -> dict[str, Any]:
+    """Each phase's figures of one run (module docstring)."""
+    summaries = {line["phase"]: line for line in lines if line["event"] == "summary"}
+    seed = next((line["seed"] for line in lines if line["event"] == "started"), None)
+    phases = {}
+    for phase in PHASES:
+        summary = summaries[phase]
+        reports = [line for line in lines if line["event"] == "report" and line["phase"] == phase]
+        figures: dict[str, Any] = {
+            "samples": summary["samples"],
+            "reconfiguration_ms": summary["reconfiguration_ms"],
+        }
+        for unit in UNITS:
+            whole = summary[f"error_{unit}_rms"]
+            steady, worst = from_reports(reports, unit)
+            figures[unit] = {
+                "rms": whole,
+                "steady_rms": steady,
+                "worst_second_rms": worst,
+                "ratio": whole / steady if whole is not None and steady else None,
+                "within": bool(whole is not None and steady and whole <= (1 + TOLERANCE) * steady),
+                "demo_steady_rms": summary.get(f"steady_error_{unit}_rms"),
+                "demo_worst_second_rms": summary.get(f"worst_second_{unit}_rms"),
+            }
+        phases[phase] = figures
+    return {"seed": seed, "phases": phases}
+
+
+def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per phase and unit over the runs: medians of RMS, steady RMS, ratio and worst second,
+    the largest ratio, and in how many runs the phase was within; and in how many runs every
+    phase was, in both units."""
+    table: dict[str, Any] = {}
+    for phase in PHASES:
+        table[phase] = {}
+        for unit in UNITS:
+            figures = [run["phases"][phase][unit] for run in runs]
+
+            def median(name: str, figures: list[dict[str, Any]] = figures) -> float | None:
+                values = [f[name] for f in figures if f[name] is not None]
+                return float(np.median(values)) if values else None
+
+            table[phase][unit] = {
+                "rms_median": median("rms"),
+                "steady_rms_median": median("steady_rms"),
+                "ratio_median": median("ratio"),
+                "ratio_max": max((f["ratio"] for f in figures if f["ratio"]), default=None),
+                "worst_second_median": median("worst_second_rms"),
+                "runs_within": sum(f["within"] for f in figures),
+            }
+    every = sum(all(run["phases"][p][u]["within"] for p in PHASES for u in UNITS) for run in runs)
+    return {"phases": table, "runs": len(runs), "runs_every_phase_within": every}
+
+
+def print_table(label: str, result: dict[str, Any]) -> None:
+    summary = result["summary"]
+    print(
+        f"\n{label}: {summary['runs']} runs, {result['phase_seconds']} s phases, commit "
+        f"{result['commit']}; every phase within {TOLERANCE:.0%} (mm and deg): "
+        f"{summary['runs_every_phase_within']} of {summary['runs']}"
+    )
+    print(
+        f"{'phase':12s} {'unit':4s} {'RMS':>8s} {'steady':>8s} {'ratio':>6s} {'max':>6s} "
+        f"{'worst s':>8s} {'within':>7s}  (medians over runs; max: the largest ratio)"
+    )
+    for phase, units in summary["phases"].items():
+        for unit, f in units.items():
+            digits = 3 if unit == "mm" else 4
+            print(
+                f"{phase:12s} {unit:4s} {f['rms_median']:8.{digits}f} "
+                f"{f['steady_rms_median']:8.{digits}f} {f['ratio_median']:6.2f} "
+                f"{f['ratio_max']:6.2f} {f['worst_second_median']:8.{digits}f} "
+                f"{f['runs_within']:4d}/{summary['runs']}"
+            )
+
+
+def commit_of(ubitrack: str) -> str | None:
+    """The git commit of the checkout whose ``ubitrack`` runs (its venv's parent folder)."""
+    checkout = Path(ubitrack).resolve().parent.parent.parent
+    done = subprocess.run(
+        ["git", "-C", str(checkout), "rev-parse", "--short", "HEAD"],
+        capture_output=True,
+        text=True,
+    )
+    return done.stdout.strip() or None
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=10, help="demos in a row (default: 10)")
+    parser.add_argument("--phase-seconds", type=float, default=5.0, help="(default: 5)")
+    parser.add_argument(
+        "--ubitrack",
+        default=str(Path(sys.executable).parent / "ubitrack"),
+        help="the ubitrack to run (default: this Python's venv's)",
+    )
+    parser.add_argument("--label", default="branch", help="the runs' name in the results")
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+    runs = []
+    for index in range(args.runs):
+        run = judge_run(run_demo(args.ubitrack, args.phase_seconds))
+        runs.append(run)
+        ratios = "  ".join(
+            f"{p}: {run['phases'][p]['mm']['ratio']:.2f}/{run['phases'][p]['deg']['ratio']:.2f}"
+            for p in PHASES
+        )
+        print(f"run {index + 1}/{args.runs} (seed {run['seed']}) RMS/steady mm/deg  {ratios}")
+    result = {
+        "commit": commit_of(args.ubitrack),
+        "phase_seconds": args.phase_seconds,
+        "started": started,
+        "ended": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+        "load_average_end": os.getloadavg(),
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count()},
+        "summary": summarise(runs),
+        "runs": runs,
+    }
+    previous = json.loads(args.output.read_text()) if args.output.exists() else {}
+    labels = previous.get("labels", {}) | {args.label: result}
+    write_results(args.output, {"labels": labels})
+    for label, kept in labels.items():
+        print_table(label, kept)
+
+
+if __name__ == "__main__":
+    main()
