@@ -1,13 +1,16 @@
 """The demo's three phases against their steady state (issue 29): ``ubitrack demo`` run N times
 in a row, each phase's RMS error beside its steady state's, and whether within 20 %.
 
-Run: ``python -m bench.demo_phases_bench [--runs N] [--phase-seconds S] [--ubitrack PATH]
-[--label NAME]`` (defaults: 10 runs of 5 s phases, this checkout's ``ubitrack``, label
-``branch``; about 45 s a run). Each run is ``nice -n 10 ubitrack demo --json`` on a network of
-its own (a free loopback port, its own domain) with a fresh simulator seed; another checkout's
-``ubitrack`` (``--ubitrack <its venv>/bin/ubitrack``, ``--label main``) gives the figures
-before a change. Prints a table per label and writes ``bench/results/demo_phases.json``, where
-the runs of every label run so far are kept side by side (a label run again replaces its own).
+Run: ``python -m bench.demo_phases_bench [--runs N] [--phase-seconds S] [--checkout
+LABEL=UBITRACK ...]`` (defaults: 10 runs of 5 s phases of this checkout's ``ubitrack``, label
+``branch``; about a minute a run on an idle machine). Each run is ``nice -n 10 ubitrack demo
+--json`` on a network of its own (a free loopback port, its own domain) with a fresh simulator
+seed. With several ``--checkout``s (e.g. ``--checkout main=<a worktree of main>/.venv/bin/ubitrack
+--checkout branch=.venv/bin/ubitrack``) their runs alternate, so that each sees the same load:
+figures side by side, before and after a change. A demo that fails (it did once when the
+machine's load average reached 25: its workers did not start within its minute) is recorded
+with its error and the runs go on; the figures are over the runs that ended. Prints a table per
+label and writes ``bench/results/demo_phases.json``.
 
 Figures per run and phase, from the demo's JSON lines (the simulator's truth serves only the
 errors; the demo's docstring says where each phase begins):
@@ -147,12 +150,15 @@ def print_table(label: str, result: dict[str, Any]) -> None:
     print(
         f"\n{label}: {summary['runs']} runs, {result['phase_seconds']} s phases, commit "
         f"{result['commit']}; every phase within {TOLERANCE:.0%} (mm and deg): "
-        f"{summary['runs_every_phase_within']} of {summary['runs']}"
+        f"{summary['runs_every_phase_within']} of {summary['runs']} ({summary['failed']} "
+        "failed to start)"
     )
     print(
         f"{'phase':12s} {'unit':4s} {'RMS':>8s} {'steady':>8s} {'ratio':>6s} {'max':>6s} "
         f"{'worst s':>8s} {'within':>7s}  (medians over runs; max: the largest ratio)"
     )
+    if not summary["runs"]:
+        return
     for phase, units in summary["phases"].items():
         for unit, f in units.items():
             digits = 3 if unit == "mm" else 4
@@ -175,40 +181,65 @@ def commit_of(ubitrack: str) -> str | None:
     return done.stdout.strip() or None
 
 
+def checkout(text: str) -> tuple[str, str]:
+    label, _, ubitrack = text.partition("=")
+    if not label or not ubitrack:
+        raise argparse.ArgumentTypeError(f"{text!r} is not LABEL=UBITRACK")
+    return label, ubitrack
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=10, help="demos in a row (default: 10)")
     parser.add_argument("--phase-seconds", type=float, default=5.0, help="(default: 5)")
     parser.add_argument(
-        "--ubitrack",
-        default=str(Path(sys.executable).parent / "ubitrack"),
-        help="the ubitrack to run (default: this Python's venv's)",
+        "--checkout",
+        type=checkout,
+        action="append",
+        metavar="LABEL=UBITRACK",
+        help="a ubitrack to run, named; repeatable, the runs alternate (default: "
+        "branch=<this Python's venv>/bin/ubitrack)",
     )
-    parser.add_argument("--label", default="branch", help="the runs' name in the results")
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
+    checkouts = dict(args.checkout or [("branch", str(Path(sys.executable).parent / "ubitrack"))])
     started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
-    runs = []
+    commits = {label: commit_of(ubitrack) for label, ubitrack in checkouts.items()}
+    runs: dict[str, list[dict[str, Any]]] = {label: [] for label in checkouts}
+    failed: dict[str, list[str]] = {label: [] for label in checkouts}
     for index in range(args.runs):
-        run = judge_run(run_demo(args.ubitrack, args.phase_seconds))
-        runs.append(run)
-        ratios = "  ".join(
-            f"{p}: {run['phases'][p]['mm']['ratio']:.2f}/{run['phases'][p]['deg']['ratio']:.2f}"
-            for p in PHASES
-        )
-        print(f"run {index + 1}/{args.runs} (seed {run['seed']}) RMS/steady mm/deg  {ratios}")
-    result = {
-        "commit": commit_of(args.ubitrack),
-        "phase_seconds": args.phase_seconds,
-        "started": started,
-        "ended": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
-        "load_average_end": os.getloadavg(),
-        "machine": {"python": platform.python_version(), "cpus": os.cpu_count()},
-        "summary": summarise(runs),
-        "runs": runs,
+        for label, ubitrack in checkouts.items():
+            try:
+                run = judge_run(run_demo(ubitrack, args.phase_seconds))
+            except (RuntimeError, subprocess.TimeoutExpired) as exc:
+                failed[label].append(str(exc)[-600:])
+                print(f"{label} run {index + 1}/{args.runs} failed: {str(exc)[-300:]}", flush=True)
+                continue
+            runs[label].append(run)
+            ratios = "  ".join(
+                f"{p}: {run['phases'][p]['mm']['ratio']:.2f}/{run['phases'][p]['deg']['ratio']:.2f}"
+                for p in PHASES
+            )
+            print(
+                f"{label} run {index + 1}/{args.runs} (seed {run['seed']}) RMS/steady mm/deg  "
+                f"{ratios}",
+                flush=True,
+            )
+    ended = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+    labels = {
+        label: {
+            "commit": commits[label],
+            "phase_seconds": args.phase_seconds,
+            "started": started,
+            "ended": ended,
+            "load_average_end": os.getloadavg(),
+            "machine": {"python": platform.python_version(), "cpus": os.cpu_count()},
+            "summary": summarise(runs[label]) | {"failed": len(failed[label])},
+            "runs": runs[label],
+            "failed": failed[label],
+        }
+        for label in checkouts
     }
-    previous = json.loads(args.output.read_text()) if args.output.exists() else {}
-    labels = previous.get("labels", {}) | {args.label: result}
     write_results(args.output, {"labels": labels})
     for label, kept in labels.items():
         print_table(label, kept)

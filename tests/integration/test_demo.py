@@ -4,6 +4,7 @@ application, all real processes on loopback zenoh, through the three phases of t
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -77,12 +78,24 @@ def test_demo_runs_three_phases_with_sensible_errors(processes, tmp_path):
     for summary in summaries.values():
         assert summary["samples"] > 20, summary  # every phase delivered
         assert summary["error_mm_rms"] < 30.0, summary  # a few mm expected; 30 mm is gross
+        # Each phase's steady state (after its first second) and worst second (issue 29).
+        for unit in ("mm", "deg"):
+            whole, steady, worst = (
+                summary[f"{figure}_{unit}_rms"]
+                for figure in ("error", "steady_error", "worst_second")
+            )
+            assert all(math.isfinite(v) and v > 0 for v in (whole, steady, worst)), summary
+            assert worst >= steady, summary  # the worst second is no better than the rest
+            assert summary[f"{unit}_within_steady"] == (whole <= 1.2 * steady), summary
     # 2D-3D pose estimation fused with the A.R.T. path beats the camera alone.
     assert summaries["fused"]["error_mm_rms"] < summaries["camera only"]["error_mm_rms"]
     for phase in ("camera only", "fused again"):
         assert summaries[phase]["reconfiguration_ms"] is not None, summaries[phase]
     verdict = lines[-1]
     assert verdict["event"] == "verdict" and verdict["every_phase_delivered"]
+    assert verdict["every_phase_within_steady"] == all(
+        s["mm_within_steady"] and s["deg_within_steady"] for s in summaries.values()
+    )
     assert kill_tagged(domain) == []  # the demo left no process behind
 
 
