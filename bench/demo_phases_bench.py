@@ -33,6 +33,7 @@ import argparse
 import json
 import os
 import platform
+import signal
 import socket
 import subprocess
 import sys
@@ -67,10 +68,18 @@ def run_demo(ubitrack: str, phase_seconds: float) -> list[dict[str, Any]]:
         *("--phase-seconds", str(phase_seconds)),
         *("--listen", f"tcp/127.0.0.1:{port}", "--domain", f"demophases{port}"),
     ]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)} exited {done.returncode}: {done.stderr[-2000:]}")
-    return [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    demo = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        out, err = demo.communicate(timeout=RUN_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        os.killpg(demo.pid, signal.SIGTERM)  # the demo and the processes it started
+        demo.communicate()
+        raise RuntimeError(f"{' '.join(command)} did not end in {RUN_TIMEOUT_S:.0f} s") from None
+    if demo.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} exited {demo.returncode}: {err[-2000:]}")
+    return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
 
 
 def from_reports(reports: list[dict[str, Any]], unit: str) -> tuple[float | None, float | None]:
@@ -211,7 +220,7 @@ def main(argv: list[str] | None = None) -> None:
         for label, ubitrack in checkouts.items():
             try:
                 run = judge_run(run_demo(ubitrack, args.phase_seconds))
-            except (RuntimeError, subprocess.TimeoutExpired) as exc:
+            except RuntimeError as exc:
                 failed[label].append(str(exc)[-600:])
                 print(f"{label} run {index + 1}/{args.runs} failed: {str(exc)[-300:]}", flush=True)
                 continue
