@@ -137,6 +137,11 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {path} ({size} bytes, finished): {counts.get('measurements', 0)} measurements, "
         f"{counts.get('announcements', 0)} announcements, {counts.get('withdrawals', 0)} "
         f"withdrawals; rejected {counts.get('rejected_fragments', 0)} fragments and "
-        f"{counts.get('rejected_samples', 0)} samples",
+        f"{counts.get('rejected_samples', 0)} samples"
+        + (
+            f"; dropped {counts['dropped_backlog']} samples with the backlog full"
+            if counts.get("dropped_backlog")
+            else ""
+        ),
     )
     return 0
