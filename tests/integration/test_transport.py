@@ -150,8 +150,9 @@ def test_a_time_query_is_answered_while_another_keys_answer_waits_or_fails():
 def test_a_publisher_undeclared_while_another_thread_puts_closes_quietly():
     """A worker rewires its outputs (undeclares a publisher) on its control thread while its
     data thread puts on that publisher: zenoh's publisher refuses to be undeclared during a put
-    ("Already borrowed", found by the chaos bench). The undeclare waits for the put; a put
-    after it is dropped."""
+    ("Already borrowed", found by the chaos bench). The undeclare leaves the publisher to the
+    put running, which undeclares it when done (no thread waits for another's zenoh call: a
+    worker thread waiting there stopped answering its status); a put after it is dropped."""
     port = free_port()
     member = config.Settings(connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",))
     with hub_session(port) as hub, open_session(member) as session:

@@ -146,10 +146,12 @@ class LatestValuePublisher:
         self.first_put_ns: int | None = None
         """When the first payload was put (wall clock): the first sample on its key."""
         self._publisher = session.declare_publisher(key, encoding=encoding)
-        self._use = threading.Lock()
-        """Held by a put and by the undeclare: zenoh's publisher (a pyo3 object) refuses to be
-        undeclared while another thread's put runs ("Already borrowed"; a worker rewires its
-        outputs on its control thread while its data thread puts)."""
+        self._state = threading.Lock()
+        """Guards :attr:`_putting` and :attr:`_undeclared`, held only between zenoh calls."""
+        self._putting = 0
+        """Puts running: zenoh's publisher (a pyo3 object) refuses to be undeclared while
+        another thread's put runs ("Already borrowed"; a worker rewires its outputs on its
+        control thread while its data thread puts), so the last of them undeclares it."""
         self._undeclared = False
         self._matching = False
         """Whether a subscriber listens, as zenoh last told the matching listener (asking
@@ -170,10 +172,18 @@ class LatestValuePublisher:
         it knows, and tells the listener later (a subscriber declared just before a sample on
         the same link gets the sample, and its matching news after it)."""
         self._latest = payload
-        with self._use:
+        with self._state:
             if self._undeclared:
                 return  # rewired away meanwhile: the routes of its next output know
+            self._putting += 1
+        try:
             self._publisher.put(payload)
+        finally:
+            with self._state:
+                self._putting -= 1
+                last = self._undeclared and self._putting == 0
+            if last:  # undeclared while this put ran: the undeclare was left to it
+                self._publisher.undeclare()
         if self.first_put_ns is None:
             self.first_put_ns = time.time_ns()
 
@@ -226,12 +236,15 @@ class LatestValuePublisher:
 
     def undeclare(self) -> None:
         """Undeclare the listener, the queryable and the publisher (a query being answered
-        still gets its reply; a put running on another thread ends first, later ones are
+        still gets its reply; a put running on another thread finishes and undeclares the
+        publisher after it: no thread waits for another's zenoh call; later puts are
         dropped)."""
         self._listener.undeclare()
         self._queryable.undeclare()
-        with self._use:
+        with self._state:
             self._undeclared = True
+            now = self._putting == 0
+        if now:
             self._publisher.undeclare()
 
 
