@@ -23,6 +23,8 @@ among those the state allows:
   only and back;
 * **worker killed**: the process running the fusion component (its container, with the other
   components it holds) SIGKILLed while both sensors run; its host manager restores it;
+* **agent killed** / **agent stopped**: the agent SIGKILLed / stopped cleanly (SIGTERM) while
+  both sensors run, and started again at once; the new agent adopts the running flow;
 * **better tracker joins** / **leaves**: a second A.R.T.-like tracker, placed elsewhere in the
   room and with a third of the position noise (:func:`better_tracker`), started while both
   sensors run and stopped before anything else happens: fused from two estimates to three and
@@ -115,6 +117,8 @@ KINDS = (
     "camera off",
     "camera back",
     "worker killed",
+    "agent killed",
+    "agent stopped",
     "better tracker joins",
     "better tracker leaves",
 )
@@ -137,6 +141,8 @@ ALLOWED = {
         "A.R.T. off",
         "camera off",
         "worker killed",
+        "agent killed",
+        "agent stopped",
         "better tracker joins",
     ),
     frozenset({"camera"}): ("A.R.T. back",),
@@ -144,8 +150,8 @@ ALLOWED = {
     frozenset({"art", "camera", "better"}): ("better tracker leaves",),
 }
 """The events each state allows: from two sensors one leaves, the fusion's container is
-killed or the better tracker joins; from one, the other comes back; the better tracker leaves
-before anything else happens."""
+killed, the agent is killed or stopped and started again, or the better tracker joins; from
+one, the other comes back; the better tracker leaves before anything else happens."""
 BETTER = {"frame": "ART2", "translation": [0.4, -1.8, 2.2], "euler_deg": [0, 0, 35]}
 """Where the better tracker hangs in the room (child of ART)."""
 BETTER_NOISE = {"position_mm": 0.1, "rotation_deg": 0.02}
@@ -316,6 +322,18 @@ def kill_fusion(session: Any, keys: KeySpace) -> int | None:
     return None
 
 
+def restart_agent(children: Processes, arguments: list[str], kill: bool) -> None:
+    """The agent SIGKILLed (``kill``) or stopped cleanly (SIGTERM: it leaves its workers and
+    host manager running), then started again at once."""
+    agent = children.running.pop("agent")
+    if kill:
+        agent.kill()
+    else:
+        agent.terminate()
+    agent.wait(timeout=30)
+    children.start("agent", arguments)
+
+
 def next_kind(
     rng: random.Random,
     running: frozenset[str],
@@ -348,8 +366,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         def stop(sensor: str) -> None:
             children.stop(*PROCESSES[sensor])
 
+        agent = ["agent", "--quiet", *config.as_flags(hub)]
         try:
-            children.start("agent", ["agent", "--quiet", *config.as_flags(hub)])
+            children.start("agent", agent)
             with (
                 open_session(config.member_of(hub)) as session,
                 Relation(  # asked before the sensors start
@@ -378,6 +397,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         if killed is None:
                             raise RuntimeError("no fusion component to kill")
                         at = killed
+                    elif kind.startswith("agent"):
+                        restart_agent(children, agent, kind == "agent killed")
                     else:
                         sensor = next(v for k, v in SENSORS.items() if kind.startswith(k))
                         if kind.endswith(("off", "leaves")):
