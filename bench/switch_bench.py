@@ -2,7 +2,7 @@
 the application receives in the second after each change, against the simulator's truth.
 
 Run: ``python -m bench.switch_bench [--events N] [--seed S] [--dwell LO,HI] [--kinds K;K]
-[--trace]`` (defaults: 20 events of each kind, seed 7, 2-4 s between events; about 8 minutes;
+[--trace]`` (defaults: 20 events of each kind, seed 7, 2-4 s between events; about 10 minutes;
 ``--events 2`` for a smoke run of a minute; ``--kinds`` only those kinds, with the ways back they
 need; ``--trace`` also records, from each event to the next, the liveliness tokens of workers,
 containers and providers, control commands, the hand-over's messages, each input's first and
