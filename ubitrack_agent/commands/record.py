@@ -121,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
         def line() -> str:
             return (
                 f"record: {rate.per_second():.1f} measurements/s, "
-                f"{writer.counters['measurements']} in all, providers {recorder.providers}"
+                f"{writer.counters['measurements']} in all, {recorder.backlog} waiting to be "
+                f"written, providers {recorder.providers}"
             )
 
         try:
