@@ -215,6 +215,7 @@ def test_the_view_shows_the_running_flow_in_headless_chromium(processes, tmp_pat
             assert_the_3d_view_places_the_frames(chosen, root="C", default=False)
     with capsys.disabled():
         print(f"\nA placed relative to C {1e3 * distance:.1f} mm from the truth at display time")
+        print("relations at the last placement:", read_json(url + "frames.json")["relations"])
         print("screenshots of the views:", *(str(shot) for shot in shots), sep="\n  ")
     kill_tagged(domain)
 

@@ -153,6 +153,11 @@ def test_only_spatial_relations_under_this_root_are_followed():
                 "derives": [["C", "WT", "6D"]],
                 "outputs": {"fused": f"{data}/fusion-1/fused"},
             },
+            "inverse": {
+                "derives": [["HT", "C", "6D"]],
+                "outputs": {"out": f"{data}/inverse/out"},
+                "inputs": [{"port": "in", "static": True}],
+            },
             "elsewhere": {"derives": [["C", "A", "6D"]], "outputs": {"x": "other/data/x"}},
             "two": {"derives": [["C", "A", "6D"], ["A", "B", "6D"]], "outputs": {"x": f"{data}/t"}},
             "image": {"derives": [["IP", "F", "2D"]], "outputs": {"x": f"{data}/image/x"}},
@@ -163,6 +168,7 @@ def test_only_spatial_relations_under_this_root_are_followed():
         f"{data}/art/HT": ("ART", "HT", False, "art/HT", False),
         f"{data}/db/WT_F1": ("WT", "F1", False, "db/WT_F1", True),
         f"{data}/fusion-1/fused": ("C", "WT", True, "fusion-1", False),
+        f"{data}/inverse/out": ("HT", "C", True, "inverse", True),  # of static inputs only
     }
     many = {
         "srg": [{"id": f"p/e{i}", "from": "A", "to": f"B{i}", "type": "6D"} for i in range(999)]

@@ -50,7 +50,8 @@ Followed = tuple[str, str, bool, str, bool]
 def spatial_keys(status: dict[str, Any], keys: KeySpace) -> dict[str, Followed]:
     """The keys of ``status``'s live 6D and 3D relations: ``key -> (source, target, derived,
     name, static)`` for each measured edge (named by its id; static as the SRG says) and each
-    output of a component deriving one such relation (named by the instance; dynamic); keys
+    output of a component deriving one such relation (named by the instance; static when all
+    its inputs are); keys
     outside ``<root>/data/`` or malformed are left out, and more than :data:`MAX_KEYS`.
     O(edges + components)."""
     wanted: dict[str, Followed] = {}
@@ -84,8 +85,12 @@ def spatial_keys(status: dict[str, Any], keys: KeySpace) -> dict[str, Followed]:
         outputs = component.get("outputs")
         if len(derives) != 1 or derives[0][2] not in SPATIAL or not isinstance(outputs, dict):
             continue
+        inputs = _list(component.get("inputs"))
+        static = bool(inputs) and all(
+            isinstance(i, dict) and i.get("static") is True for i in inputs
+        )
         for key in outputs.values():
-            add(key, derives[0][0], derives[0][1], True, str(instance), False)
+            add(key, derives[0][0], derives[0][1], True, str(instance), static)
     return wanted
 
 
