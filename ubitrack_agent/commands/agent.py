@@ -196,7 +196,9 @@ class EmbeddedHost:
         threading.Thread(target=self._restart_when_ended, daemon=True).start()
 
     def _start(self) -> subprocess.Popen:
-        return subprocess.Popen(self._command, stdin=subprocess.PIPE)
+        return subprocess.Popen(
+            self._command, stdin=subprocess.PIPE, env=config.child_environment()
+        )
 
     def _restart_when_ended(self) -> None:
         while True:
