@@ -279,14 +279,13 @@ def _measure_in_child(
     send.send(("done",))
 
 
-def measure(row: Row, repeats: int, limit_s: float, root: Path | None = None) -> dict[str, Any]:
-    """The figures of ``row`` (module docstring), measured in a forked child that is killed
-    when one plan takes over ``limit_s`` seconds; with ``root``, of the planner there."""
-    context = mp.get_context("fork")
-    receive, send = context.Pipe(duplex=False)
-    child = context.Process(target=_measure_in_child, args=(send, row, repeats, limit_s, root))
-    child.start()
-    send.close()
+def measure(
+    row: Row, repeats: int, limit_s: float, root: Path | None = None, processes: int = 1
+) -> dict[str, Any]:
+    """The figures of ``row`` (module docstring), measured in ``processes`` forked children one
+    after the other (the plans of all pooled: a process's speed differs from another's on a
+    shared machine, by up to 1.7x here with the work the same), each killed when one plan
+    takes over ``limit_s`` seconds; with ``root``, of the planner there."""
     result: dict[str, Any] = {
         "series": row.series,
         "size": row.size,
@@ -297,6 +296,42 @@ def measure(row: Row, repeats: int, limit_s: float, root: Path | None = None) ->
         "over_limit": False,
         "error": None,
     }
+    plans: list[float] = []
+    plans_cpu: list[float] = []
+    per_process: list[float] = []
+    for _ in range(processes):
+        timed, timed_cpu = _measure_in_a_child(result, row, repeats, limit_s, root)
+        plans += timed
+        plans_cpu += timed_cpu
+        if timed:
+            per_process.append(round(statistics.median(timed), 3))
+        if result["over_limit"] or result["error"]:
+            break
+    if plans and not result["over_limit"]:
+        result["plan_ms"] = round(statistics.median(plans), 3)
+        result["plan_cpu_ms"] = round(statistics.median(plans_cpu), 3)
+        result["plan_runs"] = len(plans)
+        if processes > 1:
+            result["plan_ms_per_process"] = per_process
+        shortest = result.get("shortest_path_ms")
+        result["ratio"] = round(result["plan_ms"] / shortest, 1) if shortest else None
+        shortest_cpu = result.get("shortest_path_cpu_ms")
+        result["ratio_cpu"] = (
+            round(result["plan_cpu_ms"] / shortest_cpu, 1) if shortest_cpu else None
+        )
+    return result
+
+
+def _measure_in_a_child(
+    result: dict[str, Any], row: Row, repeats: int, limit_s: float, root: Path | None
+) -> tuple[list[float], list[float]]:
+    """One forked child's plans of ``row`` (wall and CPU ms); what else it reports (the graph,
+    the shortest path, the best derivation, errors, the limit) goes into ``result``."""
+    context = mp.get_context("fork")
+    receive, send = context.Pipe(duplex=False)
+    child = context.Process(target=_measure_in_child, args=(send, row, repeats, limit_s, root))
+    child.start()
+    send.close()
     plans: list[float] = []
     plans_cpu: list[float] = []
     planning = False  # the limit counts from the first plan on, not while the SRG is built
@@ -333,17 +368,7 @@ def measure(row: Row, repeats: int, limit_s: float, root: Path | None = None) ->
         child.kill()
     child.join()
     receive.close()
-    if plans and not result["over_limit"]:
-        result["plan_ms"] = round(statistics.median(plans), 3)
-        result["plan_cpu_ms"] = round(statistics.median(plans_cpu), 3)
-        result["plan_runs"] = len(plans)
-        shortest = result.get("shortest_path_ms")
-        result["ratio"] = round(result["plan_ms"] / shortest, 1) if shortest else None
-        shortest_cpu = result.get("shortest_path_cpu_ms")
-        result["ratio_cpu"] = (
-            round(result["plan_cpu_ms"] / shortest_cpu, 1) if shortest_cpu else None
-        )
-    return result
+    return plans, plans_cpu
 
 
 def growth(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -444,10 +469,15 @@ def compared(result: dict[str, Any], before: dict[str, Any]) -> dict[str, Any]:
 
 
 def run(
-    series: Sequence[Series], repeats: int, limit_s: float, before: Path | None = None
+    series: Sequence[Series],
+    repeats: int,
+    limit_s: float,
+    before: Path | None = None,
+    processes: int = 1,
 ) -> dict[str, Any]:
     """Measure every series (each until its first row over the limit), printing as it goes;
-    with ``before``, each row also on the planner of that checkout, right after."""
+    with ``before``, each row also on the planner of that checkout, right after; each row in
+    ``processes`` processes."""
     results: dict[str, Any] = {
         "date": time.strftime("%Y-%m-%d"),
         "python": platform.python_version(),
@@ -455,6 +485,7 @@ def run(
         **checkout_commits(),
         "limit_s": limit_s,
         "repeats": repeats,
+        "processes": processes,
         "load_average_1min": {"start": os.getloadavg()[0]},
         "compared_with": str(before) if before else None,
         "rows": [],
@@ -470,9 +501,11 @@ def run(
         rows = []
         broke_at = None
         for row in s.rows:
-            result = measure(row, repeats, limit_s)
+            result = measure(row, repeats, limit_s, processes=processes)
             if before is not None:
-                result = compared(result, measure(row, repeats, limit_s, before))
+                result = compared(
+                    result, measure(row, repeats, limit_s, before, processes=processes)
+                )
             rows.append(result)
             print(table_line(result, limit_s), flush=True)
             if result["over_limit"]:
@@ -519,6 +552,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         "of an older commit), right after, for figures side by side in one run",
     )
     parser.add_argument(
+        "--processes",
+        type=int,
+        default=1,
+        help="plan each row in this many processes one after the other, their plans pooled "
+        "(a process may run up to 1.7x slower than another on a shared machine; default 1)",
+    )
+    parser.add_argument(
         "--out", type=Path, default=RESULTS, help=f"JSON file (default {RESULTS.relative_to(ROOT)})"
     )
     args = parser.parse_args(argv)
@@ -532,7 +572,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         chosen = [s for s in chosen if s.name in wanted]
     if args.compare_with and not (args.compare_with / "ubitrack_agent" / "graph").is_dir():
         parser.error(f"--compare-with {args.compare_with}: no ubitrack_agent/graph there")
-    results = run(chosen, max(1, repeats), args.limit, args.compare_with)
+    results = run(chosen, max(1, repeats), args.limit, args.compare_with, max(1, args.processes))
     results["quick"] = args.quick
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")

@@ -14,7 +14,11 @@ fault (and its follow-up) the bench asks every ``POLL_S`` whether the system is 
 wanted component alive in exactly one process, nothing unwanted running, every other worker
 process a pool member, ready or starting), whether both applications also receive fresh,
 correct samples (the last second), and whether the warm pool is full again (the chaos test's
-check, ``whole``); up to ``--timeout`` seconds. Run::
+check, ``whole``); up to ``--timeout`` seconds. Every sample the applications received from
+the first fault to the end is judged against the truth (issue 29, ``chaos_faults.judged``):
+how many were *wrong* (beyond 5 cm, 5 degrees or 3 sigma of their own covariance), the
+largest errors and NEES, and the first wrong ones with the seconds since the fault before
+them. Run::
 
     .venv/bin/python -m bench.chaos_runs_bench [--runs 10] [--first-seed 11] [--events 14]
 
@@ -35,8 +39,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from bench.churn_bench import APPLICATIONS, POOL_SIZE, machine, system
-from tests.integration.chaos_faults import whole
+from bench.churn_bench import APPLICATIONS, POOL_SIZE, Applications, machine, system
+from tests.integration.chaos_faults import THREE_SIGMA_NEES, Chaos, whole
 
 RESULTS = Path(__file__).with_name("results") / "chaos_runs.json"
 POLL_S = 0.25
@@ -44,11 +48,45 @@ HEALTHY_WITHIN_S = 10.0
 """The issue's bound on the time to healthy after the churn's end."""
 
 
+WRONG_SHOWN = 5
+"""Wrong samples listed per relation and run."""
+
+
+def verdict(apps: Applications, chaos: Chaos, since: float) -> dict[str, Any]:
+    """Per relation, the samples received from ``since`` (wall clock, s) judged against the
+    truth: how many, how many wrong, the largest errors and NEES, the first wrong ones (seconds
+    since the fault before, that fault, mm, degrees, NEES). ``O(samples)``."""
+    faults = list(zip(chaos.times, chaos.log, strict=True))
+    summary: dict[str, Any] = {}
+    for relation, judgements in apps.judgements.items():
+        received = [(arrived, j) for arrived, j in list(judgements) if arrived >= since]
+        wrong = [(arrived, j) for arrived, j in received if j.wrong]
+        shown = []
+        for arrived, j in wrong[:WRONG_SHOWN]:
+            before = [(at, fault) for at, fault in faults if at <= arrived]
+            at, fault = before[-1] if before else (since, "none")
+            nees = None if j.nees is None else round(j.nees, 1)
+            shown.append([round(arrived - at, 2), fault, round(j.mm, 1), round(j.deg, 2), nees])
+        values = [j.nees for _, j in received if j.nees is not None]
+        summary[str(relation)] = {
+            "samples": len(received),
+            "wrong": len(wrong),
+            "beyond_3_sigma": sum(v > THREE_SIGMA_NEES for v in values),
+            "error_mm_max": round(max((j.mm for _, j in received), default=0.0), 2),
+            "error_deg_max": round(max((j.deg for _, j in received), default=0.0), 3),
+            "nees_max": round(max(values), 1) if values else None,
+            "nees_mean": round(statistics.fmean(values), 2) if values else None,
+            "first_wrong": shown,
+        }
+    return summary
+
+
 def one_run(seed: int, events: int, timeout: float) -> dict[str, Any]:
     """A fresh system, ``events`` faults from ``seed``, then the time to healthy."""
     with system(POOL_SIZE, seed) as (chaos, apps):
         chaos.rng = random.Random(seed)
         load = os.getloadavg()[0]
+        began = time.time()
         chaos.run(events)
         ended = time.monotonic()
         healthy_s = fresh_s = settled_s = None
@@ -76,6 +114,7 @@ def one_run(seed: int, events: int, timeout: float) -> dict[str, Any]:
             "fresh_after_s": None if fresh_s is None else round(fresh_s, 2),
             "pool_full_after_s": None if settled_s is None else round(settled_s, 2),
             "problem": problem,
+            "samples": verdict(apps, chaos, began),
             "load_1min": [round(load, 1), round(os.getloadavg()[0], 1)],
         }
 
@@ -103,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
         "healthy_median_s": round(statistics.median(healthy), 2) if healthy else None,
         "healthy_max_s": max(healthy) if healthy else None,
         "never_healthy": [r["seed"] for r in runs if r["healthy_after_s"] is None],
+        "runs_without_a_wrong_sample": sum(
+            all(judged["wrong"] == 0 for judged in r["samples"].values()) for r in runs
+        ),
     }
     RESULTS.parent.mkdir(exist_ok=True)
     RESULTS.write_text(json.dumps(results, indent=2) + "\n")

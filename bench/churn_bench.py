@@ -53,7 +53,9 @@ from tests.integration.chaos_faults import (
     TRUE_WITHIN_M,
     WT_HT,
     Chaos,
+    Judged,
     host_status,
+    judged,
     truth_error,
     whole,
 )
@@ -73,19 +75,24 @@ STEADY_S = 120.0
 
 class Applications:
     """Applications listening to relations; each sample's arrival, stamp (wall clock, s) and
-    error against truth noted as it arrives."""
+    error against truth noted as it arrives, and its judgement (``chaos_faults.judged``:
+    errors in mm and degrees, NEES against its own covariance)."""
 
     def __init__(self, setup: Setup, relations: tuple[RelationId, ...]) -> None:
         self.setup = setup
         self.samples: dict[RelationId, list[tuple[float, float, float]]] = {}
+        self.judgements: dict[RelationId, list[tuple[float, Judged]]] = {}
         self.relations = [self.open(relation, f"app{i}") for i, relation in enumerate(relations)]
 
     def open(self, relation: RelationId, application: str) -> Relation:
         """One more application of ``relation``, noted like the others."""
         noted = self.samples.setdefault(relation, [])
+        judgements = self.judgements.setdefault(relation, [])
 
         def note(sample: Measurement) -> None:
-            noted.append((time.time(), sample.timestamp_ns * 1e-9, truth_error(relation, sample)))
+            arrived = time.time()
+            noted.append((arrived, sample.timestamp_ns * 1e-9, truth_error(relation, sample)))
+            judgements.append((arrived, judged(relation, sample)))
 
         return Relation(
             self.setup.session, self.setup.keys, relation, application=application, callback=note

@@ -2,12 +2,12 @@
 the application receives in the second after each change, against the simulator's truth.
 
 Run: ``python -m bench.switch_bench [--events N] [--seed S] [--dwell LO,HI] [--kinds K;K]
-[--trace]`` (defaults: 20 events of each kind, seed 7, 2-4 s between events; about 8 minutes;
-``--events 2`` for a smoke run of a minute; ``--kinds`` only those kinds, with the ways back they
-need; ``--trace`` also records, from each event to the next, the liveliness tokens of workers,
-containers and providers, control commands, the hand-over's messages, each input's first and
-last sample and the relation's gaps: where a gap's time goes). Prints tables and writes
-``bench/results/switch.json``.
+[--trace] [--output FILE]`` (defaults: 20 events of each kind, seed 7, 2-4 s between events;
+about 10 minutes; ``--events 2`` for a smoke run of a minute; ``--kinds`` only those kinds,
+with the ways back they need; ``--trace`` also records, from each event to the next, the
+liveliness tokens of workers, containers and providers, control commands, the hand-over's
+messages, each input's first and last sample and the relation's gaps: where a gap's time
+goes). Prints tables and writes ``bench/results/switch.json`` (or ``FILE``).
 
 The world is the demo's, as in :mod:`bench.fusion_latency_bench`: the paper's figure-1 scenario
 (``sim_trackers/scenarios/paper_figure1.yaml``) with ``C -> HT`` served by the database from the
@@ -23,6 +23,8 @@ among those the state allows:
   only and back;
 * **worker killed**: the process running the fusion component (its container, with the other
   components it holds) SIGKILLed while both sensors run; its host manager restores it;
+* **agent killed** / **agent stopped**: the agent SIGKILLed / stopped cleanly (SIGTERM) while
+  both sensors run, and started again at once; the new agent adopts the running flow;
 * **better tracker joins** / **leaves**: a second A.R.T.-like tracker, placed elsewhere in the
   room and with a third of the position noise (:func:`better_tracker`), started while both
   sensors run and stopped before anything else happens: fused from two estimates to three and
@@ -46,6 +48,9 @@ same up to the next event, over every event (the old flow is retired, and relati
 ``HAND_OVER_HOLD_S`` after the new one is alive: after that second; a silence ends before the
 next event, which waits for the flow), and duplicates (a timestamp seen before) and
 out-of-order samples on the wire.
+How many of those samples lie beyond the larger of the two flows' steady p99 error, beside
+the range (95 %) a steady flow would have there (its 1 % tail, binomial): "no sample over the
+p99" cannot hold even without a switch, a tail no heavier than the steady state's can.
 The steady state of each flow (fused, camera only, A.R.T. only, fused with the better tracker)
 is every sample stamped from
 1.5 s after an event to the next event: its p99 errors are the issue's bound for a switch
@@ -73,7 +78,7 @@ from typing import Any
 
 import numpy as np
 import yaml
-from scipy.stats import chi2
+from scipy.stats import binom, chi2
 
 from bench.calibrated_tracking_bench import scenario_with_true_calibration
 from bench.fusion_latency_bench import (
@@ -107,6 +112,10 @@ STEADY_AFTER_S = 1.5
 """Samples stamped this long after an event and before the next count as the steady state."""
 TRACED_GAP_MS = 25
 """Gaps between samples on the relation's key that ``--trace`` shows."""
+STEADY_TAIL = 0.01
+"""The share of a steady state's samples beyond its p99: what the second after a switch holds
+beyond it too if the switch adds no error (the issue's bound, the larger p99 of the two flows,
+taken as a tail share: 1 % of any flow's own samples lie beyond its p99)."""
 THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
 """NEES of a 6D error "beyond 3 sigma": the chi-square quantile of a 3-sigma probability."""
 KINDS = (
@@ -115,6 +124,8 @@ KINDS = (
     "camera off",
     "camera back",
     "worker killed",
+    "agent killed",
+    "agent stopped",
     "better tracker joins",
     "better tracker leaves",
 )
@@ -137,6 +148,8 @@ ALLOWED = {
         "A.R.T. off",
         "camera off",
         "worker killed",
+        "agent killed",
+        "agent stopped",
         "better tracker joins",
     ),
     frozenset({"camera"}): ("A.R.T. back",),
@@ -144,8 +157,8 @@ ALLOWED = {
     frozenset({"art", "camera", "better"}): ("better tracker leaves",),
 }
 """The events each state allows: from two sensors one leaves, the fusion's container is
-killed or the better tracker joins; from one, the other comes back; the better tracker leaves
-before anything else happens."""
+killed, the agent is killed or stopped and started again, or the better tracker joins; from
+one, the other comes back; the better tracker leaves before anything else happens."""
 BETTER = {"frame": "ART2", "translation": [0.4, -1.8, 2.2], "euler_deg": [0, 0, 35]}
 """Where the better tracker hangs in the room (child of ART)."""
 BETTER_NOISE = {"position_mm": 0.1, "rotation_deg": 0.02}
@@ -316,6 +329,18 @@ def kill_fusion(session: Any, keys: KeySpace) -> int | None:
     return None
 
 
+def restart_agent(children: Processes, arguments: list[str], kill: bool) -> None:
+    """The agent SIGKILLed (``kill``) or stopped cleanly (SIGTERM: it leaves its workers and
+    host manager running), then started again at once."""
+    agent = children.running.pop("agent")
+    if kill:
+        agent.kill()
+    else:
+        agent.terminate()
+    agent.wait(timeout=30)
+    children.start("agent", arguments)
+
+
 def next_kind(
     rng: random.Random,
     running: frozenset[str],
@@ -348,8 +373,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         def stop(sensor: str) -> None:
             children.stop(*PROCESSES[sensor])
 
+        agent = ["agent", "--quiet", *config.as_flags(hub)]
         try:
-            children.start("agent", ["agent", "--quiet", *config.as_flags(hub)])
+            children.start("agent", agent)
             with (
                 open_session(config.member_of(hub)) as session,
                 Relation(  # asked before the sensors start
@@ -378,6 +404,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         if killed is None:
                             raise RuntimeError("no fusion component to kill")
                         at = killed
+                    elif kind.startswith("agent"):
+                        restart_agent(children, agent, kind == "agent killed")
                     else:
                         sensor = next(v for k, v in SENSORS.items() if kind.startswith(k))
                         if kind.endswith(("off", "leaves")):
@@ -439,9 +467,11 @@ def summarise(
         seen.add(stamp)
     ends = [e["at_ns"] for e in events[1:]] + [samples[-1][0] + 1 if samples else 0]
     steady: dict[str, list] = {flow: [] for flow in FLOWS.values()}
+    window_mm: list[list[float]] = []  # per event, the errors of the samples passed on
     for event, end in zip(events, ends, strict=True):
         start = event["at_ns"]
         after = [s for s in samples if start <= s[1] < start + int(WINDOW_S * 1e9)]
+        window_mm.append([errors(s, world, s.timestamp_ns)[0] for _, _, s, on in after if on])
         near = (start - BEFORE_S * 1e9, start + WINDOW_S * 1e9)
         arrivals = [s[0] for s in samples if near[0] <= s[0] < near[1] and s[3]]  # passed on
         event.update(judge(after, world, start))
@@ -462,6 +492,9 @@ def summarise(
                 "beyond_3_sigma_samples"
             ]
     steady_judged = {flow: judge(s, world) | steady_gaps(s) for flow, s in steady.items()}
+    for event, mm in zip(events, window_mm, strict=True):
+        bound = max(steady_judged[f].get("error_mm_p99", 0) for f in (event["from"], event["to"]))
+        event["beyond_steady_p99"] = sum(value > bound for value in mm)
     kinds = {}
     for kind in KINDS:
         every = [e for e in events if e["kind"] == kind]
@@ -481,6 +514,12 @@ def summarise(
             "events_worse_than_steady_p99": sum(
                 e["error_mm_max"] > b for e, b in zip(mine, bound, strict=True)
             ),
+            # samples beyond the larger steady p99, against the count a steady flow has there
+            "samples_beyond_steady_p99": sum(e["beyond_steady_p99"] for e in mine),
+            "steady_would_have_95": [
+                int(binom.ppf(q, sum(e["samples"] for e in mine), STEADY_TAIL))
+                for q in (0.025, 0.975)
+            ],
             "beyond_3_sigma": sum(e["beyond_3_sigma"] for e in mine),
             "nees_mean": sum(nees_values) / n if n else None,
             "nees_interval_95": [chi2.ppf(0.025, 6 * n) / n, chi2.ppf(0.975, 6 * n) / n]
@@ -528,6 +567,14 @@ def print_tables(result: dict[str, Any]) -> None:
             f"{k['beyond_3_sigma']} | {nees_text} | {k['gap_ms_max']:.0f} "
             f"({k['gap_frames_max']:.1f}) | {k['duplicates']} | {k['out_of_order']} |"
         )
+    print(
+        "\n| event | samples in the second after | beyond the larger steady p99 | a steady "
+        "flow's 95 % range |"
+    )
+    print("|---|---|---|---|")
+    for kind, k in result["kinds"].items():
+        low, high = k["steady_would_have_95"]
+        print(f"| {kind} | {k['samples']} | {k['samples_beyond_steady_p99']} | {low}-{high} |")
     print(
         "\n| event | largest gap ms in the second after: median / largest | until the next "
         "event (every event): median / largest | events without a sample in the second after | "
@@ -579,21 +626,25 @@ def main(argv: list[str] | None = None) -> None:
         help="record tokens, control commands, hand-over messages and inputs from each event to "
         "the next (each event's 'trace' in the results)",
     )
+    parser.add_argument(
+        "--output", type=Path, default=RESULTS, help=f"JSON file (default {RESULTS.name} there)"
+    )
     config.add_arguments(parser)
     args = parser.parse_args(argv)
     if unknown := set(args.kinds) - set(KINDS):
         parser.error(f"unknown kinds {sorted(unknown)}; known: {'; '.join(KINDS)}")
     result = run(args)
     print_tables(result)
-    RESULTS.parent.mkdir(exist_ok=True)
+    args.output.parent.mkdir(exist_ok=True)
     dwell = ",".join(f"{d:g}" for d in args.dwell)
-    RESULTS.write_text(
+    args.output.write_text(
         json.dumps(
             {
                 "command": f"python -m bench.switch_bench --events {args.events} --seed "
                 f"{args.seed} --dwell {dwell}"
                 + (f" --kinds '{';'.join(args.kinds)}'" if args.kinds != KINDS else "")
-                + (" --trace" if args.trace else ""),
+                + (" --trace" if args.trace else "")
+                + (f" --output {args.output}" if args.output != RESULTS else ""),
                 "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                 "machine": {"python": platform.python_version(), "cpus": os.cpu_count()},
                 "load_average_end": os.getloadavg(),

@@ -18,7 +18,9 @@ A fault that leaves something to do later (a tracker's restart, a query's close)
 a :class:`FollowUp`, so a caller may run other faults meanwhile; :meth:`Chaos.run` runs them in
 turn, each follow-up in its time. :func:`whole` tells whether the system is whole again: the
 agent serving, each wanted component in exactly one process, no worker that nothing wants,
-no leaked pool worker. :func:`truth_error` compares a sample with the trackers' truth.
+no leaked pool worker. :func:`truth_error` compares a sample with the trackers' truth, and
+:func:`judged` measures it against the truth and its own covariance (issue 29: no delivered
+sample beyond :data:`WRONG_MM` / :data:`WRONG_DEG` or 3 sigma).
 """
 
 from __future__ import annotations
@@ -31,11 +33,14 @@ import subprocess
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
+from scipy.stats import chi2
 
+from bench.synthetic import left_error
 from tests.integration.test_agent import Setup
-from ubitrack_agent.core import se3
+from ubitrack_agent.core import quaternions, se3
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import RelationId
@@ -50,6 +55,13 @@ TRACKERS = {"art": ("ART", 30.0, 2.0), "ir": ("IR", 100.0, -1.0)}
 TRUE_WITHIN_M = 3e-3
 """The tolerance of ``test_agent.assert_true_pose`` (fusing unsynchronised trackers), on the
 largest element difference of the pose matrices."""
+
+WRONG_MM = 50.0
+WRONG_DEG = 5.0
+"""Issue 29's bound on any delivered sample's error, whatever its covariance says."""
+THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
+"""NEES of a 6D error "beyond 3 sigma": the chi-square quantile of a 3-sigma probability
+(20.06 for 6 degrees of freedom)."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +83,8 @@ class Chaos:
         self.trackers = {name: self.start_tracker(name) for name in TRACKERS}
         self.log: list[str] = []
         """The faults done, e.g. ``tracker ir SIGKILL``, ``worker 1234 SIGTERM``."""
+        self.times: list[float] = []
+        """When each fault of :attr:`log` was done (wall clock, s)."""
 
     def start_agent(self, wait: bool = False) -> subprocess.Popen:
         """The agent; a restart does not wait for it (the faults go on meanwhile)."""
@@ -94,7 +108,7 @@ class Chaos:
         how = how or self.signal()
         self.trackers[name].send_signal(how)
         self.trackers[name].wait()
-        self.log.append(f"tracker {name} {how.name}")
+        self._note(f"tracker {name} {how.name}")
 
         def restart() -> None:
             self.trackers[name] = self.start_tracker(name)
@@ -113,20 +127,24 @@ class Chaos:
             os.kill(pid, how)
         except ProcessLookupError:
             return
-        self.log.append(f"worker {pid} {how.name}")
+        self._note(f"worker {pid} {how.name}")
 
     def kill_agent(self, how: signal.Signals | None = None) -> None:
         how = how or self.signal()
         self.agent.send_signal(how)
         self.agent.wait()
         self.agent = self.start_agent()
-        self.log.append(f"agent {how.name}")
+        self._note(f"agent {how.name}")
 
     def flap_application(self) -> FollowUp:
         """Open the flapping query; closing it is the follow-up."""
         relation = Relation(self.setup.session, self.setup.keys, FLAPPING, application="flap")
-        self.log.append("flapping application")
+        self._note("flapping application")
         return FollowUp(self.rng.uniform(0.05, 0.4), relation.close)
+
+    def _note(self, fault: str) -> None:
+        self.log.append(fault)
+        self.times.append(time.time())
 
     def kinds(self) -> list[Callable[[], FollowUp | None]]:
         """The faults, one per kind."""
@@ -240,11 +258,52 @@ def world_to(frame: str, timestamp_ns: int) -> se3.Transform:
     return se3.invert(*tracker_pose(*stands[frame]))
 
 
+def true_pose(relation: RelationId, timestamp_ns: int) -> se3.Transform:
+    """The true 6D pose of ``relation`` (between WT, HT and the trackers' frames) at a time."""
+    source = se3.invert(*world_to(relation.source, timestamp_ns))
+    return se3.compose(*source, *world_to(relation.target, timestamp_ns))
+
+
 def truth_error(relation: RelationId, sample) -> float:
-    """How far a 6D ``sample`` of ``relation`` (between WT, HT and the trackers' frames) is
-    from the truth at its time: the largest element difference of the pose matrices, the
-    measure of ``test_agent.assert_true_pose`` (:data:`TRUE_WITHIN_M`)."""
-    source = se3.invert(*world_to(relation.source, sample.timestamp_ns))
-    true = se3.compose(*source, *world_to(relation.target, sample.timestamp_ns))
+    """How far a 6D ``sample`` of ``relation`` is from the truth at its time: the largest
+    element difference of the pose matrices, the measure of ``test_agent.assert_true_pose``
+    (:data:`TRUE_WITHIN_M`)."""
     measured = se3.to_matrix(sample.rotation, sample.translation)
+    true = true_pose(relation, sample.timestamp_ns)
     return float(np.abs(measured - se3.to_matrix(*true)).max())
+
+
+@dataclass(frozen=True)
+class Judged:
+    """One delivered sample against the truth at its time: translation error (mm), rotation
+    error (degrees) and its NEES, ``e^T P^-1 e`` of the left error ``e`` (``T = Exp(e) T_true``,
+    the covariance's coordinates), ``None`` without a covariance."""
+
+    mm: float
+    deg: float
+    nees: float | None
+
+    @property
+    def wrong(self) -> bool:
+        """Beyond the issue's bounds: :data:`WRONG_MM`, :data:`WRONG_DEG`, or 3 sigma of its
+        own covariance."""
+        beyond = self.nees is not None and self.nees > THREE_SIGMA_NEES
+        return self.mm > WRONG_MM or self.deg > WRONG_DEG or beyond
+
+
+def judged(relation: RelationId, sample) -> Judged:
+    """:class:`Judged` of a 6D ``sample`` of ``relation`` (between WT, HT and the trackers'
+    frames); the left error as ``bench.synthetic.left_error`` computes it (scipy's SE(3)
+    logarithm, the coordinates of the services' covariances)."""
+    q, t = true_pose(relation, sample.timestamp_ns)
+    relative = quaternions.multiply(sample.rotation, quaternions.conjugate(q))
+    covariance = getattr(sample, "covariance", None)
+    nees = None
+    if covariance is not None:
+        error = left_error(sample, SimpleNamespace(rotation=q, translation=t))
+        nees = float(error @ np.linalg.solve(covariance, error))
+    return Judged(
+        float(np.linalg.norm(sample.translation - t)) * 1e3,
+        float(np.degrees(quaternions.angle(relative))),
+        nees,
+    )

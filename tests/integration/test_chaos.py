@@ -12,8 +12,11 @@ Faults (``chaos_faults.Chaos``, shared with the churn and recovery benchmarks), 
 * a flapping application: a query opened and closed again within 0.05-0.4 s, so workers are
   told to stop while they are starting.
 
-After the faults every process is back and the checks must hold within ``RECOVERY_S``: every
-application receives fresh samples equal to the trackers' known truth, each wanted component
+Every sample the applications receive, during the faults and after, is judged against the
+trackers' truth (issue 29, ``chaos_faults.judged``): none may be beyond 5 cm, 5 degrees or 3
+sigma of its own covariance. After the faults every process is back and the checks must hold
+within ``RECOVERY_S``: every application receives fresh samples equal to the trackers' known
+truth, each wanted component
 runs in exactly one process (one token incarnation, one status pid), no worker runs that
 nothing wants, and every worker process of the domain (``ps``) is either a wanted
 component's or an idle member the host manager counts in its pool: none leaked. Every
@@ -29,14 +32,14 @@ from types import SimpleNamespace
 
 import pytest
 
-from tests.integration.chaos_faults import HT_WT, WT_HT, Chaos, wait_whole
+from tests.integration.chaos_faults import HT_WT, WT_HT, Chaos, Judged, judged, wait_whole
 from tests.integration.conftest import kill_tagged
 from tests.integration.test_agent import Setup, assert_true_pose, fresh_samples
 from tests.integration.zenoh_helpers import free_port, wait_until
 from ubitrack_agent.core import ErrorPose, se3
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net import config
-from ubitrack_agent.net.keys import KeySpace
+from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 
 pytestmark = pytest.mark.integration
@@ -73,8 +76,17 @@ def setup(processes) -> Iterator[Setup]:
 
 def test_random_faults_leave_one_process_per_component_and_correct_data(setup):
     chaos = Chaos(setup, random.Random(SEED))
+    received: list[tuple[RelationId, int, Judged]] = []
+
+    def judge(relation: RelationId):
+        return lambda sample: received.append(
+            (relation, sample.timestamp_ns, judged(relation, sample))
+        )
+
     relations = [
-        Relation(setup.session, setup.keys, relation, application=f"app{i}")
+        Relation(
+            setup.session, setup.keys, relation, application=f"app{i}", callback=judge(relation)
+        )
         for i, relation in enumerate((WT_HT, HT_WT))
     ]
     wait_until(lambda: all(r.latest() is not None for r in relations), timeout=30)
@@ -88,5 +100,8 @@ def test_random_faults_leave_one_process_per_component_and_correct_data(setup):
     for sample in fresh_samples(relations[1], 20):
         assert_true_pose(inverted(sample))
     assert all(relation.rejected == 0 for relation in relations)
+    wrong = [(str(r), stamp, j) for r, stamp, j in list(received) if j.wrong]
+    assert len(received) > 1000, f"only {len(received)} samples received in the whole run"
+    assert not wrong, f"{len(wrong)} of {len(received)} samples wrong, the first: {wrong[:5]}"
     for relation in relations:
         relation.close()

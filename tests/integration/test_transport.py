@@ -145,3 +145,40 @@ def test_a_time_query_is_answered_while_another_keys_answer_waits_or_fails():
         assert 2 <= len(answering) <= ANSWERING_THREADS
         for publisher in (slow, fine, far, *more):
             publisher.undeclare()
+
+
+def test_a_publisher_undeclared_while_another_thread_puts_closes_quietly():
+    """A worker rewires its outputs (undeclares a publisher) on its control thread while its
+    data thread puts on that publisher: zenoh's publisher refuses to be undeclared during a put
+    ("Already borrowed", found by the chaos bench). The undeclare leaves the publisher to the
+    put running, which undeclares it when done (no thread waits for another's zenoh call: a
+    worker thread waiting there stopped answering its status); a put after it is dropped."""
+    port = free_port()
+    member = config.Settings(connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",))
+    with hub_session(port) as hub, open_session(member) as session:
+        received: list[bytes] = []
+        listener = hub.declare_subscriber("test/race/**", lambda s: received.append(b""))
+        raised: list[BaseException] = []
+        for round_ in range(20):
+            publisher = LatestValuePublisher(session, f"test/race/{round_}")
+            stop = threading.Event()
+
+            def flood(publisher=publisher, stop=stop) -> None:
+                try:
+                    while not stop.is_set():
+                        publisher.put(b"x" * 64)
+                except Exception as exc:  # what the put raised is the finding
+                    raised.append(exc)
+
+            flooding = threading.Thread(target=flood)
+            flooding.start()
+            time.sleep(0.01)
+            try:
+                publisher.undeclare()
+            except RuntimeError as exc:
+                raised.append(exc)
+            stop.set()
+            flooding.join(timeout=5.0)
+        listener.undeclare()
+    assert received, "no sample reached the hub: the puts did not run"
+    assert raised == []

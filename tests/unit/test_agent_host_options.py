@@ -12,31 +12,35 @@ from ubitrack_agent.cli import build_parser
 from ubitrack_agent.commands import agent as agent_command
 from ubitrack_agent.commands.agent import HostOptions, HostWhileActive
 from ubitrack_agent.net import config
-from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY
+from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY, MAX_CORES
 from ubitrack_agent.services.host import build_parser as host_parser
 
 
 def agent_options(*argv: str) -> HostOptions:
     args = build_parser().parse_args(["agent", *argv])
-    return HostOptions(args.pool_size, args.labels, args.capacity, args.workers_as_peers)
+    return HostOptions.of(args)
 
 
 def test_the_options_reach_the_host_manager_as_its_own_flags():
     argv = ("--labels", "gpu,camera", "--capacity", "3", "--pool-size", "1", "--workers-as-peers")
-    options = agent_options(*argv)
-    assert options == HostOptions(1, frozenset({"camera", "gpu"}), 3, workers_as_peers=True)
+    options = agent_options(*argv, "--cores", "4", "--isolate")
+    assert options == HostOptions(
+        1, frozenset({"camera", "gpu"}), 3, workers_as_peers=True, cores=4, isolate=True
+    )
     host = host_parser().parse_args(options.flags())  # what the embedded host manager is given
     given = (host.pool_size, host.labels, host.capacity, host.workers_as_peers)
     assert given == (1, frozenset({"camera", "gpu"}), 3, True)
+    assert (host.cores, host.isolate) == (4, True)
     assert options.problem() is None
 
 
 def test_the_defaults_are_the_host_managers():
     options = agent_options()
-    host = host_parser().parse_args([])
-    assert options == HostOptions(host.pool_size, host.labels, host.capacity, host.workers_as_peers)
+    host = host_parser().parse_args(options.flags())
+    assert host == host_parser().parse_args([])  # the flags given change no default
     assert not options.workers_as_peers  # worker processes are the host manager's clients
     assert options.capacity == DEFAULT_CAPACITY and "--labels" not in options.flags()
+    assert options.cores is None and not options.isolate
 
 
 @pytest.mark.parametrize(
@@ -45,6 +49,8 @@ def test_the_defaults_are_the_host_managers():
         (["--capacity", "0"], "--capacity must be 1 to"),
         (["--capacity", str(MAX_CAPACITY + 1)], "--capacity must be 1 to"),
         (["--pool-size", "-1"], "--pool-size must be >= 0"),
+        (["--cores", "0"], "--cores must be 1 to"),
+        (["--cores", str(MAX_CORES + 1)], "--cores must be 1 to"),
     ],
 )
 def test_invalid_capacities_are_refused(argv, problem):

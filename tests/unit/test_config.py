@@ -235,3 +235,28 @@ def test_a_client_of_a_host_manager_connects_to_it_first_then_where_it_connects(
     config.add_arguments(parser)
     handed = config.from_arguments(parser.parse_args(config.as_flags(client)), role="member")
     assert handed.mode == "client" and handed.connect == client.connect and handed.listen == ()
+
+
+def test_a_child_handed_its_network_as_flags_ignores_the_parents_environment(monkeypatch):
+    """The parent was started with ``UBITRACK_LISTEN`` (its own port) and access control; its
+    worker, a client listening nowhere, resolves from its flags alone in the environment it is
+    given (``child_environment``): in the parent's, it listened on the parent's port."""
+    parent_env = {
+        "UBITRACK_LISTEN": "tcp/127.0.0.1:7447",
+        "UBITRACK_ACCESS_CONTROL": "/etc/ubitrack/acl.yaml",
+        "UBITRACK_CONFIG": "/etc/ubitrack/site.yaml",
+        "UBITRACK_CHAOS_SEED": "3",
+        "PATH": "/usr/bin",
+    }
+    host = config.Settings(listen=("tcp/127.0.0.1:0",), domain="lab")
+    client = config.client_of(host, "tcp/127.0.0.1:40001")
+    parser = argparse.ArgumentParser()
+    config.add_arguments(parser)
+    flags = vars(parser.parse_args(config.as_flags(client)))
+    given = config.child_environment(parent_env)
+    assert given == {"UBITRACK_CHAOS_SEED": "3", "PATH": "/usr/bin"}  # not a setting: kept
+    handed = config.resolve("member", env=given, flags=flags)
+    assert handed.listen == () and handed.access_control is None
+    assert handed == config.resolve("member", env={}, flags=flags)
+    leaked = config.resolve("member", env={"UBITRACK_LISTEN": "tcp/127.0.0.1:7447"}, flags=flags)
+    assert leaked.listen == ("tcp/127.0.0.1:7447",)  # what the parent's environment did

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import re
-from collections import Counter
 
 import pytest
 from hypothesis import given, settings
@@ -59,7 +58,7 @@ def pages(snapshot: Snapshot, drawing: Drawing | None = None) -> Pages:
         lambda: snapshot,
         drawing or Drawing(),
         every_s=1.0,
-        frames=lambda root: frames_from(srg, {}, {}, root, Counter()),
+        frames=lambda root: frames_from(srg, {}, {}, root),
     )
 
 

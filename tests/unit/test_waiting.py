@@ -28,6 +28,8 @@ def test_the_progress_line_counts_the_planned_components_alive():
     assert starting(direct, set()) is None  # a measured edge: nothing to start
     assert starting(Answer("C->A:6D", False, "k", "no provider"), set()) is None
     assert starting(None, set()) is None
+    stale = Answer("C->A:6D", False, "k", "waiting for data on art/HT (stale); ...", waiting=True)
+    assert starting(stale, set()) == "waiting for data on art/HT (stale); ..."
 
 
 def test_the_network_looked_at_is_named_by_endpoint_and_domain():

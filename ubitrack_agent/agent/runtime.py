@@ -70,7 +70,7 @@ from ubitrack_agent.agent.announcements import (
     build_srg,
     fragment_entries,
 )
-from ubitrack_agent.agent.answers import query_answers
+from ubitrack_agent.agent.answers import query_answers, stale_edges
 from ubitrack_agent.agent.clocks import EXACT, correct_clocks
 from ubitrack_agent.agent.election import Election, new_agent_id
 from ubitrack_agent.agent.flows import Plan, plan_name
@@ -852,7 +852,8 @@ class Agent:
         """Put the answer to each query that changed since the last plan (:mod:`.answers`)."""
         if self.plan is None or self._answered is self.plan:
             return
-        answers = query_answers(self.plan, self.queries, self.keys, self.wanted)
+        stale = stale_edges(self.fragments, self.stale) if self.stale else {}
+        answers = query_answers(self.plan, self.queries, self.keys, self.wanted, self.srg, stale)
         for key, answer in answers.items():
             if self._answers.get(key) != answer:
                 self.session.put(key, answer, encoding=JSON)

@@ -1,8 +1,9 @@
 """``ubitrack agent``: run the live agent (the zenoh hub of the embedded default), with a host
 manager for its own machine as a child process unless ``--no-host``; that host manager takes
 the capacity options of ``ubitrack host`` (``--pool-size``, ``--labels``, ``--capacity``,
-``--workers-as-peers``). A host manager of its machine that runs already (an earlier agent's,
-which outlives it, or one run on its own) is adopted instead of starting another.
+``--cores``, ``--isolate``, ``--workers-as-peers``). A host manager of its machine that runs
+already (an earlier agent's, which outlives it, or one run on its own) is adopted instead of
+starting another.
 
 Stopping the agent, cleanly (SIGTERM, Ctrl-C) or not (SIGKILL, a crash), stops no data: its
 workers keep running and its host manager serves on (it outlives the agent, and ends once it
@@ -25,7 +26,7 @@ from typing import Any
 
 from ubitrack_agent.core.interpreter import module_command
 from ubitrack_agent.net import config
-from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY
+from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY, MAX_CORES
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.status_line import periodic_status
 from ubitrack_agent.services.host import DEFAULT_POOL_SIZE, labels
@@ -84,6 +85,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         f"hosts (as `ubitrack host --capacity`; default: %(default)s, 1 to {MAX_CAPACITY})",
     )
     parser.add_argument(
+        "--cores",
+        type=int,
+        help="containers its host manager runs this machine's components in, one process each "
+        "(as `ubitrack host --cores`; default: the machine's CPU cores, at most "
+        f"{MAX_CORES})",
+    )
+    parser.add_argument(
+        "--isolate",
+        action="store_true",
+        help="its host manager runs each component alone in a container of its own (as "
+        "`ubitrack host --isolate`)",
+    )
+    parser.add_argument(
         "--workers-as-peers",
         action="store_true",
         help="its host manager's worker processes join the network as zenoh peers, each linked "
@@ -122,11 +136,28 @@ class HostOptions:
     labels: frozenset[str] = frozenset()
     capacity: int = DEFAULT_CAPACITY
     workers_as_peers: bool = False
+    cores: int | None = None
+    """``None``: the host manager's default, the machine's CPU cores."""
+    isolate: bool = False
+
+    @classmethod
+    def of(cls, args: argparse.Namespace) -> HostOptions:
+        """The options given to ``ubitrack agent``."""
+        return cls(
+            args.pool_size,
+            args.labels,
+            args.capacity,
+            args.workers_as_peers,
+            args.cores,
+            args.isolate,
+        )
 
     def flags(self) -> list[str]:
         """The host manager's command-line flags for these options."""
         flags = ["--pool-size", str(self.pool_size), "--capacity", str(self.capacity)]
         flags += ["--workers-as-peers"] if self.workers_as_peers else []
+        flags += ["--cores", str(self.cores)] if self.cores is not None else []
+        flags += ["--isolate"] if self.isolate else []
         return [*flags, "--labels", ",".join(sorted(self.labels))] if self.labels else flags
 
     def problem(self) -> str | None:
@@ -135,6 +166,8 @@ class HostOptions:
             return "--pool-size must be >= 0"
         if not 1 <= self.capacity <= MAX_CAPACITY:
             return f"--capacity must be 1 to {MAX_CAPACITY}"
+        if self.cores is not None and not 1 <= self.cores <= MAX_CORES:
+            return f"--cores must be 1 to {MAX_CORES}"
         return None
 
 
@@ -163,7 +196,9 @@ class EmbeddedHost:
         threading.Thread(target=self._restart_when_ended, daemon=True).start()
 
     def _start(self) -> subprocess.Popen:
-        return subprocess.Popen(self._command, stdin=subprocess.PIPE)
+        return subprocess.Popen(
+            self._command, stdin=subprocess.PIPE, env=config.child_environment()
+        )
 
     def _restart_when_ended(self) -> None:
         while True:
@@ -301,7 +336,7 @@ def run(args: argparse.Namespace) -> int:
     except (config.ConfigError, TemplateError) as exc:
         print(f"ubitrack agent: {exc}", file=sys.stderr)
         return 2
-    options = HostOptions(args.pool_size, args.labels, args.capacity, args.workers_as_peers)
+    options = HostOptions.of(args)
     if (problem := options.problem()) is not None:
         print(f"ubitrack agent: {problem}", file=sys.stderr)
         return 2

@@ -121,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
         def line() -> str:
             return (
                 f"record: {rate.per_second():.1f} measurements/s, "
-                f"{writer.counters['measurements']} in all, providers {recorder.providers}"
+                f"{writer.counters['measurements']} in all, {recorder.backlog} waiting to be "
+                f"written, providers {recorder.providers}"
             )
 
         try:
@@ -137,6 +138,11 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {path} ({size} bytes, finished): {counts.get('measurements', 0)} measurements, "
         f"{counts.get('announcements', 0)} announcements, {counts.get('withdrawals', 0)} "
         f"withdrawals; rejected {counts.get('rejected_fragments', 0)} fragments and "
-        f"{counts.get('rejected_samples', 0)} samples",
+        f"{counts.get('rejected_samples', 0)} samples"
+        + (
+            f"; dropped {counts['dropped_backlog']} samples with the backlog full"
+            if counts.get("dropped_backlog")
+            else ""
+        ),
     )
     return 0

@@ -79,7 +79,7 @@ from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import logs
-from ubitrack_agent.net.answer import NOT_PLANNED, Answer, AnswerError, parse_answer
+from ubitrack_agent.net.answer import Answer, AnswerError, parse_answer
 from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
@@ -300,7 +300,8 @@ class Relation(Closing):
     def verdict(self) -> TimeoutError | None:
         """Why waiting for the first sample is pointless now, as the exception a wait raises
         at once: :class:`UnsolvedRelation` if the agent's answer is that it cannot serve the
-        relation (not merely that it has not planned it yet), :class:`NoAgent` if no agent
+        relation (not merely that it has not planned it yet, or waits for data: ``Answer.final``),
+        :class:`NoAgent` if no agent
         has been active for :data:`NO_AGENT_AFTER_S`; None while there is reason to wait,
         always with ``keep_waiting``, and once a sample has come (a flowing relation's waits
         run to their timeout, as the workers keep the data flowing while an agent restarts,
@@ -308,7 +309,7 @@ class Relation(Closing):
         answer = self.answer
         if self.keep_waiting or self._received:
             return None
-        if answer is not None and not answer.served and answer.reason != NOT_PLANNED:
+        if answer is not None and answer.final:
             return UnsolvedRelation(self.relation, None, answer.reason or "")
         if not self._agents and time.monotonic() - self._agentless_since >= NO_AGENT_AFTER_S:
             return NoAgent(self.relation, None, self._root)

@@ -39,9 +39,12 @@ def network_of(settings: Settings) -> str:
 
 
 def starting(answer: Answer | None, alive: Collection[str]) -> str | None:
-    """The progress line of a served ``answer`` whose workers ``alive`` are running, or None
-    if the answer is not (yet) that the relation is served, or has no worker to start (a
-    measured edge answers it directly: its data is there as soon as it is published)."""
+    """The progress line of a served ``answer`` whose workers ``alive`` are running, or of an
+    answer waiting for stale edges' data (its reason: ``net.answer``), or None if the answer is
+    not (yet) that the relation is served, or has no worker to start (a measured edge answers
+    it directly: its data is there as soon as it is published)."""
+    if answer is not None and answer.waiting:
+        return answer.reason
     if answer is None or not answer.served or not answer.components:
         return None
     count = len(answer.components)

@@ -13,7 +13,11 @@ JSON, one object::
 ``reason`` is the planner's explanation when ``served`` is false (``"no provider announces
 frame(s) X"``, ``"unknown type '7D'"``, ...); ``components`` are the workers of the
 relation's derivation, by instance, with their service (none when a measured edge answers it
-directly). :func:`parse_answer` is total: an :class:`Answer` or :class:`AnswerError`.
+directly). ``waiting`` (optional, false when absent) is true when the relation is unserved
+only for now: edges whose data stopped (stale, ``agent.liveness``) would join its frames, so it
+may be served as soon as their data comes again; the reason then names them. An application
+waits on through such an answer, as through :data:`NOT_PLANNED`, where any other reason ends
+its wait. :func:`parse_answer` is total: an :class:`Answer` or :class:`AnswerError`.
 """
 
 from __future__ import annotations
@@ -45,6 +49,14 @@ class Answer:
     key: str
     reason: str | None = None
     components: dict[str, str] = field(default_factory=dict)
+    waiting: bool = False
+    """Unserved only until stale edges' data comes again (module docstring)."""
+
+    @property
+    def final(self) -> bool:
+        """Whether the answer is that the relation cannot be served as things stand: not
+        served, and neither merely not planned yet nor waiting for data."""
+        return not self.served and self.reason != NOT_PLANNED and not self.waiting
 
     def encode(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
@@ -64,6 +76,7 @@ def parse_answer(payload: bytes) -> Answer:
             key=read(data, "key", str),
             reason=read(data, "reason", str, optional=True),
             components=components,
+            waiting=read(data, "waiting", bool, optional=True) or False,
         )
     except MessageError as exc:
         raise AnswerError(f"answer: {exc.reason}") from None

@@ -216,6 +216,17 @@ def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
+def child_environment(env: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The environment for a child process handed its network as flags (:func:`as_flags`):
+    ``env`` (this process's) without the ``UBITRACK_*`` settings and ``UBITRACK_CONFIG``. The
+    flags say everything but an empty setting (no endpoint to listen on, no access control),
+    which the child would otherwise fill from this process's own: a worker listening on its
+    agent's port (``Address already in use``), or enforcing its agent's access control."""
+    env = os.environ if env is None else env
+    ours = {ENV_PREFIX + name.upper() for name in SETTING_NAMES} | {ENV_PREFIX + "CONFIG"}
+    return {name: value for name, value in env.items() if name not in ours}
+
+
 def member_flags(hub: Settings) -> list[str]:
     """Flags making a child process join ``hub``'s network (:func:`member_of`)."""
     return as_flags(member_of(hub))

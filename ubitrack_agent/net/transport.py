@@ -82,7 +82,12 @@ def on_zenoh_thread(callback: Callable[[Any], None]) -> zenoh.handlers.Callback:
     return zenoh.handlers.Callback(callback, indirect=False)
 
 
-def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[list[bytes]], None]) -> Any:
+def subscribe_in_bursts(
+    session: Any,
+    key: str,
+    deliver: Callable[[list[bytes]], None],
+    capacity: int = INPUT_CHANNEL_CAPACITY,
+) -> Any:
     """Subscribe to ``key`` and pass the payloads of the samples waiting, oldest first, to
     ``deliver`` as one burst, on a thread of its own; the subscriber is returned, and the
     thread ends when it is undeclared. Zenoh queues the samples in its own channel
@@ -91,8 +96,8 @@ def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[list[bytes]],
     and the thread wakes once for a burst: a consumer that handles the burst on this thread
     takes each sample after one thread hand-off, and a backlog at once
     (``ubitrack_agent.services.worker``, ``docs/performance.md``, "Data path"). ``deliver`` must not
-    raise."""
-    subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(INPUT_CHANNEL_CAPACITY))
+    raise. ``capacity``: the samples zenoh's channel holds (and the most one burst hands on)."""
+    subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
     # The channel itself, not the subscriber: a call on the subscriber while another thread
     # undeclares it fails ("Already mutably borrowed", pyo3's check of the object's use).
     channel = subscriber.handler
@@ -101,7 +106,7 @@ def subscribe_in_bursts(session: Any, key: str, deliver: Callable[[list[bytes]],
         try:
             for sample in channel:  # blocks without Python's lock; ends when it is closed
                 burst = [sample.payload.to_bytes()]
-                while len(burst) < INPUT_CHANNEL_CAPACITY:
+                while len(burst) < capacity:
                     more = channel.try_recv()
                     if more is None:
                         break
@@ -141,6 +146,13 @@ class LatestValuePublisher:
         self.first_put_ns: int | None = None
         """When the first payload was put (wall clock): the first sample on its key."""
         self._publisher = session.declare_publisher(key, encoding=encoding)
+        self._state = threading.Lock()
+        """Guards :attr:`_putting` and :attr:`_undeclared`, held only between zenoh calls."""
+        self._putting = 0
+        """Puts running: zenoh's publisher (a pyo3 object) refuses to be undeclared while
+        another thread's put runs ("Already borrowed"; a worker rewires its outputs on its
+        control thread while its data thread puts), so the last of them undeclares it."""
+        self._undeclared = False
         self._matching = False
         """Whether a subscriber listens, as zenoh last told the matching listener (asking
         zenoh costs about 8 us)."""
@@ -160,7 +172,18 @@ class LatestValuePublisher:
         it knows, and tells the listener later (a subscriber declared just before a sample on
         the same link gets the sample, and its matching news after it)."""
         self._latest = payload
-        self._publisher.put(payload)
+        with self._state:
+            if self._undeclared:
+                return  # rewired away meanwhile: the routes of its next output know
+            self._putting += 1
+        try:
+            self._publisher.put(payload)
+        finally:
+            with self._state:
+                self._putting -= 1
+                last = self._undeclared and self._putting == 0
+            if last:  # undeclared while this put ran: the undeclare was left to it
+                self._publisher.undeclare()
         if self.first_put_ns is None:
             self.first_put_ns = time.time_ns()
 
@@ -213,10 +236,16 @@ class LatestValuePublisher:
 
     def undeclare(self) -> None:
         """Undeclare the listener, the queryable and the publisher (a query being answered
-        still gets its reply)."""
+        still gets its reply; a put running on another thread finishes and undeclares the
+        publisher after it: no thread waits for another's zenoh call; later puts are
+        dropped)."""
         self._listener.undeclare()
         self._queryable.undeclare()
-        self._publisher.undeclare()
+        with self._state:
+            self._undeclared = True
+            now = self._putting == 0
+        if now:
+            self._publisher.undeclare()
 
 
 def put_command(session: Any, key: str, payload: str | bytes) -> None:

@@ -1,6 +1,7 @@
 """Where the frames are: every frame of the SRG placed relative to a root by the live relations
-(the latest sample of each measured edge and of each running component's output), for the
-3D view. Pure: :mod:`ubitrack_agent.commands.view.frame_watch` supplies the samples.
+(each measured edge and each running component's output at one display time,
+:mod:`.align`), for the 3D view. Pure: :mod:`ubitrack_agent.commands.view.frame_watch`
+supplies the values.
 
 The SRG's edges are spatial relations between frames (Pustka et al. 2006, section 2): a 6D
 edge A->B is the pose of B in A, a 3D edge A->B the position of B in A. Placing every frame
@@ -36,14 +37,16 @@ IDENTITY = Pose(0, np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3))
 
 @dataclass(frozen=True)
 class LiveRelation:
-    """The latest sample of a relation ``source`` -> ``target``, ``derived`` by a component
-    (else measured by a provider), by its ``name`` (an edge id or a component's instance)."""
+    """The value of a relation ``source`` -> ``target`` at the display time, ``derived`` by a
+    component (else measured by a provider), by its ``name`` (an edge id or a component's
+    instance); ``skew_ns``: how far from the display time it was measured (:mod:`.align`)."""
 
     source: str
     target: str
     sample: Measurement
     derived: bool
     name: str
+    skew_ns: int = 0
 
 
 def srg_frames(srg: Iterable[dict[str, Any]]) -> list[str]:
@@ -77,46 +80,50 @@ def place(frames: Iterable[str], relations: Sequence[LiveRelation], root: str) -
     """Every frame of ``frames`` (and of ``relations``) relative to ``root``, as the 3D view's
     ``/frames.json`` serves it: ``{"root", "frames": {name: {"position", "rotation" (x, y, z,
     w; None for a frame placed by a position only), "ellipsoid" (None without a covariance),
-    "via" (the relations composed)}}, "unplaced": {name: why}}``."""
-    poses: dict[str, tuple[Pose | ErrorPose, list[str]]] = {root: (IDENTITY, [])}
-    links: dict[str, list[tuple[str, Pose | ErrorPose, bool, str]]] = defaultdict(list)
+    "via" (the relations composed), "skew_ms" (the largest skew of those)}}, "unplaced":
+    {name: why}}``."""
+    poses: dict[str, tuple[Pose | ErrorPose, list[str], int]] = {root: (IDENTITY, [], 0)}
+    links: dict[str, list[tuple[str, LiveRelation, bool]]] = defaultdict(list)
     points: list[LiveRelation] = []
     for relation in relations:
         if isinstance(relation.sample, Pose | ErrorPose):
-            name = relation.name
-            links[relation.source].append((relation.target, relation.sample, False, name))
-            links[relation.target].append((relation.source, relation.sample, True, name))
+            links[relation.source].append((relation.target, relation, False))
+            links[relation.target].append((relation.source, relation, True))
         elif isinstance(relation.sample, Position3D):
             points.append(relation)
-    derived = {relation.name for relation in relations if relation.derived}
     # Dijkstra on (hops, measured hops): a component's output wins a tie.
     queue: list[tuple[int, int, str]] = [(0, 0, root)]
     best = {root: (0, 0)}
-    parent: dict[str, tuple[str, Pose | ErrorPose, bool, str]] = {}
+    parent: dict[str, tuple[str, LiveRelation, bool]] = {}
     while queue:
         hops, measured, frame = heapq.heappop(queue)
         if best.get(frame) != (hops, measured):
             continue
-        for neighbour, sample, inverted, name in links[frame]:
-            cost = (hops + 1, measured + (name not in derived))
+        for neighbour, relation, inverted in links[frame]:
+            cost = (hops + 1, measured + (not relation.derived))
             if cost < best.get(neighbour, (1 << 30, 0)):
                 best[neighbour] = cost
-                parent[neighbour] = (frame, sample, inverted, name)
+                parent[neighbour] = (frame, relation, inverted)
                 heapq.heappush(queue, (*cost, neighbour))
     for frame in sorted(best, key=best.__getitem__):
         if frame == root:
             continue
-        above, sample, inverted, name = parent[frame]
-        pose, via = poses[above]
-        step = invert_pose(sample) if inverted else sample
-        poses[frame] = (compose_poses(pose, step), [*via, name + (" inverted" if inverted else "")])
-    placed = {frame: _pose_json(pose, via) for frame, (pose, via) in poses.items()}
-    covariances = {frame: _position_covariance(pose) for frame, (pose, _) in poses.items()}
+        above, relation, inverted = parent[frame]
+        pose, via, skew = poses[above]
+        step = invert_pose(relation.sample) if inverted else relation.sample  # type: ignore[arg-type]
+        poses[frame] = (
+            compose_poses(pose, step),
+            [*via, relation.name + (" inverted" if inverted else "")],
+            max(skew, relation.skew_ns),
+        )
+    placed = {frame: _pose_json(pose, via, skew) for frame, (pose, via, skew) in poses.items()}
+    covariances = {frame: _position_covariance(pose) for frame, (pose, _, _) in poses.items()}
     for relation in points:
         if relation.target not in placed and relation.source in poses:
-            pose, via = poses[relation.source]
+            pose, via, skew = poses[relation.source]
             point = transform_position(pose, relation.sample)  # type: ignore[arg-type]
-            placed[relation.target] = _point_json(point, [*via, relation.name])
+            skew = max(skew, relation.skew_ns)
+            placed[relation.target] = _point_json(point, [*via, relation.name], skew)
             covariances[relation.target] = point.covariance
     uncertain = [frame for frame, covariance in covariances.items() if covariance is not None]
     shapes = ellipsoids([covariances[frame] for frame in uncertain])
@@ -151,17 +158,24 @@ def _position_covariance(pose: Pose | ErrorPose) -> np.ndarray | None:
     return jacobian @ pose.covariance @ jacobian.T
 
 
-def _pose_json(pose: Pose | ErrorPose, via: list[str]) -> dict[str, Any]:
+def _pose_json(pose: Pose | ErrorPose, via: list[str], skew_ns: int) -> dict[str, Any]:
     return {
         "position": _floats(pose.translation),
         "rotation": _floats(pose.rotation),
         "ellipsoid": None,
         "via": via,
+        "skew_ms": round(skew_ns / 1e6, 3),
     }
 
 
-def _point_json(point: Position3D, via: list[str]) -> dict[str, Any]:
-    return {"position": _floats(point.position), "rotation": None, "ellipsoid": None, "via": via}
+def _point_json(point: Position3D, via: list[str], skew_ns: int) -> dict[str, Any]:
+    return {
+        "position": _floats(point.position),
+        "rotation": None,
+        "ellipsoid": None,
+        "via": via,
+        "skew_ms": round(skew_ns / 1e6, 3),
+    }
 
 
 def ellipsoids(covariances: Sequence[np.ndarray]) -> list[dict[str, Any]]:

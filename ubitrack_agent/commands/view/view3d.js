@@ -1,6 +1,7 @@
 // ubitrack view: the frames in 3D. At display rate (once per animation frame, one request at
 // a time) it fetches /frames.json?root=ROOT, every frame of the SRG placed relative to ROOT by
-// the live relations, and draws each with its axes (x red, y green, z blue; a dot for a frame
+// the live relations taken at one display time (each interpolated there; the skew of one that
+// could not be is shown), and draws each with its axes (x red, y green, z blue; a dot for a frame
 // placed by a position only), its name, a trail of its recent positions and, where the
 // placement has a covariance, the position's uncertainty as an ellipsoid. three.js is bundled
 // (/vendor/three/, no CDN). Names come from the network: written as text, never as markup.
@@ -133,6 +134,9 @@ let latest = null;
 let root = new URLSearchParams(location.hash.slice(1)).get("root");
 let busy = false;
 const counts = { answers: 0, drawn: 0, since: performance.now() };
+// Since the page loaded: pictures drawn, and placements at a new display time (new samples);
+// written on the footer (data-drawn, data-placements) for tests and bench/view_frames_bench.py.
+const totals = { drawn: 0, placements: 0 };
 
 function resetTrails() {
   for (const mark of marks.values()) mark.history = [];
@@ -172,6 +176,7 @@ async function fetchFrames() {
       return;
     }
     problem(null);
+    if (!latest || answer.display_time_ns !== latest.display_time_ns) totals.placements += 1;
     latest = answer;
     root = answer.root;
     fillRoots(answer.known, answer.root);
@@ -231,6 +236,7 @@ function draw(now) {
     mark.label.className = latest && name === latest.root ? "root" : "";
   }
   counts.drawn += 1;
+  totals.drawn += 1;
 }
 
 function fillTable() {
@@ -246,6 +252,7 @@ function fillTable() {
         element("td", name),
         element("td", placed.position.map((v) => v.toFixed(3)).join(", ")),
         element("td", radii),
+        element("td", placed.skew_ms ? placed.skew_ms.toFixed(1) : "0"),
         element("td", placed.via.length ? placed.via.join(" · ") : "the root"),
       );
       return row;
@@ -254,16 +261,20 @@ function fillTable() {
   for (const name of Object.keys(unplaced).sort()) {
     const row = element("tr", null, "none");
     row.dataset.frame = name;
-    row.append(element("td", name), element("td", "not placed"), element("td", "–"), element("td", unplaced[name]));
+    row.append(element("td", name), element("td", "not placed"), element("td", "–"), element("td", "–"), element("td", unplaced[name]));
     rows.push(row);
   }
   document.querySelector("#frames tbody").replaceChildren(...rows);
   document.getElementById("agent").textContent = latest
     ? `${Object.keys(frames).length} of ${(latest.known || []).length} frames placed relative to ${latest.root}` +
-      (latest.root === latest.default_root ? " (the tracker's frame)" : "")
+      (latest.root === latest.default_root ? " (the tracker's frame)" : "") +
+      (typeof latest.behind_ms !== "number" ? "" : `, at one instant ${latest.behind_ms.toFixed(0)} ms before the newest sample`)
     : "no frames yet";
   const seconds = (performance.now() - counts.since) / 1000;
-  document.getElementById("rate").textContent =
+  const footer = document.getElementById("rate");
+  footer.dataset.drawn = totals.drawn;
+  footer.dataset.placements = totals.placements;
+  footer.textContent =
     `${(counts.answers / seconds).toFixed(0)} placements/s fetched, ${(counts.drawn / seconds).toFixed(0)} pictures/s drawn`;
   [counts.answers, counts.drawn, counts.since] = [0, 0, performance.now()];
 }

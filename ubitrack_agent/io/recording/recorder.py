@@ -8,9 +8,16 @@ edges, fetches the latest value (a calibration database publishes its static edg
 before the recording started). When a token goes it records the withdrawal and unsubscribes.
 Everything from the network is checked before it is written: a fragment by
 :func:`~.fragments.parse_fragment`, a measurement by ``core.codec.decode``; a rejected one is
-logged (rate-limited) and counted in :attr:`Recorder.counters`, never fatal. Token events are
-handled on one thread of the recorder's own, samples on each edge's input thread
-(``net.transport.subscribe_in_bursts``). O(1) per sample; O(edges) subscriptions.
+logged (rate-limited) and counted in :attr:`Recorder.counters`, never fatal.
+
+Nothing is lost while memory lasts: each edge's input thread (``net.transport.subscribe_in_bursts``)
+only queues the payloads it takes from zenoh, and one thread of the recorder's own checks and
+writes them, in the order they came, with the token events (so a withdrawal is written after
+the samples that came before it). A recorder slower than its providers (about 5,000 samples
+a second here, ``docs/performance.md``) lets the queue grow instead of letting zenoh's queues
+fill, which drop what they cannot take; past :data:`MAX_BACKLOG` samples waiting, new ones
+are dropped and counted (``dropped_backlog``). :meth:`Recorder.close` writes everything that
+came before it. O(1) per sample; O(edges) subscriptions; memory O(backlog).
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ import queue
 import threading
 from collections import Counter
 from collections.abc import Callable, Set
+from dataclasses import dataclass
 from typing import Any
 
 import zenoh
@@ -37,6 +45,12 @@ from ubitrack_agent.net.transport import fetch_latest, subscribe_in_bursts
 log = logging.getLogger("ubitrack.record")
 
 MAX_FRAGMENT_BYTES = 1 << 20
+CHANNEL_CAPACITY = 65_536
+"""Samples zenoh queues per edge for the recorder's input thread (``subscribe_in_bursts``): room
+for a burst while that thread waits for Python's lock or a CPU on a loaded machine."""
+MAX_BACKLOG = 1_000_000
+"""Samples waiting to be written before new ones are dropped (about 200 MB of 6D samples
+with covariance: 76 bytes each in the file, about 200 in memory)."""
 FRAGMENT_RETRY_S = (0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 """Pauses between attempts to fetch a new provider's fragment (its queryable may come up a
 moment after its token reaches us)."""
@@ -59,18 +73,23 @@ class Recorder(Closing):
         self._only, self._changed = frozenset(providers), changed
         self.counters: Counter[str] = Counter()
         """``rejected_fragments``, ``rejected_samples``, ``rejected_provider_keys``,
-        ``internal_errors``."""
+        ``internal_errors``, ``dropped_backlog`` (samples dropped with :data:`MAX_BACKLOG`
+        waiting)."""
         self._subscribers: dict[str, list[Any]] = {}
         self._seen: set[str] = set()
         """Edge ids with a sample recorded."""
         self._stop = threading.Event()
-        self._events: queue.SimpleQueue[tuple[bool, str] | None] = queue.SimpleQueue()
+        self._work: queue.SimpleQueue[_Token | _Burst | None] = queue.SimpleQueue()
+        """Token events and sample bursts in the order they came; ``None`` ends the thread."""
+        self._backlog = 0
+        """Samples queued and not yet written (changed under :attr:`_backlog_lock`)."""
+        self._backlog_lock = threading.Lock()
         self._thread = threading.Thread(target=self._run, daemon=True, name="recorder")
         self._thread.start()
         self._watch = session.liveliness().declare_subscriber(
             keys.all_providers(),
-            lambda sample: self._events.put(
-                (sample.kind == zenoh.SampleKind.PUT, str(sample.key_expr))
+            lambda sample: self._work.put(
+                _Token(sample.kind == zenoh.SampleKind.PUT, str(sample.key_expr))
             ),
             history=True,
         )
@@ -83,8 +102,42 @@ class Recorder(Closing):
 
     def _run(self) -> None:
         handle = logs.guarded(self._handle, self.counters, log, "provider tokens")
-        while (event := self._events.get()) is not None:
-            handle(*event)
+        while (item := self._work.get()) is not None:
+            if isinstance(item, _Token):
+                if not self._stop.is_set():
+                    handle(item.appeared, item.key)
+                continue
+            with self._backlog_lock:
+                self._backlog -= len(item.payloads)
+            item.write(item.payloads)
+        for provider in list(self._subscribers):
+            self._unsubscribe(provider)
+
+    def _queue(self, write: Callable[[list[bytes]], None], payloads: list[bytes]) -> None:
+        """On an input thread: queue a burst for :meth:`_run`, or drop it (counted) if the
+        backlog is full or the recording is closing."""
+        if self._stop.is_set():
+            return  # came after the recording's end
+        with self._backlog_lock:
+            full = self._backlog + len(payloads) > MAX_BACKLOG
+            if not full:
+                self._backlog += len(payloads)
+        if full:
+            logs.count_problem(
+                self.counters,
+                "dropped_backlog",
+                log,
+                "dropped %d samples: %d wait to be written already",
+                len(payloads),
+                MAX_BACKLOG,
+            )
+            return
+        self._work.put(_Burst(write, payloads))
+
+    @property
+    def backlog(self) -> int:
+        """Samples received and not yet written."""
+        return self._backlog
 
     def _handle(self, appeared: bool, key: str) -> None:
         token = self._keys.parse_token("provider", key)
@@ -113,13 +166,20 @@ class Recorder(Closing):
         subscribers = []
         for edge in announced.edges:
             key = self._keys.measured(provider, edge.name)
-            deliver = logs.guarded(
+            write = logs.guarded(
                 lambda burst, name=edge.name: self._samples(provider, name, burst),
                 self.counters,
                 log,
                 key,
             )
-            subscribers.append(subscribe_in_bursts(self._session, key, deliver))
+            subscribers.append(
+                subscribe_in_bursts(
+                    self._session,
+                    key,
+                    lambda burst, write=write: self._queue(write, burst),
+                    CHANNEL_CAPACITY,
+                )
+            )
         self._subscribers[provider] = subscribers
         for edge in announced.edges:
             if (edge.static or edge.mode == "pull") and f"{provider}/{edge.name}" not in self._seen:
@@ -173,13 +233,29 @@ class Recorder(Closing):
             subscriber.undeclare()
 
     def close(self) -> None:
-        """Stop watching and unsubscribe (the caller then finishes the writer)."""
+        """Stop watching, write every sample that came before, unsubscribe (the caller then
+        finishes the writer). Takes as long as the backlog takes to write (at most
+        :data:`MAX_BACKLOG` samples)."""
         if self._closed:
             return
         self._closed = True
         self._stop.set()
         self._watch.undeclare()
-        self._events.put(None)
-        self._thread.join(timeout=5.0)
-        for provider in list(self._subscribers):
-            self._unsubscribe(provider)
+        self._work.put(None)
+        self._thread.join()
+
+
+@dataclass(frozen=True)
+class _Token:
+    """A provider's token appeared (or went) on ``key``."""
+
+    appeared: bool
+    key: str
+
+
+@dataclass(frozen=True)
+class _Burst:
+    """Payloads taken from one edge's data key, to ``write``."""
+
+    write: Callable[[list[bytes]], None]
+    payloads: list[bytes]
