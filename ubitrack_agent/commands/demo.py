@@ -301,9 +301,10 @@ def natnet_flags(
 def tracker_processes(
     tracker: str, art: ArtSettings, port: int, seed: int, scenario_flag: list[str], member
 ) -> dict[str, list[str]]:
-    """The adapter's and the simulator's arguments of the demo's tracker (``art`` or
-    ``natnet``), on UDP ``port`` (NatNet's command port; unicast frames leave from a free
-    data port)."""
+    """The simulator's and the adapter's arguments of the demo's tracker (``art`` or
+    ``natnet``), in the order they are started and stopped (the simulator first: a tracker
+    measures as its adapter joins, and its measurements end first), on UDP ``port`` (NatNet's
+    command port; unicast frames leave from a free data port)."""
     if tracker == "art":
         simulator = simulator_arguments(scenario_flag, port, seed)["sim art"]
         return {
