@@ -228,8 +228,12 @@ class Processes:
         self.running: dict[str, subprocess.Popen] = {}
 
     def start(self, name: str, arguments: list[str]) -> None:
+        """Start ``ubitrack ARGUMENTS`` as ``name``: its network comes from its flags alone
+        (``config.child_environment``)."""
         self.running[name] = subprocess.Popen(
-            module_command("ubitrack_agent.cli", *arguments), stdin=subprocess.DEVNULL
+            module_command("ubitrack_agent.cli", *arguments),
+            stdin=subprocess.DEVNULL,
+            env=config.child_environment(),
         )
 
     def exited(self) -> list[str]:
