@@ -63,10 +63,21 @@ class FollowUp:
 class Chaos:
     """The system under faults: the processes it runs, and the faults."""
 
-    def __init__(self, setup: Setup, rng: random.Random, pool_size: int = POOL_SIZE) -> None:
+    def __init__(
+        self,
+        setup: Setup,
+        rng: random.Random,
+        pool_size: int = POOL_SIZE,
+        cores: int | None = None,
+    ) -> None:
+        """``cores``: the agent starts no host manager, this one starts the host's own, which
+        runs the components in that many containers (``ubitrack host --cores``); None: the
+        agent's own host manager (one container per CPU core)."""
         self.setup = setup
         self.rng = rng
         self.pool_size = pool_size
+        self.cores = cores
+        self.host = None if cores is None else self.start_host()
         self.agent = self.start_agent(wait=True)
         self.trackers = {name: self.start_tracker(name) for name in TRACKERS}
         self.log: list[str] = []
@@ -74,7 +85,13 @@ class Chaos:
 
     def start_agent(self, wait: bool = False) -> subprocess.Popen:
         """The agent; a restart does not wait for it (the faults go on meanwhile)."""
-        return self.setup.start_agent("--pool-size", str(self.pool_size), wait=wait)
+        own_host = () if self.cores is None else ("--no-host",)
+        return self.setup.start_agent("--pool-size", str(self.pool_size), *own_host, wait=wait)
+
+    def start_host(self) -> subprocess.Popen:
+        """The host manager of ``cores`` containers, named ``bench``."""
+        flags = ("--name", "bench", "--pool-size", str(self.pool_size), "--cores", str(self.cores))
+        return self.setup.start("-m", "ubitrack_agent.services.host", *flags)
 
     def start_tracker(self, name: str) -> subprocess.Popen:
         return self.setup.tracker(name, *TRACKERS[name])
