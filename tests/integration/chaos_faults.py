@@ -29,16 +29,20 @@ import random
 import signal
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
+from tests.integration.conftest import kill_tagged
 from tests.integration.test_agent import Setup
+from tests.integration.zenoh_helpers import free_port
 from ubitrack_agent.core import se3
 from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net import config
 from ubitrack_agent.net.host_protocol import Status, encode_request
-from ubitrack_agent.net.keys import RelationId
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
 from ubitrack_agent.sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 
 POOL_SIZE = 3
@@ -50,6 +54,22 @@ TRACKERS = {"art": ("ART", 30.0, 2.0), "ir": ("IR", 100.0, -1.0)}
 TRUE_WITHIN_M = 3e-3
 """The tolerance of ``test_agent.assert_true_pose`` (fusing unsynchronised trackers), on the
 largest element difference of the pose matrices."""
+
+
+def tagged_setup(processes: list, tag: str) -> Iterator[Setup]:
+    """A setup on a fresh port and the domain ``<tag><port>``, its session open until the
+    generator ends; then every process tagged with the domain is killed, whatever happened
+    (workers a killed agent or host manager left)."""
+    port = free_port()
+    domain = f"{tag}{port}"
+    settings = config.Settings(
+        connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",), domain=domain
+    )
+    try:
+        with open_session(settings) as session:
+            yield Setup(port, domain, KeySpace(settings.key_prefix), session, processes)
+    finally:
+        kill_tagged(domain)
 
 
 @dataclass(frozen=True)

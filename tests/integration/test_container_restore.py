@@ -31,16 +31,14 @@ from tests.integration.chaos_faults import (
     WT_HT,
     Chaos,
     host_status,
+    tagged_setup,
     truth_error,
     wait_whole,
 )
-from tests.integration.conftest import kill_tagged
 from tests.integration.test_agent import Setup
-from tests.integration.zenoh_helpers import free_port, wait_until
+from tests.integration.zenoh_helpers import wait_until
 from ubitrack_agent.io.application import Relation
-from ubitrack_agent.net import config
-from ubitrack_agent.net.keys import KeySpace, RelationId
-from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.keys import RelationId
 
 pytestmark = pytest.mark.integration
 
@@ -52,16 +50,7 @@ imports on a loaded machine take seconds)."""
 
 @pytest.fixture
 def setup(processes) -> Iterator[Setup]:
-    port = free_port()
-    domain = f"restore{port}"
-    settings = config.Settings(
-        connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",), domain=domain
-    )
-    try:
-        with open_session(settings) as session:
-            yield Setup(port, domain, KeySpace(settings.key_prefix), session, processes)
-    finally:
-        kill_tagged(domain)
+    yield from tagged_setup(processes, "restore")
 
 
 class Received:
