@@ -1,6 +1,7 @@
 """Time to recovery per kind of event (issue 11), one event at a time.
 
-Run: ``python -m bench.recovery_bench [--trials 5] [--seed 11] [--only TEXT]``. The live system of
+Run: ``python -m bench.recovery_bench [--trials 5] [--seed 11] [--only TEXT] [--relations
+A->B,...] [--cores N] [--output NAME]``. The live system of
 ``bench.churn_bench`` (an agent with its host manager, two noise-free trackers, the
 applications ``WT->HT`` and ``HT->WT`` fused from both; real processes and zenoh on loopback),
 steady before every trial (whole, warm pool full, every application fresh). Each trial is one
@@ -23,6 +24,18 @@ process running
   ``settled_s``, until it is fresh for good); it is closed after the trial;
 * ``container SIGKILL, no pool``: as above, on a second system whose agent has
   ``--pool-size 0``, so the container starts in a new process (cold).
+
+``--relations`` opens other applications (relations between ``WT``, ``HT``, ``ART`` and
+``IR``); ``--cores N`` starts the host manager as a process of its own (the agent with
+``--no-host``) running the components in ``N`` containers: ``--cores 1 --relations
+'WT->HT,HT->WT,HT->ART,HT->IR'`` puts 12-15 components feeding four applications in one
+container (issue 28's "a container with ten components"). A container kill also records the
+restore's parts (``bench.restore_parts``: the host manager's report, the new container's
+token, each component's start and readiness, and per application the time from the kill to its
+first correct sample stamped after it) and which process took the group (a ready pool member,
+one still starting, or a cold one); the summary gives, per application and for the worst
+application of each kill, the median and largest time to that first sample, and the median of
+each part.
 
 Recovery is the time from the event until every application's data is fresh and correct again
 for good: the end of its last outage after the event (``bench.availability.recovery``; fresh
@@ -176,9 +189,22 @@ def container_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, An
         parts = watch.parts(event, pid, apps)
     finally:
         watch.close()
-    after = (host_status(chaos.setup) or {"counters": {}})["counters"]
-    taken = {k: after.get(k, 0) - host["counters"].get(k, 0) for k in RESTORED_BY}
+    later = host_status(chaos.setup) or {"counters": {}}
+    parts |= host_parts(later.get("last_restore"), event)
+    taken = {k: later["counters"].get(k, 0) - host["counters"].get(k, 0) for k in RESTORED_BY}
     return result | {"restore": parts, "restored_by": [k for k, v in taken.items() if v > 0]}
+
+
+def host_parts(restore: dict[str, Any] | None, event: float) -> dict[str, float | None]:
+    """The host manager's own stamps of its latest restore (its status's ``last_restore``,
+    absent before it had them): when it noticed the death, when it gave the group to a process
+    (or spawned one for it), in seconds after ``event``; None where unknown."""
+    if not restore or restore["noticed_ns"] * 1e-9 < event:
+        return {"noticed_s": None, "group_given_s": None}
+    return {
+        "noticed_s": round(restore["noticed_ns"] * 1e-9 - event, 4),
+        "group_given_s": round(restore["started_ns"] * 1e-9 - event, 4),
+    }
 
 
 def agent_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
@@ -261,8 +287,8 @@ def restore_summary(restores: list[dict[str, Any]]) -> dict[str, Any]:
         if None not in r["applications_back_s"].values()
     ]
     parts: dict[str, Any] = {}
-    for part in ("old_tokens_gone_s", "reported_s", "container_up_s"):
-        parts[part] = median_of([r[part] for r in restores])
+    for part in ("noticed_s", "group_given_s", "old_tokens_gone_s", "reported_s", "container_up_s"):
+        parts[part] = median_of([r.get(part) for r in restores])
     for part in ("components_created_s", "components_ready_s", "components_up_s"):
         pairs = [r[part] for r in restores if r[part] is not None]
         parts[f"{part}_first_last"] = [

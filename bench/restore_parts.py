@@ -7,9 +7,12 @@ coming and going and every report of the host manager on ``<root>/host/<name>/ex
 ``stamps.created_ns`` and ``ready_ns``, ``services.worker``) and the samples the applications
 received, into the parts of one restore, each in seconds after the kill:
 
+* ``noticed_s`` and ``group_given_s`` (set by the caller from the host manager's status,
+  ``last_restore``, where it has them): when the host manager noticed the death, and when it
+  gave the group to a process (or spawned one for it);
 * ``old_tokens_gone_s``: the killed process's first token seen leaving (zenoh noticed);
-* ``reported_s``: the host manager's first ``restored`` report (it noticed the death and gave
-  the group to another process: both in one turn of its loop);
+* ``reported_s``: the host manager's first ``restored`` report seen (it sends it once it gave
+  the group to another process; it may arrive after the components started);
 * ``container_up_s``: the new process's container token (it takes commands);
 * ``components_created_s`` / ``components_ready_s``: each component's start and its end (every
   declaration made, its token last), in the container's order, and the first and last of each;
