@@ -40,11 +40,9 @@ than starting another. It watches the active agent's tokens (``<root>/agents/*/a
 ends once it has run no component and seen no active agent for ``ORPHAN_END_S``, or, running
 components, once it has seen no active agent for ``ABANDONED_END_S`` (they end with it).
 
-Zenoh callbacks, the request thread and the exit watch
-(:mod:`ubitrack_agent.services.exit_watch`: a worker process ended, so a dead container is
-restored at once, not at the loop's next turn) only queue; one thread handles every event,
-request and process. Handling is total: a malformed request gets an error reply of its type,
-is counted and logged (rate-limited, :func:`ubitrack_agent.net.logs.rate_limited`), and never
+Zenoh callbacks and the request thread only queue; one thread handles every event, request
+and process. Handling is total: a malformed request gets an error reply of its type, is
+counted and logged (rate-limited, :func:`ubitrack_agent.net.logs.rate_limited`), and never
 stops the host manager.
 """
 
@@ -81,7 +79,6 @@ from ubitrack_agent.net.keys import KeyRejection, KeySpace
 from ubitrack_agent.net.spec import MAX_SPEC_BYTES, ComponentSpec, SpecError, parse_spec
 from ubitrack_agent.services.adoption import ASK_TIMEOUT_S, LocalWorker, ask_orphan, orphan_worker
 from ubitrack_agent.services.clock_sync import ClockSync
-from ubitrack_agent.services.exit_watch import ExitWatch
 from ubitrack_agent.services.host import ABANDONED_END_S, ORPHAN_END_S
 from ubitrack_agent.services.registry import lookup
 from ubitrack_agent.services.spec import check_spec
@@ -111,18 +108,7 @@ class HostManager:
         clock: Clock | None = None,
     ) -> None:
         self.counters: Counter[str] = Counter()
-        self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
-        self._exit_watch = ExitWatch(lambda pid: self._events.put(("exit", pid)))
-        """Wakes the loop as soon as a worker process ends (a container is restored at once,
-        not at the loop's next turn)."""
-        self.supervisor = Supervisor(
-            session,
-            keys,
-            worker_flags,
-            pool_size,
-            self.counters,
-            watch_exit=self._exit_watch.watch,
-        )
+        self.supervisor = Supervisor(session, keys, worker_flags, pool_size, self.counters)
         # The first pool member imports beside this process's own imports (two processes for
         # the start-up's imports, not one after the other): a container asked for at once
         # goes to it (``Supervisor._take_starting``), not to a cold process spawned later.
@@ -134,6 +120,7 @@ class HostManager:
         self.clock_sync = ClockSync(session, keys, clock or Clock(), self.counters)
         """This host's clock (the process's, ``Settings.clock_offset_ms`` applied) against
         the agent's."""
+        self._events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._orphaned = threading.Event()
         self._active_agents: set[str] = set()
@@ -294,8 +281,6 @@ class HostManager:
         self.stop()
 
     def _handle(self, kind: str, event: Any) -> None:
-        if kind == "exit":
-            return  # a worker process ended: the loop reaps it now (:meth:`run`)
         if kind == "request":
             self._answer(event)
             return
@@ -471,7 +456,6 @@ class HostManager:
             if kind == "request":
                 event.drop()
         self.supervisor.terminate_all()
-        self._exit_watch.close()
         self._exits.undeclare()
 
 

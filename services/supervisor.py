@@ -34,8 +34,7 @@ runs adds the components to it with an ``add`` command (no process start), sent 
 container's token shows it takes commands. A stop of a component in a container removes it
 from there (``remove``); a container left with no component for ``EMPTY_GRACE_S`` is stopped.
 A container whose
-process exits unasked (its host manager's exit watch wakes it at once:
-:mod:`ubitrack_agent.services.exit_watch`) is started again, in one batch, by a ready pool
+process exits unasked is started again, in one batch, by a ready pool
 member if there is one, with the components it ran (**restored**, each reported
 as such with the new process's pid, under its old run: the agent sends their current wiring),
 at most ``MAX_QUICK_RESTORES`` times in a row within ``QUICK_RESTORE_S`` of its start; then its
@@ -61,7 +60,7 @@ import sys
 import time
 import uuid
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -157,12 +156,8 @@ class Supervisor:
         pool_size: int,
         counters: Counter[str],
         python: str = sys.executable,
-        watch_exit: Callable[[int], object] = lambda pid: None,
     ) -> None:
-        """``watch_exit(pid)`` is called for every process this supervisor spawns or adopts,
-        so that its end wakes the host manager (``ubitrack_agent.services.exit_watch``)."""
         self._session = session
-        self._watch_exit = watch_exit
         self._keys = keys
         self._flags = list(worker_flags)
         self._python = python
@@ -197,7 +192,6 @@ class Supervisor:
             ),
             stdin=subprocess.PIPE,  # closes when the host manager ends: idle members then exit
         )
-        self._watch_exit(process.pid)
         return process
 
     def fill_pool(self) -> None:
@@ -458,7 +452,6 @@ class Supervisor:
             log.warning("container %s (process %d) not adopted", orphan.name, orphan.pid)
             return 0
         pool_id = orphan.worker.pool_id
-        self._watch_exit(process.pid)
         box = ContainerRun(orphan.name, pool_id, process, time.monotonic(), orphan.incarnation)
         self.containers[orphan.name] = box
         for spec in orphan.specs:
