@@ -80,6 +80,8 @@ class Applications:
 
     def __init__(self, setup: Setup, relations: tuple[RelationId, ...]) -> None:
         self.setup = setup
+        self.ids = relations
+        """The relations the applications opened at the start (not those of :meth:`open`)."""
         self.samples: dict[RelationId, list[tuple[float, float, float]]] = {}
         self.judgements: dict[RelationId, list[tuple[float, Judged]]] = {}
         self.relations = [self.open(relation, f"app{i}") for i, relation in enumerate(relations)]
@@ -134,7 +136,7 @@ def steady(chaos: Chaos, applications: Applications, timeout: float = STEADY_S) 
                 problem = f"pool {host['pool_ready']} of {chaos.pool_size}"
         if problem is None:
             since = time.time() - 1.0
-            stale = [str(r) for r in APPLICATIONS if not applications.fresh_since(r, since)]
+            stale = [str(r) for r in applications.ids if not applications.fresh_since(r, since)]
             problem = f"not fresh: {stale}" if stale else None
         if problem is None or time.monotonic() > deadline:
             return problem
@@ -237,13 +239,19 @@ def churn(chaos: Chaos, apps: Applications, rate: float, seconds: float, seed: i
 
 
 @contextlib.contextmanager
-def system(pool_size: int, seed: int) -> Iterator[tuple[Chaos, Applications]]:
-    """The live system, steady, with its applications; every process ended afterwards."""
+def system(
+    pool_size: int,
+    seed: int,
+    relations: tuple[RelationId, ...] = APPLICATIONS,
+    cores: int | None = None,
+) -> Iterator[tuple[Chaos, Applications]]:
+    """The live system, steady, with an application of each of ``relations`` (``cores``: the
+    host manager's containers, :class:`Chaos`); every process ended afterwards."""
     processes: list = []
     try:
         with contextlib.contextmanager(opened)(processes) as setup:
-            chaos = Chaos(setup, random.Random(seed), pool_size)
-            apps = Applications(setup, APPLICATIONS)
+            chaos = Chaos(setup, random.Random(seed), pool_size, cores)
+            apps = Applications(setup, relations)
             problem = steady(chaos, apps)
             if problem is not None:
                 raise RuntimeError(f"the system never became steady: {problem}")

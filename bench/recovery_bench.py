@@ -1,6 +1,7 @@
 """Time to recovery per kind of event (issue 11), one event at a time.
 
-Run: ``python -m bench.recovery_bench [--trials 5] [--seed 11] [--only TEXT]``. The live system of
+Run: ``python -m bench.recovery_bench [--trials 5] [--seed 11] [--only TEXT] [--relations
+A->B,...] [--cores N] [--output NAME]``. The live system of
 ``bench.churn_bench`` (an agent with its host manager, two noise-free trackers, the
 applications ``WT->HT`` and ``HT->WT`` fused from both; real processes and zenoh on loopback),
 steady before every trial (whole, warm pool full, every application fresh). Each trial is one
@@ -23,6 +24,18 @@ process running
   ``settled_s``, until it is fresh for good); it is closed after the trial;
 * ``container SIGKILL, no pool``: as above, on a second system whose agent has
   ``--pool-size 0``, so the container starts in a new process (cold).
+
+``--relations`` opens other applications (relations between ``WT``, ``HT``, ``ART`` and
+``IR``); ``--cores N`` starts the host manager as a process of its own (the agent with
+``--no-host``) running the components in ``N`` containers: ``--cores 1 --relations
+'WT->HT,HT->WT,HT->ART,HT->IR'`` puts 12-15 components feeding four applications in one
+container (issue 28's "a container with ten components"). A container kill also records the
+restore's parts (``bench.restore_parts``: the host manager's report, the new container's
+token, each component's start and readiness, and per application the time from the kill to its
+first correct sample stamped after it) and which process took the group (a ready pool member,
+one still starting, or a cold one); the summary gives, per application and for the worst
+application of each kill, the median and largest time to that first sample, and the median of
+each part.
 
 Recovery is the time from the event until every application's data is fresh and correct again
 for good: the end of its last outage after the event (``bench.availability.recovery``; fresh
@@ -57,6 +70,7 @@ from typing import Any
 from bench.agent_restart_bench import agent_status, recovered, serving
 from bench.availability import first_fresh, outages, recovery
 from bench.churn_bench import APPLICATIONS, FRESH_S, Applications, machine, steady, system
+from bench.restore_parts import RestoreWatch
 from tests.integration.chaos_faults import (
     FLAPPING,
     POOL_SIZE,
@@ -74,6 +88,8 @@ HOLD_S = 2.0
 TIMEOUT_S = 60.0
 POLL_S = 0.05
 QUERY = FLAPPING
+RESTORED_BY = ("containers_from_pool", "containers_from_starting_members", "containers_cold")
+"""The host manager's counters of where a container started: which one grew is the trial's."""
 """The relation a new application opens (``HT->ART``: nothing else asks for it)."""
 
 
@@ -144,7 +160,7 @@ def tracker_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]
     restored = back(chaos, 2)  # its flows stopped, started again
     event = time.time()
     chaos.kill_tracker(name, signal.SIGKILL).action()  # started again at once
-    return observe(apps, APPLICATIONS, event, restored)
+    return observe(apps, apps.ids, event, restored)
 
 
 _CONTAINER_KILLED_AT = [-QUICK_RESTORE_S]
@@ -153,26 +169,49 @@ _CONTAINER_KILLED_AT = [-QUICK_RESTORE_S]
 
 def container_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
     """The container running the most components (ties: the lower pid) killed; restored when
-    the agent has been told of every one's restoration and each is alive again."""
+    the agent has been told of every one's restoration and each is alive again. With the
+    restore's parts (``bench.restore_parts``) and the process that took the group (a ready pool
+    member, one still starting, or a cold one: the host manager's counters)."""
     since = time.monotonic() - _CONTAINER_KILLED_AT[0]
     if since < QUICK_RESTORE_S:  # not a crash loop: the guard would not restore it
         time.sleep(QUICK_RESTORE_S - since)
-    instances = (host_status(chaos.setup) or {"instances": {}})["instances"]
-    members = Counter(entry["pid"] for entry in instances.values())
+    host = host_status(chaos.setup) or {"instances": {}, "name": "", "counters": {}}
+    members = Counter(entry["pid"] for entry in host["instances"].values())
     pid, count = min(members.items(), key=lambda item: (-item[1], item[0]))
     restored = back(chaos, count, counter="restored")
-    event = time.time()
-    os.kill(pid, signal.SIGKILL)
-    _CONTAINER_KILLED_AT[0] = time.monotonic()
-    chaos.log.append(f"container {pid} ({count} components) SIGKILL")
-    return observe(apps, APPLICATIONS, event, restored) | {"components": count}
+    watch = RestoreWatch(chaos.setup.session, chaos.setup.keys, host["name"]).open()
+    try:
+        event = time.time()
+        os.kill(pid, signal.SIGKILL)
+        _CONTAINER_KILLED_AT[0] = time.monotonic()
+        chaos.log.append(f"container {pid} ({count} components) SIGKILL")
+        result = observe(apps, apps.ids, event, restored) | {"components": count}
+        parts = watch.parts(event, pid, apps)
+    finally:
+        watch.close()
+    later = host_status(chaos.setup) or {"counters": {}}
+    parts |= host_parts(later.get("last_restore"), event)
+    taken = {k: later["counters"].get(k, 0) - host["counters"].get(k, 0) for k in RESTORED_BY}
+    return result | {"restore": parts, "restored_by": [k for k, v in taken.items() if v > 0]}
+
+
+def host_parts(restore: dict[str, Any] | None, event: float) -> dict[str, float | None]:
+    """The host manager's own stamps of its latest restore (its status's ``last_restore``,
+    absent before it had them): when it noticed the death, when it gave the group to a process
+    (or spawned one for it), in seconds after ``event``; None where unknown."""
+    if not restore or restore["noticed_ns"] * 1e-9 < event:
+        return {"noticed_s": None, "group_given_s": None}
+    return {
+        "noticed_s": round(restore["noticed_ns"] * 1e-9 - event, 4),
+        "group_given_s": round(restore["started_ns"] * 1e-9 - event, 4),
+    }
 
 
 def agent_kill(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
     before = set((chaos.setup.status() or {"components": {}})["components"])
     event = time.time()
     chaos.kill_agent(signal.SIGKILL)
-    return observe(apps, APPLICATIONS, event, lambda: recovered(agent_status(chaos.setup), before))
+    return observe(apps, apps.ids, event, lambda: recovered(agent_status(chaos.setup), before))
 
 
 def query_open(chaos: Chaos, apps: Applications, trial: int) -> dict[str, Any]:
@@ -226,8 +265,46 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
         figures: dict[str, Any] = {"trials": len(mine), "not_recovered": len(mine) - len(done)}
         figures |= spread("recovery", done)
         figures |= spread("restored", [r["restored_s"] for r in mine if r["restored_s"]])
+        if any("restore" in row for row in mine):
+            figures |= restore_summary([row["restore"] for row in mine if "restore" in row])
         kinds[kind] = figures
     return kinds
+
+
+def restore_summary(restores: list[dict[str, Any]]) -> dict[str, Any]:
+    """Over the container kills: per application, the time to its first sample again (median,
+    maximum; ``None`` counted as never), the worst application's per kill, and the median of
+    each part of the restore (``bench.restore_parts``)."""
+    names = list(restores[0]["applications_back_s"])
+    per_application = {}
+    for name in names:
+        times = [r["applications_back_s"][name] for r in restores]
+        done = [t for t in times if t is not None]
+        per_application[name] = spread("back", done) | {"never": len(times) - len(done)}
+    worst = [
+        max(r["applications_back_s"].values())
+        for r in restores
+        if None not in r["applications_back_s"].values()
+    ]
+    parts: dict[str, Any] = {}
+    for part in ("noticed_s", "group_given_s", "old_tokens_gone_s", "reported_s", "container_up_s"):
+        parts[part] = median_of([r.get(part) for r in restores])
+    for part in ("components_created_s", "components_ready_s", "components_up_s"):
+        pairs = [r[part] for r in restores if r[part] is not None]
+        parts[f"{part}_first_last"] = [
+            median_of([p[0] for p in pairs]),
+            median_of([p[1] for p in pairs]),
+        ]
+    return {
+        "applications_back": per_application,
+        **spread("worst_application_back", worst),
+        "restore_parts_median_s": parts,
+    }
+
+
+def median_of(values: list[float | None]) -> float | None:
+    known = [v for v in values if v is not None]
+    return round(statistics.median(known), 4) if known else None
 
 
 def spread(name: str, values: list[float]) -> dict[str, float]:
@@ -240,6 +317,14 @@ def spread(name: str, values: list[float]) -> dict[str, float]:
     }
 
 
+def parse_relation(text: str) -> RelationId:
+    """``WT->HT`` as the 6D relation from WT to HT."""
+    source, arrow, target = text.strip().partition("->")
+    if not arrow or not source or not target:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected SOURCE->TARGET")
+    return RelationId(source, target, "6D")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m bench.recovery_bench", description=__doc__.split("\n\n")[0]
@@ -249,17 +334,40 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--only", default="", help="run only the kinds whose name holds this text (default: all)"
     )
+    parser.add_argument(
+        "--output",
+        default="",
+        help="the results file's name in bench/results, without .json (default: recovery, or "
+        "recovery_<first word of --only>)",
+    )
+    parser.add_argument(
+        "--relations",
+        default="",
+        help="the applications' relations, comma-separated, e.g. WT->HT,HT->WT,HT->ART,HT->IR "
+        "(between WT, HT, ART and IR; default: WT->HT,HT->WT)",
+    )
+    parser.add_argument(
+        "--cores",
+        type=int,
+        default=None,
+        help="the host manager runs the components in this many containers (its own process, "
+        "`ubitrack host --cores`; default: the agent's own host manager, one per CPU core)",
+    )
     args = parser.parse_args(argv)
+    relations = tuple(parse_relation(text) for text in args.relations.split(",") if text)
+    relations = relations or APPLICATIONS
     warm = {kind: trial for kind, trial in WARM.items() if args.only in kind}
     cold = {kind: trial for kind, trial in COLD.items() if args.only in kind}
     rows: list[dict[str, Any]] = []
     if warm:
-        with system(POOL_SIZE, args.seed) as (chaos, apps):
+        with system(POOL_SIZE, args.seed, relations, args.cores) as (chaos, apps):
             rows += trials(chaos, apps, warm, args.trials)
     if cold:
-        with system(0, args.seed) as (chaos, apps):
+        with system(0, args.seed, relations, args.cores) as (chaos, apps):
             rows += trials(chaos, apps, cold, args.trials)
     only = f" --only '{args.only}'" if args.only else ""
+    only += f" --relations '{args.relations}'" if args.relations else ""
+    only += f" --cores {args.cores}" if args.cores is not None else ""
     results = {
         "command": f"python -m bench.recovery_bench --trials {args.trials} --seed {args.seed}"
         + only,
@@ -268,7 +376,9 @@ def main(argv: list[str] | None = None) -> int:
         "summary": summary(rows),
         "trials": rows,
     }
-    written = RESULTS.with_stem(f"recovery_{args.only.split()[0]}") if args.only else RESULTS
+    written = RESULTS.with_stem(args.output) if args.output else RESULTS
+    if args.only and not args.output:
+        written = RESULTS.with_stem(f"recovery_{args.only.split()[0]}")
     written.parent.mkdir(exist_ok=True)
     written.write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps(results["summary"], indent=2))

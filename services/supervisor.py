@@ -34,7 +34,8 @@ runs adds the components to it with an ``add`` command (no process start), sent 
 container's token shows it takes commands. A stop of a component in a container removes it
 from there (``remove``); a container left with no component for ``EMPTY_GRACE_S`` is stopped.
 A container whose
-process exits unasked is started again with the components it ran (**restored**, each reported
+process exits unasked is started again, in one batch, by a ready pool
+member if there is one, with the components it ran (**restored**, each reported
 as such with the new process's pid, under its old run: the agent sends their current wiring),
 at most ``MAX_QUICK_RESTORES`` times in a row within ``QUICK_RESTORE_S`` of its start; then its
 components are reported as exited. A component that left its container by its own stop
@@ -128,6 +129,9 @@ class ContainerRun:
     pending: list[str] = field(default_factory=list)
     group: str | None = None
     quick_restores: int = 0
+    taken_from: str = "pool"
+    """Which process took the group: ``pool`` (a ready member), ``starting`` (a member still
+    importing) or ``cold`` (spawned for it)."""
     empty_since: float | None = None
 
 
@@ -171,11 +175,16 @@ class Supervisor:
         self.containers: dict[str, ContainerRun] = {}
         self._stopping: list[tuple[subprocess.Popen | AdoptedProcess, float]] = []
         self._last_start = -REFILL_QUIET_S
+        self.last_restore: dict[str, Any] | None = None
+        """The latest container restored: its name, components, which process took it
+        (:attr:`ContainerRun.taken_from`), when its death was noticed and when the process was
+        given the group or spawned for it (wall clock, ns): the restore's parts here
+        (``bench.restore_parts``)."""
 
     # -- pool ---------------------------------------------------------------------------------
 
     def _spawn(self, pool_id: str, *arguments: str) -> subprocess.Popen:
-        return subprocess.Popen(
+        process = subprocess.Popen(
             module_command(
                 "ubitrack_agent.services.worker",
                 *("--pool-id", pool_id, *arguments, *self._flags),
@@ -183,6 +192,7 @@ class Supervisor:
             ),
             stdin=subprocess.PIPE,  # closes when the host manager ends: idle members then exit
         )
+        return process
 
     def fill_pool(self) -> None:
         """Start one pool member if the pool is short, none is starting and starts have been
@@ -339,12 +349,13 @@ class Supervisor:
         if taken is not None:
             pool_id, process = taken
             put_command(self._session, self._keys.pool(pool_id), group.to_json())
-            pending_group = None
+            pending_group, taken_from = None, "pool"
             self.counters["containers_from_pool"] += 1
         elif starting is not None:
             pool_id, process = starting
             pending_group = group.to_json()
             self.counters["containers_from_starting_members"] += 1
+            taken_from = "starting"
         else:
             pool_id = f"{self._tag}-{uuid.uuid4().hex[:8]}"
             try:
@@ -353,6 +364,7 @@ class Supervisor:
                 raise ProtocolError("failed_spawn", str(exc)) from None
             pending_group = group.to_json()
             self.counters["containers_cold"] += 1
+            taken_from = "cold"
         log.info(
             "container %s: %d components, process %d",
             group.container,
@@ -366,6 +378,7 @@ class Supervisor:
             time.monotonic(),
             group=pending_group,
             quick_restores=quick_restores,
+            taken_from=taken_from,
         )
         self.containers[group.container] = box
         return box
@@ -587,6 +600,7 @@ class Supervisor:
         now: float,
     ) -> list[Exited]:
         """Start ``box``'s container again with ``members``; their reports."""
+        noticed_ns = time.time_ns()
         quick = box.quick_restores + 1 if now - box.started < QUICK_RESTORE_S else 0
         group = GroupSpec(box.name, tuple(assignment.spec for _, assignment in members))
         if returncode == UNKNOWN_EXIT:  # an adopted process: its status was its parent's
@@ -606,6 +620,13 @@ class Supervisor:
                 for instance, a in members
             ]
         self.counters["containers_restored"] += 1
+        self.last_restore = {
+            "container": box.name,
+            "components": len(members),
+            "taken_from": new.taken_from,
+            "noticed_ns": noticed_ns,
+            "started_ns": time.time_ns(),
+        }
         for _, assignment in members:
             assignment.process, assignment.pool_id = new.process, new.pool_id
         return [
@@ -676,6 +697,7 @@ class Supervisor:
             "pool_starting": len(self._members) - len(self._ready),
             "releasing": len(self._releasing),
             "stopping": len(self._stopping),
+            "last_restore": self.last_restore,
             "instances": {
                 instance: {
                     "service": assignment.spec.service,

@@ -31,7 +31,7 @@ import random
 import signal
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -39,11 +39,15 @@ import numpy as np
 from scipy.stats import chi2
 
 from bench.synthetic import left_error
+from tests.integration.conftest import kill_tagged
 from tests.integration.test_agent import Setup
+from tests.integration.zenoh_helpers import free_port
 from ubitrack_agent.core import quaternions, se3
 from ubitrack_agent.io.application import Relation
+from ubitrack_agent.net import config
 from ubitrack_agent.net.host_protocol import Status, encode_request
-from ubitrack_agent.net.keys import RelationId
+from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.session import open_session
 from ubitrack_agent.sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 
 POOL_SIZE = 3
@@ -64,6 +68,22 @@ THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
 (20.06 for 6 degrees of freedom)."""
 
 
+def tagged_setup(processes: list, tag: str) -> Iterator[Setup]:
+    """A setup on a fresh port and the domain ``<tag><port>``, its session open until the
+    generator ends; then every process tagged with the domain is killed, whatever happened
+    (workers a killed agent or host manager left)."""
+    port = free_port()
+    domain = f"{tag}{port}"
+    settings = config.Settings(
+        connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",), domain=domain
+    )
+    try:
+        with open_session(settings) as session:
+            yield Setup(port, domain, KeySpace(settings.key_prefix), session, processes)
+    finally:
+        kill_tagged(domain)
+
+
 @dataclass(frozen=True)
 class FollowUp:
     """What a fault leaves to do: ``action`` after ``delay`` seconds."""
@@ -75,10 +95,21 @@ class FollowUp:
 class Chaos:
     """The system under faults: the processes it runs, and the faults."""
 
-    def __init__(self, setup: Setup, rng: random.Random, pool_size: int = POOL_SIZE) -> None:
+    def __init__(
+        self,
+        setup: Setup,
+        rng: random.Random,
+        pool_size: int = POOL_SIZE,
+        cores: int | None = None,
+    ) -> None:
+        """``cores``: the agent starts no host manager, this one starts the host's own, which
+        runs the components in that many containers (``ubitrack host --cores``); None: the
+        agent's own host manager (one container per CPU core)."""
         self.setup = setup
         self.rng = rng
         self.pool_size = pool_size
+        self.cores = cores
+        self.host = None if cores is None else self.start_host()
         self.agent = self.start_agent(wait=True)
         self.trackers = {name: self.start_tracker(name) for name in TRACKERS}
         self.log: list[str] = []
@@ -88,7 +119,13 @@ class Chaos:
 
     def start_agent(self, wait: bool = False) -> subprocess.Popen:
         """The agent; a restart does not wait for it (the faults go on meanwhile)."""
-        return self.setup.start_agent("--pool-size", str(self.pool_size), wait=wait)
+        own_host = () if self.cores is None else ("--no-host",)
+        return self.setup.start_agent("--pool-size", str(self.pool_size), *own_host, wait=wait)
+
+    def start_host(self) -> subprocess.Popen:
+        """The host manager of ``cores`` containers, named ``bench``."""
+        flags = ("--name", "bench", "--pool-size", str(self.pool_size), "--cores", str(self.cores))
+        return self.setup.start("-m", "ubitrack_agent.services.host", *flags)
 
     def start_tracker(self, name: str) -> subprocess.Popen:
         return self.setup.tracker(name, *TRACKERS[name])

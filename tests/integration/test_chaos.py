@@ -32,15 +32,20 @@ from types import SimpleNamespace
 
 import pytest
 
-from tests.integration.chaos_faults import HT_WT, WT_HT, Chaos, Judged, judged, wait_whole
-from tests.integration.conftest import kill_tagged
+from tests.integration.chaos_faults import (
+    HT_WT,
+    WT_HT,
+    Chaos,
+    Judged,
+    judged,
+    tagged_setup,
+    wait_whole,
+)
 from tests.integration.test_agent import Setup, assert_true_pose, fresh_samples
-from tests.integration.zenoh_helpers import free_port, wait_until
+from tests.integration.zenoh_helpers import wait_until
 from ubitrack_agent.core import ErrorPose, se3
 from ubitrack_agent.io.application import Relation
-from ubitrack_agent.net import config
-from ubitrack_agent.net.keys import KeySpace, RelationId
-from ubitrack_agent.net.session import open_session
+from ubitrack_agent.net.keys import RelationId
 
 pytestmark = pytest.mark.integration
 
@@ -62,16 +67,7 @@ def inverted(sample: ErrorPose) -> SimpleNamespace:
 
 @pytest.fixture
 def setup(processes) -> Iterator[Setup]:
-    port = free_port()
-    domain = f"chaos{port}"
-    settings = config.Settings(
-        connect=(f"tcp/127.0.0.1:{port}",), listen=("tcp/127.0.0.1:0",), domain=domain
-    )
-    try:
-        with open_session(settings) as session:
-            yield Setup(port, domain, KeySpace(settings.key_prefix), session, processes)
-    finally:
-        kill_tagged(domain)  # workers left by a killed agent, whatever happened
+    yield from tagged_setup(processes, "chaos")
 
 
 def test_random_faults_leave_one_process_per_component_and_correct_data(setup):
