@@ -65,6 +65,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ubitrack_agent.core.interpreter import module_command
+from ubitrack_agent.net import config
 from ubitrack_agent.net.host_protocol import (
     STOP_COMMAND,
     Exited,
@@ -191,6 +192,7 @@ class Supervisor:
                 python=self._python,
             ),
             stdin=subprocess.PIPE,  # closes when the host manager ends: idle members then exit
+            env=config.child_environment(),  # its network from its flags alone
         )
         return process
 
