@@ -45,7 +45,7 @@ def waiting_for(srg: nx.MultiDiGraph, stale: StaleEdges, relation: RelationId) -
     if joined or not stale:
         return []
     graph = nx.Graph(srg.to_undirected(as_view=True))
-    graph.add_edges_from((u, v, {"stale": edge_id}) for edge_id, (u, v) in stale.items())
+    graph.add_edges_from(stale.values())
     if not all(f in graph for f in ends) or not nx.has_path(graph, *ends):
         return []
     component = nx.node_connected_component(graph, relation.source)
