@@ -25,7 +25,8 @@ import numpy as np
 
 from bench.fusion_latency_bench import _free_port, errors
 from bench.report import write_results
-from bench.switch_bench import C_A, Trace, nees, truth_at
+from bench.switch_bench import C_A, Trace, truth_at
+from bench.synthetic import nees
 from ubitrack_agent.core import decode
 from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.net import config

@@ -90,7 +90,7 @@ from bench.fusion_latency_bench import (
     wait_for_services,
 )
 from bench.steady_state import wait_for_warm_pool
-from bench.synthetic import left_error
+from bench.synthetic import THREE_SIGMA_NEES, nees
 from ubitrack_agent.commands.demo import Processes, dtrack_flags, simulator_arguments
 from ubitrack_agent.core import decode
 from ubitrack_agent.core.errors import MeasurementError
@@ -116,8 +116,6 @@ STEADY_TAIL = 0.01
 """The share of a steady state's samples beyond its p99: what the second after a switch holds
 beyond it too if the switch adds no error (the issue's bound, the larger p99 of the two flows,
 taken as a tail share: 1 % of any flow's own samples lie beyond its p99)."""
-THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
-"""NEES of a 6D error "beyond 3 sigma": the chi-square quantile of a 3-sigma probability."""
 KINDS = (
     "A.R.T. off",
     "A.R.T. back",
@@ -250,16 +248,6 @@ class Trace:
             if (t, "data", k) not in firsts.values()
         ]
         return [[round((t - start_ns) / 1e6, 1), what, key] for t, what, key in sorted(kept)]
-
-
-def nees(sample: Any, truth: Any) -> float | None:
-    """``e^T P^-1 e`` of the sample's left error against the truth, or ``None`` without a
-    covariance (a pose announced without one cannot be judged against it)."""
-    covariance = getattr(sample, "covariance", None)
-    if covariance is None:
-        return None
-    error = left_error(sample, truth)
-    return float(error @ np.linalg.solve(covariance, error))
 
 
 def truth_at(world: Any, at_ns: int) -> Any:

@@ -11,6 +11,7 @@ import zlib
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from ubitrack_agent.core import quaternions, se3
 from ubitrack_agent.core.uncertainty import skew
@@ -47,6 +48,21 @@ def left_error(estimate: PoseEstimate, truth: PoseEstimate) -> np.ndarray:
     return left_residuals(
         rigid(estimate.rotation, estimate.translation), rigid(truth.rotation, truth.translation)
     )[0]
+
+
+THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
+"""NEES of a 6D error "beyond 3 sigma": the chi-square quantile of a 3-sigma probability
+(20.06 for 6 degrees of freedom)."""
+
+
+def nees(estimate: PoseEstimate, truth: PoseEstimate) -> float | None:
+    """``e^T P^-1 e`` of the estimate's left error against the truth (:func:`left_error`), or
+    ``None`` without a covariance (a pose announced without one cannot be judged against it)."""
+    covariance = getattr(estimate, "covariance", None)
+    if covariance is None:
+        return None
+    error = left_error(estimate, truth)
+    return float(error @ np.linalg.solve(covariance, error))
 
 
 def sample_poses(

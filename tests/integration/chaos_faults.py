@@ -36,9 +36,8 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
-from scipy.stats import chi2
 
-from bench.synthetic import left_error
+from bench.synthetic import THREE_SIGMA_NEES, nees
 from tests.integration.conftest import kill_tagged
 from tests.integration.test_agent import Setup
 from tests.integration.zenoh_helpers import free_port
@@ -63,9 +62,6 @@ largest element difference of the pose matrices."""
 WRONG_MM = 50.0
 WRONG_DEG = 5.0
 """Issue 29's bound on any delivered sample's error, whatever its covariance says."""
-THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
-"""NEES of a 6D error "beyond 3 sigma": the chi-square quantile of a 3-sigma probability
-(20.06 for 6 degrees of freedom)."""
 
 
 def tagged_setup(processes: list, tag: str) -> Iterator[Setup]:
@@ -334,13 +330,8 @@ def judged(relation: RelationId, sample) -> Judged:
     logarithm, the coordinates of the services' covariances)."""
     q, t = true_pose(relation, sample.timestamp_ns)
     relative = quaternions.multiply(sample.rotation, quaternions.conjugate(q))
-    covariance = getattr(sample, "covariance", None)
-    nees = None
-    if covariance is not None:
-        error = left_error(sample, SimpleNamespace(rotation=q, translation=t))
-        nees = float(error @ np.linalg.solve(covariance, error))
     return Judged(
         float(np.linalg.norm(sample.translation - t)) * 1e3,
         float(np.degrees(quaternions.angle(relative))),
-        nees,
+        nees(sample, SimpleNamespace(rotation=q, translation=t)),
     )
