@@ -34,6 +34,13 @@ sees while the flow behind its key changes"):
    the agent), the key is free at once, not after the quiet time: a producer waiting beside it
    (held back, or claiming) puts its newest sample not yet put, if that is after the newest on
    the key (rule 1), and goes on.
+6. **Take back.** A producer that gave the key away takes it back, by a claim as in rule 3,
+   when it gets a lost input back, its estimate no less certain than the holder's: it was
+   quiet for the longest quiet time (``QUIET_BOUNDS_S``), or its estimate suddenly became far
+   more certain (covariance trace at most :data:`TAKE_BACK_RATIO` times its previous
+   estimate's). The old derivation of a relation that lost a sensor is kept on standby
+   (``agent.standby``), and the sensor's first measurement back does that, so the relation
+   is served by it again within a sample, before the agent has even heard of the sensor.
 
 "Another producer is putting" means a sample not put by this one arrived within
 :meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded), or until
@@ -71,6 +78,11 @@ log = logging.getLogger("ubitrack.worker")
 READY_RATIO = 1.0
 """A new producer's estimate is ready when its covariance's trace is at most this times the
 current producer's latest (no less certain than what the application receives now)."""
+TAKE_BACK_RATIO = 0.1
+"""A producer that gave the key away takes it back when its estimate's covariance trace drops
+to at most this times its previous estimate's (rule 6): an input it had lost is back (the
+tracker's data in a fusion that ran on the camera alone: about 430 to 8 mm^2 in the demo). A
+flow that is merely better than the holder, by a better filter, say, does not take it."""
 CLAIM_TIMEOUT_S = 0.25
 """The longest a claimer waits for the holder's answer before it puts anyway."""
 QUIET_BOUNDS_S = (0.02, 0.5)
@@ -102,6 +114,7 @@ COUNTERS = {
     "relation_claiming": "relation samples not put: the key claimed, the holder's answer awaited",
     "relation_yielded": "relation samples not put: a newer producer claimed the key",
     "relation_taken": "times this producer took a relation key over from another one",
+    "relation_taken_back": "times this producer took back a key it had given away (rule 6)",
     "relation_claims_unanswered": "claims that had no answer in time (put anyway)",
     "relation_holder_left": "times the producer holding a relation key left (its token gone)",
     "relation_put_when_free": "relation samples held back, put when the key became free",
@@ -169,6 +182,9 @@ class KeyHandOver:
         self.asking = False
         """Whether this producer's question who holds the key is still open (``Watch``): while
         it is, a quiet key may have a holder only late."""
+        self._own_trace: tuple[tuple[int, ...], float] | None = None
+        self._own_at: float | None = None
+        """The covariance trace of this producer's latest estimate, and when it came (rule 6)."""
         self._waiting: tuple[int, Callable[[], None]] | None = None
         """The newest sample held back (its timestamp and its put), put if the key becomes free
         before a newer one comes (rule 5)."""
@@ -330,9 +346,17 @@ class KeyHandOver:
         claim = wait = False
         with self._lock:
             other = self._other_at is not None and now - self._other_at <= self.quiet_s()
+            previous = self._own_trace if self._own_at is not None else None
+            if previous is not None and now - self._own_at > QUIET_BOUNDS_S[1]:
+                previous = None  # quiet since: it lost its input and got it back
+            self._own_trace, self._own_at = _trace(value), now
             if self._yielded and other:
-                return self._refuse("relation_yielded")
-            if self._claimed_at is not None and (other or self._holder_alive() or self.asking):
+                if not self._regained(previous):
+                    return self._refuse("relation_yielded")
+                self._yielded = False  # rule 6: its lost input is back
+                self._claimed_at, claim, wait = now, True, True
+                self._counters["relation_taken_back"] += 1
+            elif self._claimed_at is not None and (other or self._holder_alive() or self.asking):
                 # The answer awaited: the holder puts on, or is only late (it stops before
                 # it answers, so nothing it puts comes after what this one puts then).
                 if now - self._claimed_at < CLAIM_TIMEOUT_S:
@@ -381,6 +405,20 @@ class KeyHandOver:
         if mine is None or theirs is None or mine[0] != theirs[0]:
             return True  # nothing to compare: as good as can be told
         return mine[1] <= READY_RATIO * theirs[1]
+
+    def _regained(self, previous: tuple[tuple[int, ...], float] | None) -> bool:
+        """Rule 6: this producer's latest estimate is no less certain than the holder's latest
+        sample, and it has got a lost input back: it was quiet (``previous`` is None) or its
+        estimate is at most :data:`TAKE_BACK_RATIO` times as uncertain as its ``previous`` one
+        (covariances of one shape); lock held."""
+        mine, theirs = self._own_trace, self._other_trace
+        if mine is None or theirs is None or mine[0] != theirs[0]:
+            return False
+        if mine[1] > READY_RATIO * theirs[1]:
+            return False
+        if previous is None:
+            return True
+        return previous[0] == mine[0] and mine[1] <= TAKE_BACK_RATIO * previous[1]
 
     def _refuse(self, counter: str) -> bool:
         self._counters[counter] += 1

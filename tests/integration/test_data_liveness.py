@@ -5,6 +5,7 @@ provider offers an alternative, and gets it back when its data returns. The situ
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 
@@ -16,6 +17,7 @@ from tests.integration.zenoh_helpers import wait_until
 from ubitrack_agent.core import ErrorPose, se3
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.io.provider import STALE_MIN_S, EdgeAnnouncement, Provider
+from ubitrack_agent.net.transport import fetch_latest
 from ubitrack_agent.sim_trackers.exact_tracker import tracker_pose, true_wt_ht
 
 pytestmark = pytest.mark.integration
@@ -30,16 +32,25 @@ class PausableTracker:
     the ``Provider`` API: ``T->WT`` static and ``T->HT`` at 100 Hz; :meth:`pause` stops publishing
     ``T->HT`` while the provider and its token stay."""
 
-    def __init__(self, session, keys, provider: str, tracker: str, yaw: float, x: float) -> None:
+    def __init__(
+        self,
+        session,
+        keys,
+        provider: str,
+        tracker: str,
+        yaw: float,
+        x: float,
+        sigma: float = 1e-3,
+    ) -> None:
         self.paused = threading.Event()
         self._stop = threading.Event()
         self._pose = tracker_pose(yaw, x)
         edges = [
-            EdgeAnnouncement(tracker, "HT", "6D", name="HT", rate=RATE_HZ, sigma=1e-3),
+            EdgeAnnouncement(tracker, "HT", "6D", name="HT", rate=RATE_HZ, sigma=sigma),
             EdgeAnnouncement(tracker, "WT", "6D", static=True, name="WT", sigma=1e-3),
         ]
         self.provider = Provider(session, keys, provider, edges)
-        self._cov = np.diag([1e-6] * 6)
+        self._cov = np.diag([sigma**2] * 6)
         self.provider.publish("WT", ErrorPose(time.time_ns(), *self._pose, self._cov))
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -66,6 +77,18 @@ def reads(status: dict, edge_id: str) -> bool:
     )
 
 
+def standby_fusion(status: dict | None) -> str | None:
+    """The fusion the agent keeps on standby (``agent.standby``), if any."""
+    standby = status["standby_components"] if status else []
+    return next((i for i in standby if i.startswith("fusion-")), None)
+
+
+def worker_status(setup, instance: str) -> dict:  # noqa: F811
+    replies = fetch_latest(setup.session, setup.keys.status(instance), timeout=1.0)
+    assert replies, f"{instance} does not answer its status"
+    return json.loads(replies[0])
+
+
 def test_an_edge_whose_data_stopped_is_planned_without_until_it_returns(setup):  # noqa: F811
     setup.start_agent()
     trackers = [
@@ -89,20 +112,75 @@ def test_an_edge_whose_data_stopped_is_planned_without_until_it_returns(setup): 
             timeout=REWIRE_S,
         )
         assert "art" in status["providers"]  # still announced
-        wait_until(lambda: "fusion" not in setup.alive_services().values(), timeout=REWIRE_S)
+        fusion = wait_until(lambda: standby_fusion(setup.status()), timeout=REWIRE_S)
         print(f"rewired without art/HT after {time.monotonic() - paused:.2f} s")
+        incarnation = worker_status(setup, fusion)["incarnation"]
         for sample in fresh_samples(relation, 20):  # the other tracker serves the relation
             assert_true_pose(sample)
 
-        art.paused.clear()  # data again: fusion returns
-        wait_until(lambda: "fusion" in setup.alive_services().values(), timeout=REWIRE_S + 10)
+        art.paused.clear()  # data again: the fusion on standby is taken back, not started
+        wait_until(lambda: fusion in setup.alive_services(), timeout=REWIRE_S + 10)
         status = setup.status()
-        assert status["stale_edges"] == []
+        assert status["stale_edges"] == [] and status["standby_components"] == []
         assert status["counters"]["stale_edges"] == 1
         assert status["counters"]["returned_edges"] == 1
+        assert worker_status(setup, fusion)["incarnation"] == incarnation
         for sample in fresh_samples(relation, 20):
             assert_true_pose(sample)
     finally:
         relation.close()
         for tracker in trackers:
             tracker.close()
+
+
+def test_a_lost_tracker_back_takes_its_relation_back_before_the_agent_replans(setup):  # noqa: F811
+    """A precise tracker's chain serves the relation, a coarse one's (10 mm) takes over while
+    the precise one's data stops; its chain, kept on standby, takes the relation's key back
+    with the tracker's first samples (hand-over rule 6), long before the provider's next data
+    liveness report tells the agent (about a second): the relation is precise again at once,
+    and the agent then adopts that chain."""
+    setup.start_agent()
+    trackers = [
+        PausableTracker(setup.session, setup.keys, "art", "ART", 30.0, 2.0),
+        PausableTracker(setup.session, setup.keys, "ir", "IR", 100.0, -1.0, sigma=10e-3),
+    ]
+    relation = Relation(setup.session, setup.keys, WT_HT, application="app")
+    try:
+        precise = wait_until(lambda: producer_reading(setup.status(), "art/HT"), timeout=30)
+        art = trackers[0]
+        art.paused.set()
+        wait_until(lambda: precise in (setup.status() or {}).get("standby_components", ()), 10)
+        coarse = position_variance(fresh_samples(relation, 5)[-1])
+
+        art.paused.clear()
+        resumed = time.monotonic()
+        sample = wait_until(
+            lambda: next(
+                (s for s in fresh_samples(relation, 1) if position_variance(s) < coarse / 10),
+                None,
+            ),
+            timeout=10,
+        )
+        print(f"precise again after {time.monotonic() - resumed:.3f} s")
+        assert_true_pose(sample)
+        assert worker_status(setup, precise)["counters"].get("relation_taken_back") == 1
+        wait_until(lambda: precise in setup.alive_services(), timeout=REWIRE_S + 10)
+        assert setup.status()["standby_components"] == []
+    finally:
+        relation.close()
+        for tracker in trackers:
+            tracker.close()
+
+
+def position_variance(sample) -> float:
+    """The trace of a pose's position covariance (m^2)."""
+    return float(np.trace(sample.covariance[3:, 3:]))
+
+
+def producer_reading(status: dict | None, edge_id: str) -> str | None:
+    """The component putting on a relation key whose derivation reads ``edge_id`` directly."""
+    for instance, component in (status or {"components": {}})["components"].items():
+        reads_edge = any(b["key"].endswith(f"/data/{edge_id}") for b in component["inputs"])
+        if component["relations"] and reads_edge and component["alive"]:
+            return instance
+    return None

@@ -8,13 +8,15 @@ from collections import Counter, defaultdict
 from types import SimpleNamespace
 
 from ubitrack_agent.agent.hosts import Placement
-from ubitrack_agent.agent.runtime import REROUTE_S, Agent
+from ubitrack_agent.agent.runtime import REROUTE_S, RETIRE_S, Agent
 from ubitrack_agent.agent.stamps import Stamps
+from ubitrack_agent.agent.standby import STANDBY_S
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import HAND_OVER_HOLD_S
+from ubitrack_agent.net.spec import HAND_OVER_HOLD_S, ComponentSpec
 
 KEYS = KeySpace("ubitrack/test")
+CONCAT = ComponentSpec("fused", "concatenation", (), {"AC": "ubitrack/test/data/fused/AC"})
 
 
 def agent(placements: dict[str, Placement] | None = None) -> tuple[Agent, list]:
@@ -30,6 +32,8 @@ def agent(placements: dict[str, Placement] | None = None) -> tuple[Agent, list]:
     bare._duplicate_stops = {}
     bare._held = {}
     bare._retiring = {}
+    bare._standby = set()
+    bare._unwanted_since = {}
     bare._all_alive_since = None
     bare._unrouted = {}
     bare.wanted = {}
@@ -134,6 +138,48 @@ def test_a_replaced_worker_runs_on_until_the_new_producer_could_take_its_key(mon
     clock[0] += HAND_OVER_HOLD_S * 0.1
     bare._retire()
     assert stopped == ["camera-only"] and bare._retiring == {}
+
+
+def test_a_standby_worker_outlives_the_hand_over_and_is_adopted_when_wanted_again(monkeypatch):
+    """The old flow of a relation that lost a sensor (``agent.standby``) runs on after the new
+    one has taken the key, until ``STANDBY_S``; planned again meanwhile (the sensor is back),
+    it is adopted, not started."""
+    clock = [50.0]
+    monkeypatch.setattr("ubitrack_agent.agent.runtime.time.monotonic", lambda: clock[0])
+    bare, puts = agent()
+    bare.wanted, bare.alive = {"camera-only": CONCAT}, {"camera-only", "fused", "old"}
+    bare._retiring = {"fused": clock[0] + STANDBY_S, "old": clock[0] + RETIRE_S}
+    bare._standby = {"fused"}
+    stopped: list[str] = []
+    bare._stop_worker = stopped.append
+    bare._retire()
+    clock[0] += HAND_OVER_HOLD_S
+    bare._retire()
+    assert stopped == ["old"] and bare._standby == {"fused"}  # handed over: only "old" goes
+    bare.alive.discard("old")  # its process ended
+    bare.running = {"camera-only": CONCAT}  # retiring now, stopped after its own hand-over
+    bare.wanted = {"fused": CONCAT}  # the sensor is back: the same derivation is planned
+    bare._claim_unknown_workers()
+    assert bare.running["fused"] == CONCAT and bare._standby == set()
+    assert bare._retiring == {} and [key for key, _ in puts] == [KEYS.control("fused")]
+    assert bare.counters["adopted"] == 0  # its own worker taken back, not an earlier agent's
+
+
+def test_a_standby_worker_not_wanted_again_is_stopped_after_standby_s(monkeypatch):
+    clock = [50.0]
+    monkeypatch.setattr("ubitrack_agent.agent.runtime.time.monotonic", lambda: clock[0])
+    bare, _ = agent()
+    bare.wanted, bare.alive = {"camera-only": CONCAT}, {"camera-only", "fused"}
+    bare._retiring, bare._standby = {"fused": clock[0] + STANDBY_S}, {"fused"}
+    stopped: list[str] = []
+    bare._stop_worker = stopped.append
+    bare._retire()
+    clock[0] += STANDBY_S - 0.01
+    bare._retire()
+    assert stopped == []
+    clock[0] += 0.02
+    bare._retire()
+    assert stopped == ["fused"] and bare._standby == set() and bare._retiring == {}
 
 
 def test_a_held_rewire_of_a_worker_that_ended_is_dropped():

@@ -276,6 +276,61 @@ def test_the_old_producer_puts_again_when_the_new_one_dies():
     assert bus.offer(old, pose(40))
 
 
+def test_a_producer_that_gave_the_key_away_takes_it_back_when_a_lost_input_is_back():
+    """Rule 6: a fusion that lost its tracker gave the key to the camera-only flow; when the
+    tracker's data is back in it (its estimate far more certain at once), it claims the key
+    back; merely more certain than the holder (a better filter), it does not, so two flows of
+    similar quality never take the key from each other in turn."""
+    bus = Bus()
+    fused = bus.producer()
+    bus.offer(fused, pose(0, variance=40e-6))  # its tracker lost: the camera's uncertainty
+    camera = bus.producer()
+    bus.clock.now += 0.01
+    bus.offer(fused, pose(10, variance=40e-6))
+    bus.offer(camera, pose(10, variance=30e-6))  # ready: claims, the fusion yields
+    for t in range(20, 60, 10):
+        bus.clock.now += 0.01
+        assert bus.offer(camera, pose(t, variance=30e-6))
+        assert not bus.offer(fused, pose(t, variance=15e-6))  # better than the holder: kept away
+    assert bus.counters[0]["relation_taken_back"] == 0
+    bus.clock.now += 0.01
+    assert bus.offer(camera, pose(60, variance=30e-6))
+    assert not bus.offer(fused, pose(70, variance=0.2e-6))  # the tracker is back: claims
+    assert bus.messages[-2:] == [
+        {"claim": fused.producer, "after": 60 * MS},
+        {"yield": camera.producer, "last": 60 * MS},
+    ]
+    assert bus.stamps()[-1] == 70  # held back, put when the answer came
+    bus.clock.now += 0.01
+    assert not bus.offer(camera, pose(80, variance=30e-6))
+    assert bus.offer(fused, pose(80, variance=0.2e-6))
+    assert bus.counters[0]["relation_taken_back"] == 1
+    assert bus.counters[1]["relation_taken_back"] == 0
+    assert bus.stamps() == list(range(0, 90, 10))  # one stream: every instant once, in order
+
+
+def test_a_producer_that_gave_the_key_away_takes_it_back_when_it_puts_again_after_quiet():
+    """Rule 6, the other way to lose an input: a chain on one tracker goes quiet when the
+    tracker stops and resumes when it returns, then at least as certain as the holder."""
+    bus = Bus()
+    chain = bus.producer()
+    bus.offer(chain, pose(0, variance=2e-6))
+    camera = bus.producer()
+    bus.clock.now += 0.01
+    bus.offer(chain, pose(10, variance=2e-6))
+    bus.offer(camera, pose(10, variance=1e-6))  # claims, the chain yields
+    for t in range(20, 1000, 20):  # the tracker stopped: the chain is quiet
+        bus.clock.now += 0.02
+        assert bus.offer(camera, pose(t, variance=100e-6))
+    assert not bus.offer(chain, pose(1000, variance=200e-6))  # back, but less certain
+    bus.clock.now += 0.6
+    assert bus.offer(camera, pose(1010, variance=100e-6))
+    bus.clock.now += 0.01
+    assert not bus.offer(chain, pose(1020, variance=2e-6))  # quiet 0.6 s, back: claims
+    assert bus.messages[-1] == {"yield": camera.producer, "last": 1010 * MS}
+    assert bus.counters[0]["relation_taken_back"] == 1 and bus.stamps()[-1] == 1020
+
+
 def test_a_producer_starting_waits_for_its_question_who_holds_a_quiet_key():
     """Its question still open (the reply in flight), a quiet key may have a holder only late:
     claimed and held back; the question closed with no holder alive, the key is taken with the

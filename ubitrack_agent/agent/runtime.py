@@ -88,6 +88,8 @@ from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, m
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import IN_PLACE, reconcile
 from ubitrack_agent.agent.stamps import Stamps
+from ubitrack_agent.agent.standby import STANDBY_S, standby_components
+from ubitrack_agent.graph.srg import edge_ids
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.clock import Clock, ClockEstimate, serve_clock
 from ubitrack_agent.net.config import Settings
@@ -218,6 +220,8 @@ class Agent:
         """Instances stopped: when to put the stop again (None: a host manager owns it)."""
         self._unwanted_since: dict[str, float] = {}
         self._retiring: dict[str, float] = {}
+        self._standby: set[str] = set()
+        """The retiring components kept beside the new flow (:mod:`.standby`)."""
         self._all_alive_since: float | None = None
         """Since when every wanted worker is alive (monotonic), for :meth:`_retire`."""
         self._held: dict[str, tuple[dict[str, Any], float]] = {}
@@ -392,6 +396,7 @@ class Agent:
         self._unwanted_since.pop(instance, None)
         self._held.pop(instance, None)  # the whole wiring goes now
         retiring = self._retiring.pop(instance, None) is not None
+        self._standby.discard(instance)
         stopped = self._stopped.pop(instance, None) is not None
         if not (retiring or stopped):
             self.counters["adopted"] += 1
@@ -595,11 +600,16 @@ class Agent:
         self._claim_unknown_workers()  # against this plan: what runs is adopted, not started
         actions = reconcile(self.running, self.wanted)
         restarted = {spec.instance for spec in actions.start}
+        live_keys = {self.keys.data(edge_id) for edge_id in edge_ids(self.srg)}
+        standby = standby_components(self.running, set(actions.stop) - restarted, live_keys)
         for instance in actions.stop:
             del self.running[instance]
             self._held.pop(instance, None)
             if instance in restarted:
                 self._stop_worker(instance)  # replaced by another specification at once
+            elif instance in standby:
+                self._retiring[instance] = time.monotonic() + STANDBY_S
+                self._standby.add(instance)
             else:
                 self._retiring[instance] = time.monotonic() + RETIRE_S
         containers = _Containers(self, placement)
@@ -611,6 +621,7 @@ class Agent:
             self.running[spec.instance] = spec
             self._stopped.pop(spec.instance, None)
             self._retiring.pop(spec.instance, None)  # wanted again before it was stopped
+            self._standby.discard(spec.instance)
         for instance, command in actions.update:
             self._rewire(instance, command, wait=bool(started))
             self.running[instance] = self.wanted[instance]
@@ -788,8 +799,9 @@ class Agent:
                 self._send_control(instance, command)
                 self.counters["held_rewires"] += 1
         for instance, deadline in list(self._retiring.items()):
-            if handed_over or now > deadline:
+            if (handed_over and instance not in self._standby) or now > deadline:
                 del self._retiring[instance]
+                self._standby.discard(instance)
                 self._stop_worker(instance)
 
     def _send_control(self, instance: str, command: dict[str, Any]) -> None:
@@ -835,6 +847,7 @@ class Agent:
         self._undeclare_active()
         self.running.clear()
         self._retiring.clear()
+        self._standby.clear()
         self._held.clear()
         self._stopped.clear()
         self._duplicate_stops.clear()
@@ -1011,6 +1024,7 @@ class Agent:
                 }
                 for instance, spec in self.wanted.items()
             },
+            "standby_components": sorted(self._standby),
             "hosts": sorted(self.hosts.live),
             "host_info": {name: info.as_dict() for name, info in sorted(self.hosts.info.items())},
             "unplaced": dict(self.unplaced),

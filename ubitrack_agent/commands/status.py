@@ -208,6 +208,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"worker {instance} ({component['service']}, {state}{where}): {component['counters']}"
         )
+    for instance in status.get("standby_components", []):
+        print(f"  standby {instance}: the old flow of a relation that lost a sensor, kept")
     for instance, reason in status.get("unplaced", {}).items():
         print(f"  unplaced {instance}: {reason}")
     for instance, reason in status.get("clock_problems", {}).items():

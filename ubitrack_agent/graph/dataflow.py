@@ -98,20 +98,37 @@ def _component_id(template: str, expansion: str, reads: list[Any], writes: list[
 
 
 def from_solution(solution: Solution, query: Query) -> DataFlow:
-    """The data flow graph of one solution (section 5.1, "Data flow construction")."""
+    """The data flow graph of one solution (section 5.1, "Data flow construction").
+
+    A component's id names its whole computation, as a Merkle tree does (Merkle 1987): its
+    template, expansion and output relations, and for each input the relation and where it is
+    read, a measured edge's id or the id of the component producing it. The same computation
+    gets the same id in every plan, so the agent finds it running and leaves it as it is; a
+    component whose inputs come from another derivation is another component, started beside
+    the old one, which keeps working until the new one has taken over (make before break,
+    ``services.handover``), and can serve again if its derivation comes back
+    (``agent.standby``). O(steps x inputs) per solution."""
     records = solution.records
     producer: dict[str, Binding] = {}
     components: dict[str, Component] = {}
     for step in solution.steps:
         reads = [
-            (name, [(records[e].source, records[e].target, records[e].type) for e in ids])
+            (
+                name,
+                [
+                    (
+                        records[e].source,
+                        records[e].target,
+                        records[e].type,
+                        producer.get(e, Binding(None, e)).as_json(),
+                    )
+                    for e in ids
+                ],
+            )
             for name, ids in step.inputs
         ]
         writes = [(src, dst, typ) for _, src, dst, typ, _ in step.outputs]
         cid = _component_id(step.template.name, step.expansion, reads, writes)
-        if cid in components:  # the same relations computed twice from different producers
-            upstream = [producer.get(e, Binding(None, e)) for _, ids in step.inputs for e in ids]
-            cid = _component_id(cid, step.expansion, reads, [repr(upstream)])
         inputs = []
         for name, ids in step.inputs:
             for k, edge_id in enumerate(ids):
