@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from tests.unit.test_agent_pure import KEYS, paper_fragments, specs_for
 from ubitrack_agent.agent.announcements import build_srg
-from ubitrack_agent.agent.answers import query_answers, stale_edges, waiting_for
+from ubitrack_agent.agent.answers import StaleJoins, query_answers, stale_edges
 from ubitrack_agent.agent.flows import Plan, plan_relations
 from ubitrack_agent.graph.dataflow import DataFlow
 from ubitrack_agent.graph.templates import load_templates
@@ -58,10 +58,11 @@ def test_a_relation_whose_frames_only_stale_edges_join_is_waiting_for_their_data
     srg = build_srg(fragments, without=set(stale))
     wt_ht, art_wt_7d = RelationId("WT", "HT", "6D"), RelationId("ART", "WT", "7D")
     plan = plan_relations(srg, load_templates(), [wt_ht, NOWHERE, art_wt_7d])
-    assert waiting_for(srg, stale, wt_ht) == ["art/HT"]
-    assert waiting_for(srg, stale, NOWHERE) == []  # NOPE: no edge at all
-    assert waiting_for(srg, stale, art_wt_7d) == []  # joined already: another reason
-    assert waiting_for(srg, {}, wt_ht) == []
+    joins = StaleJoins(srg, stale)
+    assert joins.waiting_for(wt_ht) == ["art/HT"]
+    assert joins.waiting_for(NOWHERE) == []  # NOPE: no edge at all
+    assert joins.waiting_for(art_wt_7d) == []  # joined already: another reason
+    assert StaleJoins(srg, {}).waiting_for(wt_ht) == []
     answers = {
         key: parse_answer(text.encode())
         for key, text in query_answers(

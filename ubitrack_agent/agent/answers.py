@@ -34,22 +34,44 @@ def stale_edges(
     }
 
 
-def waiting_for(srg: nx.MultiDiGraph, stale: StaleEdges, relation: RelationId) -> list[str]:
-    """The stale edges whose data would join the frames of an unsolved ``relation`` that the
-    live ``srg`` (without them) leaves apart or without one of them: those of the stale
-    edges' component that holds both frames, sorted; none if no such component holds both,
-    or if they are joined already (the planner's reason is then another). ``O(frames +
-    edges)``: a union of the live SRG's and the stale edges' components."""
-    ends = (relation.source, relation.target)
-    joined = all(f in srg for f in ends) and nx.has_path(srg.to_undirected(as_view=True), *ends)
-    if joined or not stale:
-        return []
-    graph = nx.Graph(srg.to_undirected(as_view=True))
-    graph.add_edges_from(stale.values())
-    if not all(f in graph for f in ends) or not nx.has_path(graph, *ends):
-        return []
-    component = nx.node_connected_component(graph, relation.source)
-    return sorted(edge_id for edge_id, (u, _) in stale.items() if u in component)
+class StaleJoins:
+    """Which frames the live ``srg`` joins, and which its ``stale`` edges would join besides:
+    the connected components of both, found once per answer round (O(frames + edges)), so that
+    each unsolved relation costs O(stale edges) (:meth:`waiting_for`), not a pass over the
+    SRG."""
+
+    def __init__(self, srg: nx.MultiDiGraph, stale: StaleEdges) -> None:
+        self.stale = stale
+        live = srg.to_undirected(as_view=True)
+        self._live = _component_of(live)
+        with_stale = nx.Graph(live)
+        with_stale.add_edges_from(stale.values())
+        self._with_stale = _component_of(with_stale)
+
+    def waiting_for(self, relation: RelationId) -> list[str]:
+        """The stale edges whose data would join the frames of an unsolved ``relation`` that
+        the live SRG (without them) leaves apart or without one of them: those of the stale
+        edges' component that holds both frames, sorted; none if no such component holds
+        both, or if they are joined already (the planner's reason is then another)."""
+        if _together(self._live, relation) or not _together(self._with_stale, relation):
+            return []
+        component = self._with_stale[relation.source]
+        return sorted(e for e, (u, _) in self.stale.items() if self._with_stale[u] == component)
+
+
+def _component_of(graph: nx.Graph) -> dict[str, int]:
+    """The index of each frame's connected component."""
+    return {
+        frame: index
+        for index, frames in enumerate(nx.connected_components(graph))
+        for frame in frames
+    }
+
+
+def _together(component_of: Mapping[str, int], relation: RelationId) -> bool:
+    """Whether both frames of ``relation`` lie in one component."""
+    source, target = component_of.get(relation.source), component_of.get(relation.target)
+    return source is not None and source == target
 
 
 def query_answers(
@@ -62,15 +84,16 @@ def query_answers(
 ) -> dict[str, str]:
     """The answer to each of ``relations`` under ``plan`` (``wanted``: the component
     specifications of the plan), encoded, by answer key. An unsolved relation whose frames
-    stale edges would join (:func:`waiting_for`, on the live ``srg`` the plan was made on) is
-    answered as waiting for their data."""
+    stale edges would join (:class:`StaleJoins`, on the live ``srg`` the plan was made on) is
+    answered as waiting for their data. O(relations + frames + edges)."""
     answers = {}
+    joins = StaleJoins(srg, stale) if srg is not None and stale and plan.unsolved else None
     for relation in relations:
         name = plan_name(relation)
         reason = plan.unsolved.get(name)
         served = reason is None and name in plan.relations
         components = sorted(plan.serving.get(name, ())) if served else []
-        blocked = waiting_for(srg, stale, relation) if reason and srg is not None and stale else []
+        blocked = joins.waiting_for(relation) if reason and joins is not None else []
         if blocked:
             reason = f"waiting for data on {', '.join(blocked)} (stale); until then: {reason}"
         answer = Answer(
