@@ -30,8 +30,12 @@ among those the state allows:
   sensors run and stopped before anything else happens: fused from two estimates to three and
   back.
 
-After each event the bench waits until the flow has a fusion component or not, as the new
-state wants, then for a time drawn from ``--dwell``. The simulator's truth is used only to
+An event that starts a sensor happens at the sensor's first measurement after its processes
+were launched (its first sample on any of its data keys, as this process receives it): its
+processes take 1-3 s to start, during which the old flow goes on, which is no switch (the demo
+times its phases the same way). The others happen when the bench acts. After each event the
+bench waits until the flow has a fusion component or not, as the new state wants, then for a
+time drawn from ``--dwell``. The simulator's truth is used only to
 print errors (the system gets nothing from it).
 
 What is recorded: every sample on the relation's key as a plain zenoh subscriber sees it (the
@@ -159,6 +163,10 @@ killed, the agent is killed or stopped and started again, or the better tracker 
 one, the other comes back; the better tracker leaves before anything else happens."""
 BETTER = {"frame": "ART2", "translation": [0.4, -1.8, 2.2], "euler_deg": [0, 0, 35]}
 """Where the better tracker hangs in the room (child of ART)."""
+PROVIDERS = {"art": "ART", "camera": "camera", "better": BETTER["frame"]}
+"""The provider of each sensor, whose data keys tell its first measurement."""
+SENSOR_START_S = 60.0
+"""The longest wait for a started sensor's first measurement (its processes' imports)."""
 BETTER_NOISE = {"position_mm": 0.1, "rotation_deg": 0.02}
 """Its noise: a third of the A.R.T. tracker's position noise, under half its rotation noise."""
 
@@ -248,6 +256,34 @@ class Trace:
             if (t, "data", k) not in firsts.values()
         ]
         return [[round((t - start_ns) / 1e6, 1), what, key] for t, what, key in sorted(kept)]
+
+
+class FirstMeasurement:
+    """While open, the arrival (wall clock ns) of the first sample on ``provider``'s data keys;
+    :meth:`wait` returns it."""
+
+    def __init__(self, session: Any, keys: KeySpace, provider: str) -> None:
+        self._key = keys.data(provider) + "/*"
+        self._session = session
+        self._seen = threading.Event()
+        self.at_ns = 0
+
+    def _first(self, _sample: Any) -> None:
+        if not self._seen.is_set():
+            self.at_ns = time.time_ns()
+            self._seen.set()
+
+    def __enter__(self) -> FirstMeasurement:
+        self._subscriber = self._session.declare_subscriber(self._key, self._first)
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self._subscriber.undeclare()
+
+    def wait(self, timeout: float) -> int:
+        if not self._seen.wait(timeout):
+            raise RuntimeError(f"no measurement on {self._key} within {timeout} s")
+        return self.at_ns
 
 
 def truth_at(world: Any, at_ns: int) -> Any:
@@ -400,7 +436,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                             stop(sensor)
                             running = running - {sensor}
                         else:
-                            start(sensor)
+                            with FirstMeasurement(session, keys, PROVIDERS[sensor]) as first:
+                                start(sensor)
+                                at = first.wait(SENSOR_START_S)
                             running = running | {sensor}
                     done[kind] += 1
                     wait_for_services(session, keys, present=len(running) >= 2)

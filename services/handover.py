@@ -3,7 +3,8 @@
 The producer of a queried relation puts its output on the relation's stable key
 (``agent.materialise``). When the agent replaces a derivation, the new flow is started beside
 the old one, which is stopped ``HAND_OVER_HOLD_S`` after the new one runs (``agent.runtime``,
-``_retire``): for a while both producers compute the relation, often the same instants (both
+``_retire``), or ``STANDBY_S`` after it lost a sensor (``agent.standby``): for a while both
+producers compute the relation, often the same instants (both
 driven by one tracker's samples). Each watches the key (a subscriber: it sees its own puts and
 the other's) and its hand-over key (:func:`hand_over_key`), and keeps these rules, so that
 the application sees one stream (issue [seamless]; ``docs/protocol.md``, "What an application
@@ -13,8 +14,12 @@ sees while the flow behind its key changes"):
    no duplicate, no instant out of order.
 2. **Make before break.** A producer that finds another one putting on the key does not put
    until its own estimate is ready: its covariance's trace at most :data:`READY_RATIO` times
-   that of the other's latest sample (measurements with covariances of one shape), or
-   :data:`~ubitrack_agent.net.spec.HAND_OVER_HOLD_S` after its first offer at the latest.
+   that of the other's latest sample (measurements with covariances of one shape). Until then
+   the old flow delivers, as long as the agent keeps it: when the agent stops it, the key is
+   free at once (rule 5), so a new flow that is never as certain (a camera alone after a
+   fusion that runs on with the camera alone) takes over then, not before;
+   :data:`~ubitrack_agent.net.spec.MAX_HOLD_S` after its first offer it claims the key anyway
+   (a holder nobody stops).
 3. **Claim, then put.** Ready, it puts a claim on the hand-over key and nothing on the
    relation key until the producer holding it answers that it has stopped, and after which
    instant (the newest it put); then it puts what comes after that instant. Two producers
@@ -33,7 +38,8 @@ sees while the flow behind its key changes"):
    (:func:`producer_token`). When the holder's token leaves (its process killed, or stopped by
    the agent), the key is free at once, not after the quiet time: a producer waiting beside it
    (held back, or claiming) puts its newest sample not yet put, if that is after the newest on
-   the key (rule 1), and goes on.
+   the key (rule 1), and goes on. Of several producers alive beside it, the first by id does
+   so; the others take it for the holder (rule 2).
 6. **Take back.** A producer that gave the key away takes it back, by a claim as in rule 3,
    when it gets a lost input back, its estimate no less certain than the holder's: it was
    quiet for the longest quiet time (``QUIET_BOUNDS_S``), or its estimate suddenly became far
@@ -71,7 +77,7 @@ from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.core.measurements import WORKER, Measurement
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.json_messages import MessageError, load_object
-from ubitrack_agent.net.spec import HAND_OVER_HOLD_S
+from ubitrack_agent.net.spec import MAX_HOLD_S
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -289,7 +295,10 @@ class KeyHandOver:
 
     def left(self, producer: str) -> None:
         """Another producer's token left: if it held the key, the key is free now (rule 5),
-        and a producer claiming it, or held back beside it, takes it with its newest sample."""
+        and a producer claiming it, or held back beside it, takes it with its newest sample.
+        Of several producers left beside it (a flow on standby and a new one, say), only the
+        first by id takes it so: the others count it as the holder, putting from now on, and
+        go on by rule 2, so no two put one instant each."""
         with self._lock:
             self._alive.discard(producer)
             if producer != self._holder or producer == self.producer:
@@ -297,6 +306,11 @@ class KeyHandOver:
             self._counters["relation_holder_left"] += 1
             self._holder, self._other_at, self._yielded = None, None, False
             self._other_intervals.clear()
+            successor = min(self._alive | {self.producer})
+            if successor != self.producer:
+                self._holder, self._other_at = successor, self._clock()
+                self._claimed_at = self._held_since = None
+                return
             taken = self._claimed_at is not None or self._waiting is not None
             if taken:
                 self._take(None)
@@ -372,7 +386,7 @@ class KeyHandOver:
             elif not self._holds:
                 if self._held_since is None:
                     self._held_since = now
-                if not self._ready(value) and now - self._held_since < HAND_OVER_HOLD_S:
+                if not self._ready(value) and now - self._held_since < MAX_HOLD_S:
                     return self._hold_back(value, put, "relation_held")
                 self._claimed_at, claim, wait = now, True, True
                 self._counters["relation_taken"] += 1

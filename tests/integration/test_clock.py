@@ -169,11 +169,12 @@ def test_the_agent_aligns_the_clocks_of_a_fusion_across_hosts(net: Network):
                     return {"offsets": offsets, "problems": status["clock_problems"]}
             return None
 
-        seen = wait_until(corrected, timeout=60)
+        # On a loaded machine the first clock estimates may be too uncertain for the fusion's
+        # tolerance (a clock problem, reported) until more round trips narrow them.
+        seen = wait_until(lambda: (s := corrected()) and not s["problems"] and s, timeout=60)
         estimate = clock_of(net, ahead_host)
         assert seen["offsets"]["onTime"] == 0
         assert abs(seen["offsets"]["ahead"] + AHEAD_MS * MS) <= 2 * estimate["uncertainty_ns"]
-        assert seen["problems"] == {}
         errors = _errors_m(fused, 100, time.time_ns() + 500 * MS)
         # Both trackers noise-free and aligned: the filter's error stays far below the
         # centimetres a 300 ms misalignment makes (the previous test).

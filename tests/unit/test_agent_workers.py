@@ -10,10 +10,9 @@ from types import SimpleNamespace
 from ubitrack_agent.agent.hosts import Placement
 from ubitrack_agent.agent.runtime import REROUTE_S, RETIRE_S, Agent
 from ubitrack_agent.agent.stamps import Stamps
-from ubitrack_agent.agent.standby import STANDBY_S
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import HAND_OVER_HOLD_S, ComponentSpec
+from ubitrack_agent.net.spec import HAND_OVER_HOLD_S, STANDBY_S, ComponentSpec
 
 KEYS = KeySpace("ubitrack/test")
 CONCAT = ComponentSpec("fused", "concatenation", (), {"AC": "ubitrack/test/data/fused/AC"})

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.measurements import WORKER, ErrorPose, Pose
-from ubitrack_agent.net.spec import HAND_OVER_HOLD_S
+from ubitrack_agent.net.spec import MAX_HOLD_S
 from ubitrack_agent.services.handover import CLAIM_TIMEOUT_S, KeyHandOver
 
 MS = 1_000_000
@@ -139,7 +139,7 @@ def test_a_new_producer_claims_after_the_longest_hold_even_if_less_certain():
         t += 10
         bus.offer(old, pose(t))
         bus.offer(new, pose(t, variance=1e-3))
-    assert bus.clock.now >= 100.0 + HAND_OVER_HOLD_S
+    assert bus.clock.now >= 100.0 + MAX_HOLD_S
     assert bus.offer(new, pose(t + 10, variance=1e-3))
 
 
@@ -216,6 +216,27 @@ def test_a_producer_held_back_puts_its_newest_sample_as_soon_as_the_holders_toke
     assert bus.counters[1]["relation_put_when_free"] == 1
     bus.clock.now += 0.001  # well within the quiet time of the old one's intervals
     assert bus.offer(standby, pose(40, variance=4e-6))
+
+
+def test_of_several_producers_beside_a_holder_that_leaves_one_takes_the_key():
+    """Rule 5 with three producers (a flow on standby, a new one, the holder): when the holder
+    leaves, only the first by id takes the key at once; the other takes it for the holder, so
+    no instant is put twice (both compute the same instants)."""
+    bus = Bus()
+    old = holding(bus)
+    waiting = [bus.producer(), bus.producer()]
+    bus.clock.now += 0.01
+    assert bus.offer(old, pose(20))
+    for producer in waiting:
+        assert not bus.offer(producer, pose(30, variance=4e-6))  # less certain: held back
+    bus.die(old)
+    first, other = sorted(waiting, key=lambda p: p.producer)
+    assert bus.stamps() == [0, 10, 20, 30] and bus.wire[-1][1] == first.producer
+    for t in (40, 50):
+        bus.clock.now += 0.01
+        assert bus.offer(first, pose(t, variance=4e-6))
+        assert not bus.offer(other, pose(t, variance=5e-6))  # less certain: held back
+    assert bus.stamps() == [0, 10, 20, 30, 40, 50]  # each instant once
 
 
 def test_a_producer_that_is_not_the_holder_leaving_frees_nothing():

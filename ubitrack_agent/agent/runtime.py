@@ -88,7 +88,7 @@ from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, m
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import IN_PLACE, reconcile
 from ubitrack_agent.agent.stamps import Stamps
-from ubitrack_agent.agent.standby import STANDBY_S, standby_components
+from ubitrack_agent.agent.standby import standby_components
 from ubitrack_agent.graph.srg import edge_ids
 from ubitrack_agent.graph.templates import Template
 from ubitrack_agent.net.clock import Clock, ClockEstimate, serve_clock
@@ -97,7 +97,7 @@ from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import STOP_COMMAND
 from ubitrack_agent.net.keys import KeyRejection, KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
-from ubitrack_agent.net.spec import HAND_OVER_HOLD_S, ComponentSpec, GroupSpec
+from ubitrack_agent.net.spec import HAND_OVER_HOLD_S, STANDBY_S, ComponentSpec, GroupSpec
 from ubitrack_agent.net.transport import put_command
 
 log = logging.getLogger("ubitrack.agent")

@@ -25,10 +25,6 @@ from collections.abc import Collection, Iterable, Mapping
 
 from ubitrack_agent.net.spec import ComponentSpec
 
-STANDBY_S = 10.0
-"""How long the old derivation of a relation that lost an edge is kept running beside the new
-one: long enough for a tracker restarted or a body occluded for a few seconds."""
-
 
 def standby_components(
     running: Mapping[str, ComponentSpec],

@@ -52,9 +52,17 @@ DEFAULT_WAIT_MS = 50.0
 """The longest a trigger waits for the other inputs' next samples (see
 ubitrack_agent.services.triggers)."""
 HAND_OVER_HOLD_S = 1.0
+"""How long the agent keeps a replaced flow running after the new one is alive (``agent.runtime``,
+make before break), for its producer to hand the relation key over
+(``ubitrack_agent.services.handover``)."""
+STANDBY_S = 10.0
+"""How long the agent keeps the old derivation of a relation that lost a sensor running beside
+the new one (``agent.standby``): long enough for a tracker restarted or a body occluded for a
+few seconds."""
+MAX_HOLD_S = STANDBY_S + HAND_OVER_HOLD_S
 """The longest a new producer of a relation key holds back while its estimate is less certain
-than the current producer's (``ubitrack_agent.services.handover``); the agent keeps a replaced
-flow running this long after the new one is alive (``agent.runtime``, make before break)."""
+than that of the producer still putting (``ubitrack_agent.services.handover``, rule 2): the
+agent stops that one by then, and the key is free when it does."""
 EXPANSIONS = ("none", "space", "time")
 TIME_EXPANSION_OPTIONS = ("min_motion", "min_rotation_deg", "max_samples")
 """Options of a time expansion (``ubitrack_agent.services.expansion``): least change of a position
