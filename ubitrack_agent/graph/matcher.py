@@ -30,8 +30,6 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from itertools import permutations
 
-import networkx as nx
-
 from ubitrack_agent.graph.srg import Quality
 from ubitrack_agent.graph.templates import InputSpec, Template
 
@@ -515,6 +513,73 @@ def _copy_order(match: Match, index: EdgeIndex) -> tuple:
     return (sum(e.cost for e in edges), [e.canon for e in edges], match.edges)
 
 
+@dataclass(frozen=True)
+class _Copy:
+    """What :func:`compatible` reads of one occurrence, gathered once per :func:`copy_sets`
+    call (so the ``n**2`` pairs compare precomputed values): the frames of its expanded roles,
+    its correspondence edges and the union of their sources."""
+
+    expanded: tuple[str, ...]
+    edges: frozenset[str]
+    sources: frozenset[str]
+
+
+def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
+    corr = match.template.correspondence
+    assert corr is not None
+    roles = dict(match.roles)
+    edges = _corr_edges(match)
+    return _Copy(
+        tuple(roles[r] for r in corr.expand_roles),
+        frozenset(edges),
+        frozenset().union(*(index.edges[e].sources for e in edges)),
+    )
+
+
+def _fit(a: _Copy, b: _Copy, independent_copies: bool) -> bool:
+    """:func:`_compatible` on precomputed copies. Strict independence of every pair of their
+    edges (:func:`independent`) is disjointness of the unions of their sources."""
+    if any(x == y for x, y in zip(a.expanded, b.expanded, strict=True)):
+        return False
+    if not a.edges.isdisjoint(b.edges):
+        return False
+    if independent_copies:
+        return a.sources.isdisjoint(b.sources)
+    return not (a.sources <= b.sources or b.sources <= a.sources)
+
+
+def _maximal_cliques(fits: list[int]) -> list[int]:
+    """Every maximal clique (as a bit set) of the graph whose vertex ``i`` has the neighbours
+    ``fits[i]`` (no self loops): Bron and Kerbosch 1973 with Tomita's pivot (the vertex of
+    ``P | X`` with most neighbours in ``P``), on bit sets. ``O(3**(n/3))``."""
+    found: list[int] = []
+
+    def expand(clique: int, p: int, x: int) -> None:
+        if not p:
+            if not x:
+                found.append(clique)
+            return
+        rest, pivot_fits, most = p | x, 0, -1
+        while rest:
+            low = rest & -rest
+            neighbours = fits[low.bit_length() - 1]
+            count = (p & neighbours).bit_count()
+            if count > most:
+                pivot_fits, most = neighbours, count
+            rest ^= low
+        candidates = p & ~pivot_fits
+        while candidates:
+            low = candidates & -candidates
+            neighbours = fits[low.bit_length() - 1]
+            expand(clique | low, p & neighbours, x & neighbours)
+            p &= ~low
+            x |= low
+            candidates ^= low
+
+    expand(0, (1 << len(fits)) - 1, 0)
+    return found
+
+
 EXACT_COPIES = 8
 """Most occurrences in a group for which :func:`copy_sets` also takes every maximal set."""
 
@@ -528,11 +593,12 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     one set, completed greedily with the best compatible occurrences (:func:`_copy_order`):
     the cheapest copies of every frame together, and for each alternative copy a set built
     around it (a tracker's path seeds the set of that tracker's derivations). With ``n``
-    occurrences this is ``O(n**3)`` bit operations on a precomputed compatibility matrix and at
+    occurrences this is ``O(n**3)`` bit operations on a precomputed compatibility matrix
+    (:func:`compatible` of each pair, on values gathered once per occurrence) and at
     most ``n`` sets. Each set is maximal: an occurrence left out conflicts with one taken.
     Greedy sets can miss the best one (a cheap copy taken first may conflict with two that
     together are worth more), so a group of at most :data:`EXACT_COPIES` occurrences also gets
-    every maximal set (Bron-Kerbosch, :func:`networkx.find_cliques`; at most ``3**(n/3)``, 18
+    every maximal set (Bron-Kerbosch, :func:`_maximal_cliques`; at most ``3**(n/3)``, 18
     for eight): exact where the sets are few, polynomial where they would explode.
 
     For a fusion, the cheapest ``k`` compatible copies are a set for every ``k`` too (at most
@@ -541,10 +607,13 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     """
     order = sorted(members, key=lambda m: _copy_order(m, index))
     n = len(order)
+    corr = members[0].template.correspondence if members else None
+    copies = [_copy_of(m, index) for m in order]
+    independent_copies = corr is not None and corr.independent
     fits = [0] * n  # bit j of fits[i]: order[i] and order[j] may be copies together
     for i in range(n):
         for j in range(i + 1, n):
-            if compatible(order[i], order[j], index):
+            if _fit(copies[i], copies[j], independent_copies):
                 fits[i] |= 1 << j
                 fits[j] |= 1 << i
     prefixes = bool(members) and members[0].template.cost.rule == "fusion"
@@ -559,17 +628,13 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
                     found.setdefault(chosen)
         found.setdefault(chosen)
     if n <= EXACT_COPIES:  # few: every maximal set, as many as 3**(n/3) (Moon and Moser 1965)
-        graph = nx.Graph()
-        graph.add_nodes_from(range(n))
-        graph.add_edges_from((i, j) for i in range(n) for j in range(i + 1, n) if fits[i] >> j & 1)
-        for clique in sorted(sorted(c) for c in nx.find_cliques(graph)):
+        cliques = [[j for j in range(n) if clique >> j & 1] for clique in _maximal_cliques(fits)]
+        for clique in sorted(cliques):
             found.setdefault(sum(1 << j for j in clique))
-
-    def by_canon(match: Match) -> list[str]:
-        return [index.edges[e].canon for e in match.edges]
-
+    canons = [[index.edges[e].canon for e in match.edges] for match in order]
     return [
-        sorted((order[j] for j in range(n) if chosen >> j & 1), key=by_canon) for chosen in found
+        [order[j] for j in sorted((j for j in range(n) if chosen >> j & 1), key=canons.__getitem__)]
+        for chosen in found
     ]
 
 
