@@ -88,6 +88,9 @@ class EdgeIndex:
     copies_fit: dict[tuple, bool] = field(default_factory=dict)
     """:func:`compatible` of two occurrences, memoised: a group's occurrences are gathered into
     sets again each time the group gains one, and their records never change."""
+    copies: dict[tuple[str, tuple[str, ...]], _Copy] = field(default_factory=dict)
+    """What :func:`copy_sets` reads of an occurrence (by template name and input edges), for
+    the same reason."""
 
     def add(self, record: EdgeRecord) -> None:
         """Insert ``record`` into every index."""
@@ -332,24 +335,27 @@ def _extend(
     spec = template.inputs[i]
     edges = index.edges
     chosen = [edges[b] for b in bound.values()]
+    taken = frozenset().union(*(other.sources for other in chosen))
+    integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
     for edge_id in _candidates(spec, roles, types, template, index):
         if not_seeds and edge_id in seeds:
             continue
         edge = edges[edge_id]
         # bookkeeping of section 5.1: inputs of one occurrence must not share a measured edge
-        # (which also keeps an edge from binding twice); a plain loop: the hottest of the search
-        sources, clash = edge.sources, False
-        for other in chosen:
-            if not sources.isdisjoint(other.sources) and (
-                edge is other
-                or not (edge.time_integrated or other.time_integrated)  # independent()'s rule
-                or not independent(edge, other, index, strict=False)
+        # (which also keeps an edge from binding twice); the hottest loop of the search, so
+        # the sources of the inputs bound so far are tested at once, and one by one only
+        # where independent()'s exception for time-integrated edges may apply
+        sources = edge.sources
+        if not sources.isdisjoint(taken):
+            if not (integrated or edge.time_integrated):
+                continue
+            if any(
+                not sources.isdisjoint(other.sources)
+                and (edge is other or not independent(edge, other, index, strict=False))
+                for other in chosen
             ):
-                clash = True
-                break
-        if clash:
-            continue
+                continue
         made = _bind(spec, edge, template, roles, types)
         if made is None:
             continue
@@ -515,25 +521,36 @@ def _copy_order(match: Match, index: EdgeIndex) -> tuple:
 
 @dataclass(frozen=True)
 class _Copy:
-    """What :func:`compatible` reads of one occurrence, gathered once per :func:`copy_sets`
-    call (so the ``n**2`` pairs compare precomputed values): the frames of its expanded roles,
-    its correspondence edges and the union of their sources."""
+    """What :func:`copy_sets` reads of one occurrence, gathered once (so the ``n**2`` pairs
+    compare precomputed values): its rank (:func:`_copy_order`), the frames of its expanded
+    roles, its correspondence edges and the union of their sources (:func:`compatible`), and
+    the canonical computations of its inputs (the order of a set's copies)."""
 
+    order: tuple
     expanded: tuple[str, ...]
     edges: frozenset[str]
     sources: frozenset[str]
+    canons: list[str]
 
 
 def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
-    corr = match.template.correspondence
-    assert corr is not None
-    roles = dict(match.roles)
-    edges = _corr_edges(match)
-    return _Copy(
-        tuple(roles[r] for r in corr.expand_roles),
-        frozenset(edges),
-        frozenset().union(*(index.edges[e].sources for e in edges)),
-    )
+    """The :class:`_Copy` of ``match``, memoised in :attr:`EdgeIndex.copies` (an occurrence's
+    roles other than introduced ones, which no correspondence expands, follow from its edges)."""
+    key = (match.template.name, match.edges)
+    known = index.copies.get(key)
+    if known is None:
+        corr = match.template.correspondence
+        assert corr is not None
+        roles = dict(match.roles)
+        edges = _corr_edges(match)
+        known = index.copies[key] = _Copy(
+            _copy_order(match, index),
+            tuple(roles[r] for r in corr.expand_roles),
+            frozenset(edges),
+            frozenset().union(*(index.edges[e].sources for e in edges)),
+            [index.edges[e].canon for e in match.edges],
+        )
+    return known
 
 
 def _fit(a: _Copy, b: _Copy, independent_copies: bool) -> bool:
@@ -605,10 +622,11 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     ``n`` more): each fused estimate adds its sensors and steps to the cost, so fusing the best
     few may cost less than fusing all (in a room with eight trackers, three of them).
     """
-    order = sorted(members, key=lambda m: _copy_order(m, index))
+    ranked = sorted(((_copy_of(m, index), m) for m in members), key=lambda cm: cm[0].order)
+    order = [m for _, m in ranked]
+    copies = [c for c, _ in ranked]
     n = len(order)
     corr = members[0].template.correspondence if members else None
-    copies = [_copy_of(m, index) for m in order]
     independent_copies = corr is not None and corr.independent
     fits = [0] * n  # bit j of fits[i]: order[i] and order[j] may be copies together
     for i in range(n):
@@ -631,9 +649,12 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
         cliques = [[j for j in range(n) if clique >> j & 1] for clique in _maximal_cliques(fits)]
         for clique in sorted(cliques):
             found.setdefault(sum(1 << j for j in clique))
-    canons = [[index.edges[e].canon for e in match.edges] for match in order]
+
+    def by_canon(j: int) -> list[str]:
+        return copies[j].canons
+
     return [
-        [order[j] for j in sorted((j for j in range(n) if chosen >> j & 1), key=canons.__getitem__)]
+        [order[j] for j in sorted((j for j in range(n) if chosen >> j & 1), key=by_canon)]
         for chosen in found
     ]
 
