@@ -30,8 +30,6 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from itertools import permutations
 
-import networkx as nx
-
 from ubitrack_agent.graph.srg import Quality
 from ubitrack_agent.graph.templates import InputSpec, Template
 
@@ -90,6 +88,9 @@ class EdgeIndex:
     copies_fit: dict[tuple, bool] = field(default_factory=dict)
     """:func:`compatible` of two occurrences, memoised: a group's occurrences are gathered into
     sets again each time the group gains one, and their records never change."""
+    copies: dict[tuple[str, tuple[str, ...]], _Copy] = field(default_factory=dict)
+    """What :func:`copy_sets` reads of an occurrence (by template name and input edges), for
+    the same reason."""
 
     def add(self, record: EdgeRecord) -> None:
         """Insert ``record`` into every index."""
@@ -334,24 +335,27 @@ def _extend(
     spec = template.inputs[i]
     edges = index.edges
     chosen = [edges[b] for b in bound.values()]
+    taken = frozenset().union(*(other.sources for other in chosen))
+    integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
     for edge_id in _candidates(spec, roles, types, template, index):
         if not_seeds and edge_id in seeds:
             continue
         edge = edges[edge_id]
         # bookkeeping of section 5.1: inputs of one occurrence must not share a measured edge
-        # (which also keeps an edge from binding twice); a plain loop: the hottest of the search
-        sources, clash = edge.sources, False
-        for other in chosen:
-            if not sources.isdisjoint(other.sources) and (
-                edge is other
-                or not (edge.time_integrated or other.time_integrated)  # independent()'s rule
-                or not independent(edge, other, index, strict=False)
+        # (which also keeps an edge from binding twice); the hottest loop of the search, so
+        # the sources of the inputs bound so far are tested at once, and one by one only
+        # where independent()'s exception for time-integrated edges may apply
+        sources = edge.sources
+        if not sources.isdisjoint(taken):
+            if not (integrated or edge.time_integrated):
+                continue
+            if any(
+                not sources.isdisjoint(other.sources)
+                and (edge is other or not independent(edge, other, index, strict=False))
+                for other in chosen
             ):
-                clash = True
-                break
-        if clash:
-            continue
+                continue
         made = _bind(spec, edge, template, roles, types)
         if made is None:
             continue
@@ -515,6 +519,84 @@ def _copy_order(match: Match, index: EdgeIndex) -> tuple:
     return (sum(e.cost for e in edges), [e.canon for e in edges], match.edges)
 
 
+@dataclass(frozen=True)
+class _Copy:
+    """What :func:`copy_sets` reads of one occurrence, gathered once (so the ``n**2`` pairs
+    compare precomputed values): its rank (:func:`_copy_order`), the frames of its expanded
+    roles, its correspondence edges and the union of their sources (:func:`compatible`), and
+    the canonical computations of its inputs (the order of a set's copies)."""
+
+    order: tuple
+    expanded: tuple[str, ...]
+    edges: frozenset[str]
+    sources: frozenset[str]
+    canons: list[str]
+
+
+def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
+    """The :class:`_Copy` of ``match``, memoised in :attr:`EdgeIndex.copies` (an occurrence's
+    roles other than introduced ones, which no correspondence expands, follow from its edges)."""
+    key = (match.template.name, match.edges)
+    known = index.copies.get(key)
+    if known is None:
+        corr = match.template.correspondence
+        assert corr is not None
+        roles = dict(match.roles)
+        edges = _corr_edges(match)
+        known = index.copies[key] = _Copy(
+            _copy_order(match, index),
+            tuple(roles[r] for r in corr.expand_roles),
+            frozenset(edges),
+            frozenset().union(*(index.edges[e].sources for e in edges)),
+            [index.edges[e].canon for e in match.edges],
+        )
+    return known
+
+
+def _fit(a: _Copy, b: _Copy, independent_copies: bool) -> bool:
+    """:func:`_compatible` on precomputed copies. Strict independence of every pair of their
+    edges (:func:`independent`) is disjointness of the unions of their sources."""
+    if any(x == y for x, y in zip(a.expanded, b.expanded, strict=True)):
+        return False
+    if not a.edges.isdisjoint(b.edges):
+        return False
+    if independent_copies:
+        return a.sources.isdisjoint(b.sources)
+    return not (a.sources <= b.sources or b.sources <= a.sources)
+
+
+def _maximal_cliques(fits: list[int]) -> list[int]:
+    """Every maximal clique (as a bit set) of the graph whose vertex ``i`` has the neighbours
+    ``fits[i]`` (no self loops): Bron and Kerbosch 1973 with Tomita's pivot (the vertex of
+    ``P | X`` with most neighbours in ``P``), on bit sets. ``O(3**(n/3))``."""
+    found: list[int] = []
+
+    def expand(clique: int, p: int, x: int) -> None:
+        if not p:
+            if not x:
+                found.append(clique)
+            return
+        rest, pivot_fits, most = p | x, 0, -1
+        while rest:
+            low = rest & -rest
+            neighbours = fits[low.bit_length() - 1]
+            count = (p & neighbours).bit_count()
+            if count > most:
+                pivot_fits, most = neighbours, count
+            rest ^= low
+        candidates = p & ~pivot_fits
+        while candidates:
+            low = candidates & -candidates
+            neighbours = fits[low.bit_length() - 1]
+            expand(clique | low, p & neighbours, x & neighbours)
+            p &= ~low
+            x |= low
+            candidates ^= low
+
+    expand(0, (1 << len(fits)) - 1, 0)
+    return found
+
+
 EXACT_COPIES = 8
 """Most occurrences in a group for which :func:`copy_sets` also takes every maximal set."""
 
@@ -528,23 +610,28 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     one set, completed greedily with the best compatible occurrences (:func:`_copy_order`):
     the cheapest copies of every frame together, and for each alternative copy a set built
     around it (a tracker's path seeds the set of that tracker's derivations). With ``n``
-    occurrences this is ``O(n**3)`` bit operations on a precomputed compatibility matrix and at
+    occurrences this is ``O(n**3)`` bit operations on a precomputed compatibility matrix
+    (:func:`compatible` of each pair, on values gathered once per occurrence) and at
     most ``n`` sets. Each set is maximal: an occurrence left out conflicts with one taken.
     Greedy sets can miss the best one (a cheap copy taken first may conflict with two that
     together are worth more), so a group of at most :data:`EXACT_COPIES` occurrences also gets
-    every maximal set (Bron-Kerbosch, :func:`networkx.find_cliques`; at most ``3**(n/3)``, 18
+    every maximal set (Bron-Kerbosch, :func:`_maximal_cliques`; at most ``3**(n/3)``, 18
     for eight): exact where the sets are few, polynomial where they would explode.
 
     For a fusion, the cheapest ``k`` compatible copies are a set for every ``k`` too (at most
     ``n`` more): each fused estimate adds its sensors and steps to the cost, so fusing the best
     few may cost less than fusing all (in a room with eight trackers, three of them).
     """
-    order = sorted(members, key=lambda m: _copy_order(m, index))
+    ranked = sorted(((_copy_of(m, index), m) for m in members), key=lambda cm: cm[0].order)
+    order = [m for _, m in ranked]
+    copies = [c for c, _ in ranked]
     n = len(order)
+    corr = members[0].template.correspondence if members else None
+    independent_copies = corr is not None and corr.independent
     fits = [0] * n  # bit j of fits[i]: order[i] and order[j] may be copies together
     for i in range(n):
         for j in range(i + 1, n):
-            if compatible(order[i], order[j], index):
+            if _fit(copies[i], copies[j], independent_copies):
                 fits[i] |= 1 << j
                 fits[j] |= 1 << i
     prefixes = bool(members) and members[0].template.cost.rule == "fusion"
@@ -559,17 +646,16 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
                     found.setdefault(chosen)
         found.setdefault(chosen)
     if n <= EXACT_COPIES:  # few: every maximal set, as many as 3**(n/3) (Moon and Moser 1965)
-        graph = nx.Graph()
-        graph.add_nodes_from(range(n))
-        graph.add_edges_from((i, j) for i in range(n) for j in range(i + 1, n) if fits[i] >> j & 1)
-        for clique in sorted(sorted(c) for c in nx.find_cliques(graph)):
+        cliques = [[j for j in range(n) if clique >> j & 1] for clique in _maximal_cliques(fits)]
+        for clique in sorted(cliques):
             found.setdefault(sum(1 << j for j in clique))
 
-    def by_canon(match: Match) -> list[str]:
-        return [index.edges[e].canon for e in match.edges]
+    def by_canon(j: int) -> list[str]:
+        return copies[j].canons
 
     return [
-        sorted((order[j] for j in range(n) if chosen >> j & 1), key=by_canon) for chosen in found
+        [order[j] for j in sorted((j for j in range(n) if chosen >> j & 1), key=by_canon)]
+        for chosen in found
     ]
 
 
