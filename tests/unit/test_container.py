@@ -170,6 +170,12 @@ def test_finite_refuses_nan_and_infinity_in_any_field():
         value = good.__class__.__new__(good.__class__)  # bypass validation, as a bug would
         object.__setattr__(value, "__dict__", {**good.__dict__, name: np.asarray(bad, float)})
         assert not finite(value)
+    strided = np.eye(12)[::2, ::2]  # a view exporting no plain buffer: copied to be read
+    for cell, expected in ((0.5, True), (np.inf, False), (np.nan, False)):
+        strided[10 // 2, 2 // 2] = cell  # in the view
+        value = good.__class__.__new__(good.__class__)
+        object.__setattr__(value, "__dict__", {**good.__dict__, "covariance": strided})
+        assert finite(value) is expected
     huge = ErrorPose(1, [0, 0, 0, 1], [1e308, 1e308, 0], np.eye(6))  # a sum that overflows
     assert finite(huge)
     point = Position3D(1, [1.0, 2.0, 3.0])  # an optional field left out
