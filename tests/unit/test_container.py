@@ -176,8 +176,13 @@ def test_finite_refuses_nan_and_infinity_in_any_field():
         value = good.__class__.__new__(good.__class__)
         object.__setattr__(value, "__dict__", {**good.__dict__, "covariance": strided})
         assert finite(value) is expected
-    huge = ErrorPose(1, [0, 0, 0, 1], [1e308, 1e308, 0], np.eye(6))  # a sum that overflows
+    huge = ErrorPose(1, [0, 0, 0, 1], [1e308, -1e308, 0], np.eye(6))  # read number by number
     assert finite(huge)
+    for cell in (-np.inf, -np.nan, np.float64(5e303) * 4, -np.float64(5e303) * 4):
+        value = huge.__class__.__new__(huge.__class__)
+        translation = np.array([1.0, cell, 0.0])
+        object.__setattr__(value, "__dict__", {**huge.__dict__, "translation": translation})
+        assert finite(value) is bool(np.isfinite(cell))
     point = Position3D(1, [1.0, 2.0, 3.0])  # an optional field left out
     assert finite(point) and finite(Position3D(1, [1.0, 2.0, 3.0], np.eye(3)))
     bad_point = Position3D.__new__(Position3D)
