@@ -402,7 +402,8 @@ class Worker:
         self._deliveries = 0
         self._stop = threading.Event()
         self._stopping = False
-        """Set with ``_stop``, read on every sample (an attribute, not ``Event.is_set``'s call)."""
+        """Set with ``_stop`` (:meth:`stop`, :meth:`close`), read on every sample (an attribute,
+        not ``Event.is_set``'s call)."""
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
         self._inputs: list[_Input] = []
@@ -1508,6 +1509,7 @@ class Worker:
     def close(self) -> None:
         """Stop, and undeclare everything; a container's component ends here (it has no
         thread of its own: ``ubitrack_agent.services.container``)."""
+        self._stopping = True
         self._stop.set()
         with self._lock:  # no thread is handling a sample or a turn; none will after this
             pass

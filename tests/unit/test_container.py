@@ -481,3 +481,20 @@ def test_while_a_plan_changes_two_producers_of_one_key_feed_its_reader_locally(r
     assert container.counters["rebinds"] == 0 and KEYS.data("first/AC") not in session.channels
     session.deliver(KEYS.data("ART/HT2"), encode(random_pose(30)))
     assert [value.timestamp_ns for value in puts(session, "second/AC")] == [10, 20, 30]
+
+
+def test_a_closed_component_handles_nothing_more_handed_to_it(running):
+    container, session = running
+    control(session, {"add": [FIRST.as_dict(), SECOND.as_dict()]})
+    wait_for(lambda: len(container.components) == 2)
+    session.deliver(KEYS.data("CAL/X"), encode(random_pose(1_000)))
+    second = container.components["second"].worker
+    trigger = [binding.key for binding in SECOND.inputs].index(KEYS.data("first/AC"))
+    before = second.counters
+    second._deliver_values(second._generation, trigger, [random_pose(2_000)])
+    taken = second.counters
+    assert taken["received"] == before["received"] + 1
+    assert taken["published"] == before["published"] + 1
+    second.close()  # as its container ends it: no stop() before
+    second._deliver_values(second._generation, trigger, [random_pose(3_000)])
+    assert second.counters == taken
