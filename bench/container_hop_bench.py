@@ -1,8 +1,8 @@
 """What a hop between two components of one container costs, and how soon a component added
 to a running container computes (issue 28, ``services/container.py``).
 
-Run: ``python -m bench.container_hop_bench [--samples N] [--adds N]``; prints the figures and
-writes them to ``bench/results/container_hop.json``.
+Run: ``python -m bench.container_hop_bench [--samples N] [--adds N] [--output FILE]``; prints
+the figures and writes them to ``--output`` (default ``bench/results/container_hop.json``).
 
 1. **Hop** (one process, one zenoh session with no peer: nothing leaves it). A container runs
    a chain of :data:`CHAIN` concatenations, each composing the previous one's output (handed
@@ -398,6 +398,12 @@ def main() -> int:
     parser.add_argument(
         "--components", type=int, default=100, help="components for the threads (default 100)"
     )
+    parser.add_argument(
+        "--output",
+        type=Path,
+        default=RESULTS,
+        help="where the figures go (default bench/results/container_hop.json)",
+    )
     args = parser.parse_args()
     results = {
         "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
@@ -410,7 +416,7 @@ def main() -> int:
         "threads": threads(args.components),
         "targets": {"hop_us": 30, "figure6_over_direct": 1.25, "add_ms": 20},
     }
-    write_results(RESULTS, results)
+    write_results(args.output, results)
     return 0
 
 

@@ -88,8 +88,8 @@ from ubitrack_agent.core.errors import (
     NoMotionModel,
     TooFewCorrespondences,
 )
-from ubitrack_agent.core.measurements import FULL, MAX_TIMESTAMP_NS, WORKER
-from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
+from ubitrack_agent.core.measurements import FULL, MAX_FUTURE_NS, MAX_TIMESTAMP_NS, WORKER
+from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON, MSGPACK
@@ -357,7 +357,9 @@ class Worker:
         self.clock = clock or Clock()
         """This host's clock (``Settings.clock_offset_ms`` applied), for samples stamped
         ahead of it."""
-        self._now_ns = self.clock.now_ns
+        self._now_ns = time.time_ns if self.clock.offset_ns == 0 else self.clock.now_ns
+        """This host's clock read (``time.time_ns`` itself where it has no offset: a Python call
+        fewer on every sample)."""
         self._space = spec.expansion == "space"
         self._tolerance_ns = spec.tolerance_ns
         """The specification's, read on every sample (no control command changes them)."""
@@ -399,6 +401,9 @@ class Worker:
         :data:`TIME_EVERY` deliveries (the first among them)."""
         self._deliveries = 0
         self._stop = threading.Event()
+        self._stopping = False
+        """Set with ``_stop`` (:meth:`stop`, :meth:`close`), read on every sample (an attribute,
+        not ``Event.is_set``'s call)."""
         self.released = False
         """True when a control command ended the run: the process may serve another component."""
         self._inputs: list[_Input] = []
@@ -854,10 +859,12 @@ class Worker:
         elif (
             wait_s := 0.0 if len(self._dynamic) < 2 else self._wait_s(item, t)
         ) == 0.0 and not self._pending.deadlines:
-            if self._pending.finish(t):  # nothing to wait for: at once
-                self._evaluate(t, item, sample)
-            else:
+            if not self._pending.finish(t):  # nothing to wait for: at once
                 self._counts["stale_triggers"] += 1
+            elif self._accumulator is not None:
+                self._evaluate(t, item, sample)
+            elif (values := self._values_at(t, item, sample)) is not None:
+                self._compute(values, t)  # _evaluate's, a call fewer on every hop
         elif not self._pending.add(t, time.monotonic(), wait_s, extend=True):
             # Held until the other inputs catch up; an instant already computed is ignored.
             self._counts["stale_triggers"] += 1
@@ -866,12 +873,14 @@ class Worker:
         """``sample`` of ``item`` on this host's clock (its input's clock offset added), its
         latency recorded; None if it is stamped ahead of the clock or the offset takes it out
         of range (counted)."""
-        key, t = item.binding.key, sample.timestamp_ns
+        t = sample.timestamp_ns
         now = self._now_ns()
-        if ahead_of_clock(t, now):  # on the sensor's clock: before correction
+        if t - now > MAX_FUTURE_NS:  # core.timeline.ahead_of_clock, on the sensor's clock
+            key = item.binding.key
             self._count("rejected_future", "rejected sample on %s stamped ahead: %d ns", key, t)
             return None
         if item.binding.clock_offset_ns:
+            key = item.binding.key
             try:
                 sample = sample.restamped(t + item.binding.clock_offset_ns)
             except MeasurementError as exc:
@@ -880,7 +889,7 @@ class Worker:
             t = sample.timestamp_ns
         item.latency.append(now - t)
         if not item.seen:
-            self._first_samples.setdefault(key, time.time_ns())
+            self._first_samples.setdefault(item.binding.key, time.time_ns())
             item.seen = True
         return sample
 
@@ -1106,7 +1115,17 @@ class Worker:
                 wires.hand_over(route.key, readers, value, self._handed)
                 self._handed_over += 1
                 self._published += 1
-                self._outside(route, value)
+                # What zenoh must carry besides: the relation keys, and the data key while a
+                # subscriber outside this process listens (zenoh's matching status, told to
+                # the publisher: net.transport.LatestValuePublisher); else the value is
+                # remembered, to be sent when one appears (_send_unsent).
+                if route.publishers[0].matching:
+                    self._outgoing.append((route.publishers, value))
+                else:
+                    self._not_sent += 1
+                    self._unsent.add(route.key)
+                    if route.relations:
+                        self._outgoing.append((route.relations, value))
                 continue
             try:
                 payload = encode(value)  # where a result's numbers are checked
@@ -1145,20 +1164,6 @@ class Worker:
                 put = functools.partial(publisher.put, payload)
                 if hand_over is None or hand_over.rules.admit(value, put):
                     put()
-
-    def _outside(self, route: _Route, value: Measurement) -> None:
-        """Queue the puts of ``value``, handed over in the container, that zenoh must carry
-        besides: on the relation keys, and on the data key while a subscriber outside this
-        process listens (zenoh's matching status, told to the publisher:
-        ``net.transport.LatestValuePublisher``; else it is remembered, to be sent when one
-        appears: :meth:`_send_unsent`)."""
-        if route.publishers[0].matching:
-            self._outgoing.append((route.publishers, value))
-            return
-        self._not_sent += 1
-        self._unsent.add(route.key)
-        if route.relations:
-            self._outgoing.append((route.relations, value))
 
     def _wake(self) -> None:
         """Wake the worker thread (a subscriber appeared: :meth:`_send_unsent`)."""
@@ -1324,6 +1329,7 @@ class Worker:
             query.reply(self.keys.status(self.spec.instance), status, encoding=JSON)
 
     def stop(self) -> None:
+        self._stopping = True
         self._stop.set()
         self._inbox.put(("wake",))  # the worker thread ends now, not after its idle wait
 
@@ -1361,13 +1367,13 @@ class Worker:
             start = time.perf_counter() if timed else 0.0
             if len(items) >= RUN_MIN and self._takes_runs(generation, index):
                 try:
-                    if not self._stop.is_set():
+                    if not self._stopping:
                         run(generation, index, items)
                 except Exception:
                     self._internal_error()
             else:
                 for item in items:
-                    if self._stop.is_set():
+                    if self._stopping:
                         break
                     try:
                         each(generation, index, item)
@@ -1390,7 +1396,9 @@ class Worker:
         """Deliver ``handed`` to the readers in the container, then put what is queued for
         readers outside (:meth:`_put_outside`); ``_lock`` free. Total."""
         try:
-            if handed:
+            if len(handed) == 1 and len(handed[0][0]) == 1:  # a hop of a chain: one call fewer
+                handed[0][0][0].deliver([handed[0][1]])
+            elif handed:
                 deliver(handed)
             if self._outgoing:
                 self._put_outside()
@@ -1501,6 +1509,7 @@ class Worker:
     def close(self) -> None:
         """Stop, and undeclare everything; a container's component ends here (it has no
         thread of its own: ``ubitrack_agent.services.container``)."""
+        self._stopping = True
         self._stop.set()
         with self._lock:  # no thread is handling a sample or a turn; none will after this
             pass

@@ -170,8 +170,19 @@ def test_finite_refuses_nan_and_infinity_in_any_field():
         value = good.__class__.__new__(good.__class__)  # bypass validation, as a bug would
         object.__setattr__(value, "__dict__", {**good.__dict__, name: np.asarray(bad, float)})
         assert not finite(value)
-    huge = ErrorPose(1, [0, 0, 0, 1], [1e308, 1e308, 0], np.eye(6))  # a sum that overflows
+    strided = np.eye(12)[::2, ::2]  # a view exporting no plain buffer: copied to be read
+    for cell, expected in ((0.5, True), (np.inf, False), (np.nan, False)):
+        strided[10 // 2, 2 // 2] = cell  # in the view
+        value = good.__class__.__new__(good.__class__)
+        object.__setattr__(value, "__dict__", {**good.__dict__, "covariance": strided})
+        assert finite(value) is expected
+    huge = ErrorPose(1, [0, 0, 0, 1], [1e308, -1e308, 0], np.eye(6))  # read number by number
     assert finite(huge)
+    for cell in (-np.inf, -np.nan, np.float64(5e303) * 4, -np.float64(5e303) * 4):
+        value = huge.__class__.__new__(huge.__class__)
+        translation = np.array([1.0, cell, 0.0])
+        object.__setattr__(value, "__dict__", {**huge.__dict__, "translation": translation})
+        assert finite(value) is bool(np.isfinite(cell))
     point = Position3D(1, [1.0, 2.0, 3.0])  # an optional field left out
     assert finite(point) and finite(Position3D(1, [1.0, 2.0, 3.0], np.eye(3)))
     bad_point = Position3D.__new__(Position3D)
@@ -470,3 +481,20 @@ def test_while_a_plan_changes_two_producers_of_one_key_feed_its_reader_locally(r
     assert container.counters["rebinds"] == 0 and KEYS.data("first/AC") not in session.channels
     session.deliver(KEYS.data("ART/HT2"), encode(random_pose(30)))
     assert [value.timestamp_ns for value in puts(session, "second/AC")] == [10, 20, 30]
+
+
+def test_a_closed_component_handles_nothing_more_handed_to_it(running):
+    container, session = running
+    control(session, {"add": [FIRST.as_dict(), SECOND.as_dict()]})
+    wait_for(lambda: len(container.components) == 2)
+    session.deliver(KEYS.data("CAL/X"), encode(random_pose(1_000)))
+    second = container.components["second"].worker
+    trigger = [binding.key for binding in SECOND.inputs].index(KEYS.data("first/AC"))
+    before = second.counters
+    second._deliver_values(second._generation, trigger, [random_pose(2_000)])
+    taken = second.counters
+    assert taken["received"] == before["received"] + 1
+    assert taken["published"] == before["published"] + 1
+    second.close()  # as its container ends it: no stop() before
+    second._deliver_values(second._generation, trigger, [random_pose(3_000)])
+    assert second.counters == taken
