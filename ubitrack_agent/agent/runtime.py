@@ -600,8 +600,8 @@ class Agent:
         self._claim_unknown_workers()  # against this plan: what runs is adopted, not started
         actions = reconcile(self.running, self.wanted)
         restarted = {spec.instance for spec in actions.start}
-        live_keys = {self.keys.data(edge_id) for edge_id in edge_ids(self.srg)}
-        standby = standby_components(self.running, set(actions.stop) - restarted, live_keys)
+        retired = set(actions.stop) - restarted
+        standby = standby_components(self.running, retired, self._live_keys()) if retired else set()
         for instance in actions.stop:
             del self.running[instance]
             self._held.pop(instance, None)
@@ -635,6 +635,10 @@ class Agent:
                 len(actions.stop),
                 len(actions.update),
             )
+
+    def _live_keys(self) -> set[str]:
+        """The data keys of the live SRG's measured edges. O(edges)."""
+        return {self.keys.data(edge_id) for edge_id in edge_ids(self.srg)}
 
     def _place(self) -> dict[str, str]:
         """The host for each wanted instance (:mod:`.placement`): one with the labels its

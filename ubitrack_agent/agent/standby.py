@@ -7,16 +7,17 @@ the relations it served again and starts the new derivation beside the old one. 
 would be stopped once the new one has taken the relation's key over (``agent.runtime``,
 ``_retire``). Instead, the old derivation of a relation that read a lost edge is kept running,
 its components still subscribed to the lost edge's data key: a fusion goes on with the inputs
-it still has, and its producer, having given the key to the new flow, keeps watching it. When
-the lost edge's data flows again, the old derivation's estimate becomes far more certain than
-the new one's, and its producer takes the key back itself (``services.handover``, rule 6),
-within a sample. The agent then sees the edge again, plans the same derivation as before (the
-same component ids: ``graph.dataflow.from_solution``), adopts the standby components instead
-of starting them, and retires the other flow.
+it still has, and its producer keeps the key until the new flow is as certain, then keeps
+watching it. When the lost edge's data flows again, the producer takes the key back itself
+within a sample (``services.handover``, rule 6: an input back, and no less certain than the
+holder), if it gave it away. The agent then sees the edge again, plans the same derivation
+as before (the same component ids: ``graph.dataflow.from_solution``), adopts the standby
+components instead of starting them, and retires the other flow.
 
-A standby costs the CPU of its components for at most ``STANDBY_S``. Finding one is
-O(components + inputs) per reconfiguration: a pass building the producer of each data key, and
-a walk upstream from each retired relation producer.
+A standby costs the CPU of its components for at most ``STANDBY_S``. Finding one costs, per
+reconfiguration that retires components, O(edges) for the live data keys, a pass building the
+producer of each data key, and a walk upstream from each retired relation producer:
+O(edges + retired producers x (components + inputs)).
 """
 
 from __future__ import annotations
