@@ -17,9 +17,11 @@ sees while the flow behind its key changes"):
    that of the other's latest sample (measurements with covariances of one shape). Until then
    the old flow delivers, as long as the agent keeps it: when the agent stops it, the key is
    free at once (rule 5), so a new flow that is never as certain (a camera alone after a
-   fusion that runs on with the camera alone) takes over then, not before;
-   :data:`~ubitrack_agent.net.spec.MAX_HOLD_S` after its first offer it claims the key anyway
-   (a holder nobody stops).
+   fusion that runs on with the camera alone) takes over then, not before. It waits however
+   long that takes: a *spare* flow (``agent.spares``: the derivation left best when a sensor
+   of the chosen one is lost, started beside it) is such a producer for as long as the chosen
+   flow is the more certain, and takes the key by this rule within a sample of the holder
+   losing that sensor. A holder nobody stops (no agent) keeps the key while it puts.
 3. **Claim, then put.** Ready, it puts a claim on the hand-over key and nothing on the
    relation key until the producer holding it answers that it has stopped, and after which
    instant (the newest it put); then it puts what comes after that instant. Two producers
@@ -46,7 +48,10 @@ sees while the flow behind its key changes"):
    more certain (covariance trace at most :data:`TAKE_BACK_RATIO` times its previous
    estimate's). The old derivation of a relation that lost a sensor is kept on standby
    (``agent.standby``), and the sensor's first measurement back does that, so the relation
-   is served by it again within a sample, before the agent has even heard of the sensor.
+   is served by it again within a sample, before the agent has even heard of the sensor. It
+   takes it back too when the holder's estimate becomes far less certain than its own (the
+   holder's trace at least ``1 / TAKE_BACK_RATIO`` times its own): the holder lost a sensor
+   (a spare that took the key, rule 2, and then lost its own).
 
 "Another producer is putting" means a sample not put by this one arrived within
 :meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded), or until
@@ -77,7 +82,6 @@ from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.core.measurements import WORKER, Measurement
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.json_messages import MessageError, load_object
-from ubitrack_agent.net.spec import MAX_HOLD_S
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -174,7 +178,6 @@ class KeyHandOver:
         """When another producer's latest sample arrived (monotonic)."""
         self._other_intervals: deque[float] = deque(maxlen=INTERVALS_REMEMBERED)
         self._other_trace: tuple[tuple[int, ...], float] | None = None
-        self._held_since: float | None = None
         self._claimed_at: float | None = None
         """When this producer claimed the key (monotonic), until answered or timed out."""
         self._holds = False
@@ -276,7 +279,7 @@ class KeyHandOver:
     def _take(self, after_ns: int | None) -> None:
         """Hold the key from now on, putting only what comes after ``after_ns``, and the sample
         held back last if it does; lock held."""
-        self._claimed_at, self._held_since = None, None
+        self._claimed_at = None
         self._holds, self._yielded, self._holder = True, False, self.producer
         if after_ns is not None and (self._newest_ns is None or after_ns > self._newest_ns):
             self._newest_ns = after_ns
@@ -309,7 +312,7 @@ class KeyHandOver:
             successor = min(self._alive | {self.producer})
             if successor != self.producer:
                 self._holder, self._other_at = successor, self._clock()
-                self._claimed_at = self._held_since = None
+                self._claimed_at = None
                 return
             taken = self._claimed_at is not None or self._waiting is not None
             if taken:
@@ -367,7 +370,7 @@ class KeyHandOver:
             if self._yielded and other:
                 if not self._regained(previous):
                     return self._refuse("relation_yielded")
-                self._yielded = False  # rule 6: its lost input is back
+                self._yielded = False  # rule 6: an input back, or the holder far worse
                 self._claimed_at, claim, wait = now, True, True
                 self._counters["relation_taken_back"] += 1
             elif self._claimed_at is not None and (other or self._holder_alive() or self.asking):
@@ -380,13 +383,12 @@ class KeyHandOver:
             elif not other and not self._holds:
                 if self._holder_alive() or self.asking:  # maybe only late (a fusion waiting)
                     self._claimed_at, claim, wait = now, True, True
+                    self._counters["relation_taken"] += 1
                 else:  # nobody puts any more: at once, claiming the key all the same
                     self._take(None)
                     claim = True
             elif not self._holds:
-                if self._held_since is None:
-                    self._held_since = now
-                if not self._ready(value) and now - self._held_since < MAX_HOLD_S:
+                if not self._ready(value):
                     return self._hold_back(value, put, "relation_held")
                 self._claimed_at, claim, wait = now, True, True
                 self._counters["relation_taken"] += 1
@@ -423,14 +425,15 @@ class KeyHandOver:
     def _regained(self, previous: tuple[tuple[int, ...], float] | None) -> bool:
         """Rule 6: this producer's latest estimate is no less certain than the holder's latest
         sample, and it has got a lost input back: it was quiet (``previous`` is None) or its
-        estimate is at most :data:`TAKE_BACK_RATIO` times as uncertain as its ``previous`` one
+        estimate is at most :data:`TAKE_BACK_RATIO` times as uncertain as its ``previous`` one;
+        or the holder's is at least ``1 / TAKE_BACK_RATIO`` times as uncertain as its own
         (covariances of one shape); lock held."""
         mine, theirs = self._own_trace, self._other_trace
         if mine is None or theirs is None or mine[0] != theirs[0]:
             return False
         if mine[1] > READY_RATIO * theirs[1]:
             return False
-        if previous is None:
+        if mine[1] <= TAKE_BACK_RATIO * theirs[1] or previous is None:
             return True
         return previous[0] == mine[0] and mine[1] <= TAKE_BACK_RATIO * previous[1]
 

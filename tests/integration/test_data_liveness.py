@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -89,6 +90,24 @@ def worker_status(setup, instance: str) -> dict:  # noqa: F811
     return json.loads(replies[0])
 
 
+@contextmanager
+def precise_and_coarse(setup):  # noqa: F811
+    """The agent, a precise tracker ``art`` (1 mm) and a coarse one ``ir`` (10 mm) seeing
+    ``WT`` and ``HT``, and an application asking for ``WT->HT``; all closed after."""
+    setup.start_agent()
+    trackers = [
+        PausableTracker(setup.session, setup.keys, "art", "ART", 30.0, 2.0),
+        PausableTracker(setup.session, setup.keys, "ir", "IR", 100.0, -1.0, sigma=10e-3),
+    ]
+    relation = Relation(setup.session, setup.keys, WT_HT, application="app")
+    try:
+        yield trackers, relation
+    finally:
+        relation.close()
+        for tracker in trackers:
+            tracker.close()
+
+
 def test_an_edge_whose_data_stopped_is_planned_without_until_it_returns(setup):  # noqa: F811
     setup.start_agent()
     trackers = [
@@ -139,13 +158,7 @@ def test_a_lost_tracker_back_takes_its_relation_back_before_the_agent_replans(se
     with the tracker's first samples (hand-over rule 6), long before the provider's next data
     liveness report tells the agent (about a second): the relation is precise again at once,
     and the agent then adopts that chain."""
-    setup.start_agent()
-    trackers = [
-        PausableTracker(setup.session, setup.keys, "art", "ART", 30.0, 2.0),
-        PausableTracker(setup.session, setup.keys, "ir", "IR", 100.0, -1.0, sigma=10e-3),
-    ]
-    relation = Relation(setup.session, setup.keys, WT_HT, application="app")
-    try:
+    with precise_and_coarse(setup) as (trackers, relation):
         precise = wait_until(lambda: producer_reading(setup.status(), "art/HT"), timeout=30)
         art = trackers[0]
         art.paused.set()
@@ -166,10 +179,47 @@ def test_a_lost_tracker_back_takes_its_relation_back_before_the_agent_replans(se
         assert worker_status(setup, precise)["counters"].get("relation_taken_back") == 1
         wait_until(lambda: precise in setup.alive_services(), timeout=REWIRE_S + 10)
         assert setup.status()["standby_components"] == []
-    finally:
-        relation.close()
-        for tracker in trackers:
-            tracker.close()
+
+
+def test_a_spare_takes_the_relation_within_a_sample_of_the_chosen_tracker_stopping(setup):  # noqa: F811
+    """The precise tracker's chain serves the relation and the coarse one's runs beside it as
+    its spare (``agent.spares``): when the precise tracker's data stops, the spare's producer
+    finds the key quiet and takes it (hand-over rules 2 and 4) before the agent has even
+    noticed the edge stale (about a second), and the agent then plans the spare's derivation
+    and keeps its components."""
+    with precise_and_coarse(setup) as (trackers, relation):
+        spare = wait_until(lambda: alive_spare(setup.status(), "WT->HT:6D"), timeout=30)
+        precise = producer_reading(setup.status(), "art/HT")
+        assert precise != spare and producer_reading(setup.status(), "ir/HT") == spare
+        fine = position_variance(fresh_samples(relation, 5)[-1])
+        incarnation = worker_status(setup, spare)["incarnation"]
+
+        trackers[0].paused.set()
+        paused = time.monotonic()
+        coarse = wait_until(
+            lambda: next(
+                (s for s in fresh_samples(relation, 1) if position_variance(s) > 10 * fine),
+                None,
+            ),
+            timeout=10,
+        )
+        taken = time.monotonic() - paused
+        status = setup.status()
+        assert "art/HT" not in status["stale_edges"]  # the agent has not replanned yet
+        print(f"the spare took the relation {taken:.3f} s after the precise data stopped")
+        assert_true_pose(coarse)
+        assert worker_status(setup, spare)["counters"].get("relation_taken") == 1
+        wait_until(lambda: producer_reading(setup.status(), "art/HT") is None, REWIRE_S)
+        assert worker_status(setup, spare)["incarnation"] == incarnation  # kept, not started
+        for sample in fresh_samples(relation, 20):
+            assert_true_pose(sample)
+
+
+def alive_spare(status: dict | None, relation: str) -> str | None:
+    """The first spare producer of ``relation`` in the agent's plan, once it is alive."""
+    spares = ((status or {}).get("relations") or {}).get(relation, {}).get("spares", [])
+    alive = (status or {}).get("components", {})
+    return next((s for s in spares if alive.get(s, {}).get("alive")), None)
 
 
 def position_variance(sample) -> float:

@@ -12,7 +12,6 @@ from hypothesis import strategies as st
 
 from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.measurements import WORKER, ErrorPose, Pose
-from ubitrack_agent.net.spec import MAX_HOLD_S
 from ubitrack_agent.services.handover import CLAIM_TIMEOUT_S, KeyHandOver
 
 MS = 1_000_000
@@ -130,17 +129,69 @@ def test_a_new_producer_holds_back_until_ready_then_claims_and_takes_over_after_
     assert bus.counters[0]["relation_yielded"] == 1 and bus.counters[1]["relation_taken"] == 1
 
 
-def test_a_new_producer_claims_after_the_longest_hold_even_if_less_certain():
+def test_a_less_certain_producer_holds_back_for_as_long_as_the_holder_puts():
+    """Rule 2 has no time limit: a flow less certain than the one putting (a spare, or a
+    camera alone beside a fusion on standby) waits until the agent stops the holder."""
     bus = Bus()
     old, new = bus.producer(), bus.producer()
-    t = 0
-    while not any(m.get("claim") == new.producer for m in bus.messages):
+    for t in range(10, 15_000, 10):  # 15 s at 100 Hz, longer than any standby
         bus.clock.now += 0.01
-        t += 10
-        bus.offer(old, pose(t))
-        bus.offer(new, pose(t, variance=1e-3))
-    assert bus.clock.now >= 100.0 + MAX_HOLD_S
-    assert bus.offer(new, pose(t + 10, variance=1e-3))
+        assert bus.offer(old, pose(t))
+        assert not bus.offer(new, pose(t, variance=2e-6))
+    assert not any(m.get("claim") == new.producer for m in bus.messages)
+    bus.die(old)  # stopped by the agent: the key is free (rule 5)
+    bus.clock.now += 0.01
+    assert bus.offer(new, pose(15_000, variance=2e-6))
+
+
+def test_a_spare_takes_the_key_within_a_sample_when_the_holder_loses_a_sensor():
+    """A spare (``agent.spares``: the fusion of the two sensors left, started beside the
+    fusion of the best two) waits while the holder is the more certain; the holder's better
+    tracker stops, its estimate degrades to the camera's, and the spare claims at its next
+    sample: one degraded sample reaches the key at most."""
+    bus = Bus()
+    fused, spare = bus.producer(), bus.producer()
+    for t in range(10, 1000, 10):
+        bus.clock.now += 0.01
+        assert bus.offer(fused, pose(t, variance=1e-6))
+        assert not bus.offer(spare, pose(t, variance=2e-6))
+    degraded = [1000, 1010, 1020]  # the better tracker gone: the camera alone in the fusion
+    for t in degraded:
+        bus.clock.now += 0.01
+        bus.offer(fused, pose(t, variance=40e-6))
+        bus.offer(spare, pose(t, variance=2e-6))
+    assert bus.messages[-2:] == [
+        {"claim": spare.producer, "after": 1000 * MS},
+        {"yield": fused.producer, "last": 1000 * MS},
+    ]
+    by = {t // MS: who for t, who, _ in bus.wire}
+    assert [by[t] for t in degraded] == [fused.producer, spare.producer, spare.producer]
+    assert bus.stamps() == list(range(10, 1030, 10))  # one stream
+    assert bus.counters[1]["relation_taken"] == 1
+
+
+def test_a_spare_that_took_the_key_gives_it_back_when_it_loses_its_own_sensor():
+    """Two flows of about the same quality: the spare found itself as certain once and took
+    the key (rule 2); the other does not take it back for that (rule 6 wants ten times), but
+    does when the spare's own sensor stops and its estimate becomes far less certain."""
+    bus = Bus()
+    first, spare = bus.producer(), bus.producer()
+    bus.clock.now += 0.01
+    bus.offer(first, pose(10, variance=1.0e-6))
+    bus.offer(spare, pose(10, variance=0.9e-6))  # as certain for once: claims, taken
+    for t in range(20, 100, 10):
+        bus.clock.now += 0.01
+        assert bus.offer(spare, pose(t, variance=1.1e-6))
+        assert not bus.offer(first, pose(t, variance=1.0e-6))  # a little better: kept away
+    bus.clock.now += 0.01
+    assert bus.offer(spare, pose(100, variance=40e-6))  # its sensor gone
+    assert not bus.offer(first, pose(100, variance=1.0e-6))  # claims, not put at once
+    assert bus.messages[-1] == {"yield": spare.producer, "last": 100 * MS}
+    bus.clock.now += 0.01
+    assert not bus.offer(spare, pose(110, variance=40e-6))
+    assert bus.offer(first, pose(110, variance=1.0e-6))
+    assert bus.counters[0]["relation_taken_back"] == 1
+    assert bus.stamps() == list(range(10, 120, 10))
 
 
 def holding(bus: Bus) -> KeyHandOver:

@@ -71,14 +71,21 @@ def test_a_new_edge_within_a_region_replans_it_and_nothing_else():
 def test_removing_an_edge_replans_the_relations_that_read_it_only():
     fragments = building()
     first = step(None, fragments, HEADS)
-    unused = step(first, fragments, HEADS, without={"u0/H1"})  # in room 0's region, unread
+    assert first.plan.flow.spares["H0_1->H0_2:6D"]  # the worse tracker's way, for t0's loss
+    assert reads(first, HEADS[0], "u0")
+    unused = step(first, fragments, HEADS, without={"t0/room"})  # in room 0's region, unread
     assert unused.replanned == set()
     assert unused.plan is first.plan
-    used = step(unused, fragments, HEADS, without={"u0/H1", "t0/H1"})  # read by H0_1->H0_2
+    spare_lost = step(unused, fragments, HEADS, without={"t0/room", "u0/H1"})  # the spare's
+    assert spare_lost.replanned == {HEADS[0]}
+    assert "H0_1->H0_2:6D" not in spare_lost.plan.flow.spares  # none left
+    assert spare_lost.parts[HEADS[0]].serving == first.parts[HEADS[0]].serving
+    gone = {"t0/room", "u0/H1", "t0/H1"}
+    used = step(spare_lost, fragments, HEADS, without=gone)  # read by H0_1->H0_2
     assert used.replanned == {HEADS[0]}
-    assert kept(unused, used, HEADS) == set(HEADS[1:])
+    assert kept(spare_lost, used, HEADS) == set(HEADS[1:])
     assert "H0_1->H0_2:6D" in used.plan.unsolved  # neither tracker sees H0_1 now
-    back = step(used, fragments, HEADS, without={"u0/H1"})  # its data came back
+    back = step(used, fragments, HEADS, without={"t0/room", "u0/H1"})  # its data came back
     assert back.replanned == {HEADS[0]} and reads(back, HEADS[0], "t0")
 
 

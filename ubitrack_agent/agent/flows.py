@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 
+from ubitrack_agent.agent.spares import spare_solutions
 from ubitrack_agent.graph.dataflow import DataFlow, from_solution, merge, relation_name
 from ubitrack_agent.graph.frame_names import frame_hint
 from ubitrack_agent.graph.planner import (
@@ -94,10 +95,11 @@ def within_margin(solutions: Sequence[Solution]) -> list[Solution]:
 @dataclass(frozen=True)
 class RelationPlan:
     """One relation's part of a :class:`Plan`: its data flow (empty if unsolved, then
-    ``unsolved`` says why), the components of its derivation (``serving``) and the measured
-    edges that derivation reads (``edges``: an event removing one of them replans it,
-    ``agent.replanning``). ``name`` is its :func:`plan_name`; ``relations`` maps the names it
-    is planned under to the relation (none for a type the planner does not know).
+    ``unsolved`` says why; with its spare derivations, ``agent.spares``), the components of its
+    derivation (``serving``) and the measured edges that derivation and its spares read
+    (``edges``: an event removing one of them replans it, ``agent.replanning``). ``name`` is
+    its :func:`plan_name`; ``relations`` maps the names it is planned under to the relation
+    (none for a type the planner does not know).
     ``candidates`` are the components of every derivation within the cost margin
     (:func:`within_margin`): the only ones whose running can change the choice, so a worker
     that appears replans the relation only if it is one of them (``agent.replanning``)."""
@@ -124,8 +126,9 @@ def plan_relation(
     components of the previous plan's derivations, by plan name; ``None`` before the first
     plan) among those ``planner`` finds. A recalibration is planned on ``srg`` without the
     measured static edges of its relation (``srg.remove_static_relation``), so it is computed
-    from the other edges; its unsolved reason says which edges it ignored. O(one
-    ``planner`` call + the data flows of the derivations within the cost margin)."""
+    from the other edges; its unsolved reason says which edges it ignored. The chosen
+    derivation's spares (``agent.spares``) are in its flow. O(one ``planner`` call + the data
+    flows of the derivations within the cost margin and of the spares)."""
     try:
         query = Query(relation.source, relation.target, relation.type, relation.static)
     except PlanningError as exc:
@@ -151,13 +154,22 @@ def plan_relation(
         reason = without + str(exc) + (f"; {hint}" if hint else "")
         return RelationPlan(relation, name, unsolved=reason, relations=names)
     solution = choose(query, solutions)
-    flow = from_solution(solution, query)
+    spares = spare_solutions(solution, solutions)
+    flow, own = from_solution(solution, query), relation_name(query)
+    spare_flows = [from_solution(spare, query) for spare in spares]
     return RelationPlan(
         relation,
         name,
-        DataFlow(flow.components, {name: flow.relations[relation_name(query)]}),
+        merge(
+            [
+                DataFlow(flow.components, {name: flow.relations[own]}),
+                *(DataFlow(f.components, spares={name: (f.relations[own],)}) for f in spare_flows),
+            ]
+        ),
         serving=frozenset(flow.components),
-        edges=frozenset(r.id for r in solution.records.values() if r.measured),
+        edges=frozenset(
+            r.id for s in (solution, *spares) for r in s.records.values() if r.measured
+        ),
         relations=names,
         candidates=frozenset().union(
             *(from_solution(s, query).components for s in within_margin(solutions))

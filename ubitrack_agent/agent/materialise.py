@@ -8,8 +8,10 @@
 * Every dynamic input triggers (each instant is computed once,
 ``ubitrack_agent.services.triggers``); a
   component whose inputs are all static recomputes whenever one of them changes.
-* The producer of a queried relation also publishes on the relation's stable key; a relation
-  answered by a measured edge as it is gets a ``relay`` component.
+* The producer of a queried relation also publishes on the relation's stable key, and so does
+  each spare producer of it (``agent.spares``; the hand-over decides which one puts,
+  ``services.handover``); a relation answered by a measured edge as it is gets a ``relay``
+  component.
 * Each component of the flow (each step of a pattern, Pustka et al. 2006, section 5) is one
   specification: the components of a derivation on one host run in one container
   (``agent.placement.group_containers``), where they hand each other their outputs as
@@ -88,12 +90,14 @@ def component_specs(
             parameters=dict(component.parameters),
             expansion=component.expansion,
         )
-    for name, binding in flow.relations.items():
+    producers = [(name, b) for name, bs in flow.spares.items() for b in bs]
+    for name, binding in [*flow.relations.items(), *producers]:
         relation_key = keys.relation(relations[name])
         if binding.component is not None:
             spec = specs[binding.component]
             routes = dict(spec.relations)
-            routes[binding.edge] = (*routes.get(binding.edge, ()), relation_key)
+            known = routes.get(binding.edge, ())
+            routes[binding.edge] = known if relation_key in known else (*known, relation_key)
             specs[binding.component] = replace(spec, relations=routes)
             continue
         key, static, from_worker = source(binding)

@@ -1010,7 +1010,10 @@ class Agent:
             "application_hosts": {names[r]: sorted(hosts[r]) for r in self.queries},
             "unsolved": dict(plan.unsolved) if plan else {},
             "relations": {
-                name: {"key": self.keys.relation(relation)}
+                name: {
+                    "key": self.keys.relation(relation),
+                    "spares": [b.component or b.edge for b in plan.flow.spares.get(name, ())],
+                }
                 for name, relation in (plan.relations.items() if plan else ())
                 if name not in plan.unsolved
             },

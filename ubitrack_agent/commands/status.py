@@ -208,6 +208,9 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"worker {instance} ({component['service']}, {state}{where}): {component['counters']}"
         )
+    for name, relation in status.get("relations", {}).items():
+        for producer in relation.get("spares", []):
+            print(f"  spare {producer} of {name}: takes the key if a sensor of its flow is lost")
     for instance in status.get("standby_components", []):
         print(f"  standby {instance}: the old flow of a relation that lost a sensor, kept")
     for instance, reason in status.get("unplaced", {}).items():

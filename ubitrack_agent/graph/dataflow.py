@@ -6,10 +6,14 @@ components associated with the matched input edges." A :class:`DataFlow` is that
 :class:`Component` per applied pattern instance, each input port bound either to a measured SRG
 edge or to an output of another component, plus the *relations* the applications asked for.
 
-Component ids are content-derived (template, expansion, the relations read and written), not
-derived from the producers feeding them, so the same computation planned for two queries gets
-the same id (sharing, section 5.1 "Data flow construction"), and a component whose upstream
-changed keeps its id: the agent rewires it rather than stopping and starting it.
+Component ids name the whole computation (template, expansion, the relations read and
+written, and the producer of each input: :func:`from_solution`), so the same computation planned
+for two queries gets the same id (sharing, section 5.1 "Data flow construction"), and a
+component whose upstream changed is another component, started beside the old one (make
+before break).
+
+Besides the producer bound to each relation, a flow may name *spare* producers of it (the
+derivations the agent runs beside the chosen one for the loss of a sensor: ``agent.spares``).
 """
 
 from __future__ import annotations
@@ -74,16 +78,21 @@ class Component:
 
 @dataclass(frozen=True)
 class DataFlow:
-    """Components by id and the queried relations (``"C->A:6D"``) bound to their producers."""
+    """Components by id and the queried relations (``"C->A:6D"``) bound to their producers;
+    ``spares``: producers of a relation that stand by (module docstring), by relation name."""
 
     components: Mapping[str, Component] = field(default_factory=dict)
     relations: Mapping[str, Binding] = field(default_factory=dict)
+    spares: Mapping[str, tuple[Binding, ...]] = field(default_factory=dict)
 
     def as_json(self) -> dict[str, Any]:
-        return {
+        data = {
             "components": [c.as_json() for c in self.components.values()],
             "relations": {name: b.as_json() for name, b in self.relations.items()},
         }
+        if self.spares:
+            data["spares"] = {n: [b.as_json() for b in bs] for n, bs in self.spares.items()}
+        return data
 
 
 def relation_name(query: Query) -> str:
@@ -167,10 +176,12 @@ def merge(flows: Iterable[DataFlow]) -> DataFlow:
 
     Two flows may compute the same relations from different producers (a component with the
     same id but other input bindings); the later one is then kept under a derived id and its
-    consumers are rebound to it, so each flow's computation stays intact.
+    consumers are rebound to it, so each flow's computation stays intact. The spare producers
+    of a relation are gathered from every flow, each once.
     """
     components: dict[str, Component] = {}
     relations: dict[str, Binding] = {}
+    spares: dict[str, tuple[Binding, ...]] = {}
     for flow in flows:
         renamed: dict[str, str] = {}
         for component in flow.components.values():  # producers come before their consumers
@@ -183,7 +194,12 @@ def merge(flows: Iterable[DataFlow]) -> DataFlow:
                 component = replace(component, id=new_id)
             components[component.id] = component
         relations.update({name: _rebind(b, renamed) for name, b in flow.relations.items()})
-    return DataFlow(components, relations)
+        for name, bindings in flow.spares.items():
+            known = spares.get(name, ())
+            spares[name] = known + tuple(
+                b for b in (_rebind(b, renamed) for b in bindings) if b not in known
+            )
+    return DataFlow(components, relations, spares)
 
 
 def best(query: Query, solutions: Sequence[Solution]) -> Solution:

@@ -59,10 +59,6 @@ STANDBY_S = 10.0
 """How long the agent keeps the old derivation of a relation that lost a sensor running beside
 the new one (``agent.standby``): long enough for a tracker restarted or a body occluded for a
 few seconds."""
-MAX_HOLD_S = STANDBY_S + HAND_OVER_HOLD_S
-"""The longest a new producer of a relation key holds back while its estimate is less certain
-than that of the producer still putting (``ubitrack_agent.services.handover``, rule 2): the
-agent stops that one by then, and the key is free when it does."""
 EXPANSIONS = ("none", "space", "time")
 TIME_EXPANSION_OPTIONS = ("min_motion", "min_rotation_deg", "max_samples")
 """Options of a time expansion (``ubitrack_agent.services.expansion``): least change of a position

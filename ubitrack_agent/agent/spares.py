@@ -1,0 +1,60 @@
+"""Spare derivations: the flow a relation falls back on when a sensor of its chosen derivation
+is lost, running beside it before the loss (issue [seamless], "make before break").
+
+When a sensor of a relation's derivation stops, the derivation goes on with what it still
+has (a fusion on the inputs left, ``agent.standby``) until the agent has planned and started
+the derivation that is best without the sensor. If that one reads only sensors the lost
+derivation read too, the derivation on standby computes from the same data meanwhile and
+nothing better is to be had. If it reads a sensor the chosen derivation left out (a third
+tracker, not worth its cost while the better one runs: ``docs/planner.md``, "Cost model"),
+the application gets the worse estimate for as long as the agent takes to notice the loss
+(the provider's token, or the edge going quiet: ``agent.liveness``), plan, start the
+components and let them converge: a few hundred milliseconds of the camera alone where a
+tracker was available. That derivation is started beforehand as a *spare*: its producer
+puts on the relation's key too, and the hand-over keeps it back while the chosen derivation
+is more certain (``services.handover``, rule 2); when the chosen one loses the sensor its
+estimate becomes less certain than the spare's and the spare takes the key at its next
+sample. The agent then plans the spare's derivation as the relation's own (the same
+component ids: ``graph.dataflow.from_solution``) and finds it running.
+
+The spare of each sensor is the cheapest of the planner's alternatives (best first, at most
+``per_relation`` of them) that does not read it. The list is bounded, so in a room with many
+trackers the best derivation without a sensor may not be in it: the spare is then the best
+listed one, or none. Cost: O(sensors x alternatives x measured edges) per relation planned,
+no planner call; running them costs their components' CPU, O(sensors of the derivation)
+derivations per relation at most, and none where the derivation reads every sensor that an
+alternative does (the demo's camera and tracker fused).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from ubitrack_agent.graph.planner import Solution
+
+
+def sensors(solution: Solution) -> frozenset[str]:
+    """The providers of the dynamic measured edges ``solution`` reads (the sensors it stops
+    without; a static edge's provider, a database, is read once)."""
+    return frozenset(
+        record.provider
+        for record in solution.records.values()
+        if record.measured and not record.static
+    )
+
+
+def spare_solutions(chosen: Solution, solutions: Sequence[Solution]) -> list[Solution]:
+    """The spares of ``chosen`` among ``solutions`` (the planner's alternatives, best first),
+    in the order of the sensors they stand in for: for each sensor ``chosen`` reads, the first
+    alternative that does not read it, if that one reads a sensor ``chosen`` does not (module
+    docstring); each spare once."""
+    used = sensors(chosen)
+    by_solution = [(solution, sensors(solution)) for solution in solutions]
+    spares: list[Solution] = []
+    for sensor in sorted(used):
+        fallback = next((s for s, read in by_solution if sensor not in read), None)
+        if fallback is None or any(fallback is s for s in (chosen, *spares)):
+            continue
+        if not sensors(fallback) <= used:
+            spares.append(fallback)
+    return spares
