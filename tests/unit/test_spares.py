@@ -81,6 +81,12 @@ def test_a_spare_is_planned_with_the_relation_and_puts_on_its_key(three_sensors,
     assert on_key == {primary.component, spare.component}
 
 
+def test_an_agent_without_spares_plans_none(three_sensors, templates):
+    srg, _ = three_sensors
+    part = plan_relation(srg, templates, C_A, spares=False)
+    assert part.flow.spares == {} and set(part.flow.components) == part.serving
+
+
 def test_the_spare_becomes_the_derivation_with_the_same_components_when_its_sensor_is_lost(
     three_sensors, templates
 ):

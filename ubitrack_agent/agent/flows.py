@@ -121,14 +121,16 @@ def plan_relation(
     running: Set[str] = frozenset(),
     serving: Mapping[str, Set[str]] | None = None,
     planner: Planner = plan,
+    spares: bool = True,
 ) -> RelationPlan:
     """A derivation of ``relation`` chosen by :func:`stable_choice` (``serving``: the
     components of the previous plan's derivations, by plan name; ``None`` before the first
     plan) among those ``planner`` finds. A recalibration is planned on ``srg`` without the
     measured static edges of its relation (``srg.remove_static_relation``), so it is computed
     from the other edges; its unsolved reason says which edges it ignored. The chosen
-    derivation's spares (``agent.spares``) are in its flow. O(one ``planner`` call + the data
-    flows of the derivations within the cost margin and of the spares)."""
+    derivation's spares (``agent.spares``) are in its flow, unless not ``spares``. O(one
+    ``planner`` call + the data flows of the derivations within the cost margin and of the
+    spares)."""
     try:
         query = Query(relation.source, relation.target, relation.type, relation.static)
     except PlanningError as exc:
@@ -154,7 +156,7 @@ def plan_relation(
         reason = without + str(exc) + (f"; {hint}" if hint else "")
         return RelationPlan(relation, name, unsolved=reason, relations=names)
     solution = choose(query, solutions)
-    spares = spare_solutions(solution, solutions)
+    spares = spare_solutions(solution, solutions) if spares else []
     flow, own = from_solution(solution, query), relation_name(query)
     spare_flows = [from_solution(spare, query) for spare in spares]
     return RelationPlan(

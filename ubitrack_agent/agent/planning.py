@@ -85,12 +85,14 @@ def make_outcome(
     templates: Sequence[Template],
     keys: Keys,
     planner: Planner = plan,
+    spares: bool = True,
 ) -> Outcome:
     """Plan ``request`` incrementally from ``previous``, each relation with ``planner`` (pure
     but for a memo's contents: ``agent.plan_memo``). The specifications are made again only
     when the plan changed. O(edges) for the SRG (``agent.live_srg``: no fragment parsed
     again), plus :func:`.replanning.replan`'s cost, plus O(components + bindings) when the
-    plan changed (``materialise.component_specs``)."""
+    plan changed (``materialise.component_specs``). ``spares``: whether derivations get spares
+    (``agent.spares``)."""
     started = time.perf_counter()
     live, removed, added = live_srg(
         request.fragments, request.stale, previous.live if previous else None
@@ -108,6 +110,7 @@ def make_outcome(
         request.appeared,
         (removed, added) if base is not None else None,
         planner,
+        spares,
     )
     replanning_s = time.perf_counter() - replanning_started
     if previous is not None and planned.plan is previous.planned.plan:

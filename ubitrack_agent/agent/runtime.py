@@ -147,6 +147,7 @@ class Agent:
         settings: Settings,
         templates: Sequence[Template],
         on_role: Callable[[bool], None] | None = None,
+        spares: bool = True,
     ) -> None:
         self.keys = KeySpace(settings.key_prefix)
         self.id = new_agent_id()
@@ -161,7 +162,7 @@ class Agent:
         """The planner's answers by region, shared by every plan (:mod:`.plan_memo`)."""
         self._planner = BackgroundPlanner(
             lambda request, previous: make_outcome(
-                request, previous, self.templates, self.keys, self._plan_memo
+                request, previous, self.templates, self.keys, self._plan_memo, spares
             ),
             done=lambda: self._events.put(PLANNED),
         )

@@ -111,6 +111,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "kinds of problem seen)",
     )
     parser.add_argument(
+        "--no-spares",
+        action="store_true",
+        help="run no spare derivations: by default, where the best derivation of a relation "
+        "without one of its sensors reads a sensor it leaves out (a third tracker), that "
+        "derivation runs beside it and takes the relation over within a sample of the sensor's "
+        "loss, at the CPU of its components",
+    )
+    parser.add_argument(
         "--no-host",
         action="store_true",
         help="start no host manager: workers run where `ubitrack host` runs",
@@ -342,7 +350,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     host = None if args.no_host else HostWhileActive(settings, options, args.log_level)
     try:
-        agent = Agent(settings, templates, on_role=host.on_role if host else None)
+        agent = Agent(
+            settings, templates, on_role=host.on_role if host else None, spares=not args.no_spares
+        )
     except zenoh.ZError as exc:
         print(f"ubitrack agent: cannot open zenoh on {settings.listen}: {exc}", file=sys.stderr)
         return 2
