@@ -137,7 +137,17 @@ def run(shape: Building, events: int, templates, repeat: int) -> dict[str, Any]:
     first_s = time.perf_counter() - started
     memoised = make_outcome(request_of(0, fragments, relations, None), None, templates, KEYS, memo)
     unsolved = len(current.planned.plan.unsolved)
-    print(f"first plan of every query: {first_s:.2f} s ({unsolved} unsolved)")
+    spares = getattr(current.planned.plan.flow, "spares", {})  # none before agent.spares
+    counts = {
+        "components": len(current.wanted),
+        "spare_producers": sum(len(producers) for producers in spares.values()),
+        "relations_with_spares": len(spares),
+    }
+    print(
+        f"first plan of every query: {first_s:.2f} s ({unsolved} unsolved); "
+        f"{counts['components']} components, {counts['spare_producers']} spare producers of "
+        f"{counts['relations_with_spares']} relations"
+    )
     sensors = sorted(p for p in fragments if p != "database")
     step = max(1, len(sensors) // max(1, events // 2))
     chosen = sensors[::step][: max(1, events // 2)]
@@ -186,6 +196,7 @@ def run(shape: Building, events: int, templates, repeat: int) -> dict[str, Any]:
         "queries": len(relations),
         "unsolved": unsolved,
         "first_plan_s": first_s,
+        **counts,
         "events": rows,
         "summary": summary(rows),
         "query_added": {

@@ -27,6 +27,10 @@ sees while the flow behind its key changes"):
    instant (the newest it put); then it puts what comes after that instant. Two producers
    computing the same instants never both put one: the holder stops before it answers. With
    no answer within :data:`CLAIM_TIMEOUT_S` (a holder that died meanwhile) it puts anyway.
+   The answer names the claimer it answers: another claimer pending then knows the key taken
+   and claims again from its new holder (rule 2), and of two claimers neither holding the
+   key, the one with the higher id withdraws (a claim with nobody to answer it, taken after
+   the timeout by one producer only).
 4. **Yield.** A producer that receives a claim while it holds the key stops putting there and
    answers; it puts again only once the claimer has been quiet (a newer flow that died). A
    producer that finds the key quiet while the producer holding it is alive (a fusion waiting
@@ -108,6 +112,7 @@ MINE_REMEMBERED = 64
 """How many of its own puts' timestamps a producer remembers to tell them from the other's."""
 MESSAGE_KINDS = {
     frozenset({"claim", "after"}): "claim",
+    frozenset({"yield", "last", "to"}): "yield",
     frozenset({"yield", "last"}): "yield",
     frozenset({"holds"}): "holds",
 }
@@ -256,24 +261,49 @@ class KeyHandOver:
             )
 
     def _answer_claim(self, claimer: str) -> None:
+        """Another producer's claim: the holder yields to it and answers. A producer claiming
+        the key itself when another claim comes, neither holding it (each taking the other
+        for the holder, or the holder gone), keeps its claim if its id is the lower one and
+        withdraws it otherwise (the lower one says its claim again, for the other to see
+        after its own), so that only one takes the key when nobody answers."""
         with self._lock:
-            self._holder = claimer
-            if not self._holds:
+            if self._holds:
+                self._holder = claimer
+                self._holds, self._yielded = False, True
+                # The claimer counts as putting from now: quiet from here means it died.
+                self._other_at = self._clock()
+                self._other_intervals.clear()
+                message = {"yield": self.producer, "last": self._newest_ns, "to": claimer}
+            elif self._claimed_at is not None and self.producer < claimer:
+                # This claim stands: said again, for the other one to see and withdraw.
+                message = {"claim": self.producer, "after": self._newest_ns}
+            else:
+                self._claimed_at, self._holder = None, claimer
                 return  # not the holder: the holder answers
-            self._holds, self._yielded = False, True
-            # The claimer counts as putting from now: quiet from here means it died.
-            self._other_at = self._clock()
-            self._other_intervals.clear()
-            last = self._newest_ns
-        self._send(json.dumps({"yield": self.producer, "last": last}).encode())
+        self._send(json.dumps(message).encode())
 
     def _take_answer(self, message: dict[str, Any]) -> None:
-        last = message["last"]
+        """The holder's answer to a claim: this producer takes the key if the answer is
+        addressed to it (``to``), also a claim it has withdrawn since (the holder stopped for
+        it); an answer without ``to`` (a producer before it was added) answers any claim. An
+        answer to another producer's claim makes this one's void: that producer holds the key
+        now, and this one claims it again from it if it is still ready (rule 2)."""
+        last, to = message["last"], message.get("to")
         if last is not None and (not isinstance(last, int) or isinstance(last, bool)):
             raise MessageError("malformed", "an answer's 'last' is no timestamp")
+        if to is not None and not isinstance(to, str):
+            raise MessageError("malformed", "an answer's 'to' is no producer")
         with self._lock:
+            if to == self.producer:
+                if not self._holds:
+                    self._take(last)
+                return
             if self._claimed_at is None:
                 return  # an answer to another producer's claim
+            if to is not None:
+                self._claimed_at, self._holder, self._other_at = None, to, self._clock()
+                self._other_intervals.clear()
+                return
             self._take(last)
 
     def _take(self, after_ns: int | None) -> None:
@@ -320,6 +350,12 @@ class KeyHandOver:
             after = self._newest_ns
         if taken:  # the others waiting beside it, if any, yield
             self._claim(after)
+
+    @property
+    def holds(self) -> bool:
+        """Whether this producer holds the key (puts on it)."""
+        with self._lock:
+            return self._holds
 
     def holding(self) -> bytes | None:
         """What this producer replies to one starting that asks who holds the key: itself, if

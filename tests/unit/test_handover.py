@@ -43,11 +43,12 @@ class Bus:
         self.messages: list[dict] = []
         self.held: list[bytes] | None = None
 
-    def producer(self) -> KeyHandOver:
-        """A producer starting: it sees the others' tokens, asks who holds the key and the
-        key's latest sample first (``Watch``)."""
+    def producer(self, name: str | None = None) -> KeyHandOver:
+        """A producer starting (its id ``name``, if given): it sees the others' tokens, asks who
+        holds the key and the key's latest sample first (``Watch``)."""
         counters: Counter[str] = Counter()
         hand_over = KeyHandOver("ubitrack/d/relation/C/A", counters, self._send, self.clock)
+        hand_over.producer = name or hand_over.producer
         for other in self.producers:
             other.joined(hand_over.producer)
             hand_over.joined(other.producer)
@@ -120,7 +121,8 @@ def test_a_new_producer_holds_back_until_ready_then_claims_and_takes_over_after_
     bus.clock.now += 0.01
     assert not bus.offer(new, pose(100, variance=0.9e-6))  # ready: claims, not put at once
     claim, answer = bus.messages[1:]
-    assert claim["claim"] == new.producer and answer == {"yield": old.producer, "last": 90 * MS}
+    assert claim["claim"] == new.producer
+    assert answer == {"yield": old.producer, "last": 90 * MS, "to": new.producer}
     assert bus.stamps()[-1] == 100  # put when the answer came: after the holder's last
     assert not bus.offer(old, pose(100))  # the old one stopped before it answered
     assert bus.offer(new, pose(110, variance=2e-6))  # taken: no longer compared
@@ -162,7 +164,7 @@ def test_a_spare_takes_the_key_within_a_sample_when_the_holder_loses_a_sensor():
         bus.offer(spare, pose(t, variance=2e-6))
     assert bus.messages[-2:] == [
         {"claim": spare.producer, "after": 1000 * MS},
-        {"yield": fused.producer, "last": 1000 * MS},
+        {"yield": fused.producer, "last": 1000 * MS, "to": spare.producer},
     ]
     by = {t // MS: who for t, who, _ in bus.wire}
     assert [by[t] for t in degraded] == [fused.producer, spare.producer, spare.producer]
@@ -186,7 +188,7 @@ def test_a_spare_that_took_the_key_gives_it_back_when_it_loses_its_own_sensor():
     bus.clock.now += 0.01
     assert bus.offer(spare, pose(100, variance=40e-6))  # its sensor gone
     assert not bus.offer(first, pose(100, variance=1.0e-6))  # claims, not put at once
-    assert bus.messages[-1] == {"yield": spare.producer, "last": 100 * MS}
+    assert bus.messages[-1] == {"yield": spare.producer, "last": 100 * MS, "to": first.producer}
     bus.clock.now += 0.01
     assert not bus.offer(spare, pose(110, variance=40e-6))
     assert bus.offer(first, pose(110, variance=1.0e-6))
@@ -370,7 +372,7 @@ def test_a_producer_that_gave_the_key_away_takes_it_back_when_a_lost_input_is_ba
     assert not bus.offer(fused, pose(70, variance=0.2e-6))  # the tracker is back: claims
     assert bus.messages[-2:] == [
         {"claim": fused.producer, "after": 60 * MS},
-        {"yield": camera.producer, "last": 60 * MS},
+        {"yield": camera.producer, "last": 60 * MS, "to": fused.producer},
     ]
     assert bus.stamps()[-1] == 70  # held back, put when the answer came
     bus.clock.now += 0.01
@@ -399,7 +401,7 @@ def test_a_producer_that_gave_the_key_away_takes_it_back_when_it_puts_again_afte
     assert bus.offer(camera, pose(1010, variance=100e-6))
     bus.clock.now += 0.01
     assert not bus.offer(chain, pose(1020, variance=2e-6))  # quiet 0.6 s, back: claims
-    assert bus.messages[-1] == {"yield": camera.producer, "last": 1010 * MS}
+    assert bus.messages[-1] == {"yield": camera.producer, "last": 1010 * MS, "to": chain.producer}
     assert bus.counters[0]["relation_taken_back"] == 1 and bus.stamps()[-1] == 1020
 
 
@@ -476,6 +478,51 @@ def test_once_the_new_producer_puts_the_old_one_puts_no_more(instants, new_from)
         assert old.producer not in who[who.index(new.producer) :]
 
 
+STEPS = st.lists(
+    st.tuples(
+        st.lists(st.sampled_from((0, 1, 2)), max_size=3, unique=True),  # who offers, in order
+        st.lists(st.sampled_from((0.1, 0.5, 1.0, 2.0, 40.0)), min_size=3, max_size=3),
+        st.sampled_from((None, None, None, None, "start", "die", "quiet", "hold", "deliver")),
+        st.integers(0, 2),
+    ),
+    max_size=120,
+)
+
+
+@given(STEPS, st.permutations("abcdef"))
+@example([([0], [1.0] * 3, None, 0), ([1, 0], [0.5, 40.0, 1.0], "start", 1)] * 3, "abcdef")
+def test_any_producers_coming_going_and_changing_certainty_never_put_an_instant_twice(steps, names):
+    """Up to three producers of one relation (a flow, its spare, a flow on standby, a new
+    one), each at any moment as certain as any other or ten times less (a sensor lost or
+    back), starting, dying and falling quiet in any order, the hand-over's messages delayed:
+    every instant on the key is put once at most, in order (rules 1 to 6 together), and
+    while the messages flow, one producer at most holds the key. The producers' ids are drawn
+    too (rule 5 and the claims' tie-break order by them)."""
+    names = list(names)
+    bus = Bus()
+    slots: list[KeyHandOver | None] = [bus.producer(names.pop()), None, None]
+    for i, (offering, variances, event, who) in enumerate(steps):
+        if event == "start" and slots[who] is None and names:
+            slots[who] = bus.producer(names.pop())
+        elif event == "die" and slots[who] is not None:
+            bus.die(slots[who])
+            slots[who] = None
+        elif event == "quiet":
+            bus.clock.now += 0.6
+        elif event == "hold" and bus.held is None:
+            bus.held = []  # the hand-over's messages in flight from now
+        elif event == "deliver":
+            bus.deliver()
+        bus.clock.now += 1 / 60
+        for k in offering:
+            if slots[k] is not None:
+                bus.offer(slots[k], pose(16 * (i + 1), variance=variances[k] * 1e-6))
+        if bus.held is None:
+            assert sum(1 for p in slots if p is not None and p.holds) <= 1
+    stamps = bus.stamps()
+    assert stamps == sorted(set(stamps))
+
+
 def test_a_relay_payload_is_judged_by_its_decoded_value_and_garbage_is_let_through():
     bus = Bus()
     relay = bus.producer()
@@ -499,13 +546,14 @@ def test_what_does_not_decode_on_the_key_is_ignored(payload):
     st.one_of(
         st.binary(max_size=300),
         st.dictionaries(
-            st.sampled_from(["claim", "yield", "last", "after", "holds", "x"]),
+            st.sampled_from(["claim", "yield", "last", "after", "holds", "to", "x"]),
             st.one_of(st.none(), st.integers(), st.text(max_size=5), st.booleans()),
             max_size=3,
         ).map(lambda d: json.dumps(d).encode()),
     )
 )
 @example(b'{"yield": "", "last": null}')  # an answer to nobody's claim: ignored, not counted
+@example(b'{"yield": "", "last": null, "to": 3}')  # refused and counted
 def test_hand_over_messages_of_any_form_are_answered_or_refused_and_counted(payload):
     bus = Bus()
     holder = bus.producer()
@@ -516,5 +564,7 @@ def test_hand_over_messages_of_any_form_are_answered_or_refused_and_counted(payl
     counted = bus.counters[0]["rejected_hand_over_messages"]
     replies = bus.messages[sent:]
     # Either refused and counted, or a well-formed claim answered, or ignored as harmless.
-    assert counted or not replies or replies == [{"yield": holder.producer, "last": 0}]
+    claimer = json.loads(payload).get("claim") if replies else None
+    answer = {"yield": holder.producer, "last": 0, "to": claimer}
+    assert counted or not replies or replies == [answer]
     assert sum(bus.counters[0].values()) in (before, before + 1)
