@@ -26,7 +26,7 @@ the outputs to such a frame hold only where the query declares it rigid (:func:`
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import permutations
 
@@ -677,6 +677,14 @@ def _may_expand(members: list[Match], index: EdgeIndex) -> bool:
         distinct = {tuple(dict(m.roles)[r] for r in corr.expand_roles) for m in members}
         if len(distinct) >= least:
             return True
+    return time_expandable(members, index)
+
+
+def time_expandable(members: Sequence[Match], index: EdgeIndex) -> bool:
+    """Whether some occurrence of a group may be expanded in time (:func:`_time_ok`).
+    ``O(members)``."""
+    corr = members[0].template.correspondence
+    assert corr is not None
     return "time" in corr.expansions and any(_time_ok(m, index) for m in members)
 
 

@@ -60,10 +60,11 @@ from ubitrack_agent.graph.matcher import (
     expand_group,
     find_matches,
     group_key,
+    time_expandable,
 )
 from ubitrack_agent.graph.segments import cut_frames
 from ubitrack_agent.graph.srg import EDGE_TYPES, EdgeAttrs, Quality, check_node_name, edge_ids
-from ubitrack_agent.graph.templates import Template
+from ubitrack_agent.graph.templates import CostSpec, Template
 from ubitrack_agent.graph.ways import either_way, hop_distances, short_way_frames
 
 SIGMA_REF = 1e-3
@@ -207,11 +208,16 @@ def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
         variance = fixed + shared + (per_copy - shared) * scale
     else:
         variance = sum(every)
-    variance *= spec.gain * (spec.time_gain if instance.expansion == "time" else 1.0)
+    variance = _gained(variance, spec, instance.expansion)
     inputs = [records[e] for e in instance.input_edges()]
     rates = [e.quality.rate for e in inputs if e.mode == "push" and e.quality.rate > 0]
     latency = max(e.quality.latency for e in inputs) + spec.latency
     return Quality(variance, min(rates, default=0.0), latency)
+
+
+def _gained(variance: float, spec: CostSpec, expansion: str) -> float:
+    """A propagated variance times the template's gain (and ``time_gain`` in time)."""
+    return variance * (spec.gain * (spec.time_gain if expansion == "time" else 1.0))
 
 
 def _shared_variance(instance: Instance, records: Mapping[str, EdgeRecord]) -> float:
@@ -390,6 +396,7 @@ class Workspace:
     span: float = 0
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
+    _copy_costs: dict[tuple[str, tuple[str, ...]], _CopyCost] = field(default_factory=dict)
 
     def _around(self, frame: str) -> Iterable[str]:
         return self.neighbours.get(frame, ())
@@ -517,6 +524,85 @@ class Workspace:
             return True
         return len(existing) >= self.per_relation and cost >= max(e.cost for e in existing)
 
+    def _match_outclassed(self, match: Match) -> bool:
+        """Whether an occurrence of a template without correspondence whose cost rule is
+        ``sum`` (concatenation, inversion) would add nothing, decided before it is grouped and
+        applied: each relation it would write is full and its cost (computed as
+        :meth:`apply` computes it) is no cheaper than the dearest kept alternative. Exact and
+        lasting for the reason :meth:`group_outclassed` gives. ``O(inputs + outputs)``."""
+        template = match.template
+        if template.correspondence is not None or template.cost.rule != "sum":
+            return False
+        records = [self.index.edges[e] for e in match.edges]
+        statics = (all(r.static for r in records),)
+        dearest = self._dearest(template, dict(match.roles), dict(match.types), statics)
+        if dearest is None:
+            return False
+        spec = template.cost
+        quality = Quality(
+            _gained(sum(r.quality.variance for r in records), spec, "none"),
+            0.0,
+            max(r.quality.latency for r in records) + spec.latency,
+        )
+        providers = frozenset().union(*(r.providers for r in records))
+        steps = frozenset().union(*(r.steps for r in records))
+        return edge_cost(quality, len(providers), len(steps) + 1) >= dearest
+
+    def group_outclassed(self, members: Sequence[Match]) -> bool:
+        """Whether no set of copies of a correspondence group (occurrences sharing a
+        :func:`~ubitrack_agent.graph.matcher.group_key`) can add an edge, decided before the
+        sets are formed: each relation the group's space expansions would write is full
+        (``per_relation`` alternatives kept) and a lower bound of any such expansion's cost
+        (:func:`_space_floor`) is no cheaper than the dearest kept alternative, so
+        :meth:`_outclassed` would turn down every output. Exact and lasting: a full relation
+        stays full and its dearest alternative only gets cheaper (a newcomer is admitted only
+        below it and retires it), so the sets skipped now would be turned down whenever they
+        were formed, and the plan is the same. A group that may be expanded in time, or whose
+        outputs depend on the copies' frames, is not decided here. ``O(n log n)`` for ``n``
+        occurrences, each one's costs gathered once per run (:attr:`_copy_costs`). The group of
+        a template without correspondence is one occurrence (:meth:`_match_outclassed`)."""
+        template = members[0].template
+        corr = template.correspondence
+        if corr is None:
+            return len(members) == 1 and self._match_outclassed(members[0])
+        if "space" not in corr.expansions:
+            return False
+        varying = {*corr.expand_roles, *template.introduced}
+        if any(spec.source in varying or spec.target in varying for spec in template.outputs):
+            return False
+        edges = self.index.edges
+        # a set is static iff each of its copies is
+        statics = tuple(sorted({all(edges[e].static for e in m.edges) for m in members}))
+        dearest = self._dearest(template, dict(members[0].roles), dict(members[0].types), statics)
+        if dearest is None or time_expandable(members, self.index):
+            return False
+        return _space_floor(members, self.index, self._copy_costs) >= dearest
+
+    def _dearest(
+        self,
+        template: Template,
+        roles: Mapping[str, str],
+        types: Mapping[str, str],
+        statics: tuple[bool, ...],
+    ) -> float | None:
+        """The dearest alternative kept in the relations the template's outputs would write
+        (useful types only; an output inheriting its static flag takes each of ``statics``),
+        or ``None`` if one of them is not full: an edge no cheaper than it is turned down in
+        each (:meth:`_outclassed`). ``O(outputs * per_relation)``."""
+        edges = self.index.edges
+        dearest = -math.inf
+        for spec in template.outputs:
+            edge_type = types[spec.type[1:]] if spec.type.startswith("$") else spec.type
+            if edge_type not in self.useful_types:
+                continue
+            for static in statics if spec.static == "inherit" else (spec.static,):
+                key = (roles[spec.source], roles[spec.target], edge_type, static)
+                kept = self.by_relation.get(key, ())
+                if len(kept) < self.per_relation:
+                    return None
+                dearest = max(dearest, *(edges[e].cost for e in kept))
+        return dearest
+
     def _admit(self, record: EdgeRecord) -> bool:
         """The rest of the "new or better edge" rule, for a record not :meth:`_outclassed`:
         reject a re-bracketing of a known computation no cheaper than it. Keep at most
@@ -632,6 +718,127 @@ class Workspace:
                 step_id, template, instance.expansion, instance.inputs, tuple(outputs)
             )
         return added
+
+
+@dataclass(frozen=True)
+class _CopyCost:
+    """What a copy adds to the cost of a space expansion, read off its correspondence edges:
+    their summed variance and summed inverse variance, their largest latency, their sensors
+    and their steps."""
+
+    variance: float
+    inverse: float
+    latency: float
+    providers: frozenset[str]
+    steps: frozenset[str]
+
+
+def _copy_cost(
+    match: Match, index: EdgeIndex, memo: dict[tuple[str, tuple[str, ...]], _CopyCost]
+) -> _CopyCost:
+    """The :class:`_CopyCost` of ``match``, memoised by template name and input edges."""
+    key = (match.template.name, match.edges)
+    known = memo.get(key)
+    if known is None:
+        corr = match.template.correspondence
+        assert corr is not None
+        names = [spec.name for spec in match.template.inputs]
+        records = [
+            index.edges[e] for n, e in zip(names, match.edges, strict=True) if n in corr.edges
+        ]
+        known = memo[key] = _CopyCost(
+            sum(r.quality.variance for r in records),
+            sum(1.0 / max(r.quality.variance, VARIANCE_FLOOR) for r in records),
+            max(r.quality.latency for r in records),
+            frozenset().union(*(r.providers for r in records)),
+            frozenset().union(*(r.steps for r in records)),
+        )
+    return known
+
+
+def _space_floor(
+    members: Sequence[Match],
+    index: EdgeIndex,
+    memo: dict[tuple[str, tuple[str, ...]], _CopyCost],
+) -> float:
+    """A lower bound of the cost of every space expansion of ``members`` (one correspondence
+    group), from the costs of its copies alone, for :meth:`Workspace.group_outclassed`.
+
+    A set holds ``m`` copies, ``lo <= m <= most``: the multiplicity's least, and the most
+    that the group's frames allow (copies differ in every expanded role). Each term of the
+    cost is bounded on its own:
+
+    * variance (:func:`propagate`): ``pooled`` is at least the inputs outside the
+      correspondence plus the mean of the ``m`` copies' variances scaled by ``lo / m`` (the
+      shared part only adds), so at least ``fixed + lo * S_m / m**2`` with ``S_m`` the sum of
+      the ``m`` least variances; ``fusion`` is at least ``1 / (fixed's inverses + the m
+      greatest inverses)``; times the template's gain;
+    * latency: the largest input's, at least the ``lo``-th least of the copies' (and the
+      fixed inputs'), plus the template's;
+    * sensors and steps: at least the ``lo``-th least of one copy's with the fixed inputs'
+      (steps plus the instance's own); for ``independent`` copies, whose sources and hence
+      steps are disjoint, the sum of the ``m`` least counts of steps.
+
+    The bound is the least over ``m`` of these terms' costs, less a relative ``_TIE`` for
+    rounding. Another rule, or no ``m`` at all: no bound below infinity but the exact one.
+    ``O(n log n)`` for ``n`` copies."""
+    template = members[0].template
+    corr = template.correspondence
+    assert corr is not None
+    spec = template.cost
+    copies = [_copy_cost(m, index, memo) for m in members]
+    names = [s.name for s in template.inputs]
+    fixed = [
+        index.edges[e] for n, e in zip(names, members[0].edges, strict=True) if n not in corr.edges
+    ]
+    lo = corr.multiplicity.lo
+    most = len(members) if corr.multiplicity.hi is None else min(len(members), corr.multiplicity.hi)
+    for role in corr.expand_roles:
+        most = min(most, len({dict(m.roles)[role] for m in members}))
+    if spec.rule not in ("pooled", "fusion"):
+        return -math.inf
+    if most < lo:
+        return math.inf
+    fixed_providers = frozenset().union(*(r.providers for r in fixed))
+    fixed_steps = frozenset().union(*(r.steps for r in fixed))
+    latency = max([r.quality.latency for r in fixed] + [sorted(c.latency for c in copies)[lo - 1]])
+    providers = sorted(len(fixed_providers | c.providers) for c in copies)[lo - 1]
+    if corr.independent:  # disjoint sources, so disjoint steps: each copy adds all of its own
+        first, adds = 0, sorted(len(c.steps) for c in copies)
+    else:  # a step only copies of the same expanded frames use is theirs alone in a set
+        kinds = [
+            tuple(dict(m.roles)[r] for r in corr.expand_roles) or i for i, m in enumerate(members)
+        ]
+        users: dict[str, set] = defaultdict(set)
+        for kind, c in zip(kinds, copies, strict=True):
+            for step in c.steps:
+                users[step].add(kind)
+        first = min(len(c.steps) for c in copies)
+        adds = [0, *sorted(sum(len(users[step]) == 1 for step in c.steps) for c in copies)]
+    steps_lo = sorted(len(fixed_steps | c.steps) for c in copies)[lo - 1]
+    rest = latency / LATENCY_REF + (spec.latency / LATENCY_REF) + SENSOR_WEIGHT * providers
+    if spec.rule == "pooled":
+        fixed_variance = sum(r.quality.variance for r in fixed)
+        variances = sorted(c.variance for c in copies)
+    else:
+        fixed_inverse = sum(1.0 / max(r.quality.variance, VARIANCE_FLOOR) for r in fixed)
+        inverses = sorted((c.inverse for c in copies), reverse=True)
+    least = math.inf
+    summed, steps_summed = 0.0, first
+    for m in range(1, most + 1):
+        if spec.rule == "pooled":
+            summed += variances[m - 1]
+            variance = fixed_variance + lo * summed / m**2
+        else:
+            summed += inverses[m - 1]
+            variance = 1.0 / (fixed_inverse + summed)
+        steps_summed += adds[m - 1]
+        if m < lo:
+            continue
+        steps = max(steps_lo, len(fixed_steps), steps_summed)
+        cost = variance * spec.gain / SIGMA_REF**2 + rest + STEP_WEIGHT * (steps + 1)
+        least = min(least, cost)
+    return least * (1 - _TIE)
 
 
 def measured_record(source: str, target: str, edge_id: str, data: Mapping) -> EdgeRecord:
@@ -793,7 +1000,9 @@ def saturate(
         for key in touched:
             retired = ws.index.retired
             members = [m for m in groups[key].values() if retired.isdisjoint(m.edges)]
-            for instance in expand_group(members, ws.index, copies) if members else ():
+            if not members or (prune and ws.group_outclassed(members)):
+                continue
+            for instance in expand_group(members, ws.index, copies):
                 if instance.key not in applied:
                     applied.add(instance.key)
                     new.extend(ws.apply(instance))
