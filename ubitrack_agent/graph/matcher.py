@@ -198,8 +198,8 @@ def _bind(
     ):
         return None
     made: list[tuple[dict[str, str], str]] = []
-    if spec.type.startswith("$"):
-        var = spec.type[1:]
+    var = spec.type_var
+    if var is not None:
         bound = types.get(var)
         if bound is None:
             if edge.type not in template.type_vars[var]:
@@ -261,8 +261,8 @@ def _candidates(
 ) -> Iterable[str]:
     """Edge ids that could bind ``spec`` given the roles and types bound so far (most selective
     first: the edges of a bound frame of a possible type)."""
-    if spec.type.startswith("$"):
-        var = spec.type[1:]
+    var = spec.type_var
+    if var is not None:
         kinds = (types[var],) if var in types else template.type_vars[var]
     else:
         kinds = (spec.type,)
@@ -432,17 +432,16 @@ def group_key(match: Match) -> tuple:
     corr = match.template.correspondence
     if corr is None:
         return (match.edges,)
-    names = [spec.name for spec in match.template.inputs]
-    fixed_edges = tuple(e for n, e in zip(names, match.edges, strict=True) if n not in corr.edges)
-    fixed_roles = tuple((r, n) for r, n in match.roles if r not in corr.expand_roles)
+    copied = match.template.in_correspondence
+    fixed_edges = tuple(e for c, e in zip(copied, match.edges, strict=True) if not c)
+    expanded = corr.expand_roles
+    fixed_roles = tuple(pair for pair in match.roles if pair[0] not in expanded)
     return (fixed_roles, fixed_edges, match.types)
 
 
 def _corr_edges(match: Match) -> list[str]:
-    corr = match.template.correspondence
-    assert corr is not None
-    names = [spec.name for spec in match.template.inputs]
-    return [e for n, e in zip(names, match.edges, strict=True) if n in corr.edges]
+    copied = match.template.in_correspondence
+    return [e for c, e in zip(copied, match.edges, strict=True) if c]
 
 
 def compatible(a: Match, b: Match, index: EdgeIndex) -> bool:

@@ -50,6 +50,7 @@ from typing import Any
 import networkx as nx
 
 from ubitrack_agent.graph.matcher import (
+    EXACT_COPIES,
     CopySets,
     EdgeIndex,
     EdgeRecord,
@@ -213,6 +214,20 @@ def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
     rates = [e.quality.rate for e in inputs if e.mode == "push" and e.quality.rate > 0]
     latency = max(e.quality.latency for e in inputs) + spec.latency
     return Quality(variance, min(rates, default=0.0), latency)
+
+
+def _summed_cost(template: Template, inputs: Sequence[EdgeRecord]) -> float:
+    """The cost :meth:`Workspace.apply` gives the outputs of an unexpanded instance of a
+    template whose rule is ``sum`` on ``inputs`` (in input order), computed the same way."""
+    spec = template.cost
+    quality = Quality(
+        _gained(sum(r.quality.variance for r in inputs), spec, "none"),
+        0.0,
+        max(r.quality.latency for r in inputs) + spec.latency,
+    )
+    providers = frozenset().union(*(r.providers for r in inputs))
+    steps = frozenset().union(*(r.steps for r in inputs))
+    return edge_cost(quality, len(providers), len(steps) + 1)
 
 
 def _gained(variance: float, spec: CostSpec, expansion: str) -> float:
@@ -397,6 +412,10 @@ class Workspace:
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
     _copy_costs: dict[tuple[str, tuple[str, ...]], _CopyCost] = field(default_factory=dict)
+    _writes: dict[tuple, tuple[tuple[str, str, str, tuple[bool, ...]], ...]] = field(
+        default_factory=dict
+    )
+    """The relations each group of occurrences writes (:meth:`group_outclassed`)."""
 
     def _around(self, frame: str) -> Iterable[str]:
         return self.neighbours.get(frame, ())
@@ -451,10 +470,12 @@ class Workspace:
                 return edge_type != "3D" or source in self.goal
             if not self._wanted(template, edge_type, source, target):
                 return False
-            if len(bound) < links or not self.neighbours:
+            if len(bound) < links:
                 return True
-            chained = [edges[e] for e in bound.values()]
-            return self._on_a_way(source, target, chained)
+            chained = [edges[bound[i]] for i in range(links)]
+            if self.neighbours and not self._on_a_way(source, target, chained):
+                return False
+            return not self._chain_outclassed(template, source, target, edge_type, chained)
 
         return viable
 
@@ -481,13 +502,11 @@ class Workspace:
         limit = self.span + self.detour - sum(link.hops for link in chained)
         from_start, from_end = self._hops_from(start), self._hops_from(end)
         far = len(self.neighbours) + 1
-        ends = [
-            (a, b)
-            for a, b in ((x, y), (y, x))
-            if from_start.get(a, far) + from_end.get(b, far) <= limit
-        ]
-        if not ends:
+        forward = from_start.get(x, far) + from_end.get(y, far) <= limit
+        backward = from_start.get(y, far) + from_end.get(x, far) <= limit
+        if not (forward or backward):
             return False
+        ends = [(x, y)] * forward + [(y, x)] * backward
         inside = frozenset().union(*(link.frames for link in chained)) - {x, y}
         return any(
             self._avoiding(start, a, inside | {b}) + self._avoiding(b, end, inside | {a}) <= limit
@@ -524,84 +543,110 @@ class Workspace:
             return True
         return len(existing) >= self.per_relation and cost >= max(e.cost for e in existing)
 
-    def _match_outclassed(self, match: Match) -> bool:
-        """Whether an occurrence of a template without correspondence whose cost rule is
-        ``sum`` (concatenation, inversion) would add nothing, decided before it is grouped and
-        applied: each relation it would write is full and its cost (computed as
-        :meth:`apply` computes it) is no cheaper than the dearest kept alternative. Exact and
-        lasting for the reason :meth:`group_outclassed` gives. ``O(inputs + outputs)``."""
-        template = match.template
-        if template.correspondence is not None or template.cost.rule != "sum":
-            return False
-        records = [self.index.edges[e] for e in match.edges]
-        statics = (all(r.static for r in records),)
-        dearest = self._dearest(template, dict(match.roles), dict(match.types), statics)
-        if dearest is None:
-            return False
-        spec = template.cost
-        quality = Quality(
-            _gained(sum(r.quality.variance for r in records), spec, "none"),
-            0.0,
-            max(r.quality.latency for r in records) + spec.latency,
-        )
-        providers = frozenset().union(*(r.providers for r in records))
-        steps = frozenset().union(*(r.steps for r in records))
-        return edge_cost(quality, len(providers), len(steps) + 1) >= dearest
-
-    def group_outclassed(self, members: Sequence[Match]) -> bool:
-        """Whether no set of copies of a correspondence group (occurrences sharing a
-        :func:`~ubitrack_agent.graph.matcher.group_key`) can add an edge, decided before the
-        sets are formed: each relation the group's space expansions would write is full
-        (``per_relation`` alternatives kept) and a lower bound of any such expansion's cost
+    def group_outclassed(self, key: tuple, members: Sequence[Match]) -> bool:
+        """Whether no space expansion of the correspondence group ``key`` of occurrences
+        (:func:`~ubitrack_agent.graph.matcher.group_key`) can add an edge, decided before its
+        sets of copies are formed: each relation it would write is full (``per_relation``
+        alternatives kept) and a lower bound of the cost of any of its expansions
         (:func:`_space_floor`) is no cheaper than the dearest kept alternative, so
         :meth:`_outclassed` would turn down every output. Exact and lasting: a full relation
         stays full and its dearest alternative only gets cheaper (a newcomer is admitted only
         below it and retires it), so the sets skipped now would be turned down whenever they
         were formed, and the plan is the same. A group that may be expanded in time, or whose
-        outputs depend on the copies' frames, is not decided here. ``O(n log n)`` for ``n``
-        occurrences, each one's costs gathered once per run (:attr:`_copy_costs`). The group of
-        a template without correspondence is one occurrence (:meth:`_match_outclassed`)."""
-        template = members[0].template
-        corr = template.correspondence
-        if corr is None:
-            return len(members) == 1 and self._match_outclassed(members[0])
-        if "space" not in corr.expansions:
-            return False
-        varying = {*corr.expand_roles, *template.introduced}
-        if any(spec.source in varying or spec.target in varying for spec in template.outputs):
+        outputs depend on the copies' frames, is not decided here. The relations a group
+        writes are found once (:attr:`_writes`), so a group whose relation is not full costs
+        two look-ups; the others ``O(n log n)`` for ``n`` occurrences, each one's costs
+        gathered once per run (:attr:`_copy_costs`). :func:`saturate` asks it for groups of
+        more than ``EXACT_COPIES`` only: the sets of a smaller group cost about what the bound
+        does (in a room with 7 trackers, asking for every group cost 4 % more instructions)."""
+        writes = self._writes.get(key)
+        if writes is None:
+            writes = self._writes[key] = self._written(members[0])
+        by_relation, most = self.by_relation, self.per_relation
+        for source, target, edge_type, kinds in writes:
+            if all(len(by_relation.get((source, target, edge_type, k), ())) < most for k in kinds):
+                return False  # the common case: a relation it writes is not full
+        if not writes:
             return False
         edges = self.index.edges
-        # a set is static iff each of its copies is
-        statics = tuple(sorted({all(edges[e].static for e in m.edges) for m in members}))
-        dearest = self._dearest(template, dict(members[0].roles), dict(members[0].types), statics)
+
+        def statics() -> set[bool]:  # a set is static iff each of its copies is
+            return {all(edges[e].static for e in m.edges) for m in members}
+
+        dearest = self._dearest(writes, statics)
         if dearest is None or time_expandable(members, self.index):
             return False
         return _space_floor(members, self.index, self._copy_costs) >= dearest
 
-    def _dearest(
-        self,
-        template: Template,
-        roles: Mapping[str, str],
-        types: Mapping[str, str],
-        statics: tuple[bool, ...],
-    ) -> float | None:
-        """The dearest alternative kept in the relations the template's outputs would write
-        (useful types only; an output inheriting its static flag takes each of ``statics``),
-        or ``None`` if one of them is not full: an edge no cheaper than it is turned down in
-        each (:meth:`_outclassed`). ``O(outputs * per_relation)``."""
-        edges = self.index.edges
-        dearest = -math.inf
+    def _written(self, match: Match) -> tuple[tuple[str, str, str, tuple[bool, ...]], ...]:
+        """The relations (source, target, type, possible static flags) of useful types that
+        the instances of ``match``'s group write, or ``(_UNDECIDED,)`` where
+        :meth:`group_outclassed` does not decide."""
+        template = match.template
+        corr = template.correspondence
+        if corr is None or "space" not in corr.expansions or template.outputs_vary:
+            return (_UNDECIDED,)
+        roles, types = dict(match.roles), dict(match.types)
+        writes = []
         for spec in template.outputs:
             edge_type = types[spec.type[1:]] if spec.type.startswith("$") else spec.type
-            if edge_type not in self.useful_types:
-                continue
-            for static in statics if spec.static == "inherit" else (spec.static,):
-                key = (roles[spec.source], roles[spec.target], edge_type, static)
-                kept = self.by_relation.get(key, ())
-                if len(kept) < self.per_relation:
-                    return None
-                dearest = max(dearest, *(edges[e].cost for e in kept))
+            if edge_type in self.useful_types:
+                kinds = (False, True) if spec.static == "inherit" else (spec.static,)
+                writes.append((roles[spec.source], roles[spec.target], edge_type, kinds))
+        return tuple(writes)
+
+    def _chain_outclassed(
+        self,
+        template: Template,
+        source: str,
+        target: str,
+        edge_type: str,
+        chained: list[EdgeRecord],
+    ) -> bool:
+        """Whether a chain ``source -> target`` of the ``chained`` links (in input order) adds
+        nothing: its relation is full and its cost, as :meth:`apply` computes it (rule
+        ``sum``), no cheaper than the dearest kept alternative (:meth:`_outclassed`). Exact and
+        lasting, as for :meth:`group_outclassed`; asked by :meth:`viable_chain` once every
+        link is bound, so the occurrence is not even built. ``O(links + per_relation)``."""
+        output = template.outputs[0]
+        static = (
+            all(link.static for link in chained) if output.static == "inherit" else output.static
+        )
+        dearest = self._full(source, target, edge_type, static)
+        return (
+            dearest is not None
+            and template.cost.rule == "sum"
+            and _summed_cost(template, chained) >= dearest
+        )
+
+    def _dearest(
+        self,
+        writes: Sequence[tuple[str, str, str, tuple[bool, ...]]],
+        statics: Callable[[], set[bool]],
+    ) -> float:
+        """The dearest alternative kept in the relations ``writes`` (:meth:`_written`), each
+        full or not written: an output inheriting its static flag may write either relation,
+        ``statics()`` says which are possible (asked only where one is not full); ``inf`` if a
+        written relation is not full, ``-inf`` if none is written. ``O(outputs *
+        per_relation)``."""
+        dearest = -math.inf
+        for source, target, edge_type, kinds in writes:
+            for static in kinds:
+                cost = self._full(source, target, edge_type, static)
+                if cost is not None:
+                    dearest = max(dearest, cost)
+                elif len(kinds) == 1 or static in statics():
+                    return math.inf
         return dearest
+
+    def _full(self, source: str, target: str, edge_type: str, static: bool) -> float | None:
+        """The dearest alternative kept in a full relation (``per_relation`` kept), ``None``
+        if the relation is not full."""
+        kept = self.by_relation.get((source, target, edge_type, static), ())
+        if len(kept) < self.per_relation:
+            return None
+        edges = self.index.edges
+        return max(edges[e].cost for e in kept)
 
     def _admit(self, record: EdgeRecord) -> bool:
         """The rest of the "new or better edge" rule, for a record not :meth:`_outclassed`:
@@ -720,6 +765,11 @@ class Workspace:
         return added
 
 
+_UNDECIDED = ("", "", "", ())
+"""What :meth:`Workspace._written` gives a group :meth:`Workspace.group_outclassed` does not
+decide: no relation, so no look-up finds it full."""
+
+
 @dataclass(frozen=True)
 class _CopyCost:
     """What a copy adds to the cost of a space expansion, read off its correspondence edges:
@@ -742,10 +792,8 @@ def _copy_cost(
     if known is None:
         corr = match.template.correspondence
         assert corr is not None
-        names = [spec.name for spec in match.template.inputs]
-        records = [
-            index.edges[e] for n, e in zip(names, match.edges, strict=True) if n in corr.edges
-        ]
+        copied = match.template.in_correspondence
+        records = [index.edges[e] for c, e in zip(copied, match.edges, strict=True) if c]
         known = memo[key] = _CopyCost(
             sum(r.quality.variance for r in records),
             sum(1.0 / max(r.quality.variance, VARIANCE_FLOOR) for r in records),
@@ -787,10 +835,8 @@ def _space_floor(
     assert corr is not None
     spec = template.cost
     copies = [_copy_cost(m, index, memo) for m in members]
-    names = [s.name for s in template.inputs]
-    fixed = [
-        index.edges[e] for n, e in zip(names, members[0].edges, strict=True) if n not in corr.edges
-    ]
+    copied = template.in_correspondence
+    fixed = [index.edges[e] for c, e in zip(copied, members[0].edges, strict=True) if not c]
     lo = corr.multiplicity.lo
     most = len(members) if corr.multiplicity.hi is None else min(len(members), corr.multiplicity.hi)
     for role in corr.expand_roles:
@@ -1000,7 +1046,9 @@ def saturate(
         for key in touched:
             retired = ws.index.retired
             members = [m for m in groups[key].values() if retired.isdisjoint(m.edges)]
-            if not members or (prune and ws.group_outclassed(members)):
+            if not members or (
+                prune and len(members) > EXACT_COPIES and ws.group_outclassed(key, members)
+            ):
                 continue
             for instance in expand_group(members, ws.index, copies):
                 if instance.key not in applied:
