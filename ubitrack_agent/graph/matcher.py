@@ -26,7 +26,7 @@ the outputs to such a frame hold only where the query declares it rigid (:func:`
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Container, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import permutations
 
@@ -688,15 +688,19 @@ def time_expandable(members: Sequence[Match], index: EdgeIndex) -> bool:
 
 
 def expand_group(
-    members: list[Match], index: EdgeIndex, copies: CopySets = copy_sets
+    members: list[Match],
+    index: EdgeIndex,
+    copies: CopySets = copy_sets,
+    applied: Container[tuple] = frozenset(),
 ) -> list[Instance]:
     """Expanded instances from occurrences sharing one :func:`group_key` (steps 2 and 3).
 
     A template without correspondence yields one unexpanded instance per occurrence. Otherwise
     inclusion-maximal sets of pairwise compatible occurrences are formed (``copies``, by default
-    :func:`copy_sets`; the test oracle passes every maximal clique) and each is kept
-    as a space expansion (``m`` copies, ``m`` in the multiplicity), as a time expansion (a single
-    occurrence meeting :func:`_time_ok`) or rejected.
+    :func:`copy_sets`; the test oracle passes every maximal clique) and each is kept (unless
+    an instance of its key was ``applied`` already: a group is expanded again each time it
+    gains an occurrence) as a space expansion (``m`` copies, ``m`` in the multiplicity), as a
+    time expansion (a single occurrence meeting :func:`_time_ok`) or rejected.
     """
     template = members[0].template
     corr = template.correspondence
@@ -732,6 +736,8 @@ def expand_group(
                 else (spec.name, (chosen[0].edges[k],))
                 for k, spec in enumerate(template.inputs)
             )
+            if (template.name, expansion, inputs) in applied:
+                continue
             records = [index.edges[e] for _, ids in inputs for e in ids]
             outputs = _outputs(
                 template, dict(chosen[0].roles), dict(chosen[0].types), records, expansion

@@ -411,6 +411,7 @@ class Workspace:
     span: float = 0
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
+    _goal_hops: tuple[dict[str, int], dict[str, int]] | None = None
     _copy_costs: dict[tuple[str, tuple[str, ...]], _CopyCost] = field(default_factory=dict)
     _writes: dict[tuple, tuple[tuple[str, str, str, tuple[bool, ...]], ...]] = field(
         default_factory=dict
@@ -419,6 +420,12 @@ class Workspace:
 
     def _around(self, frame: str) -> Iterable[str]:
         return self.neighbours.get(frame, ())
+
+    def _hops_to_goal(self) -> tuple[dict[str, int], dict[str, int]]:
+        """Hops from the query's source and from its target (:meth:`_hops_from`), kept."""
+        assert self.goal is not None
+        self._goal_hops = (self._hops_from(self.goal[0]), self._hops_from(self.goal[1]))
+        return self._goal_hops
 
     def _hops_from(self, a: str) -> dict[str, int]:
         """Hops from frame ``a`` to each frame of the region it reaches, either direction (BFS,
@@ -500,7 +507,7 @@ class Workspace:
         """
         start, end = self.goal
         limit = self.span + self.detour - sum(link.hops for link in chained)
-        from_start, from_end = self._hops_from(start), self._hops_from(end)
+        from_start, from_end = self._goal_hops or self._hops_to_goal()
         far = len(self.neighbours) + 1
         forward = from_start.get(x, far) + from_end.get(y, far) <= limit
         backward = from_start.get(y, far) + from_end.get(x, far) <= limit
@@ -1050,7 +1057,7 @@ def saturate(
                 prune and len(members) > EXACT_COPIES and ws.group_outclassed(key, members)
             ):
                 continue
-            for instance in expand_group(members, ws.index, copies):
+            for instance in expand_group(members, ws.index, copies, applied):
                 if instance.key not in applied:
                     applied.add(instance.key)
                     new.extend(ws.apply(instance))
