@@ -310,6 +310,13 @@ def _any_binding(
     return True
 
 
+LastLink = Callable[[InputSpec, EdgeRecord, Mapping[str, str], Mapping[int, str]], bool]
+"""A caller's test of the edge that would bind the last unbound input (its specification, the
+edge, the role bindings and bound input edge ids so far), asked before it is bound: ``False``
+only where :data:`Viable` would reject the completed occurrence, so the search spares the
+binding."""
+
+
 def _extend(
     template: Template,
     index: EdgeIndex,
@@ -319,9 +326,11 @@ def _extend(
     viable: Viable = _any_binding,
     seeds: frozenset[str] = frozenset(),
     seeded_at: int = 0,
+    last: LastLink | None = None,
 ) -> Iterator[Match]:
     """Occurrences completing the partial one (``bound``, ``roles``, ``types``); an input before
-    ``seeded_at`` binds no edge of ``seeds`` (:func:`find_matches`)."""
+    ``seeded_at`` binds no edge of ``seeds`` (:func:`find_matches`); ``last`` tests the edge of
+    the last input before it is bound."""
     if len(bound) == len(template.inputs):
         for introduced in _introductions(template, index, roles):
             yield Match(
@@ -338,6 +347,7 @@ def _extend(
     taken = frozenset().union(*(other.sources for other in chosen))
     integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
+    check = last if len(bound) + 1 == len(template.inputs) else None  # of the last input only
     for edge_id in _candidates(spec, roles, types, template, index):
         if not_seeds and edge_id in seeds:
             continue
@@ -356,12 +366,14 @@ def _extend(
                 for other in chosen
             ):
                 continue
+        if check is not None and not check(spec, edge, roles, bound):
+            continue
         made = _bind(spec, edge, template, roles, types)
         if made is None:
             continue
         bound[i] = edge_id
         if viable(roles, types, bound):
-            yield from _extend(template, index, bound, roles, types, viable, seeds, seeded_at)
+            yield from _extend(template, index, bound, roles, types, viable, seeds, seeded_at, last)
         del bound[i]
         _unbind(made)
 
@@ -389,6 +401,7 @@ def find_matches(
     index: EdgeIndex,
     seeds: Iterable[str] | None = None,
     viable: Viable = _any_binding,
+    last: LastLink | None = None,
 ) -> Iterator[Match]:
     """Occurrences of the unexpanded ``template`` in ``index`` that pass the bookkeeping rules.
 
@@ -397,10 +410,11 @@ def find_matches(
     Bancilhon and Ramakrishnan, "An amateur's introduction to recursive query processing
     strategies", SIGMOD 1986: an occurrence is found from its first input bound to a seed,
     the inputs before that one bind no seed). ``viable`` prunes partial occurrences (the
-    planner's test of which chains serve a query), checked after each bound input.
+    planner's test of which chains serve a query), checked after each bound input; ``last``
+    (:data:`LastLink`) before the last input is bound.
     """
     if seeds is None:
-        start = _extend(template, index, {}, {}, {}, viable)
+        start = _extend(template, index, {}, {}, {}, viable, last=last)
         yield from (m for m in start if _admissible(m, index))
         return
     seeds = list(seeds)
@@ -418,7 +432,7 @@ def find_matches(
             if _bind(spec, edge, template, roles, types) is not None and viable(
                 roles, types, bound
             ):
-                for match in _extend(template, index, bound, roles, types, viable, fresh, i):
+                for match in _extend(template, index, bound, roles, types, viable, fresh, i, last):
                     if _admissible(match, index):
                         yield match
 
