@@ -1,8 +1,9 @@
 """What the search skips before forming it (session 20, issue [scale]): a correspondence group
 whose space expansions' cost floor is no cheaper than the dearest alternative of a full
-relation (``Workspace.group_outclassed``), and a chain whose cost is not
-(``Workspace._chain_outclassed``). The floor is below every expansion's cost, and skipping
-changes no answer: every solution, every step, byte for byte."""
+relation (``Workspace.group_outclassed``), a chain whose cost is not
+(``Workspace._chain_outclassed``), and a chain's last link whose ends are too far from the
+query frames (``Workspace.last_link``). The floor is below every expansion's cost, and
+skipping changes no answer: every solution, every step, byte for byte."""
 
 from __future__ import annotations
 
@@ -40,12 +41,27 @@ def test_skipping_outclassed_groups_and_chains_changes_no_answer(
 
         return wrapper
 
+    last_link = Workspace.last_link
+    far_links = []
+
+    def counted_links(ws, template):
+        fits = last_link(ws, template)
+
+        def counting(*args):
+            found = fits(*args)
+            far_links.append(not found)
+            return found
+
+        return counting if fits else None
+
     monkeypatch.setattr(Workspace, "group_outclassed", counted(group_outclassed))
     monkeypatch.setattr(Workspace, "_chain_outclassed", counted(chain_outclassed))
+    monkeypatch.setattr(Workspace, "last_link", counted_links)
     pruned = answers(srg, templates, query, per_relation=per_relation)
-    assert any(skipped), "the setup must exercise the skips"
+    assert any(skipped) and any(far_links), "the setup must exercise the skips"
     monkeypatch.setattr(Workspace, "group_outclassed", lambda *args: False)
     monkeypatch.setattr(Workspace, "_chain_outclassed", lambda *args: False)
+    monkeypatch.setattr(Workspace, "last_link", lambda *args: None)
     assert answers(srg, templates, query, per_relation=per_relation) == pruned
 
 
