@@ -14,7 +14,10 @@ For a query ``(from, to, type, static)`` the planner
    the bookkeeping of section 5.1 (sources, canonical computation, dominance) and adding only edges
    that serve the query (useful types, calibration of unknown rigid relations only, chains
    towards the query, :meth:`Workspace._wanted`, and for a dynamic query only chains that can
-   lie on a way of it, :meth:`Workspace.viable_chain`),
+   lie on a way of it, :meth:`Workspace.viable_chain`, their last link tested before it is
+   bound, :meth:`Workspace.last_link`); what a full relation would turn down is not formed
+   (a chain no cheaper than its dearest alternative, :meth:`Workspace._chain_outclassed`, a
+   large group of copies whose cost floor is not, :meth:`Workspace.group_outclassed`),
 4. returns every distinct derivation of the queried edge, best first by the cost model below.
 
 The cost of a plan grows with what a part of the region holds, polynomially (``docs/planner.md``,
