@@ -26,7 +26,7 @@ the outputs to such a frame hold only where the query declares it rigid (:func:`
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Container, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import permutations
 
@@ -198,8 +198,8 @@ def _bind(
     ):
         return None
     made: list[tuple[dict[str, str], str]] = []
-    if spec.type.startswith("$"):
-        var = spec.type[1:]
+    var = spec.type_var
+    if var is not None:
         bound = types.get(var)
         if bound is None:
             if edge.type not in template.type_vars[var]:
@@ -261,8 +261,8 @@ def _candidates(
 ) -> Iterable[str]:
     """Edge ids that could bind ``spec`` given the roles and types bound so far (most selective
     first: the edges of a bound frame of a possible type)."""
-    if spec.type.startswith("$"):
-        var = spec.type[1:]
+    var = spec.type_var
+    if var is not None:
         kinds = (types[var],) if var in types else template.type_vars[var]
     else:
         kinds = (spec.type,)
@@ -310,6 +310,13 @@ def _any_binding(
     return True
 
 
+LastLink = Callable[[InputSpec, EdgeRecord, Mapping[str, str], Mapping[int, str]], bool]
+"""A caller's test of the edge that would bind the last unbound input (its specification, the
+edge, the role bindings and bound input edge ids so far), asked before it is bound: ``False``
+only where :data:`Viable` would reject the completed occurrence, so the search spares the
+binding."""
+
+
 def _extend(
     template: Template,
     index: EdgeIndex,
@@ -319,9 +326,11 @@ def _extend(
     viable: Viable = _any_binding,
     seeds: frozenset[str] = frozenset(),
     seeded_at: int = 0,
+    last: LastLink | None = None,
 ) -> Iterator[Match]:
     """Occurrences completing the partial one (``bound``, ``roles``, ``types``); an input before
-    ``seeded_at`` binds no edge of ``seeds`` (:func:`find_matches`)."""
+    ``seeded_at`` binds no edge of ``seeds`` (:func:`find_matches`); ``last`` tests the edge of
+    the last input before it is bound."""
     if len(bound) == len(template.inputs):
         for introduced in _introductions(template, index, roles):
             yield Match(
@@ -338,6 +347,7 @@ def _extend(
     taken = frozenset().union(*(other.sources for other in chosen))
     integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
+    check = last if len(bound) + 1 == len(template.inputs) else None  # of the last input only
     for edge_id in _candidates(spec, roles, types, template, index):
         if not_seeds and edge_id in seeds:
             continue
@@ -356,12 +366,14 @@ def _extend(
                 for other in chosen
             ):
                 continue
+        if check is not None and not check(spec, edge, roles, bound):
+            continue
         made = _bind(spec, edge, template, roles, types)
         if made is None:
             continue
         bound[i] = edge_id
         if viable(roles, types, bound):
-            yield from _extend(template, index, bound, roles, types, viable, seeds, seeded_at)
+            yield from _extend(template, index, bound, roles, types, viable, seeds, seeded_at, last)
         del bound[i]
         _unbind(made)
 
@@ -389,6 +401,7 @@ def find_matches(
     index: EdgeIndex,
     seeds: Iterable[str] | None = None,
     viable: Viable = _any_binding,
+    last: LastLink | None = None,
 ) -> Iterator[Match]:
     """Occurrences of the unexpanded ``template`` in ``index`` that pass the bookkeeping rules.
 
@@ -397,10 +410,11 @@ def find_matches(
     Bancilhon and Ramakrishnan, "An amateur's introduction to recursive query processing
     strategies", SIGMOD 1986: an occurrence is found from its first input bound to a seed,
     the inputs before that one bind no seed). ``viable`` prunes partial occurrences (the
-    planner's test of which chains serve a query), checked after each bound input.
+    planner's test of which chains serve a query), checked after each bound input; ``last``
+    (:data:`LastLink`) before the last input is bound.
     """
     if seeds is None:
-        start = _extend(template, index, {}, {}, {}, viable)
+        start = _extend(template, index, {}, {}, {}, viable, last=last)
         yield from (m for m in start if _admissible(m, index))
         return
     seeds = list(seeds)
@@ -418,7 +432,7 @@ def find_matches(
             if _bind(spec, edge, template, roles, types) is not None and viable(
                 roles, types, bound
             ):
-                for match in _extend(template, index, bound, roles, types, viable, fresh, i):
+                for match in _extend(template, index, bound, roles, types, viable, fresh, i, last):
                     if _admissible(match, index):
                         yield match
 
@@ -432,17 +446,16 @@ def group_key(match: Match) -> tuple:
     corr = match.template.correspondence
     if corr is None:
         return (match.edges,)
-    names = [spec.name for spec in match.template.inputs]
-    fixed_edges = tuple(e for n, e in zip(names, match.edges, strict=True) if n not in corr.edges)
-    fixed_roles = tuple((r, n) for r, n in match.roles if r not in corr.expand_roles)
+    copied = match.template.in_correspondence
+    fixed_edges = tuple(e for c, e in zip(copied, match.edges, strict=True) if not c)
+    expanded = corr.expand_roles
+    fixed_roles = tuple(pair for pair in match.roles if pair[0] not in expanded)
     return (fixed_roles, fixed_edges, match.types)
 
 
 def _corr_edges(match: Match) -> list[str]:
-    corr = match.template.correspondence
-    assert corr is not None
-    names = [spec.name for spec in match.template.inputs]
-    return [e for n, e in zip(names, match.edges, strict=True) if n in corr.edges]
+    copied = match.template.in_correspondence
+    return [e for c, e in zip(copied, match.edges, strict=True) if c]
 
 
 def compatible(a: Match, b: Match, index: EdgeIndex) -> bool:
@@ -677,19 +690,31 @@ def _may_expand(members: list[Match], index: EdgeIndex) -> bool:
         distinct = {tuple(dict(m.roles)[r] for r in corr.expand_roles) for m in members}
         if len(distinct) >= least:
             return True
+    return time_expandable(members, index)
+
+
+def time_expandable(members: Sequence[Match], index: EdgeIndex) -> bool:
+    """Whether some occurrence of a group may be expanded in time (:func:`_time_ok`).
+    ``O(members)``."""
+    corr = members[0].template.correspondence
+    assert corr is not None
     return "time" in corr.expansions and any(_time_ok(m, index) for m in members)
 
 
 def expand_group(
-    members: list[Match], index: EdgeIndex, copies: CopySets = copy_sets
+    members: list[Match],
+    index: EdgeIndex,
+    copies: CopySets = copy_sets,
+    applied: Container[tuple] = frozenset(),
 ) -> list[Instance]:
     """Expanded instances from occurrences sharing one :func:`group_key` (steps 2 and 3).
 
     A template without correspondence yields one unexpanded instance per occurrence. Otherwise
     inclusion-maximal sets of pairwise compatible occurrences are formed (``copies``, by default
-    :func:`copy_sets`; the test oracle passes every maximal clique) and each is kept
-    as a space expansion (``m`` copies, ``m`` in the multiplicity), as a time expansion (a single
-    occurrence meeting :func:`_time_ok`) or rejected.
+    :func:`copy_sets`; the test oracle passes every maximal clique) and each is kept (unless
+    an instance of its key was ``applied`` already: a group is expanded again each time it
+    gains an occurrence) as a space expansion (``m`` copies, ``m`` in the multiplicity), as a
+    time expansion (a single occurrence meeting :func:`_time_ok`) or rejected.
     """
     template = members[0].template
     corr = template.correspondence
@@ -725,6 +750,8 @@ def expand_group(
                 else (spec.name, (chosen[0].edges[k],))
                 for k, spec in enumerate(template.inputs)
             )
+            if (template.name, expansion, inputs) in applied:
+                continue
             records = [index.edges[e] for _, ids in inputs for e in ids]
             outputs = _outputs(
                 template, dict(chosen[0].roles), dict(chosen[0].types), records, expansion

@@ -76,6 +76,11 @@ class InputSpec:
     measured: bool | None = None
     not_from: frozenset[str] = frozenset()
 
+    @cached_property
+    def type_var(self) -> str | None:
+        """The type variable the input's type names (``$T``: ``T``), ``None`` for a literal type."""
+        return self.type[1:] if self.type.startswith("$") else None
+
 
 @dataclass(frozen=True)
 class OutputSpec:
@@ -160,6 +165,20 @@ class Template:
     def time_only(self) -> bool:
         """True if the pattern is only ever applied expanded in time (its outputs are static)."""
         return self.correspondence is not None and self.correspondence.expansions == {"time"}
+
+    @cached_property
+    def in_correspondence(self) -> tuple[bool, ...]:
+        """For each input, in order, whether it is a correspondence edge (copied in space)."""
+        corr = self.correspondence
+        return tuple(corr is not None and spec.name in corr.edges for spec in self.inputs)
+
+    @cached_property
+    def outputs_vary(self) -> bool:
+        """Whether an output joins a role that a space expansion duplicates or the pattern
+        introduces: then the relations written differ between instances of one group."""
+        corr = self.correspondence
+        varying = {*(corr.expand_roles if corr else ()), *self.introduced}
+        return any(spec.source in varying or spec.target in varying for spec in self.outputs)
 
     @cached_property
     def introduced(self) -> tuple[str, ...]:
