@@ -53,9 +53,11 @@ sees while the flow behind its key changes"):
    estimate's). The old derivation of a relation that lost a sensor is kept on standby
    (``agent.standby``), and the sensor's first measurement back does that, so the relation
    is served by it again within a sample, before the agent has even heard of the sensor. It
-   takes it back too when the holder's estimate becomes far less certain than its own (the
-   holder's trace at least ``1 / TAKE_BACK_RATIO`` times its own): the holder lost a sensor
-   (a spare that took the key, rule 2, and then lost its own).
+   does not take the key back merely because the holder became less certain than itself: a
+   fusion on standby running on the camera alone and the camera-only flow holding the key
+   would take it from each other in turn (the raw estimate's covariance jumps where the
+   filter's does not), so a spare that took the key from a chosen flow about as certain, and
+   then lost its own sensor, keeps it until the agent stops it.
 
 "Another producer is putting" means a sample not put by this one arrived within
 :meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded), or until
@@ -406,7 +408,7 @@ class KeyHandOver:
             if self._yielded and other:
                 if not self._regained(previous):
                     return self._refuse("relation_yielded")
-                self._yielded = False  # rule 6: an input back, or the holder far worse
+                self._yielded = False  # rule 6: its lost input is back
                 self._claimed_at, claim, wait = now, True, True
                 self._counters["relation_taken_back"] += 1
             elif self._claimed_at is not None and (other or self._holder_alive() or self.asking):
@@ -461,15 +463,14 @@ class KeyHandOver:
     def _regained(self, previous: tuple[tuple[int, ...], float] | None) -> bool:
         """Rule 6: this producer's latest estimate is no less certain than the holder's latest
         sample, and it has got a lost input back: it was quiet (``previous`` is None) or its
-        estimate is at most :data:`TAKE_BACK_RATIO` times as uncertain as its ``previous`` one;
-        or the holder's is at least ``1 / TAKE_BACK_RATIO`` times as uncertain as its own
+        estimate is at most :data:`TAKE_BACK_RATIO` times as uncertain as its ``previous`` one
         (covariances of one shape); lock held."""
         mine, theirs = self._own_trace, self._other_trace
         if mine is None or theirs is None or mine[0] != theirs[0]:
             return False
         if mine[1] > READY_RATIO * theirs[1]:
             return False
-        if mine[1] <= TAKE_BACK_RATIO * theirs[1] or previous is None:
+        if previous is None:
             return True
         return previous[0] == mine[0] and mine[1] <= TAKE_BACK_RATIO * previous[1]
 

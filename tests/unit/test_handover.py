@@ -172,28 +172,21 @@ def test_a_spare_takes_the_key_within_a_sample_when_the_holder_loses_a_sensor():
     assert bus.counters[1]["relation_taken"] == 1
 
 
-def test_a_spare_that_took_the_key_gives_it_back_when_it_loses_its_own_sensor():
-    """Two flows of about the same quality: the spare found itself as certain once and took
-    the key (rule 2); the other does not take it back for that (rule 6 wants ten times), but
-    does when the spare's own sensor stops and its estimate becomes far less certain."""
+def test_a_producer_that_gave_the_key_away_does_not_take_it_back_for_a_holder_less_certain():
+    """A fusion on standby running on the camera alone gave the key to the camera-only flow;
+    the raw estimate's covariance jumps (a feature hidden) where the filter's does not: the
+    fusion does not take the key back for that, or the two would take it from each other in
+    turn (the demo's camera-only phase)."""
     bus = Bus()
-    first, spare = bus.producer(), bus.producer()
+    fused, camera = bus.producer(), bus.producer()
     bus.clock.now += 0.01
-    bus.offer(first, pose(10, variance=1.0e-6))
-    bus.offer(spare, pose(10, variance=0.9e-6))  # as certain for once: claims, taken
+    bus.offer(fused, pose(10, variance=1.0e-6))
+    bus.offer(camera, pose(10, variance=0.9e-6))  # as certain for once: claims, taken
     for t in range(20, 100, 10):
         bus.clock.now += 0.01
-        assert bus.offer(spare, pose(t, variance=1.1e-6))
-        assert not bus.offer(first, pose(t, variance=1.0e-6))  # a little better: kept away
-    bus.clock.now += 0.01
-    assert bus.offer(spare, pose(100, variance=40e-6))  # its sensor gone
-    assert not bus.offer(first, pose(100, variance=1.0e-6))  # claims, not put at once
-    assert bus.messages[-1] == {"yield": spare.producer, "last": 100 * MS, "to": first.producer}
-    bus.clock.now += 0.01
-    assert not bus.offer(spare, pose(110, variance=40e-6))
-    assert bus.offer(first, pose(110, variance=1.0e-6))
-    assert bus.counters[0]["relation_taken_back"] == 1
-    assert bus.stamps() == list(range(10, 120, 10))
+        assert bus.offer(camera, pose(t, variance=40e-6 if t == 50 else 2e-6))
+        assert not bus.offer(fused, pose(t, variance=1.0e-6))
+    assert bus.counters[0]["relation_taken_back"] == 0
 
 
 def holding(bus: Bus) -> KeyHandOver:
