@@ -60,6 +60,7 @@ relation keys' wildcard does not receive the hand-over's messages nor its tokens
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import threading
@@ -78,6 +79,8 @@ from ubitrack_agent.core.measurements import WORKER, Measurement
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.spec import MAX_HOLD_S
+from ubitrack_agent.net.thread_pool import ThreadPool
+from ubitrack_agent.net.transport import on_zenoh_thread
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -439,20 +442,44 @@ class KeyHandOver:
         return False
 
 
+HAND_OVER = ThreadPool("hand-over", 1)
+"""The one thread of the process that runs what every :class:`Watch` sees on its relation key
+and its hand-over key, in the order zenoh delivered it (one thread: a claim and its answer are
+never reordered). Handed on from zenoh's own thread (``net.transport.on_zenoh_thread``), so a
+watch starts no thread of its own: before, zenoh-python started one per subscriber, two per
+relation key a component puts on (``docs/performance.md``, "Threads of a container"). Not
+zenoh's thread itself: :meth:`KeyHandOver.receive` may put an answer (a zenoh call) and waits
+for the rules' lock. Started on the first sample, then kept (``net.thread_pool``)."""
+
+
+def _handed_on(call: Callable[[bytes], None]) -> zenoh.handlers.Callback:
+    """A handler on zenoh's thread that hands a sample's payload to ``call`` on
+    :data:`HAND_OVER` (a queue's put). While the interpreter ends no thread starts, and the
+    sample is dropped."""
+
+    def hand_on(sample: Any) -> None:
+        # RuntimeError: "can't create new thread at interpreter shutdown"
+        with contextlib.suppress(RuntimeError):
+            HAND_OVER.submit(call, sample.payload.to_bytes())
+
+    return on_zenoh_thread(hand_on)
+
+
 class Watch:
     """A :class:`KeyHandOver` wired to zenoh: subscribed to its relation key, its hand-over key
     and the producers' tokens, putting its messages on the hand-over key and declaring its own
-    token. Undeclare with :meth:`close`."""
+    token. Undeclare with :meth:`close`. Its two subscribers hand their samples to
+    :data:`HAND_OVER` (O(1) per sample; no thread per watch)."""
 
     def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
         messages = hand_over_key(key)
         self.rules = KeyHandOver(key, counters, lambda data: session.put(messages, data))
+        observe = logs.guarded(self.rules.observe, counters, log, key)
+        receive = logs.guarded(self.rules.receive, counters, log, messages)
         liveliness = session.liveliness()
         self._subscribers = (
-            session.declare_subscriber(key, lambda s: self.rules.observe(s.payload.to_bytes())),
-            session.declare_subscriber(
-                messages, lambda s: self.rules.receive(s.payload.to_bytes())
-            ),
+            session.declare_subscriber(key, _handed_on(observe)),
+            session.declare_subscriber(messages, _handed_on(receive)),
             liveliness.declare_subscriber(producer_token(key, "*"), self._token, history=True),
             liveliness.declare_token(producer_token(key, self.rules.producer)),
             session.declare_queryable(messages, self._holding),
