@@ -447,20 +447,21 @@ HAND_OVER = ThreadPool("hand-over", 1)
 and its hand-over key, in the order zenoh delivered it (one thread: a claim and its answer are
 never reordered). Handed on from zenoh's own thread (``net.transport.on_zenoh_thread``), so a
 watch starts no thread of its own: before, zenoh-python started one per subscriber, two per
-relation key a component puts on (``docs/performance.md``, "Threads of a container"). Not
+relation key a component puts on, four with the token subscriber and the queryable
+(``docs/performance.md``, "Threads of a container"). Not
 zenoh's thread itself: :meth:`KeyHandOver.receive` may put an answer (a zenoh call) and waits
 for the rules' lock. Started on the first sample, then kept (``net.thread_pool``)."""
 
 
-def _handed_on(call: Callable[[bytes], None]) -> zenoh.handlers.Callback:
-    """A handler on zenoh's thread that hands a sample's payload to ``call`` on
-    :data:`HAND_OVER` (a queue's put). While the interpreter ends no thread starts, and the
-    sample is dropped."""
+def _handed_on(call: Callable[[Any], None]) -> zenoh.handlers.Callback:
+    """A handler on zenoh's thread that hands what zenoh delivers (a sample, a query) to
+    ``call`` on :data:`HAND_OVER` (a queue's put). While the interpreter ends no thread
+    starts, and it is dropped."""
 
-    def hand_on(sample: Any) -> None:
+    def hand_on(delivered: Any) -> None:
         # RuntimeError: "can't create new thread at interpreter shutdown"
         with contextlib.suppress(RuntimeError):
-            HAND_OVER.submit(call, sample.payload.to_bytes())
+            HAND_OVER.submit(call, delivered)
 
     return on_zenoh_thread(hand_on)
 
@@ -468,21 +469,22 @@ def _handed_on(call: Callable[[bytes], None]) -> zenoh.handlers.Callback:
 class Watch:
     """A :class:`KeyHandOver` wired to zenoh: subscribed to its relation key, its hand-over key
     and the producers' tokens, putting its messages on the hand-over key and declaring its own
-    token. Undeclare with :meth:`close`. Its two subscribers hand their samples to
-    :data:`HAND_OVER` (O(1) per sample; no thread per watch)."""
+    token. Undeclare with :meth:`close`. Its subscribers and its queryable hand what they get
+    to :data:`HAND_OVER` (O(1) each; no thread per watch)."""
 
     def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
         messages = hand_over_key(key)
         self.rules = KeyHandOver(key, counters, lambda data: session.put(messages, data))
-        observe = logs.guarded(self.rules.observe, counters, log, key)
-        receive = logs.guarded(self.rules.receive, counters, log, messages)
+        self._counters = counters
         liveliness = session.liveliness()
         self._subscribers = (
-            session.declare_subscriber(key, _handed_on(observe)),
-            session.declare_subscriber(messages, _handed_on(receive)),
-            liveliness.declare_subscriber(producer_token(key, "*"), self._token, history=True),
+            session.declare_subscriber(key, self._handed_on(self._observe)),
+            session.declare_subscriber(messages, self._handed_on(self._receive)),
+            liveliness.declare_subscriber(
+                producer_token(key, "*"), self._handed_on(self._token), history=True
+            ),
             liveliness.declare_token(producer_token(key, self.rules.producer)),
-            session.declare_queryable(messages, self._holding),
+            session.declare_queryable(messages, self._handed_on(self._holding)),
         )
         self.rules.asking = True  # who holds the key, if one does
         session.get(
@@ -494,6 +496,15 @@ class Watch:
         # before this producer's first output, however late the holder's next sample comes.
         session.get(key, self._latest)
 
+    def _handed_on(self, handler: Callable[[Any], None]) -> zenoh.handlers.Callback:
+        return _handed_on(logs.guarded(handler, self._counters, log, self.rules.key))
+
+    def _observe(self, sample: Any) -> None:
+        self.rules.observe(sample.payload.to_bytes())
+
+    def _receive(self, sample: Any) -> None:
+        self.rules.receive(sample.payload.to_bytes())
+
     def _token(self, sample: Any) -> None:
         producer = str(sample.key_expr).rsplit("/", 1)[-1]
         if str(sample.kind) == PUT:
@@ -502,9 +513,10 @@ class Watch:
             self.rules.left(producer)
 
     def _holding(self, query: Any) -> None:
-        reply = self.rules.holding()
-        if reply is not None:
-            query.reply(hand_over_key(self.rules.key), reply)
+        with query:  # finished at once (zenoh sends its final message when it is dropped)
+            reply = self.rules.holding()
+            if reply is not None:
+                query.reply(hand_over_key(self.rules.key), reply)
 
     def _holder(self, reply: Any) -> None:
         if reply.ok is not None:
