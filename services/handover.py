@@ -71,6 +71,7 @@ relation keys' wildcard does not receive the hand-over's messages nor its tokens
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import threading
@@ -88,6 +89,8 @@ from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.core.measurements import WORKER, Measurement
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.json_messages import MessageError, load_object
+from ubitrack_agent.net.thread_pool import ThreadPool
+from ubitrack_agent.net.transport import on_zenoh_thread
 
 log = logging.getLogger("ubitrack.worker")
 
@@ -479,23 +482,49 @@ class KeyHandOver:
         return False
 
 
+HAND_OVER = ThreadPool("hand-over", 1)
+"""The one thread of the process that runs what every :class:`Watch` sees on its relation key
+and its hand-over key, in the order zenoh delivered it (one thread: a claim and its answer are
+never reordered). Handed on from zenoh's own thread (``net.transport.on_zenoh_thread``), so a
+watch starts no thread of its own: before, zenoh-python started one per subscriber, two per
+relation key a component puts on, four with the token subscriber and the queryable
+(``docs/performance.md``, "Threads of a container"). Not
+zenoh's thread itself: :meth:`KeyHandOver.receive` may put an answer (a zenoh call) and waits
+for the rules' lock. Started on the first sample, then kept (``net.thread_pool``)."""
+
+
+def _handed_on(call: Callable[[Any], None]) -> zenoh.handlers.Callback:
+    """A handler on zenoh's thread that hands what zenoh delivers (a sample, a query) to
+    ``call`` on :data:`HAND_OVER` (a queue's put). While the interpreter ends no thread
+    starts, and it is dropped."""
+
+    def hand_on(delivered: Any) -> None:
+        # RuntimeError: "can't create new thread at interpreter shutdown"
+        with contextlib.suppress(RuntimeError):
+            HAND_OVER.submit(call, delivered)
+
+    return on_zenoh_thread(hand_on)
+
+
 class Watch:
     """A :class:`KeyHandOver` wired to zenoh: subscribed to its relation key, its hand-over key
     and the producers' tokens, putting its messages on the hand-over key and declaring its own
-    token. Undeclare with :meth:`close`."""
+    token. Undeclare with :meth:`close`. Its subscribers and its queryable hand what they get
+    to :data:`HAND_OVER` (O(1) each; no thread per watch)."""
 
     def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
         messages = hand_over_key(key)
         self.rules = KeyHandOver(key, counters, lambda data: session.put(messages, data))
+        self._counters = counters
         liveliness = session.liveliness()
         self._subscribers = (
-            session.declare_subscriber(key, lambda s: self.rules.observe(s.payload.to_bytes())),
-            session.declare_subscriber(
-                messages, lambda s: self.rules.receive(s.payload.to_bytes())
+            session.declare_subscriber(key, self._handed_on(self._observe)),
+            session.declare_subscriber(messages, self._handed_on(self._receive)),
+            liveliness.declare_subscriber(
+                producer_token(key, "*"), self._handed_on(self._token), history=True
             ),
-            liveliness.declare_subscriber(producer_token(key, "*"), self._token, history=True),
             liveliness.declare_token(producer_token(key, self.rules.producer)),
-            session.declare_queryable(messages, self._holding),
+            session.declare_queryable(messages, self._handed_on(self._holding)),
         )
         self.rules.asking = True  # who holds the key, if one does
         session.get(
@@ -507,6 +536,15 @@ class Watch:
         # before this producer's first output, however late the holder's next sample comes.
         session.get(key, self._latest)
 
+    def _handed_on(self, handler: Callable[[Any], None]) -> zenoh.handlers.Callback:
+        return _handed_on(logs.guarded(handler, self._counters, log, self.rules.key))
+
+    def _observe(self, sample: Any) -> None:
+        self.rules.observe(sample.payload.to_bytes())
+
+    def _receive(self, sample: Any) -> None:
+        self.rules.receive(sample.payload.to_bytes())
+
     def _token(self, sample: Any) -> None:
         producer = str(sample.key_expr).rsplit("/", 1)[-1]
         if str(sample.kind) == PUT:
@@ -515,9 +553,10 @@ class Watch:
             self.rules.left(producer)
 
     def _holding(self, query: Any) -> None:
-        reply = self.rules.holding()
-        if reply is not None:
-            query.reply(hand_over_key(self.rules.key), reply)
+        with query:  # finished at once (zenoh sends its final message when it is dropped)
+            reply = self.rules.holding()
+            if reply is not None:
+                query.reply(hand_over_key(self.rules.key), reply)
 
     def _holder(self, reply: Any) -> None:
         if reply.ok is not None:
