@@ -52,9 +52,9 @@ def spare_solutions(chosen: Solution, solutions: Sequence[Solution]) -> list[Sol
     by_solution = [(solution, sensors(solution)) for solution in solutions]
     spares: list[Solution] = []
     for sensor in sorted(used):
-        fallback = next((s for s, read in by_solution if sensor not in read), None)
-        if fallback is None or any(fallback is s for s in (chosen, *spares)):
+        found = next(((s, read) for s, read in by_solution if sensor not in read), None)
+        if found is None or any(found[0] is s for s in (chosen, *spares)):
             continue
-        if not sensors(fallback) <= used:
-            spares.append(fallback)
+        if not found[1] <= used:
+            spares.append(found[0])
     return spares
