@@ -21,8 +21,9 @@ among those the state allows:
   back;
 * **camera off** / **camera back**: the camera's simulator stopped / started; fused to A.R.T.
   only and back;
-* **worker killed**: the process running the fusion component (its container, with the other
-  components it holds) SIGKILLed while both sensors run; its host manager restores it;
+* **worker killed**: the process running the component that puts on the relation key (its
+  container, with the rest of the derivation) SIGKILLed while both sensors run; its host
+  manager restores it (with ``--replicas``, a copy in another container serves meanwhile);
 * **agent killed** / **agent stopped**: the agent SIGKILLed / stopped cleanly (SIGTERM) while
   both sensors run, and started again at once; the new agent adopts the running flow;
 * **better tracker joins** / **leaves**: a second A.R.T.-like tracker, placed elsewhere in the
@@ -338,17 +339,17 @@ def steady_gaps(samples: list[tuple[int, int, Any, bool]]) -> dict[str, float]:
     return {"gap_ms_p99": float(np.percentile(gaps, 99)) / 1e6, "gap_ms_max": max(gaps) / 1e6}
 
 
-def kill_fusion(session: Any, keys: KeySpace) -> int | None:
-    """SIGKILL the process running the fusion component; when (ns), if there was one (the
-    event's time: finding the process takes a status query, half a second on a loaded
-    machine)."""
+def kill_holder(session: Any, keys: KeySpace) -> int | None:
+    """SIGKILL the process running the component that holds the relation key (the fusion's
+    container: the derivation runs in one); when (ns), if one held it (the event's time:
+    finding the process takes status queries, half a second on a loaded machine)."""
     for instance, component in components(session, keys).items():
-        if component["service"] != "fusion":
+        if not component["relations"]:
             continue
         replies = fetch_latest(session, keys.status(instance), timeout=1.0)
-        if replies:
+        if replies and (status := json.loads(replies[0])).get("holds"):
             at = time.time_ns()
-            os.kill(json.loads(replies[0])["pid"], signal.SIGKILL)
+            os.kill(status["pid"], signal.SIGKILL)
             return at
     return None
 
@@ -397,7 +398,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         def stop(sensor: str) -> None:
             children.stop(*PROCESSES[sensor])
 
-        agent = ["agent", "--quiet", *config.as_flags(hub)]
+        agent = ["agent", "--quiet", "--replicas", str(args.replicas), *config.as_flags(hub)]
         try:
             children.start("agent", agent)
             with (
@@ -424,9 +425,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         # On a loaded machine the agent may have planned without a sensor
                         # whose data came late meanwhile: the fusion back first.
                         wait_for_services(session, keys, present=True)
-                        killed = kill_fusion(session, keys)
+                        killed = kill_holder(session, keys)
                         if killed is None:
-                            raise RuntimeError("no fusion component to kill")
+                            raise RuntimeError("no component holds the relation key")
                         at = killed
                     elif kind.startswith("agent"):
                         restart_agent(children, agent, kind == "agent killed")
@@ -647,6 +648,9 @@ def main(argv: list[str] | None = None) -> None:
         f"counted); default all: {'; '.join(KINDS)}",
     )
     parser.add_argument(
+        "--replicas", type=int, default=0, help="the agent's --replicas (default: %(default)s)"
+    )
+    parser.add_argument(
         "--trace",
         action="store_true",
         help="record tokens, control commands, hand-over messages and inputs from each event to "
@@ -669,6 +673,7 @@ def main(argv: list[str] | None = None) -> None:
                 "command": f"python -m bench.switch_bench --events {args.events} --seed "
                 f"{args.seed} --dwell {dwell}"
                 + (f" --kinds '{';'.join(args.kinds)}'" if args.kinds != KINDS else "")
+                + (f" --replicas {args.replicas}" if args.replicas else "")
                 + (" --trace" if args.trace else "")
                 + (f" --output {args.output}" if args.output != RESULTS else ""),
                 "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),

@@ -1312,6 +1312,7 @@ class Worker:
                 },
             },
             **({"container": self.container} if self.container is not None else {}),
+            "holds": sorted(k for k, watch in list(self._hand_overs.items()) if watch.rules.holds),
         }
 
     def _latencies(self) -> dict[str, float]:

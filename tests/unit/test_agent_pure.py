@@ -195,7 +195,7 @@ def test_replanning_keeps_a_relations_running_derivation_within_the_margin():
     cheapest = set(from_solution(first, query).components)
     running = set(from_solution(second, query).components)
     assert cheapest != running
-    previous = Plan(DataFlow(), serving={relation_name(query): frozenset(running)})
+    previous = Plan(DataFlow(), kept={relation_name(query): frozenset(running)})
     stable = plan_relations(srg, TEMPLATES, [wanted], running, previous)
     assert set(stable.flow.components) == running
     assert set(plan_relations(srg, TEMPLATES, [wanted]).flow.components) == cheapest

@@ -9,6 +9,7 @@ from tests.unit.rooms import building, edge, tracker
 from ubitrack_agent.agent.announcements import build_srg, provider_entries
 from ubitrack_agent.agent.flows import plan_relations
 from ubitrack_agent.agent.replanning import edge_changes, region_of, replan
+from ubitrack_agent.agent.spares import Redundancy
 from ubitrack_agent.graph.templates import load_templates
 from ubitrack_agent.net.keys import RelationId
 
@@ -144,15 +145,17 @@ def two_equal_trackers_in_room_0():
 @pytest.mark.parametrize("follow", [True, False])
 def test_a_worker_appearing_replans_only_the_relations_it_may_serve(follow):
     srg = build_srg(two_equal_trackers_in_room_0())
-    first = replan(None, srg, TEMPLATES, HEADS, frozenset(), follow)
+    alone = Redundancy(spares=False)  # (with spares, the other derivation is the chosen's)
+    first = replan(None, srg, TEMPLATES, HEADS, frozenset(), follow, redundancy=alone)
     chosen = first.parts[HEADS[0]]
     other = sorted(chosen.candidates - chosen.serving)  # the other tracker's derivation
     assert other and all(not first.parts[r].candidates & set(other) for r in HEADS[1:])
     running = frozenset(other)  # an earlier agent's workers of the other derivation appear
-    again = replan(first, srg, TEMPLATES, HEADS, running, follow, appeared=running)
+    again = replan(first, srg, TEMPLATES, HEADS, running, follow, running, redundancy=alone)
     assert again.replanned == {HEADS[0]}
     assert kept(first, again, HEADS) == set(HEADS[1:])
-    everything = plan_relations(srg, TEMPLATES, HEADS, running, first.plan if follow else None)
+    previous = first.plan if follow else None
+    everything = plan_relations(srg, TEMPLATES, HEADS, running, previous, alone)
     assert again.plan.flow == everything.flow and again.plan.serving == everything.serving
     # following its plan, the active agent keeps its choice; a standby moves onto what runs
     assert (again.parts[HEADS[0]].serving == chosen.serving) == follow

@@ -9,7 +9,8 @@ import yaml
 from tests.unit.conftest import ROOT
 from ubitrack_agent.agent.flows import plan_relation
 from ubitrack_agent.agent.materialise import component_specs
-from ubitrack_agent.agent.spares import sensors, spare_solutions
+from ubitrack_agent.agent.placement import group_containers
+from ubitrack_agent.agent.spares import MAX_REPLICAS, Redundancy, sensors, spare_solutions
 from ubitrack_agent.graph.dataflow import Binding, DataFlow, merge
 from ubitrack_agent.graph.planner import Query, plan
 from ubitrack_agent.graph.srg import parse_setup
@@ -83,7 +84,7 @@ def test_a_spare_is_planned_with_the_relation_and_puts_on_its_key(three_sensors,
 
 def test_an_agent_without_spares_plans_none(three_sensors, templates):
     srg, _ = three_sensors
-    part = plan_relation(srg, templates, C_A, spares=False)
+    part = plan_relation(srg, templates, C_A, redundancy=Redundancy(spares=False))
     assert part.flow.spares == {} and set(part.flow.components) == part.serving
 
 
@@ -108,3 +109,47 @@ def test_merging_flows_keeps_each_spare_producer_once():
     merged = merge([one, two])
     assert merged.spares == {"C->A:6D": (Binding("x", "AC"), Binding("y", "AC"))}
     assert merged.as_json()["spares"] == {"C->A:6D": [["x", "AC"], ["y", "AC"]]}
+
+
+def test_a_replica_is_the_same_derivation_under_other_ids_and_puts_on_the_key_too(
+    tracking_setup, templates
+):
+    alone = plan_relation(tracking_setup, templates, C_A)
+    part = plan_relation(tracking_setup, templates, C_A, redundancy=Redundancy(replicas=2))
+    assert part.serving == alone.serving  # the chosen derivation is the same
+    (primary,), replicas = [part.flow.relations["C->A:6D"]], part.flow.spares["C->A:6D"]
+    assert len(replicas) == 2 and primary not in replicas
+    copies = set(part.flow.components) - part.serving
+    assert len(copies) == 2 * len(part.serving)  # two copies, every component its own id
+    services = [part.flow.components[i].service for i in part.serving]
+    assert sorted(part.flow.components[i].service for i in copies) == sorted(services * 2)
+    assert part.kept == set(part.flow.components)  # what a later choice keeps running
+    specs = component_specs(part.flow, tracking_setup, Keys(), part.relations)
+    key = Keys().relation(C_A)
+    on_key = {i for i, spec in specs.items() if any(key in ks for ks in spec.relations.values())}
+    assert on_key == {primary.component, *(r.component for r in replicas)}
+
+
+def test_a_relation_read_from_a_measured_edge_has_no_replica(tracking_setup, templates):
+    measured = RelationId("ART", "HT", "6D")
+    part = plan_relation(tracking_setup, templates, measured, redundancy=Redundancy(replicas=1))
+    assert part.unsolved is None and part.flow.components == {} and part.flow.spares == {}
+
+
+@pytest.mark.parametrize("replicas", [-1, MAX_REPLICAS + 1])
+def test_replicas_beyond_the_bounds_are_refused(replicas):
+    with pytest.raises(ValueError, match="replicas: expected 0 to"):
+        Redundancy(replicas=replicas)
+
+
+@pytest.mark.parametrize("cores", [2, 1])
+def test_copies_of_a_derivation_run_in_different_containers(tracking_setup, templates, cores):
+    part = plan_relation(tracking_setup, templates, C_A, redundancy=Redundancy(replicas=1))
+    specs = component_specs(part.flow, tracking_setup, Keys(), part.relations)
+    hosts = dict.fromkeys(specs, "room")
+    groups = group_containers(specs, hosts, {"room": cores})
+    assert sorted(groups) == ["room-0", "room-1"]  # on one core, the second is opened for it
+    (primary,) = [n for n, g in groups.items() if {s.instance for s in g.components} & part.serving]
+    assert {s.instance for s in groups[primary].components} == part.serving
+    current = {s.instance: name for name, g in groups.items() for s in g.components}
+    assert group_containers(specs, hosts, {"room": cores}, current=current) == groups  # stable

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 
-from ubitrack_agent.agent.spares import spare_solutions
+from ubitrack_agent.agent.spares import DEFAULT_REDUNDANCY, Redundancy, spare_solutions
 from ubitrack_agent.graph.dataflow import DataFlow, from_solution, merge, relation_name
 from ubitrack_agent.graph.frame_names import frame_hint
 from ubitrack_agent.graph.planner import (
@@ -49,13 +49,15 @@ Planner = Callable[[nx.MultiDiGraph, Sequence[Template], Query], list[Solution]]
 @dataclass(frozen=True)
 class Plan:
     """The merged data flow serving every plannable relation (by :func:`plan_name`, e.g.
-    ``"C->A:6D"``), the relations that cannot be planned with the reason, and the components
-    of each planned relation's derivation (what :func:`stable_choice` keeps)."""
+    ``"C->A:6D"``), the relations that cannot be planned with the reason, the components of
+    each planned relation's derivation (``serving``) and those with its spares' and replicas'
+    (``kept``: what :func:`stable_choice` keeps)."""
 
     flow: DataFlow
     relations: dict[str, RelationId] = field(default_factory=dict)
     unsolved: dict[str, str] = field(default_factory=dict)
     serving: dict[str, frozenset[str]] = field(default_factory=dict)
+    kept: dict[str, frozenset[str]] = field(default_factory=dict)
 
 
 Chooser = Callable[[Query, Sequence[Solution]], Solution]
@@ -63,22 +65,23 @@ Chooser = Callable[[Query, Sequence[Solution]], Solution]
 
 def stable_choice(
     running: Set[str],
-    serving: Mapping[str, Set[str]] | None = None,
+    kept: Mapping[str, Set[str]] | None = None,
     name: Callable[[Query], str] = relation_name,
 ) -> Chooser:
     """A ``dataflow.plan_flows`` chooser (module docstring): the cheapest solution, unless
-    the relation's current derivation (``serving``, by the relation's plan name: ``name``) has
-    running components; then the one with the fewest new components within the cost margin,
-    then the cheapest. ``serving=None`` (no plan yet) counts every running component for
-    every relation."""
+    the relation's current flows (``kept``: its derivation's, spares' and replicas'
+    components, by the relation's plan name: ``name``) have running components; then the one
+    with the fewest new components within the cost margin, then the cheapest. A spare that
+    runs is thus taken as it is when the derivation it stands in for loses its sensor.
+    ``kept=None`` (no plan yet) counts every running component for every relation."""
 
     def choose(query: Query, solutions: Sequence[Solution]) -> Solution:
-        kept = running if serving is None else running & serving.get(name(query), frozenset())
-        if not kept:
+        mine = running if kept is None else running & kept.get(name(query), frozenset())
+        if not mine:
             return solutions[0]
 
         def new_components(solution: Solution) -> int:
-            return len(set(from_solution(solution, query).components) - kept)
+            return len(set(from_solution(solution, query).components) - mine)
 
         return min(within_margin(solutions), key=lambda s: (new_components(s), s.cost))
 
@@ -95,8 +98,9 @@ def within_margin(solutions: Sequence[Solution]) -> list[Solution]:
 @dataclass(frozen=True)
 class RelationPlan:
     """One relation's part of a :class:`Plan`: its data flow (empty if unsolved, then
-    ``unsolved`` says why; with its spare derivations, ``agent.spares``), the components of its
-    derivation (``serving``) and the measured edges that derivation and its spares read
+    ``unsolved`` says why; with its spare derivations and replicas, ``agent.spares``), the
+    components of its derivation (``serving``) and of its whole flow (``kept``), and the
+    measured edges that derivation and its spares read
     (``edges``: an event removing one of them replans it, ``agent.replanning``). ``name`` is
     its :func:`plan_name`; ``relations`` maps the names it is planned under to the relation
     (none for a type the planner does not know).
@@ -109,6 +113,7 @@ class RelationPlan:
     flow: DataFlow = field(default_factory=DataFlow)
     unsolved: str | None = None
     serving: frozenset[str] = frozenset()
+    kept: frozenset[str] = frozenset()
     edges: frozenset[str] = frozenset()
     relations: Mapping[str, RelationId] = field(default_factory=dict)
     candidates: frozenset[str] = frozenset()
@@ -119,18 +124,18 @@ def plan_relation(
     templates: Sequence[Template],
     relation: RelationId,
     running: Set[str] = frozenset(),
-    serving: Mapping[str, Set[str]] | None = None,
+    kept: Mapping[str, Set[str]] | None = None,
     planner: Planner = plan,
-    spares: bool = True,
+    redundancy: Redundancy = DEFAULT_REDUNDANCY,
 ) -> RelationPlan:
-    """A derivation of ``relation`` chosen by :func:`stable_choice` (``serving``: the
-    components of the previous plan's derivations, by plan name; ``None`` before the first
-    plan) among those ``planner`` finds. A recalibration is planned on ``srg`` without the
+    """A derivation of ``relation`` chosen by :func:`stable_choice` (``kept``: the
+    components of the previous plan's flows, by plan name; ``None`` before the first plan)
+    among those ``planner`` finds. A recalibration is planned on ``srg`` without the
     measured static edges of its relation (``srg.remove_static_relation``), so it is computed
     from the other edges; its unsolved reason says which edges it ignored. The chosen
-    derivation's spares (``agent.spares``) are in its flow, unless not ``spares``. O(one
-    ``planner`` call + the data flows of the derivations within the cost margin and of the
-    spares)."""
+    derivation's spares and replicas (``agent.spares``), as ``redundancy`` asks, are in its
+    flow. O(one ``planner`` call + the data flows of the derivations within
+    the cost margin, of the spares and of the replicas)."""
     try:
         query = Query(relation.source, relation.target, relation.type, relation.static)
     except PlanningError as exc:
@@ -140,9 +145,9 @@ def plan_relation(
     if relation.recalibrate:
         ignored = static_relation_edges(srg, relation.source, relation.target)
         srg = remove_static_relation(srg, relation.source, relation.target)
-        choose = stable_choice(running, serving, _recalibration_name)
+        choose = stable_choice(running, kept, _recalibration_name)
     else:
-        choose = stable_choice(running, serving)
+        choose = stable_choice(running, kept)
     names = {name: relation}
     try:
         new = introducible_frames(srg, templates, query)  # a calibration may add a frame
@@ -156,19 +161,23 @@ def plan_relation(
         reason = without + str(exc) + (f"; {hint}" if hint else "")
         return RelationPlan(relation, name, unsolved=reason, relations=names)
     solution = choose(query, solutions)
-    spares = spare_solutions(solution, solutions) if spares else []
+    spares = spare_solutions(solution, solutions) if redundancy.spares else []
     flow, own = from_solution(solution, query), relation_name(query)
-    spare_flows = [from_solution(spare, query) for spare in spares]
+    others = [from_solution(spare, query) for spare in spares]
+    if flow.components:  # (a relation read from a measured edge has nothing to replicate)
+        others += [from_solution(solution, query, k) for k in range(1, redundancy.replicas + 1)]
+    merged = merge(
+        [
+            DataFlow(flow.components, {name: flow.relations[own]}),
+            *(DataFlow(f.components, spares={name: (f.relations[own],)}) for f in others),
+        ]
+    )
     return RelationPlan(
         relation,
         name,
-        merge(
-            [
-                DataFlow(flow.components, {name: flow.relations[own]}),
-                *(DataFlow(f.components, spares={name: (f.relations[own],)}) for f in spare_flows),
-            ]
-        ),
+        merged,
         serving=frozenset(flow.components),
+        kept=frozenset(merged.components),
         edges=frozenset(
             r.id for s in (solution, *spares) for r in s.records.values() if r.measured
         ),
@@ -194,6 +203,7 @@ def combine(parts: Iterable[RelationPlan]) -> Plan:
         {name: r for part in ordered for name, r in part.relations.items()},
         {part.name: part.unsolved for part in ordered if part.unsolved is not None},
         {part.name: part.serving for part in ordered if part.unsolved is None},
+        {part.name: part.kept for part in ordered if part.unsolved is None},
     )
 
 
@@ -223,9 +233,12 @@ def plan_relations(
     relations: Iterable[RelationId],
     running: Set[str] = frozenset(),
     previous: Plan | None = None,
+    redundancy: Redundancy = DEFAULT_REDUNDANCY,
 ) -> Plan:
     """A derivation of each relation (:func:`plan_relation`, :func:`stable_choice` given the
     ``previous`` plan), merged into one data flow: every relation planned again
     (``agent.replanning`` plans only those an event can affect). O(relations x one plan)."""
-    serving = previous.serving if previous else None
-    return combine(plan_relation(srg, templates, r, running, serving) for r in set(relations))
+    kept = previous.kept if previous else None
+    return combine(
+        plan_relation(srg, templates, r, running, kept, plan, redundancy) for r in set(relations)
+    )

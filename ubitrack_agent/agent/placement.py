@@ -32,6 +32,7 @@ The rule, pure and deterministic (:func:`place`):
 
 from __future__ import annotations
 
+import itertools
 from collections import Counter
 from collections.abc import Mapping, Set
 from dataclasses import dataclass
@@ -204,10 +205,16 @@ def group_containers(
     4. **Isolation**: an instance in ``isolated`` (its template asks for it: a real camera
        adapter, OpenCV-heavy or untrusted code), and every component of a host in
        ``isolating_hosts``, runs alone in ``<host>-<instance>``.
+    5. **Copies apart**: derivations that put on one relation key (a relation's derivation,
+       its spares and replicas: ``agent.spares``) go into different containers (rule 2 among
+       those holding none of its keys), so the death of one process leaves a copy computing;
+       where the host's containers all hold one, another is opened (``<host>-<cores>``, ...;
+       the one the derivation runs in already, if any: rule 3).
+       A derivation sharing a component with another is one derivation (rule 1).
 
     ``hosts`` maps a placed instance to its host (:attr:`Assignment.hosts`); unplaced
     instances are left out. Pure and deterministic; O(components + bindings) per host, plus
-    O(derivations x cores) for rule 2.
+    O(derivations x containers) for rules 2 and 5.
     """
     current = current or {}
     groups: dict[str, list[ComponentSpec]] = {}
@@ -219,8 +226,13 @@ def group_containers(
                 groups[f"{host}-{spec.instance}"] = [spec]
             else:
                 shared.append(spec)
-        containers = [f"{host}-{k}" for k in range(max(1, cores.get(host, 1)))]
+        count = max(1, cores.get(host, 1))
+        containers = [f"{host}-{k}" for k in range(count)]
         filled: dict[str, list[ComponentSpec]] = {name: [] for name in containers}
+        publishing: dict[str, set[str]] = {name: set() for name in containers}
+        """The relation keys each container's components put on (rule 5)."""
+        extra: list[str] = []
+        """Containers opened by rule 5."""
         pending = []
         for derivation in _derivations(shared):
             running = Counter(
@@ -231,18 +243,49 @@ def group_containers(
                 continue
             home = min(running, key=lambda name: (-running[name], name))
             for spec in derivation:
-                filled[
-                    current[spec.instance] if current.get(spec.instance) in filled else home
-                ].append(spec)
+                name = current[spec.instance] if current.get(spec.instance) in filled else home
+                filled[name].append(spec)
+                publishing[name].update(_relation_keys([spec]))
         for derivation in sorted(pending, key=len, reverse=True):  # stable: ties keep order
-            emptiest = min(containers, key=lambda name: (len(filled[name]), name))
+            keys = _relation_keys(derivation)
+            apart = [name for name in containers if not keys & publishing[name]] or [
+                name for name in extra if not keys & publishing[name]
+            ]
+            if not apart:
+                apart = [_another_container(host, count, derivation, current, filled)]
+                extra.append(apart[0])
+                filled[apart[0]], publishing[apart[0]] = [], set()
+            emptiest = min(apart, key=lambda name: (len(filled[name]), name))
             filled[emptiest].extend(derivation)
+            publishing[emptiest].update(keys)
         groups.update({name: members for name, members in filled.items() if members})
     order = {instance: index for index, instance in enumerate(specs)}
     return {
         name: GroupSpec(name, tuple(sorted(members, key=lambda spec: order[spec.instance])))
         for name, members in groups.items()
     }
+
+
+def _another_container(
+    host: str,
+    cores: int,
+    derivation: list[ComponentSpec],
+    current: Mapping[str, str],
+    taken: Mapping[str, object],
+) -> str:
+    """The container rule 5 opens for ``derivation``: one beyond the host's ``cores`` it runs
+    in already (rule 3), else the first such name not ``taken``."""
+    running = sorted({current.get(spec.instance) for spec in derivation} - {None})
+    for name in running:
+        suffix = name.removeprefix(f"{host}-")
+        if name != suffix and suffix.isdigit() and int(suffix) >= cores and name not in taken:
+            return name
+    return next(f"{host}-{k}" for k in itertools.count(cores) if f"{host}-{k}" not in taken)
+
+
+def _relation_keys(specs: list[ComponentSpec]) -> set[str]:
+    """The relation keys ``specs`` put on."""
+    return {key for spec in specs for keys in spec.relations.values() for key in keys}
 
 
 def _derivations(specs: list[ComponentSpec]) -> list[list[ComponentSpec]]:

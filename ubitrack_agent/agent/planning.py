@@ -30,6 +30,7 @@ from ubitrack_agent.agent.flows import Planner
 from ubitrack_agent.agent.live_srg import LiveSrg, live_srg
 from ubitrack_agent.agent.materialise import Keys, component_specs
 from ubitrack_agent.agent.replanning import Planned, replan
+from ubitrack_agent.agent.spares import DEFAULT_REDUNDANCY, Redundancy
 from ubitrack_agent.graph.dataflow import DataFlow
 from ubitrack_agent.graph.planner import plan
 from ubitrack_agent.graph.templates import Template
@@ -85,14 +86,14 @@ def make_outcome(
     templates: Sequence[Template],
     keys: Keys,
     planner: Planner = plan,
-    spares: bool = True,
+    redundancy: Redundancy = DEFAULT_REDUNDANCY,
 ) -> Outcome:
     """Plan ``request`` incrementally from ``previous``, each relation with ``planner`` (pure
     but for a memo's contents: ``agent.plan_memo``). The specifications are made again only
     when the plan changed. O(edges) for the SRG (``agent.live_srg``: no fragment parsed
     again), plus :func:`.replanning.replan`'s cost, plus O(components + bindings) when the
-    plan changed (``materialise.component_specs``). ``spares``: whether derivations get spares
-    (``agent.spares``)."""
+    plan changed (``materialise.component_specs``). ``redundancy``: the spares and replicas
+    each derivation gets (``agent.spares``)."""
     started = time.perf_counter()
     live, removed, added = live_srg(
         request.fragments, request.stale, previous.live if previous else None
@@ -110,7 +111,7 @@ def make_outcome(
         request.appeared,
         (removed, added) if base is not None else None,
         planner,
-        spares,
+        redundancy,
     )
     replanning_s = time.perf_counter() - replanning_started
     if previous is not None and planned.plan is previous.planned.plan:

@@ -51,6 +51,7 @@ from typing import Any
 import networkx as nx
 
 from ubitrack_agent.agent.flows import Plan, Planner, RelationPlan, combine, plan_relation
+from ubitrack_agent.agent.spares import DEFAULT_REDUNDANCY, Redundancy
 from ubitrack_agent.graph.planner import (
     DEFAULT_SLACK,
     PlanningError,
@@ -210,25 +211,27 @@ def replan(
     appeared: Set[str] = frozenset(),
     changes: tuple[Edges, Edges] | None = None,
     planner: Planner = plan,
-    spares: bool = True,
+    redundancy: Redundancy = DEFAULT_REDUNDANCY,
 ) -> Planned:
     """The plan of ``relations`` on ``srg``, planning again (with ``planner``) only the
     relations the change since ``previous`` and the workers that ``appeared`` can affect (all
     of them if there is no ``previous``); the others keep their part. Choices follow
     ``flows.stable_choice`` with the ``running`` components (``appeared`` among them) and, if
     ``follow``, the previous plan's derivations (a standby agent, which follows what runs,
-    passes ``False``); ``changes`` as for :func:`affected`; ``spares``: whether derivations
-    get spares (``agent.spares``)."""
+    passes ``False``); ``changes`` as for :func:`affected`; ``redundancy``: the spares and
+    replicas each derivation gets (``agent.spares``)."""
     relations = set(relations)
     if previous is None:
         todo, regions = set(relations), {}
     else:
         todo, regions = affected(previous, srg, templates, relations, changes, appeared)
     base = previous or Planned()
-    serving = base.plan.serving if follow and previous is not None else None
+    kept = base.plan.kept if follow and previous is not None else None
     parts = {r: base.parts[r] for r in relations if r not in todo}
     for relation in todo:
-        parts[relation] = plan_relation(srg, templates, relation, running, serving, planner, spares)
+        parts[relation] = plan_relation(
+            srg, templates, relation, running, kept, planner, redundancy
+        )
         if relation not in regions:
             regions[relation] = region_of(srg, templates, relation)
     if previous is not None and parts.keys() == previous.parts.keys() and not todo:

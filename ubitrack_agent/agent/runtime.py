@@ -87,6 +87,7 @@ from ubitrack_agent.agent.plan_memo import PlanMemo
 from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, make_outcome
 from ubitrack_agent.agent.problems import Guard, Problems
 from ubitrack_agent.agent.reconcile import IN_PLACE, reconcile
+from ubitrack_agent.agent.spares import DEFAULT_REDUNDANCY, Redundancy
 from ubitrack_agent.agent.stamps import Stamps
 from ubitrack_agent.agent.standby import standby_components
 from ubitrack_agent.graph.srg import edge_ids
@@ -147,7 +148,7 @@ class Agent:
         settings: Settings,
         templates: Sequence[Template],
         on_role: Callable[[bool], None] | None = None,
-        spares: bool = True,
+        redundancy: Redundancy = DEFAULT_REDUNDANCY,
     ) -> None:
         self.keys = KeySpace(settings.key_prefix)
         self.id = new_agent_id()
@@ -162,7 +163,7 @@ class Agent:
         """The planner's answers by region, shared by every plan (:mod:`.plan_memo`)."""
         self._planner = BackgroundPlanner(
             lambda request, previous: make_outcome(
-                request, previous, self.templates, self.keys, self._plan_memo, spares
+                request, previous, self.templates, self.keys, self._plan_memo, redundancy
             ),
             done=lambda: self._events.put(PLANNED),
         )

@@ -29,8 +29,32 @@ alternative does (the demo's camera and tracker fused).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from ubitrack_agent.graph.planner import Solution
+if TYPE_CHECKING:  # (the command line reads this module's settings without the planner)
+    from ubitrack_agent.graph.planner import Solution
+
+MAX_REPLICAS = 3
+"""The most replicas of a derivation the agent runs (each costs the derivation's CPU again)."""
+
+
+@dataclass(frozen=True)
+class Redundancy:
+    """What the agent runs beside each relation's chosen derivation (module docstring):
+    ``spares`` for the loss of a sensor, and ``replicas`` copies of the derivation for the loss
+    of the process running it (0 to :data:`MAX_REPLICAS`)."""
+
+    spares: bool = True
+    replicas: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.replicas <= MAX_REPLICAS:
+            raise ValueError(f"replicas: expected 0 to {MAX_REPLICAS}, got {self.replicas}")
+
+
+DEFAULT_REDUNDANCY = Redundancy()
+"""Spares, no replicas: the agent's default (``ubitrack agent --no-spares``, ``--replicas``)."""
 
 
 def sensors(solution: Solution) -> frozenset[str]:

@@ -24,6 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from ubitrack_agent.agent.spares import MAX_REPLICAS, Redundancy
 from ubitrack_agent.core.interpreter import module_command
 from ubitrack_agent.net import config
 from ubitrack_agent.net.host_protocol import DEFAULT_CAPACITY, MAX_CAPACITY, MAX_CORES
@@ -117,6 +118,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "without one of its sensors reads a sensor it leaves out (a third tracker), that "
         "derivation runs beside it and takes the relation over within a sample of the sensor's "
         "loss, at the CPU of its components",
+    )
+    parser.add_argument(
+        "--replicas",
+        type=int,
+        default=0,
+        metavar="N",
+        help=f"run N copies (0 to {MAX_REPLICAS}) of each relation's derivation beside it, in "
+        "other containers: when the process running the derivation dies, a copy, its filters "
+        "warm, takes the relation over within a sample, at N times the derivation's CPU "
+        "(default: %(default)s)",
     )
     parser.add_argument(
         "--no-host",
@@ -348,10 +359,15 @@ def run(args: argparse.Namespace) -> int:
     if (problem := options.problem()) is not None:
         print(f"ubitrack agent: {problem}", file=sys.stderr)
         return 2
+    try:
+        redundancy = Redundancy(spares=not args.no_spares, replicas=args.replicas)
+    except ValueError as exc:
+        print(f"ubitrack agent: --{exc}", file=sys.stderr)
+        return 2
     host = None if args.no_host else HostWhileActive(settings, options, args.log_level)
     try:
         agent = Agent(
-            settings, templates, on_role=host.on_role if host else None, spares=not args.no_spares
+            settings, templates, on_role=host.on_role if host else None, redundancy=redundancy
         )
     except zenoh.ZError as exc:
         print(f"ubitrack agent: cannot open zenoh on {settings.listen}: {exc}", file=sys.stderr)

@@ -13,7 +13,8 @@ component whose upstream changed is another component, started beside the old on
 before break).
 
 Besides the producer bound to each relation, a flow may name *spare* producers of it (the
-derivations the agent runs beside the chosen one for the loss of a sensor: ``agent.spares``).
+derivations the agent runs beside the chosen one for the loss of a sensor, and replicas of the
+chosen one for the loss of its process: ``agent.spares``).
 """
 
 from __future__ import annotations
@@ -101,12 +102,15 @@ def relation_name(query: Query) -> str:
     return f"{query.source}->{query.target}:{query.type}{suffix}"
 
 
-def _component_id(template: str, expansion: str, reads: list[Any], writes: list[Any]) -> str:
-    digest = hashlib.sha1(repr((template, expansion, reads, writes)).encode()).hexdigest()[:10]
+def _component_id(
+    template: str, expansion: str, reads: list[Any], writes: list[Any], replica: int = 0
+) -> str:
+    named = (template, expansion, reads, writes, *((replica,) if replica else ()))
+    digest = hashlib.sha1(repr(named).encode()).hexdigest()[:10]
     return f"{template}-{digest}"
 
 
-def from_solution(solution: Solution, query: Query) -> DataFlow:
+def from_solution(solution: Solution, query: Query, replica: int = 0) -> DataFlow:
     """The data flow graph of one solution (section 5.1, "Data flow construction").
 
     A component's id names its whole computation, as a Merkle tree does (Merkle 1987): its
@@ -116,7 +120,9 @@ def from_solution(solution: Solution, query: Query) -> DataFlow:
     component whose inputs come from another derivation is another component, started beside
     the old one, which keeps working until the new one has taken over (make before break,
     ``services.handover``), and can serve again if its derivation comes back
-    (``agent.standby``). O(steps x inputs) per solution."""
+    (``agent.standby``). ``replica`` k > 0 names the same computation again under other ids:
+    the k-th replica of the derivation, which runs beside it (``agent.spares``, "Replicas").
+    O(steps x inputs) per solution."""
     records = solution.records
     producer: dict[str, Binding] = {}
     components: dict[str, Component] = {}
@@ -137,7 +143,7 @@ def from_solution(solution: Solution, query: Query) -> DataFlow:
             for name, ids in step.inputs
         ]
         writes = [(src, dst, typ) for _, src, dst, typ, _ in step.outputs]
-        cid = _component_id(step.template.name, step.expansion, reads, writes)
+        cid = _component_id(step.template.name, step.expansion, reads, writes, replica)
         inputs = []
         for name, ids in step.inputs:
             for k, edge_id in enumerate(ids):
