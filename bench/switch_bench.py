@@ -339,18 +339,22 @@ def steady_gaps(samples: list[tuple[int, int, Any, bool]]) -> dict[str, float]:
     return {"gap_ms_p99": float(np.percentile(gaps, 99)) / 1e6, "gap_ms_max": max(gaps) / 1e6}
 
 
-def kill_holder(session: Any, keys: KeySpace) -> int | None:
+def kill_holder(session: Any, keys: KeySpace, patience_s: float = 5.0) -> int | None:
     """SIGKILL the process running the component that holds the relation key (the fusion's
-    container: the derivation runs in one); when (ns), if one held it (the event's time:
-    finding the process takes status queries, half a second on a loaded machine)."""
-    for instance, component in components(session, keys).items():
-        if not component["relations"]:
-            continue
-        replies = fetch_latest(session, keys.status(instance), timeout=1.0)
-        if replies and (status := json.loads(replies[0])).get("holds"):
-            at = time.time_ns()
-            os.kill(status["pid"], signal.SIGKILL)
-            return at
+    container: the derivation runs in one); when (ns), if one held it within ``patience_s``
+    (none does while a claim is answered; the event's time: finding the process takes status
+    queries, half a second on a loaded machine)."""
+    deadline = time.monotonic() + patience_s
+    while time.monotonic() < deadline:
+        for instance, component in components(session, keys).items():
+            if not component["relations"]:
+                continue
+            replies = fetch_latest(session, keys.status(instance), timeout=1.0)
+            if replies and (status := json.loads(replies[0])).get("holds"):
+                at = time.time_ns()
+                os.kill(status["pid"], signal.SIGKILL)
+                return at
+        time.sleep(0.05)
     return None
 
 

@@ -13,8 +13,9 @@ sees while the flow behind its key changes"):
 1. **Order.** A sample whose timestamp is not after the newest one seen on the key is not put:
    no duplicate, no instant out of order.
 2. **Make before break.** A producer that finds another one putting on the key does not put
-   until its own estimate is ready: its covariance's trace at most :data:`READY_RATIO` times
-   that of the other's latest sample (measurements with covariances of one shape). Until then
+   until its own estimate is ready: it has computed for :data:`WARM_S` at least, and its
+   covariance's trace is at most :data:`READY_RATIO` times that of the other's latest sample
+   (measurements with covariances of one shape). Until then
    the old flow delivers, as long as the agent keeps it: when the agent stops it, the key is
    free at once (rule 5), so a new flow that is never as certain (a camera alone after a
    fusion that runs on with the camera alone) takes over then, not before. It waits however
@@ -97,6 +98,12 @@ log = logging.getLogger("ubitrack.worker")
 READY_RATIO = 1.0
 """A new producer's estimate is ready when its covariance's trace is at most this times the
 current producer's latest (no less certain than what the application receives now)."""
+WARM_S = 0.5
+"""Nor before it has computed for this long (rule 2): a filter's first estimates claim a
+certainty its state has not earned. A fusion restored after its process was killed, claiming
+the key back from its warm replica (``agent.spares``) at once, put rotations beyond three
+sigma of their covariances in the switch benchmark (``docs/performance.md``, "Replicas");
+the agent keeps a replaced flow running for longer than this (``HAND_OVER_HOLD_S``)."""
 TAKE_BACK_RATIO = 0.1
 """A producer that gave the key away takes it back when its estimate's covariance trace drops
 to at most this times its previous estimate's (rule 6): an input it had lost is back (the
@@ -173,8 +180,11 @@ class KeyHandOver:
         counters: Counter[str],
         send: Callable[[bytes], None],
         clock: Callable[[], float] = time.monotonic,
+        warm_s: float = WARM_S,
     ) -> None:
         self.key = key
+        self.warm_s = warm_s
+        """How long this producer computes before it may claim by rule 2 (:data:`WARM_S`)."""
         self.producer = uuid.uuid4().hex[:12]
         self._counters = counters
         self._send = send
@@ -204,6 +214,8 @@ class KeyHandOver:
         self._own_trace: tuple[tuple[int, ...], float] | None = None
         self._own_at: float | None = None
         """The covariance trace of this producer's latest estimate, and when it came (rule 6)."""
+        self._first_at: float | None = None
+        """When this producer's first estimate came (rule 2: :data:`WARM_S`)."""
         self._waiting: tuple[int, Callable[[], None]] | None = None
         """The newest sample held back (its timestamp and its put), put if the key becomes free
         before a newer one comes (rule 5)."""
@@ -404,6 +416,8 @@ class KeyHandOver:
         claim = wait = False
         with self._lock:
             other = self._other_at is not None and now - self._other_at <= self.quiet_s()
+            if self._first_at is None:
+                self._first_at = now
             previous = self._own_trace if self._own_at is not None else None
             if previous is not None and now - self._own_at > QUIET_BOUNDS_S[1]:
                 previous = None  # quiet since: it lost its input and got it back
@@ -429,7 +443,7 @@ class KeyHandOver:
                     self._take(None)
                     claim = True
             elif not self._holds:
-                if not self._ready(value):
+                if not self._ready(value, now):
                     return self._hold_back(value, put, "relation_held")
                 self._claimed_at, claim, wait = now, True, True
                 self._counters["relation_taken"] += 1
@@ -457,7 +471,11 @@ class KeyHandOver:
         self._mine.append(value.timestamp_ns)
         return True
 
-    def _ready(self, value: Measurement) -> bool:
+    def _ready(self, value: Measurement, now: float) -> bool:
+        """Rule 2: computed for :data:`WARM_S`, and no less certain than the holder; lock
+        held."""
+        if self._first_at is None or now - self._first_at < self.warm_s:
+            return False
         mine, theirs = _trace(value), self._other_trace
         if mine is None or theirs is None or mine[0] != theirs[0]:
             return True  # nothing to compare: as good as can be told

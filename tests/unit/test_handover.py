@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.measurements import WORKER, ErrorPose, Pose
-from ubitrack_agent.services.handover import CLAIM_TIMEOUT_S, KeyHandOver
+from ubitrack_agent.services.handover import CLAIM_TIMEOUT_S, WARM_S, KeyHandOver
 
 MS = 1_000_000
 
@@ -35,7 +35,9 @@ class Bus:
     hand-over's messages kept until :meth:`deliver` (a message in flight); the producers'
     tokens, which :meth:`die` takes away."""
 
-    def __init__(self) -> None:
+    def __init__(self, warm_s: float = 0.0) -> None:
+        self.warm_s = warm_s
+        """How long a producer computes before it may claim (``WARM_S``; none by default)."""
         self.clock = Clock()
         self.producers: list[KeyHandOver] = []
         self.counters: list[Counter[str]] = []
@@ -47,7 +49,9 @@ class Bus:
         """A producer starting (its id ``name``, if given): it sees the others' tokens, asks who
         holds the key and the key's latest sample first (``Watch``)."""
         counters: Counter[str] = Counter()
-        hand_over = KeyHandOver("ubitrack/d/relation/C/A", counters, self._send, self.clock)
+        hand_over = KeyHandOver(
+            "ubitrack/d/relation/C/A", counters, self._send, self.clock, self.warm_s
+        )
         hand_over.producer = name or hand_over.producer
         for other in self.producers:
             other.joined(hand_over.producer)
@@ -129,6 +133,25 @@ def test_a_new_producer_holds_back_until_ready_then_claims_and_takes_over_after_
     assert [who for _, who, _ in bus.wire] == [old.producer] * 10 + [new.producer] * 2
     assert bus.stamps() == list(range(0, 120, 10))
     assert bus.counters[0]["relation_yielded"] == 1 and bus.counters[1]["relation_taken"] == 1
+
+
+def test_a_producer_as_certain_claims_only_once_it_has_computed_for_the_warm_up_time():
+    """A fusion restored after a crash is as certain as its warm replica holding the key from
+    its first estimates on, which claim a certainty its state has not earned: it claims only
+    after ``WARM_S``."""
+    bus = Bus(warm_s=WARM_S)
+    old = bus.producer()
+    assert bus.offer(old, pose(0))
+    new = bus.producer()
+    steps = round(WARM_S / 0.01)
+    for t in range(1, steps + 1):  # as certain as the holder from the first estimate on
+        bus.clock.now += 0.01
+        assert bus.offer(old, pose(10 * t))
+        assert not bus.offer(new, pose(10 * t))
+    assert bus.counters[1]["relation_held"] == steps and len(bus.messages) == 1  # no claim
+    bus.clock.now += 0.01
+    assert not bus.offer(new, pose(10 * steps + 10))  # warm now: claims
+    assert bus.messages[-2]["claim"] == new.producer and bus.counters[1]["relation_taken"] == 1
 
 
 def test_a_less_certain_producer_holds_back_for_as_long_as_the_holder_puts():
