@@ -91,6 +91,7 @@ from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.spec import (
+    MAX_GROUP_COMPONENTS,
     ComponentSpec,
     GroupSpec,
     SpecError,
@@ -194,15 +195,22 @@ class Container:
     def check(self, specs: tuple[ComponentSpec, ...]) -> None:
         """:class:`SpecError` unless every one of ``specs`` may join the container: a
         registered service wired as it declares (``ubitrack_agent.services.spec.check_spec``), and
-        no instance name the container (or another of them) already has."""
+        no instance name the container (or another of them) already has, nor more than
+        ``net.spec.MAX_GROUP_COMPONENTS`` in all. O(specs): the running components are looked
+        up by name, not listed."""
         for index, spec in enumerate(specs):
             try:
                 check_spec(spec)
             except SpecError as exc:
                 raise SpecError(f"add[{index}]: {exc}") from None
+        check_group_members(specs, "add")
         with self._lock:
-            running = tuple(entry.worker.spec for entry in self.components.values())
-        check_group_members((*running, *specs), "container")
+            running = len(self.components)
+            present = [spec.instance for spec in specs if spec.instance in self.components]
+        if present:
+            raise SpecError(f"add: {present[0]!r} runs in the container already")
+        if running + len(specs) > MAX_GROUP_COMPONENTS:
+            raise SpecError(f"container.components: more than {MAX_GROUP_COMPONENTS}")
 
     def add(self, specs: tuple[ComponentSpec, ...]) -> None:
         """Start ``specs`` in this process (checked: :meth:`check`); their outputs are
@@ -309,11 +317,14 @@ class Container:
         self._left.put(json.dumps(report))
 
     def _rebind(self, moved: set[str]) -> None:
-        """Bind again the inputs reading ``moved`` keys (their producer joined or left)."""
+        """Bind again the inputs reading ``moved`` keys (their producer joined or left).
+        O(moved keys + their readers' inputs): the readers are looked up by key
+        (``LocalWires.reading``), not searched among all the components."""
+        readers = self.wires.reading(moved)
         with self._lock:
-            workers = [entry.worker for entry in self.components.values()]
+            workers = [self.components[name].worker for name in readers if name in self.components]
         for worker in workers:
-            if any(binding.key in moved for binding in worker.spec.inputs) and worker.rebind():
+            if worker.rebind():
                 self.counters["rebinds"] += 1
 
     # -- control ------------------------------------------------------------------------------
