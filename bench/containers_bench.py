@@ -28,8 +28,8 @@ worker processes, the agent, its host manager, the publishing process). Run::
     .venv/bin/python -m bench.containers_bench [--applications 100] [--trackers 20] \\
         [--rate 10] [--every 1.0] [--pool-size 2] [--relations cross|per-tracker] [--output FILE]
 
-Printed, and written to ``--output`` (default ``bench/results/containers_<relations>.json``). Growth: the bench's own
-work is O(applications x worker processes) reads of ``/proc``.
+Printed, and written to ``--output`` (default ``bench/results/containers_<relations>.json``).
+Growth: the bench's own work is O(applications x worker processes) reads of ``/proc``.
 """
 
 from __future__ import annotations

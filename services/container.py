@@ -61,10 +61,14 @@ manager of its name the container), until its last component has left (then nobo
 it).
 
 Growth: memory and zenoh declarations O(components + their inputs and outputs); threads O(1)
-for the container (its scheduler and at most ``net.transport.ANSWERING_THREADS`` answering
-queries) plus one per dynamic input read over zenoh (``net.transport.subscribe_in_bursts``)
-and two per dynamic relation key it puts on (the callbacks of ``services.handover.Watch``); a
-hand-over O(readers of the output).
+for the container (its scheduler, the process's hand-over thread, ``services.handover``, and
+input starter, ``net.transport.STARTER``, and at most ``net.transport.ANSWERING_THREADS``
+answering queries) plus one per dynamic input read over zenoh
+(``net.transport.subscribe_in_bursts``); a hand-over O(readers of the output). An ``add``
+costs O(the components added + their inputs and outputs), whatever the container holds: the
+running components are looked up by name (:meth:`Container.check`), a key's producers and
+readers by key (``LocalWires``), and the add waits for no thread to start
+(``docs/performance.md``, "First sample for 100 applications, session 21").
 """
 
 from __future__ import annotations
