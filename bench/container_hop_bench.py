@@ -61,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.container_add_bench import chain
 from bench.report import write_results
 from ubitrack_agent.core import ErrorPose, Measurement, Pose, encode
 from ubitrack_agent.core.poses import compose_poses, invert_pose
@@ -340,35 +341,13 @@ def threads(components: int) -> dict[str, Any]:
     """Part 4 of the module docstring."""
     keys = KeySpace("ubitrack/containerthreads")
 
-    def chain(k: int) -> tuple[ComponentSpec, ComponentSpec]:
-        first = ComponentSpec(
-            f"c{k}a",
-            "concatenation",
-            (
-                InputBinding("AB", keys.data(f"static/{k}a"), static=True),
-                InputBinding("BC", keys.data(f"provider/{k}"), trigger=True),
-            ),
-            {"AC": keys.data(f"c{k}a/out")},
-        )
-        second = ComponentSpec(
-            f"c{k}b",
-            "concatenation",
-            (
-                InputBinding("AB", keys.data(f"static/{k}b"), static=True),
-                InputBinding("BC", keys.data(f"c{k}a/out"), trigger=True, from_worker=True),
-            ),
-            {"AC": keys.data(f"c{k}b/out")},
-            relations={"AC": (keys.data(f"relation/{k}"),)},
-        )
-        return first, second
-
     with open_session(config.Settings(domain="containerthreads")) as session:
         before = set(os.listdir("/proc/self/task"))
         names_before = {thread.ident for thread in threading.enumerate()}
         container = Container(session, keys, "threads")
         start = time.perf_counter()
         for k in range(components // 2):
-            container.add(chain(k))
+            container.add(chain(keys, k))
         add_s = time.perf_counter() - start
         time.sleep(1.0)
         added = len(set(os.listdir("/proc/self/task")) - before)

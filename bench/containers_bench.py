@@ -26,10 +26,10 @@ agent and the components take where each step happens: ``agent.stamps``, a compo
 worker processes, the agent, its host manager, the publishing process). Run::
 
     .venv/bin/python -m bench.containers_bench [--applications 100] [--trackers 20] \\
-        [--rate 10] [--every 1.0] [--pool-size 2] [--relations cross|per-tracker]
+        [--rate 10] [--every 1.0] [--pool-size 2] [--relations cross|per-tracker] [--output FILE]
 
-Printed, and written to ``bench/results/containers_<relations>.json``. Growth: the bench's own
-work is O(applications x worker processes) reads of ``/proc``.
+Printed, and written to ``--output`` (default ``bench/results/containers_<relations>.json``).
+Growth: the bench's own work is O(applications x worker processes) reads of ``/proc``.
 """
 
 from __future__ import annotations
@@ -452,6 +452,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--settle", type=float, default=20.0, help="s to wait at the end for first samples"
     )
+    parser.add_argument(
+        "--output", type=Path, help="where to write the figures (default: by --relations)"
+    )
     args = parser.parse_args(argv)
     result = run(args)
     results = {
@@ -465,7 +468,7 @@ def main(argv: list[str] | None = None) -> int:
         **result,
     }
     RESULTS.mkdir(exist_ok=True)
-    written = RESULTS / f"containers_{args.relations.replace('-', '_')}.json"
+    written = args.output or RESULTS / f"containers_{args.relations.replace('-', '_')}.json"
     written.write_text(json.dumps(results, indent=2) + "\n")
     print_parts(result["first_sample_parts"])
     shown = {k: v for k, v in results.items() if k not in ("rows", "first_sample_parts")}

@@ -61,10 +61,14 @@ manager of its name the container), until its last component has left (then nobo
 it).
 
 Growth: memory and zenoh declarations O(components + their inputs and outputs); threads O(1)
-for the container (its scheduler and at most ``net.transport.ANSWERING_THREADS`` answering
-queries) plus one per dynamic input read over zenoh (``net.transport.subscribe_in_bursts``)
-and two per dynamic relation key it puts on (the callbacks of ``services.handover.Watch``); a
-hand-over O(readers of the output).
+for the container (its scheduler, the process's hand-over thread, ``services.handover``, and
+input starter, ``net.transport.STARTER``, and at most ``net.transport.ANSWERING_THREADS``
+answering queries) plus one per dynamic input read over zenoh
+(``net.transport.subscribe_in_bursts``); a hand-over O(readers of the output). An ``add``
+costs O(the components added + their inputs and outputs), whatever the container holds: the
+running components are looked up by name (:meth:`Container.check`), a key's producers and
+readers by key (``LocalWires``), and the add waits for no thread to start
+(``docs/performance.md``, "First sample for 100 applications, session 21").
 """
 
 from __future__ import annotations
@@ -91,6 +95,7 @@ from ubitrack_agent.net.json_messages import MessageError, load_object
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.spec import (
+    MAX_GROUP_COMPONENTS,
     ComponentSpec,
     GroupSpec,
     SpecError,
@@ -194,15 +199,22 @@ class Container:
     def check(self, specs: tuple[ComponentSpec, ...]) -> None:
         """:class:`SpecError` unless every one of ``specs`` may join the container: a
         registered service wired as it declares (``ubitrack_agent.services.spec.check_spec``), and
-        no instance name the container (or another of them) already has."""
+        no instance name the container (or another of them) already has, nor more than
+        ``net.spec.MAX_GROUP_COMPONENTS`` in all. O(specs): the running components are looked
+        up by name, not listed."""
         for index, spec in enumerate(specs):
             try:
                 check_spec(spec)
             except SpecError as exc:
                 raise SpecError(f"add[{index}]: {exc}") from None
+        check_group_members(specs, "add")
         with self._lock:
-            running = tuple(entry.worker.spec for entry in self.components.values())
-        check_group_members((*running, *specs), "container")
+            running = len(self.components)
+            present = [spec.instance for spec in specs if spec.instance in self.components]
+        if present:
+            raise SpecError(f"add: {present[0]!r} runs in the container already")
+        if running + len(specs) > MAX_GROUP_COMPONENTS:
+            raise SpecError(f"container.components: more than {MAX_GROUP_COMPONENTS}")
 
     def add(self, specs: tuple[ComponentSpec, ...]) -> None:
         """Start ``specs`` in this process (checked: :meth:`check`); their outputs are
@@ -309,11 +321,14 @@ class Container:
         self._left.put(json.dumps(report))
 
     def _rebind(self, moved: set[str]) -> None:
-        """Bind again the inputs reading ``moved`` keys (their producer joined or left)."""
+        """Bind again the inputs reading ``moved`` keys (their producer joined or left).
+        O(moved keys + their readers' inputs): the readers are looked up by key
+        (``LocalWires.reading``), not searched among all the components."""
+        readers = self.wires.reading(moved)
         with self._lock:
-            workers = [entry.worker for entry in self.components.values()]
+            workers = [self.components[name].worker for name in readers if name in self.components]
         for worker in workers:
-            if any(binding.key in moved for binding in worker.spec.inputs) and worker.rebind():
+            if worker.rebind():
                 self.counters["rebinds"] += 1
 
     # -- control ------------------------------------------------------------------------------

@@ -511,24 +511,37 @@ zenoh's thread itself: :meth:`KeyHandOver.receive` may put an answer (a zenoh ca
 for the rules' lock. Started on the first sample, then kept (``net.thread_pool``)."""
 
 
-def _handed_on(call: Callable[[Any], None]) -> zenoh.handlers.Callback:
-    """A handler on zenoh's thread that hands what zenoh delivers (a sample, a query) to
-    ``call`` on :data:`HAND_OVER` (a queue's put). While the interpreter ends no thread
-    starts, and it is dropped."""
+def _handed_on(
+    call: Callable[[Any], None], finished: Callable[[], None] | None = None
+) -> zenoh.handlers.Callback:
+    """A handler on zenoh's thread that hands what zenoh delivers (a sample, a query, a reply)
+    to ``call`` on :data:`HAND_OVER` (a queue's put), and ``finished`` (a query's end, after
+    its replies: zenoh drops the handler after the last) behind them. While the interpreter
+    ends no thread starts, and it is dropped."""
 
     def hand_on(delivered: Any) -> None:
         # RuntimeError: "can't create new thread at interpreter shutdown"
         with contextlib.suppress(RuntimeError):
             HAND_OVER.submit(call, delivered)
 
-    return on_zenoh_thread(hand_on)
+    if finished is None:
+        return on_zenoh_thread(hand_on)
+
+    def drop() -> None:
+        with contextlib.suppress(RuntimeError):
+            HAND_OVER.submit(lambda _: finished(), None)
+
+    return zenoh.handlers.Callback(hand_on, drop, indirect=False)
 
 
 class Watch:
     """A :class:`KeyHandOver` wired to zenoh: subscribed to its relation key, its hand-over key
     and the producers' tokens, putting its messages on the hand-over key and declaring its own
-    token. Undeclare with :meth:`close`. Its subscribers and its queryable hand what they get
-    to :data:`HAND_OVER` (O(1) each; no thread per watch)."""
+    token. Undeclare with :meth:`close`. Its subscribers, its queryable and its two queries
+    hand what they get to :data:`HAND_OVER` (O(1) each; no thread per watch: a query given a
+    plain callable had zenoh-python start a thread for its replies, and the start waits for
+    the new thread to take Python's lock, 2-17 ms each in a busy container of 80-100
+    components, ``docs/performance.md``, "First sample for 100 applications, session 21")."""
 
     def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
         messages = hand_over_key(key)
@@ -547,15 +560,19 @@ class Watch:
         self.rules.asking = True  # who holds the key, if one does
         session.get(
             messages,
-            zenoh.handlers.Callback(self._holder, self.rules.asked),
+            self._handed_on(self._holder, self.rules.asked),
             timeout=CLAIM_TIMEOUT_S,
         )
         # The holder's latest sample, if one holds the key (its queryable answers it): seen
         # before this producer's first output, however late the holder's next sample comes.
-        session.get(key, self._latest)
+        session.get(key, self._handed_on(self._latest))
 
-    def _handed_on(self, handler: Callable[[Any], None]) -> zenoh.handlers.Callback:
-        return _handed_on(logs.guarded(handler, self._counters, log, self.rules.key))
+    def _handed_on(
+        self, handler: Callable[[Any], None], finished: Callable[[], None] | None = None
+    ) -> zenoh.handlers.Callback:
+        key = self.rules.key
+        done = None if finished is None else logs.guarded(finished, self._counters, log, key)
+        return _handed_on(logs.guarded(handler, self._counters, log, key), done)
 
     def _observe(self, sample: Any) -> None:
         self.rules.observe(sample.payload.to_bytes())

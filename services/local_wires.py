@@ -27,7 +27,7 @@ import math
 import operator
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -108,8 +108,15 @@ class LocalWires:
         self._producers: dict[str, frozenset[str]] = {}
         """Data key -> the instances in this container producing it (two while a plan changes:
         ``net.spec.GroupSpec``)."""
+        self._produced: dict[str, set[str]] = {}
+        """Instance -> the keys it produces (:attr:`_producers` the other way round)."""
         self.readers: dict[str, tuple[LocalSubscription, ...]] = {}
         """Data key -> its readers in the container (read without the lock: replaced whole)."""
+        self._reads: dict[str, frozenset[str]] = {}
+        """Instance -> the keys its inputs are bound to, here or over zenoh (:meth:`reads`)."""
+        self._read_by: dict[str, set[str]] = {}
+        """Data key -> the instances in this container reading it (:attr:`_reads` the other
+        way round): whose inputs bind again when the key's producer comes or goes."""
         self._latest: dict[str, Measurement] = {}
         """The latest value handed over on each key (a static output's reader bound later
         starts from it)."""
@@ -122,11 +129,13 @@ class LocalWires:
     def produce(self, instance: str, keys: list[str] | tuple[str, ...]) -> None:
         """``instance`` produces exactly ``keys`` now (its earlier keys no longer); tells
         :attr:`changed` the keys that gained their first producer here or lost their last.
-        O(outputs in the container)."""
+        O(``instance``'s keys, before and now), whatever the container holds."""
         wanted = set(keys)
         moved = set()
         with self._lock:
-            before = {k for k, owners in self._producers.items() if instance in owners}
+            before = self._produced.pop(instance, set())
+            if wanted:
+                self._produced[instance] = wanted
             for key in before - wanted:
                 owners = self._producers[key] - {instance}
                 if owners:
@@ -141,6 +150,28 @@ class LocalWires:
                 self._producers[key] = owners | {instance}
         if moved:
             self.changed(moved)
+
+    def reads(self, instance: str, keys: Iterable[str]) -> None:
+        """``instance``'s inputs are bound to exactly ``keys`` now, locally or over zenoh (none:
+        it left). O(``instance``'s keys, before and now)."""
+        wanted = frozenset(keys)
+        with self._lock:
+            before = self._reads.pop(instance, frozenset())
+            if wanted:
+                self._reads[instance] = wanted
+            for key in before - wanted:
+                readers = self._read_by[key]
+                readers.discard(instance)
+                if not readers:
+                    del self._read_by[key]
+            for key in wanted - before:
+                self._read_by.setdefault(key, set()).add(instance)
+
+    def reading(self, keys: Iterable[str]) -> set[str]:
+        """The instances in this container reading any of ``keys``. O(``keys`` + those
+        instances)."""
+        with self._lock:
+            return set().union(*(self._read_by.get(key, ()) for key in keys))
 
     def producer(self, key: str) -> str | None:
         """An instance in this container producing ``key`` (the first by name), if any."""

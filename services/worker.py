@@ -510,6 +510,8 @@ class Worker:
         for item in old.values():
             item.subscriber.undeclare()
         self._inputs = inputs
+        if self._wires is not None:  # rebound when a key's producer joins or leaves
+            self._wires.reads(self.spec.instance, (binding.key for binding in bindings))
         self._dynamic = [item.buffer for item in inputs if not item.binding.static]
         static = [(index, item) for index, item in enumerate(inputs) if item.binding.static]
         wanted = [
@@ -1519,6 +1521,7 @@ class Worker:
         self._token.undeclare()
         if self._wires is not None:
             self._wires.produce(self.spec.instance, ())
+            self._wires.reads(self.spec.instance, ())
         for item in self._inputs:
             item.subscriber.undeclare()
         for control in self._controls:

@@ -163,6 +163,45 @@ def test_a_readers_own_hand_over_is_delivered_by_the_reader_on_the_same_thread()
     assert seen == [("mid", 5), ("end", 5)]
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(("produce", "reads")),
+            st.sampled_from("abc"),
+            st.sets(st.sampled_from(("k1", "k2", "k3", "k4"))),
+        ),
+        max_size=30,
+    )
+)
+def test_the_wires_know_each_keys_producers_and_readers_as_a_search_of_all_would(steps):
+    """``LocalWires.produce`` and ``reads`` keep their indexes by instance and by key (an add
+    O(its own keys), not O(the container)): after any steps, the keys told as moved, the
+    producer and the readers of each key are those found by searching every instance."""
+    wires = LocalWires()
+    moved: list[set[str]] = []
+    wires.changed = moved.append
+    produced: dict[str, set[str]] = {}
+    read: dict[str, set[str]] = {}
+    for kind, instance, keys in steps:
+        if kind == "reads":
+            wires.reads(instance, keys)
+            read[instance] = set(keys)
+        else:
+            before = {key for owned in produced.values() for key in owned}
+            wires.produce(instance, tuple(keys))
+            produced[instance] = set(keys)
+            after = {key for owned in produced.values() for key in owned}
+            told = moved.pop() if before != after else set()
+            assert told == before ^ after and moved == []
+        for key in ("k1", "k2", "k3", "k4"):
+            owners = [name for name, owned in sorted(produced.items()) if key in owned]
+            assert wires.producer(key) == (owners[0] if owners else None)
+            assert wires.reading({key}) == {name for name, keys in read.items() if key in keys}
+    everything = {"k1", "k2", "k3", "k4"}
+    assert wires.reading(everything) == {name for name, keys in read.items() if keys}
+
+
 def test_finite_refuses_nan_and_infinity_in_any_field():
     good = ErrorPose(1, [0, 0, 0, 1], [1, 2, 3], np.eye(6) * 1e-6)
     assert finite(good)
@@ -345,6 +384,29 @@ def test_adding_a_producer_moves_its_reader_onto_the_local_wire_and_removing_it_
     assert set(container.components) == {"second"} and container.counters["removed"] == 1
     session.deliver(KEYS.data("first/AC"), encode(random_pose(20)))  # from elsewhere now
     assert [value.timestamp_ns for value in puts(session, "second/AC")] == [10, 20]
+
+
+def test_a_component_rewired_onto_a_key_is_bound_locally_when_its_producer_joins(running):
+    """The container finds the readers of a key whose producer joined by the key
+    (``LocalWires.reading``), kept as a component is rewired on its own control key."""
+    container, session = running
+    control(session, {"add": [SECOND.as_dict()]})
+    wait_for(lambda: KEYS.data("first/AC") in session.channels)
+    rewired = concatenation("second", "CAL/X", "third/AC")
+    inputs = [binding.as_dict() for binding in rewired.inputs]
+    session.deliver(KEYS.control("second"), json.dumps({"inputs": inputs}).encode())
+    wait_for(lambda: KEYS.data("third/AC") in session.channels)
+    assert KEYS.data("first/AC") not in session.channels
+    control(session, {"add": [FIRST.as_dict()]})  # produces first/AC: read by nobody now
+    wait_for(lambda: container.counters["added"] == 2)
+    assert container.counters["rebinds"] == 0
+    control(session, {"add": [concatenation("third", "ART/WT", "ART/HT").as_dict()]})
+    wait_for(lambda: container.counters["rebinds"] == 1)
+    assert KEYS.data("third/AC") not in session.channels
+    session.deliver(KEYS.data("CAL/X"), encode(random_pose(1)))
+    session.deliver(KEYS.data("ART/WT"), encode(random_pose(1)))
+    session.deliver(KEYS.data("ART/HT"), encode(random_pose(10)))
+    assert [value.timestamp_ns for value in puts(session, "second/AC")] == [10]
 
 
 @pytest.mark.parametrize(

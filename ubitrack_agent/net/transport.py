@@ -16,7 +16,8 @@ queries of every publisher of the process are answered by one pool of at most
 until the first query; as many as were answering at once, at most ``ANSWERING_THREADS``),
 not O(output keys): a container of a hundred components had two threads per output key, one
 answering its queries and one of zenoh-python's for its matching listener
-(``docs/performance.md``, "Threads of a container").
+(``docs/performance.md``, "Threads of a container"). :func:`subscribe_in_bursts` has a thread
+per subscription (by design), started by one thread of the process (:data:`STARTER`).
 """
 
 from __future__ import annotations
@@ -48,6 +49,11 @@ and an upstream worker started at the same moment computes its static result a l
 INPUT_CHANNEL_CAPACITY = 4096
 """Samples zenoh queues for :func:`subscribe_in_bursts` before it holds the sender back; also
 the most one burst hands on."""
+
+
+STARTER = ThreadPool("input-starter", 1)
+"""Starts the threads of :func:`subscribe_in_bursts` in the order asked, one at a time, off
+the thread subscribing (``net.thread_pool``: started with the first, then kept)."""
 
 
 ANSWERING_THREADS = 8
@@ -90,7 +96,11 @@ def subscribe_in_bursts(
 ) -> Any:
     """Subscribe to ``key`` and pass the payloads of the samples waiting, oldest first, to
     ``deliver`` as one burst, on a thread of its own; the subscriber is returned, and the
-    thread ends when it is undeclared. Zenoh queues the samples in its own channel
+    thread ends when it is undeclared. The thread is started by :data:`STARTER`, so the
+    caller does not wait for it to run (``Thread.start`` waits until the new thread holds
+    Python's lock: 2-17 ms in a busy container of 80-100 components, on the path adding a
+    component; ``docs/performance.md``, "First sample for 100 applications, session 21");
+    the samples wait in zenoh's channel meanwhile. Zenoh queues the samples in its own channel
     (``FifoChannel``, without Python's lock; when it is full, zenoh holds the sender back), so
     its receiving thread, which serves every subscription of the session, never runs Python,
     and the thread wakes once for a burst: a consumer that handles the burst on this thread
@@ -115,8 +125,16 @@ def subscribe_in_bursts(
         except zenoh.ZError:  # closed between two samples: "channel is empty and closed"
             pass
 
-    threading.Thread(target=drain, daemon=True, name=f"input {key}").start()
+    # RuntimeError: "can't create new thread at interpreter shutdown"
+    with contextlib.suppress(RuntimeError):
+        STARTER.submit(_start, threading.Thread(target=drain, daemon=True, name=f"input {key}"))
     return subscriber
+
+
+def _start(thread: threading.Thread) -> None:
+    """Start ``thread`` (on :data:`STARTER`); nothing while the interpreter ends."""
+    with contextlib.suppress(RuntimeError):
+        thread.start()
 
 
 class LatestValuePublisher:
