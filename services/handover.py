@@ -13,9 +13,10 @@ sees while the flow behind its key changes"):
 1. **Order.** A sample whose timestamp is not after the newest one seen on the key is not put:
    no duplicate, no instant out of order.
 2. **Make before break.** A producer that finds another one putting on the key does not put
-   until its own estimate is ready: it has computed for :data:`WARM_S` at least, and its
-   covariance's trace is at most :data:`READY_RATIO` times that of the other's latest sample
-   (measurements with covariances of one shape). Until then
+   until its own estimate is ready: its covariance's trace is at most :data:`READY_RATIO`
+   times that of the other's latest sample (measurements with covariances of one shape), and
+   it has computed for :data:`WARM_S` at least unless it is at most :data:`CLEARLY_RATIO`
+   times as uncertain (a fused flow after a camera-only one claims at once). Until then
    the old flow delivers, as long as the agent keeps it: when the agent stops it, the key is
    free at once (rule 5), so a new flow that is never as certain (a camera alone after a
    fusion that runs on with the camera alone) takes over then, not before. It waits however
@@ -99,11 +100,17 @@ READY_RATIO = 1.0
 """A new producer's estimate is ready when its covariance's trace is at most this times the
 current producer's latest (no less certain than what the application receives now)."""
 WARM_S = 0.5
-"""Nor before it has computed for this long (rule 2): a filter's first estimates claim a
-certainty its state has not earned. A fusion restored after its process was killed, claiming
-the key back from its warm replica (``agent.spares``) at once, put rotations beyond three
-sigma of their covariances in the switch benchmark (``docs/performance.md``, "Replicas");
-the agent keeps a replaced flow running for longer than this (``HAND_OVER_HOLD_S``)."""
+"""Nor before it has computed for this long, unless it is clearly more certain (rule 2): a
+filter's first estimates claim a certainty its state has not earned. A fusion restored after
+its process was killed, claiming the key back from its warm replica (``agent.spares``) at once,
+put rotations beyond three sigma of their covariances in the switch benchmark
+(``docs/performance.md``, "Replicas"); the agent keeps a replaced flow running for longer
+than this (``HAND_OVER_HOLD_S``)."""
+CLEARLY_RATIO = 0.5
+"""A producer at most this times as uncertain as the holder claims without waiting
+:data:`WARM_S`: a better flow is worth its first estimates (waiting, the demo's first fused
+second kept the camera-only flow's 4 mm for half a second: ``docs/performance.md``,
+"Replicas")."""
 TAKE_BACK_RATIO = 0.1
 """A producer that gave the key away takes it back when its estimate's covariance trace drops
 to at most this times its previous estimate's (rule 6): an input it had lost is back (the
@@ -472,14 +479,15 @@ class KeyHandOver:
         return True
 
     def _ready(self, value: Measurement, now: float) -> bool:
-        """Rule 2: computed for :data:`WARM_S`, and no less certain than the holder; lock
-        held."""
-        if self._first_at is None or now - self._first_at < self.warm_s:
-            return False
+        """Rule 2: clearly more certain than the holder, or no less certain and computing
+        for :data:`WARM_S`; lock held."""
         mine, theirs = _trace(value), self._other_trace
         if mine is None or theirs is None or mine[0] != theirs[0]:
             return True  # nothing to compare: as good as can be told
-        return mine[1] <= READY_RATIO * theirs[1]
+        if mine[1] <= CLEARLY_RATIO * theirs[1]:
+            return True
+        warm = self._first_at is not None and now - self._first_at >= self.warm_s
+        return warm and mine[1] <= READY_RATIO * theirs[1]
 
     def _regained(self, previous: tuple[tuple[int, ...], float] | None) -> bool:
         """Rule 6: this producer's latest estimate is no less certain than the holder's latest

@@ -152,6 +152,10 @@ def test_a_producer_as_certain_claims_only_once_it_has_computed_for_the_warm_up_
     bus.clock.now += 0.01
     assert not bus.offer(new, pose(10 * steps + 10))  # warm now: claims
     assert bus.messages[-2]["claim"] == new.producer and bus.counters[1]["relation_taken"] == 1
+    better = bus.producer()  # clearly more certain: claims with its first estimate
+    bus.clock.now += 0.01
+    assert not bus.offer(better, pose(10 * steps + 20, variance=0.4e-6))
+    assert bus.messages[-2]["claim"] == better.producer
 
 
 def test_a_less_certain_producer_holds_back_for_as_long_as_the_holder_puts():
