@@ -45,7 +45,7 @@ import hashlib
 import math
 import sys
 from collections import OrderedDict, defaultdict
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import product
 from typing import Any
@@ -298,9 +298,9 @@ def _span(
     type between the two (a point of the target seen from the source) derives no pose by itself,
     so it does not shorten the ways the slack is counted from. ``O(frames + edges)``."""
     source, target = goal
-    along = {f: set() for f in frames}
-    for u, v, edge_type in srg.subgraph(frames).edges(data="type"):
-        if edge_type == wanted:
+    along: dict[str, set[str]] = {f: set() for f in frames}
+    for u, v, _, data in _edges_within(srg, frames):
+        if data["type"] == wanted:
             along[u].add(v)
             along[v].add(u)
     hops = hop_distances(along.__getitem__, (source,), goal=target).get(target)
@@ -313,6 +313,21 @@ def _span(
     return math.inf if hops is None else hops
 
 
+def _edges_within(
+    srg: nx.MultiDiGraph, frames: set[str]
+) -> Iterator[tuple[str, str, str, Mapping[str, Any]]]:
+    """The SRG edges between ``frames`` (source, target, key, attributes), read off the
+    adjacency directly (a subgraph view filters every access). ``O(edges at frames)``."""
+    succ = srg.succ
+    for u in frames:
+        if u not in succ:  # a frame to be introduced
+            continue
+        for v, parallel in succ[u].items():
+            if v in frames:
+                for key, data in parallel.items():
+                    yield u, v, key, data
+
+
 def _chain_distances(
     srg: nx.MultiDiGraph, frames: set[str], goal: tuple[str, str]
 ) -> tuple[dict[str, int], dict[str, int]]:
@@ -321,16 +336,19 @@ def _chain_distances(
     A query frame the SRG lacks (to be introduced by a calibration) has no distances of its
     own: it takes those of the other query frame, so only chains between frames at equal
     distance from it are left out."""
-    sub = srg.subgraph(frames)
-    poses = nx.MultiDiGraph(
-        (u, v, k) for u, v, k, t in sub.edges(keys=True, data="type") if t == "6D"
-    )
-    poses.add_nodes_from(frames)
+    joined: dict[str, set[str]] = {f: set() for f in frames}
+    poses: dict[str, set[str]] = {f: set() for f in frames}
+    for u, v, _, data in _edges_within(srg, frames):
+        joined[u].add(v)
+        joined[v].add(u)
+        if data["type"] == "6D":
+            poses[u].add(v)
+            poses[v].add(u)
     near = {}
     for end in goal:
         if end in frames:
-            anywhere = hop_distances(either_way(sub), (end,))
-            along = hop_distances(either_way(poses), (end,))
+            anywhere = hop_distances(joined.__getitem__, (end,))
+            along = hop_distances(poses.__getitem__, (end,))
             near[end] = {n: along.get(n, len(frames) + anywhere[n]) for n in frames}
     source, target = goal
     return near.get(source, near.get(target)), near.get(target, near.get(source))
@@ -1305,7 +1323,7 @@ def _part_shape(
     frames = sorted(part)
     edges = sorted(
         (u, v, k, d["type"], d["static"], d["mode"], d["provider"], d["quality"])
-        for u, v, k, d in srg.subgraph(part).edges(keys=True, data=True)
+        for u, v, k, d in _edges_within(srg, part)
     )
     keys = sorted(e[2] for e in edges)
     providers = sorted({e[6] for e in edges})
