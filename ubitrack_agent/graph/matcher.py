@@ -197,7 +197,7 @@ def _bind(
     """Check the predicates of ``spec`` on ``edge`` and bind its roles and type variable in
     place; return the bindings made (for :func:`_unbind`), or ``None`` if ``edge`` does not fit
     (then nothing is bound)."""
-    if (
+    if spec.has_predicates and (
         (spec.static is not None and edge.static != spec.static)
         or (spec.mode is not None and edge.mode != spec.mode)
         or (spec.measured is not None and edge.measured != spec.measured)
@@ -355,6 +355,7 @@ def _extend(
     check = last(spec, roles, bound) if completes and last is not None else None
     introduces = bool(template.introduced)
     positions = range(len(template.inputs))
+    free = viable is _any_binding  # no test to ask
     for edge_id in _candidates(spec, roles, types, template, index):
         if not_seeds and edge_id in seeds:
             continue
@@ -379,7 +380,7 @@ def _extend(
         if made is None:
             continue
         bound[i] = edge_id
-        if viable(roles, types, bound):
+        if free or viable(roles, types, bound):
             if not completes:
                 yield from _extend(
                     template, index, bound, roles, types, viable, seeds, seeded_at, last
