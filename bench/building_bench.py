@@ -11,21 +11,24 @@ bodies, cameras on bodies seeing a marker target with 5 features, static surveys
 targets). The series, each a query on a growing setup:
 
 * ``in_room``: camera -> marker in one room (``C0_1 -> M0``, 6D), K = 0, 2, 5, 7, 10, 15, 20,
-  30, 50 redundant trackers;
-* ``in_building``: the same query in one room of a 50-room star, K = 2 and 4 (the region
+  30, 50, 100, 200, 500 redundant trackers;
+* ``in_building``: the same query in one room of a 50-room star, K = 2, 4, 10, 20 (the region
   restriction should make it cost what a lone room costs);
 * ``head_to_head_k1`` / ``_k2``: head -> head across two rooms (``H0_1 -> H1_1``), 1, 2, 3, 4,
-  5, 6, 8, 10, 15, 20 bodies per room, each seen by K + 1 = 2 / 3 trackers; the rooms are
-  equipped alike, so one room's part serves both; ``head_to_head_k2_unalike``: the same with
-  K = 2 and rooms whose trackers differ (``Building.alike``), each room planned on its own;
+  5, 6, 8, 10, 15, 20 bodies per room (and 30, 50, 100 with K = 2), each seen by K + 1 = 2 / 3
+  trackers; the rooms are equipped alike, so one room's part serves both;
+  ``head_to_head_k5`` / ``_k10``: the same with 6 / 11 trackers, 1, 2, 4, 8, 16, 32 bodies;
+  ``head_to_head_k2_unalike``: K = 2 and rooms whose trackers differ (``Building.alike``),
+  each room planned on its own;
 * ``corridor``: rooms in a corridor (each also surveyed to the next), first room's camera to
-  the last room's marker (``C0_1 -> M<n-1>``), n = 2, 3, 5, 10, 20, 50, 100, 200 rooms, K = 0;
+  the last room's marker (``C0_1 -> M<n-1>``), n = 2, 3, 5, 10, 20, 50, 100, 200, 500, 2000 rooms,
+  K = 0;
 * ``shared_in_room`` / ``shared_cross_room``: shared targets (each camera also sees the next
-  room's marker through the door), in a star of n = 2, 5, 10, 20, 50, 100 rooms; in the
+  room's marker through the door), in a star of n = 2, 5, 10, 20, 50, 100, 500 rooms; in the
   middle room ``m = n // 2``, ``C<m>_1 -> M<m>``, and from the room before, ``C<m-1>_1 ->
   M<m>`` (a target seen from two rooms);
-* ``cross_building``: a star of n = 2, 10, 50, 100, 200 rooms, first room's camera to the last
-  room's marker.
+* ``cross_building``: a star of n = 2, 10, 50, 100, 200, 500, 2000 rooms, first room's camera to
+  the last room's marker.
 
 ``--quick`` runs a few small rows of most series (``all_series``).
 
@@ -200,20 +203,31 @@ def all_series(quick: bool) -> list[Series]:
         ]
     rooms = (2, 5, 10, 20, 50, 100)
     bodies = (1, 2, 3, 4, 5, 6, 8, 10, 15, 20)
+    trackers = (0, 2, 5, 7, 10, 15, 20, 30, 50, 100, 200, 500)
     return [
-        Series("in_room", "tracker", tuple(in_room(k) for k in (0, 2, 5, 7, 10, 15, 20, 30, 50))),
-        Series("in_building", "tracker", tuple(in_building(k) for k in (2, 4))),
+        Series("in_room", "tracker", tuple(in_room(k) for k in trackers)),
+        Series("in_building", "tracker", tuple(in_building(k) for k in (2, 4, 10, 20))),
         Series("head_to_head_k1", "body", tuple(head_to_head(b, 1) for b in bodies)),
-        Series("head_to_head_k2", "body", tuple(head_to_head(b, 2) for b in bodies)),
+        Series(
+            "head_to_head_k2", "body", tuple(head_to_head(b, 2) for b in (*bodies, 30, 50, 100))
+        ),
+        Series("head_to_head_k5", "body", tuple(head_to_head(b, 5) for b in (1, 2, 4, 8, 16, 32))),
+        Series(
+            "head_to_head_k10", "body", tuple(head_to_head(b, 10) for b in (1, 2, 4, 8, 16, 32))
+        ),
         Series(
             "head_to_head_k2_unalike",
             "body",
             tuple(head_to_head(b, 2, alike=False) for b in bodies),
         ),
-        Series("corridor", "room", tuple(corridor(n) for n in (2, 3, *rooms[1:], 200))),
-        Series("shared_in_room", "room", tuple(shared(n, cross=False) for n in rooms)),
-        Series("shared_cross_room", "room", tuple(shared(n, cross=True) for n in rooms)),
-        Series("cross_building", "room", tuple(cross_building(n) for n in (2, 10, 50, 100, 200))),
+        Series("corridor", "room", tuple(corridor(n) for n in (2, 3, *rooms[1:], 200, 500, 2000))),
+        Series("shared_in_room", "room", tuple(shared(n, cross=False) for n in (*rooms, 500))),
+        Series("shared_cross_room", "room", tuple(shared(n, cross=True) for n in (*rooms, 500))),
+        Series(
+            "cross_building",
+            "room",
+            tuple(cross_building(n) for n in (2, 10, 50, 100, 200, 500, 2000)),
+        ),
     ]
 
 

@@ -45,14 +45,19 @@ def test_skipping_outclassed_groups_and_chains_changes_no_answer(
     far_links = []
 
     def counted_links(ws, template):
-        fits = last_link(ws, template)
+        at = last_link(ws, template)
 
-        def counting(*args):
-            found = fits(*args)
-            far_links.append(not found)
-            return found
+        def counting_at(*args):
+            fits = at(*args)
 
-        return counting if fits else None
+            def counting(edge):
+                found = fits(edge)
+                far_links.append(not found)
+                return found
+
+            return counting if fits else None
+
+        return counting_at if at else None
 
     monkeypatch.setattr(Workspace, "group_outclassed", counted(group_outclassed))
     monkeypatch.setattr(Workspace, "_chain_outclassed", counted(chain_outclassed))

@@ -61,3 +61,15 @@ def test_the_frames_are_those_on_simple_paths_within_the_length(edges, longest):
         assert kept == frames
     else:
         assert kept == frames_on_simple_paths(graph, 0, 7, longest)
+
+
+def test_a_large_region_is_not_kept_whole_for_its_size_alone():
+    """Around a hub of 6,000 rooms the enumeration takes more than ``DEFAULT_BUDGET`` steps
+    (each of the hub's neighbours is tried); the budget grows with the region, so the short
+    ways are still found."""
+    graph = ring_with_hub(6000)
+    frames = set(graph)
+    kept = short_way_frames(graph.neighbors, frames, "R0", "R5999", longest=4)
+    assert kept == {"R0", "R1", "R2", "B", "R5997", "R5998", "R5999"}
+    fixed = short_way_frames(graph.neighbors, frames, "R0", "R5999", longest=4, budget=20_000)
+    assert fixed == frames, "the old fixed budget gave up here"

@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Callable, Container, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from itertools import permutations
 
 from ubitrack_agent.graph.srg import Quality
@@ -136,6 +137,12 @@ class Match:
     roles: tuple[tuple[str, str], ...]
     types: tuple[tuple[str, str], ...]
 
+    @cached_property
+    def role_map(self) -> dict[str, str]:
+        """The role bindings as a mapping (made once: grouping, compatibility and expansion
+        read them again and again)."""
+        return dict(self.roles)
+
 
 @dataclass(frozen=True)
 class Instance:
@@ -190,7 +197,7 @@ def _bind(
     """Check the predicates of ``spec`` on ``edge`` and bind its roles and type variable in
     place; return the bindings made (for :func:`_unbind`), or ``None`` if ``edge`` does not fit
     (then nothing is bound)."""
-    if (
+    if spec.has_predicates and (
         (spec.static is not None and edge.static != spec.static)
         or (spec.mode is not None and edge.mode != spec.mode)
         or (spec.measured is not None and edge.measured != spec.measured)
@@ -310,11 +317,14 @@ def _any_binding(
     return True
 
 
-LastLink = Callable[[InputSpec, EdgeRecord, Mapping[str, str], Mapping[int, str]], bool]
-"""A caller's test of the edge that would bind the last unbound input (its specification, the
-edge, the role bindings and bound input edge ids so far), asked before it is bound: ``False``
-only where :data:`Viable` would reject the completed occurrence, so the search spares the
-binding."""
+LastLink = Callable[
+    [InputSpec, Mapping[str, str], Mapping[int, str]], Callable[[EdgeRecord], bool] | None
+]
+"""A caller's test of the edges that could bind the last unbound input: given its
+specification, the role bindings and the bound input edge ids so far, a test of one edge
+(``None``: every edge passes), asked before the edge is bound: ``False`` only where
+:data:`Viable` would reject the completed occurrence, so the search spares the binding. What
+the edges share is worked out once, not for each candidate."""
 
 
 def _extend(
@@ -332,13 +342,7 @@ def _extend(
     ``seeded_at`` binds no edge of ``seeds`` (:func:`find_matches`); ``last`` tests the edge of
     the last input before it is bound."""
     if len(bound) == len(template.inputs):
-        for introduced in _introductions(template, index, roles):
-            yield Match(
-                template,
-                tuple(bound[i] for i in range(len(template.inputs))),
-                tuple(sorted({**roles, **introduced}.items())),
-                tuple(sorted(types.items())),
-            )
+        yield from _completed(template, index, bound, roles, types)
         return
     i = _next_input(template, bound, roles)
     spec = template.inputs[i]
@@ -347,7 +351,11 @@ def _extend(
     taken = frozenset().union(*(other.sources for other in chosen))
     integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
-    check = last if len(bound) + 1 == len(template.inputs) else None  # of the last input only
+    completes = len(bound) + 1 == len(template.inputs)
+    check = last(spec, roles, bound) if completes and last is not None else None
+    introduces = bool(template.introduced)
+    positions = range(len(template.inputs))
+    free = viable is _any_binding  # no test to ask
     for edge_id in _candidates(spec, roles, types, template, index):
         if not_seeds and edge_id in seeds:
             continue
@@ -366,24 +374,57 @@ def _extend(
                 for other in chosen
             ):
                 continue
-        if check is not None and not check(spec, edge, roles, bound):
+        if check is not None and not check(edge):
             continue
         made = _bind(spec, edge, template, roles, types)
         if made is None:
             continue
         bound[i] = edge_id
-        if viable(roles, types, bound):
-            yield from _extend(template, index, bound, roles, types, viable, seeds, seeded_at, last)
+        if free or viable(roles, types, bound):
+            if not completes:
+                yield from _extend(
+                    template, index, bound, roles, types, viable, seeds, seeded_at, last
+                )
+            elif introduces:
+                yield from _completed(template, index, bound, roles, types)
+            else:  # the last input: the occurrence is complete (no generator for it)
+                yield Match(
+                    template,
+                    tuple(map(bound.__getitem__, positions)),
+                    tuple(sorted(roles.items())),
+                    tuple(sorted(types.items())),
+                )
         del bound[i]
         _unbind(made)
+
+
+def _completed(
+    template: Template,
+    index: EdgeIndex,
+    bound: Mapping[int, str],
+    roles: Mapping[str, str],
+    types: Mapping[str, str],
+) -> Iterator[Match]:
+    """The occurrences of a complete binding: one per binding of the introduced roles."""
+    for introduced in _introductions(template, index, roles):
+        yield Match(
+            template,
+            tuple(bound[i] for i in range(len(template.inputs))),
+            tuple(sorted({**roles, **introduced}.items())),
+            tuple(sorted(types.items())),
+        )
 
 
 def _admissible(match: Match, index: EdgeIndex) -> bool:
     """Rigid links of a time-only pattern (independence is checked while binding)."""
     if not match.template.time_only:
         return True
-    roles = dict(match.roles)
+    roles = match.role_map
     return all(index.is_rigid(roles[a], roles[b]) for a, b in _rigid_links(match.template))
+
+
+def _always(match: Match, index: EdgeIndex) -> bool:
+    return True
 
 
 def _inputs_of_type(template: Template, edge_type: str) -> list[tuple[int, InputSpec]]:
@@ -419,6 +460,10 @@ def find_matches(
         return
     seeds = list(seeds)
     fresh = frozenset(seeds)
+    # what every occurrence is checked for, decided once for the template: rigid links apply
+    # to time-only patterns, introduced roles take a binding of their own
+    admissible = _admissible if template.time_only else _always
+    single = len(template.inputs) == 1 and not template.introduced and not template.time_only
     inputs_of_type: dict[str, list[tuple[int, InputSpec]]] = {}
     for seed in dict.fromkeys(seeds):
         edge = index.edges[seed]
@@ -429,12 +474,16 @@ def find_matches(
             roles: dict[str, str] = {}
             types: dict[str, str] = {}
             bound = {i: seed}
-            if _bind(spec, edge, template, roles, types) is not None and viable(
-                roles, types, bound
-            ):
-                for match in _extend(template, index, bound, roles, types, viable, fresh, i, last):
-                    if _admissible(match, index):
-                        yield match
+            if _bind(spec, edge, template, roles, types) is None or not viable(roles, types, bound):
+                continue
+            if single:  # one input: the occurrence is complete (no generator for it)
+                yield Match(
+                    template, (seed,), tuple(sorted(roles.items())), tuple(sorted(types.items()))
+                )
+                continue
+            for match in _extend(template, index, bound, roles, types, viable, fresh, i, last):
+                if admissible(match, index):
+                    yield match
 
 
 # --- steps 2 and 3: unification into expansions --------------------------------------------------
@@ -471,7 +520,7 @@ def compatible(a: Match, b: Match, index: EdgeIndex) -> bool:
 def _compatible(a: Match, b: Match, index: EdgeIndex) -> bool:
     corr = a.template.correspondence
     assert corr is not None
-    roles_a, roles_b = dict(a.roles), dict(b.roles)
+    roles_a, roles_b = a.role_map, b.role_map
     if any(roles_a[r] == roles_b[r] for r in corr.expand_roles):
         return False
     ea, eb = _corr_edges(a), _corr_edges(b)
@@ -517,12 +566,17 @@ def _time_ok(match: Match, index: EdgeIndex) -> bool:
     for spec, edge_id in zip(template.inputs, match.edges, strict=True):
         if index.edges[edge_id].static != (spec.name not in corr.edges):
             return False
-    roles = dict(match.roles)
-    new = set(template.introduced)
-    rigid = {o.name: index.is_rigid(roles[o.source], roles[o.target]) for o in template.outputs}
-    known = [rigid[o.name] for o in template.outputs if not {o.source, o.target} & new]
-    introducing = [rigid[o.name] for o in template.outputs if {o.source, o.target} & new]
-    return all(known) and (not introducing or any(introducing))
+    roles = match.role_map
+    new = template.introduced
+    introducing = rigid_introduced = False
+    for o in template.outputs:
+        rigid = index.is_rigid(roles[o.source], roles[o.target])
+        if o.source in new or o.target in new:
+            introducing = True
+            rigid_introduced = rigid_introduced or rigid
+        elif not rigid:
+            return False
+    return rigid_introduced or not introducing
 
 
 def _copy_order(match: Match, index: EdgeIndex) -> tuple:
@@ -554,7 +608,7 @@ def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
     if known is None:
         corr = match.template.correspondence
         assert corr is not None
-        roles = dict(match.roles)
+        roles = match.role_map
         edges = _corr_edges(match)
         known = index.copies[key] = _Copy(
             _copy_order(match, index),
@@ -687,7 +741,7 @@ def _may_expand(members: list[Match], index: EdgeIndex) -> bool:
     if "space" in corr.expansions and len(members) >= least:
         if not corr.expand_roles:
             return True
-        distinct = {tuple(dict(m.roles)[r] for r in corr.expand_roles) for m in members}
+        distinct = {tuple(m.role_map[r] for r in corr.expand_roles) for m in members}
         if len(distinct) >= least:
             return True
     return time_expandable(members, index)
@@ -726,7 +780,7 @@ def expand_group(
                 tuple((s.name, (e,)) for s, e in zip(template.inputs, m.edges, strict=True)),
                 _outputs(
                     template,
-                    dict(m.roles),
+                    m.role_map,
                     dict(m.types),
                     [index.edges[e] for e in m.edges],
                     "none",
@@ -754,7 +808,7 @@ def expand_group(
                 continue
             records = [index.edges[e] for _, ids in inputs for e in ids]
             outputs = _outputs(
-                template, dict(chosen[0].roles), dict(chosen[0].types), records, expansion
+                template, chosen[0].role_map, dict(chosen[0].types), records, expansion
             )
             instances.append(Instance(template, expansion, inputs, outputs))
     return instances

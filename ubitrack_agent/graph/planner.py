@@ -45,7 +45,7 @@ import hashlib
 import math
 import sys
 from collections import OrderedDict, defaultdict
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import product
 from typing import Any
@@ -198,13 +198,19 @@ def edge_cost(quality: Quality, providers: int, steps: int) -> float:
 
 def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
     """Quality of the outputs of ``instance`` from the quality of its inputs (cost model)."""
+    return _propagated(instance, [records[e] for e in instance.input_edges()], records)
+
+
+def _propagated(
+    instance: Instance, inputs: Sequence[EdgeRecord], records: Mapping[str, EdgeRecord]
+) -> Quality:
+    """:func:`propagate`, given the records of the instance's inputs in input order."""
     spec = instance.template.cost
     corr = instance.template.correspondence
-    variances = {name: [records[e].quality.variance for e in ids] for name, ids in instance.inputs}
-    every = [v for vs in variances.values() for v in vs]
     if spec.rule == "fusion":  # an exact input (variance 0) makes the fusion exact, not 1/0
-        variance = 1.0 / sum(1.0 / max(v, VARIANCE_FLOOR) for v in every)
+        variance = 1.0 / sum(1.0 / max(r.quality.variance, VARIANCE_FLOOR) for r in inputs)
     elif spec.rule == "pooled" and corr is not None:
+        variances = {n: [records[e].quality.variance for e in ids] for n, ids in instance.inputs}
         fixed = sum(v for n, vs in variances.items() if n not in corr.edges for v in vs)
         copies = len(variances[corr.edges[0]])
         per_copy = sum(sum(variances[n]) for n in corr.edges) / copies
@@ -212,9 +218,8 @@ def propagate(instance: Instance, records: dict[str, EdgeRecord]) -> Quality:
         shared = min(_shared_variance(instance, records), per_copy)
         variance = fixed + shared + (per_copy - shared) * scale
     else:
-        variance = sum(every)
+        variance = sum(r.quality.variance for r in inputs)
     variance = _gained(variance, spec, instance.expansion)
-    inputs = [records[e] for e in instance.input_edges()]
     rates = [e.quality.rate for e in inputs if e.mode == "push" and e.quality.rate > 0]
     latency = max(e.quality.latency for e in inputs) + spec.latency
     return Quality(variance, min(rates, default=0.0), latency)
@@ -293,9 +298,9 @@ def _span(
     type between the two (a point of the target seen from the source) derives no pose by itself,
     so it does not shorten the ways the slack is counted from. ``O(frames + edges)``."""
     source, target = goal
-    along = {f: set() for f in frames}
-    for u, v, edge_type in srg.subgraph(frames).edges(data="type"):
-        if edge_type == wanted:
+    along: dict[str, set[str]] = {f: set() for f in frames}
+    for u, v, _, data in _edges_within(srg, frames):
+        if data["type"] == wanted:
             along[u].add(v)
             along[v].add(u)
     hops = hop_distances(along.__getitem__, (source,), goal=target).get(target)
@@ -308,6 +313,21 @@ def _span(
     return math.inf if hops is None else hops
 
 
+def _edges_within(
+    srg: nx.MultiDiGraph, frames: set[str]
+) -> Iterator[tuple[str, str, str, Mapping[str, Any]]]:
+    """The SRG edges between ``frames`` (source, target, key, attributes), read off the
+    adjacency directly (a subgraph view filters every access). ``O(edges at frames)``."""
+    succ = srg.succ
+    for u in frames:
+        if u not in succ:  # a frame to be introduced
+            continue
+        for v, parallel in succ[u].items():
+            if v in frames:
+                for key, data in parallel.items():
+                    yield u, v, key, data
+
+
 def _chain_distances(
     srg: nx.MultiDiGraph, frames: set[str], goal: tuple[str, str]
 ) -> tuple[dict[str, int], dict[str, int]]:
@@ -316,16 +336,19 @@ def _chain_distances(
     A query frame the SRG lacks (to be introduced by a calibration) has no distances of its
     own: it takes those of the other query frame, so only chains between frames at equal
     distance from it are left out."""
-    sub = srg.subgraph(frames)
-    poses = nx.MultiDiGraph(
-        (u, v, k) for u, v, k, t in sub.edges(keys=True, data="type") if t == "6D"
-    )
-    poses.add_nodes_from(frames)
+    joined: dict[str, set[str]] = {f: set() for f in frames}
+    poses: dict[str, set[str]] = {f: set() for f in frames}
+    for u, v, _, data in _edges_within(srg, frames):
+        joined[u].add(v)
+        joined[v].add(u)
+        if data["type"] == "6D":
+            poses[u].add(v)
+            poses[v].add(u)
     near = {}
     for end in goal:
         if end in frames:
-            anywhere = hop_distances(either_way(sub), (end,))
-            along = hop_distances(either_way(poses), (end,))
+            anywhere = hop_distances(joined.__getitem__, (end,))
+            along = hop_distances(poses.__getitem__, (end,))
             near[end] = {n: along.get(n, len(frames) + anywhere[n]) for n in frames}
     source, target = goal
     return near.get(source, near.get(target)), near.get(target, near.get(source))
@@ -414,7 +437,13 @@ class Workspace:
     towards the query target, the rule before session 15, which the test oracle keeps."""
     span: float = 0
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
-    _reach: dict[tuple[str, frozenset[str]], dict[str, int]] = field(default_factory=dict)
+    _reach: dict[tuple[str, int], dict[str, int]] = field(default_factory=dict)
+    _bits: dict[str, int] = field(default_factory=dict)
+    """A bit per frame of the region (frame sets as ints: :meth:`_on_a_way`)."""
+    _link_bits: dict[str, int] = field(default_factory=dict)
+    """The frames each chained edge's sources join, as bits (by edge id)."""
+    _ways: dict[tuple[str, str, int, float], bool] = field(default_factory=dict)
+    """:meth:`_on_a_way` by chain ends, inside and hops left: many chains share them."""
     _goal_hops: tuple[dict[str, int], dict[str, int]] | None = None
     _copy_costs: dict[tuple[str, tuple[str, ...]], _CopyCost] = field(default_factory=dict)
     _writes: dict[tuple, tuple[tuple[str, str, str, tuple[bool, ...]], ...]] = field(
@@ -443,18 +472,36 @@ class Workspace:
         """Hops between frames ``a`` and ``b`` in the region (more than any if not joined)."""
         return self._hops_from(a).get(b, len(self.neighbours) + 1)
 
-    def _avoiding(self, start: str, goal: str, avoid: frozenset[str]) -> float:
+    def _bit(self, frame: str) -> int:
+        """The bit of ``frame`` (given on first use)."""
+        bit = self._bits.get(frame)
+        if bit is None:
+            bit = self._bits[frame] = 1 << len(self._bits)
+        return bit
+
+    def _frame_bits(self, link: EdgeRecord) -> int:
+        """The frames ``link``'s sources join (:attr:`EdgeRecord.frames`) as bits, kept."""
+        bits = self._link_bits.get(link.id)
+        if bits is None:
+            bits = 0
+            for frame in link.frames:
+                bits |= self._bit(frame)
+            self._link_bits[link.id] = bits
+        return bits
+
+    def _avoiding(self, start: str, goal: str, avoid: int) -> float:
         """Hops from ``start`` to ``goal`` in the region without entering a frame of ``avoid``
-        (edges in either direction; infinite if there is no such way). ``O(frames + edges)``
-        per distinct ``(start, avoid)``, memoised."""
+        (bits, :meth:`_bit`; edges in either direction; infinite if there is no such way).
+        ``O(frames + edges)`` per distinct ``(start, avoid)``, memoised."""
         if start == goal:
             return 0
-        if start in avoid or goal in avoid:
+        if (self._bit(start) | self._bit(goal)) & avoid:
             return math.inf
         key = (start, avoid)
         known = self._reach.get(key)
         if known is None:
-            known = self._reach[key] = hop_distances(self._around, (start,), avoid=avoid)
+            frames = frozenset(f for f, bit in self._bits.items() if bit & avoid)
+            known = self._reach[key] = hop_distances(self._around, (start,), avoid=frames)
         return known.get(goal, math.inf)
 
     def viable_chain(self, template: Template) -> Viable:
@@ -496,7 +543,7 @@ class Workspace:
         edge that would bind a chain's last link, before it is bound: in two rooms with four
         bodies and three trackers each, 1,535 of 1,897 completed chains failed it after
         binding. It rejects only what :meth:`viable_chain` would reject, so the matches are
-        the same. ``O(links)``."""
+        the same. ``O(links)`` per last input, ``O(1)`` per edge tried there."""
         if not self.neighbours or self.goal is None:
             return None
         source, target = template.outputs[0].source, template.outputs[0].target
@@ -505,22 +552,30 @@ class Workspace:
         far = len(self.neighbours) + 1
         budget = self.span + self.detour
 
-        def fits(
-            spec: InputSpec, edge: EdgeRecord, roles: Mapping[str, str], bound: Mapping[int, str]
-        ) -> bool:
-            x = roles.get(source) or _end(spec, edge, source)
-            y = roles.get(target) or _end(spec, edge, target)
-            if x is None or y is None:
-                return True
-            limit = budget - edge.hops
+        def at(
+            spec: InputSpec, roles: Mapping[str, str], bound: Mapping[int, str]
+        ) -> Callable[[EdgeRecord], bool] | None:
+            x, y = roles.get(source), roles.get(target)
+            x_end = None if x is not None else _end_of(spec, source)
+            y_end = None if y is not None else _end_of(spec, target)
+            if (x is None and x_end is None) or (y is None and y_end is None):
+                return None
+            left = budget
             for e in bound.values():
-                limit -= edges[e].hops
-            return (
-                from_start.get(x, far) + from_end.get(y, far) <= limit
-                or from_start.get(y, far) + from_end.get(x, far) <= limit
-            )
+                left -= edges[e].hops
 
-        return fits
+            def fits(edge: EdgeRecord) -> bool:
+                a = x if x_end is None else x_end(edge)
+                b = y if y_end is None else y_end(edge)
+                limit = left - edge.hops
+                return (
+                    from_start.get(a, far) + from_end.get(b, far) <= limit
+                    or from_start.get(b, far) + from_end.get(a, far) <= limit
+                )
+
+            return fits
+
+        return at
 
     def _on_a_way(self, x: str, y: str, chained: list[EdgeRecord]) -> bool:
         """Whether a chain X->Y of the ``chained`` links (``hops``: the sum of theirs; ``frames``:
@@ -542,19 +597,29 @@ class Workspace:
         so there a cycle can carry information.
         """
         start, end = self.goal
-        limit = self.span + self.detour - sum(link.hops for link in chained)
+        limit = self.span + self.detour
+        inside = 0
+        for link in chained:
+            limit -= link.hops
+            inside |= self._frame_bits(link)
         from_start, from_end = self._goal_hops or self._hops_to_goal()
         far = len(self.neighbours) + 1
         forward = from_start.get(x, far) + from_end.get(y, far) <= limit
         backward = from_start.get(y, far) + from_end.get(x, far) <= limit
         if not (forward or backward):
             return False
-        ends = [(x, y)] * forward + [(y, x)] * backward
-        inside = frozenset().union(*(link.frames for link in chained)) - {x, y}
-        return any(
-            self._avoiding(start, a, inside | {b}) + self._avoiding(b, end, inside | {a}) <= limit
-            for a, b in ends
-        )
+        bx, by = self._bit(x), self._bit(y)
+        inside &= ~(bx | by)
+        key = (x, y, inside, limit)
+        known = self._ways.get(key)
+        if known is None:
+            ends = [(x, y, bx, by)] * forward + [(y, x, by, bx)] * backward
+            known = self._ways[key] = any(
+                self._avoiding(start, a, inside | b_bit) + self._avoiding(b, end, inside | a_bit)
+                <= limit
+                for a, b, a_bit, b_bit in ends
+            )
+        return known
 
     def add_measured(self, source: str, target: str, edge_id: str, data: dict) -> None:
         """Index one measured SRG edge."""
@@ -629,7 +694,7 @@ class Workspace:
         corr = template.correspondence
         if corr is None or "space" not in corr.expansions or template.outputs_vary:
             return (_UNDECIDED,)
-        roles, types = dict(match.roles), dict(match.types)
+        roles, types = match.role_map, dict(match.types)
         writes = []
         for spec in template.outputs:
             edge_type = types[spec.type[1:]] if spec.type.startswith("$") else spec.type
@@ -744,23 +809,25 @@ class Workspace:
         An output no better than what its relation holds (:meth:`_outclassed`, most of those
         rejected) is turned down before its record is built."""
         records = self.index.edges
-        inputs = [records[e] for e in instance.input_edges()]
-        quality = propagate(instance, records)
+        inputs = [records[e] for _, ids in instance.inputs for e in ids]
+        quality = _propagated(instance, inputs, records)
         step_id = f"{self.prefix}s{len(self.steps) + 1}"
         template = instance.template
         sources = frozenset().union(*(e.sources for e in inputs))
         # a new frame is defined by the one calibration introducing it: the frame counts as a
         # source, so no derivation combines two introductions (two tip calibrations may have
         # calibrated different points)
-        sources |= {
-            f"introduced:{frame}"
-            for _, source, target, *_ in instance.outputs
-            for frame in (source, target)
-            if frame in self.index.new_frames
-        }
+        if self.index.new_frames:
+            sources |= {
+                f"introduced:{frame}"
+                for _, source, target, *_ in instance.outputs
+                for frame in (source, target)
+                if frame in self.index.new_frames
+            }
         providers = frozenset().union(*(e.providers for e in inputs))
-        steps = frozenset({step_id}).union(*(e.steps for e in inputs))
-        cost = edge_cost(quality, len(providers), len(steps))
+        used = frozenset().union(*(e.steps for e in inputs))
+        cost = edge_cost(quality, len(providers), len(used) + (step_id not in used))
+        steps = None  # with this step: made for the first output kept
         outputs, added = [], []
         for name, source, target, edge_type, static, mode in instance.outputs:
             edge_id = None
@@ -784,6 +851,8 @@ class Workspace:
                     if template.signature != "step"
                     else (max(1, self._distance(source, target)) if self.neighbours else 1)
                 )
+                if steps is None:
+                    steps = frozenset({step_id}).union(*(e.steps for e in inputs))
                 record = _derived(
                     template,
                     instance.expansion,
@@ -883,7 +952,7 @@ def _space_floor(
     lo = corr.multiplicity.lo
     most = len(members) if corr.multiplicity.hi is None else min(len(members), corr.multiplicity.hi)
     for role in corr.expand_roles:
-        most = min(most, len({dict(m.roles)[role] for m in members}))
+        most = min(most, len({m.role_map[role] for m in members}))
     if spec.rule not in ("pooled", "fusion"):
         return -math.inf
     if most < lo:
@@ -896,7 +965,7 @@ def _space_floor(
         first, adds = 0, sorted(len(c.steps) for c in copies)
     else:  # a step only copies of the same expanded frames use is theirs alone in a set
         kinds = [
-            tuple(dict(m.roles)[r] for r in corr.expand_roles) or i for i, m in enumerate(members)
+            tuple(m.role_map[r] for r in corr.expand_roles) or i for i, m in enumerate(members)
         ]
         users: dict[str, set] = defaultdict(set)
         for kind, c in zip(kinds, copies, strict=True):
@@ -930,11 +999,19 @@ def _space_floor(
     return least * (1 - _TIE)
 
 
-def _end(spec: InputSpec, edge: EdgeRecord, role: str) -> str | None:
-    """The frame ``edge`` would bind to ``role`` as input ``spec`` (``None``: neither end)."""
+def _source(edge: EdgeRecord) -> str:
+    return edge.source
+
+
+def _target(edge: EdgeRecord) -> str:
+    return edge.target
+
+
+def _end_of(spec: InputSpec, role: str) -> Callable[[EdgeRecord], str] | None:
+    """Which end of an edge bound as input ``spec`` binds ``role`` (``None``: neither)."""
     if spec.source == role:
-        return edge.source
-    return edge.target if spec.target == role else None
+        return _source
+    return _target if spec.target == role else None
 
 
 def measured_record(source: str, target: str, edge_id: str, data: Mapping) -> EdgeRecord:
@@ -1246,7 +1323,7 @@ def _part_shape(
     frames = sorted(part)
     edges = sorted(
         (u, v, k, d["type"], d["static"], d["mode"], d["provider"], d["quality"])
-        for u, v, k, d in srg.subgraph(part).edges(keys=True, data=True)
+        for u, v, k, d in _edges_within(srg, part)
     )
     keys = sorted(e[2] for e in edges)
     providers = sorted({e[6] for e in edges})

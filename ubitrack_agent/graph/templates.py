@@ -81,6 +81,17 @@ class InputSpec:
         """The type variable the input's type names (``$T``: ``T``), ``None`` for a literal type."""
         return self.type[1:] if self.type.startswith("$") else None
 
+    @cached_property
+    def has_predicates(self) -> bool:
+        """Whether the input asks anything of an edge besides its type (static, mode,
+        measured, not_from)."""
+        return (
+            self.static is not None
+            or self.mode is not None
+            or self.measured is not None
+            or bool(self.not_from)
+        )
+
 
 @dataclass(frozen=True)
 class OutputSpec:

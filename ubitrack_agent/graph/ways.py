@@ -14,7 +14,11 @@ of those paths, each step pruned by the remaining distance to ``T`` (breadth-fir
 ``O(frames + edges)``). The paths may be many
 (``O(d**L)`` for degree ``d`` and length ``L``, e.g. ways through every body a room's trackers
 see), so the enumeration stops after ``budget`` steps and the region is kept whole: the answer
-is never smaller than the exact set, only sometimes larger.
+is never smaller than the exact set, only sometimes larger. The budget grows with the region
+(``STEPS_PER_FRAME`` steps per frame, at least ``DEFAULT_BUDGET``), so the enumeration stays
+``O(frames)`` and a large region is not given up only for its size: around the building frame
+of a corridor of 2,000 rooms, whose 2,000 neighbours are each tried, it takes 20,000-40,000
+steps, and the region kept whole (2,012 frames instead of 18) did not plan in 20 s.
 """
 
 from __future__ import annotations
@@ -25,7 +29,10 @@ from collections.abc import Callable, Iterable
 import networkx as nx
 
 DEFAULT_BUDGET = 20_000
-"""Most steps of the enumeration before the region is kept whole."""
+"""Most steps of the enumeration before a region of up to ``DEFAULT_BUDGET / STEPS_PER_FRAME``
+frames is kept whole."""
+STEPS_PER_FRAME = 50
+"""Steps of the enumeration allowed per frame of a larger region."""
 
 
 def either_way(srg: nx.MultiDiGraph) -> Callable[[str], Iterable[str]]:
@@ -70,12 +77,14 @@ def short_way_frames(
     source: str,
     target: str,
     longest: float,
-    budget: int = DEFAULT_BUDGET,
+    budget: int | None = None,
 ) -> set[str]:
     """The frames of ``frames`` on a simple path from ``source`` to ``target`` of at most
     ``longest`` hops, over the neighbours ``around`` gives (module docstring); ``frames``
-    itself if the enumeration takes more than ``budget`` steps or the two are not
-    connected."""
+    itself if the enumeration takes more than ``budget`` steps (by default ``STEPS_PER_FRAME``
+    per frame, at least ``DEFAULT_BUDGET``) or the two are not connected."""
+    if budget is None:
+        budget = max(DEFAULT_BUDGET, STEPS_PER_FRAME * len(frames))
     to_target = hop_distances(lambda node: (o for o in around(node) if o in frames), (target,))
     if source not in to_target:
         return frames
