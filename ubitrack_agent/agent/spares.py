@@ -24,6 +24,14 @@ listed one, or none. Cost: O(sensors x alternatives x measured edges) per relati
 no planner call; running them costs their components' CPU, O(sensors of the derivation)
 derivations per relation at most, and none where the derivation reads every sensor that an
 alternative does (the demo's camera and tracker fused).
+
+**Replicas** (:class:`Redundancy`, ``ubitrack agent --replicas N``) stand in for the loss of
+the process instead: N copies of the chosen derivation under other component ids
+(``graph.dataflow.from_solution``, ``replica``), listed with the spares. The grouping keeps
+each copy in another container (``agent.placement.group_containers``, rule 5); when the
+process running the producer that holds the key dies, its token leaves and a copy puts its
+next sample (``services.handover``, rule 5), its filters warm. Cost: N times the derivation's
+components and CPU; planning, N more data flows, O(steps x inputs) each.
 """
 
 from __future__ import annotations
