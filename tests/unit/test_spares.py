@@ -8,7 +8,7 @@ import yaml
 
 from tests.unit.conftest import ROOT
 from ubitrack_agent.agent.flows import plan_relation
-from ubitrack_agent.agent.materialise import component_specs
+from ubitrack_agent.agent.materialise import component_specs, relay_instance
 from ubitrack_agent.agent.placement import group_containers
 from ubitrack_agent.agent.spares import MAX_REPLICAS, Redundancy, sensors, spare_solutions
 from ubitrack_agent.graph.dataflow import Binding, DataFlow, merge
@@ -153,3 +153,16 @@ def test_copies_of_a_derivation_run_in_different_containers(tracking_setup, temp
     assert {s.instance for s in groups[primary].components} == part.serving
     current = {s.instance: name for name, g in groups.items() for s in g.components}
     assert group_containers(specs, hosts, {"room": cores}, current=current) == groups  # stable
+
+
+def test_a_spare_read_from_a_measured_edge_is_put_by_the_relay_named_for_it(tracking_setup):
+    edge = next(
+        key
+        for *_, key, data in tracking_setup.edges(keys=True, data=True)
+        if not data.get("static")
+    )
+    flow = DataFlow(spares={"C->A:6D": (Binding(None, edge),)})
+    specs = component_specs(flow, tracking_setup, Keys(), {"C->A:6D": C_A})
+    (relay,) = specs.values()
+    assert relay.instance == relay_instance(edge) and relay.service == "relay"
+    assert relay.relations == {"out": (Keys().relation(C_A),)}

@@ -51,6 +51,11 @@ class Keys(Protocol):
     def relation(self, relation: RelationId) -> str: ...
 
 
+def relay_instance(edge_id: str) -> str:
+    """The instance of the relay putting the measured edge ``edge_id`` on a relation key."""
+    return "relay-" + hashlib.sha1(edge_id.encode()).hexdigest()[:10]
+
+
 def component_specs(
     flow: DataFlow,
     srg: nx.MultiDiGraph,
@@ -101,7 +106,7 @@ def component_specs(
             specs[binding.component] = replace(spec, relations=routes)
             continue
         key, static, from_worker = source(binding)
-        instance = "relay-" + hashlib.sha1(binding.edge.encode()).hexdigest()[:10]
+        instance = relay_instance(binding.edge)
         specs[instance] = ComponentSpec(
             instance=instance,
             service="relay",

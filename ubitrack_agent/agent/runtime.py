@@ -82,6 +82,7 @@ from ubitrack_agent.agent.liveness import (
     parse_report,
 )
 from ubitrack_agent.agent.loop_times import LoopTimes
+from ubitrack_agent.agent.materialise import relay_instance
 from ubitrack_agent.agent.placement import group_containers, place
 from ubitrack_agent.agent.plan_memo import PlanMemo
 from ubitrack_agent.agent.planning import BackgroundPlanner, Outcome, Request, make_outcome
@@ -1014,7 +1015,10 @@ class Agent:
             "relations": {
                 name: {
                     "key": self.keys.relation(relation),
-                    "spares": [b.component or b.edge for b in plan.flow.spares.get(name, ())],
+                    "spares": [
+                        b.component or relay_instance(b.edge)
+                        for b in plan.flow.spares.get(name, ())
+                    ],
                 }
                 for name, relation in (plan.relations.items() if plan else ())
                 if name not in plan.unsolved
