@@ -45,7 +45,10 @@ on (a sample stamped no later than one passed on is kept for lookups but not pas
 counted ``out_of_order``: ``docs/protocol.md``). Per event, over the samples stamped in the
 second after it: the largest translation and rotation error, the p99, how many lie beyond "3
 sigma" of their own covariance (NEES above the chi-square quantile of 99.73 % for 6 degrees of
-freedom, 20.06), the mean NEES against its 95 % interval (``n`` samples: chi-square(6 n) / n),
+freedom, 20.06), the mean NEES against its 95 % interval over the kind's events (each event's
+mean NEES one batch: :func:`bench.synthetic.nees_over_batches`; the samples of one second are
+correlated, so the chi-square(6 n) / n interval of ``n`` independent samples, printed beside
+it, is too narrow),
 the largest gap between arrivals of samples passed on, from 0.5 s before to 1 s after the event
 (ms and frames of the faster sensor; a silence that outlasts that window is not in it, and an
 event with no sample in the second after is left out of its kind's figures but counted), the
@@ -59,8 +62,9 @@ p99" cannot hold even without a switch, a tail no heavier than the steady state'
 The steady state of each flow (fused, camera only, A.R.T. only, fused with the better tracker)
 is every sample stamped from
 1.5 s after an event to the next event: its p99 errors are the issue's bound for a switch
-between two flows (the larger of the two), and its gaps between arrivals (p99, largest) the
-flow's own, to compare a switch's gap with.
+between two flows (the larger of the two), its gaps between arrivals (p99, largest) the
+flow's own, to compare a switch's gap with, and its mean NEES with the 95 % interval over its
+stretches (each from one event to the next a batch).
 """
 
 from __future__ import annotations
@@ -88,14 +92,13 @@ from scipy.stats import binom, chi2
 from bench.calibrated_tracking_bench import scenario_with_true_calibration
 from bench.fusion_latency_bench import (
     _free_port,
-    components,
     demo_world,
     errors,
     own_network,
     wait_for_services,
 )
 from bench.steady_state import wait_for_warm_pool
-from bench.synthetic import THREE_SIGMA_NEES, nees
+from bench.synthetic import THREE_SIGMA_NEES, nees, nees_over_batches
 from ubitrack_agent.commands.demo import Processes, dtrack_flags, simulator_arguments
 from ubitrack_agent.core import decode
 from ubitrack_agent.core.errors import MeasurementError
@@ -343,18 +346,25 @@ def kill_holder(session: Any, keys: KeySpace, patience_s: float = 5.0) -> int | 
     """SIGKILL the process running the component that holds the relation key (the fusion's
     container: the derivation runs in one); when (ns), if one held it within ``patience_s``
     (none does while a claim is answered; the event's time: finding the process takes status
-    queries, half a second on a loaded machine)."""
+    queries, half a second on a loaded machine). The holder may be a component on standby
+    (``agent.standby``): the flow that lost the better tracker runs on for ``STANDBY_S``
+    beside the one chosen again and keeps the key, as certain as it (hand-over rule 6)."""
     deadline = time.monotonic() + patience_s
+    seen: dict[str, Any] = {}
     while time.monotonic() < deadline:
-        for instance, component in components(session, keys).items():
-            if not component["relations"]:
-                continue
+        replies = fetch_latest(session, keys.agent_status(), timeout=1.0)
+        agent = json.loads(replies[0]) if replies else {}
+        producers = [i for i, c in agent.get("components", {}).items() if c["relations"]]
+        for instance in producers + agent.get("standby_components", []):
             replies = fetch_latest(session, keys.status(instance), timeout=1.0)
-            if replies and (status := json.loads(replies[0])).get("holds"):
+            status = json.loads(replies[0]) if replies else None
+            seen[instance] = status and {k: status.get(k) for k in ("pid", "holds")}
+            if status and status.get("holds"):
                 at = time.time_ns()
                 os.kill(status["pid"], signal.SIGKILL)
                 return at
         time.sleep(0.05)
+    print(f"no holder within {patience_s} s; the candidates' statuses: {seen}", flush=True)
     return None
 
 
@@ -519,10 +529,19 @@ def summarise(
         settled = [s for s in samples if start + STEADY_AFTER_S * 1e9 <= s[1] < end]
         steady[event["to"]] += settled
         if settled:  # where the steady state's outliers lie, from the event before them
-            event["steady_beyond_3_sigma_samples"] = judge(settled, world, start)[
-                "beyond_3_sigma_samples"
-            ]
-    steady_judged = {flow: judge(s, world) | steady_gaps(s) for flow, s in steady.items()}
+            settled_judged = judge(settled, world, start)
+            event["steady_beyond_3_sigma_samples"] = settled_judged["beyond_3_sigma_samples"]
+            event["steady_nees_mean"] = settled_judged["nees_mean"]
+    steady_judged = {
+        flow: judge(s, world)
+        | steady_gaps(s)
+        | {
+            "nees_over_stretches": nees_over_batches(
+                [e.get("steady_nees_mean") for e in events if e["to"] == flow]
+            )
+        }
+        for flow, s in steady.items()
+    }
     for event, mm in zip(events, window_mm, strict=True):
         bound = max(steady_judged[f].get("error_mm_p99", 0) for f in (event["from"], event["to"]))
         event["beyond_steady_p99"] = sum(value > bound for value in mm)
@@ -556,6 +575,7 @@ def summarise(
             "nees_interval_95": [chi2.ppf(0.025, 6 * n) / n, chi2.ppf(0.975, 6 * n) / n]
             if n
             else None,
+            "nees_over_events": nees_over_batches([e["nees_mean"] for e in mine]),
             "gap_ms_max": max(e["gap_ms"] for e in mine),
             "gap_frames_max": max(e["gap_frames"] for e in mine),
             "gap_ms_median": float(np.median([e["gap_ms"] for e in mine])),
@@ -578,17 +598,23 @@ def summarise(
     }
 
 
+def interval_text(batches: dict[str, Any] | None) -> str:
+    """``low-high`` of :func:`bench.synthetic.nees_over_batches`, ``-`` without two batches."""
+    return "-" if batches is None else "{:.2f}-{:.2f}".format(*batches["interval_95"])
+
+
 def print_tables(result: dict[str, Any]) -> None:
     print(
         "\n| event | events | samples in the second after | largest error mm / deg | events "
-        "over the flows' steady p99 | beyond 3 sigma | mean NEES (95 % interval) | largest gap "
+        "over the flows' steady p99 | beyond 3 sigma | mean NEES (95 % interval over events; "
+        "as if independent samples) | largest gap "
         "ms (frames) | duplicates | out of order |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for kind, k in result["kinds"].items():
-        interval = k["nees_interval_95"]
+        interval, events = k["nees_interval_95"], k["nees_over_events"]
         nees_text = (
-            f"{k['nees_mean']:.2f} ({interval[0]:.2f}-{interval[1]:.2f})"
+            f"{k['nees_mean']:.2f} ({interval_text(events)}; {interval[0]:.2f}-{interval[1]:.2f})"
             if k["nees_mean"] is not None
             else "-"
         )
@@ -619,14 +645,19 @@ def print_tables(result: dict[str, Any]) -> None:
             f"{k['events_without_samples']} | {k['duplicates_until_next']} |"
         )
     print(
-        "\n| steady state | samples | p99 error mm / deg | largest mm / deg | mean NEES | gap ms "
+        "\n| steady state | samples | p99 error mm / deg | largest mm / deg | mean NEES (95 % "
+        "interval over stretches) | gap ms "
         "p99 / largest |"
     )
     print("|---|---|---|---|---|---|")
     for flow, s in result["steady"].items():
         if not s.get("samples"):
             continue
-        mean = f"{s['nees_mean']:.2f}" if s["nees_mean"] is not None else "-"
+        mean = (
+            f"{s['nees_mean']:.2f} ({interval_text(s.get('nees_over_stretches'))})"
+            if s["nees_mean"] is not None
+            else "-"
+        )
         print(
             f"| {flow} | {s['samples']} | {s['error_mm_p99']:.1f} / {s['error_deg_p99']:.2f} | "
             f"{s['error_mm_max']:.1f} / {s['error_deg_max']:.2f} | {mean} | "

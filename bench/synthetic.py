@@ -12,6 +12,7 @@ import zlib
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
+from scipy.stats import t as student
 
 from ubitrack_agent.core import quaternions, se3
 from ubitrack_agent.core.uncertainty import skew
@@ -63,6 +64,31 @@ def nees(estimate: PoseEstimate, truth: PoseEstimate) -> float | None:
         return None
     error = left_error(estimate, truth)
     return float(error @ np.linalg.solve(covariance, error))
+
+
+def nees_over_batches(batch_means: list[float | None], dimension: int = 6) -> dict | None:
+    """The mean of independent batches' mean NEES (runs, or the seconds after separate
+    events) and its 95 % t interval from their spread; ``consistent`` when ``dimension``, the
+    expectation of an honest covariance's NEES, lies inside.
+
+    Samples of one batch are not independent (a filter's errors are correlated over its time
+    constant, and a session's samples share its static errors), so the mean of ``n`` of them is
+    not chi-square(``dimension`` n) / n; batches are (the method of batch means: Law and Kelton,
+    *Simulation Modeling and Analysis*, chapter 9; the NEES over Monte Carlo runs: Bar-Shalom,
+    Li, Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001, section
+    5.4). ``None``
+    for fewer than two batches."""
+    values = np.array([v for v in batch_means if v is not None], dtype=float)
+    if len(values) < 2:
+        return None
+    half = student.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values))
+    low, high = float(values.mean() - half), float(values.mean() + half)
+    return {
+        "mean": float(values.mean()),
+        "interval_95": [low, high],
+        "consistent": bool(low <= dimension <= high),
+        "batch_means": [round(float(v), 3) for v in values],
+    }
 
 
 def sample_poses(

@@ -70,3 +70,27 @@ def test_a_switch_is_judged_by_the_samples_stamped_in_the_second_after_it() -> N
     kind = result["kinds"]["A.R.T. off"]
     assert kind["events_worse_than_steady_p99"] == 1  # 20 mm against the steady state's p99
     assert kind["nees_mean"] == pytest.approx((400.0 + 0.25) / 2)
+
+
+def test_the_mean_nees_is_judged_over_events_and_steady_stretches() -> None:
+    """Each event's second is one batch of its kind, each stretch between events one of its
+    flow's steady state (``bench.synthetic.nees_over_batches``); one batch has no interval."""
+    first, second = 10_000, 14_000
+    stream = [(first + 10 * k, first + 10 * k, 0.001) for k in range(10)]  # NEES 1 each
+    stream += [(first + 2_000 + 10 * k, first + 2_000 + 10 * k, 0.002) for k in range(10)]
+    stream += [(second + 10 * k, second + 10 * k, 0.002) for k in range(10)]  # NEES 4
+    stream += [(second + 2_000 + 10 * k, second + 2_000 + 10 * k, 0.003) for k in range(10)]
+    events = [
+        {"kind": "camera off", "at_ns": at * MS, "from": "fused", "to": "A.R.T. only"}
+        for at in (first, second)
+    ]
+    world = SimpleNamespace(
+        world=AtRest(), art=SimpleNamespace(rate=60.0), camera=SimpleNamespace(rate=30.0)
+    )
+    result = summarise(events, recorded(stream), world, {})
+    over_events = result["kinds"]["camera off"]["nees_over_events"]
+    assert over_events["batch_means"] == [pytest.approx(1.0), pytest.approx(4.0)]
+    assert over_events["mean"] == pytest.approx(2.5)
+    stretches = result["steady"]["A.R.T. only"]["nees_over_stretches"]
+    assert stretches["batch_means"] == [pytest.approx(4.0), pytest.approx(9.0)]
+    assert result["steady"]["fused"]["nees_over_stretches"] is None
