@@ -12,7 +12,12 @@ from hypothesis import strategies as st
 
 from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.measurements import WORKER, ErrorPose, Pose
-from ubitrack_agent.services.handover import CLAIM_TIMEOUT_S, WARM_S, KeyHandOver
+from ubitrack_agent.services.handover import (
+    CLAIM_TIMEOUT_S,
+    HOLDER_LOST_IN_ROW,
+    WARM_S,
+    KeyHandOver,
+)
 
 MS = 1_000_000
 
@@ -214,6 +219,43 @@ def test_a_producer_that_gave_the_key_away_does_not_take_it_back_for_a_holder_le
         assert bus.offer(camera, pose(t, variance=40e-6 if t == 50 else 2e-6))
         assert not bus.offer(fused, pose(t, variance=1.0e-6))
     assert bus.counters[0]["relation_taken_back"] == 0
+
+
+def test_a_producer_that_gave_the_key_away_takes_it_back_when_the_holder_lost_an_input():
+    """Rule 6: the fusion of the A.R.T. tracker and the camera gave the key to the fusion of
+    the better tracker and the camera; the better tracker gone, that one runs on the camera
+    alone (on standby, for seconds): after HOLDER_LOST_IN_ROW samples in a row at least ten
+    times as uncertain as its own, the first fusion takes the key back; one stream."""
+    bus = Bus()
+    art = bus.producer()
+    for t in range(10, 50, 10):
+        bus.clock.now += 0.01
+        assert bus.offer(art, pose(t, variance=1e-6))
+    better = bus.producer()
+    bus.clock.now += 0.01
+    bus.offer(art, pose(50, variance=1e-6))
+    bus.offer(better, pose(50, variance=0.2e-6))  # clearly better: claims, the first yields
+    for t in range(60, 100, 10):
+        bus.clock.now += 0.01
+        assert bus.offer(better, pose(t, variance=0.2e-6))
+        assert not bus.offer(art, pose(t, variance=1e-6))
+    lost = list(range(100, 100 + 10 * HOLDER_LOST_IN_ROW, 10))
+    for t in lost:  # the better tracker gone: the camera alone, its samples put as before
+        bus.clock.now += 0.01
+        assert bus.offer(better, pose(t, variance=40e-6))
+        assert not bus.offer(art, pose(t, variance=1e-6))  # the last one claims
+    assert bus.counters[0]["relation_taken_back"] == 1
+    assert bus.messages[-2:] == [
+        {"claim": art.producer, "after": lost[-1] * MS},
+        {"yield": better.producer, "last": lost[-1] * MS, "to": art.producer},
+    ]
+    after = lost[-1] + 10
+    bus.clock.now += 0.01
+    assert not bus.offer(better, pose(after, variance=40e-6))
+    assert bus.offer(art, pose(after, variance=1e-6))
+    assert bus.counters[0]["relation_taken_back"] == 1
+    stamps = bus.stamps()
+    assert stamps == sorted(set(stamps))  # every instant once, in order
 
 
 def holding(bus: Bus) -> KeyHandOver:
