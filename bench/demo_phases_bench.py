@@ -23,7 +23,13 @@ errors; the demo's docstring says where each phase begins):
   first second on, and a 1 s window sliding over the samples), are kept too, and counted in
   the table's last column;
 * ``within``: the phase's RMS at most 1.2 times its steady state's, translation and rotation
-  each (the issue's "Done when").
+  each (the issue's "Done when");
+* the mean NEES of the phase's samples and of its steady state, where the demo prints them
+  (``nees_mean``, ``steady_nees_mean``; since 2026-11-28): each run calibrates ``C -> HT``
+  anew, so its runs are independent batches, and the steady state's mean over the runs is
+  judged by their t interval (:func:`bench.synthetic.nees_over_batches`: consistent when 6 is
+  inside). The samples of one run share its calibration's error, so one run's mean NEES alone
+  says little.
 
 The bench runs processes and reads their output: O(runs) demos, O(samples) arithmetic.
 """
@@ -45,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from bench.report import write_results
+from bench.synthetic import nees_over_batches
 
 RESULTS = Path(__file__).parent / "results" / "demo_phases.json"
 PHASES = ("fused", "camera only", "fused again")
@@ -119,6 +126,8 @@ def judge_run(lines: list[dict[str, Any]]) -> dict[str, Any]:
             "samples": summary["samples"],
             "reconfiguration_ms": summary["reconfiguration_ms"],
             "reports": [[r["samples"], r["error_mm_rms"], r["error_deg_rms"]] for r in reports],
+            "nees_mean": summary.get("nees_mean"),
+            "steady_nees_mean": summary.get("steady_nees_mean"),
         }
         for unit in UNITS:
             whole = summary[f"error_{unit}_rms"]
@@ -160,6 +169,10 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
                 "runs_within": sum(f["within"] for f in figures),
                 "runs_demo_within": sum(f["demo_within"] is True for f in figures),
             }
+        table[phase]["nees_over_runs"] = {
+            name: nees_over_batches([run["phases"][phase].get(name) for run in runs])
+            for name in ("nees_mean", "steady_nees_mean")
+        }
     every = sum(all(run["phases"][p][u]["within"] for p in PHASES for u in UNITS) for run in runs)
     demo_every = sum(
         all(run["phases"][p][u]["demo_within"] is True for p in PHASES for u in UNITS)
@@ -189,7 +202,8 @@ def print_table(label: str, result: dict[str, Any]) -> None:
     if not summary["runs"]:
         return
     for phase, units in summary["phases"].items():
-        for unit, f in units.items():
+        for unit in UNITS:
+            f = units[unit]
             digits = 3 if unit == "mm" else 4
             print(
                 f"{phase:12s} {unit:4s} {f['rms_median']:8.{digits}f} "
@@ -198,6 +212,15 @@ def print_table(label: str, result: dict[str, Any]) -> None:
                 f"{f['runs_within']:4d}/{summary['runs']} "
                 f"{f['runs_demo_within']:3d}/{summary['runs']}"
             )
+    print("mean NEES over runs (95 % interval; 6 if the covariance is honest): phase, steady state")
+    for phase, units in summary["phases"].items():
+        texts = [
+            "-"
+            if batches is None
+            else "{:.2f} ({:.2f}-{:.2f})".format(batches["mean"], *batches["interval_95"])
+            for batches in units["nees_over_runs"].values()
+        ]
+        print(f"{phase:12s} {texts[0]:>20s} {texts[1]:>20s}")
 
 
 def commit_of(ubitrack: str) -> str | None:

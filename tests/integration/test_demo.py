@@ -78,6 +78,9 @@ def test_demo_runs_three_phases_with_sensible_errors(processes, tmp_path):
     for summary in summaries.values():
         assert summary["samples"] > 20, summary  # every phase delivered
         assert summary["error_mm_rms"] < 30.0, summary  # a few mm expected; 30 mm is gross
+        # The samples judged against their own covariances: 6 if honest (one run's mean lies
+        # about 4-9, its calibration's error shared by every sample); 60 is ten times over.
+        assert 0.0 < summary["nees_mean"] < 60.0, summary
         # Each phase's steady state (after its first second) and worst second (issue 29).
         for unit in ("mm", "deg"):
             whole, steady, worst = (

@@ -11,9 +11,12 @@ from ubitrack_agent.commands.demo import (
     STEADY_AFTER_S,
     WINDOW_S,
     Phase,
+    mean_nees,
+    nees,
     rms,
     worst_window_rms,
 )
+from ubitrack_agent.core import ErrorPose, Pose
 
 START_NS = 1_700_000_000_000_000_000
 SECOND_NS = 1_000_000_000
@@ -21,10 +24,10 @@ SECOND_NS = 1_000_000_000
 
 def phase_of(errors_mm: list[float], interval_s: float, name: str = "fused again") -> Phase:
     """A phase begun at START_NS with one sample every ``interval_s`` from then, its rotation
-    errors a hundredth of its translation errors."""
+    errors a hundredth of its translation errors, its NEES its translation error."""
     phase = Phase(name, START_NS)
     for index, error in enumerate(errors_mm):
-        phase.add(START_NS + int(index * interval_s * 1e9), error, error / 100, 5.0)
+        phase.add(START_NS + int(index * interval_s * 1e9), error, error / 100, 5.0, error)
     phase.ended_ns = START_NS + int(len(errors_mm) * interval_s * 1e9)
     return phase
 
@@ -90,9 +93,11 @@ def test_the_steady_state_starts_a_second_after_the_phase():
     phase = Phase("camera only", START_NS)
     late = START_NS + int(STEADY_AFTER_S * 1e9) - SECOND_NS // 10
     for index, error in enumerate([9.0, 9.0, 1.0, 1.0, 1.0]):
-        phase.add(late + index * SECOND_NS // 20, error, error, 1.0)
+        phase.add(late + index * SECOND_NS // 20, error, error, 1.0, error)
     phase.ended_ns = late + SECOND_NS
     assert phase.summary()["steady_error_mm_rms"] == pytest.approx(1.0)
+    assert phase.summary()["steady_nees_mean"] == pytest.approx(1.0)
+    assert phase.summary()["nees_mean"] == pytest.approx(21.0 / 5)
 
 
 def test_handing_on_moves_the_samples_from_the_next_phase_s_beginning():
@@ -103,4 +108,20 @@ def test_handing_on_moves_the_samples_from_the_next_phase_s_beginning():
     assert len(camera.errors_mm) == 8 and len(again.errors_mm) == 2
     assert all(t < again.started_ns for t in camera.arrivals_ns)
     assert all(t >= again.started_ns for t in again.arrivals_ns)
-    assert len(again.errors_deg) == len(again.latencies_ms) == 2
+    assert len(again.errors_deg) == len(again.latencies_ms) == len(again.nees) == 2
+
+
+def test_a_sample_s_nees_is_its_left_error_against_its_own_covariance():
+    """2 sigma off along x: NEES 4; a rotation of 3 sigma about z at the origin: NEES 9; a pose
+    without a covariance is not judged, and the mean skips it."""
+    identity, sigma = np.array([0.0, 0.0, 0.0, 1.0]), 1e-3
+    covariance = np.eye(6) * sigma**2
+    off = ErrorPose(0, identity, np.array([2 * sigma, 0.0, 0.0]), covariance)
+    assert nees(off, identity, np.zeros(3)) == pytest.approx(4.0, rel=1e-6)
+    turned = np.array([0.0, 0.0, np.sin(1.5 * sigma), np.cos(1.5 * sigma)])
+    rotated = ErrorPose(0, turned, np.zeros(3), covariance)
+    assert nees(rotated, identity, np.zeros(3)) == pytest.approx(9.0, rel=1e-6)
+    plain = nees(Pose(0, identity, np.zeros(3)), identity, np.zeros(3))
+    assert np.isnan(plain)
+    assert mean_nees([4.0, plain, 8.0]) == pytest.approx(6.0)
+    assert mean_nees([plain]) is None

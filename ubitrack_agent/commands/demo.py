@@ -9,8 +9,9 @@ natnet`` an OptiTrack in its place, ``ubitrack sim natnet`` read by ``ubitrack n
 the database or the store already has it (the default scenario's database does not); then it
 acts as an application asking for ``C -> A`` (camera to augmentation, 6D), which runs on the
 stored calibration.
-Once a second it prints the pose it receives, its rate, its latency and its error against the
-scenario's ground truth. Three phases: both trackers (the agent builds the data flow of the
+Once a second it prints the pose it receives, its rate, its latency, its error against the
+scenario's ground truth and the mean NEES of its samples against their own covariances (6 when
+the covariance is honest). Three phases: both trackers (the agent builds the data flow of the
 paper's figure 6: 2D-3D pose estimation fused with the A.R.T. path); the A.R.T. tracker
 stopped (the flow is rewired to camera only, on the same relation key); the A.R.T. tracker
 back (fusion returns). Each phase begins where its change reaches the network, and every
@@ -140,6 +141,29 @@ def worst_window_rms(
     return float(np.sqrt(np.max((sums[ends] - sums[starts]) / (ends - starts))))
 
 
+def nees(sample: Any, rotation: np.ndarray, translation: np.ndarray) -> float:
+    """``xi^T P^-1 xi`` of a received pose's left error ``xi = Log(T T_true^-1)`` against its
+    own covariance ``P`` (the core's convention: ``docs/protocol.md``), NaN without one. Its
+    mean is 6 when the covariance is honest (Bar-Shalom, Li, Kirubarajan, *Estimation with
+    Applications to Tracking and Navigation*, 2001, section 5.4); the truth serves only
+    this judgement, as it does the errors."""
+    from ubitrack_agent.services.algorithms.estimate import left_residuals, rigid
+
+    covariance = getattr(sample, "covariance", None)
+    if covariance is None:
+        return float("nan")
+    error = left_residuals(
+        rigid(sample.rotation, sample.translation), rigid(rotation, translation)
+    )[0]
+    return float(error @ np.linalg.solve(covariance, error))
+
+
+def mean_nees(values: Sequence[float]) -> float | None:
+    """The mean of the NEES values of samples with a covariance (None without any)."""
+    judged = [v for v in values if not np.isnan(v)]
+    return float(np.mean(judged)) if judged else None
+
+
 @dataclass
 class Phase:
     """What the application received during one phase: every sample that arrived from
@@ -152,20 +176,25 @@ class Phase:
     errors_mm: list[float] = field(default_factory=list)
     errors_deg: list[float] = field(default_factory=list)
     latencies_ms: list[float] = field(default_factory=list)
+    nees: list[float] = field(default_factory=list)
+    """Each sample's NEES (:func:`nees`; NaN for one without a covariance)."""
     reconfiguration_ms: float | None = None
 
-    def add(self, arrived_ns: int, error_mm: float, error_deg: float, latency_ms: float) -> None:
+    def add(
+        self, arrived_ns: int, error_mm: float, error_deg: float, latency_ms: float, nees: float
+    ) -> None:
         self.arrivals_ns.append(arrived_ns)
         self.errors_mm.append(error_mm)
         self.errors_deg.append(error_deg)
         self.latencies_ms.append(latency_ms)
+        self.nees.append(nees)
 
     def hand_on(self, successor: Phase) -> None:
         """End this phase where ``successor`` begins; the samples that arrived from then on
         move to it."""
         self.ended_ns = successor.started_ns
         keep = bisect.bisect_left(self.arrivals_ns, successor.started_ns)
-        for name in ("arrivals_ns", "errors_mm", "errors_deg", "latencies_ms"):
+        for name in ("arrivals_ns", "errors_mm", "errors_deg", "latencies_ms", "nees"):
             mine = getattr(self, name)
             getattr(successor, name)[:0] = mine[keep:]
             del mine[keep:]
@@ -181,6 +210,7 @@ class Phase:
             self.errors_mm[index:],
             self.errors_deg[index:],
             self.latencies_ms[index:],
+            self.nees[index:],
         )
 
     def report(self, ended_ns: int) -> dict[str, Any]:
@@ -195,6 +225,7 @@ class Phase:
             ),
             "error_mm_rms": _rounded(rms(self.errors_mm), 3),
             "error_deg_rms": _rounded(rms(self.errors_deg), 4),
+            "nees_mean": _rounded(mean_nees(self.nees), 2),
         }
 
     def summary(self) -> dict[str, Any]:
@@ -204,6 +235,7 @@ class Phase:
         ended_ns = self.ended_ns or time.time_ns()
         line = self.report(ended_ns)
         steady = bisect.bisect_left(self.arrivals_ns, self.started_ns + int(STEADY_AFTER_S * 1e9))
+        line["steady_nees_mean"] = _rounded(mean_nees(self.nees[steady:]), 2)
         for unit, errors, digits in (("mm", self.errors_mm, 3), ("deg", self.errors_deg, 4)):
             whole, settled = line[f"error_{unit}_rms"], _rounded(rms(errors[steady:]), digits)
             line |= {
@@ -727,6 +759,7 @@ class _Feed:
                     float(np.linalg.norm(sample.translation - t)) * 1000,
                     float(np.degrees(quaternions.angle(relative))),
                     (time.time_ns() - sample.timestamp_ns) / 1e6,
+                    nees(sample, q, t),
                 )
                 self.last_sample = sample
             if now - self.reported_ns >= 1e9 and len(phase.errors_mm) > self.reported:
@@ -757,7 +790,7 @@ def _report_text(line: dict[str, Any]) -> str:
     return (
         f"[{line['phase']:>11}] C->A t={line['translation_m']} m  {line['rate_hz']} Hz  "
         f"latency {line['latency_ms_median']} ms  error {line['error_mm_rms']} mm "
-        f"{line['error_deg_rms']} deg"
+        f"{line['error_deg_rms']} deg  NEES {line['nees_mean']}"
     )
 
 
@@ -768,6 +801,7 @@ def _summary_text(line: dict[str, Any]) -> str:
         f"summary {line['phase']}: {line['samples']} samples, {line['rate_hz']} Hz, error "
         f"{line['error_mm_rms']} mm / {line['error_deg_rms']} deg RMS (steady state "
         f"{line['steady_error_mm_rms']} mm / {line['steady_error_deg_rms']} deg, worst second "
-        f"{line['worst_second_mm_rms']} mm / {line['worst_second_deg_rms']} deg), latency "
-        f"{line['latency_ms_median']} ms{after}"
+        f"{line['worst_second_mm_rms']} mm / {line['worst_second_deg_rms']} deg), mean NEES "
+        f"{line['nees_mean']} (steady state {line['steady_nees_mean']}; 6 if the covariance is "
+        f"honest), latency {line['latency_ms_median']} ms{after}"
     )
