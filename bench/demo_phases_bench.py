@@ -223,6 +223,12 @@ def print_table(label: str, result: dict[str, Any]) -> None:
         print(f"{phase:12s} {texts[0]:>20s} {texts[1]:>20s}")
 
 
+def ratio_text(ratio: float | None) -> str:
+    """A phase's RMS over its steady state's, or ``-`` where a phase too short under load had
+    no steady state (fewer report lines than :data:`SETTLED_LINES` and one)."""
+    return "-" if ratio is None else f"{ratio:.2f}"
+
+
 def commit_of(ubitrack: str) -> str | None:
     """The git commit of the checkout whose ``ubitrack`` runs (its venv's parent folder)."""
     checkout = Path(ubitrack).resolve().parent.parent.parent
@@ -270,7 +276,7 @@ def main(argv: list[str] | None = None) -> None:
                 continue
             runs[label].append(run)
             ratios = "  ".join(
-                f"{p}: {run['phases'][p]['mm']['ratio']:.2f}/{run['phases'][p]['deg']['ratio']:.2f}"
+                f"{p}: " + "/".join(ratio_text(run["phases"][p][unit]["ratio"]) for unit in UNITS)
                 for p in PHASES
             )
             print(

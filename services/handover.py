@@ -28,7 +28,9 @@ sees while the flow behind its key changes"):
    relation key until the producer holding it answers that it has stopped, and after which
    instant (the newest it put); then it puts what comes after that instant. Two producers
    computing the same instants never both put one: the holder stops before it answers. With
-   no answer within :data:`CLAIM_TIMEOUT_S` (a holder that died meanwhile) it puts anyway.
+   no answer within :data:`CLAIM_TIMEOUT_S` it puts anyway if the key is quiet (a holder that
+   died or hung meanwhile), and claims again if the holder still puts (an answer late on a
+   loaded machine, or a message lost): putting then would put the holder's instants twice.
    The answer names the claimer it answers: another claimer pending then knows the key taken
    and claims again from its new holder (rule 2), and of two claimers neither holding the
    key, the one with the higher id withdraws (a claim with nobody to answer it, taken after
@@ -127,7 +129,8 @@ times as uncertain as a producer's own latest before it takes the key back (rule
 sensor lost stays lost for every sample, a hidden feature spoils one (the switch benchmark's
 "better tracker leaves": ``docs/performance.md``, "Is the fused covariance honest?")."""
 CLAIM_TIMEOUT_S = 0.25
-"""The longest a claimer waits for the holder's answer before it puts anyway."""
+"""How long a claimer waits for the holder's answer before it puts anyway (the key quiet) or
+claims again (the holder still putting; rule 3)."""
 QUIET_BOUNDS_S = (0.02, 0.5)
 """Bounds of the quiet time after which another producer counts as gone."""
 QUIET_INTERVALS = 3.0
@@ -159,7 +162,8 @@ COUNTERS = {
     "relation_yielded": "relation samples not put: a newer producer claimed the key",
     "relation_taken": "times this producer took a relation key over from another one",
     "relation_taken_back": "times this producer took back a key it had given away (rule 6)",
-    "relation_claims_unanswered": "claims that had no answer in time (put anyway)",
+    "relation_claims_unanswered": "claims that had no answer in time, the key quiet (put anyway)",
+    "relation_claims_repeated": "claims said again: no answer in time, the holder still putting",
     "relation_holder_left": "times the producer holding a relation key left (its token gone)",
     "relation_put_when_free": "relation samples held back, put when the key became free",
     "rejected_hand_over_messages": "hand-over messages refused (not a claim or an answer)",
@@ -463,8 +467,14 @@ class KeyHandOver:
                 # it answers, so nothing it puts comes after what this one puts then).
                 if now - self._claimed_at < CLAIM_TIMEOUT_S:
                     return self._hold_back(value, put, "relation_claiming")
-                self._counters["relation_claims_unanswered"] += 1
-                self._take(None)
+                if other:
+                    # The holder puts on: its answer is late (a loaded machine) or the claim
+                    # was lost. Putting now would put its instants twice: claim again, wait.
+                    self._claimed_at, claim, wait = now, True, True
+                    self._counters["relation_claims_repeated"] += 1
+                else:
+                    self._counters["relation_claims_unanswered"] += 1
+                    self._take(None)
             elif not other and not self._holds:
                 if self._holder_alive() or self.asking:  # maybe only late (a fusion waiting)
                     self._claimed_at, claim, wait = now, True, True
