@@ -61,12 +61,14 @@ sees while the flow behind its key changes"):
    fusion on standby running on the camera alone and the camera-only flow holding the key
    would take it from each other in turn (the raw estimate's covariance jumps where the
    filter's does not), so a spare that took the key from a chosen flow about as certain, and
-   then lost its own sensor, keeps it until the agent stops it. It does take it back when
-   the holder has lost an input: :data:`HOLDER_LOST_IN_ROW` of the holder's samples in a row
-   each at least ``1 / TAKE_BACK_RATIO`` times as uncertain as this producer's latest (a
-   fusion of the better tracker and the camera, the better tracker gone, running on the
-   camera alone beside the fusion of the A.R.T. tracker and the camera, which it took the key
-   from; one degraded sample, a feature hidden, is not enough).
+   then lost its own sensor, keeps it until the agent stops it. It does take it back, no less
+   certain, when the holder has lost an input: :data:`HOLDER_LOST_IN_ROW` of the holder's
+   samples in a row each at least ``1 / TAKE_BACK_RATIO`` times as uncertain as the holder's
+   sample before them (a fusion of the better tracker and the camera, the better tracker
+   gone, running on the camera alone beside the fusion of the A.R.T. tracker and the camera,
+   which it took the key from; one degraded sample, a feature hidden, is not enough, and a
+   holder merely less certain all along, the camera-only flow beside a fusion on standby
+   running on the camera alone, keeps the key).
 
 "Another producer is putting" means a sample not put by this one arrived within
 :meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded), or until
@@ -125,9 +127,10 @@ tracker's data in a fusion that ran on the camera alone: about 430 to 8 mm^2 in 
 flow that is merely better than the holder, by a better filter, say, does not take it."""
 HOLDER_LOST_IN_ROW = 3
 """How many of the holder's samples in a row must each be at least ``1 / TAKE_BACK_RATIO``
-times as uncertain as a producer's own latest before it takes the key back (rule 6): a
-sensor lost stays lost for every sample, a hidden feature spoils one (the switch benchmark's
-"better tracker leaves": ``docs/performance.md``, "Is the fused covariance honest?")."""
+times as uncertain as its sample before them before a producer that gave it the key takes it
+back (rule 6): a sensor lost stays lost for every sample, a hidden feature spoils one (the
+switch benchmark's "better tracker leaves": ``docs/performance.md``, "The switch bench in
+session 22")."""
 CLAIM_TIMEOUT_S = 0.25
 """How long a claimer waits for the holder's answer before it puts anyway (the key quiet) or
 claims again (the holder still putting; rule 3)."""
@@ -221,7 +224,10 @@ class KeyHandOver:
         self._other_trace: tuple[tuple[int, ...], float] | None = None
         self._other_worse_in_row = 0
         """How many of the other producer's latest samples in a row were each at least ``1 /
-        TAKE_BACK_RATIO`` times as uncertain as this producer's latest (rule 6)."""
+        TAKE_BACK_RATIO`` times as uncertain as its sample before them (rule 6: it lost an
+        input)."""
+        self._other_before: tuple[tuple[int, ...], float] | None = None
+        """The covariance trace of the other producer's sample before that run (rule 6)."""
         self._claimed_at: float | None = None
         """When this producer claimed the key (monotonic), until answered or timed out."""
         self._holds = False
@@ -270,22 +276,23 @@ class KeyHandOver:
                 self._newest_ns = value.timestamp_ns
             if value.timestamp_ns in self._mine:
                 return
-            if self._other_at is not None and now - self._other_at <= self.quiet_s():
+            running = self._other_at is not None and now - self._other_at <= self.quiet_s()
+            if running:
                 self._other_intervals.append(now - self._other_at)
             else:
                 self._other_intervals.clear()
             self._other_at = now
-            self._other_trace = _trace(value)
-            mine, theirs = self._own_trace, self._other_trace
-            lost = (
-                mine is not None
+            self._other_trace = theirs = _trace(value)
+            before = self._other_before if running else None  # after quiet: a new stream
+            if (
+                before is not None
                 and theirs is not None
-                and self._own_at is not None
-                and now - self._own_at <= QUIET_BOUNDS_S[1]  # not an estimate from before quiet
-                and mine[0] == theirs[0]
-                and mine[1] <= TAKE_BACK_RATIO * theirs[1]
-            )
-            self._other_worse_in_row = self._other_worse_in_row + 1 if lost else 0
+                and before[0] == theirs[0]
+                and before[1] <= TAKE_BACK_RATIO * theirs[1]
+            ):
+                self._other_worse_in_row += 1  # ten times as uncertain as before: lost an input
+            else:
+                self._other_worse_in_row, self._other_before = 0, theirs
 
     def receive(self, payload: bytes) -> None:
         """A hand-over message: another producer's claim (answered at once if this one holds
@@ -523,18 +530,17 @@ class KeyHandOver:
         return warm and mine[1] <= READY_RATIO * theirs[1]
 
     def _regained(self, previous: tuple[tuple[int, ...], float] | None) -> bool:
-        """Rule 6: the holder has lost an input (:data:`HOLDER_LOST_IN_ROW` samples far less
-        certain than this producer's), or this producer's latest estimate is no less certain
+        """Rule 6: this producer's latest estimate is no less certain than the holder's latest
+        sample, and the holder has lost an input (:data:`HOLDER_LOST_IN_ROW` samples in a row
+        each ten times as uncertain as its sample before them), or this producer's latest
+        estimate is no less certain
         than the holder's latest sample and it has got a lost input back: it was quiet
         (``previous`` is None) or its estimate is at most :data:`TAKE_BACK_RATIO` times as
         uncertain as its ``previous`` one (covariances of one shape); lock held."""
         mine, theirs = self._own_trace, self._other_trace
         if mine is None or theirs is None or mine[0] != theirs[0]:
             return False
-        if (
-            self._other_worse_in_row >= HOLDER_LOST_IN_ROW
-            and mine[1] <= TAKE_BACK_RATIO * theirs[1]
-        ):
+        if self._other_worse_in_row >= HOLDER_LOST_IN_ROW and mine[1] <= READY_RATIO * theirs[1]:
             return True
         if mine[1] > READY_RATIO * theirs[1]:
             return False
