@@ -63,12 +63,12 @@ sees while the flow behind its key changes"):
    filter's does not), so a spare that took the key from a chosen flow about as certain, and
    then lost its own sensor, keeps it until the agent stops it. It does take it back, no less
    certain, when the holder has lost an input: :data:`HOLDER_LOST_IN_ROW` of the holder's
-   samples in a row each at least ``1 / TAKE_BACK_RATIO`` times as uncertain as the holder's
-   sample before them (a fusion of the better tracker and the camera, the better tracker
-   gone, running on the camera alone beside the fusion of the A.R.T. tracker and the camera,
-   which it took the key from; one degraded sample, a feature hidden, is not enough, and a
-   holder merely less certain all along, the camera-only flow beside a fusion on standby
-   running on the camera alone, keeps the key).
+   samples in a row each at least ``1 / TAKE_BACK_RATIO`` times as uncertain as its least
+   uncertain one of the last :data:`LOST_WINDOW_S` (a fusion of the better tracker and the
+   camera, the better tracker gone, running on the camera alone beside the fusion of the
+   A.R.T. tracker and the camera, which it took the key from; one degraded sample, a feature
+   hidden, is not enough, and a holder merely less certain all along, the camera-only flow
+   beside a fusion on standby running on the camera alone, keeps the key).
 
 "Another producer is putting" means a sample not put by this one arrived within
 :meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded), or until
@@ -125,12 +125,16 @@ TAKE_BACK_RATIO = 0.1
 to at most this times its previous estimate's (rule 6): an input it had lost is back (the
 tracker's data in a fusion that ran on the camera alone: about 430 to 8 mm^2 in the demo). A
 flow that is merely better than the holder, by a better filter, say, does not take it."""
+LOST_WINDOW_S = 2.0
+"""The window of the holder's samples whose least uncertain one a sample is compared with to
+read a lost input (rule 6): a filter that loses a sensor grows uncertain over tenths of a
+second, not from one sample to the next."""
 HOLDER_LOST_IN_ROW = 3
 """How many of the holder's samples in a row must each be at least ``1 / TAKE_BACK_RATIO``
-times as uncertain as its sample before them before a producer that gave it the key takes it
-back (rule 6): a sensor lost stays lost for every sample, a hidden feature spoils one (the
-switch benchmark's "better tracker leaves": ``docs/performance.md``, "The switch bench in
-session 22")."""
+times as uncertain as its least uncertain one of the last :data:`LOST_WINDOW_S` before a
+producer that gave it the key takes it back (rule 6): a sensor lost stays lost for every
+sample, a hidden feature spoils one (the switch benchmark's "better tracker leaves":
+``docs/performance.md``, "The switch bench in session 22")."""
 CLAIM_TIMEOUT_S = 0.25
 """How long a claimer waits for the holder's answer before it puts anyway (the key quiet) or
 claims again (the holder still putting; rule 3)."""
@@ -224,10 +228,12 @@ class KeyHandOver:
         self._other_trace: tuple[tuple[int, ...], float] | None = None
         self._other_worse_in_row = 0
         """How many of the other producer's latest samples in a row were each at least ``1 /
-        TAKE_BACK_RATIO`` times as uncertain as its sample before them (rule 6: it lost an
-        input)."""
-        self._other_before: tuple[tuple[int, ...], float] | None = None
-        """The covariance trace of the other producer's sample before that run (rule 6)."""
+        TAKE_BACK_RATIO`` times as uncertain as its least uncertain of the last
+        :data:`LOST_WINDOW_S` (rule 6: it lost an input)."""
+        self._other_least: deque[tuple[float, float]] = deque()
+        self._other_shape: tuple[int, ...] | None = None
+        """The other producer's (time, trace) of the last :data:`LOST_WINDOW_S`, increasing
+        traces only: its first is the window's least (a sliding minimum, O(1) a sample)."""
         self._claimed_at: float | None = None
         """When this producer claimed the key (monotonic), until answered or timed out."""
         self._holds = False
@@ -283,16 +289,27 @@ class KeyHandOver:
                 self._other_intervals.clear()
             self._other_at = now
             self._other_trace = theirs = _trace(value)
-            before = self._other_before if running else None  # after quiet: a new stream
-            if (
-                before is not None
-                and theirs is not None
-                and before[0] == theirs[0]
-                and before[1] <= TAKE_BACK_RATIO * theirs[1]
-            ):
-                self._other_worse_in_row += 1  # ten times as uncertain as before: lost an input
-            else:
-                self._other_worse_in_row, self._other_before = 0, theirs
+            self._count_lost(now, theirs, running)
+
+    def _count_lost(
+        self, now: float, theirs: tuple[tuple[int, ...], float] | None, running: bool
+    ) -> None:
+        """Rule 6's count of the other producer's samples in a row that read a lost input;
+        lock held."""
+        least = self._other_least
+        if theirs is None or not running or (least and self._other_shape != theirs[0]):
+            least.clear()  # a new stream: nothing to compare with yet
+        if theirs is None:
+            self._other_worse_in_row = 0
+            return
+        self._other_shape = theirs[0]
+        while least and least[0][0] < now - LOST_WINDOW_S:
+            least.popleft()
+        lost = bool(least) and least[0][1] <= TAKE_BACK_RATIO * theirs[1]
+        self._other_worse_in_row = self._other_worse_in_row + 1 if lost else 0
+        while least and least[-1][1] >= theirs[1]:
+            least.pop()
+        least.append((now, theirs[1]))
 
     def receive(self, payload: bytes) -> None:
         """A hand-over message: another producer's claim (answered at once if this one holds
@@ -532,7 +549,8 @@ class KeyHandOver:
     def _regained(self, previous: tuple[tuple[int, ...], float] | None) -> bool:
         """Rule 6: this producer's latest estimate is no less certain than the holder's latest
         sample, and the holder has lost an input (:data:`HOLDER_LOST_IN_ROW` samples in a row
-        each ten times as uncertain as its sample before them), or this producer's latest
+        each ten times as uncertain as its least uncertain one of the last
+        :data:`LOST_WINDOW_S`), or this producer's latest
         estimate is no less certain
         than the holder's latest sample and it has got a lost input back: it was quiet
         (``previous`` is None) or its estimate is at most :data:`TAKE_BACK_RATIO` times as

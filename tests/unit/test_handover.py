@@ -15,6 +15,7 @@ from ubitrack_agent.core.measurements import WORKER, ErrorPose, Pose
 from ubitrack_agent.services.handover import (
     CLAIM_TIMEOUT_S,
     HOLDER_LOST_IN_ROW,
+    TAKE_BACK_RATIO,
     WARM_S,
     KeyHandOver,
 )
@@ -224,8 +225,9 @@ def test_a_producer_that_gave_the_key_away_does_not_take_it_back_for_a_holder_le
 def test_a_producer_that_gave_the_key_away_takes_it_back_when_the_holder_lost_an_input():
     """Rule 6: the fusion of the A.R.T. tracker and the camera gave the key to the fusion of
     the better tracker and the camera; the better tracker gone, that one runs on the camera
-    alone (on standby, for seconds): after HOLDER_LOST_IN_ROW samples in a row at least ten
-    times as uncertain as its own, the first fusion takes the key back; one stream."""
+    alone (on standby, for seconds): after HOLDER_LOST_IN_ROW of its samples in a row at least
+    ten times as uncertain as its least of the last LOST_WINDOW_S, the first fusion takes the
+    key back; one stream."""
     bus = Bus()
     art = bus.producer()
     for t in range(10, 50, 10):
@@ -239,20 +241,24 @@ def test_a_producer_that_gave_the_key_away_takes_it_back_when_the_holder_lost_an
         bus.clock.now += 0.01
         assert bus.offer(better, pose(t, variance=0.2e-6))
         assert not bus.offer(art, pose(t, variance=1e-6))
-    lost = list(range(100, 100 + 10 * HOLDER_LOST_IN_ROW, 10))
-    for t in lost:  # the better tracker gone: the camera alone, its samples put as before
+    # The better tracker gone: the filter grows uncertain over a few samples, to the camera's.
+    t, variance, over = 100, 0.2e-6, 0
+    while not bus.counters[0]["relation_taken_back"]:
         bus.clock.now += 0.01
-        assert bus.offer(better, pose(t, variance=40e-6))
-        assert not bus.offer(art, pose(t, variance=1e-6))  # the last one claims
-    assert bus.counters[0]["relation_taken_back"] == 1
+        variance = min(40e-6, 2 * variance)
+        over = over + 1 if variance >= 0.2e-6 / TAKE_BACK_RATIO else 0
+        assert bus.offer(better, pose(t, variance=variance))
+        assert not bus.offer(art, pose(t, variance=1e-6))  # the claim, at the last of these
+        t += 10
+        assert t < 1000, "never taken back"
+    assert over == HOLDER_LOST_IN_ROW  # ten times its least of the window, three in a row
     assert bus.messages[-2:] == [
-        {"claim": art.producer, "after": lost[-1] * MS},
-        {"yield": better.producer, "last": lost[-1] * MS, "to": art.producer},
+        {"claim": art.producer, "after": (t - 10) * MS},
+        {"yield": better.producer, "last": (t - 10) * MS, "to": art.producer},
     ]
-    after = lost[-1] + 10
     bus.clock.now += 0.01
-    assert not bus.offer(better, pose(after, variance=40e-6))
-    assert bus.offer(art, pose(after, variance=1e-6))
+    assert not bus.offer(better, pose(t, variance=40e-6))
+    assert bus.offer(art, pose(t, variance=1e-6))
     assert bus.counters[0]["relation_taken_back"] == 1
     stamps = bus.stamps()
     assert stamps == sorted(set(stamps))  # every instant once, in order
