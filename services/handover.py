@@ -231,9 +231,10 @@ class KeyHandOver:
         TAKE_BACK_RATIO`` times as uncertain as its least uncertain of the last
         :data:`LOST_WINDOW_S` (rule 6: it lost an input)."""
         self._other_least: deque[tuple[float, float]] = deque()
-        self._other_shape: tuple[int, ...] | None = None
         """The other producer's (time, trace) of the last :data:`LOST_WINDOW_S`, increasing
         traces only: its first is the window's least (a sliding minimum, O(1) a sample)."""
+        self._other_shape: tuple[int, ...] | None = None
+        """The shape of the covariances in that window (traces of one shape compared only)."""
         self._claimed_at: float | None = None
         """When this producer claimed the key (monotonic), until answered or timed out."""
         self._holds = False
@@ -550,18 +551,16 @@ class KeyHandOver:
         """Rule 6: this producer's latest estimate is no less certain than the holder's latest
         sample, and the holder has lost an input (:data:`HOLDER_LOST_IN_ROW` samples in a row
         each ten times as uncertain as its least uncertain one of the last
-        :data:`LOST_WINDOW_S`), or this producer's latest
-        estimate is no less certain
-        than the holder's latest sample and it has got a lost input back: it was quiet
-        (``previous`` is None) or its estimate is at most :data:`TAKE_BACK_RATIO` times as
-        uncertain as its ``previous`` one (covariances of one shape); lock held."""
+        :data:`LOST_WINDOW_S`) or this producer has got one back: it was quiet (``previous``
+        is None) or its estimate is at most :data:`TAKE_BACK_RATIO` times as uncertain as its
+        ``previous`` one (covariances of one shape); lock held."""
         mine, theirs = self._own_trace, self._other_trace
         if mine is None or theirs is None or mine[0] != theirs[0]:
             return False
-        if self._other_worse_in_row >= HOLDER_LOST_IN_ROW and mine[1] <= READY_RATIO * theirs[1]:
-            return True
         if mine[1] > READY_RATIO * theirs[1]:
             return False
+        if self._other_worse_in_row >= HOLDER_LOST_IN_ROW:
+            return True
         if previous is None:
             return True
         return previous[0] == mine[0] and mine[1] <= TAKE_BACK_RATIO * previous[1]
