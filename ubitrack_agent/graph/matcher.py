@@ -265,13 +265,14 @@ def _candidates(
     types: Mapping[str, str],
     template: Template,
     index: EdgeIndex,
+    kinds: Sequence[str] | None = None,
 ) -> Iterable[str]:
     """Edge ids that could bind ``spec`` given the roles and types bound so far (most selective
-    first: the edges of a bound frame of a possible type)."""
+    first: the edges of a bound frame of a possible type; of ``kinds`` only, if given)."""
     var = spec.type_var
-    if var is not None:
+    if kinds is None and var is not None:
         kinds = (types[var],) if var in types else template.type_vars[var]
-    else:
+    elif kinds is None:
         kinds = (spec.type,)
     if spec.source in roles:
         frame, adjacency = roles[spec.source], index.out
@@ -356,7 +357,11 @@ def _extend(
     introduces = bool(template.introduced)
     positions = range(len(template.inputs))
     free = viable is _any_binding  # no test to ask
-    for edge_id in _candidates(spec, roles, types, template, index):
+    var = spec.type_var
+    kinds = None
+    if not free and var is not None and var not in types:
+        kinds = _viable_kinds(template, var, roles, types, bound, viable)
+    for edge_id in _candidates(spec, roles, types, template, index, kinds):
         if not_seeds and edge_id in seeds:
             continue
         edge = edges[edge_id]
@@ -396,6 +401,27 @@ def _extend(
                 )
         del bound[i]
         _unbind(made)
+
+
+def _viable_kinds(
+    template: Template,
+    var: str,
+    roles: Mapping[str, str],
+    types: dict[str, str],
+    bound: Mapping[int, str],
+    viable: Viable,
+) -> list[str]:
+    """The types the unbound type variable ``var`` may take in an occurrence completing the
+    partial one: those for which ``viable`` does not reject it with ``var`` bound, asked once
+    per type before the candidates of that type are listed (a point is carried only into a
+    query frame: a chain from any other frame takes no 3D link)."""
+    kinds = []
+    for kind in template.type_vars[var]:
+        types[var] = kind
+        if viable(roles, types, bound):
+            kinds.append(kind)
+    del types[var]
+    return kinds
 
 
 def _completed(

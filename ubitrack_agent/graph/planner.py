@@ -437,9 +437,12 @@ class Workspace:
     towards the query target, the rule before session 15, which the test oracle keeps."""
     span: float = 0
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
-    _reach: dict[tuple[str, int], dict[str, int]] = field(default_factory=dict)
+    _reach: dict[tuple[str, int], dict[int, int]] = field(default_factory=dict)
+    """:meth:`_avoiding`'s hops (by frame bit) by start and frames avoided."""
     _bits: dict[str, int] = field(default_factory=dict)
     """A bit per frame of the region (frame sets as ints: :meth:`_on_a_way`)."""
+    _adjacent: list[int] = field(default_factory=list)
+    """The neighbours of the frame of each bit, as bits (:meth:`_avoiding`)."""
     _link_bits: dict[str, int] = field(default_factory=dict)
     """The frames each chained edge's sources join, as bits (by edge id)."""
     _ways: dict[tuple[str, str, int, float], bool] = field(default_factory=dict)
@@ -492,17 +495,51 @@ class Workspace:
     def _avoiding(self, start: str, goal: str, avoid: int) -> float:
         """Hops from ``start`` to ``goal`` in the region without entering a frame of ``avoid``
         (bits, :meth:`_bit`; edges in either direction; infinite if there is no such way).
-        ``O(frames + edges)`` per distinct ``(start, avoid)``, memoised."""
+        A breadth-first search on bit sets (:meth:`_hops_avoiding`) per distinct ``(start,
+        avoid)``, memoised."""
         if start == goal:
             return 0
-        if (self._bit(start) | self._bit(goal)) & avoid:
+        goal_bit = self._bit(goal)
+        start_bit = self._bit(start)
+        if (start_bit | goal_bit) & avoid:
             return math.inf
         key = (start, avoid)
         known = self._reach.get(key)
         if known is None:
-            frames = frozenset(f for f, bit in self._bits.items() if bit & avoid)
-            known = self._reach[key] = hop_distances(self._around, (start,), avoid=frames)
-        return known.get(goal, math.inf)
+            known = self._reach[key] = self._hops_avoiding(start_bit, avoid)
+        return known.get(goal_bit, math.inf)
+
+    def _hops_avoiding(self, start_bit: int, avoid: int) -> dict[int, int]:
+        """Hops to each frame (by bit) reached from the frame of ``start_bit`` without
+        entering ``avoid`` (bits): breadth-first on the neighbours' bits (:attr:`_adjacent`),
+        ``O(frames)`` word operations."""
+        adjacent = self._adjacent
+        if len(adjacent) < len(self._bits):  # a frame was given its bit since: read again
+            for frame in sorted(self.neighbours):
+                self._bit(frame)
+            position = {bit.bit_length() - 1: frame for frame, bit in self._bits.items()}
+            adjacent[:] = [0] * len(position)
+            for at, frame in position.items():
+                for other in self.neighbours.get(frame, ()):
+                    adjacent[at] |= self._bit(other)
+        hops = {start_bit: 0}
+        seen = start_bit | avoid
+        frontier, depth = start_bit, 0
+        while frontier:
+            depth += 1
+            reached = 0
+            while frontier:
+                low = frontier & -frontier
+                reached |= adjacent[low.bit_length() - 1]
+                frontier ^= low
+            frontier = reached & ~seen
+            seen |= frontier
+            rest = frontier
+            while rest:
+                low = rest & -rest
+                hops[low] = depth
+                rest ^= low
+        return hops
 
     def viable_chain(self, template: Template) -> Viable:
         """The occurrences of a chain template worth applying, as a test of partial ones for
