@@ -415,6 +415,20 @@ def relevant_frames(
     raise AssertionError("the added edge lies in exactly one block")
 
 
+class _Bits(dict[str, int]):
+    """A bit per frame, the next free one given to a frame on its first look-up."""
+
+    def __missing__(self, frame: str) -> int:
+        bit = self[frame] = 1 << len(self)
+        return bit
+
+    def cover(self, frames: Iterable[str]) -> None:
+        """Give each of ``frames`` its bit."""
+        for frame in frames:
+            if frame not in self:
+                self.__missing__(frame)
+
+
 @dataclass
 class Workspace:
     """The working SRG of one planning run: measured and inferred edges, and the steps."""
@@ -439,8 +453,9 @@ class Workspace:
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, int], dict[int, int]] = field(default_factory=dict)
     """:meth:`_avoiding`'s hops (by frame bit) by start and frames avoided."""
-    _bits: dict[str, int] = field(default_factory=dict)
-    """A bit per frame of the region (frame sets as ints: :meth:`_on_a_way`)."""
+    _bits: _Bits = field(default_factory=lambda: _Bits())
+    """A bit per frame of the region, given on first use (frame sets as ints:
+    :meth:`_on_a_way`)."""
     _adjacent: list[int] = field(default_factory=list)
     """The neighbours of the frame of each bit, as bits (:meth:`_avoiding`)."""
     _link_bits: dict[str, int] = field(default_factory=dict)
@@ -475,32 +490,24 @@ class Workspace:
         """Hops between frames ``a`` and ``b`` in the region (more than any if not joined)."""
         return self._hops_from(a).get(b, len(self.neighbours) + 1)
 
-    def _bit(self, frame: str) -> int:
-        """The bit of ``frame`` (given on first use)."""
-        bit = self._bits.get(frame)
-        if bit is None:
-            bit = self._bits[frame] = 1 << len(self._bits)
-        return bit
-
     def _frame_bits(self, link: EdgeRecord) -> int:
         """The frames ``link``'s sources join (:attr:`EdgeRecord.frames`) as bits, kept."""
         bits = self._link_bits.get(link.id)
         if bits is None:
-            bits = 0
+            bits, table = 0, self._bits
             for frame in link.frames:
-                bits |= self._bit(frame)
+                bits |= table[frame]
             self._link_bits[link.id] = bits
         return bits
 
     def _avoiding(self, start: str, goal: str, avoid: int) -> float:
         """Hops from ``start`` to ``goal`` in the region without entering a frame of ``avoid``
-        (bits, :meth:`_bit`; edges in either direction; infinite if there is no such way).
+        (bits, :attr:`_bits`; edges in either direction; infinite if there is no such way).
         A breadth-first search on bit sets (:meth:`_hops_avoiding`) per distinct ``(start,
         avoid)``, memoised."""
         if start == goal:
             return 0
-        goal_bit = self._bit(goal)
-        start_bit = self._bit(start)
+        goal_bit, start_bit = self._bits[goal], self._bits[start]
         if (start_bit | goal_bit) & avoid:
             return math.inf
         key = (start, avoid)
@@ -514,14 +521,14 @@ class Workspace:
         entering ``avoid`` (bits): breadth-first on the neighbours' bits (:attr:`_adjacent`),
         ``O(frames)`` word operations."""
         adjacent = self._adjacent
-        if len(adjacent) < len(self._bits):  # a frame was given its bit since: read again
-            for frame in sorted(self.neighbours):
-                self._bit(frame)
-            position = {bit.bit_length() - 1: frame for frame, bit in self._bits.items()}
-            adjacent[:] = [0] * len(position)
-            for at, frame in position.items():
+        table = self._bits
+        if len(adjacent) < len(table):  # a frame was given its bit since: read again
+            table.cover(sorted(self.neighbours))
+            adjacent[:] = [0] * len(table)
+            for frame, bit in table.items():
+                at = bit.bit_length() - 1
                 for other in self.neighbours.get(frame, ()):
-                    adjacent[at] |= self._bit(other)
+                    adjacent[at] |= table[other]
         hops = {start_bit: 0}
         seen = start_bit | avoid
         frontier, depth = start_bit, 0
@@ -645,16 +652,17 @@ class Workspace:
         backward = from_start.get(y, far) + from_end.get(x, far) <= limit
         if not (forward or backward):
             return False
-        bx, by = self._bit(x), self._bit(y)
+        bx, by = self._bits[x], self._bits[y]
         inside &= ~(bx | by)
         key = (x, y, inside, limit)
         known = self._ways.get(key)
         if known is None:
-            ends = [(x, y, bx, by)] * forward + [(y, x, by, bx)] * backward
-            known = self._ways[key] = any(
-                self._avoiding(start, a, inside | b_bit) + self._avoiding(b, end, inside | a_bit)
-                <= limit
-                for a, b, a_bit, b_bit in ends
+            avoiding = self._avoiding
+            known = self._ways[key] = (
+                forward and avoiding(start, x, inside | by) + avoiding(y, end, inside | bx) <= limit
+            ) or (
+                backward
+                and avoiding(start, y, inside | bx) + avoiding(x, end, inside | by) <= limit
             )
         return known
 
