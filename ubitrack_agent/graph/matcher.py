@@ -349,8 +349,11 @@ def _extend(
     spec = template.inputs[i]
     edges = index.edges
     chosen = [edges[b] for b in bound.values()]
-    taken = frozenset().union(*(other.sources for other in chosen))
-    integrated = any(other.time_integrated for other in chosen)
+    if len(chosen) == 1:  # the seed alone (most templates have two inputs)
+        taken, integrated = chosen[0].sources, chosen[0].time_integrated
+    else:
+        taken = frozenset().union(*(other.sources for other in chosen))
+        integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
     completes = len(bound) + 1 == len(template.inputs)
     check = last(spec, roles, bound) if completes and last is not None else None
@@ -490,6 +493,7 @@ def find_matches(
     # to time-only patterns, introduced roles take a binding of their own
     admissible = _admissible if template.time_only else _always
     single = len(template.inputs) == 1 and not template.introduced and not template.time_only
+    free = viable is _any_binding  # no test to ask
     inputs_of_type: dict[str, list[tuple[int, InputSpec]]] = {}
     for seed in dict.fromkeys(seeds):
         edge = index.edges[seed]
@@ -500,7 +504,9 @@ def find_matches(
             roles: dict[str, str] = {}
             types: dict[str, str] = {}
             bound = {i: seed}
-            if _bind(spec, edge, template, roles, types) is None or not viable(roles, types, bound):
+            if _bind(spec, edge, template, roles, types) is None or not (
+                free or viable(roles, types, bound)
+            ):
                 continue
             if single:  # one input: the occurrence is complete (no generator for it)
                 yield Match(

@@ -529,23 +529,19 @@ class Workspace:
                 at = bit.bit_length() - 1
                 for other in self.neighbours.get(frame, ()):
                     adjacent[at] |= table[other]
-        hops = {start_bit: 0}
+        hops = {}
         seen = start_bit | avoid
         frontier, depth = start_bit, 0
         while frontier:
-            depth += 1
             reached = 0
             while frontier:
                 low = frontier & -frontier
+                hops[low] = depth
                 reached |= adjacent[low.bit_length() - 1]
                 frontier ^= low
+            depth += 1
             frontier = reached & ~seen
             seen |= frontier
-            rest = frontier
-            while rest:
-                low = rest & -rest
-                hops[low] = depth
-                rest ^= low
         return hops
 
     def viable_chain(self, template: Template) -> Viable:
