@@ -319,13 +319,15 @@ def _any_binding(
 
 
 LastLink = Callable[
-    [InputSpec, Mapping[str, str], Mapping[int, str]], Callable[[EdgeRecord], bool] | None
+    [InputSpec, Mapping[str, str], Mapping[str, str], Mapping[int, str]],
+    Callable[[EdgeRecord], bool] | None,
 ]
-"""A caller's test of the edges that could bind the last unbound input: given its
-specification, the role bindings and the bound input edge ids so far, a test of one edge
-(``None``: every edge passes), asked before the edge is bound: ``False`` only where
-:data:`Viable` would reject the completed occurrence, so the search spares the binding. What
-the edges share is worked out once, not for each candidate."""
+"""A caller's test of the occurrences an edge would complete by binding the last unbound
+input: given its specification, the role and type bindings and the bound input edge ids so
+far, a test of one edge (``None``: no test, :data:`Viable` is asked after binding), asked
+before the edge is bound. It must pass exactly the edges whose completed occurrence
+:data:`Viable` would pass: the search binds only those and does not ask :data:`Viable` again.
+What the edges share is worked out once, not for each candidate."""
 
 
 def _extend(
@@ -356,7 +358,7 @@ def _extend(
         integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
     completes = len(bound) + 1 == len(template.inputs)
-    check = last(spec, roles, bound) if completes and last is not None else None
+    check = last(spec, roles, types, bound) if completes and last is not None else None
     introduces = bool(template.introduced)
     positions = range(len(template.inputs))
     free = viable is _any_binding  # no test to ask
@@ -388,7 +390,7 @@ def _extend(
         if made is None:
             continue
         bound[i] = edge_id
-        if free or viable(roles, types, bound):
+        if free or check is not None or viable(roles, types, bound):
             if not completes:
                 yield from _extend(
                     template, index, bound, roles, types, viable, seeds, seeded_at, last
