@@ -3,17 +3,21 @@ whose space expansions' cost floor is no cheaper than the dearest alternative of
 relation (``Workspace.group_outclassed``), a chain whose cost is not
 (``Workspace._chain_outclassed``), and a chain's last link whose ends are too far from the
 query frames (``Workspace.last_link``). The floor is below every expansion's cost, and
-skipping changes no answer: every solution, every step, byte for byte."""
+skipping changes no answer: every solution, every step, byte for byte. A chain's link of a
+type the chain cannot take is not offered (session 22), and the ways around a chain, searched
+on bit sets, are the plain breadth-first hops."""
 
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 
 from bench.building import Building, body, build, camera, marker
 from ubitrack_agent.graph import matcher, planner
 from ubitrack_agent.graph.planner import Query, Workspace, edge_cost, plan, propagate
+from ubitrack_agent.graph.ways import hop_distances
 
 HEAD_TO_HEAD = (Building(rooms=2, bodies=4, redundant=2), Query(body(0), body(1), "6D"))
 IN_ROOM = (Building(redundant=7), Query(camera(0), marker(0), "6D"))
@@ -94,3 +98,52 @@ def test_the_floor_of_a_group_is_below_every_expansion_it_yields(templates, monk
     plan(build(shape), templates, query)
     assert len(checked) > 50
     assert min(checked) < 0.01  # tight somewhere: the floor is reached by the cheapest set
+
+
+def _room_workspace(templates) -> tuple[planner.Workspace, Query]:
+    """The saturated workspace of camera -> marker in a room with seven redundant trackers."""
+    shape, query = IN_ROOM
+    srg = build(shape)
+    frames = planner.relevant_frames(srg, query.source, query.target, planner.DEFAULT_SLACK)
+    goal = (query.source, query.target)
+    return planner.saturate(srg, templates, frames, query.type, goal=goal), query
+
+
+def test_a_chain_from_a_frame_other_than_a_query_frame_is_offered_no_point(templates):
+    """The type of a chain's unbound link is put to the test of partial occurrences before
+    its candidates are listed: points are carried only into the query frames."""
+    ws, query = _room_workspace(templates)
+    chain = next(t for t in templates if t.signature == "chain")
+    viable = ws.viable_chain(chain)
+    first, second = chain.inputs
+    var = second.type_var
+    assert var is not None
+
+    def kinds(start: str) -> list[str]:
+        roles = {first.source: start, first.target: "R0"}
+        return matcher._viable_kinds(chain, var, roles, {}, {0: "any"}, viable)
+
+    assert kinds(query.source) == list(chain.type_vars[var])
+    assert "3D" in chain.type_vars[var] and "3D" not in kinds("T0_1")
+
+
+def test_the_ways_around_a_chain_are_the_breadth_first_hops(templates):
+    """``Workspace._avoiding`` (breadth-first on bit sets) gives the hops
+    ``ways.hop_distances`` gives over the frames' names, for every start and goal of the
+    region and sets of frames to avoid."""
+    ws, _ = _room_workspace(templates)
+    frames = sorted(ws.neighbours)
+    assert len(frames) > 10
+    compared = 0
+    for k, avoided in enumerate([(), *((f,) for f in frames), tuple(frames[::3])]):
+        avoid = 0
+        for frame in avoided:
+            avoid |= ws._bits[frame]
+        for start in frames[k % 3 :: 3]:
+            expected = hop_distances(ws._around, (start,), avoid=frozenset(avoided))
+            for goal in frames:
+                if start in avoided or goal in avoided:
+                    continue
+                assert ws._avoiding(start, goal, avoid) == expected.get(goal, math.inf)
+                compared += 1
+    assert compared > 500

@@ -265,13 +265,14 @@ def _candidates(
     types: Mapping[str, str],
     template: Template,
     index: EdgeIndex,
+    kinds: Sequence[str] | None = None,
 ) -> Iterable[str]:
     """Edge ids that could bind ``spec`` given the roles and types bound so far (most selective
-    first: the edges of a bound frame of a possible type)."""
+    first: the edges of a bound frame of a possible type; of ``kinds`` only, if given)."""
     var = spec.type_var
-    if var is not None:
+    if kinds is None and var is not None:
         kinds = (types[var],) if var in types else template.type_vars[var]
-    else:
+    elif kinds is None:
         kinds = (spec.type,)
     if spec.source in roles:
         frame, adjacency = roles[spec.source], index.out
@@ -318,13 +319,15 @@ def _any_binding(
 
 
 LastLink = Callable[
-    [InputSpec, Mapping[str, str], Mapping[int, str]], Callable[[EdgeRecord], bool] | None
+    [InputSpec, Mapping[str, str], Mapping[str, str], Mapping[int, str]],
+    Callable[[EdgeRecord], bool] | None,
 ]
-"""A caller's test of the edges that could bind the last unbound input: given its
-specification, the role bindings and the bound input edge ids so far, a test of one edge
-(``None``: every edge passes), asked before the edge is bound: ``False`` only where
-:data:`Viable` would reject the completed occurrence, so the search spares the binding. What
-the edges share is worked out once, not for each candidate."""
+"""A caller's test of the occurrences an edge would complete by binding the last unbound
+input: given its specification, the role and type bindings and the bound input edge ids so
+far, a test of one edge (``None``: no test, :data:`Viable` is asked after binding), asked
+before the edge is bound. It must pass exactly the edges whose completed occurrence
+:data:`Viable` would pass: the search binds only those and does not ask :data:`Viable` again.
+What the edges share is worked out once, not for each candidate."""
 
 
 def _extend(
@@ -348,15 +351,22 @@ def _extend(
     spec = template.inputs[i]
     edges = index.edges
     chosen = [edges[b] for b in bound.values()]
-    taken = frozenset().union(*(other.sources for other in chosen))
-    integrated = any(other.time_integrated for other in chosen)
+    if len(chosen) == 1:  # the seed alone (most templates have two inputs)
+        taken, integrated = chosen[0].sources, chosen[0].time_integrated
+    else:
+        taken = frozenset().union(*(other.sources for other in chosen))
+        integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
     completes = len(bound) + 1 == len(template.inputs)
-    check = last(spec, roles, bound) if completes and last is not None else None
+    check = last(spec, roles, types, bound) if completes and last is not None else None
     introduces = bool(template.introduced)
     positions = range(len(template.inputs))
     free = viable is _any_binding  # no test to ask
-    for edge_id in _candidates(spec, roles, types, template, index):
+    var = spec.type_var
+    kinds = None
+    if not free and var is not None and var not in types:
+        kinds = _viable_kinds(template, var, roles, types, bound, viable)
+    for edge_id in _candidates(spec, roles, types, template, index, kinds):
         if not_seeds and edge_id in seeds:
             continue
         edge = edges[edge_id]
@@ -380,7 +390,7 @@ def _extend(
         if made is None:
             continue
         bound[i] = edge_id
-        if free or viable(roles, types, bound):
+        if free or check is not None or viable(roles, types, bound):
             if not completes:
                 yield from _extend(
                     template, index, bound, roles, types, viable, seeds, seeded_at, last
@@ -396,6 +406,27 @@ def _extend(
                 )
         del bound[i]
         _unbind(made)
+
+
+def _viable_kinds(
+    template: Template,
+    var: str,
+    roles: Mapping[str, str],
+    types: dict[str, str],
+    bound: Mapping[int, str],
+    viable: Viable,
+) -> list[str]:
+    """The types the unbound type variable ``var`` may take in an occurrence completing the
+    partial one: those for which ``viable`` does not reject it with ``var`` bound, asked once
+    per type before the candidates of that type are listed (a point is carried only into a
+    query frame: a chain from any other frame takes no 3D link)."""
+    kinds = []
+    for kind in template.type_vars[var]:
+        types[var] = kind
+        if viable(roles, types, bound):
+            kinds.append(kind)
+    del types[var]
+    return kinds
 
 
 def _completed(
@@ -464,6 +495,7 @@ def find_matches(
     # to time-only patterns, introduced roles take a binding of their own
     admissible = _admissible if template.time_only else _always
     single = len(template.inputs) == 1 and not template.introduced and not template.time_only
+    free = viable is _any_binding  # no test to ask
     inputs_of_type: dict[str, list[tuple[int, InputSpec]]] = {}
     for seed in dict.fromkeys(seeds):
         edge = index.edges[seed]
@@ -474,7 +506,9 @@ def find_matches(
             roles: dict[str, str] = {}
             types: dict[str, str] = {}
             bound = {i: seed}
-            if _bind(spec, edge, template, roles, types) is None or not viable(roles, types, bound):
+            if _bind(spec, edge, template, roles, types) is None or not (
+                free or viable(roles, types, bound)
+            ):
                 continue
             if single:  # one input: the occurrence is complete (no generator for it)
                 yield Match(

@@ -415,6 +415,20 @@ def relevant_frames(
     raise AssertionError("the added edge lies in exactly one block")
 
 
+class _Bits(dict[str, int]):
+    """A bit per frame, the next free one given to a frame on its first look-up."""
+
+    def __missing__(self, frame: str) -> int:
+        bit = self[frame] = 1 << len(self)
+        return bit
+
+    def cover(self, frames: Iterable[str]) -> None:
+        """Give each of ``frames`` its bit."""
+        for frame in frames:
+            if frame not in self:
+                self.__missing__(frame)
+
+
 @dataclass
 class Workspace:
     """The working SRG of one planning run: measured and inferred edges, and the steps."""
@@ -437,9 +451,13 @@ class Workspace:
     towards the query target, the rule before session 15, which the test oracle keeps."""
     span: float = 0
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
-    _reach: dict[tuple[str, int], dict[str, int]] = field(default_factory=dict)
-    _bits: dict[str, int] = field(default_factory=dict)
-    """A bit per frame of the region (frame sets as ints: :meth:`_on_a_way`)."""
+    _reach: dict[tuple[str, int], dict[int, int]] = field(default_factory=dict)
+    """:meth:`_avoiding`'s hops (by frame bit) by start and frames avoided."""
+    _bits: _Bits = field(default_factory=lambda: _Bits())
+    """A bit per frame of the region, given on first use (frame sets as ints:
+    :meth:`_on_a_way`)."""
+    _adjacent: list[int] = field(default_factory=list)
+    """The neighbours of the frame of each bit, as bits (:meth:`_avoiding`)."""
     _link_bits: dict[str, int] = field(default_factory=dict)
     """The frames each chained edge's sources join, as bits (by edge id)."""
     _ways: dict[tuple[str, str, int, float], bool] = field(default_factory=dict)
@@ -472,37 +490,59 @@ class Workspace:
         """Hops between frames ``a`` and ``b`` in the region (more than any if not joined)."""
         return self._hops_from(a).get(b, len(self.neighbours) + 1)
 
-    def _bit(self, frame: str) -> int:
-        """The bit of ``frame`` (given on first use)."""
-        bit = self._bits.get(frame)
-        if bit is None:
-            bit = self._bits[frame] = 1 << len(self._bits)
-        return bit
-
     def _frame_bits(self, link: EdgeRecord) -> int:
         """The frames ``link``'s sources join (:attr:`EdgeRecord.frames`) as bits, kept."""
         bits = self._link_bits.get(link.id)
         if bits is None:
-            bits = 0
+            bits, table = 0, self._bits
             for frame in link.frames:
-                bits |= self._bit(frame)
+                bits |= table[frame]
             self._link_bits[link.id] = bits
         return bits
 
     def _avoiding(self, start: str, goal: str, avoid: int) -> float:
         """Hops from ``start`` to ``goal`` in the region without entering a frame of ``avoid``
-        (bits, :meth:`_bit`; edges in either direction; infinite if there is no such way).
-        ``O(frames + edges)`` per distinct ``(start, avoid)``, memoised."""
+        (bits, :attr:`_bits`; edges in either direction; infinite if there is no such way).
+        A breadth-first search on bit sets (:meth:`_hops_avoiding`) per distinct ``(start,
+        avoid)``, memoised."""
         if start == goal:
             return 0
-        if (self._bit(start) | self._bit(goal)) & avoid:
+        goal_bit, start_bit = self._bits[goal], self._bits[start]
+        if (start_bit | goal_bit) & avoid:
             return math.inf
         key = (start, avoid)
         known = self._reach.get(key)
         if known is None:
-            frames = frozenset(f for f, bit in self._bits.items() if bit & avoid)
-            known = self._reach[key] = hop_distances(self._around, (start,), avoid=frames)
-        return known.get(goal, math.inf)
+            known = self._reach[key] = self._hops_avoiding(start_bit, avoid)
+        return known.get(goal_bit, math.inf)
+
+    def _hops_avoiding(self, start_bit: int, avoid: int) -> dict[int, int]:
+        """Hops to each frame (by bit) reached from the frame of ``start_bit`` without
+        entering ``avoid`` (bits): breadth-first on the neighbours' bits (:attr:`_adjacent`),
+        ``O(frames)`` word operations."""
+        adjacent = self._adjacent
+        table = self._bits
+        if len(adjacent) < len(table):  # a frame was given its bit since: read again
+            table.cover(sorted(self.neighbours))
+            adjacent[:] = [0] * len(table)
+            for frame, bit in table.items():
+                at = bit.bit_length() - 1
+                for other in self.neighbours.get(frame, ()):
+                    adjacent[at] |= table[other]
+        hops = {}
+        seen = start_bit | avoid
+        frontier, depth = start_bit, 0
+        while frontier:
+            reached = 0
+            while frontier:
+                low = frontier & -frontier
+                hops[low] = depth
+                reached |= adjacent[low.bit_length() - 1]
+                frontier ^= low
+            depth += 1
+            frontier = reached & ~seen
+            seen |= frontier
+        return hops
 
     def viable_chain(self, template: Template) -> Viable:
         """The occurrences of a chain template worth applying, as a test of partial ones for
@@ -538,40 +578,70 @@ class Workspace:
         return viable
 
     def last_link(self, template: Template) -> LastLink | None:
-        """For a dynamic query, the first test of :meth:`_on_a_way` (plain hops from the query
-        frames to the chain's ends, within the span and slack less the links' hops) on the
-        edge that would bind a chain's last link, before it is bound: in two rooms with four
-        bodies and three trackers each, 1,535 of 1,897 completed chains failed it after
-        binding. It rejects only what :meth:`viable_chain` would reject, so the matches are
-        the same. ``O(links)`` per last input, ``O(1)`` per edge tried there."""
+        """For a dynamic query, :meth:`viable_chain`'s test of a completed chain, asked of the
+        edge that would bind its last link before it is bound, the plain hops from the query
+        frames to the chain's ends (within the span and slack less the links' hops) first:
+        in two rooms with four bodies and three trackers each, 1,535 of 1,897 completed
+        chains failed that after binding; in a room with seven redundant trackers, 1,190 of
+        the 1,378 edges that passed it were rejected after binding by the rest of the test
+        (:meth:`_wanted`, :meth:`_on_a_way`, :meth:`_chain_outclassed`). It passes exactly
+        the chains :meth:`viable_chain` passes, and the matcher does not ask that again of an
+        occurrence completed through it, so the matches are the same and a rejected edge is
+        never bound. ``O(links)`` per last input, ``O(links)`` per edge tried there besides
+        the memoised way tests."""
         if not self.neighbours or self.goal is None:
             return None
-        source, target = template.outputs[0].source, template.outputs[0].target
+        output = template.outputs[0]
+        source, target = output.source, output.target
+        var = output.type[1:] if output.type.startswith("$") else None
+        links = len(template.inputs)
         edges = self.index.edges
+        bits = self._frame_bits
         from_start, from_end = self._goal_hops or self._hops_to_goal()
         far = len(self.neighbours) + 1
         budget = self.span + self.detour
 
         def at(
-            spec: InputSpec, roles: Mapping[str, str], bound: Mapping[int, str]
+            spec: InputSpec,
+            roles: Mapping[str, str],
+            types: Mapping[str, str],
+            bound: Mapping[int, str],
         ) -> Callable[[EdgeRecord], bool] | None:
             x, y = roles.get(source), roles.get(target)
             x_end = None if x is not None else _end_of(spec, source)
             y_end = None if y is not None else _end_of(spec, target)
-            if (x is None and x_end is None) or (y is None and y_end is None):
+            edge_type = types.get(var) if var else output.type
+            if (
+                (x is None and x_end is None)
+                or (y is None and y_end is None)
+                or (edge_type is None and spec.type_var != var)
+            ):
                 return None
             left = budget
             for e in bound.values():
                 left -= edges[e].hops
+            inside = -1  # the frames of the bound links as bits, found for the first edge
 
             def fits(edge: EdgeRecord) -> bool:
+                nonlocal inside
                 a = x if x_end is None else x_end(edge)
                 b = y if y_end is None else y_end(edge)
                 limit = left - edge.hops
-                return (
-                    from_start.get(a, far) + from_end.get(b, far) <= limit
-                    or from_start.get(b, far) + from_end.get(a, far) <= limit
-                )
+                forward = from_start.get(a, far) + from_end.get(b, far) <= limit
+                backward = from_start.get(b, far) + from_end.get(a, far) <= limit
+                if not (forward or backward):
+                    return False
+                kind = edge.type if edge_type is None else edge_type
+                if not self._wanted(template, kind, a, b):
+                    return False
+                if inside < 0:
+                    inside = 0
+                    for e in bound.values():
+                        inside |= bits(edges[e])
+                if not self._way_around(a, b, inside | bits(edge), limit, forward, backward):
+                    return False
+                chained = [edge if i not in bound else edges[bound[i]] for i in range(links)]
+                return not self._chain_outclassed(template, a, b, kind, chained)
 
             return fits
 
@@ -596,7 +666,6 @@ class Workspace:
         query's time-integrated edges may share dynamic sources with the rest (section 5.1),
         so there a cycle can carry information.
         """
-        start, end = self.goal
         limit = self.span + self.detour
         inside = 0
         for link in chained:
@@ -608,16 +677,27 @@ class Workspace:
         backward = from_start.get(y, far) + from_end.get(x, far) <= limit
         if not (forward or backward):
             return False
-        bx, by = self._bit(x), self._bit(y)
+        return self._way_around(x, y, inside, limit, forward, backward)
+
+    def _way_around(
+        self, x: str, y: str, inside: int, limit: float, forward: bool, backward: bool
+    ) -> bool:
+        """The second test of :meth:`_on_a_way`, for a chain X->Y whose sources join the
+        frames ``inside`` (bits) and whose plain hops fit ``forward`` (S..X, Y..T) or
+        ``backward``: the query frames reach its ends without passing a frame inside it,
+        within ``limit`` hops. Memoised by ends, inside and limit (:attr:`_ways`)."""
+        start, end = self.goal
+        bx, by = self._bits[x], self._bits[y]
         inside &= ~(bx | by)
         key = (x, y, inside, limit)
         known = self._ways.get(key)
         if known is None:
-            ends = [(x, y, bx, by)] * forward + [(y, x, by, bx)] * backward
-            known = self._ways[key] = any(
-                self._avoiding(start, a, inside | b_bit) + self._avoiding(b, end, inside | a_bit)
-                <= limit
-                for a, b, a_bit, b_bit in ends
+            avoiding = self._avoiding
+            known = self._ways[key] = (
+                forward and avoiding(start, x, inside | by) + avoiding(y, end, inside | bx) <= limit
+            ) or (
+                backward
+                and avoiding(start, y, inside | bx) + avoiding(x, end, inside | by) <= limit
             )
         return known
 
