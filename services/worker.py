@@ -118,7 +118,7 @@ from ubitrack_agent.net.transport import (
 from ubitrack_agent.services.expansion import BatchProgress, TimeAccumulator
 from ubitrack_agent.services.handover import COUNTERS as HAND_OVER_COUNTERS
 from ubitrack_agent.services.handover import Watch
-from ubitrack_agent.services.heap import freeze_start_up
+from ubitrack_agent.services.heap import settle_collector
 from ubitrack_agent.services.local_wires import (
     Handed,
     LocalSubscription,
@@ -1642,7 +1642,7 @@ def run_worker(
     """Run one component until stopped; True if the agent released it (it may be reused).
     The objects of the process's start-up are left out of the garbage collector's work first
     (``services.heap``)."""
-    freeze_start_up()
+    settle_collector()
     counters, parent = (None, None) if pool is None else (pool.counters, pool.parent)
     worker = Worker(spec, session, keys, counters, clock, parent)
     on_termination(worker.stop)
