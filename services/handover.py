@@ -5,10 +5,10 @@ The producer of a queried relation puts its output on the relation's stable key
 the old one, which is stopped ``HAND_OVER_HOLD_S`` after the new one runs (``agent.runtime``,
 ``_retire``), or ``STANDBY_S`` after it lost a sensor (``agent.standby``): for a while both
 producers compute the relation, often the same instants (both
-driven by one tracker's samples). Each watches the key (a subscriber: it sees its own puts and
-the other's) and its hand-over key (:func:`hand_over_key`), and keeps these rules, so that
-the application sees one stream (issue [seamless]; ``docs/protocol.md``, "What an application
-sees while the flow behind its key changes"):
+driven by one tracker's samples). Each watches the key (a subscriber: it sees the other's
+puts; its own it knows, :class:`Watch`) and its hand-over key (:func:`hand_over_key`), and
+keeps these rules, so that the application sees one stream (issue [seamless];
+``docs/protocol.md``, "What an application sees while the flow behind its key changes"):
 
 1. **Order.** A sample whose timestamp is not after the newest one seen on the key is not put:
    no duplicate, no instant out of order.

@@ -163,7 +163,9 @@ class Relation(Closing):
 
     A context manager: ``with Relation(...) as relation:`` closes it on leaving the block.
     ``keep_waiting``: whether a wait goes on to its timeout when the agent answers that it
-    cannot serve the relation, or no agent is there (:meth:`verdict`).
+    cannot serve the relation, or no agent is there (:meth:`verdict`). ``callback`` runs on the
+    relation's own thread, for each sample passed on, in order (while it runs, this relation's
+    samples wait in zenoh's channel, ``net.transport.subscribe_in_bursts``).
     """
 
     def __init__(
@@ -395,7 +397,7 @@ class Relation(Closing):
         if self._callback is not None:
             try:
                 self._callback(sample)
-            except Exception:  # a broken callback must not break zenoh's receive thread
+            except Exception:  # a broken callback must not end the relation's thread
                 log.exception("%s: application callback failed", self.relation)
 
     @property
