@@ -9,13 +9,9 @@ import threading
 import time
 from types import SimpleNamespace
 
-import msgpack
-import numpy as np
 import pytest
 
 from tests.unit.test_worker_inputs import FakeSession, pose
-from ubitrack_agent.core import ErrorPose, encode
-from ubitrack_agent.core.codec import RUN_MIN
 from ubitrack_agent.io import application
 from ubitrack_agent.io.application import NoAgent, Relation, UnsolvedRelation
 from ubitrack_agent.net.answer import NOT_PLANNED, Answer
@@ -199,56 +195,3 @@ def test_once_samples_have_come_waits_run_to_their_timeout():
         with pytest.raises(UnsolvedRelation) as raised:
             relation.get(timeout=0.05)
         assert raised.value.timeout == 0.05
-
-
-def error_pose(t: int, covariance=None) -> bytes:
-    """An ErrorPose's payload; with ``covariance``, that matrix's bytes in its place as they
-    are (a hostile or broken sender: ``ErrorPose`` itself refuses such a matrix)."""
-    payload = encode(ErrorPose(t, [0.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0], np.eye(6) * 1e-6))
-    if covariance is None:
-        return payload
-    message = msgpack.unpackb(payload)
-    message["covariance"] = np.asarray(covariance, dtype="<f8").tobytes()
-    return msgpack.packb(message)
-
-
-def test_samples_waiting_together_are_taken_as_one_by_one_each_bad_one_counted():
-    """From ``RUN_MIN`` samples waiting together on, a relation decodes them as a run
-    (``core.codec.decode_run``); what it takes, passes on and counts is what the same samples
-    one by one give: garbage, a covariance not symmetric, one not positive semi-definite, a
-    sample stamped a day ahead and one out of order, each counted, the others passed on in
-    order."""
-    now = time.time_ns()
-    asymmetric = np.eye(6) * 1e-6
-    asymmetric[0, 1] = 1e-3
-    indefinite = np.eye(6) * 1e-6
-    indefinite[2, 2] = -1.0
-    payloads = [error_pose(now + i * 1_000) for i in range(RUN_MIN + 4)]
-    payloads[2] = b"garbage"
-    payloads[3] = error_pose(now + 3_000, asymmetric)
-    payloads[5] = error_pose(now + 5_000, indefinite)
-    payloads[7] = error_pose(now + 86_400 * 10**9)
-    payloads[9] = error_pose(now)  # not after the newest
-    seen = []
-    for together in (False, True):
-        session = FakeSession()
-        passed: list[int] = []
-        with Relation(
-            session,
-            KEYS,
-            RELATION,
-            application="app",
-            callback=lambda sample, into=passed: into.append(sample.timestamp_ns),
-        ) as relation:
-            if together:
-                session.deliver_burst(KEYS.relation(RELATION), payloads)
-            else:
-                for payload in payloads:
-                    session.deliver(KEYS.relation(RELATION), payload)
-            counted = {name: n for name, n in relation.counters.items() if n}
-            seen.append((passed, counted, relation.received))
-    assert seen[0] == seen[1]
-    passed, counted, received = seen[1]
-    assert counted == {"rejected": 3, "rejected_future": 1, "out_of_order": 1}, counted
-    assert passed == [now + i * 1_000 for i in (0, 1, 4, 6, 8, 10, 11)]
-    assert received == len(passed)

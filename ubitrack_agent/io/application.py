@@ -76,7 +76,6 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError, decode
-from ubitrack_agent.core.codec import RUN_MIN, decode_run
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import logs
@@ -86,7 +85,7 @@ from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
 from ubitrack_agent.net.time_queries import fetch_at
-from ubitrack_agent.net.transport import fetch_until_satisfied, subscribe_in_bursts
+from ubitrack_agent.net.transport import fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.application")
 
@@ -163,9 +162,7 @@ class Relation(Closing):
 
     A context manager: ``with Relation(...) as relation:`` closes it on leaving the block.
     ``keep_waiting``: whether a wait goes on to its timeout when the agent answers that it
-    cannot serve the relation, or no agent is there (:meth:`verdict`). ``callback`` runs on the
-    relation's own thread, for each sample passed on, in order (while it runs, this relation's
-    samples wait in zenoh's channel, ``net.transport.subscribe_in_bursts``).
+    cannot serve the relation, or no agent is there (:meth:`verdict`).
     """
 
     def __init__(
@@ -207,9 +204,9 @@ class Relation(Closing):
         self._queue: deque[Measurement] = deque(maxlen=queue_size)
         """Samples not yet taken by :meth:`get` (the oldest dropped when full), under
         ``_lock``: one lock per sample, where a ``queue.Queue`` took three more when full."""
-        self._take_total = self._guarded(self._take)
-        self._subscriber = subscribe_in_bursts(
-            session, self.key, self._guarded(self._receive_burst)
+        receive = self._guarded(self._receive)
+        self._subscriber = session.declare_subscriber(
+            self.key, lambda sample: receive(sample.payload.to_bytes())
         )
         self.progress: Progress | None = None
         """The latest progress report of a static relation computed over time, or None."""
@@ -231,7 +228,7 @@ class Relation(Closing):
             keys.all_active_agents(), self._on_agent, history=True
         )
         wanted = [
-            (self.key, self._guarded(self._receive), lambda: self._received > 0),
+            (self.key, receive, lambda: self._received > 0),
             (answer_key, receive_answer, lambda: self.answer is not None),
         ]
         self._progress_subscriber = None
@@ -346,32 +343,14 @@ class Relation(Closing):
             return NoAgent(self.relation, timeout, self._root)
         return TimeoutError(f"no sample of {self.relation} within {timeout} s")
 
-    def _receive_burst(self, payloads: list[bytes]) -> None:
-        """On the relation's own thread (``net.transport.subscribe_in_bursts``: zenoh's
-        receiving thread queues the samples and never runs Python; this thread wakes once for
-        the samples waiting): each validated, stored and passed on, oldest first. From
-        ``RUN_MIN`` samples on they are decoded together (``core.codec.decode_run``: the same
-        checks, a numpy call for the run instead of one per sample), as a worker decodes its
-        backlog: an application that falls behind catches up at a lower cost a sample
-        (``docs/performance.md``, "Throughput, session 22"). O(samples)."""
-        if len(payloads) < RUN_MIN:
-            for payload in payloads:
-                self._receive(payload)
-            return
-        for sample in decode_run(payloads, self._expected or None):
-            if isinstance(sample, MeasurementError):
-                self._count("rejected", "rejected sample: %s", sample)
-            else:
-                self._take_total(sample)
-
     def _receive(self, payload: bytes) -> None:
-        """Validate, store, notify; no zenoh calls, no blocking."""
+        """Runs on zenoh's thread: validate, store, notify; no zenoh calls, no blocking."""
         try:
             sample = decode(payload, expected=self._expected or None)
         except MeasurementError as exc:
             self._count("rejected", "rejected sample: %s", exc)
             return
-        self._take_total(sample)
+        self._take(sample)
 
     def _take(self, sample: Measurement) -> None:
         """A decoded sample: checked against this host's clock, stored, passed on."""
@@ -397,7 +376,7 @@ class Relation(Closing):
         if self._callback is not None:
             try:
                 self._callback(sample)
-            except Exception:  # a broken callback must not end the relation's thread
+            except Exception:  # a broken callback must not break zenoh's receive thread
                 log.exception("%s: application callback failed", self.relation)
 
     @property
