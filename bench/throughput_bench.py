@@ -2,10 +2,10 @@
 concatenation chains on one 2-core host carry >= 20,000 samples/s with p99 <= 20 ms).
 
 Run: ``python -m bench.throughput_bench [--rates 1000,2000,5000,10000,20000,40000]
-[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers]``; prints the figures and writes
-them to ``bench/results/throughput.json`` (the worker processes as zenoh clients of their host
-manager, the default; ``throughput_peers.json`` with ``--peers``: as peers, ``ubitrack host
---workers-as-peers``).
+[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers] [--output FILE]``; prints the
+figures and writes them to ``--output``, by default ``bench/results/throughput.json`` (the
+worker processes as zenoh clients of their host manager, the default;
+``throughput_peers.json`` with ``--peers``: as peers, ``ubitrack host --workers-as-peers``).
 
 Everything is a real process on loopback with real zenoh (explicit endpoints, multicast off):
 
@@ -255,6 +255,12 @@ def main(argv: list[str] | None = None) -> int:
         help="the host manager's worker processes as zenoh peers (host --workers-as-peers)",
     )
     parser.add_argument("--idle-s", type=float, default=5.0, help="idle window (default 5)")
+    parser.add_argument(
+        "--output",
+        type=Path,
+        default=None,
+        help=f"results file (default {RESULTS}, throughput_peers.json with --peers)",
+    )
     sub = parser.add_subparsers(dest="part")
     for name in ("provide", "apply"):
         part = sub.add_parser(name)
@@ -274,9 +280,8 @@ def main(argv: list[str] | None = None) -> int:
         return provide(args)
     if args.part == "apply":
         return apply(args)
-    write_results(
-        RESULTS.with_name("throughput_peers.json") if args.peers else RESULTS, bench(args)
-    )
+    default = RESULTS.with_name("throughput_peers.json") if args.peers else RESULTS
+    write_results(args.output or default, bench(args))
     return 0
 
 

@@ -104,6 +104,7 @@ from ubitrack_agent.net.spec import (
     parse_group,
 )
 from ubitrack_agent.net.transport import on_zenoh_thread
+from ubitrack_agent.services.heap import settle_collector
 from ubitrack_agent.services.local_wires import LocalWires
 from ubitrack_agent.services.parent import Parent
 from ubitrack_agent.services.scheduler import Scheduler
@@ -477,7 +478,10 @@ def run_container(
     session: Any, keys: KeySpace, group: GroupSpec, clock: Clock, parent: Parent | None = None
 ) -> None:
     """Run ``group``'s container on ``session`` until it is stopped (a stop command, SIGTERM or
-    SIGINT); ``parent``: the host manager that started the process (a pool member's)."""
+    SIGINT); ``parent``: the host manager that started the process (a pool member's). The
+    objects of the process's start-up are left out of the garbage collector's work first
+    (``services.heap``)."""
+    settle_collector()
     container = Container(session, keys, group.container, clock, group.components, parent)
     on_termination(container.stop)
     started = time.monotonic()

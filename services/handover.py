@@ -5,10 +5,10 @@ The producer of a queried relation puts its output on the relation's stable key
 the old one, which is stopped ``HAND_OVER_HOLD_S`` after the new one runs (``agent.runtime``,
 ``_retire``), or ``STANDBY_S`` after it lost a sensor (``agent.standby``): for a while both
 producers compute the relation, often the same instants (both
-driven by one tracker's samples). Each watches the key (a subscriber: it sees its own puts and
-the other's) and its hand-over key (:func:`hand_over_key`), and keeps these rules, so that
-the application sees one stream (issue [seamless]; ``docs/protocol.md``, "What an application
-sees while the flow behind its key changes"):
+driven by one tracker's samples). Each watches the key (a subscriber: it sees the other's
+puts; its own it knows, :class:`Watch`) and its hand-over key (:func:`hand_over_key`), and
+keeps these rules, so that the application sees one stream (issue [seamless];
+``docs/protocol.md``, "What an application sees while the flow behind its key changes"):
 
 1. **Order.** A sample whose timestamp is not after the newest one seen on the key is not put:
    no duplicate, no instant out of order.
@@ -271,12 +271,17 @@ class KeyHandOver:
         return min(high, max(low, QUIET_INTERVALS * max(self._other_intervals)))
 
     def observe(self, payload: bytes) -> None:
-        """A sample seen on the key (this producer's own puts too); one that does not decode
-        is the application's problem, not the hand-over's, and is ignored here."""
+        """A sample seen on the key (:meth:`observe_value`); one that does not decode is the
+        application's problem, not the hand-over's, and is ignored here."""
         try:
             value = decode(payload, level=WORKER)
         except MeasurementError:
             return
+        self.observe_value(value)
+
+    def observe_value(self, value: Measurement) -> None:
+        """A sample seen on the key, decoded: another producer's, or one of this producer's
+        own puts (known by its timestamp, and then only the newest instant is noted)."""
         now = self._clock()
         with self._lock:
             if self._newest_ns is None or value.timestamp_ns > self._newest_ns:
@@ -604,6 +609,13 @@ def _handed_on(
     return zenoh.handlers.Callback(hand_on, drop, indirect=False)
 
 
+_PRODUCERS_HERE: dict[tuple[int, str], tuple[Watch, ...]] = {}
+"""The watches of this process by session (its ``id``: a watch keeps its session) and relation
+key: the other producers of a key on the session, which see a producer's puts from it
+(:meth:`Watch.put`), not from zenoh."""
+_PRODUCERS_LOCK = threading.Lock()
+
+
 class Watch:
     """A :class:`KeyHandOver` wired to zenoh: subscribed to its relation key, its hand-over key
     and the producers' tokens, putting its messages on the hand-over key and declaring its own
@@ -611,15 +623,30 @@ class Watch:
     hand what they get to :data:`HAND_OVER` (O(1) each; no thread per watch: a query given a
     plain callable had zenoh-python start a thread for its replies, and the start waits for
     the new thread to take Python's lock, 2-17 ms each in a busy container of 80-100
-    components, ``docs/performance.md``, "First sample for 100 applications, session 21")."""
+    components, ``docs/performance.md``, "First sample for 100 applications, session 21").
+
+    Its subscriber to the relation key takes the samples of other processes only
+    (``Locality.REMOTE``): zenoh delivers a session's own puts to its own subscribers, and
+    this producer's own samples, which teach its rules nothing (:meth:`KeyHandOver.observe_value`),
+    cost each sample a call on zenoh's thread, a wake of :data:`HAND_OVER` and a decoding
+    (about a fifth of a container's Python time at 5,000 samples/s,
+    ``docs/performance.md``, "Throughput, session 22"). The other producers of the key in
+    this process are shown its samples by :meth:`put` instead."""
 
     def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
         messages = hand_over_key(key)
         self.rules = KeyHandOver(key, counters, lambda data: session.put(messages, data))
         self._counters = counters
+        self._observe_here = logs.guarded(self._observe_value, counters, log, key)
+        """:meth:`_observe_value` made total (``internal_errors``)."""
         liveliness = session.liveliness()
+        self._here = (id(session), key)
+        with _PRODUCERS_LOCK:
+            _PRODUCERS_HERE[self._here] = (*_PRODUCERS_HERE.get(self._here, ()), self)
         self._subscribers = (
-            session.declare_subscriber(key, self._handed_on(self._observe)),
+            session.declare_subscriber(
+                key, self._handed_on(self._observe), allowed_origin=zenoh.Locality.REMOTE
+            ),
             session.declare_subscriber(messages, self._handed_on(self._receive)),
             liveliness.declare_subscriber(
                 producer_token(key, "*"), self._handed_on(self._token), history=True
@@ -643,6 +670,27 @@ class Watch:
         key = self.rules.key
         done = None if finished is None else logs.guarded(finished, self._counters, log, key)
         return _handed_on(logs.guarded(handler, self._counters, log, key), done)
+
+    def put(self, publish: Callable[[bytes], None], payload: bytes, value: Any) -> None:
+        """Put ``payload`` by ``publish`` and show ``value`` (its measurement, or the payload
+        itself as it is) to the other producers of the key on this session,
+        on :data:`HAND_OVER` as zenoh's samples are (none is shown one on the putting thread:
+        two producers putting held-back samples under their rules' locks would wait for each
+        other's). O(producers of the key in the process), one in the common case."""
+        publish(payload)
+        others = _PRODUCERS_HERE.get(self._here, ())
+        if len(others) > 1:
+            for other in others:
+                if other is not self:
+                    with contextlib.suppress(RuntimeError):  # the interpreter ends
+                        HAND_OVER.submit(other._observe_here, value)
+
+    def _observe_value(self, value: Any) -> None:
+        """On :data:`HAND_OVER`: a sample another producer of this process put."""
+        if isinstance(value, bytes):
+            self.rules.observe(value)
+        else:
+            self.rules.observe_value(value)
 
     def _observe(self, sample: Any) -> None:
         self.rules.observe(sample.payload.to_bytes())
@@ -672,5 +720,9 @@ class Watch:
             self.rules.observe(reply.ok.payload.to_bytes())
 
     def close(self) -> None:
+        with _PRODUCERS_LOCK:
+            others = tuple(w for w in _PRODUCERS_HERE.pop(self._here, ()) if w is not self)
+            if others:
+                _PRODUCERS_HERE[self._here] = others
         for subscriber in self._subscribers:
             subscriber.undeclare()

@@ -118,6 +118,7 @@ from ubitrack_agent.net.transport import (
 from ubitrack_agent.services.expansion import BatchProgress, TimeAccumulator
 from ubitrack_agent.services.handover import COUNTERS as HAND_OVER_COUNTERS
 from ubitrack_agent.services.handover import Watch
+from ubitrack_agent.services.heap import settle_collector
 from ubitrack_agent.services.local_wires import (
     Handed,
     LocalSubscription,
@@ -344,11 +345,15 @@ class Worker:
         self._handed: Handed = []
         """Hand-overs to readers in the container queued under ``_lock``, taken before it is
         released and delivered after (``ubitrack_agent.services.local_wires``)."""
-        self._outgoing: deque[tuple[tuple[LatestValuePublisher, ...], Measurement | bytes]]
-        self._outgoing = deque()
+        self._outgoing: deque[
+            tuple[tuple[LatestValuePublisher, ...], Measurement | bytes, bytes | None]
+        ] = deque()
         """The puts for readers outside the process, in the order the outputs were published
-        (queued under ``_lock``), each with its publishers and its payload, or the value to
-        encode (one handed over, checked finite): put by :meth:`_put_outside`."""
+        (queued under ``_lock``), each with its publishers, its value (a measurement, or a
+        payload: a progress report) and its payload if encoded already (None for a value
+        handed over, checked finite, encoded when put): put by :meth:`_put_outside`. The
+        measurement is kept beside its payload for the relation keys' hand-over rules, which
+        would decode it again (``services.handover``)."""
         self._put_lock = threading.Lock()
         """Held while the queued puts are put: one thread at a time, so none overtakes another."""
         self._unsent: set[str] = set()
@@ -1122,12 +1127,12 @@ class Worker:
                 # the publisher: net.transport.LatestValuePublisher); else the value is
                 # remembered, to be sent when one appears (_send_unsent).
                 if route.publishers[0].matching:
-                    self._outgoing.append((route.publishers, value))
+                    self._outgoing.append((route.publishers, value, None))
                 else:
                     self._not_sent += 1
                     self._unsent.add(route.key)
                     if route.relations:
-                        self._outgoing.append((route.relations, value))
+                        self._outgoing.append((route.relations, value, None))
                 continue
             try:
                 payload = encode(value)  # where a result's numbers are checked
@@ -1137,7 +1142,7 @@ class Worker:
             if route is not None:
                 if wires is not None:  # a reader bound later in the container starts here
                     wires.keep(route.key, value)
-                self._outgoing.append((route.publishers, payload))
+                self._outgoing.append((route.publishers, value, payload))
             self._published += 1
         if self._reports_progress or self._batch_progress is not None:
             self._publish_progress(outputs, timestamp_ns)
@@ -1159,12 +1164,16 @@ class Worker:
         """:meth:`_put_outside`'s puts, ``_put_lock`` held."""
         outgoing, hand_overs = self._outgoing, self._hand_overs
         while outgoing:
-            publishers, value = outgoing.popleft()
-            payload = value if isinstance(value, bytes) else encode(value)
+            publishers, value, payload = outgoing.popleft()
+            if payload is None:
+                payload = encode(value)
             for publisher in publishers:
                 hand_over = hand_overs.get(publisher.key)
-                put = functools.partial(publisher.put, payload)
-                if hand_over is None or hand_over.rules.admit(value, put):
+                if hand_over is None:
+                    publisher.put(payload)
+                    continue
+                put = functools.partial(hand_over.put, publisher.put, payload, value)
+                if hand_over.rules.admit(value, put):
                     put()
 
     def _wake(self) -> None:
@@ -1182,7 +1191,7 @@ class Worker:
                 self._unsent.discard(key)
             elif publisher.matching:
                 self._unsent.discard(key)
-                self._outgoing.append(((publisher,), value))
+                self._outgoing.append(((publisher,), value, None))
 
     def _publish_progress(self, outputs: dict[str, Any], timestamp_ns: int) -> None:
         """The progress of each static estimate (``ubitrack_agent.net.progress``), also when
@@ -1199,7 +1208,7 @@ class Worker:
             payload = progress.to_json().encode()
             routes = self._progress_routes.get(port, ())
             if routes:
-                self._outgoing.append((self._publishers_of(routes), payload))
+                self._outgoing.append((self._publishers_of(routes), payload, payload))
 
     # -- values at a given time (net.time_queries) --------------------------------------------
 
@@ -1630,7 +1639,10 @@ class Pool:
 def run_worker(
     session: Any, keys: KeySpace, spec: ComponentSpec, clock: Clock, pool: Pool | None = None
 ) -> bool:
-    """Run one component until stopped; True if the agent released it (it may be reused)."""
+    """Run one component until stopped; True if the agent released it (it may be reused).
+    The objects of the process's start-up are left out of the garbage collector's work first
+    (``services.heap``)."""
+    settle_collector()
     counters, parent = (None, None) if pool is None else (pool.counters, pool.parent)
     worker = Worker(spec, session, keys, counters, clock, parent)
     on_termination(worker.stop)

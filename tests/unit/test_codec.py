@@ -423,17 +423,26 @@ def test_an_encoders_message_takes_the_canonical_reader():
 @st.composite
 def error_pose_runs(draw):
     """A worker's backlog: encoded ErrorPoses, some broken as a sensor or an attacker would
-    (an indefinite or asymmetric covariance, NaN or infinity, a hostile message)."""
+    (an indefinite or asymmetric covariance, a quaternion off unit length by about the
+    tolerance either way or with components whose squares overflow, NaN or infinity, a hostile
+    message)."""
     count = draw(st.integers(1, 24))
     payloads = []
     for _ in range(count):
         value = draw(st.builds(ErrorPose, timestamps, quaternions(), vectors(3), covariances(6)))
         payload = encode(value)
         broken = draw(
-            st.sampled_from(["no", "no", "no", "indefinite", "asymmetric", "infinite", "hostile"])
+            st.sampled_from(
+                ["no", "no", "no", "indefinite", "asymmetric", "infinite", "hostile", "norm"]
+            )
         )
         if broken == "hostile":
             payload = draw(hostile_messages)
+        elif broken == "norm":
+            message = msgpack.unpackb(payload)
+            factor = draw(st.sampled_from([1e200, 1e-200]) | st.floats(1 - 3e-6, 1 + 3e-6))
+            message["rotation"] = (value.rotation * factor).tobytes()
+            payload = _packed(message)
         elif broken == "infinite":
             message = msgpack.unpackb(payload)
             name = draw(st.sampled_from(["rotation", "translation", "covariance"]))

@@ -36,8 +36,9 @@ def pose(t_ms: int, variance: float = 1e-6) -> ErrorPose:
 
 
 class Bus:
-    """The relation key and its hand-over key, delivered at once to every producer (zenoh
-    delivers a session's own puts to its own subscribers too), or, with ``held``, the
+    """The relation key and its hand-over key, delivered at once to every producer (the
+    putting one too: its rules ignore their own samples, which a ``Watch`` no longer gets
+    from zenoh, and must stay right if they get one), or, with ``held``, the
     hand-over's messages kept until :meth:`deliver` (a message in flight); the producers'
     tokens, which :meth:`die` takes away."""
 

@@ -421,8 +421,8 @@ class EagerSession(FakeSession):
         super().__init__()
         self.waiting = waiting
 
-    def declare_subscriber(self, key, callback):
-        subscriber = super().declare_subscriber(key, callback)
+    def declare_subscriber(self, key, callback, allowed_origin=None):
+        subscriber = super().declare_subscriber(key, callback, allowed_origin)
         if key in self.waiting:
             self.deliver(key, self.waiting.pop(key), wait=False)  # its thread not started
         return subscriber

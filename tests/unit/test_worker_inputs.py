@@ -97,7 +97,9 @@ class FakeSession:
         self.puts: list[tuple[str, bytes]] = []
         self.encodings: dict[str, object] = {}
 
-    def declare_subscriber(self, key, callback):
+    def declare_subscriber(self, key, callback, allowed_origin=None):
+        """A subscriber (``allowed_origin``: a hand-over watch's, its session's own puts
+        not delivered; this session delivers none of its puts anyway)."""
         if isinstance(callback, zenoh.handlers.FifoChannel):
             channel = self.channels[key] = FakeChannel(lambda: self.channels.pop(key, None))
             return channel

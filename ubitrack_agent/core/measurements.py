@@ -237,10 +237,36 @@ def _positive_definite_by_numpy(matrix: np.ndarray) -> bool:
     return True
 
 
+def _unit_quaternions(stack: np.ndarray) -> bool:
+    """Whether every quaternion of a stack (n x 4) passes :func:`check_unit_quaternion`: its
+    norm as the square root of the sum of squares, within the tolerance less a relative margin
+    of 1e-6, against which the few units in the last place by which it may differ from
+    ``math.hypot``'s are nothing; a sum that overflows or underflows fails here (each is then
+    checked alone, by ``math.hypot``, which does neither)."""
+    norms = np.sqrt(np.einsum("ij,ij->i", stack, stack))
+    return bool((np.abs(norms - 1.0) <= UNIT_QUATERNION_TOLERANCE * (1.0 - 1e-6)).all())
+
+
+def _covariances(stack: np.ndarray) -> bool:
+    """Whether every matrix of a stack (n x m x m) passes :func:`check_covariance`: its
+    symmetry test matrix by matrix (the same floating-point operations on the same numbers:
+    the same verdict), then numpy's Cholesky factorisation of the whole stack, as for
+    :func:`check_semidefinite`."""
+    scale = np.maximum(1.0, np.abs(stack).max(axis=(1, 2)))
+    asymmetry = np.abs(stack - stack.transpose(0, 2, 1)).max(axis=(1, 2))
+    symmetric = bool((asymmetry <= _SYMMETRY_TOLERANCE * scale).all())
+    return symmetric and _positive_definite_by_numpy(stack)
+
+
 _STACKED_CHECKS: dict[Callable[[str, np.ndarray], None], Callable[[np.ndarray], bool]] = {
     # Where numpy's factorisation succeeds, check_semidefinite passes: no eigenvalue is left
     # below round-off, far inside its tolerance.
-    check_semidefinite: _positive_definite_by_numpy
+    check_semidefinite: _positive_definite_by_numpy,
+    # A value from outside (FULL) in a run: an application's relation, a worker's input from a
+    # provider (docs/performance.md, "Throughput, session 22": each was checked alone before,
+    # which made a run dearer than its samples one by one).
+    check_covariance: _covariances,
+    check_unit_quaternion: _unit_quaternions,
 }
 
 
