@@ -8,6 +8,7 @@ Protocol of ``field-notes.md`` section 2: fixed seeds
 from __future__ import annotations
 
 import zlib
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -24,6 +25,7 @@ from ubitrack_agent.services.algorithms.estimate import (
     perturb_left,
     rigid,
 )
+from ubitrack_agent.services.algorithms.estimate import nees as estimate_nees
 
 SEED = 20240601
 CAMERA_MATRIX = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
@@ -56,14 +58,16 @@ THREE_SIGMA_NEES = float(chi2.ppf(0.9973, 6))
 (20.06 for 6 degrees of freedom)."""
 
 
-def nees(estimate: PoseEstimate, truth: PoseEstimate) -> float | None:
-    """``e^T P^-1 e`` of the estimate's left error against the truth (:func:`left_error`), or
-    ``None`` without a covariance (a pose announced without one cannot be judged against it)."""
-    covariance = getattr(estimate, "covariance", None)
-    if covariance is None:
-        return None
-    error = left_error(estimate, truth)
-    return float(error @ np.linalg.solve(covariance, error))
+def nees(estimate: Any, truth: Any) -> float | None:
+    """:func:`ubitrack_agent.services.algorithms.estimate.nees` of anything with a rotation, a
+    translation and perhaps a covariance (a ``PoseEstimate``, a received ``Pose``/``ErrorPose``)
+    against the truth."""
+    return estimate_nees(
+        PoseEstimate(
+            estimate.rotation, estimate.translation, getattr(estimate, "covariance", None)
+        ),
+        PoseEstimate(truth.rotation, truth.translation),
+    )
 
 
 def nees_over_batches(batch_means: list[float | None], dimension: int = 6) -> dict | None:
@@ -76,8 +80,7 @@ def nees_over_batches(batch_means: list[float | None], dimension: int = 6) -> di
     not chi-square(``dimension`` n) / n; batches are (the method of batch means: Law and Kelton,
     *Simulation Modeling and Analysis*, chapter 9; the NEES over Monte Carlo runs: Bar-Shalom,
     Li, Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001, section
-    5.4). ``None``
-    for fewer than two batches."""
+    5.4). ``None`` for fewer than two batches."""
     values = np.array([v for v in batch_means if v is not None], dtype=float)
     if len(values) < 2:
         return None

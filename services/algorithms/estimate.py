@@ -65,6 +65,19 @@ def left_residuals(transforms: RigidTransform, reference: RigidTransform) -> np.
     return np.atleast_2d((transforms * reference.inv()).as_exp_coords())
 
 
+def nees(estimate: PoseEstimate, truth: PoseEstimate) -> float | None:
+    """``xi^T P^-1 xi`` of the estimate's left error ``xi = Log(T T_true^-1)`` against its own
+    covariance ``P``, or ``None`` without one: its mean is 6 when the covariance is honest
+    (the normalised estimation error squared: Bar-Shalom, Li, Kirubarajan, *Estimation with
+    Applications to Tracking and Navigation*, 2001, section 5.4)."""
+    if estimate.covariance is None:
+        return None
+    error = left_residuals(
+        rigid(estimate.rotation, estimate.translation), rigid(truth.rotation, truth.translation)
+    )[0]
+    return float(error @ np.linalg.solve(estimate.covariance, error))
+
+
 def perturb_left(xi: np.ndarray, reference: RigidTransform) -> RigidTransform:
     """``Exp(xi) T_ref``."""
     return RigidTransform.from_exp_coords(xi) * reference

@@ -142,20 +142,18 @@ def worst_window_rms(
 
 
 def nees(sample: Any, rotation: np.ndarray, translation: np.ndarray) -> float:
-    """``xi^T P^-1 xi`` of a received pose's left error ``xi = Log(T T_true^-1)`` against its
-    own covariance ``P`` (the core's convention: ``docs/protocol.md``), NaN without one. Its
-    mean is 6 when the covariance is honest (Bar-Shalom, Li, Kirubarajan, *Estimation with
-    Applications to Tracking and Navigation*, 2001, section 5.4); the truth serves only
-    this judgement, as it does the errors."""
-    from ubitrack_agent.services.algorithms.estimate import left_residuals, rigid
+    """A received pose's NEES against the truth ``(rotation, translation)``
+    (:func:`ubitrack_agent.services.algorithms.estimate.nees`: 6 on average when its covariance
+    is honest), NaN without a covariance; the truth serves only this judgement, as it does the
+    errors."""
+    from ubitrack_agent.services.algorithms.estimate import PoseEstimate
+    from ubitrack_agent.services.algorithms.estimate import nees as estimate_nees
 
-    covariance = getattr(sample, "covariance", None)
-    if covariance is None:
-        return float("nan")
-    error = left_residuals(
-        rigid(sample.rotation, sample.translation), rigid(rotation, translation)
-    )[0]
-    return float(error @ np.linalg.solve(covariance, error))
+    value = estimate_nees(
+        PoseEstimate(sample.rotation, sample.translation, getattr(sample, "covariance", None)),
+        PoseEstimate(rotation, translation),
+    )
+    return float("nan") if value is None else value
 
 
 def mean_nees(values: Sequence[float]) -> float | None:
