@@ -3,7 +3,13 @@ last hop beside the application, labels and capacity respected, no flapping."""
 
 import pytest
 
-from ubitrack_agent.agent.placement import LOAD_WEIGHT, MOVE_MARGIN, group_containers, place
+from ubitrack_agent.agent.placement import (
+    DOWNSTREAM_WEIGHT,
+    LOAD_WEIGHT,
+    MOVE_MARGIN,
+    group_containers,
+    place,
+)
 from ubitrack_agent.net.host_protocol import HostInfo
 from ubitrack_agent.net.spec import ComponentSpec, InputBinding
 
@@ -139,6 +145,30 @@ def test_a_chain_moves_together_when_that_saves_a_crossing():
     assert moved == {"pnp": "hmd", "art": "room", "fusion": "hmd", "last": "hmd"}
     # Placed so from the start, it stays so (no flapping back and forth).
     assert place(specs, hosts, DATA_HOSTS, readers, moved).hosts == moved
+
+
+def test_a_fusion_goes_where_its_application_is_whatever_the_hosts_load():
+    """The fusion reads the camera's chain on the HMD and the A.R.T. chain in the room: one
+    crossing either way, but the last hop, beside the application on the HMD, can follow it
+    there only: the HMD wins even when the room's host manager reads a lower load (one machine
+    in two network namespaces, each reading it at another moment)."""
+    specs = {
+        "pnp": spec("pnp", CAMERA_INTRINSICS, CAMERA_FEATURES, MARKERS, static=STATICS),
+        "art": spec("art", ART_HT),
+        "fusion": spec("fusion", "d/pnp/out", "d/art/out"),
+        "last": spec("last", "d/fusion/out", "d/store/WT_A", relations=("rel/C/A",)),
+    }
+    for hmd_load, room_load in ((0.8, 0.0), (0.0, 0.8), (1.0, 1.0), (1.0, 0.98)):
+        hosts = {
+            "room": HostInfo("room", cpu_load=room_load),
+            "hmd": HostInfo("hmd", cpu_load=hmd_load),
+        }
+        placed = place(specs, hosts, DATA_HOSTS, {"rel/C/A": {"hmd"}}).hosts
+        assert placed == {"pnp": "hmd", "art": "room", "fusion": "hmd", "last": "hmd"}
+    assert DOWNSTREAM_WEIGHT + LOAD_WEIGHT < 1  # near the data still always wins
+    # Read by an application in the room, the same derivation ends there.
+    placed = place(specs, {"room": ROOM, "hmd": HMD}, DATA_HOSTS, {"rel/C/A": {"room"}}).hosts
+    assert placed == {"pnp": "hmd", "art": "room", "fusion": "room", "last": "room"}
 
 
 # -- containers: a host's components grouped (issue 28) ----------------------------------------

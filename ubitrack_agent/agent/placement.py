@@ -15,8 +15,12 @@ The rule, pure and deterministic (:func:`place`):
    component publishes costs one crossing per other host an application asking for it runs on
    (so the last hop sits beside the application when that saves a crossing); plus
    :data:`LOAD_WEIGHT` times the host's load (the larger of the share of its capacity this plan
-   uses and its CPU load per core, at most 1): between hosts equally near the data, the less
-   loaded one wins. An input of unknown origin costs nothing anywhere.
+   uses and its CPU load per core, at most 1); and :data:`DOWNSTREAM_WEIGHT` if an application
+   reads the relation its derivation ends in on other hosts only (so that between hosts
+   equally near its inputs a fusion goes where the application is, and the last hop can
+   follow it without a crossing: the greedy order of rule 3 cannot see that saving). Between
+   hosts equally near the data and the applications, the less loaded one wins. An input of
+   unknown origin costs nothing anywhere.
 3. **Order**: components are placed producers first, so a consumer sees where its producers
    went; ties go to the host name first in order.
 4. **No flapping**: a component already placed stays where it is while that host is eligible,
@@ -45,10 +49,19 @@ STATIC_WEIGHT = 0.1
 LOAD_WEIGHT = 0.5
 """The cost of a fully loaded host, relative to a stream crossing: less than one crossing, so
 being near the data always wins over balancing load."""
+DOWNSTREAM_WEIGHT = 0.45
+"""The cost of a host away from every application reading what a component's derivation
+computes: more than a difference of load below 0.9 of the cores (a tie between two hosts on
+one loaded machine went by the load each host manager happened to read:
+``tests/integration/test_hosts_netns.py``'s fusion on the other host once under a test
+suite's load), and with the most load (:data:`LOAD_WEIGHT`) less than a crossing, so that
+being near the data still always wins."""
 MOVE_MARGIN = 0.75
 """How much cheaper another host must be before a placed component moves there: more than load
 and a static input together can make (0.6), less than a stream brought onto the host even
-when two static inputs then cross (0.8)."""
+when two static inputs then cross (0.8). The preference for the applications' hosts
+(:data:`DOWNSTREAM_WEIGHT`) is not counted here: it chooses where a component starts, and
+never moves a running one by itself."""
 
 
 @dataclass(frozen=True)
@@ -98,6 +111,7 @@ def _greedy(
 ) -> Assignment:
     """Rules 1 to 4 of the module docstring, one component at a time, producers first."""
     origin = dict(data_hosts)  # data key -> host, the outputs of placed components added
+    downstream = _downstream_hosts(specs, application_hosts)
     planned = dict.fromkeys(hosts, 0)
     placed: dict[str, str] = {}
     unplaced: dict[str, str] = {}
@@ -116,7 +130,14 @@ def _greedy(
             + LOAD_WEIGHT * _load(hosts[name], planned[name])
             for name in eligible
         }
-        best = min(eligible, key=lambda name: (costs[name], name))
+        readers = downstream[instance]
+        best = min(
+            eligible,
+            key=lambda name: (
+                costs[name] + (DOWNSTREAM_WEIGHT if readers and name not in readers else 0.0),
+                name,
+            ),
+        )
         here = current.get(instance)
         if here in costs and costs[here] - costs[best] < MOVE_MARGIN:
             best = here
@@ -166,6 +187,30 @@ def _crossings(
             readers |= set(application_hosts.get(key, ()))
         cost += len(readers - {host})
     return cost
+
+
+def _downstream_hosts(
+    specs: Mapping[str, ComponentSpec], application_hosts: Mapping[str, Set[str]]
+) -> dict[str, frozenset[str]]:
+    """For each instance, the hosts of the applications reading a relation it or a component
+    downstream of it publishes; O(components + bindings + relations), consumers seen before
+    their producers (``specs`` lists producers first)."""
+    readers_of: dict[str, list[str]] = {}
+    for instance, spec in specs.items():
+        for binding in spec.inputs:
+            readers_of.setdefault(binding.key, []).append(instance)
+    downstream: dict[str, frozenset[str]] = {}
+    for instance in reversed(list(specs)):
+        spec = specs[instance]
+        hosts: set[str] = set()
+        for keys in spec.relations.values():
+            for key in keys:
+                hosts |= set(application_hosts.get(key, ()))
+        for key in spec.outputs.values():
+            for reader in readers_of.get(key, ()):
+                hosts |= downstream.get(reader, frozenset())
+        downstream[instance] = frozenset(hosts)
+    return downstream
 
 
 def _load(info: HostInfo, planned: int) -> float:
