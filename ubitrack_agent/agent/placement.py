@@ -91,10 +91,13 @@ def place(
     """
     current = current or {}
     required_labels = required_labels or {}
-    kept = _greedy(specs, hosts, data_hosts, application_hosts, current, required_labels)
+    downstream = _downstream_hosts(specs, application_hosts)
+    kept = _greedy(
+        specs, hosts, data_hosts, application_hosts, downstream, current, required_labels
+    )
     if not current:
         return kept
-    fresh = _greedy(specs, hosts, data_hosts, application_hosts, {}, required_labels)
+    fresh = _greedy(specs, hosts, data_hosts, application_hosts, downstream, {}, required_labels)
     saved = _total_crossings(specs, kept, data_hosts, application_hosts) - _total_crossings(
         specs, fresh, data_hosts, application_hosts
     )
@@ -106,12 +109,13 @@ def _greedy(
     hosts: Mapping[str, HostInfo],
     data_hosts: Mapping[str, str],
     application_hosts: Mapping[str, Set[str]],
+    downstream: Mapping[str, frozenset[str]],
     current: Mapping[str, str],
     required_labels: Mapping[str, Set[str]],
 ) -> Assignment:
-    """Rules 1 to 4 of the module docstring, one component at a time, producers first."""
+    """Rules 1 to 4 of the module docstring, one component at a time, producers first;
+    ``downstream`` is :func:`_downstream_hosts` of ``specs``."""
     origin = dict(data_hosts)  # data key -> host, the outputs of placed components added
-    downstream = _downstream_hosts(specs, application_hosts)
     planned = dict.fromkeys(hosts, 0)
     placed: dict[str, str] = {}
     unplaced: dict[str, str] = {}
