@@ -55,6 +55,8 @@ from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.status_line import periodic_status
 
 if TYPE_CHECKING:
+    import zenoh
+
     from ubitrack_agent.services.host_manager import HostManager
 
 DEFAULT_POOL_SIZE = 2
@@ -197,17 +199,12 @@ def serve(
         return 2
     # Imported here: the registry and zenoh are heavy, and ``ubitrack --help`` reads this module.
     from ubitrack_agent.net.clock import Clock
-    from ubitrack_agent.net.session import open_session
     from ubitrack_agent.services.host_claim import NAME_TAKEN, HostClaim
 
     keys = KeySpace(settings.key_prefix)
-    flags = config.member_flags(settings)
-    if not workers_as_peers and gateway_possible(settings):
-        gateway = f"tcp/127.0.0.1:{free_loopback_port()}"
-        flags = config.as_flags(config.client_of(settings, gateway))
-        settings = replace(settings, listen=(*settings.listen, gateway))
     steps = [("started", time.monotonic())]
-    with open_session(settings) as session:
+    session, flags = open_host_session(settings, gateway=not workers_as_peers)
+    with session:
         steps.append(("session", time.monotonic()))
         claim = HostClaim(session, keys, name)
         from ubitrack_agent.services.host_manager import (
@@ -247,6 +244,33 @@ def free_loopback_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
+
+
+GATEWAY_PORT_TRIES = 5
+"""Ports tried for the workers' gateway before giving up: a port free a moment ago may be taken
+(another process's listener, or an outgoing connection's ephemeral port) before zenoh binds it."""
+
+
+def open_host_session(settings: Settings, gateway: bool) -> tuple[zenoh.Session, list[str]]:
+    """The host manager's session and the flags its workers join with: with ``gateway`` (and
+    :func:`gateway_possible`) it also listens on a loopback port its workers connect to as
+    clients, trying another port when that one was taken meanwhile (zenoh cannot say which port
+    it bound for ``:0``, so the port is chosen here)."""
+    import zenoh
+
+    from ubitrack_agent.net.session import open_session
+
+    if not (gateway and gateway_possible(settings)):
+        return open_session(settings), config.member_flags(settings)
+    for attempt in itertools.count(1):
+        endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+        try:
+            session = open_session(replace(settings, listen=(*settings.listen, endpoint)))
+        except zenoh.ZError as exc:
+            if "Address already in use" in str(exc) and attempt < GATEWAY_PORT_TRIES:
+                continue
+            raise
+        return session, config.as_flags(config.client_of(settings, endpoint))
 
 
 def status_line(status: dict[str, Any]) -> str:

@@ -9,6 +9,7 @@ import json
 import os
 import queue
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -410,6 +411,29 @@ def test_workers_as_peers_link_to_every_process(hub):
     # a peer: its listener and links to the hub and the host manager at least (a client holds
     # one socket); gossip links it to the test's session too, but not always within seconds
     wait_until(lambda: sockets(reply["pid"]) >= 3, timeout=10)
+
+
+def test_a_gateway_port_taken_before_zenoh_binds_it_is_replaced_by_another(monkeypatch):
+    """The workers' gateway port is chosen free and bound by zenoh a moment later; taken in
+    between (as by another process's listener: CI stop 39), the host manager's session is opened
+    on another port, and its workers' flags name the port it listens on."""
+    from ubitrack_agent.services import host
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        busy = taken.getsockname()[1]
+        offered = iter([busy, free_port()])
+        monkeypatch.setattr(host, "free_loopback_port", lambda: next(offered))
+        settings = config.Settings(listen=(f"tcp/127.0.0.1:{free_port()}",))
+        session, flags = host.open_host_session(settings, gateway=True)
+        with session:
+            gateway = flags[flags.index("--connect") + 1]
+            assert gateway.startswith("tcp/127.0.0.1:")
+            port = int(gateway.rsplit(":", 1)[1])
+            assert port != busy
+            with socket.create_connection(("127.0.0.1", port), timeout=5):
+                pass  # zenoh listens there
 
 
 def test_a_host_manager_outlives_the_agent_that_started_it(hub):
