@@ -25,7 +25,11 @@ Filters, on the same measurements of each run: the template's process noise
 (``templates/fusion.yaml``) and that noise times ``--scales``; and :class:`InnovationMatched`, the
 noise scaled on line until the innovations' NIS has its expectation (Bar-Shalom, Li,
 Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001, section 11.2,
-adjustable level process noise), tried and not adopted (below).
+adjustable level process noise), tried and not adopted (below); and
+:class:`bench.consider_filter.ConsiderFilter`, told which part of each estimate's covariance is
+static (each path's static edges' share, propagated as the rest; the camera path has none here),
+with the template's noise and innovation-matched: the design measured for the live fusion
+(``docs/performance.md``, "Is the fused covariance honest?").
 
 Why runs: the samples of one run are not independent (a filtered output's errors are
 correlated over its time constant, and every sample of a run shares its static errors), so the
@@ -51,6 +55,7 @@ import numpy as np
 import yaml
 from scipy.stats import chi2
 
+from bench.consider_filter import ConsiderFilter
 from bench.synthetic import THREE_SIGMA_NEES, nees, nees_over_batches
 from ubitrack_agent.core import ErrorPose, Pose
 from ubitrack_agent.core.poses import compose_poses, invert_pose
@@ -61,6 +66,8 @@ from ubitrack_agent.services.algorithms.pose_filter import _ROTATIONS, _process_
 from ubitrack_agent.sim_trackers.noise import perturb_in_place
 from ubitrack_agent.sim_trackers.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 
+PATHS = ("A.R.T.", "camera")
+"""The fusion's two inputs, each with its own static error."""
 OUTPUT = Path(__file__).parent / "results" / "fusion_consistency.json"
 WARM_UP_S = 3.0
 """Posteriors of a run's first seconds are not judged: the filter's start is the switch
@@ -74,6 +81,13 @@ class Measurement:
     path: str
     estimate: ErrorPose
     truth: PoseEstimate
+    static: np.ndarray
+    """The part of the estimate's covariance from its static edges (the rest is white)."""
+
+    @property
+    def white(self) -> np.ndarray:
+        """The part of the estimate's covariance from its dynamic edges."""
+        return self.estimate.covariance - self.static
 
 
 class InnovationMatched(PoseKalmanFilter):
@@ -125,6 +139,11 @@ def static_edge(
     return ErrorPose(0, rotation, translation, in_place_covariance(translation, sigma))
 
 
+def exact(pose: ErrorPose) -> Pose:
+    """``pose`` without its covariance: what the concatenation carries of the other edges'."""
+    return Pose(pose.timestamp_ns, pose.rotation, pose.translation)
+
+
 def measurements(
     scenario: Scenario, seed: int, seconds: float, calibrated: bool, args: argparse.Namespace
 ) -> list[Measurement]:
@@ -168,6 +187,9 @@ def measurements(
             estimate = compose_poses(
                 compose_poses(compose_poses(c_ht, invert_pose(art_ht)), art_wt), wt_a
             )
+            static = compose_poses(
+                compose_poses(compose_poses(c_ht, invert_pose(exact(art_ht))), art_wt), wt_a
+            ).covariance
         else:
             rotation, translation = world.pose("C", "WT", stamp)
             seen = world.project(camera.image_plane, camera.features, stamp)
@@ -190,21 +212,29 @@ def measurements(
                 continue
             c_wt = ErrorPose(stamp, pose.rotation, pose.translation, pose.covariance)
             estimate = compose_poses(c_wt, wt_a)
+            static = np.zeros((6, 6))
         truth = PoseEstimate(*world.pose("C", "A", stamp))
-        made.append(Measurement(path, estimate, truth))
+        made.append(Measurement(path, estimate, truth, static))
     return made
 
 
-def judge(filter_: PoseKalmanFilter, run: list[Measurement]) -> dict[str, Any]:
+def fed(filter_: PoseKalmanFilter | ConsiderFilter, m: Measurement) -> bool:
+    """Whether ``filter_`` took ``m`` (the live filter its whole covariance, the consider
+    filter its white and static parts)."""
+    e = m.estimate
+    if isinstance(filter_, ConsiderFilter):
+        return filter_.update(e.timestamp_ns, e.rotation, e.translation, m.white, m.static, m.path)
+    outcome = filter_.update(e.timestamp_ns, e.rotation, e.translation, e.covariance)
+    return outcome in ("updated", "restarted")
+
+
+def judge(filter_: PoseKalmanFilter | ConsiderFilter, run: list[Measurement]) -> dict[str, Any]:
     """Feed one run to ``filter_``; the NEES, 3-sigma count and error of what it publishes."""
     values, errors_mm = [], []
     first_ns = run[0].estimate.timestamp_ns
     for m in run:
         e = m.estimate
-        if filter_.update(e.timestamp_ns, e.rotation, e.translation, e.covariance) not in (
-            "updated",
-            "restarted",
-        ):
+        if not fed(filter_, m):
             continue
         if e.timestamp_ns - first_ns < WARM_UP_S * 1e9:
             continue
@@ -235,6 +265,10 @@ def filters(scales: list[float]) -> dict[str, Any]:
         f"template x {s:g}": (lambda s=s: PoseKalmanFilter(s * angular, s * linear)) for s in scales
     }
     made["innovation-matched (tried)"] = lambda: InnovationMatched(angular, linear)
+    made["consider"] = lambda: ConsiderFilter(angular, linear, PATHS)
+    made["consider, innovation-matched"] = lambda: ConsiderFilter(
+        angular, linear, PATHS, adaptive=True
+    )
     return made
 
 
@@ -257,7 +291,7 @@ def main(argv: list[str] | None = None) -> None:
     worlds: dict[str, Any] = {}
     for world, calibrated in (("calibrated", True), ("exact", False)):
         per_filter: dict[str, list[dict[str, Any]]] = {name: [] for name in makers}
-        inputs: dict[str, list[float]] = {"A.R.T.": [], "camera": []}
+        inputs: dict[str, list[float]] = {path: [] for path in PATHS}
         for run_index in range(args.runs):
             run = measurements(scenario, 1000 + run_index, args.seconds, calibrated, args)
             for path in inputs:
