@@ -21,15 +21,15 @@ and, in the world *calibrated*, ``C -> HT`` as a live calibration leaves it (``-
 ``--calibration-deg``, the demo's 0.1-0.4 mm); in the world *exact* ``C -> HT`` is the truth
 without a covariance, as ``bench.switch_bench``'s database serves it.
 
-Filters, on the same measurements of each run: the template's process noise
-(``templates/fusion.yaml``) and that noise times ``--scales``; and :class:`InnovationMatched`, the
-noise scaled on line until the innovations' NIS has its expectation (Bar-Shalom, Li,
-Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001, section 11.2,
-adjustable level process noise), tried and not adopted (below); and
-:class:`bench.consider_filter.ConsiderFilter`, told which part of each estimate's covariance is
-static (each path's static edges' share, propagated as the rest; the camera path has none here),
-with the template's noise and innovation-matched: the design measured for the live fusion
-(``docs/performance.md``, "Is the fused covariance honest?").
+Filters (:class:`~ubitrack_agent.services.algorithms.PoseKalmanFilter`), on the same
+measurements of each run: the template's process noise (``templates/fusion.yaml``) and that
+noise times ``--scales``; ``adaptive``, the noise scaled on line until the innovations' NIS has
+its expectation (Bar-Shalom, Li, Kirubarajan, *Estimation with Applications to Tracking and
+Navigation*, 2001, section 11.2, adjustable level process noise), alone tried and not adopted
+(below); and each path's static error *considered* (the filter told which part of each
+estimate's covariance is its static edges' share, propagated as the rest; the camera path has
+none here), with the template's noise and adaptive (``docs/performance.md``, "Is the fused
+covariance honest?").
 
 Why runs: the samples of one run are not independent (a filtered output's errors are
 correlated over its time constant, and every sample of a run shares its static errors), so the
@@ -55,14 +55,12 @@ import numpy as np
 import yaml
 from scipy.stats import chi2
 
-from bench.consider_filter import ConsiderFilter
 from bench.synthetic import THREE_SIGMA_NEES, nees, nees_over_batches
 from ubitrack_agent.core import ErrorPose, Pose
 from ubitrack_agent.core.poses import compose_poses, invert_pose
 from ubitrack_agent.core.uncertainty import in_place_covariance, isotropic_pose_covariance
 from ubitrack_agent.services.algorithms import PoseKalmanFilter, solve_pnp
 from ubitrack_agent.services.algorithms.estimate import PoseEstimate
-from ubitrack_agent.services.algorithms.pose_filter import _ROTATIONS, _process_noise
 from ubitrack_agent.sim_trackers.noise import perturb_in_place
 from ubitrack_agent.sim_trackers.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 
@@ -88,45 +86,6 @@ class Measurement:
     def white(self) -> np.ndarray:
         """The part of the estimate's covariance from its dynamic edges."""
         return self.estimate.covariance - self.static
-
-
-class InnovationMatched(PoseKalmanFilter):
-    """The filter with its angular and linear process noise each scaled on line so that the
-    NIS of the rotation and of the position part of each innovation averages 3, its expectation
-    (a stochastic approximation of the scale in log space, gain ``gain`` per update; Bar-Shalom
-    et al. 2001, section 11.2). Tried for issue 29: it makes the output over-confident where the
-    measurements share static errors (below, and ``docs/performance.md``)."""
-
-    def __init__(self, angular: float, linear: float, gain: float = 0.02) -> None:
-        super().__init__(angular, linear)
-        self._terms = (
-            np.stack(_process_noise(angular, 0.0)).reshape(3, 144),
-            np.stack(_process_noise(0.0, linear)).reshape(3, 144),
-        )
-        self._log_scales = [0.0, 0.0]
-        self._gain = gain
-
-    def _correct(self, prior, measurement):  # type: ignore[no-untyped-def]
-        posterior = super()._correct(prior, measurement)
-        if posterior is None:
-            return None
-        phi = _ROTATIONS.log(measurement.rotation.tolist(), tuple(prior.rotation.tolist()))
-        residual = np.concatenate([phi, measurement.translation - prior.vector[:3]])
-        innovation = prior.covariance[:6, :6] + measurement.noise
-        for block, part in enumerate((slice(0, 3), slice(3, 6))):
-            nis = residual[part] @ np.linalg.solve(innovation[part, part], residual[part]) / 3
-            moved = self._log_scales[block] + self._gain * (nis - 1.0)
-            self._log_scales[block] = min(max(moved, -12.0), 12.0)
-        self._noise = sum(
-            math.exp(scale) * term
-            for scale, term in zip(self._log_scales, self._terms, strict=True)
-        )
-        return posterior
-
-    @property
-    def scales(self) -> tuple[float, float]:
-        """The angular and linear noise's current factors."""
-        return math.exp(self._log_scales[0]), math.exp(self._log_scales[1])
 
 
 def static_edge(
@@ -218,23 +177,23 @@ def measurements(
     return made
 
 
-def fed(filter_: PoseKalmanFilter | ConsiderFilter, m: Measurement) -> bool:
-    """Whether ``filter_`` took ``m`` (the live filter its whole covariance, the consider
-    filter its white and static parts)."""
+def fed(filter_: PoseKalmanFilter, m: Measurement, considering: bool) -> bool:
+    """Whether ``filter_`` took ``m``: its whole covariance, or, ``considering``, told which
+    part is its path's static error."""
     e = m.estimate
-    if isinstance(filter_, ConsiderFilter):
-        return filter_.update(e.timestamp_ns, e.rotation, e.translation, m.white, m.static, m.path)
-    outcome = filter_.update(e.timestamp_ns, e.rotation, e.translation, e.covariance)
+    static = {"static": m.static, "source": m.path} if considering else {}
+    outcome = filter_.update(e.timestamp_ns, e.rotation, e.translation, e.covariance, **static)
     return outcome in ("updated", "restarted")
 
 
-def judge(filter_: PoseKalmanFilter | ConsiderFilter, run: list[Measurement]) -> dict[str, Any]:
-    """Feed one run to ``filter_``; the NEES, 3-sigma count and error of what it publishes."""
+def judge(filter_: PoseKalmanFilter, considering: bool, run: list[Measurement]) -> dict[str, Any]:
+    """Feed one run to ``filter_`` (``considering``: :func:`fed`); the NEES, 3-sigma count and
+    error of what it publishes."""
     values, errors_mm = [], []
     first_ns = run[0].estimate.timestamp_ns
     for m in run:
         e = m.estimate
-        if not fed(filter_, m):
+        if not fed(filter_, m, considering):
             continue
         if e.timestamp_ns - first_ns < WARM_UP_S * 1e9:
             continue
@@ -255,20 +214,21 @@ def inputs_nees(run: list[Measurement], path: str) -> float:
     return float(np.mean([nees(m.estimate, m.truth) for m in run if m.path == path]))
 
 
-def filters(scales: list[float]) -> dict[str, Any]:
-    """Name -> factory of each filter compared, on the template's process noise."""
+def filters(scales: list[float]) -> dict[str, tuple[Any, bool]]:
+    """Name -> (factory of the filter, whether it is told the static parts) of each filter
+    compared, on the template's process noise."""
     template = yaml.safe_load(
         (Path(__file__).parents[1] / "templates" / "fusion.yaml").read_text()
     )["parameters"]
     angular, linear = template["angular_noise"], template["linear_noise"]
-    made: dict[str, Any] = {
-        f"template x {s:g}": (lambda s=s: PoseKalmanFilter(s * angular, s * linear)) for s in scales
+    made: dict[str, tuple[Any, bool]] = {
+        f"template x {s:g}": ((lambda s=s: PoseKalmanFilter(s * angular, s * linear)), False)
+        for s in scales
     }
-    made["innovation-matched (tried)"] = lambda: InnovationMatched(angular, linear)
-    made["consider"] = lambda: ConsiderFilter(angular, linear, PATHS)
-    made["consider, innovation-matched"] = lambda: ConsiderFilter(
-        angular, linear, PATHS, adaptive=True
-    )
+    adaptive = lambda: PoseKalmanFilter(angular, linear, adaptive=True)  # noqa: E731
+    made["innovation-matched (tried)"] = (adaptive, False)
+    made["consider"] = (lambda: PoseKalmanFilter(angular, linear), True)
+    made["consider, innovation-matched"] = (adaptive, True)
     return made
 
 
@@ -296,8 +256,8 @@ def main(argv: list[str] | None = None) -> None:
             run = measurements(scenario, 1000 + run_index, args.seconds, calibrated, args)
             for path in inputs:
                 inputs[path].append(inputs_nees(run, path))
-            for name, make in makers.items():
-                per_filter[name].append(judge(make(), run))
+            for name, (make, considering) in makers.items():
+                per_filter[name].append(judge(make(), considering, run))
         worlds[world] = {
             "inputs": {path: nees_over_batches(values) for path, values in inputs.items()},
             "filters": {

@@ -29,6 +29,24 @@ pose at any other time is predicted from the motion model (pull). In addition:
   filter at the latest: the target really is elsewhere (or the filter started on an outlier).
 * A measurement more than ``restart_ns`` after the newest (a tracker gap) restarts the
   filter, as the constant-velocity extrapolation over such a gap is meaningless.
+* **Static errors considered** (issue 29): a measurement may say which part of its covariance
+  is static (``static``: the share of its static edges, a calibration's error, the same in
+  every sample of its ``source``) and which input it came from. Each such source's static
+  error is appended to the state as a constant and *considered*, never corrected (the
+  Schmidt-Kalman filter: the gain's rows of those states zero, the covariance updated in
+  Joseph form, which holds for any gain; Schmidt 1966; Simon, *Optimal State Estimation*,
+  2006, section 7.5). The state's covariance is then that of its whole error: averaging many
+  samples of one source does not average its static error away. The static error is taken as
+  constant in the output's frame (a concatenation transports it by the current pose: an
+  approximation for slow changes of that pose). State size ``12 + 6 S`` for ``S`` such
+  sources; an update costs ``O((12 + 6 S)^3)``, the filter without them ``O(12^3)``.
+* **Process noise matched to the innovations** (``adaptive``): the angular and the linear
+  density are each scaled on line (in log space, ``adaptation_gain`` per update) until the
+  normalised innovations squared of the rotation and of the position average 3, their
+  expectation (Bar-Shalom et al. 2001, section 11.2, adjustable level process noise). Only
+  honest with the static errors considered: a static error common to a source's samples
+  cancels in its innovations, and a filter adapting to them alone grows over-confident
+  (``docs/performance.md``, "Is the fused covariance honest?").
 
 :meth:`PoseKalmanFilter.estimate` answers a time within the kept window by predicting from
 the posterior just before it (the filtered, not smoothed, estimate), and a later time by
@@ -39,8 +57,9 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Hashable
 from dataclasses import dataclass
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from scipy.linalg.lapack import dposv
@@ -85,7 +104,11 @@ class _Measurement(NamedTuple):
     rotation: np.ndarray
     translation: np.ndarray
     noise: np.ndarray
-    """6x6 covariance of (dphi, dp)."""
+    """6x6 covariance of (dphi, dp): the white part, where ``static`` is given."""
+    static: np.ndarray | None = None
+    """6x6 left covariance of the source's static error, or None (all white)."""
+    source: int = -1
+    """Index of the source's static error among the filter's considered states."""
 
 
 @dataclass(frozen=True)
@@ -101,9 +124,18 @@ class FilterSettings:
     window_ns: int = 200_000_000
     restart_ns: int = 500_000_000
     max_ahead_ns: int = MAX_AHEAD_NS
+    adaptive: bool = False
+    """Scale the process noise on line to the innovations (see the module docstring)."""
+    adaptation_gain: float = 0.02
 
     def __post_init__(self) -> None:
-        for name in ("angular_noise", "linear_noise", "initial_speed_std", "gate"):
+        for name in (
+            "angular_noise",
+            "linear_noise",
+            "initial_speed_std",
+            "gate",
+            "adaptation_gain",
+        ):
             positive(name, getattr(self, name))
         for name in ("restart_after", "window_ns", "restart_ns", "max_ahead_ns"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
@@ -123,17 +155,37 @@ def _process_noise(angular: float, linear: float) -> tuple[np.ndarray, ...]:
     return terms
 
 
-def _checked_covariance(value: np.ndarray) -> np.ndarray:
+def _checked_covariance(value: np.ndarray, name: str = "covariance") -> np.ndarray:
     """A symmetric positive definite 6x6 covariance, checked at the cost of one Cholesky
     factorisation (a filter update is on the latency path), or ``ValueError``."""
-    covariance = as_array("covariance", value, (6, 6))
+    covariance = as_array(name, value, (6, 6))
     if np.abs(covariance - covariance.T).max() > 1e-9 * np.abs(covariance).max():
-        raise ValueError("covariance: must be symmetric")
+        raise ValueError(f"{name}: must be symmetric")
     try:
         np.linalg.cholesky(covariance)
     except np.linalg.LinAlgError:
-        raise ValueError("covariance: not positive definite") from None
+        raise ValueError(f"{name}: not positive definite") from None
     return covariance
+
+
+def _white_part(covariance: np.ndarray, static: np.ndarray) -> np.ndarray:
+    """``covariance - static``, or ``ValueError`` unless both are symmetric and it is positive
+    semi-definite (a static part no larger than the whole; zero where every edge is static)."""
+    white = covariance - static
+    scale = max(float(np.abs(covariance).max()), float(np.abs(static).max()))
+    if np.abs(static - static.T).max() > 1e-9 * scale:
+        raise ValueError("static: must be symmetric")
+    if (
+        np.linalg.eigvalsh(white)[0] < -1e-9 * scale
+        or np.linalg.eigvalsh(static)[0] < -1e-9 * scale
+    ):
+        raise ValueError("static: must be positive semi-definite and no larger than the covariance")
+    return white
+
+
+def _block(source: int) -> slice:
+    """The rows of a considered source's static error in the state."""
+    return slice(12 + 6 * source, 18 + 6 * source)
 
 
 def _solve_positive_definite(matrix: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, int]:
@@ -168,16 +220,30 @@ class PoseKalmanFilter:
     answers the pose and its covariance at a given time, :meth:`predict` at any time.
     """
 
-    def __init__(self, angular_noise: float, linear_noise: float, **tuning: float) -> None:
+    def __init__(self, angular_noise: float, linear_noise: float, **tuning: Any) -> None:
         self.settings = FilterSettings(angular_noise, linear_noise, **tuning)
         """The process noise densities and the rest of :class:`FilterSettings` (``tuning``)."""
         self._history: list[tuple[_Measurement, _State]] = []
         """The measurements of the kept window with the posterior after each, in time order."""
         self._gated_in_row = 0
-        self._noise = np.stack(
-            _process_noise(self.settings.angular_noise, self.settings.linear_noise)
-        ).reshape(3, 144)
+        self._terms = (
+            np.stack(_process_noise(self.settings.angular_noise, 0.0)).reshape(3, 144),
+            np.stack(_process_noise(0.0, self.settings.linear_noise)).reshape(3, 144),
+        )
+        """The angular and the linear process noise, each as three flat terms."""
+        self._log_scales = [0.0, 0.0]
+        """The factors of the two (``adaptive``), in log space."""
+        self._noise = self._terms[0] + self._terms[1]
         """The three terms of the process noise, flat: one product gives it for a gap."""
+        self._sources: dict[Hashable, int] = {}
+        """The sources whose static errors the state considers, by the index of their block."""
+        self._statics: list[np.ndarray] = []
+        """Each considered source's static covariance (left), as its first measurement said."""
+
+    @property
+    def noise_scales(self) -> tuple[float, float]:
+        """The factors of the angular and the linear process noise (1 unless ``adaptive``)."""
+        return math.exp(self._log_scales[0]), math.exp(self._log_scales[1])
 
     @property
     def timestamp_ns(self) -> int | None:
@@ -187,7 +253,8 @@ class PoseKalmanFilter:
     # -- model ------------------------------------------------------------------------------
 
     def _propagate(self, state: _State, timestamp_ns: int) -> _State:
-        """The state moved to ``timestamp_ns`` by the motion model (also backwards)."""
+        """The state moved to ``timestamp_ns`` by the motion model (also backwards); the
+        considered static errors stay, their cross-covariances move with the state."""
         dt = (timestamp_ns - state.timestamp_ns) * 1e-9
         if dt == 0.0:
             return state
@@ -200,7 +267,13 @@ class PoseKalmanFilter:
         transition[_VELOCITY_BLOCKS] = dt  # d(phi)/d(omega) and d(p)/d(v): dt I
         gap = abs(dt)
         noise = (np.array([gap**3 / 3, gap**2 / 2, gap]) @ self._noise).reshape(12, 12)
-        covariance = transition @ state.covariance @ transition.T + noise
+        if len(state.covariance) == 12:
+            covariance = transition @ state.covariance @ transition.T + noise
+        else:
+            covariance = state.covariance.copy()
+            covariance[:12, :12] = transition @ state.covariance[:12, :12] @ transition.T + noise
+            covariance[:12, 12:] = transition @ state.covariance[:12, 12:]
+            covariance[12:, :12] = covariance[:12, 12:].T
         rotation = quaternions.multiply(step, state.rotation)
         return _State(timestamp_ns, rotation, vector, covariance)
 
@@ -208,11 +281,33 @@ class PoseKalmanFilter:
         covariance = np.zeros((12, 12))
         covariance[:6, :6] = measurement.noise
         covariance[6:, 6:] = self.settings.initial_speed_std**2 * np.eye(6)
+        covariance = self._considering(covariance)
+        if measurement.static is not None:  # its static error is in the start's error
+            block = _block(measurement.source)
+            to_error = _to_error(measurement.translation)
+            covariance[:6, :6] += to_error @ measurement.static @ to_error.T
+            covariance[:6, block] = to_error @ measurement.static
+            covariance[block, :6] = covariance[:6, block].T
         vector = np.concatenate((measurement.translation, np.zeros(6)))
         return _State(measurement.timestamp_ns, measurement.rotation, vector, covariance)
 
+    def _considering(self, covariance: np.ndarray) -> np.ndarray:
+        """``covariance`` with a block for each considered source it lacks: that source's
+        static covariance, independent of the rest (its error came with its first sample)."""
+        have = (len(covariance) - 12) // 6
+        if have == len(self._statics):
+            return covariance
+        size = 12 + 6 * len(self._statics)
+        grown = np.zeros((size, size))
+        grown[: len(covariance), : len(covariance)] = covariance
+        for index in range(have, len(self._statics)):
+            grown[_block(index), _block(index)] = self._statics[index]
+        return grown
+
     def _correct(self, prior: _State, measurement: _Measurement) -> _State | None:
         """The posterior after ``measurement`` at the prior's time; None if gated."""
+        if self._sources or self.settings.adaptive:
+            return self._correct_considering(prior, measurement)
         # On floats where the values are a few numbers (each numpy call costs 10-20 us on a
         # CPU woken for the sample: docs/performance.md, "Data path").
         reference = tuple(prior.rotation.tolist())
@@ -240,6 +335,53 @@ class PoseKalmanFilter:
         vector = prior.vector + correction[3:]
         return _State(prior.timestamp_ns, rotation, vector, symmetric(covariance))
 
+    def _correct_considering(self, prior: _State, measurement: _Measurement) -> _State | None:
+        """:meth:`_correct` with the considered static errors (the Schmidt-Kalman update: the
+        gain's rows of the static errors zero, the covariance in Joseph form), and, when
+        ``adaptive``, the process noise scaled to the innovation (module docstring)."""
+        covariance = self._considering(prior.covariance)
+        size = len(covariance)
+        observe = np.zeros((6, size))
+        observe[:, :6] = _EYE6
+        if measurement.static is not None:  # the static error is in the left tangent space
+            observe[:, _block(measurement.source)] = _to_error(measurement.translation)
+        reference = tuple(prior.rotation.tolist())
+        phi = _ROTATIONS.log(measurement.rotation.tolist(), reference)
+        residual = np.concatenate((phi, measurement.translation - prior.vector[:3]))
+        crossed = covariance @ observe.T
+        innovation = observe @ crossed + measurement.noise
+        innovation = 0.5 * (innovation + innovation.T)
+        solved, info = _solve_positive_definite(innovation, np.column_stack((residual, crossed.T)))
+        if info != 0:
+            raise ValueError("the innovation covariance is not positive definite")
+        if residual @ solved[:, 0] > self.settings.gate:
+            return None
+        gain = solved[:, 1:].T
+        gain[12:] = 0.0  # Schmidt: the static errors are considered, never corrected
+        keep = np.eye(size) - gain @ observe
+        covariance = keep @ covariance @ keep.T + gain @ measurement.noise @ gain.T
+        correction = gain[:12] @ residual
+        x, y, z, w = _ROTATIONS.exp(correction[:3].tolist(), reference)
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        rotation = np.array((x / norm, y / norm, z / norm, w / norm))
+        if self.settings.adaptive:
+            self._adapt(residual, innovation)
+        return _State(
+            prior.timestamp_ns, rotation, prior.vector + correction[3:], symmetric(covariance)
+        )
+
+    def _adapt(self, residual: np.ndarray, innovation: np.ndarray) -> None:
+        """Move the angular and the linear noise's factors towards an NIS of 3 for the
+        rotation and the position part of the innovation (bounded to e^-12 .. e^12)."""
+        for index, part in enumerate((slice(0, 3), slice(3, 6))):
+            nis = residual[part] @ np.linalg.solve(innovation[part, part], residual[part])
+            moved = self._log_scales[index] + self.settings.adaptation_gain * (nis / 3.0 - 1.0)
+            self._log_scales[index] = min(max(moved, -12.0), 12.0)
+        self._noise = (
+            math.exp(self._log_scales[0]) * self._terms[0]
+            + math.exp(self._log_scales[1]) * self._terms[1]
+        )
+
     # -- measurements -------------------------------------------------------------------------
 
     def update(
@@ -249,11 +391,16 @@ class PoseKalmanFilter:
         translation: np.ndarray,
         covariance: np.ndarray,
         validated: bool = False,
+        static: np.ndarray | None = None,
+        source: Hashable = None,
     ) -> Outcome:
         """Fuse one pose measurement (quaternion, translation, 6x6 left covariance) taken at
         ``timestamp_ns``; returns what was done with it (:data:`Outcome`). ``ValueError`` for
         invalid input. With ``validated`` the values are those of a measurement the codec has
-        validated (``core.measurements``: a fusion worker's input), not checked again."""
+        validated (``core.measurements``: a fusion worker's input), not checked again.
+        ``static``: the part of ``covariance`` that is the static error of ``source`` (the
+        input it came from), considered (module docstring); ``covariance - static`` must be
+        positive semi-definite."""
         if validated:
             q, t, cov = rotation, translation, covariance
         else:
@@ -262,7 +409,15 @@ class PoseKalmanFilter:
             cov = _checked_covariance(covariance)
             timestamp_ns = check_timestamp("timestamp_ns", timestamp_ns)
         to_error = _to_error(t)
-        measurement = _Measurement(timestamp_ns, q, t, to_error @ cov @ to_error.T)
+        if static is None:
+            measurement = _Measurement(timestamp_ns, q, t, to_error @ cov @ to_error.T)
+        else:
+            white = _white_part(cov, as_array("static", static, (6, 6)))
+            index = self._sources.setdefault(source, len(self._sources))
+            if index == len(self._statics):
+                self._statics.append(np.array(static, dtype=float))
+            noise = to_error @ white @ to_error.T
+            measurement = _Measurement(timestamp_ns, q, t, noise, self._statics[index], index)
         newest = self.timestamp_ns
         if newest is None or measurement.timestamp_ns - newest > self.settings.restart_ns:
             return self._restart(measurement)

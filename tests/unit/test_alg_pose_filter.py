@@ -15,6 +15,8 @@ SECOND = 1_000_000_000
 MS = 1_000_000
 COV_A = np.diag([np.radians(0.05) ** 2] * 3 + [0.5e-3**2] * 3)
 COV_B = np.diag([np.radians(0.3) ** 2] * 2 + [np.radians(0.02) ** 2] + [2e-3**2] * 2 + [0.3e-3**2])
+STATIC_A = np.diag([np.radians(0.05) ** 2] * 3 + [0.5e-3**2] * 3)
+"""Tracker A's static error (a calibration's), as large as its white noise."""
 
 
 def walk(rng: np.random.Generator, times_ns, angular: float, linear: float):
@@ -90,23 +92,32 @@ def test_covariance_is_consistent_posterior_and_20_ms_ahead():
     assert low < np.mean(ahead) < high
 
 
-def test_late_measurements_give_the_in_order_result():
-    rng = rng_for("pose-filter-late")
+@pytest.mark.parametrize("considered", [False, True])
+def test_late_measurements_give_the_in_order_result(considered: bool):
+    """Re-filtered late measurements give the in-order result; ``considered``: with static
+    parts, tracker A's and B's static errors considered (two sources)."""
+    rng = rng_for(f"pose-filter-late-{considered}")
     schedule = two_trackers(1.0)
     truth = walk(rng, [t for t, _ in schedule], 1.0, 1.0)
     measurements = []
     for t_ns, cov in schedule:
+        static = {}
+        if considered:
+            a = cov is COV_A
+            static = {"static": STATIC_A if a else 0.2 * cov, "source": "A" if a else "B"}
+            cov = cov + STATIC_A if a else cov
         q, t = measure(rng, truth(t_ns), cov)
-        measurements.append((t_ns, q, t, cov))
+        measurements.append(((t_ns, q, t, cov), static))
     in_order, shuffled = PoseKalmanFilter(1.0, 1.0), PoseKalmanFilter(1.0, 1.0)
-    for m in measurements:
-        assert in_order.update(*m) in ("updated", "restarted")
+    for values, static in measurements:
+        assert in_order.update(*values, **static) in ("updated", "restarted")
     order = list(range(len(measurements)))
     for i in range(1, len(order) - 3, 4):  # every fourth arrives three places late
         order[i : i + 4] = [*order[i + 1 : i + 4], order[i]]
-    outcomes = [shuffled.update(*measurements[i]) for i in order]
+    outcomes = [shuffled.update(*measurements[i][0], **measurements[i][1]) for i in order]
     assert outcomes.count("late") == len(range(1, len(order) - 3, 4))
-    for t_ns in (measurements[-1][0], measurements[-1][0] + 20 * MS):
+    newest = measurements[-1][0][0]
+    for t_ns in (newest, newest + 20 * MS):
         a, b = in_order.estimate(t_ns), shuffled.estimate(t_ns)
         np.testing.assert_allclose(b.translation, a.translation, atol=1e-12)
         assert abs(abs(b.rotation @ a.rotation) - 1) < 1e-12
@@ -178,3 +189,91 @@ def test_bounds_and_bad_input():
         kalman.update(2 * SECOND, quaternions.IDENTITY, np.zeros(3), -COV_A)
     with pytest.raises(ValueError, match="angular_noise"):
         PoseKalmanFilter(angular_noise=-1.0, linear_noise=1.0)
+
+
+def perturbed(truth: PoseEstimate, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``Exp(xi) T_true`` to first order in ``xi``."""
+    turn = quaternions.from_rotvec(xi[:3])
+    return quaternions.multiply(turn, truth.rotation), quaternions.rotate(
+        turn, truth.translation
+    ) + xi[3:]
+
+
+def static_runs(rng, runs: int, seconds: float, density: float, filters):
+    """Final NEES of each filter in ``filters`` (name -> (factory, told the static part)) over
+    ``runs`` runs of the model's own motion (``density``), tracker A's samples sharing one
+    static error per run drawn from :data:`STATIC_A` (announced as part of their covariance)."""
+    final: dict[str, list[float]] = {name: [] for name in filters}
+    for _ in range(runs):
+        schedule = two_trackers(seconds)
+        newest = schedule[-1][0]
+        truth = walk(rng, [t for t, _ in schedule], density, density)
+        bias = rng.normal(size=6) * np.sqrt(np.diag(STATIC_A))
+        made = {name: (make(), told) for name, (make, told) in filters.items()}
+        for t_ns, cov in schedule:
+            xi = rng.normal(size=6) * np.sqrt(np.diag(cov))
+            a = cov is COV_A
+            q, t = perturbed(truth(t_ns), xi + bias if a else xi)
+            whole = cov + STATIC_A if a else cov
+            for kalman, told in made.values():
+                static = {"static": STATIC_A, "source": "A"} if told and a else {}
+                kalman.update(t_ns, q, t, whole, **static)
+        for name, (kalman, _) in made.items():
+            final[name].append(nees(kalman.estimate(newest), truth(newest)))
+    return {name: float(np.mean(values)) for name, values in final.items()}
+
+
+def test_a_considered_static_error_keeps_the_covariance_consistent():
+    """Tracker A's samples share one static error per run: the filter told so (the static
+    error considered, Schmidt-Kalman) is consistent over 100 runs (mean NEES of the final
+    posterior within the chi-square 99 % interval of independent runs); the same filter taking
+    the whole covariance as white noise averages the static error away and is over-confident
+    (a slow motion: it averages over many samples)."""
+    rng = rng_for("pose-filter-consider")
+    runs, density = 100, 0.005
+    means = static_runs(
+        rng,
+        runs,
+        1.0,
+        density,
+        {
+            "considered": (lambda: PoseKalmanFilter(density, density), True),
+            "white": (lambda: PoseKalmanFilter(density, density), False),
+        },
+    )
+    low, high = stats.chi2.ppf([0.005, 0.995], 6 * runs) / runs
+    assert low < means["considered"] < high
+    assert means["white"] > high
+
+
+def test_adaptive_noise_scales_down_to_the_motion_and_stays_consistent():
+    """Configured with ten times the motion's process noise and adaptive, the filter scales
+    both densities down (towards a tenth: below half within 4 s) and stays consistent over 30
+    runs, tracker A's static error considered."""
+    rng = rng_for("pose-filter-adaptive")
+    runs = 30
+    adaptive: list[PoseKalmanFilter] = []
+
+    def made_adaptive() -> PoseKalmanFilter:
+        adaptive.append(PoseKalmanFilter(0.5, 0.5, adaptive=True))
+        return adaptive[-1]
+
+    means = static_runs(rng, runs, 4.0, 0.05, {"adaptive": (made_adaptive, True)})
+    low, high = stats.chi2.ppf([0.005, 0.995], 6 * runs) / runs
+    assert low < means["adaptive"] < high
+    scales = np.array([kalman.noise_scales for kalman in adaptive])
+    assert np.all(np.exp(np.log(scales).mean(axis=0)) < 0.5)
+
+
+def test_a_static_part_larger_than_the_covariance_is_refused():
+    kalman = PoseKalmanFilter(1.0, 1.0)
+    with pytest.raises(ValueError, match="no larger than the covariance"):
+        kalman.update(0, quaternions.IDENTITY, np.zeros(3), COV_A, static=2 * COV_A, source="A")
+    whole_static = kalman.update(
+        0, quaternions.IDENTITY, np.zeros(3), COV_A, static=COV_A, source="A"
+    )
+    assert whole_static == "restarted"  # every edge static: no white part, still a measurement
+    assert (
+        kalman.update(10 * MS, quaternions.IDENTITY, np.zeros(3), COV_A, static=COV_A, source="A")
+        == "updated"
+    )
