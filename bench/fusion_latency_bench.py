@@ -105,14 +105,18 @@ def errors(sample: Any, world: Any, at_ns: int) -> tuple[float, float]:
     )
 
 
-def demo_world(scratch: Path, seed: int, member: list[str]) -> tuple[Any, dict[str, list[str]]]:
-    """The demo's world without a calibration to run: the figure-1 scenario with ``C -> HT``
-    served true by the database (written into ``scratch``), and the ``ubitrack`` arguments of
-    its processes (``sim database``, ``sim camera``, ``sim art``, ``dtrack``) on the network of
-    the ``member`` flags, the simulators' noise drawn from ``seed``."""
-    path = scenario_with_true_calibration(scratch)
-    scenario = load_scenario(str(path))
-    flag = ["--scenario", str(path)]
+def demo_world(
+    scratch: Path, seed: int, member: list[str], true_calibration: bool = True
+) -> tuple[Any, dict[str, list[str]]]:
+    """The demo's world: with ``true_calibration`` without a calibration to run, the figure-1
+    scenario with ``C -> HT`` served true by the database (written into ``scratch``); else the
+    demo's, ``C -> HT`` to be calibrated live into the store (``store``, a file in
+    ``scratch``). The ``ubitrack`` arguments of its processes (``sim database``, ``sim camera``,
+    ``sim art``, ``dtrack``, ``store``) on the network of the ``member`` flags, the
+    simulators' noise drawn from ``seed``."""
+    path = scenario_with_true_calibration(scratch) if true_calibration else None
+    scenario = load_scenario(None if path is None else str(path))
+    flag = [] if path is None else ["--scenario", str(path)]
     art_port = _free_port("udp")
     simulators = simulator_arguments(flag, art_port, seed)
     quiet = "--quiet"  # the benches print their own figures
@@ -121,6 +125,7 @@ def demo_world(scratch: Path, seed: int, member: list[str]) -> tuple[Any, dict[s
         "sim camera": [*simulators["sim camera"], *member],
         "sim art": simulators["sim art"],
         "dtrack": ["dtrack", quiet, *dtrack_flags(scenario.art, art_port), *member],
+        "store": ["store", quiet, str(scratch / "calibration.yaml"), *member],
     }
 
 

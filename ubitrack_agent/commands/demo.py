@@ -452,7 +452,7 @@ def run(args: argparse.Namespace) -> int:
                 f"started C->A 6D on {relation.key} (simulators' seed {seed})",
             )
             _wait_for_first_sample(samples, children, session, keys)
-            _calibrate(session, keys, scenario.world, say, args.calibration_timeout)
+            calibrate_live(session, keys, scenario.world, say, args.calibration_timeout)
             while not samples.empty():  # what arrived while calibrating is not a phase's
                 samples.get_nowait()
             phases = _run_phases(
@@ -530,9 +530,11 @@ CALIBRATED = ("C", "HT", "6D")
 """The relation the demo calibrates live (the paper's section 4.2)."""
 
 
-def _calibrate(session, keys, world, say, timeout: float) -> None:
-    """Calibrate C->HT live (or find it stored), save it, and wait until the agent has rewired
-    the tracking flow onto the stored edge. The truth is used only to print the error."""
+def calibrate_live(session, keys, world, say, timeout: float) -> None:
+    """Calibrate C->HT live (or find it stored), save it in the store (provider ``store``),
+    and wait until the agent has rewired the tracking flow onto the stored edge; ``say(line,
+    text)`` reports the progress; :class:`DemoFailed` if it fails. The truth is used only to
+    print the error (also by ``bench.switch_bench``)."""
     from ubitrack_agent.commands.calibrate import describe
     from ubitrack_agent.core import quaternions
     from ubitrack_agent.io.application import NotStatic, Relation
