@@ -260,11 +260,15 @@ class KeyHandOver:
     def quiet_s(self) -> float:
         """After how long without a sample another producer counts as gone: three of its
         longest recent intervals (a fusion of a 60 Hz and a 30 Hz sensor puts samples 1 and
-        16 ms apart); a producer that gave the key to a claimer waits the longest (the agent
-        stops it soon; taking the key back from a claimer that is only late would make two
-        producers put)."""
+        16 ms apart). A producer that gave the key to a claimer waits the longest until it
+        knows :data:`INTERVALS_REMEMBERED` of the claimer's intervals (a new flow's first
+        samples come unevenly, and taking the key back from it only late would hand the key to
+        and fro); then as long as any other: a claimer on one sensor that stops is quiet at
+        once (a chain on the better tracker, which left: the switch bench's 0.5 s gaps in
+        session 23), and this producer claims the key back, which the claimer, if only late,
+        answers before it puts again (rule 3)."""
         low, high = QUIET_BOUNDS_S
-        if self._yielded:
+        if self._yielded and len(self._other_intervals) < INTERVALS_REMEMBERED:
             return high
         if not self._other_intervals:
             return DEFAULT_QUIET_S

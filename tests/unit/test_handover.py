@@ -15,6 +15,7 @@ from ubitrack_agent.core.measurements import WORKER, ErrorPose, Pose
 from ubitrack_agent.services.handover import (
     CLAIM_TIMEOUT_S,
     HOLDER_LOST_IN_ROW,
+    INTERVALS_REMEMBERED,
     TAKE_BACK_RATIO,
     WARM_S,
     KeyHandOver,
@@ -223,6 +224,26 @@ def test_a_producer_that_gave_the_key_away_does_not_take_it_back_for_a_holder_le
     assert bus.counters[0]["relation_taken_back"] == 0
 
 
+def putting_to_40(bus: Bus) -> KeyHandOver:
+    """A producer that put every 10 ms from 10 to 40 ms, the key's holder."""
+    first = bus.producer()
+    for t in range(10, 50, 10):
+        bus.clock.now += 0.01
+        assert bus.offer(first, pose(t, variance=1e-6))
+    return first
+
+
+def given_away_at_50(bus: Bus) -> tuple[KeyHandOver, KeyHandOver]:
+    """:func:`putting_to_40`, and a clearly more certain producer starting at 50 ms, which
+    claims the key: the first yields it."""
+    first = putting_to_40(bus)
+    second = bus.producer()
+    bus.clock.now += 0.01
+    bus.offer(first, pose(50, variance=1e-6))
+    bus.offer(second, pose(50, variance=0.2e-6))  # clearly better: claims, the first yields
+    return first, second
+
+
 def test_a_producer_that_gave_the_key_away_takes_it_back_when_the_holder_lost_an_input():
     """Rule 6: the fusion of the A.R.T. tracker and the camera gave the key to the fusion of
     the better tracker and the camera; the better tracker gone, that one runs on the camera
@@ -230,14 +251,7 @@ def test_a_producer_that_gave_the_key_away_takes_it_back_when_the_holder_lost_an
     ten times as uncertain as its least of the last LOST_WINDOW_S, the first fusion takes the
     key back; one stream."""
     bus = Bus()
-    art = bus.producer()
-    for t in range(10, 50, 10):
-        bus.clock.now += 0.01
-        assert bus.offer(art, pose(t, variance=1e-6))
-    better = bus.producer()
-    bus.clock.now += 0.01
-    bus.offer(art, pose(50, variance=1e-6))
-    bus.offer(better, pose(50, variance=0.2e-6))  # clearly better: claims, the first yields
+    art, better = given_away_at_50(bus)
     for t in range(60, 100, 10):
         bus.clock.now += 0.01
         assert bus.offer(better, pose(t, variance=0.2e-6))
@@ -271,10 +285,7 @@ def test_a_holder_less_certain_all_along_keeps_the_key_from_the_one_that_gave_it
     camera-only flow; the filter's estimate is far more certain than the raw one all along,
     and it does not take the key back for that (the agent chose the camera-only flow)."""
     bus = Bus()
-    fused = bus.producer()
-    for t in range(10, 50, 10):
-        bus.clock.now += 0.01
-        assert bus.offer(fused, pose(t, variance=1e-6))
+    fused = putting_to_40(bus)
     camera = bus.producer()
     bus.clock.now += 0.01
     bus.offer(camera, pose(50, variance=40e-6))
@@ -511,6 +522,37 @@ def test_a_producer_that_gave_the_key_away_takes_it_back_when_it_puts_again_afte
     assert not bus.offer(chain, pose(1020, variance=2e-6))  # quiet 0.6 s, back: claims
     assert bus.messages[-1] == {"yield": camera.producer, "last": 1010 * MS, "to": chain.producer}
     assert bus.counters[0]["relation_taken_back"] == 1 and bus.stamps()[-1] == 1020
+
+
+def test_a_producer_that_gave_the_key_away_claims_it_when_the_holder_goes_quiet():
+    """The fusion of the A.R.T. tracker and the camera gave the key to a chain on the better
+    tracker (clearly more certain). Right after, it waits the longest quiet time (a 100 ms
+    hiccup of the new flow's first samples takes nothing); once it knows INTERVALS_REMEMBERED
+    of the chain's intervals, the chain quiet for three of them (the better tracker left; its
+    process, and token, alive) makes it claim the key, which the chain answers: about 30 ms of
+    silence, not QUIET_BOUNDS_S's 0.5 s (the switch bench, session 23). One stream."""
+    bus = Bus()
+    fused, chain = given_away_at_50(bus)
+    bus.clock.now += 0.1  # the new flow's first interval, uneven
+    for t in range(60, 60 + 10 * (INTERVALS_REMEMBERED + 1), 10):
+        assert bus.offer(chain, pose(t, variance=0.2e-6))
+        assert not bus.offer(fused, pose(t, variance=1e-6))
+        bus.clock.now += 0.01
+    assert bus.counters[0]["relation_taken"] == 0  # the hiccup took nothing
+    last = t
+    for t in range(last + 10, last + 100, 10):  # the chain quiet from here: its tracker left
+        if bus.offer(fused, pose(t, variance=1e-6)) or bus.counters[0]["relation_taken"]:
+            break
+        bus.clock.now += 0.01
+    assert t - last <= 40  # three intervals of 10 ms, and the one that finds it quiet
+    assert bus.messages[-2:] == [
+        {"claim": fused.producer, "after": last * MS},
+        {"yield": chain.producer, "last": last * MS, "to": fused.producer},
+    ]
+    bus.clock.now += 0.01
+    assert bus.offer(fused, pose(t + 10, variance=1e-6))
+    stamps = bus.stamps()
+    assert stamps == sorted(set(stamps)) and stamps[-1] == t + 10
 
 
 def test_a_producer_starting_waits_for_its_question_who_holds_a_quiet_key():
