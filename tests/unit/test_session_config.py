@@ -26,3 +26,8 @@ def test_the_file_is_the_base_and_the_settings_win(tmp_path):
     assert json.loads(made.get_json("transport/link/tx/queue/batching/enabled")) is False
     (rule,) = json.loads(made.get_json("qos/publication"))
     assert rule["key_exprs"] == ["**/data/**"] and rule["config"]["express"] is True
+
+
+def test_a_child_process_inherits_the_file():
+    env = {CONFIG_VARIABLE: "/etc/zenoh.json5", "UBITRACK_MODE": "client"}
+    assert config.child_environment(env) == {CONFIG_VARIABLE: "/etc/zenoh.json5"}
