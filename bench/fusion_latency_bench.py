@@ -2,9 +2,11 @@
 (the wait-for-all policy) and on the A.R.T. path alone, and the pose predicted for display.
 
 Run: ``python -m bench.fusion_latency_bench [--phase-seconds S] [--cycles N] [--seed N]
-[--parameters JSON] [--no-probes]`` (defaults 15 s phases, one cycle, seed 7, the template's fusion
-parameters; about two minutes, and 45 s more per further cycle). Prints a table and writes
-``bench/results/fusion_latency.json``.
+[--parameters JSON] [--no-probes] [--output FILE]`` (defaults 15 s phases, one cycle, seed 7,
+the template's fusion parameters; about two minutes, and 45 s more per further cycle). Prints a
+table and writes ``--output``, by default ``bench/results/fusion_latency.json``. The processes
+inherit ``ZENOH_CONFIG`` (``net.session``): ``ZENOH_CONFIG=bench/zenoh_options/<file> python -m
+bench.fusion_latency_bench`` runs the flow with zenoh's options of that file.
 
 The processes of ``ubitrack demo`` (agent, simulated database, HMD camera, A.R.T. tracker and
 its DTrack adapter; the same flags, :mod:`ubitrack_agent.commands.demo`), with ``C -> HT``
@@ -328,6 +330,9 @@ def main(argv: list[str] | None = None) -> None:
         "and output, which makes their producers put them on zenoh as well as hand them over in "
         "their container (an encode and a put each, after the hand-over)",
     )
+    parser.add_argument(
+        "--output", type=Path, default=RESULTS, help=f"results file (default {RESULTS})"
+    )
     config.add_arguments(parser)
     args = parser.parse_args(argv)
     if args.cycles < 1:
@@ -407,8 +412,8 @@ def main(argv: list[str] | None = None) -> None:
     print_cpu_table(phases)
     gaps = fusion_gaps(phases)
     print_gaps(gaps)
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(
         json.dumps(
             {
                 "command": f"python -m bench.fusion_latency_bench --phase-seconds "

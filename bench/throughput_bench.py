@@ -2,10 +2,14 @@
 concatenation chains on one 2-core host carry >= 20,000 samples/s with p99 <= 20 ms).
 
 Run: ``python -m bench.throughput_bench [--rates 1000,2000,5000,10000,20000,40000]
-[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers] [--output FILE]``; prints the
-figures and writes them to ``--output``, by default ``bench/results/throughput.json`` (the
-worker processes as zenoh clients of their host manager, the default;
-``throughput_peers.json`` with ``--peers``: as peers, ``ubitrack host --workers-as-peers``).
+[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers] [--zenoh-config FILE]
+[--direct-callbacks] [--output FILE]``; prints the figures and writes them to ``--output``, by
+default ``bench/results/throughput.json`` (the worker processes as zenoh clients of their host
+manager, the default; ``throughput_peers.json`` with ``--peers``: as peers, ``ubitrack host
+--workers-as-peers``). ``--zenoh-config`` names a zenoh configuration file every process of the
+run starts from (``ZENOH_CONFIG``, ``net.session``): how zenoh's own options are compared
+(``bench/zenoh_options/``); ``--direct-callbacks``: the application's subscribers called on
+zenoh's receiving thread (:class:`DirectCallbacks`).
 
 Everything is a real process on loopback with real zenoh (explicit endpoints, multicast off):
 
@@ -53,6 +57,7 @@ import numpy as np
 
 from bench.cpu_use import _TICKS_PER_S, descendants_cpu
 from bench.report import write_results
+from ubitrack_agent.net.session import CONFIG_VARIABLE
 
 RESULTS = Path(__file__).with_name("results") / "throughput.json"
 DEFAULT_RATES = "1000,2000,5000,10000,20000,40000"
@@ -174,7 +179,8 @@ def apply(args: argparse.Namespace) -> int:
         arrivals.append(time.time_ns())
         stamps.append(sample.timestamp_ns)
 
-    with open_session(settings) as session:
+    with open_session(settings) as opened:
+        session = DirectCallbacks(opened) if args.direct_callbacks else opened
         relations = [
             Relation(session, keys, _relation(k), application=f"a{k}", callback=take)
             for k in range(args.chains)
@@ -188,6 +194,27 @@ def apply(args: argparse.Namespace) -> int:
         for relation in relations:
             relation.close()
     return 0
+
+
+class DirectCallbacks:
+    """A session whose subscribers' plain callables run on zenoh's receiving thread
+    (``zenoh.handlers.Callback(..., indirect=False)``) instead of on a thread zenoh-python
+    starts per subscriber and wakes per sample (its default): what the application's side
+    would save without that hand-off (``--direct-callbacks``; the library does not do it:
+    ``net.transport.on_zenoh_thread``)."""
+
+    def __init__(self, session: Any) -> None:
+        self._session = session
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._session, name)
+
+    def declare_subscriber(self, key: str, handler: Any, **options: Any) -> Any:
+        import zenoh
+
+        if callable(handler) and not isinstance(handler, zenoh.handlers.Callback):
+            handler = zenoh.handlers.Callback(handler, indirect=False)
+        return self._session.declare_subscriber(key, handler, **options)
 
 
 def window_figures(stamps: list[int], arrivals: list[int], window: dict) -> dict[str, Any]:
@@ -256,14 +283,28 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--idle-s", type=float, default=5.0, help="idle window (default 5)")
     parser.add_argument(
+        "--zenoh-config",
+        type=Path,
+        default=None,
+        help="zenoh configuration file every process starts from (ZENOH_CONFIG; e.g. one of "
+        "bench/zenoh_options/; default: none, or ZENOH_CONFIG as set)",
+    )
+    parser.add_argument(
         "--output",
         type=Path,
         default=None,
         help=f"results file (default {RESULTS}, throughput_peers.json with --peers)",
     )
+    parser.add_argument(
+        "--direct-callbacks",
+        action="store_true",
+        help="the application's subscribers call back on zenoh's receiving thread "
+        "(no thread hand-off per sample; an experiment, not what the library does)",
+    )
     sub = parser.add_subparsers(dest="part")
     for name in ("provide", "apply"):
         part = sub.add_parser(name)
+        part.add_argument("--direct-callbacks", action="store_true")
         part.add_argument("--rates", default=DEFAULT_RATES)
         part.add_argument("--seconds", type=float, default=5.0)
         part.add_argument("--chains", type=int, default=20)
@@ -280,6 +321,8 @@ def main(argv: list[str] | None = None) -> int:
         return provide(args)
     if args.part == "apply":
         return apply(args)
+    if args.zenoh_config is not None:  # inherited by every process of the run
+        os.environ[CONFIG_VARIABLE] = str(args.zenoh_config.resolve())
     default = RESULTS.with_name("throughput_peers.json") if args.peers else RESULTS
     write_results(args.output or default, bench(args))
     return 0
@@ -321,6 +364,8 @@ def bench(args: argparse.Namespace) -> dict[str, Any]:
         "containers": {name: len(group.components) for name, group in groups.items()},
         "seconds_per_step": args.seconds,
         "workers_as_peers": args.peers,
+        "zenoh_config": os.environ.get(CONFIG_VARIABLE),
+        "application_direct_callbacks": args.direct_callbacks,
     }
     statics = []
     try:
@@ -372,7 +417,10 @@ def start(net: Any, args: argparse.Namespace, groups: dict[str, Any], components
     wait_until(all_alive, timeout=120, interval=0.2)
     watch.undeclare()
     chains = ("--chains", str(args.chains))
-    application = net.spawn("-m", "bench.throughput_bench", "apply", *chains, *quiet, pipes=True)
+    direct = ("--direct-callbacks",) if args.direct_callbacks else ()
+    application = net.spawn(
+        "-m", "bench.throughput_bench", "apply", *chains, *direct, *quiet, pipes=True
+    )
     provider = net.spawn(
         "-m",
         "bench.throughput_bench",
