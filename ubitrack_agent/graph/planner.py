@@ -18,7 +18,10 @@ For a query ``(from, to, type, static)`` the planner
    bound, :meth:`Workspace.last_link`); what a full relation would turn down is not formed
    (a chain no cheaper than its dearest alternative, :meth:`Workspace._chain_outclassed`, a
    large group of copies whose cost floor is not, :meth:`Workspace.group_outclassed`),
-4. returns every distinct derivation of the queried edge, best first by the cost model below.
+4. returns every distinct derivation of the queried edge, best first by the cost model below,
+   equally dear ones (and every other choice between them: which alternatives a relation
+   keeps, the copies' order) by what they compute (:func:`_signature`), not by the order the
+   search made their steps in, so skipping a step elsewhere changes no answer's tie.
 
 The cost of a plan grows with what a part of the region holds, polynomially (``docs/planner.md``,
 "Complexity and guarantees"), and linearly with the parts a query crosses.
@@ -719,7 +722,10 @@ class Workspace:
         static alternatives of the relation are rivals of a dynamic newcomer too: a dynamic edge
         on more sources than a static one and no cheaper is dominated (everything independent
         of it is independent of the static edge, which has no latency), e.g. a tracker's
-        surveyed pose fused with a worse estimate of it through the bodies it tracks."""
+        surveyed pose fused with a worse estimate of it through the bodies it tracks.
+
+        A newcomer exactly as dear as the dearest of a full relation is left to :meth:`_admit`,
+        which breaks the tie on the signatures (:func:`_ranked`)."""
         existing = [self.index.edges[e] for e in self.by_relation[key]]
         limit = cost * (1 + _TIE)
         rivals = existing
@@ -729,7 +735,7 @@ class Workspace:
             ]
         if any(other.cost <= limit and other.sources < sources for other in rivals):
             return True
-        return len(existing) >= self.per_relation and cost >= max(e.cost for e in existing)
+        return len(existing) >= self.per_relation and cost > max(e.cost for e in existing)
 
     def group_outclassed(self, key: tuple, members: Sequence[Match]) -> bool:
         """Whether no space expansion of the correspondence group ``key`` of occurrences
@@ -793,7 +799,7 @@ class Workspace:
     ) -> bool:
         """Whether a chain ``source -> target`` of the ``chained`` links (in input order) adds
         nothing: its relation is full and its cost, as :meth:`apply` computes it (rule
-        ``sum``), no cheaper than the dearest kept alternative (:meth:`_outclassed`). Exact and
+        ``sum``), dearer than the dearest kept alternative (:meth:`_outclassed`). Exact and
         lasting, as for :meth:`group_outclassed`; asked by :meth:`viable_chain` once every
         link is bound, so the occurrence is not even built. ``O(links + per_relation)``."""
         output = template.outputs[0]
@@ -804,7 +810,7 @@ class Workspace:
         return (
             dearest is not None
             and template.cost.rule == "sum"
-            and _summed_cost(template, chained) >= dearest
+            and _summed_cost(template, chained) > dearest
         )
 
     def _dearest(
@@ -838,17 +844,28 @@ class Workspace:
 
     def _admit(self, record: EdgeRecord) -> bool:
         """The rest of the "new or better edge" rule, for a record not :meth:`_outclassed`:
-        reject a re-bracketing of a known computation no cheaper than it. Keep at most
-        ``per_relation`` alternatives per relation: a cheaper newcomer retires the most
-        expensive one (edges already derived from it stay)."""
+        reject a re-bracketing of a known computation that comes first (:func:`_comes_first`),
+        and retire one the newcomer ties with and comes before (one slot per computation, the
+        same whichever bracketing came first). Keep at most ``per_relation`` alternatives per
+        relation: a newcomer that ranks before the last of a full relation (:func:`_ranked`:
+        by cost, ties by signature) retires it (edges already derived from it stay). Ties are
+        decided on what the derivations compute, not on which came first, so the alternatives
+        kept do not depend on the order in which equally dear ones were formed."""
         key = (record.source, record.target, record.type, record.static)
         alternatives = self.by_relation[key]
         existing = [self.index.edges[e] for e in alternatives]
-        limit = record.cost * (1 + _TIE)
-        if any(other.cost <= limit and other.canon == record.canon for other in existing):
+        same = [other for other in existing if other.canon == record.canon]
+        if any(_comes_first(other, record) for other in same):
             return False
+        for other in same:
+            if other.cost <= record.cost * (1 + _TIE):  # a tie the newcomer wins
+                alternatives.remove(other.id)
+                self.index.retire(other.id)
+                existing.remove(other)
         if len(existing) >= self.per_relation:
-            worst = max(existing, key=lambda e: e.cost)
+            worst = max(existing, key=_ranked)
+            if _ranked(record) > _ranked(worst):
+                return False
             alternatives.remove(worst.id)
             self.index.retire(worst.id)
         return True
@@ -936,7 +953,7 @@ class Workspace:
                 record = _derived(
                     template,
                     instance.expansion,
-                    inputs,
+                    [(n, [records[e] for e in ids]) for n, ids in instance.inputs],
                     step_id,
                     (name, source, target, edge_type, static, mode),
                     quality,
@@ -1113,13 +1130,14 @@ def measured_record(source: str, target: str, edge_id: str, data: Mapping) -> Ed
         canon=f"m:{edge_id}",
         leaves=(f"m:{edge_id}",),
         providers=providers,
+        signature=("", edge_id),
     )
 
 
 def _derived(
     template: Template,
     expansion: str,
-    inputs: list[EdgeRecord],
+    bound: Sequence[tuple[str, Sequence[EdgeRecord]]],
     step_id: str,
     output: tuple[str, str, str, str, bool, str],
     quality: Quality,
@@ -1129,10 +1147,13 @@ def _derived(
 ) -> EdgeRecord:
     """The record of ``output`` (name, source, target, type, static, mode) of the step
     ``step_id`` that applies ``template`` to ``inputs``; ``uses`` are its sources, providers and
-    steps. Its computation's signature (``canon``): an inverse is its input, a chain the sorted
+    steps; ``bound`` the input records by input name, as the instance binds them. Its
+    computation's canonical signature (``canon``): an inverse is its input, a chain the sorted
     computations it chains (``leaves``, any bracketing), any other step its own on its inputs
-    and the output's frames (:attr:`Template.signature`)."""
+    and the output's frames (:attr:`Template.signature`); and the derivation's own
+    (:func:`_signature`)."""
     name, source, target, edge_type, static, mode = output
+    inputs = [record for _, records in bound for record in records]
     if template.signature == "inverse":
         canon, leaves = inputs[0].canon, inputs[0].leaves
     elif template.signature == "chain":
@@ -1164,7 +1185,27 @@ def _derived(
         steps=steps,
         providers=providers,
         hops=hops,
+        signature=_signature(template, expansion, name, bound),
     )
+
+
+def _signature(
+    template: Template,
+    expansion: str,
+    output: str,
+    bound: Sequence[tuple[str, Sequence[EdgeRecord]]],
+) -> tuple:
+    """What a derivation computes, whatever order its steps were made in
+    (:attr:`EdgeRecord.signature`): the template, the expansion, the output's name and the
+    signatures of the inputs in the template's order, the copies of a space expansion sorted
+    (their order in the instance is the order the matcher found them in, and changes nothing
+    computed). ``O(inputs log copies)``: the inputs' signatures are shared, not copied."""
+    corr = template.correspondence
+    copied = corr.edges if corr is not None and expansion == "space" else ()
+    fixed = tuple(tuple(r.signature for r in records) for n, records in bound if n not in copied)
+    rows = [records for n, records in bound if n in copied]
+    copies = tuple(sorted(tuple(r.signature for r in copy) for copy in zip(*rows, strict=True)))
+    return (template.name, expansion, output, fixed, copies)
 
 
 def saturate(
@@ -1299,14 +1340,26 @@ def solutions(ws: Workspace, query: Query) -> list[Solution]:
         for edge_id in ws.by_relation.get(key, ()):
             record = ws.index.edges[edge_id]
             best = found.get(record.canon)
-            if best is None or record.cost < best.cost:
+            if best is None or _ranked(record) < _ranked(best):
                 found[record.canon] = record
     return [_solution(ws, edge) for edge in sorted(found.values(), key=_ranked)]
 
 
-def _ranked(edge: EdgeRecord) -> tuple[float, int, str]:
-    """The order of derivations: cheapest first, then fewest steps, then by id."""
-    return (edge.cost, len(edge.steps), edge.id)
+def _ranked(edge: EdgeRecord) -> tuple[float, int, tuple, str]:
+    """The order of derivations: cheapest first, then fewest steps, then by signature (what
+    the derivation computes, :attr:`EdgeRecord.signature`, independent of the order in which
+    steps were made), then by id (two records of one signature are one computation)."""
+    return (edge.cost, len(edge.steps), edge.signature, edge.id)
+
+
+def _comes_first(a: EdgeRecord, b: EdgeRecord) -> bool:
+    """``a`` ranks before ``b`` where their costs may differ by rounding only (a relative
+    ``_TIE``: the same computation bracketed otherwise sums its variances in another order):
+    cheaper beyond it, else the lesser signature. Either of two records comes first, whichever
+    was made first."""
+    if a.cost < b.cost * (1 - _TIE) or a.cost > b.cost * (1 + _TIE):
+        return a.cost < b.cost
+    return a.signature <= b.signature
 
 
 def with_solution(srg: nx.MultiDiGraph, solution: Solution) -> nx.MultiDiGraph:
@@ -1438,7 +1491,7 @@ def _renamed(
 
     def rename(step: Step, made: Mapping[str, EdgeRecord]) -> Step:
         inputs = tuple((n, tuple(records[e].id for e in ids)) for n, ids in step.inputs)
-        given = [records[e] for _, ids in step.inputs for e in ids]
+        given = [(n, [records[e] for e in ids]) for n, ids in step.inputs]
         outputs = []
         for name, source, target, edge_type, edge_id in step.outputs:
             if edge_id is not None:
