@@ -19,9 +19,10 @@ For a query ``(from, to, type, static)`` the planner
    (a chain no cheaper than its dearest alternative, :meth:`Workspace._chain_outclassed`, a
    large group of copies whose cost floor is not, :meth:`Workspace.group_outclassed`),
 4. returns every distinct derivation of the queried edge, best first by the cost model below,
-   equally dear ones (and every other choice between them: which alternatives a relation
-   keeps, the copies' order) by what they compute (:func:`_signature`), not by the order the
-   search made their steps in, so skipping a step elsewhere changes no answer's tie.
+   equally dear ones (and the choices between them while searching: which alternative a full
+   relation drops, which bracketing of a computation keeps its slot, the copies' order) by
+   what they compute (:func:`_signature`), not by the ids of their steps, which count the
+   steps made before them.
 
 The cost of a plan grows with what a part of the region holds, polynomially (``docs/planner.md``,
 "Complexity and guarantees"), and linearly with the parts a query crosses.
@@ -724,8 +725,11 @@ class Workspace:
         of it is independent of the static edge, which has no latency), e.g. a tracker's
         surveyed pose fused with a worse estimate of it through the bodies it tracks.
 
-        A newcomer exactly as dear as the dearest of a full relation is left to :meth:`_admit`,
-        which breaks the tie on the signatures (:func:`_ranked`)."""
+        A newcomer exactly as dear as the dearest of a full relation is turned down, whatever
+        its signature: deciding that tie on signatures too made the relation keep the same
+        alternatives in any order, but at 14 % more instructions in a room with seven
+        trackers (the later, lesser one retires the earlier and is derived from again;
+        ``docs/planner.md``, "Ties")."""
         existing = [self.index.edges[e] for e in self.by_relation[key]]
         limit = cost * (1 + _TIE)
         rivals = existing
@@ -735,7 +739,7 @@ class Workspace:
             ]
         if any(other.cost <= limit and other.sources < sources for other in rivals):
             return True
-        return len(existing) >= self.per_relation and cost > max(e.cost for e in existing)
+        return len(existing) >= self.per_relation and cost >= max(e.cost for e in existing)
 
     def group_outclassed(self, key: tuple, members: Sequence[Match]) -> bool:
         """Whether no space expansion of the correspondence group ``key`` of occurrences
@@ -799,7 +803,7 @@ class Workspace:
     ) -> bool:
         """Whether a chain ``source -> target`` of the ``chained`` links (in input order) adds
         nothing: its relation is full and its cost, as :meth:`apply` computes it (rule
-        ``sum``), dearer than the dearest kept alternative (:meth:`_outclassed`). Exact and
+        ``sum``), no cheaper than the dearest kept alternative (:meth:`_outclassed`). Exact and
         lasting, as for :meth:`group_outclassed`; asked by :meth:`viable_chain` once every
         link is bound, so the occurrence is not even built. ``O(links + per_relation)``."""
         output = template.outputs[0]
@@ -810,7 +814,7 @@ class Workspace:
         return (
             dearest is not None
             and template.cost.rule == "sum"
-            and _summed_cost(template, chained) > dearest
+            and _summed_cost(template, chained) >= dearest
         )
 
     def _dearest(
@@ -847,10 +851,9 @@ class Workspace:
         reject a re-bracketing of a known computation that comes first (:func:`_comes_first`),
         and retire one the newcomer ties with and comes before (one slot per computation, the
         same whichever bracketing came first). Keep at most ``per_relation`` alternatives per
-        relation: a newcomer that ranks before the last of a full relation (:func:`_ranked`:
-        by cost, ties by signature) retires it (edges already derived from it stay). Ties are
-        decided on what the derivations compute, not on which came first, so the alternatives
-        kept do not depend on the order in which equally dear ones were formed."""
+        relation: a cheaper newcomer (:meth:`_outclassed` turned down one as dear) retires the
+        last of a full relation in the order of :func:`_ranked` (by cost, ties by signature;
+        edges already derived from it stay)."""
         key = (record.source, record.target, record.type, record.static)
         alternatives = self.by_relation[key]
         existing = [self.index.edges[e] for e in alternatives]
@@ -864,8 +867,6 @@ class Workspace:
                 existing.remove(other)
         if len(existing) >= self.per_relation:
             worst = max(existing, key=_ranked)
-            if _ranked(record) > _ranked(worst):
-                return False
             alternatives.remove(worst.id)
             self.index.retire(worst.id)
         return True
@@ -953,13 +954,14 @@ class Workspace:
                 record = _derived(
                     template,
                     instance.expansion,
-                    [(n, [records[e] for e in ids]) for n, ids in instance.inputs],
+                    inputs,
                     step_id,
                     (name, source, target, edge_type, static, mode),
                     quality,
                     (sources, providers, steps),
                     cost,
                     hops,
+                    _signature(template, instance.expansion, name, instance.inputs, records),
                 )
                 if self._admit(record):
                     self.index.add(record)
@@ -1137,23 +1139,22 @@ def measured_record(source: str, target: str, edge_id: str, data: Mapping) -> Ed
 def _derived(
     template: Template,
     expansion: str,
-    bound: Sequence[tuple[str, Sequence[EdgeRecord]]],
+    inputs: list[EdgeRecord],
     step_id: str,
     output: tuple[str, str, str, str, bool, str],
     quality: Quality,
     uses: tuple[frozenset[str], frozenset[str], frozenset[str]],
     cost: float,
     hops: int,
+    signature: tuple,
 ) -> EdgeRecord:
     """The record of ``output`` (name, source, target, type, static, mode) of the step
     ``step_id`` that applies ``template`` to ``inputs``; ``uses`` are its sources, providers and
-    steps; ``bound`` the input records by input name, as the instance binds them. Its
-    computation's canonical signature (``canon``): an inverse is its input, a chain the sorted
-    computations it chains (``leaves``, any bracketing), any other step its own on its inputs
-    and the output's frames (:attr:`Template.signature`); and the derivation's own
-    (:func:`_signature`)."""
+    steps; ``signature`` the derivation's (:func:`_signature`). Its computation's canonical
+    signature (``canon``): an inverse is its input, a chain the sorted computations it chains
+    (``leaves``, any bracketing), any other step its own on its inputs and the output's frames
+    (:attr:`Template.signature`)."""
     name, source, target, edge_type, static, mode = output
-    inputs = [record for _, records in bound for record in records]
     if template.signature == "inverse":
         canon, leaves = inputs[0].canon, inputs[0].leaves
     elif template.signature == "chain":
@@ -1185,7 +1186,7 @@ def _derived(
         steps=steps,
         providers=providers,
         hops=hops,
-        signature=_signature(template, expansion, name, bound),
+        signature=signature,
     )
 
 
@@ -1193,19 +1194,25 @@ def _signature(
     template: Template,
     expansion: str,
     output: str,
-    bound: Sequence[tuple[str, Sequence[EdgeRecord]]],
+    inputs: Sequence[tuple[str, Sequence[str]]],
+    records: Mapping[str, EdgeRecord],
 ) -> tuple:
     """What a derivation computes, whatever order its steps were made in
     (:attr:`EdgeRecord.signature`): the template, the expansion, the output's name and the
     signatures of the inputs in the template's order, the copies of a space expansion sorted
     (their order in the instance is the order the matcher found them in, and changes nothing
-    computed). ``O(inputs log copies)``: the inputs' signatures are shared, not copied."""
+    computed). ``inputs`` are the instance's edge ids by input name, ``records`` their records.
+    ``O(inputs log copies)``: the inputs' signatures are shared, not copied."""
     corr = template.correspondence
-    copied = corr.edges if corr is not None and expansion == "space" else ()
-    fixed = tuple(tuple(r.signature for r in records) for n, records in bound if n not in copied)
-    rows = [records for n, records in bound if n in copied]
-    copies = tuple(sorted(tuple(r.signature for r in copy) for copy in zip(*rows, strict=True)))
-    return (template.name, expansion, output, fixed, copies)
+    if corr is None or expansion != "space":
+        fixed = tuple(tuple(records[e].signature for e in ids) for _, ids in inputs)
+        return (template.name, expansion, output, fixed, ())
+    fixed = tuple(
+        tuple(records[e].signature for e in ids) for n, ids in inputs if n not in corr.edges
+    )
+    rows = [ids for n, ids in inputs if n in corr.edges]
+    copies = sorted(tuple(records[e].signature for e in copy) for copy in zip(*rows, strict=True))
+    return (template.name, expansion, output, fixed, tuple(copies))
 
 
 def saturate(
@@ -1491,7 +1498,7 @@ def _renamed(
 
     def rename(step: Step, made: Mapping[str, EdgeRecord]) -> Step:
         inputs = tuple((n, tuple(records[e].id for e in ids)) for n, ids in step.inputs)
-        given = [(n, [records[e] for e in ids]) for n, ids in step.inputs]
+        given = [records[e] for _, ids in step.inputs for e in ids]
         outputs = []
         for name, source, target, edge_type, edge_id in step.outputs:
             if edge_id is not None:
@@ -1510,6 +1517,7 @@ def _renamed(
                     ),
                     was.cost,
                     was.hops,
+                    _signature(step.template, step.expansion, name, step.inputs, records),
                 )
                 edge_id = records[edge_id].id
             outputs.append((name, frame[source], frame[target], edge_type, edge_id))
