@@ -35,6 +35,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import networkx as nx
+
 from bench import building_bench
 from bench.building import Building, body, build, camera, marker, room
 from ubitrack_agent.graph import planner
@@ -102,21 +104,28 @@ def shape_cases(run: Callable[..., None]) -> None:
             run(f"shape:{shape}:{kind}:all16", srg, query, per_relation=16)
 
 
+def random_case(seed: int) -> tuple[nx.MultiDiGraph, Query] | None:
+    """The random multigraph and query of case ``random:SEED`` (``None``: a query frame has
+    no edge, no case)."""
+    rng = random.Random(seed)
+    n = rng.choice((5, 6))
+    srg = new_srg()
+    for _ in range(rng.randint(3, 13)):
+        a, b = rng.sample(range(n), 2)
+        kind = rng.choice(RANDOM_TYPES)
+        add_measured_edge(srg, f"N{a}", f"N{b}", kind, static=rng.random() < 0.4)
+    a, b = rng.sample(range(n), 2)
+    if f"N{a}" not in srg or f"N{b}" not in srg:
+        return None
+    return srg, Query(f"N{a}", f"N{b}", "6D", rng.random() < 0.3)
+
+
 def random_cases(run: Callable[..., None], count: int) -> None:
     for seed in range(count):
-        rng = random.Random(seed)
-        n = rng.choice((5, 6))
-        srg = new_srg()
-        for _ in range(rng.randint(3, 13)):
-            a, b = rng.sample(range(n), 2)
-            kind = rng.choice(RANDOM_TYPES)
-            add_measured_edge(srg, f"N{a}", f"N{b}", kind, static=rng.random() < 0.4)
-        a, b = rng.sample(range(n), 2)
-        if f"N{a}" not in srg or f"N{b}" not in srg:
-            continue
-        query = Query(f"N{a}", f"N{b}", "6D", rng.random() < 0.3)
-        for per_relation in (8, 16):
-            run(f"random:{seed}:{per_relation}", srg, query, per_relation=per_relation)
+        case = random_case(seed)
+        if case is not None:
+            for per_relation in (8, 16):
+                run(f"random:{seed}:{per_relation}", *case, per_relation=per_relation)
 
 
 def dump(out: Path, kinds: Sequence[str], random_count: int) -> dict[str, Any]:

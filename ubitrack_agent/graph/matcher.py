@@ -44,7 +44,13 @@ class EdgeRecord:
     derivations that differ only in how a chain was bracketed or which way it was inverted).
     ``hops`` is the length of the way through the SRG the edge takes: 1 for a measured edge, the
     sum of its links' for a chain, the distance between its frames for any other step;
-    ``frames`` are the frames its sources join.
+    ``frames`` are the frames its sources join. ``signature`` describes the derivation
+    whole (its template, expansion, output and its inputs' signatures, recursively, copies in
+    their own order; a measured edge by its key): unlike ``canon`` it tells bracketings apart,
+    and unlike ``id`` it does not depend on the order in which steps were made, so ties of
+    equal cost are broken on it (``planner._ranked``). Nested tuples: shared with the inputs'
+    records, built in ``O(inputs)``, and compared in the order of their names, so renaming the
+    measured edges' keys in order keeps every comparison (``planner._renamed``).
     """
 
     id: str
@@ -67,6 +73,7 @@ class EdgeRecord:
     providers: frozenset[str] = frozenset()
     hops: int = 1
     frames: frozenset[str] = frozenset()
+    signature: tuple = ()
 
 
 @dataclass
@@ -615,9 +622,10 @@ def _time_ok(match: Match, index: EdgeIndex) -> bool:
 
 def _copy_order(match: Match, index: EdgeIndex) -> tuple:
     """How good a copy is for a space expansion: its correspondence edges' summed cost, then
-    their canonical computations (a total, announcement-independent order)."""
+    their canonical computations and signatures (:attr:`EdgeRecord.signature`: a total order
+    independent of announcement and of the order in which steps were made)."""
     edges = [index.edges[e] for e in _corr_edges(match)]
-    return (sum(e.cost for e in edges), [e.canon for e in edges], match.edges)
+    return (sum(e.cost for e in edges), [e.canon for e in edges], [e.signature for e in edges])
 
 
 @dataclass(frozen=True)
@@ -625,13 +633,13 @@ class _Copy:
     """What :func:`copy_sets` reads of one occurrence, gathered once (so the ``n**2`` pairs
     compare precomputed values): its rank (:func:`_copy_order`), the frames of its expanded
     roles, its correspondence edges and the union of their sources (:func:`compatible`), and
-    the canonical computations of its inputs (the order of a set's copies)."""
+    the canonical computations and signatures of its inputs (the order of a set's copies)."""
 
     order: tuple
     expanded: tuple[str, ...]
     edges: frozenset[str]
     sources: frozenset[str]
-    canons: list[str]
+    computations: tuple[list[str], list[tuple]]
 
 
 def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
@@ -649,7 +657,10 @@ def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
             tuple(roles[r] for r in corr.expand_roles),
             frozenset(edges),
             frozenset().union(*(index.edges[e].sources for e in edges)),
-            [index.edges[e].canon for e in match.edges],
+            (
+                [index.edges[e].canon for e in match.edges],
+                [index.edges[e].signature for e in match.edges],
+            ),
         )
     return known
 
@@ -751,8 +762,8 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
         for clique in sorted(cliques):
             found.setdefault(sum(1 << j for j in clique))
 
-    def by_canon(j: int) -> list[str]:
-        return copies[j].canons
+    def by_canon(j: int) -> tuple[list[str], list[tuple]]:
+        return copies[j].computations
 
     return [
         [order[j] for j in sorted((j for j in range(n) if chosen >> j & 1), key=by_canon)]

@@ -18,7 +18,11 @@ For a query ``(from, to, type, static)`` the planner
    bound, :meth:`Workspace.last_link`); what a full relation would turn down is not formed
    (a chain no cheaper than its dearest alternative, :meth:`Workspace._chain_outclassed`, a
    large group of copies whose cost floor is not, :meth:`Workspace.group_outclassed`),
-4. returns every distinct derivation of the queried edge, best first by the cost model below.
+4. returns every distinct derivation of the queried edge, best first by the cost model below,
+   equally dear ones (and the choices between them while searching: which alternative a full
+   relation drops, which bracketing of a computation keeps its slot, the copies' order) by
+   what they compute (:func:`_signature`), not by the ids of their steps, which count the
+   steps made before them.
 
 The cost of a plan grows with what a part of the region holds, polynomially (``docs/planner.md``,
 "Complexity and guarantees"), and linearly with the parts a query crosses.
@@ -719,7 +723,13 @@ class Workspace:
         static alternatives of the relation are rivals of a dynamic newcomer too: a dynamic edge
         on more sources than a static one and no cheaper is dominated (everything independent
         of it is independent of the static edge, which has no latency), e.g. a tracker's
-        surveyed pose fused with a worse estimate of it through the bodies it tracks."""
+        surveyed pose fused with a worse estimate of it through the bodies it tracks.
+
+        A newcomer exactly as dear as the dearest of a full relation is turned down, whatever
+        its signature: deciding that tie on signatures too made the relation keep the same
+        alternatives in any order, but at 14 % more instructions in a room with seven
+        trackers (the later, lesser one retires the earlier and is derived from again;
+        ``docs/planner.md``, "Ties")."""
         existing = [self.index.edges[e] for e in self.by_relation[key]]
         limit = cost * (1 + _TIE)
         rivals = existing
@@ -838,17 +848,25 @@ class Workspace:
 
     def _admit(self, record: EdgeRecord) -> bool:
         """The rest of the "new or better edge" rule, for a record not :meth:`_outclassed`:
-        reject a re-bracketing of a known computation no cheaper than it. Keep at most
-        ``per_relation`` alternatives per relation: a cheaper newcomer retires the most
-        expensive one (edges already derived from it stay)."""
+        reject a re-bracketing of a known computation that comes first (:func:`_comes_first`),
+        and retire one the newcomer ties with and comes before (one slot per computation, the
+        same whichever bracketing came first). Keep at most ``per_relation`` alternatives per
+        relation: a cheaper newcomer (:meth:`_outclassed` turned down one as dear) retires the
+        last of a full relation in the order of :func:`_ranked` (by cost, ties by signature;
+        edges already derived from it stay)."""
         key = (record.source, record.target, record.type, record.static)
         alternatives = self.by_relation[key]
         existing = [self.index.edges[e] for e in alternatives]
-        limit = record.cost * (1 + _TIE)
-        if any(other.cost <= limit and other.canon == record.canon for other in existing):
+        same = [other for other in existing if other.canon == record.canon]
+        if any(_comes_first(other, record) for other in same):
             return False
+        for other in same:
+            if other.cost <= record.cost * (1 + _TIE):  # a tie the newcomer wins
+                alternatives.remove(other.id)
+                self.index.retire(other.id)
+                existing.remove(other)
         if len(existing) >= self.per_relation:
-            worst = max(existing, key=lambda e: e.cost)
+            worst = max(existing, key=_ranked)
             alternatives.remove(worst.id)
             self.index.retire(worst.id)
         return True
@@ -943,6 +961,7 @@ class Workspace:
                     (sources, providers, steps),
                     cost,
                     hops,
+                    _signature(template, instance.expansion, name, instance.inputs, records),
                 )
                 if self._admit(record):
                     self.index.add(record)
@@ -1113,6 +1132,7 @@ def measured_record(source: str, target: str, edge_id: str, data: Mapping) -> Ed
         canon=f"m:{edge_id}",
         leaves=(f"m:{edge_id}",),
         providers=providers,
+        signature=("", edge_id),
     )
 
 
@@ -1126,12 +1146,14 @@ def _derived(
     uses: tuple[frozenset[str], frozenset[str], frozenset[str]],
     cost: float,
     hops: int,
+    signature: tuple,
 ) -> EdgeRecord:
     """The record of ``output`` (name, source, target, type, static, mode) of the step
     ``step_id`` that applies ``template`` to ``inputs``; ``uses`` are its sources, providers and
-    steps. Its computation's signature (``canon``): an inverse is its input, a chain the sorted
-    computations it chains (``leaves``, any bracketing), any other step its own on its inputs
-    and the output's frames (:attr:`Template.signature`)."""
+    steps; ``signature`` the derivation's (:func:`_signature`). Its computation's canonical
+    signature (``canon``): an inverse is its input, a chain the sorted computations it chains
+    (``leaves``, any bracketing), any other step its own on its inputs and the output's frames
+    (:attr:`Template.signature`)."""
     name, source, target, edge_type, static, mode = output
     if template.signature == "inverse":
         canon, leaves = inputs[0].canon, inputs[0].leaves
@@ -1164,7 +1186,33 @@ def _derived(
         steps=steps,
         providers=providers,
         hops=hops,
+        signature=signature,
     )
+
+
+def _signature(
+    template: Template,
+    expansion: str,
+    output: str,
+    inputs: Sequence[tuple[str, Sequence[str]]],
+    records: Mapping[str, EdgeRecord],
+) -> tuple:
+    """What a derivation computes, whatever order its steps were made in
+    (:attr:`EdgeRecord.signature`): the template, the expansion, the output's name and the
+    signatures of the inputs in the template's order, the copies of a space expansion sorted
+    (their order in the instance is the order the matcher found them in, and changes nothing
+    computed). ``inputs`` are the instance's edge ids by input name, ``records`` their records.
+    ``O(inputs log copies)``: the inputs' signatures are shared, not copied."""
+    corr = template.correspondence
+    if corr is None or expansion != "space":
+        fixed = tuple(tuple(records[e].signature for e in ids) for _, ids in inputs)
+        return (template.name, expansion, output, fixed, ())
+    fixed = tuple(
+        tuple(records[e].signature for e in ids) for n, ids in inputs if n not in corr.edges
+    )
+    rows = [ids for n, ids in inputs if n in corr.edges]
+    copies = sorted(tuple(records[e].signature for e in copy) for copy in zip(*rows, strict=True))
+    return (template.name, expansion, output, fixed, tuple(copies))
 
 
 def saturate(
@@ -1299,14 +1347,26 @@ def solutions(ws: Workspace, query: Query) -> list[Solution]:
         for edge_id in ws.by_relation.get(key, ()):
             record = ws.index.edges[edge_id]
             best = found.get(record.canon)
-            if best is None or record.cost < best.cost:
+            if best is None or _ranked(record) < _ranked(best):
                 found[record.canon] = record
     return [_solution(ws, edge) for edge in sorted(found.values(), key=_ranked)]
 
 
-def _ranked(edge: EdgeRecord) -> tuple[float, int, str]:
-    """The order of derivations: cheapest first, then fewest steps, then by id."""
-    return (edge.cost, len(edge.steps), edge.id)
+def _ranked(edge: EdgeRecord) -> tuple[float, int, tuple, str]:
+    """The order of derivations: cheapest first, then fewest steps, then by signature (what
+    the derivation computes, :attr:`EdgeRecord.signature`, independent of the order in which
+    steps were made), then by id (two records of one signature are one computation)."""
+    return (edge.cost, len(edge.steps), edge.signature, edge.id)
+
+
+def _comes_first(a: EdgeRecord, b: EdgeRecord) -> bool:
+    """``a`` ranks before ``b`` where their costs may differ by rounding only (a relative
+    ``_TIE``: the same computation bracketed otherwise sums its variances in another order):
+    cheaper beyond it, else the lesser signature. Either of two records comes first, whichever
+    was made first."""
+    if a.cost < b.cost * (1 - _TIE) or a.cost > b.cost * (1 + _TIE):
+        return a.cost < b.cost
+    return a.signature <= b.signature
 
 
 def with_solution(srg: nx.MultiDiGraph, solution: Solution) -> nx.MultiDiGraph:
@@ -1457,6 +1517,7 @@ def _renamed(
                     ),
                     was.cost,
                     was.hops,
+                    _signature(step.template, step.expansion, name, step.inputs, records),
                 )
                 edge_id = records[edge_id].id
             outputs.append((name, frame[source], frame[target], edge_type, edge_id))
