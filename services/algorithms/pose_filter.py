@@ -304,10 +304,14 @@ class PoseKalmanFilter:
             grown[_block(index), _block(index)] = self._statics[index]
         return grown
 
-    def _correct(self, prior: _State, measurement: _Measurement) -> _State | None:
-        """The posterior after ``measurement`` at the prior's time; None if gated."""
+    def _correct(
+        self, prior: _State, measurement: _Measurement, replayed: bool = False
+    ) -> _State | None:
+        """The posterior after ``measurement`` at the prior's time; None if gated.
+        ``replayed``: a measurement applied again after a late one (``adaptive`` learns from
+        each measurement once)."""
         if self._sources or self.settings.adaptive:
-            return self._correct_considering(prior, measurement)
+            return self._correct_considering(prior, measurement, adapt=not replayed)
         # On floats where the values are a few numbers (each numpy call costs 10-20 us on a
         # CPU woken for the sample: docs/performance.md, "Data path").
         reference = tuple(prior.rotation.tolist())
@@ -335,10 +339,13 @@ class PoseKalmanFilter:
         vector = prior.vector + correction[3:]
         return _State(prior.timestamp_ns, rotation, vector, symmetric(covariance))
 
-    def _correct_considering(self, prior: _State, measurement: _Measurement) -> _State | None:
+    def _correct_considering(
+        self, prior: _State, measurement: _Measurement, adapt: bool
+    ) -> _State | None:
         """:meth:`_correct` with the considered static errors (the Schmidt-Kalman update: the
         gain's rows of the static errors zero, the covariance in Joseph form), and, when
-        ``adaptive``, the process noise scaled to the innovation (module docstring)."""
+        ``adaptive`` and ``adapt``, the process noise scaled to the innovation (module
+        docstring)."""
         covariance = self._considering(prior.covariance)
         size = len(covariance)
         observe = np.zeros((6, size))
@@ -364,7 +371,7 @@ class PoseKalmanFilter:
         x, y, z, w = _ROTATIONS.exp(correction[:3].tolist(), reference)
         norm = math.sqrt(x * x + y * y + z * z + w * w)
         rotation = np.array((x / norm, y / norm, z / norm, w / norm))
-        if self.settings.adaptive:
+        if self.settings.adaptive and adapt:
             self._adapt(residual, innovation)
         return _State(
             prior.timestamp_ns, rotation, prior.vector + correction[3:], symmetric(covariance)
@@ -456,7 +463,7 @@ class PoseKalmanFilter:
         replayed = [(measurement, posterior)]
         for later, _ in self._history[index:]:
             prior = self._propagate(replayed[-1][1], later.timestamp_ns)
-            after = self._correct(prior, later)
+            after = self._correct(prior, later, replayed=True)
             if after is not None:  # gated now, in the light of the late measurement
                 replayed.append((later, after))
         self._history[index:] = replayed
