@@ -65,8 +65,8 @@ import numpy as np
 from scipy.linalg.lapack import dposv
 
 from ubitrack_agent.core import quaternions
-from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
-from ubitrack_agent.core.measurements import check_timestamp
+from ubitrack_agent.core.errors import ExtrapolationError, MeasurementError, NoDataError
+from ubitrack_agent.core.measurements import check_covariance, check_semidefinite, check_timestamp
 from ubitrack_agent.core.timeline import MAX_AHEAD_NS
 from ubitrack_agent.core.uncertainty import skew
 from ubitrack_agent.services.algorithms._checks import as_array, as_quaternions, positive
@@ -169,17 +169,15 @@ def _checked_covariance(value: np.ndarray, name: str = "covariance") -> np.ndarr
 
 
 def _white_part(covariance: np.ndarray, static: np.ndarray) -> np.ndarray:
-    """``covariance - static``, or ``ValueError`` unless both are symmetric and it is positive
-    semi-definite (a static part no larger than the whole; zero where every edge is static)."""
+    """``covariance - static``, or ``ValueError`` unless ``static`` is a covariance (the core's
+    check) no larger than the whole: the difference positive semi-definite (zero where every
+    edge is static)."""
+    check_covariance("static", static)
     white = covariance - static
-    scale = max(float(np.abs(covariance).max()), float(np.abs(static).max()))
-    if np.abs(static - static.T).max() > 1e-9 * scale:
-        raise ValueError("static: must be symmetric")
-    if (
-        np.linalg.eigvalsh(white)[0] < -1e-9 * scale
-        or np.linalg.eigvalsh(static)[0] < -1e-9 * scale
-    ):
-        raise ValueError("static: must be positive semi-definite and no larger than the covariance")
+    try:
+        check_semidefinite("covariance - static", white)
+    except MeasurementError as exc:
+        raise ValueError(f"static: must be no larger than the covariance ({exc})") from None
     return white
 
 
@@ -356,8 +354,7 @@ class PoseKalmanFilter:
         phi = _ROTATIONS.log(measurement.rotation.tolist(), reference)
         residual = np.concatenate((phi, measurement.translation - prior.vector[:3]))
         crossed = covariance @ observe.T
-        innovation = observe @ crossed + measurement.noise
-        innovation = 0.5 * (innovation + innovation.T)
+        innovation = symmetric(observe @ crossed + measurement.noise)
         solved, info = _solve_positive_definite(innovation, np.column_stack((residual, crossed.T)))
         if info != 0:
             raise ValueError("the innovation covariance is not positive definite")
