@@ -762,11 +762,11 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
         for clique in sorted(cliques):
             found.setdefault(sum(1 << j for j in clique))
 
-    def by_canon(j: int) -> tuple[list[str], list[tuple]]:
+    def by_computation(j: int) -> tuple[list[str], list[tuple]]:
         return copies[j].computations
 
     return [
-        [order[j] for j in sorted((j for j in range(n) if chosen >> j & 1), key=by_canon)]
+        [order[j] for j in sorted((j for j in range(n) if chosen >> j & 1), key=by_computation)]
         for chosen in found
     ]
 
