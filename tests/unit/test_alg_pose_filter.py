@@ -279,6 +279,24 @@ def test_a_static_part_larger_than_the_covariance_is_refused():
     )
 
 
+@pytest.mark.parametrize(
+    ("static", "message"),
+    [
+        (COV_A + np.triu(np.full((6, 6), 1e-8), 1), "not symmetric"),
+        (np.full((6, 6), np.nan), "NaN"),
+        (-0.5 * COV_A, "positive semi-definite"),
+        (np.zeros((3, 3)), "static"),
+    ],
+)
+def test_a_malformed_static_part_is_refused_and_changes_nothing(static, message):
+    kalman = PoseKalmanFilter(1.0, 1.0)
+    assert kalman.update(0, quaternions.IDENTITY, np.zeros(3), COV_A) == "restarted"
+    with pytest.raises(ValueError, match=message):
+        kalman.update(10 * MS, quaternions.IDENTITY, np.ones(3), COV_A, static=static, source="A")
+    assert kalman.timestamp_ns == 0  # refused whole: no source considered, no update
+    assert kalman.update(20 * MS, quaternions.IDENTITY, np.zeros(3), COV_A) == "updated"
+
+
 def test_adaptive_noise_learns_from_each_late_measurement_once():
     """Every fourth measurement three places late: the re-filtered ones are not learnt from
     again, so the noise's factors end near the in-order filter's (0.80-1.02 of them over six
