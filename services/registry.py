@@ -99,9 +99,11 @@ class Service(ABC):
         of inputs synchronised at a trigger's time (:meth:`compute`); a parameter may choose."""
         return False
 
-    def push(self, port: str, sample: Measurement) -> Pushed:
+    def push(self, port: str, sample: Measurement, source: str = "") -> Pushed:
         """An asynchronous service's update by one sample of ``port``, in arrival order
-        (timestamps may go back); ``ValueError`` for a sample it cannot use."""
+        (timestamps may go back); ``ValueError`` for a sample it cannot use. ``source``: the
+        key it arrived on (the worker's binding), which tells a correspondence's inputs apart
+        (the fusion considers each one's static error on its own)."""
         raise NotImplementedError(f"{self.NAME} is not asynchronous")
 
     def value_at(self, port: str, timestamp_ns: int) -> Measurement:

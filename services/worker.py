@@ -89,6 +89,7 @@ from ubitrack_agent.core.errors import (
     TooFewCorrespondences,
 )
 from ubitrack_agent.core.measurements import FULL, MAX_FUTURE_NS, MAX_TIMESTAMP_NS, WORKER
+from ubitrack_agent.core.poses import with_static_error
 from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.clock import Clock
@@ -851,7 +852,7 @@ class Worker:
         if sample is None:
             return
         if self._asynchronous:
-            self._push(item.binding.port, sample)
+            self._push(item.binding.port, sample, item.binding.key)
             return
         if not item.buffer.add(sample):
             self._count_stale(item, sample)
@@ -878,8 +879,8 @@ class Worker:
 
     def _admitted(self, item: _Input, sample: Measurement) -> Measurement | None:
         """``sample`` of ``item`` on this host's clock (its input's clock offset added), its
-        latency recorded; None if it is stamped ahead of the clock or the offset takes it out
-        of range (counted)."""
+        latency recorded, a static input's covariance marked static (``core.poses``); None if
+        it is stamped ahead of the clock or the offset takes it out of range (counted)."""
         t = sample.timestamp_ns
         now = self._now_ns()
         if t - now > MAX_FUTURE_NS:  # core.timeline.ahead_of_clock, on the sensor's clock
@@ -894,6 +895,8 @@ class Worker:
                 self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
                 return None
             t = sample.timestamp_ns
+        if item.binding.static:  # its error is the same in every result computed from it
+            sample = with_static_error(sample)
         item.latency.append(now - t)
         if not item.seen:
             self._first_samples.setdefault(item.binding.key, time.time_ns())
@@ -1074,10 +1077,11 @@ class Worker:
         for t, trigger, sample in held:
             self._evaluate(t, trigger, sample)
 
-    def _push(self, port: str, sample: Measurement) -> None:
-        """An asynchronous service's update by one sample, published at once."""
+    def _push(self, port: str, sample: Measurement, source: str) -> None:
+        """An asynchronous service's update by one sample of ``source`` (its input's key),
+        published at once."""
         try:
-            pushed: Pushed = self._service.push(port, sample)
+            pushed: Pushed = self._service.push(port, sample, source)
         except (ValueError, MeasurementError, ArithmeticError) as exc:
             self._count("failed", "update failed: %s", exc)
             return

@@ -127,6 +127,11 @@ class FilterSettings:
     adaptive: bool = False
     """Scale the process noise on line to the innovations (see the module docstring)."""
     adaptation_gain: float = 0.02
+    max_sources: int = 8
+    """Static errors considered at once: a new source beyond them takes the place of the one
+    seen longest ago that no kept measurement came from (a flow rewired away; its rows and
+    columns dropped, which leaves the rest's distribution exact). Bounds an update's cost,
+    ``O((12 + 6 max_sources)^3)``, whatever a long session's rewires bring."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -137,7 +142,7 @@ class FilterSettings:
             "adaptation_gain",
         ):
             positive(name, getattr(self, name))
-        for name in ("restart_after", "window_ns", "restart_ns", "max_ahead_ns"):
+        for name in ("restart_after", "window_ns", "restart_ns", "max_ahead_ns", "max_sources"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
                 raise ValueError(f"{name}: expected a non-negative integer")
 
@@ -237,6 +242,8 @@ class PoseKalmanFilter:
         """The sources whose static errors the state considers, by the index of their block."""
         self._statics: list[np.ndarray] = []
         """Each considered source's static covariance (left), as its first measurement said."""
+        self._seen: list[int] = []
+        """Each considered source's latest measurement time."""
 
     @property
     def noise_scales(self) -> tuple[float, float]:
@@ -417,9 +424,8 @@ class PoseKalmanFilter:
             measurement = _Measurement(timestamp_ns, q, t, to_error @ cov @ to_error.T)
         else:
             white = _white_part(cov, as_array("static", static, (6, 6)))
-            index = self._sources.setdefault(source, len(self._sources))
-            if index == len(self._statics):
-                self._statics.append(np.array(static, dtype=float))
+            index = self._considered(source, static)
+            self._seen[index] = max(self._seen[index], timestamp_ns)
             noise = to_error @ white @ to_error.T
             measurement = _Measurement(timestamp_ns, q, t, noise, self._statics[index], index)
         newest = self.timestamp_ns
@@ -435,6 +441,39 @@ class PoseKalmanFilter:
             self._forget(measurement.timestamp_ns)
             return "updated"
         return self._late(measurement)
+
+    def _considered(self, source: Hashable, static: np.ndarray) -> int:
+        """The index of ``source``'s static error, appended (with ``static``) if new; while
+        more than :attr:`FilterSettings.max_sources` are considered, the one seen longest ago
+        that no kept measurement came from (nor this one) is dropped."""
+        if source not in self._sources:
+            self._sources[source] = len(self._statics)
+            self._statics.append(np.array(static, dtype=float))
+            self._seen.append(-1)
+        if len(self._statics) > self.settings.max_sources:
+            busy = {kept.source for kept, _ in self._history} | {self._sources[source]}
+            idle = [i for i in range(len(self._statics)) if i not in busy]
+            if idle:
+                self._drop_source(min(idle, key=self._seen.__getitem__))
+        return self._sources[source]
+
+    def _drop_source(self, index: int) -> None:
+        """Stop considering source ``index``, which no kept measurement came from: its rows
+        and columns leave every kept posterior (marginalisation: the rest's distribution is
+        unchanged) and the later sources move up one block."""
+        self._sources = {name: i - (i > index) for name, i in self._sources.items() if i != index}
+        del self._statics[index], self._seen[index]
+        start, end = _block(index).start, _block(index).stop
+        history = []
+        for measurement, posterior in self._history:
+            if measurement.source > index:
+                measurement = measurement._replace(source=measurement.source - 1)
+            size = len(posterior.covariance)
+            if size > start:  # the block is there (a posterior grows when it is used)
+                rows = np.r_[0:start, end:size]
+                posterior = posterior._replace(covariance=posterior.covariance[np.ix_(rows, rows)])
+            history.append((measurement, posterior))
+        self._history = history
 
     def _refused(self, measurement: _Measurement) -> Outcome:
         self._gated_in_row += 1

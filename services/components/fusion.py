@@ -37,8 +37,12 @@ class Fusion(Service):
       Estimates arriving out of order within ``window_ms`` are re-filtered from the kept history
       (counted ``late``: their effect is in the next output), outliers are refused by the innovation
       gate ``gate`` (``gated``), the process noise is ``angular_noise`` (rad^2/s^3) and
-      ``linear_noise`` (m^2/s^3). Its output also answers a query at a given time by the
-      filter's prediction (:meth:`value_at`).
+      ``linear_noise`` (m^2/s^3), scaled on line to the innovations with ``adaptive``. Each
+      input's static error (an estimate's ``static_covariance``: the share of calibrations and
+      other static edges in its covariance) is *considered* on its own (Schmidt-Kalman), so
+      fusing many samples of one input does not average a calibration's error away. At most
+      ``max_sources`` inputs' static errors are considered at once. Its output also answers a
+      query at a given time by the filter's prediction (:meth:`value_at`).
     * ``synchronised``: the worker synchronises the estimates at each trigger's time
       (``ubitrack_agent.services.triggers``) and they are fused as simultaneous: 6D on SE(3)
       (:func:`ubitrack_agent.services.algorithms.fuse_poses`), 3D positions by inverse-covariance
@@ -62,17 +66,23 @@ class Fusion(Service):
         "linear_noise": 0.02,
         "gate": 27.86,
         "window_ms": 200.0,
+        "adaptive": False,
+        "max_sources": 8,
     }
 
     def __init__(self, parameters: Mapping[str, Any]) -> None:
         super().__init__(parameters)
         if self.parameters["policy"] not in POLICIES:
             raise ValueError(f"fusion: policy must be one of {POLICIES}")
+        if not isinstance(self.parameters["adaptive"], bool):
+            raise ValueError("fusion: adaptive must be true or false")
         self._filter = PoseKalmanFilter(
             float(self.parameters["angular_noise"]),
             float(self.parameters["linear_noise"]),
             gate=float(self.parameters["gate"]),
             window_ns=int(float(self.parameters["window_ms"]) * 1e6),
+            adaptive=self.parameters["adaptive"],
+            max_sources=int(self.parameters["max_sources"]),
         )
         self._published_ns: int | None = None
         """Time of the latest output: the relation's stream stays in time order."""
@@ -80,18 +90,21 @@ class Fusion(Service):
     def asynchronous(self) -> bool:
         return self.parameters["policy"] == "asynchronous"
 
-    def push(self, port: str, sample: Measurement) -> Pushed:
+    def push(self, port: str, sample: Measurement, source: str = "") -> Pushed:
         if not isinstance(sample, Pose | ErrorPose):
             raise ValueError(
                 f"asynchronous fusion filters 6D poses, not {type(sample).__name__}: "
                 "give 3D and 3R estimates the policy 'synchronised'"
             )
+        static = sample.static_covariance if isinstance(sample, ErrorPose) else None
         outcome = self._filter.update(
             sample.timestamp_ns,
             sample.rotation,
             sample.translation,
             self._covariance(sample),
             validated=True,
+            static=static,
+            source=source,
         )
         if outcome in _REASONS:
             return Pushed(reason=_REASONS[outcome])

@@ -317,3 +317,30 @@ def test_adaptive_noise_learns_from_each_late_measurement_once():
     ratios = np.array(shuffled.noise_scales) / np.array(in_order.noise_scales)
     assert np.all((ratios > 0.75) & (ratios < 1.33)), ratios
     assert max(in_order.noise_scales) < 0.5  # it did learn: a tenth of the motion's noise
+
+
+@pytest.mark.parametrize("rewires", [3, 12])
+def test_sources_beyond_the_bound_leave_the_estimates_as_they_were(rewires: int):
+    """A fusion rewired again and again (a new input key, so a new source, each time) keeps
+    at most ``max_sources`` static errors considered: a source no kept measurement came from
+    is dropped (marginalised), which leaves every estimate as a filter that kept them all
+    gives it (a source not observed again does not enter the state's gain)."""
+    rng = rng_for(f"pose-filter-sources-{rewires}")
+    bounded = PoseKalmanFilter(0.5, 0.5, max_sources=2)
+    unbounded = PoseKalmanFilter(0.5, 0.5, max_sources=100)
+    t = 0
+    for rewire in range(rewires):
+        for step in range(30):  # 300 ms per flow: beyond the 200 ms window
+            t += 10 * MS
+            tracker = "A" if step % 2 else f"flow {rewire}"  # A stays, the other is replaced
+            cov = COV_A if step % 2 else COV_B
+            static = {"static": 0.5 * cov, "source": tracker}
+            q = quaternions.multiply(quaternions.from_rotvec(rng.normal(0, 1e-3, 3)), [0, 0, 0, 1])
+            p = rng.normal(0, 1e-3, 3)
+            outcomes = [f.update(t, q, p, cov, **static) for f in (bounded, unbounded)]
+            assert outcomes[0] == outcomes[1]
+            mine, theirs = bounded.estimate(t), unbounded.estimate(t)
+            np.testing.assert_allclose(mine.rotation, theirs.rotation, atol=1e-12)
+            np.testing.assert_allclose(mine.translation, theirs.translation, atol=1e-12)
+            np.testing.assert_allclose(mine.covariance, theirs.covariance, rtol=1e-9, atol=1e-18)
+    assert len(bounded._statics) == 2 and len(unbounded._statics) == rewires + 1

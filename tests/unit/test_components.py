@@ -358,8 +358,8 @@ class _FilterThatWentBack:
     def __init__(self) -> None:
         self.real = make("fusion")._filter
 
-    def update(self, timestamp_ns, rotation, translation, covariance, validated=False):
-        self.real.update(timestamp_ns, rotation, translation, covariance, validated)
+    def update(self, timestamp_ns, rotation, translation, covariance, **given):
+        self.real.update(timestamp_ns, rotation, translation, covariance, **given)
         return "updated"
 
     def estimate(self, timestamp_ns):

@@ -465,19 +465,36 @@ def _error_pose(t: int, seed: int, covariance: np.ndarray | None = None) -> Erro
     return ErrorPose(t, q, rng.normal(size=3), cov)
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.integers(2, 40), st.integers(0, 2**32 - 1), st.booleans(), st.booleans())
-def test_pose_pairs_compose_as_each_pair_alone(count, seed, first_has_error, second_has_error):
+def _with_static_part(pose: ErrorPose) -> ErrorPose:
+    """``pose`` with half its covariance marked static."""
+    cov = pose.covariance
+    return ErrorPose(pose.timestamp_ns, pose.rotation, pose.translation, cov, 0.5 * cov)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.integers(2, 40),
+    st.integers(0, 2**32 - 1),
+    st.sampled_from(["exact", "error", "static part"]),
+    st.sampled_from(["exact", "error", "static part", "some with a static part"]),
+)
+def test_pose_pairs_compose_as_each_pair_alone(count, seed, first_kind, second_kind):
     """``compose_pose_pairs`` (a run's compositions in a few numpy calls) gives what
-    ``compose_poses`` gives each pair, to round-off, in read-only arrays of the same types."""
+    ``compose_poses`` gives each pair, to round-off, in read-only arrays of the same types,
+    static parts included."""
     rng = np.random.default_rng(seed)
     static = _error_pose(5, seed)
-    if not first_has_error:
+    if first_kind == "exact":
         static = Pose(5, static.rotation, static.translation)
+    elif first_kind == "static part":
+        static = _with_static_part(static)
     firsts = [static.restamped(10 + i) for i in range(count)]
     seconds = [_error_pose(10 + i, int(rng.integers(2**31))) for i in range(count)]
-    if not second_has_error:
+    if second_kind == "exact":
         seconds = [Pose(s.timestamp_ns, s.rotation, s.translation) for s in seconds]
+    elif second_kind != "error":
+        marked = range(count) if second_kind == "static part" else range(0, count, 2)
+        seconds = [_with_static_part(s) if i in marked else s for i, s in enumerate(seconds)]
     for run, alone in zip(
         compose_pose_pairs(firsts, seconds),
         [compose_poses(a, b) for a, b in zip(firsts, seconds, strict=True)],
@@ -486,6 +503,9 @@ def test_pose_pairs_compose_as_each_pair_alone(count, seed, first_has_error, sec
         assert type(run) is type(alone) and run.timestamp_ns == alone.timestamp_ns
         for spec in alone.ARRAY_FIELDS:
             mine, theirs = getattr(run, spec.name), getattr(alone, spec.name)
+            if theirs is None:
+                assert mine is None
+                continue
             assert mine.shape == theirs.shape and not mine.flags.writeable
             np.testing.assert_allclose(mine, theirs, rtol=1e-12, atol=1e-15)
 

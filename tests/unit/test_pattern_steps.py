@@ -19,8 +19,8 @@ from ubitrack_agent.agent.materialise import component_specs
 from ubitrack_agent.agent.placement import group_containers
 from ubitrack_agent.agent.planning import template_needs
 from ubitrack_agent.commands.plan_inputs import load_plan_srg
-from ubitrack_agent.core import ErrorPose, encode
-from ubitrack_agent.core.poses import compose_poses, invert_pose
+from ubitrack_agent.core import ErrorPose, Pose, encode
+from ubitrack_agent.core.poses import compose_poses, invert_pose, with_static_error
 from ubitrack_agent.graph.dataflow import DataFlow, from_solution, relation_name
 from ubitrack_agent.graph.planner import Query, plan
 from ubitrack_agent.graph.templates import load_templates
@@ -128,7 +128,8 @@ def pose(t: int, x: float, covariance: float = 1e-6) -> ErrorPose:
 
 def test_the_art_chain_in_a_container_gives_the_values_of_the_maths_called_directly():
     """Inversion, then concatenations with ``ART->WT`` and ``C->HT`` (the paper's figure 6):
-    three components handing over objects, the last one's output read outside the process."""
+    three components handing over objects, the last one's output read outside the process,
+    with the static edges' share of its covariance."""
     _, specs = figure6()
     (inversion,) = of_service(specs, "inversion")
     chain = [inversion]
@@ -157,8 +158,14 @@ def test_the_art_chain_in_a_container_gives_the_values_of_the_maths_called_direc
     finally:
         container.stop()
         thread.join(timeout=5)
+    static_art_wt, static_c_ht = with_static_error(art_wt), with_static_error(c_ht)
     expected = compose_poses(
-        c_ht.restamped(t), compose_poses(invert_pose(art_ht), art_wt.restamped(t))
+        static_c_ht.restamped(t), compose_poses(invert_pose(art_ht), static_art_wt.restamped(t))
     )
     assert published == [encode(expected)]  # the same bytes as one process computing it
+    # The static edges' share of the covariance, carried through: that of the same chain with
+    # the tracker's pose exact.
+    exact_art_ht = Pose(t, art_ht.rotation, art_ht.translation)
+    static_part = compose_poses(c_ht, compose_poses(invert_pose(exact_art_ht), art_wt))
+    np.testing.assert_allclose(expected.static_covariance, static_part.covariance, rtol=1e-12)
     assert handed_over == [1, 1, 0]  # the inversion's and the first concatenation's outputs

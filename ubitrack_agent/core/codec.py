@@ -144,16 +144,18 @@ def _known_keys(cls: type[Measurement]) -> frozenset[str]:
 @dataclass(frozen=True)
 class _Canonical:
     """How to read a message of a type whose arrays all have fixed shapes when it holds
-    exactly the header and every field, each the exact number of bytes: what every encoder of
-    this package sends. :func:`decode` reads such a message here, in one pass over
-    precomputed names and sizes; anything else (and any doubt) goes to the general reader,
-    which names what is wrong. Both accept the same messages and build the same values
-    (``tests/unit/test_codec.py``); this one exists because a pattern hop decodes every
-    sample and pays for each step on a CPU woken for it (``docs/performance.md``, "Data
-    path")."""
+    exactly the header and every field (or every required field: :meth:`of`), each the exact
+    number of bytes: what every encoder of this package sends. :func:`decode` reads such a
+    message here, in one pass over precomputed names and sizes; anything else (and any doubt)
+    goes to the general reader, which names what is wrong. Both accept the same messages and
+    build the same values (``tests/unit/test_codec.py``); this one exists because a pattern
+    hop decodes every sample and pays for each step on a CPU woken for it
+    (``docs/performance.md``, "Data path")."""
 
     cls: type[Measurement]
     names: tuple[str, ...]
+    absent: dict[str, None]
+    """The type's optional fields this reader's messages leave out, each None."""
     sizes: list[int]
     """Each field's size in bytes (a list, compared with a list of lengths at once)."""
     shapes: tuple[tuple[int, ...] | None, ...]
@@ -162,12 +164,24 @@ class _Canonical:
     """By validation level: each field's check with the name it gives in an error."""
 
     @classmethod
-    def of(cls, measurement: type[Measurement]) -> _Canonical | None:
-        """The reader for ``measurement``, None unless it has a :func:`fixed_layout`."""
+    def of(cls, measurement: type[Measurement]) -> list[_Canonical]:
+        """The readers for ``measurement``, none unless it has a :func:`fixed_layout`: one for
+        messages with every optional field, one (if it has any) for those without any (what an
+        encoder writes of a value that left them out: a pose's static part, a position's
+        covariance). Each holds a different number of keys, which picks it."""
         layout = fixed_layout(measurement)
         if layout is None:
-            return None
-        tag, specs = measurement.__name__, measurement.ARRAY_FIELDS
+            return []
+        every = measurement.ARRAY_FIELDS
+        required = tuple(spec for spec in every if not spec.optional)
+        variants = (every, required) if len(required) < len(every) else (every,)
+        return [cls._for(measurement, specs) for specs in variants]
+
+    @classmethod
+    def _for(cls, measurement: type[Measurement], specs: tuple[ArrayField, ...]) -> _Canonical:
+        """The reader of ``measurement``'s messages holding exactly the fields ``specs``."""
+        tag = measurement.__name__
+        absent = {spec.name: None for spec in measurement.ARRAY_FIELDS if spec not in specs}
         checks = {
             level: tuple(
                 (spec.name, f"{tag}.{spec.name}", check)
@@ -178,11 +192,17 @@ class _Canonical:
         }
         return cls(
             measurement,
-            layout.names,
+            tuple(spec.name for spec in specs),
+            absent,
             [spec.fixed_bytes for spec in specs],  # type: ignore[misc]
-            tuple(None if len(shape) == 1 else shape for shape in layout.shapes),
+            tuple(None if len(spec.shape) == 1 else spec.shape for spec in specs),  # type: ignore[misc]
             checks,
         )
+
+    @property
+    def keys(self) -> int:
+        """How many keys a message this reader reads holds."""
+        return len(_HEADER_KEYS) + len(self.names)
 
     def fields(self, message: dict[str, Any]) -> tuple[int, list[bytes], bytes] | None:
         """The timestamp, the fields' bytes and those joined, of ``message`` (whose ``type``
@@ -228,6 +248,8 @@ class _Canonical:
         values["timestamp_ns"] = timestamp
         for name, shape, flat in zip(self.names, self.shapes, flats, strict=True):
             values[name] = flat if shape is None else flat.reshape(shape)
+        if self.absent:
+            values.update(self.absent)
         return value
 
     def read_run(
@@ -276,12 +298,17 @@ class _Canonical:
             return exc
 
 
-_CANONICAL: dict[str, _Canonical] = (
-    {tag: reader for tag, cls in MEASUREMENT_TYPES.items() if (reader := _Canonical.of(cls))}
+_CANONICAL: dict[tuple[str, int], _Canonical] = (
+    {
+        (tag, reader.keys): reader
+        for tag, cls in MEASUREMENT_TYPES.items()
+        for reader in _Canonical.of(cls)
+    }
     if _NATIVE
     else {}
 )
-"""The canonical readers by type tag (none on a big-endian host, whose arrays are converted)."""
+"""The canonical readers by type tag and number of keys (none on a big-endian host, whose
+arrays are converted)."""
 
 
 def decode(
@@ -314,7 +341,7 @@ def decode_run(
     of one per message; anything else goes to the general reader one by one."""
     results: list[Any] = [None] * len(payloads)
     messages: dict[int, dict[str, Any]] = {}
-    runs: dict[str, list[tuple[int, tuple[int, list[bytes], bytes]]]] = {}
+    runs: dict[tuple[str, int], list[tuple[int, tuple[int, list[bytes], bytes]]]] = {}
     for i, data in enumerate(payloads):
         try:
             message = messages[i] = _unpack(data)
@@ -324,9 +351,9 @@ def decode_run(
         canonical = _canonical(message, expected)
         found = None if canonical is None else canonical.fields(message)
         if found is not None:
-            runs.setdefault(message["type"], []).append((i, found))
-    for tag, members in runs.items():
-        values = _CANONICAL[tag].read_run([found for _, found in members], level)
+            runs.setdefault((message["type"], len(message)), []).append((i, found))
+    for reader, members in runs.items():
+        values = _CANONICAL[reader].read_run([found for _, found in members], level)
         for (i, _), value in zip(members, values, strict=True):
             results[i] = value
     for i, message in messages.items():
@@ -343,7 +370,7 @@ def _canonical(
 ) -> _Canonical | None:
     """The canonical reader of ``message``'s type if it is one ``expected``, else None."""
     tag = message.get("type")
-    canonical = _CANONICAL.get(tag) if type(tag) is str else None
+    canonical = _CANONICAL.get((tag, len(message))) if type(tag) is str else None
     if canonical is not None and (expected is None or issubclass(canonical.cls, expected)):
         return canonical
     return None

@@ -315,6 +315,10 @@ class FixedLayout(NamedTuple):
     shapes: tuple[tuple[int, ...], ...]
     fields: frozenset[str]
     """Every field's name, ``timestamp_ns`` included."""
+    required: frozenset[str]
+    """The fields a value must hold: ``fields`` but the optional arrays."""
+    absent: dict[str, None]
+    """Each optional array field left out (None), for a value that holds only ``required``."""
 
 
 @functools.cache
@@ -328,7 +332,9 @@ def fixed_layout(cls: type[Measurement]) -> FixedLayout | None:
     }:
         return None
     shapes = tuple(spec.shape for spec in specs)
-    return FixedLayout(names, shapes, frozenset({"timestamp_ns", *names}))  # type: ignore[arg-type]
+    optional = [spec.name for spec in specs if spec.optional]
+    every = frozenset({"timestamp_ns", *names})
+    return FixedLayout(names, shapes, every, every - set(optional), dict.fromkeys(optional))  # type: ignore[arg-type]
 
 
 @functools.cache
@@ -425,14 +431,22 @@ class Measurement:
         more on a CPU woken for the sample: ``docs/performance.md``, "Data path"); anything
         else goes through :meth:`checked`, which converts it or names the fault."""
         layout = fixed_layout(cls)
-        if layout is None or values.keys() != layout.fields:
+        if layout is None:
             return cls.checked(DERIVED, **values)
+        keys = values.keys()
+        if keys != layout.fields:
+            if keys != layout.required:
+                return cls.checked(DERIVED, **values)
+            values.update(layout.absent)
         if not is_timestamp(values["timestamp_ns"]) or not all(
-            _is_float_array(values[spec.name], spec) for spec in cls.ARRAY_FIELDS
+            _is_float_array(value, spec)
+            for spec in cls.ARRAY_FIELDS
+            if (value := values[spec.name]) is not None or not spec.optional
         ):
             return cls.checked(DERIVED, **values)
         for name in layout.names:
-            values[name].setflags(write=False)
+            if (value := values[name]) is not None:
+                value.setflags(write=False)
         return cls.unchecked(values)
 
     @classmethod
@@ -509,7 +523,15 @@ class Pose(Measurement):
 
 @dataclass(frozen=True, eq=False)
 class ErrorPose(Measurement):
-    """6D pose with a 6x6 covariance over the left perturbation ``xi = (phi, rho)``."""
+    """6D pose with a 6x6 covariance over the left perturbation ``xi = (phi, rho)``.
+
+    ``static_covariance`` (optional) is the part of ``covariance`` that is the error of static
+    edges (a calibration's, a survey's): the same in every sample of the flow that computed it,
+    so a filter fusing many of them must not average it away. A worker marks a static input's
+    whole covariance so, ``core.poses`` carries the part through inversions and concatenations
+    as the covariance, and the fusion's filter *considers* it
+    (``services.algorithms.pose_filter``, Schmidt-Kalman). Absent, the whole error is white.
+    """
 
     TYPE_TAG: ClassVar[str] = "ErrorPose"
     SRG_TYPE: ClassVar[str] = "6D"
@@ -517,11 +539,19 @@ class ErrorPose(Measurement):
         _ROTATION,
         _TRANSLATION,
         ArrayField("covariance", (6, 6), check=check_covariance, worker_check=check_semidefinite),
+        ArrayField(
+            "static_covariance",
+            (6, 6),
+            optional=True,
+            check=check_covariance,
+            worker_check=check_semidefinite,
+        ),
     )
 
     rotation: np.ndarray
     translation: np.ndarray
     covariance: np.ndarray
+    static_covariance: np.ndarray | None = None
 
     def mean(self) -> Pose:
         """The pose without its covariance."""

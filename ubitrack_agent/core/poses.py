@@ -5,6 +5,11 @@ These combine :mod:`~ubitrack_agent.core.se3` (the means) with
 counts as exact: combining it with an :class:`ErrorPose` gives an :class:`ErrorPose`, combining
 two plain poses gives a plain pose. The result's timestamp is the later of the inputs' (a
 worker that synchronised its inputs passes equal timestamps).
+
+An :class:`ErrorPose`'s ``static_covariance`` (the share of its static edges' errors) is
+carried through by the same first-order maps as the covariance, a missing one counting as
+zero: the result's static part is that of its inputs' static parts (its dynamic inputs held
+exact), as ``bench.fusion_consistency_bench`` computes it offline.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import numpy as np
 
 from ubitrack_agent.core import quaternions, se3, uncertainty
 from ubitrack_agent.core.errors import ExtrapolationError
-from ubitrack_agent.core.measurements import ErrorPose, Pose, Position3D
+from ubitrack_agent.core.measurements import ErrorPose, Measurement, Pose, Position3D
 
 AnyPose = Pose | ErrorPose
 
@@ -30,13 +35,43 @@ def _covariance(pose: AnyPose) -> np.ndarray | None:
     return pose.covariance if isinstance(pose, ErrorPose) else None
 
 
-def _make(timestamp_ns: int, q: np.ndarray, t: np.ndarray, cov: np.ndarray | None) -> AnyPose:
+def _static(pose: AnyPose) -> np.ndarray | None:
+    return pose.static_covariance if isinstance(pose, ErrorPose) else None
+
+
+def _make(
+    timestamp_ns: int,
+    q: np.ndarray,
+    t: np.ndarray,
+    cov: np.ndarray | None,
+    static: np.ndarray | None = None,
+) -> AnyPose:
     """The result pose. ``cov`` (``A Sigma A^T`` sums, or blends) is symmetric to round-off,
     about 1e-16 relative, far inside the validation's 1e-9: it is not symmetrised again, two
-    numpy calls fewer on every hop (``docs/performance.md``, "Data path")."""
+    numpy calls fewer on every hop (``docs/performance.md``, "Data path"); so is ``static``."""
     if cov is None:
         return Pose.derived(timestamp_ns=timestamp_ns, rotation=q, translation=t)
-    return ErrorPose.derived(timestamp_ns=timestamp_ns, rotation=q, translation=t, covariance=cov)
+    return ErrorPose.derived(
+        timestamp_ns=timestamp_ns,
+        rotation=q,
+        translation=t,
+        covariance=cov,
+        static_covariance=static,
+    )
+
+
+def _transported(
+    first: np.ndarray | None, second: np.ndarray | None, adj: np.ndarray, adj_t: np.ndarray
+) -> np.ndarray | None:
+    """``first + Ad second Ad^T`` (either None counting as zero; both None: None), read-only:
+    a concatenation's covariance, or its static part."""
+    if first is None and second is None:
+        return None
+    cov = (_ZERO6 if first is None else first) + adj @ (
+        _ZERO6 if second is None else second
+    ) @ adj_t
+    cov.setflags(write=False)
+    return cov
 
 
 def _compose_means(
@@ -53,13 +88,24 @@ def _compose_means(
     return np.frombuffer(_FOUR_FLOATS.pack(*q)), np.frombuffer(_THREE_FLOATS.pack(*t))
 
 
+def with_static_error(pose: Measurement) -> Measurement:
+    """``pose`` with its whole covariance marked static (``ErrorPose.static_covariance``): a
+    static edge's error (a calibration's, a survey's) is the same in every sample computed from
+    it. Any other measurement, or a pose so marked already, as it is."""
+    if type(pose) is not ErrorPose or pose.static_covariance is pose.covariance:
+        return pose
+    return ErrorPose.unchecked({**pose.__dict__, "static_covariance": pose.covariance})
+
+
 def invert_pose(pose: AnyPose) -> AnyPose:
     """The inverse edge (B->A from A->B), covariance transported exactly."""
     q, t = se3.invert(pose.rotation, pose.translation)
-    cov = _covariance(pose)
+    cov, static = _covariance(pose), _static(pose)
     if cov is not None:
         cov = uncertainty.invert_covariance(pose.rotation, pose.translation, cov)
-    return _make(pose.timestamp_ns, q, t, cov)
+    if static is not None:
+        static = uncertainty.invert_covariance(pose.rotation, pose.translation, static)
+    return _make(pose.timestamp_ns, q, t, cov, static)
 
 
 def compose_poses(first: AnyPose, second: AnyPose) -> AnyPose:
@@ -74,12 +120,16 @@ def compose_poses(first: AnyPose, second: AnyPose) -> AnyPose:
         return Pose.unchecked({"timestamp_ns": timestamp_ns, "rotation": q, "translation": t})
     q1, t1, adj, adj_transposed = _kept(first)
     q, t = _compose_means(q1, t1, second)
-    cov = (_ZERO6 if cov1 is None else cov1) + adj @ (
-        _ZERO6 if cov2 is None else cov2
-    ) @ adj_transposed
-    cov.setflags(write=False)
+    static1 = getattr(first, "static_covariance", None)
+    static2 = getattr(second, "static_covariance", None)
     return ErrorPose.unchecked(
-        {"timestamp_ns": timestamp_ns, "rotation": q, "translation": t, "covariance": cov}
+        {
+            "timestamp_ns": timestamp_ns,
+            "rotation": q,
+            "translation": t,
+            "covariance": _transported(cov1, cov2, adj, adj_transposed),
+            "static_covariance": _transported(static1, static2, adj, adj_transposed),
+        }
     )
 
 
@@ -90,14 +140,20 @@ def compose_pose_pairs(firsts: Sequence[AnyPose], seconds: Sequence[AnyPose]) ->
     for a worker draining a backlog (``ubitrack_agent.services.worker``, ``docs/performance.md``,
     "Data path"). Each result's arrays are read-only rows of the run's."""
     first, kind = firsts[0], type(seconds[0])
-    cov1 = getattr(first, "covariance", None)
-    if len(seconds) < 2 or any(
-        type(a) is not type(first)
-        or a.rotation is not first.rotation
-        or a.translation is not first.translation
-        or getattr(a, "covariance", None) is not cov1
-        or type(b) is not kind
-        for a, b in zip(firsts, seconds, strict=True)
+    cov1, static1 = getattr(first, "covariance", None), getattr(first, "static_covariance", None)
+    statics2 = [getattr(b, "static_covariance", None) for b in seconds]
+    if (
+        len(seconds) < 2
+        or any(
+            type(a) is not type(first)
+            or a.rotation is not first.rotation
+            or a.translation is not first.translation
+            or getattr(a, "covariance", None) is not cov1
+            or getattr(a, "static_covariance", None) is not static1
+            or type(b) is not kind
+            for a, b in zip(firsts, seconds, strict=True)
+        )
+        or len({static is None for static in statics2}) > 1  # some with a static part, some not
     ):
         return [compose_poses(a, b) for a, b in zip(firsts, seconds, strict=True)]
     _, t1, adj, adj_transposed = _kept(first)
@@ -111,14 +167,23 @@ def compose_pose_pairs(firsts: Sequence[AnyPose], seconds: Sequence[AnyPose]) ->
         arrays["covariance"] = covs if cov1 is None else covs + cov1
     elif cov1 is not None:
         arrays["covariance"] = np.broadcast_to(cov1, (len(seconds), 6, 6))
+    if statics2[0] is not None:
+        statics = adj @ np.stack(statics2) @ adj_transposed
+        arrays["static_covariance"] = statics if static1 is None else statics + static1
+    elif static1 is not None:
+        arrays["static_covariance"] = np.broadcast_to(static1, (len(seconds), 6, 6))
     for array in arrays.values():
         array.flags.writeable = False
-    result = ErrorPose if "covariance" in arrays else Pose
+    if "covariance" not in arrays:
+        result: type[AnyPose] = Pose
+    else:
+        result = ErrorPose
+        arrays.setdefault("static_covariance", None)  # type: ignore[arg-type]
     return [
         result.unchecked(
             {
                 "timestamp_ns": max(a.timestamp_ns, b.timestamp_ns),
-                **{name: array[j] for name, array in arrays.items()},
+                **{name: None if array is None else array[j] for name, array in arrays.items()},
             }
         )
         for j, (a, b) in enumerate(zip(firsts, seconds, strict=True))
@@ -186,10 +251,20 @@ def interpolate_pose(before: AnyPose, after: AnyPose, timestamp_ns: int) -> AnyP
     q, t = se3.interpolate(
         before.rotation, before.translation, after.rotation, after.translation, s
     )
-    cov0, cov1 = _covariance(before), _covariance(after)
-    cov = None
-    if cov0 is not None or cov1 is not None:
-        cov = uncertainty.interpolate_covariance(
-            _ZERO6 if cov0 is None else cov0, _ZERO6 if cov1 is None else cov1, s
-        )
-    return _make(timestamp_ns, q, t, cov)
+    return _make(
+        timestamp_ns,
+        q,
+        t,
+        _blended(_covariance(before), _covariance(after), s),
+        _blended(_static(before), _static(after), s),
+    )
+
+
+def _blended(before: np.ndarray | None, after: np.ndarray | None, s: float) -> np.ndarray | None:
+    """The covariance (or static part) of an interpolated pose: the linear blend of the two
+    (either None counting as zero; both None: None)."""
+    if before is None and after is None:
+        return None
+    return uncertainty.interpolate_covariance(
+        _ZERO6 if before is None else before, _ZERO6 if after is None else after, s
+    )
