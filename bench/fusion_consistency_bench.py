@@ -55,7 +55,7 @@ import numpy as np
 import yaml
 from scipy.stats import chi2
 
-from bench.synthetic import THREE_SIGMA_NEES, nees, nees_over_batches
+from bench.synthetic import THREE_SIGMA_NEES, nees, nees_over_batches, rotation_error
 from ubitrack_agent.core import ErrorPose, Pose
 from ubitrack_agent.core.poses import compose_poses, invert_pose
 from ubitrack_agent.core.uncertainty import in_place_covariance, isotropic_pose_covariance
@@ -190,7 +190,7 @@ def judge(filter_: PoseKalmanFilter, considering: bool, run: list[Measurement]) 
     """Feed one run to ``filter_`` (``considering``: :func:`fed`); the NEES, 3-sigma count and
     error of what it publishes, and the CPU time of an update (the mean over the run, process
     time: what a fusion worker pays per sample for the filter)."""
-    values, errors_mm = [], []
+    values, errors_mm, errors_deg = [], [], []
     first_ns = run[0].estimate.timestamp_ns
     updating_s = 0.0
     for m in run:
@@ -205,12 +205,14 @@ def judge(filter_: PoseKalmanFilter, considering: bool, run: list[Measurement]) 
         published = filter_.estimate(e.timestamp_ns)
         values.append(nees(published, m.truth))
         errors_mm.append(1e3 * float(np.linalg.norm(published.translation - m.truth.translation)))
+        errors_deg.append(math.degrees(rotation_error(published.rotation, m.truth.rotation)))
     array = np.array(values)
     return {
         "samples": len(array),
         "nees_mean": float(array.mean()),
         "beyond_3_sigma": int((array > THREE_SIGMA_NEES).sum()),
         "error_mm_rms": float(np.sqrt(np.mean(np.square(errors_mm)))),
+        "error_deg_rms": float(np.sqrt(np.mean(np.square(errors_deg)))),
         "update_us": 1e6 * updating_s / len(run),
     }
 
@@ -272,6 +274,7 @@ def main(argv: list[str] | None = None) -> None:
                     "samples": sum(r["samples"] for r in runs),
                     "beyond_3_sigma": sum(r["beyond_3_sigma"] for r in runs),
                     "error_mm_rms": float(np.median([r["error_mm_rms"] for r in runs])),
+                    "error_deg_rms": float(np.median([r["error_deg_rms"] for r in runs])),
                     "update_us_median": float(np.median([r["update_us"] for r in runs])),
                     "one_run_chi2_interval_95": [
                         chi2.ppf(q, 6 * runs[0]["samples"]) / runs[0]["samples"]
@@ -306,7 +309,7 @@ def print_tables(result: dict[str, Any]) -> None:
             print(f"| {path} path, unfiltered | {interval} | {s['consistent']} |")
         print(
             "| filter | mean NEES over runs (95 % interval) | consistent | one run's chi-square "
-            "interval | beyond 3 sigma | RMS error mm (median run) | update us (median run) |"
+            "interval | beyond 3 sigma | RMS error mm / deg (median run) | update us (median run) |"
         )
         print("|---|---|---|---|---|---|---|")
         for name, f in w["filters"].items():
@@ -315,7 +318,8 @@ def print_tables(result: dict[str, Any]) -> None:
             print(
                 f"| {name} | {f['nees']['mean']:.2f} ({low:.2f}-{high:.2f}) | "
                 f"{f['nees']['consistent']} | {one_low:.2f}-{one_high:.2f} | "
-                f"{f['beyond_3_sigma']} of {f['samples']} | {f['error_mm_rms']:.2f} | "
+                f"{f['beyond_3_sigma']} of {f['samples']} | {f['error_mm_rms']:.2f} / "
+                f"{f['error_deg_rms']:.3f} | "
                 f"{f['update_us_median']:.0f} |"
             )
 

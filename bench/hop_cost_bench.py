@@ -1,8 +1,8 @@
 """Where a pattern hop's time goes on a CPU that did something else since the last sample
 (issue 12, ``docs/performance.md``, "Data path").
 
-Run: ``python -m bench.hop_cost_bench [--samples N] [--gap-ms G]``; prints the figures and
-writes them to ``bench/results/hop_cost.json``.
+Run: ``python -m bench.hop_cost_bench [--samples N] [--gap-ms G] [--output FILE]``; prints
+the figures and writes them to ``bench/results/hop_cost.json`` (or ``FILE``).
 
 One process, one zenoh session with no peer (nothing leaves it). The same ErrorPoses, one
 every ``--gap-ms`` (5 ms: a tracker's rate), are handled three ways, interleaved sample by
@@ -125,6 +125,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.hop_cost_bench")
     parser.add_argument("--samples", type=int, default=1500, help="per hop (default 1500)")
     parser.add_argument("--gap-ms", type=float, default=5.0, help="between samples (default 5)")
+    parser.add_argument("--output", type=Path, default=RESULTS, help=f"(default {RESULTS})")
     args = parser.parse_args()
     keys = KeySpace("ubitrack/hopcost")
     with open_session(config.Settings(domain="hopcost")) as session:
@@ -156,7 +157,7 @@ def main() -> int:
         "after_a_gap": summary(cold),
         "back_to_back": summary(warm),
     }
-    write_results(RESULTS, results)
+    write_results(args.output, results)
     return 0
 
 

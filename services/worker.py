@@ -879,7 +879,7 @@ class Worker:
 
     def _admitted(self, item: _Input, sample: Measurement) -> Measurement | None:
         """``sample`` of ``item`` on this host's clock (its input's clock offset added), its
-        latency recorded, a static input's covariance marked static (``core.poses``); None if
+        latency recorded, a fixed error's covariance marked static (``core.poses``); None if
         it is stamped ahead of the clock or the offset takes it out of range (counted)."""
         t = sample.timestamp_ns
         now = self._now_ns()
@@ -895,7 +895,7 @@ class Worker:
                 self._count("rejected_clock", "rejected sample on %s, %d ns: %s", key, t, exc)
                 return None
             t = sample.timestamp_ns
-        if item.binding.static:  # its error is the same in every result computed from it
+        if item.binding.fixed_error:  # the same in every result computed from it
             sample = with_static_error(sample)
         item.latency.append(now - t)
         if not item.seen:

@@ -95,7 +95,7 @@ def test_markers_become_3d_edges():
     # 3 (0.05 deg in rad x 1 m)^2); a marker's is its position noise.
     body_sigma = (3 * 0.0003**2 + 3 * np.radians(0.05) ** 2) ** 0.5
     assert [(e.name, e.type, e.static, e.rate) for e in adapter.edges] == [
-        ("ART_WT", "6D", True, None),
+        ("ART_WT", "6D", True, 60.0),  # measured again each frame
         ("ART_HT", "6D", False, 60.0),
         ("ART_F1", "3D", False, 60.0),
     ]

@@ -4,7 +4,10 @@
 * An input bound to a measured edge ``<provider>/<name>`` reads that edge's data key; an input
   bound to a component's output reads ``<root>/data/<component>/<output>``.
 * An input is ``static`` if its edge is: a measured edge by its announcement; a component's
-  output as the planner decided (``Component.static_outputs``).
+  output as the planner decided (``Component.static_outputs``). A static input's error is
+  *fixed* (``InputBinding.fixed_error``: its covariance marked static for a fusion to
+  consider) if it is a measured edge given without a rate, or a static output of a time
+  expansion or of a component whose inputs are all fixed.
 * Every dynamic input triggers (each instant is computed once,
 ``ubitrack_agent.services.triggers``); a
   component whose inputs are all static recomputes whenever one of them changes.
@@ -37,9 +40,14 @@ def _port(name: str) -> str:
     return name.split("[", 1)[0]
 
 
-def _measured_static(srg: nx.MultiDiGraph, edge_id: str) -> bool:
+def _measured_static(srg: nx.MultiDiGraph, edge_id: str) -> tuple[bool, bool]:
+    """Whether a measured edge is static, and whether its error is fixed: static and given
+    without a rate (a calibration, a survey), not measured again at one (a tracker's static
+    body)."""
     source, target = edge_ids(srg)[edge_id]
-    return bool(srg.edges[source, target, edge_id]["static"])
+    data = srg.edges[source, target, edge_id]
+    static = bool(data["static"])
+    return static, static and not data["quality"].rate > 0
 
 
 class Keys(Protocol):
@@ -65,18 +73,25 @@ def component_specs(
     """The worker specification of every component of ``flow``, by instance id (producers
     before their consumers, then the relays). O(components + bindings + relations)."""
     specs: dict[str, ComponentSpec] = {}
+    fixed_outputs: set[str] = set()
+    """The components whose static outputs have a fixed error: estimated over time (a
+    calibration), or computed from fixed inputs alone."""
 
-    def source(binding: Binding) -> tuple[str, bool, bool]:
-        """The key, whether it is static, and whether a worker produces it."""
+    def source(binding: Binding) -> tuple[str, bool, bool, bool]:
+        """The key, whether it is static, whether its error is fixed, and whether a worker
+        produces it."""
         if binding.component is None:
-            return keys.data(binding.edge), _measured_static(srg, binding.edge), False
+            return keys.data(binding.edge), *_measured_static(srg, binding.edge), False
         producer = flow.components[binding.component]
         static = binding.edge in producer.static_outputs
-        return keys.data(f"{producer.id}/{binding.edge}"), static, True
+        fixed = static and producer.id in fixed_outputs
+        return keys.data(f"{producer.id}/{binding.edge}"), static, fixed, True
 
     for component in flow.components.values():  # producers come before their consumers
         sources = [(port, *source(binding)) for port, binding in component.inputs]
-        dynamic = not all(static for _, _, static, _ in sources)
+        dynamic = not all(static for _, _, static, _, _ in sources)
+        if component.expansion == "time" or all(fixed for *_, fixed, _ in sources):
+            fixed_outputs.add(component.id)
         bindings = tuple(
             InputBinding(
                 _port(port),
@@ -84,8 +99,9 @@ def component_specs(
                 trigger=not static or not dynamic,
                 static=static,
                 from_worker=from_worker,
+                fixed_error=fixed,
             )
-            for port, key, static, from_worker in sources
+            for port, key, static, fixed, from_worker in sources
         )
         specs[component.id] = ComponentSpec(
             instance=component.id,
@@ -105,7 +121,7 @@ def component_specs(
             routes[binding.edge] = known if relation_key in known else (*known, relation_key)
             specs[binding.component] = replace(spec, relations=routes)
             continue
-        key, static, from_worker = source(binding)
+        key, static, _, from_worker = source(binding)
         instance = relay_instance(binding.edge)
         specs[instance] = ComponentSpec(
             instance=instance,

@@ -153,8 +153,10 @@ def pose_edges(
     rate: float | None,
     covariance: np.ndarray,
 ) -> list[EdgeAnnouncement]:
-    """The 6D edges ``tracker -> frame`` of a tracker's bodies: static (no rate) for those in
-    ``static_frames``, and announcing as ``sigma`` the expected error of ``covariance``
+    """The 6D edges ``tracker -> frame`` of a tracker's bodies, static for those in
+    ``static_frames`` (measured again at the tracker's rate all the same, so each sample has
+    an error of its own: ``net.spec.InputBinding.fixed_error``), announcing as ``sigma`` the
+    expected error of ``covariance``
     (:func:`~ubitrack_agent.core.uncertainty.expected_error`)."""
     sigma = expected_error(covariance)
     return [
@@ -163,7 +165,7 @@ def pose_edges(
             frame,
             "6D",
             static=frame in static_frames,
-            rate=None if frame in static_frames else rate,
+            rate=rate,
             sigma=sigma,
         )
         for frame in frames

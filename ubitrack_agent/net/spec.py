@@ -87,10 +87,16 @@ class InputBinding:
     without it, a hostile publisher's sample is still refused if it is malformed or could
     break the maths, and the unchecked properties only change the value it carries, which a
     publisher can do anyway."""
+    fixed_error: bool = False
+    """A static input whose error is the same in every sample: a value given once (a
+    calibration, a survey: a static edge announced without a rate) or a static output a worker
+    estimated from such values or over time. Its covariance is marked static
+    (``ErrorPose.static_covariance``), for a fusion downstream to consider. Not so a static edge
+    measured again at a rate (a tracker's static body): each sample has an error of its own."""
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON-ready form :func:`parse_bindings` reads (``clock_offset_ns`` and
-        ``from_worker`` only when set)."""
+        """The JSON-ready form :func:`parse_bindings` reads (``clock_offset_ns``,
+        ``from_worker`` and ``fixed_error`` only when set)."""
         data: dict[str, Any] = {
             "port": self.port,
             "key": self.key,
@@ -101,6 +107,8 @@ class InputBinding:
             data["clock_offset_ns"] = self.clock_offset_ns
         if self.from_worker:
             data["from_worker"] = True
+        if self.fixed_error:
+            data["fixed_error"] = True
         return data
 
 
@@ -167,7 +175,9 @@ def _key(value: Any, where: str) -> str:
         raise SpecError(f"{where}: {exc}") from None
 
 
-BINDING_FIELDS = frozenset({"port", "key", "trigger", "static", "clock_offset_ns", "from_worker"})
+BINDING_FIELDS = frozenset(
+    {"port", "key", "trigger", "static", "clock_offset_ns", "from_worker", "fixed_error"}
+)
 """The fields of an input binding on the wire (:meth:`InputBinding.as_dict`)."""
 
 
@@ -186,16 +196,20 @@ def parse_bindings(raw: Any, where: str = "spec.inputs") -> tuple[InputBinding, 
             raise SpecError(f"{at}: unknown fields {unknown}")
         port = _require(item, "port", str, at)
         trigger, static = item.get("trigger", False), item.get("static", False)
-        from_worker = item.get("from_worker", False)
-        if not all(isinstance(flag, bool) for flag in (trigger, static, from_worker)):
-            raise SpecError(f"{at}: trigger, static and from_worker must be true or false")
+        from_worker, fixed_error = item.get("from_worker", False), item.get("fixed_error", False)
+        if not all(isinstance(flag, bool) for flag in (trigger, static, from_worker, fixed_error)):
+            raise SpecError(
+                f"{at}: trigger, static, from_worker and fixed_error must be true or false"
+            )
+        if fixed_error and not static:
+            raise SpecError(f"{at}: fixed_error is for a static input")
         offset = item.get("clock_offset_ns", 0)
         if type(offset) is not int or abs(offset) > MAX_CLOCK_OFFSET_NS:
             raise SpecError(
                 f"{at}.clock_offset_ns: expected integer nanoseconds within +-{MAX_CLOCK_OFFSET_NS}"
             )
         key = _key(item.get("key"), f"{at}.key")
-        bindings.append(InputBinding(port, key, trigger, static, offset, from_worker))
+        bindings.append(InputBinding(port, key, trigger, static, offset, from_worker, fixed_error))
     if not any(binding.trigger for binding in bindings):
         raise SpecError(f"{where}: no binding is marked trigger")
     return tuple(bindings)
