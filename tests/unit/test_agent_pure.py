@@ -302,3 +302,28 @@ def test_plan_names_keep_a_recalibration_apart():
     assert plan_name(RECALIBRATE_C_HT) == "C->HT:6D/recalibrate"
     plan, _ = specs_for(paper_fragments(), RelationId("C", "HT", "7D", True, True))
     assert "unknown type '7D'" in plan.unsolved["C->HT:7D recalibrate"]
+
+
+def test_only_static_inputs_given_without_a_rate_have_a_fixed_error():
+    """The database's calibrations and survey (static, no rate) are fixed errors, marked for
+    the fusion to consider; the tracker's static body, measured again at its rate, is not (a
+    new error in every sample); dynamic inputs never are."""
+    fragments = paper_fragments()
+    fragments["art"] = fragment_entries(
+        "art",
+        fragment(
+            "art",
+            edge("HT", "ART", "HT", rate=60),
+            edge("WT", "ART", "WT", static=True, rate=60),
+        ),
+    )
+    _, specs = specs_for(fragments, RelationId("C", "A", "6D"))
+    fixed = {b.key for s in specs.values() for b in s.inputs if b.fixed_error}
+    static = {b.key for s in specs.values() for b in s.inputs if b.static}
+    assert KEYS.data("art/WT") in static - fixed
+    assert {KEYS.data("database/C_HT"), KEYS.data("database/WT_A")} <= fixed
+    assert fixed <= static
+    _, unrated = specs_for(paper_fragments(), RelationId("C", "A", "6D"))  # WT without a rate
+    assert KEYS.data("art/WT") in {
+        b.key for s in unrated.values() for b in s.inputs if b.fixed_error
+    }

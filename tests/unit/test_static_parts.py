@@ -14,6 +14,7 @@ from ubitrack_agent.core.poses import (
     invert_pose,
     with_static_error,
 )
+from ubitrack_agent.net.spec import InputBinding, SpecError, parse_bindings
 from ubitrack_agent.services.algorithms.estimate import left_residuals, rigid
 from ubitrack_agent.services.registry import lookup
 
@@ -119,3 +120,17 @@ def test_the_fusion_does_not_average_a_static_error_away():
     considered, white = _fused_covariance(static=True), _fused_covariance(static=False)
     assert np.all(np.diag(considered) > 0.9 * np.diag(CALIBRATION))
     assert np.all(np.diag(white) < 0.25 * np.diag(CALIBRATION))
+
+
+def test_a_fixed_error_binding_round_trips_and_must_be_static():
+    binding = InputBinding("AB", "ubitrack/test/data/db/C_HT", static=True, fixed_error=True)
+    assert (
+        parse_bindings([binding.as_dict(), {"port": "BC", "key": "k", "trigger": True}])[0]
+        == binding
+    )
+    for raw in (
+        {"port": "AB", "key": "k", "trigger": True, "fixed_error": True},
+        {"port": "AB", "key": "k", "trigger": True, "static": True, "fixed_error": "yes"},
+    ):
+        with pytest.raises(SpecError, match="fixed_error"):
+            parse_bindings([raw])
