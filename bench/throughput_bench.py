@@ -63,6 +63,10 @@ RESULTS = Path(__file__).with_name("results") / "throughput.json"
 DEFAULT_RATES = "1000,2000,5000,10000,20000,40000"
 SETTLE_S = 1.0
 """Quiet time between two steps (the last samples of a step drain)."""
+MAX_SETTLE_S = 30.0
+"""Longest wait for the last samples of a step (under overload they come seconds late)."""
+COUNTED = ("received", "missed", "published")
+"""The components' counters read per hop (``services.worker.COUNTERS``)."""
 HOST = "tp"
 """The host manager's name."""
 
@@ -188,12 +192,24 @@ def apply(args: argparse.Namespace) -> int:
         print(json.dumps({"ready": True}), flush=True)
         while (line := sys.stdin.readline()).startswith("{"):
             window = json.loads(line)
-            time.sleep(SETTLE_S)
-            count = len(stamps)
-            print(json.dumps(window_figures(stamps[:count], arrivals[:count], window)), flush=True)
+            count = settled(stamps)
+            figures = window_figures(stamps[:count], arrivals[:count], window)
+            figures["missed"] = sum(relation.counters["missed"] for relation in relations)
+            print(json.dumps(figures), flush=True)
         for relation in relations:
             relation.close()
     return 0
+
+
+def settled(stamps: list[int]) -> int:
+    """The samples taken once none came for :data:`SETTLE_S` (at most :data:`MAX_SETTLE_S`):
+    a late sample is counted as delivered, not lost."""
+    deadline = time.monotonic() + MAX_SETTLE_S
+    count = -1
+    while count != len(stamps) and time.monotonic() < deadline:
+        count = len(stamps)
+        time.sleep(SETTLE_S)
+    return len(stamps)
 
 
 class DirectCallbacks:
@@ -443,6 +459,7 @@ def steps(
 ) -> list[dict[str, Any]]:
     """Each rate of ``--rates`` in turn until one breaks (:func:`broken`)."""
     found = []
+    counted = hop_counts(net, args.chains, args.hops)
     for rate in [float(r) for r in args.rates.split(",")]:
         before, at = descendants_cpu(os.getpid()), time.monotonic()
         provider.stdin.write("go\n")
@@ -453,6 +470,9 @@ def steps(
         application.stdin.write(json.dumps(window) + "\n")
         application.stdin.flush()
         got = _read_json(application)
+        counted, previous = hop_counts(net, args.chains, args.hops), counted
+        counted |= {"application_received": got["delivered"], "application_missed": got["missed"]}
+        previous["application_received"] = 0  # counted per window, not since the start
         span = (window["end"] - window["start"]) / 1e9
         cpu = cpu_percent(before, after, seconds, roles)
         delivered = got["delivered"] / span
@@ -463,6 +483,7 @@ def steps(
             "delivered_fraction": round(got["delivered"] / max(1, window["sent"]), 3),
             "latency_ms": got["latency_ms"],
             "hop_input_latency_ms": inputs,
+            "per_hop": per_hop(window["sent"], previous, counted, args.hops),
             "cpu_percent": cpu,
             "cpu_us_per_sample": {
                 role: round(share / 100 / max(delivered, 1) * 1e6, 1) for role, share in cpu.items()
@@ -492,6 +513,47 @@ def input_latencies(net: Any, chains: int, hops: int) -> dict[str, Any]:
                 ]
         found[f"hop{j}"] = round(float(np.median(medians)), 2) if medians else None
     return found
+
+
+def hop_counts(net: Any, chains: int, hops: int) -> dict[str, int]:
+    """By hop, the components' ``received``, ``missed`` and ``published`` counters (their
+    status) added up over the chains, and ``missing``: components that did not answer."""
+    from ubitrack_agent.net.transport import fetch_latest
+
+    found = {"missing": 0}
+    for j in range(hops):
+        for name in COUNTED:
+            found[f"hop{j}_{name}"] = 0
+        for k in range(chains):
+            payloads = fetch_latest(net.session, net.keys.status(f"c{k}-{j}"), timeout=1.0)
+            if not payloads:
+                found["missing"] += 1
+                continue
+            counters = json.loads(payloads[0])["counters"]
+            for name in COUNTED:
+                found[f"hop{j}_{name}"] += counters.get(name, 0)
+    return found
+
+
+def per_hop(sent: int, before: dict[str, int], after: dict[str, int], hops: int) -> dict:
+    """Where the samples of a step went (the change of the counters over the step, taken after
+    the application's wait for the last samples): the provider's puts; by hop, the samples its
+    components received, counted missed (numbers never seen: ``net.sequence``) and published;
+    the samples the application took and counted missed; and ``lost`` between each stage and
+    the next (what one sent minus what the next received)."""
+    stages = {"provider_sent": sent}
+    for name in after:
+        if name.startswith(("hop", "application")):
+            stages[name] = after[name] - before.get(name, 0)
+    chain = ["provider_sent"]
+    for j in range(hops):
+        chain += [f"hop{j}_received", f"hop{j}_published"]
+    chain.append("application_received")
+    stages["lost"] = {
+        f"{a}->{b}": stages[a] - stages[b] for a, b in zip(chain[::2], chain[1::2], strict=True)
+    }
+    stages["missing_status"] = after["missing"]
+    return stages
 
 
 def _host_up(net: Any, host: str) -> bool:
