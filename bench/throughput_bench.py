@@ -2,7 +2,7 @@
 concatenation chains on one 2-core host carry >= 20,000 samples/s with p99 <= 20 ms).
 
 Run: ``python -m bench.throughput_bench [--rates 1000,2000,5000,10000,20000,40000]
-[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers] [--zenoh-config FILE]
+[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers] [--across] [--zenoh-config FILE]
 [--direct-callbacks] [--output FILE]``; prints the figures and writes them to ``--output``, by
 default ``bench/results/throughput.json`` (the worker processes as zenoh clients of their host
 manager, the default; ``throughput_peers.json`` with ``--peers``: as peers, ``ubitrack host
@@ -19,7 +19,9 @@ Everything is a real process on loopback with real zenoh (explicit endpoints, mu
 * a host manager (``python -m ubitrack_agent.services.host --cores N``) starts the components as the
 agent
   would: the chains grouped by ``agent.placement.group_containers`` (one container per core,
-  a chain's components together) and sent in one ``start_group`` request per container;
+  a chain's components together; with ``--across``, hop ``j`` of every chain in container ``j``,
+  so samples cross between containers on the components' data keys) and sent in one
+  ``start_group`` request per container;
 * chain ``k`` reads provider ``k``'s dynamic ErrorPose and composes it in turn with ``--hops``
   static edges (one concatenation each, ``ubitrack_agent.services.components.basic``), the last one
   also published on the relation key of an application;
@@ -32,8 +34,12 @@ agent
 
 Per step of offered rate: samples offered and sent, delivered per second (samples of the
 step's window that reached the application), the latency's median, 99th percentile and
-largest, and the CPU each process used (percent of one core; the host manager's children are
-its containers and idle pool members). Before the first step, with everything started and no
+largest, the CPU each process used (percent of one core; the host manager's children are
+its containers and idle pool members), and where the samples went (``per_hop``: the provider's
+puts, by hop the components' ``received``, ``missed`` and ``published`` counters over the step,
+the samples the application took and counted ``missed``, and the samples lost between each
+stage and the next; the application waits for the last samples until none came for 1 s, so a
+late sample is not taken for a lost one). Before the first step, with everything started and no
 sample flowing: each process's idle CPU and its sockets (``/proc/<pid>/fd``). The steps stop
 after the first that breaks (fewer than 95 % delivered, or p99 above ``--break-ms``).
 
@@ -299,6 +305,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--idle-s", type=float, default=5.0, help="idle window (default 5)")
     parser.add_argument(
+        "--across",
+        action="store_true",
+        help="hop j of every chain in container j (one per hop), so each sample crosses from "
+        "container to container over zenoh on the components' data keys, instead of the "
+        "agent's grouping (a chain's components together)",
+    )
+    parser.add_argument(
         "--zenoh-config",
         type=Path,
         default=None,
@@ -344,6 +357,19 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def across(components: dict[str, Any], hops: int) -> dict[str, Any]:
+    """``--across``: container ``<host>-<j>`` holds hop ``j`` of every chain."""
+    from ubitrack_agent.net.spec import GroupSpec
+
+    return {
+        f"{HOST}-{j}": GroupSpec(
+            f"{HOST}-{j}",
+            tuple(spec for name, spec in components.items() if name.endswith(f"-{j}")),
+        )
+        for j in range(hops)
+    }
+
+
 def start_groups(session: Any, keys: Any, host: str, groups: dict[str, Any]) -> None:
     """Send each group to the host manager in one ``start_group`` request (as the agent's
     ``agent.hosts`` does); RuntimeError if one is refused."""
@@ -369,7 +395,11 @@ def bench(args: argparse.Namespace) -> dict[str, Any]:
 
     net = Network()
     components = specs(net.keys, args.chains, args.hops)
-    groups = group_containers(components, dict.fromkeys(components, HOST), {HOST: args.cores})
+    groups = (
+        across(components, args.hops)
+        if args.across
+        else group_containers(components, dict.fromkeys(components, HOST), {HOST: args.cores})
+    )
     results: dict[str, Any] = {
         "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
         "machine": f"{platform.machine()}, Python {platform.python_version()}, "
@@ -380,6 +410,7 @@ def bench(args: argparse.Namespace) -> dict[str, Any]:
         "containers": {name: len(group.components) for name, group in groups.items()},
         "seconds_per_step": args.seconds,
         "workers_as_peers": args.peers,
+        "across": args.across,
         "zenoh_config": os.environ.get(CONFIG_VARIABLE),
         "application_direct_callbacks": args.direct_callbacks,
     }
