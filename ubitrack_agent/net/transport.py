@@ -9,6 +9,10 @@ for the value at a given time (``<key>?t=<ns>``, :mod:`ubitrack_agent.net.time_q
 without one such a query gets an ``extrapolation`` error reply (a measured edge has no motion
 model).
 
+Each put carries its publisher's next number in its attachment (:mod:`ubitrack_agent.net.sequence`),
+and :func:`subscribe_in_bursts` counts the numbers a subscription never saw; which puts may wait
+for a full link and which drop is :func:`congestion_control`'s rule.
+
 Threads: a publisher starts none. Its queryable and its matching listener are zenoh callbacks
 run on zenoh's own thread (:func:`on_zenoh_thread`), which only hand the query on; the
 queries of every publisher of the process are answered by one pool of at most
