@@ -2,7 +2,7 @@
 concatenation chains on one 2-core host carry >= 20,000 samples/s with p99 <= 20 ms).
 
 Run: ``python -m bench.throughput_bench [--rates 1000,2000,5000,10000,20000,40000]
-[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers] [--zenoh-config FILE]
+[--seconds 5] [--chains 20] [--hops 2] [--cores 2] [--peers] [--across] [--zenoh-config FILE]
 [--direct-callbacks] [--output FILE]``; prints the figures and writes them to ``--output``, by
 default ``bench/results/throughput.json`` (the worker processes as zenoh clients of their host
 manager, the default; ``throughput_peers.json`` with ``--peers``: as peers, ``ubitrack host
@@ -19,7 +19,9 @@ Everything is a real process on loopback with real zenoh (explicit endpoints, mu
 * a host manager (``python -m ubitrack_agent.services.host --cores N``) starts the components as the
 agent
   would: the chains grouped by ``agent.placement.group_containers`` (one container per core,
-  a chain's components together) and sent in one ``start_group`` request per container;
+  a chain's components together; with ``--across``, hop ``j`` of every chain in container ``j``,
+  so samples cross between containers on the components' data keys) and sent in one
+  ``start_group`` request per container;
 * chain ``k`` reads provider ``k``'s dynamic ErrorPose and composes it in turn with ``--hops``
   static edges (one concatenation each, ``ubitrack_agent.services.components.basic``), the last one
   also published on the relation key of an application;
@@ -32,8 +34,12 @@ agent
 
 Per step of offered rate: samples offered and sent, delivered per second (samples of the
 step's window that reached the application), the latency's median, 99th percentile and
-largest, and the CPU each process used (percent of one core; the host manager's children are
-its containers and idle pool members). Before the first step, with everything started and no
+largest, the CPU each process used (percent of one core; the host manager's children are
+its containers and idle pool members), and where the samples went (``per_hop``: the provider's
+puts, by hop the components' ``received``, ``missed`` and ``published`` counters over the step,
+the samples the application took and counted ``missed``, and the samples lost between each
+stage and the next; the application waits for the last samples until none came for 1 s, so a
+late sample is not taken for a lost one). Before the first step, with everything started and no
 sample flowing: each process's idle CPU and its sockets (``/proc/<pid>/fd``). The steps stop
 after the first that breaks (fewer than 95 % delivered, or p99 above ``--break-ms``).
 
@@ -63,6 +69,10 @@ RESULTS = Path(__file__).with_name("results") / "throughput.json"
 DEFAULT_RATES = "1000,2000,5000,10000,20000,40000"
 SETTLE_S = 1.0
 """Quiet time between two steps (the last samples of a step drain)."""
+MAX_SETTLE_S = 30.0
+"""Longest wait for the last samples of a step (under overload they come seconds late)."""
+COUNTED = ("received", "missed", "published")
+"""The components' counters read per hop (``services.worker.COUNTERS``)."""
 HOST = "tp"
 """The host manager's name."""
 
@@ -188,12 +198,24 @@ def apply(args: argparse.Namespace) -> int:
         print(json.dumps({"ready": True}), flush=True)
         while (line := sys.stdin.readline()).startswith("{"):
             window = json.loads(line)
-            time.sleep(SETTLE_S)
-            count = len(stamps)
-            print(json.dumps(window_figures(stamps[:count], arrivals[:count], window)), flush=True)
+            count = settled(stamps)
+            figures = window_figures(stamps[:count], arrivals[:count], window)
+            figures["missed"] = sum(relation.counters["missed"] for relation in relations)
+            print(json.dumps(figures), flush=True)
         for relation in relations:
             relation.close()
     return 0
+
+
+def settled(stamps: list[int]) -> int:
+    """The samples taken once none came for :data:`SETTLE_S` (at most :data:`MAX_SETTLE_S`):
+    a late sample is counted as delivered, not lost."""
+    deadline = time.monotonic() + MAX_SETTLE_S
+    count = -1
+    while count != len(stamps) and time.monotonic() < deadline:
+        count = len(stamps)
+        time.sleep(SETTLE_S)
+    return len(stamps)
 
 
 class DirectCallbacks:
@@ -283,6 +305,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--idle-s", type=float, default=5.0, help="idle window (default 5)")
     parser.add_argument(
+        "--across",
+        action="store_true",
+        help="hop j of every chain in container j (one per hop), so each sample crosses from "
+        "container to container over zenoh on the components' data keys, instead of the "
+        "agent's grouping (a chain's components together)",
+    )
+    parser.add_argument(
         "--zenoh-config",
         type=Path,
         default=None,
@@ -328,6 +357,19 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def across(components: dict[str, Any], hops: int) -> dict[str, Any]:
+    """``--across``: container ``<host>-<j>`` holds hop ``j`` of every chain."""
+    from ubitrack_agent.net.spec import GroupSpec
+
+    return {
+        f"{HOST}-{j}": GroupSpec(
+            f"{HOST}-{j}",
+            tuple(spec for name, spec in components.items() if name.endswith(f"-{j}")),
+        )
+        for j in range(hops)
+    }
+
+
 def start_groups(session: Any, keys: Any, host: str, groups: dict[str, Any]) -> None:
     """Send each group to the host manager in one ``start_group`` request (as the agent's
     ``agent.hosts`` does); RuntimeError if one is refused."""
@@ -353,7 +395,11 @@ def bench(args: argparse.Namespace) -> dict[str, Any]:
 
     net = Network()
     components = specs(net.keys, args.chains, args.hops)
-    groups = group_containers(components, dict.fromkeys(components, HOST), {HOST: args.cores})
+    groups = (
+        across(components, args.hops)
+        if args.across
+        else group_containers(components, dict.fromkeys(components, HOST), {HOST: args.cores})
+    )
     results: dict[str, Any] = {
         "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
         "machine": f"{platform.machine()}, Python {platform.python_version()}, "
@@ -364,6 +410,7 @@ def bench(args: argparse.Namespace) -> dict[str, Any]:
         "containers": {name: len(group.components) for name, group in groups.items()},
         "seconds_per_step": args.seconds,
         "workers_as_peers": args.peers,
+        "across": args.across,
         "zenoh_config": os.environ.get(CONFIG_VARIABLE),
         "application_direct_callbacks": args.direct_callbacks,
     }
@@ -443,6 +490,7 @@ def steps(
 ) -> list[dict[str, Any]]:
     """Each rate of ``--rates`` in turn until one breaks (:func:`broken`)."""
     found = []
+    counted = hop_counts(net, args.chains, args.hops)
     for rate in [float(r) for r in args.rates.split(",")]:
         before, at = descendants_cpu(os.getpid()), time.monotonic()
         provider.stdin.write("go\n")
@@ -453,6 +501,9 @@ def steps(
         application.stdin.write(json.dumps(window) + "\n")
         application.stdin.flush()
         got = _read_json(application)
+        counted, previous = hop_counts(net, args.chains, args.hops), counted
+        counted |= {"application_received": got["delivered"], "application_missed": got["missed"]}
+        previous["application_received"] = 0  # counted per window, not since the start
         span = (window["end"] - window["start"]) / 1e9
         cpu = cpu_percent(before, after, seconds, roles)
         delivered = got["delivered"] / span
@@ -463,6 +514,7 @@ def steps(
             "delivered_fraction": round(got["delivered"] / max(1, window["sent"]), 3),
             "latency_ms": got["latency_ms"],
             "hop_input_latency_ms": inputs,
+            "per_hop": per_hop(window["sent"], previous, counted, args.hops),
             "cpu_percent": cpu,
             "cpu_us_per_sample": {
                 role: round(share / 100 / max(delivered, 1) * 1e6, 1) for role, share in cpu.items()
@@ -492,6 +544,47 @@ def input_latencies(net: Any, chains: int, hops: int) -> dict[str, Any]:
                 ]
         found[f"hop{j}"] = round(float(np.median(medians)), 2) if medians else None
     return found
+
+
+def hop_counts(net: Any, chains: int, hops: int) -> dict[str, int]:
+    """By hop, the components' ``received``, ``missed`` and ``published`` counters (their
+    status) added up over the chains, and ``missing``: components that did not answer."""
+    from ubitrack_agent.net.transport import fetch_latest
+
+    found = {"missing": 0}
+    for j in range(hops):
+        for name in COUNTED:
+            found[f"hop{j}_{name}"] = 0
+        for k in range(chains):
+            payloads = fetch_latest(net.session, net.keys.status(f"c{k}-{j}"), timeout=1.0)
+            if not payloads:
+                found["missing"] += 1
+                continue
+            counters = json.loads(payloads[0])["counters"]
+            for name in COUNTED:
+                found[f"hop{j}_{name}"] += counters.get(name, 0)
+    return found
+
+
+def per_hop(sent: int, before: dict[str, int], after: dict[str, int], hops: int) -> dict:
+    """Where the samples of a step went (the change of the counters over the step, taken after
+    the application's wait for the last samples): the provider's puts; by hop, the samples its
+    components received, counted missed (numbers never seen: ``net.sequence``) and published;
+    the samples the application took and counted missed; and ``lost`` between each stage and
+    the next (what one sent minus what the next received)."""
+    stages = {"provider_sent": sent}
+    for name in after:
+        if name.startswith(("hop", "application")):
+            stages[name] = after[name] - before.get(name, 0)
+    chain = ["provider_sent"]
+    for j in range(hops):
+        chain += [f"hop{j}_received", f"hop{j}_published"]
+    chain.append("application_received")
+    stages["lost"] = {
+        f"{a}->{b}": stages[a] - stages[b] for a, b in zip(chain[::2], chain[1::2], strict=True)
+    }
+    stages["missing_status"] = after["missing"]
+    return stages
 
 
 def _host_up(net: Any, host: str) -> bool:

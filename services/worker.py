@@ -98,6 +98,7 @@ from ubitrack_agent.net.json_messages import load_object
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.progress import Progress
+from ubitrack_agent.net.sequence import Gaps
 from ubitrack_agent.net.spec import (
     ComponentSpec,
     GroupSpec,
@@ -161,6 +162,9 @@ COUNTERS = {
     "not_sent": "of those, outputs handed over in the container that zenoh did not carry on "
     "their data key: no subscriber outside the process (a relation key is put for an "
     "application listening, as every key: net.transport.LatestValuePublisher)",
+    "missed": "samples a dynamic input read over zenoh never got: numbers its producer put "
+    "that did not arrive (zenoh dropped them on a full link: net.sequence, net.transport."
+    "congestion_control)",
     "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
     "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
     "rejected_clock": "samples whose timestamp moved by their input's clock offset leaves the "
@@ -377,6 +381,8 @@ class Worker:
         self._received = self._published = self._handed_over = self._not_sent = 0
         """Those counted on every sample, as integers (a ``Counter``'s increment costs a hop in
         a container about 1 % each); changed under ``_lock`` only."""
+        self._gaps = Gaps()
+        """Samples its dynamic inputs read over zenoh never got (``missed``: net.sequence)."""
         self._session = session
         self._service_class = lookup(spec.service)
         self._computes_runs = self._service_class.compute_run is not Service.compute_run
@@ -469,6 +475,7 @@ class Worker:
         counters["published"] += self._published
         counters["handed_over"] += self._handed_over
         counters["not_sent"] += self._not_sent
+        counters["missed"] += self._gaps.missed
         return counters
 
     @property
@@ -684,7 +691,8 @@ class Worker:
             )
             return self._session.declare_subscriber(key, on_zenoh_thread(take))
         handle = (self._on_sample, self._on_run, generation, index)
-        return subscribe_in_bursts(self._session, key, functools.partial(self._handle, *handle))
+        deliver = functools.partial(self._handle, *handle)
+        return subscribe_in_bursts(self._session, key, deliver, gaps=self._gaps)
 
     def rebind(self) -> bool:
         """Move the inputs whose producer joined or left this worker's container onto the
@@ -710,6 +718,7 @@ class Worker:
             for port, keys in relations.items()
         }
         answers = {key: port for port, keys in routes.items() for key in keys}
+        data_keys = set(self.spec.outputs.values())
         wanted = {key for keys in (*routes.values(), *progress_routes.values()) for key in keys}
         self._put_outside()  # what is queued goes out on the publishers it was queued for
         for key in set(self._publishers) - wanted:
@@ -718,8 +727,10 @@ class Worker:
             port = answers.get(key)
             at = None if port is None else (lambda t, port=port: self._ask(port, t))
             encoding = JSON if port is None else MSGPACK  # progress, or a measurement
+            # A put may wait only on the data key, read by our own components alone
+            # (net.transport.congestion_control).
             self._publishers[key] = LatestValuePublisher(
-                self._session, key, at, self._counts, encoding, self._wake
+                self._session, key, at, self._counts, encoding, self._wake, key in data_keys
             )
         self._watch_relations({key for keys in relations.values() for key in keys})
         self._routes = routes

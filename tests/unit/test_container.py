@@ -261,7 +261,7 @@ class MatchingSession(FakeSession):
         for callback in self.listeners.get(key, ()):
             callback(SimpleNamespace(matching=True))
 
-    def declare_publisher(self, key, encoding=None):
+    def declare_publisher(self, key, encoding=None, congestion_control=None):
         session = self
 
         class Publisher:
@@ -273,7 +273,7 @@ class MatchingSession(FakeSession):
                 session.listeners.setdefault(key, []).append(callback)
                 return SimpleNamespace(undeclare=lambda: session.listeners[key].remove(callback))
 
-            def put(self, data):
+            def put(self, data, attachment=None):
                 session.puts.append((key, data))
 
             def undeclare(self):

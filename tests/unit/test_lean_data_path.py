@@ -330,10 +330,10 @@ class ThreadRecordingSession(FakeSession):
         super().__init__()
         self.put_threads: set[str] = set()
 
-    def declare_publisher(self, key, encoding=None):
+    def declare_publisher(self, key, encoding=None, congestion_control=None):
         publisher = super().declare_publisher(key, encoding)
 
-        def put(data: bytes) -> None:
+        def put(data: bytes, attachment: bytes | None = None) -> None:
             self.put_threads.add(threading.current_thread().name)
             publisher.put(data)
 

@@ -27,7 +27,7 @@ class AtRest:
 
 def sample(stamp_ns: int, off_m: float) -> SimpleNamespace:
     pose = ErrorPose(stamp_ns, IDENTITY, np.array([off_m, 0.0, 0.0]), np.eye(6) * SIGMA_M**2)
-    return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: encode(pose)))
+    return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: encode(pose)), attachment=None)
 
 
 def recorded(stream: list[tuple[int, int, float]]) -> Wire:

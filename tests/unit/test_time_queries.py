@@ -76,8 +76,8 @@ class FakeQuery:
 
 def publisher(at=None) -> LatestValuePublisher:
     session = SimpleNamespace(
-        declare_publisher=lambda key, encoding: SimpleNamespace(
-            put=lambda data: None,
+        declare_publisher=lambda key, encoding, congestion_control: SimpleNamespace(
+            put=lambda data, attachment: None,
             undeclare=lambda: None,
             matching_status=SimpleNamespace(matching=False),
             declare_matching_listener=lambda callback: SimpleNamespace(undeclare=lambda: None),

@@ -96,6 +96,7 @@ class FakeSession:
         self.channels: dict[str, FakeChannel] = {}
         self.puts: list[tuple[str, bytes]] = []
         self.encodings: dict[str, object] = {}
+        self.congestion: dict[str, object] = {}
 
     def declare_subscriber(self, key, callback, allowed_origin=None):
         """A subscriber (``allowed_origin``: a hand-over watch's, its session's own puts
@@ -106,11 +107,12 @@ class FakeSession:
         self.callbacks[key] = callback
         return SimpleNamespace(undeclare=lambda: self.callbacks.pop(key, None))
 
-    def declare_publisher(self, key, encoding=None):
+    def declare_publisher(self, key, encoding=None, congestion_control=None):
         """A publisher with a subscriber listening (zenoh's matching status): it puts."""
         self.encodings[key] = encoding
+        self.congestion[key] = congestion_control
         return SimpleNamespace(
-            put=lambda data: self.puts.append((key, data)),
+            put=lambda data, attachment=None: self.puts.append((key, data)),
             undeclare=lambda: None,
             matching_status=SimpleNamespace(matching=True),
             declare_matching_listener=lambda callback: SimpleNamespace(undeclare=lambda: None),
@@ -146,7 +148,7 @@ class FakeSession:
 
 
 def zenoh_sample(payload: bytes) -> SimpleNamespace:
-    return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
+    return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload), attachment=None)
 
 
 SPEC = ComponentSpec(
@@ -330,6 +332,18 @@ def test_a_relation_route_that_is_no_relation_key_does_not_stop_the_worker():
     spec = ComponentSpec(**{**vars(SPEC), "relations": {"AC": ("some/other/key",)}})
     worker = Worker(spec, FakeSession(), KEYS)
     worker.stop()
+
+
+def test_only_the_output_on_its_data_key_may_wait_for_a_full_link():
+    """net.transport.congestion_control: the data key, read by components alone, waits; the
+    relation key an application reads drops."""
+    relation = KEYS.relation(RelationId("W", "T", "6D"))
+    spec = ComponentSpec(**{**vars(SPEC), "relations": {"AC": (relation,)}})
+    session = FakeSession()
+    worker = Worker(spec, session, KEYS)
+    worker.stop()
+    assert session.congestion[KEYS.data("concat1/AC")] == zenoh.CongestionControl.BLOCK
+    assert session.congestion[relation] == zenoh.CongestionControl.DROP
 
 
 FUSION = ComponentSpec(

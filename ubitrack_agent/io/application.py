@@ -22,8 +22,10 @@ data flow behind it. Every payload is validated; bad ones are counted in ``rejec
 samples stamped more than ``core.timeline.MAX_FUTURE_NS`` ahead of this host's clock in
 ``rejected_future``: one future sample would otherwise stay :meth:`Relation.latest` until the
 clock reached it. :attr:`Relation.counters` holds these and the other counts of samples not
-used (``dropped_stale``: older than every sample held; ``out_of_order``, below;
-``internal_errors``); each is logged rate-limited.
+used (``dropped_stale``: older than every sample held; ``out_of_order``, below; ``missed``:
+samples the producer put that never came, dropped by zenoh on a full link on the way, counted
+from the numbers the samples carry, ``net.sequence``, and not logged;
+``internal_errors``); the others are logged rate-limited.
 
 A dynamic relation's stream runs forward in time: the callback, the iterator and
 :meth:`Relation.wait_for` get only samples stamped after every sample received before. One
@@ -84,8 +86,9 @@ from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
+from ubitrack_agent.net.sequence import Gaps
 from ubitrack_agent.net.time_queries import fetch_at
-from ubitrack_agent.net.transport import fetch_until_satisfied
+from ubitrack_agent.net.transport import attachment, fetch_until_satisfied
 
 log = logging.getLogger("ubitrack.application")
 
@@ -191,7 +194,14 @@ class Relation(Closing):
         )
         self.counters: Counter[str] = Counter(
             dict.fromkeys(
-                ("rejected", "rejected_future", "dropped_stale", "out_of_order", "internal_errors"),
+                (
+                    "rejected",
+                    "rejected_future",
+                    "dropped_stale",
+                    "out_of_order",
+                    "missed",
+                    "internal_errors",
+                ),
                 0,
             )
         )
@@ -205,9 +215,15 @@ class Relation(Closing):
         """Samples not yet taken by :meth:`get` (the oldest dropped when full), under
         ``_lock``: one lock per sample, where a ``queue.Queue`` took three more when full."""
         receive = self._guarded(self._receive)
-        self._subscriber = session.declare_subscriber(
-            self.key, lambda sample: receive(sample.payload.to_bytes())
-        )
+        numbers = Gaps().reader()
+
+        def take(sample: Any) -> None:  # on the subscriber's one thread
+            missed = numbers.seen(attachment(sample))
+            if missed:
+                self.counters["missed"] += missed
+            receive(sample.payload.to_bytes())
+
+        self._subscriber = session.declare_subscriber(self.key, take)
         self.progress: Progress | None = None
         """The latest progress report of a static relation computed over time, or None."""
         self.progress_at: float | None = None

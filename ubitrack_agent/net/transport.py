@@ -9,6 +9,10 @@ for the value at a given time (``<key>?t=<ns>``, :mod:`ubitrack_agent.net.time_q
 without one such a query gets an ``extrapolation`` error reply (a measured edge has no motion
 model).
 
+Each put carries its publisher's next number in its attachment (:mod:`ubitrack_agent.net.sequence`),
+and :func:`subscribe_in_bursts` counts the numbers a subscription never saw; which puts may wait
+for a full link and which drop is :func:`congestion_control`'s rule.
+
 Threads: a publisher starts none. Its queryable and its matching listener are zenoh callbacks
 run on zenoh's own thread (:func:`on_zenoh_thread`), which only hand the query on; the
 queries of every publisher of the process are answered by one pool of at most
@@ -35,6 +39,7 @@ import zenoh
 from ubitrack_agent.core.errors import ExtrapolationError, NoMotionModel
 from ubitrack_agent.net import logs
 from ubitrack_agent.net.encodings import JSON, MSGPACK
+from ubitrack_agent.net.sequence import Gaps, Numbering
 from ubitrack_agent.net.thread_pool import ThreadPool
 from ubitrack_agent.net.time_queries import error_payload, requested_time
 
@@ -93,6 +98,7 @@ def subscribe_in_bursts(
     key: str,
     deliver: Callable[[list[bytes]], None],
     capacity: int = INPUT_CHANNEL_CAPACITY,
+    gaps: Gaps | None = None,
 ) -> Any:
     """Subscribe to ``key`` and pass the payloads of the samples waiting, oldest first, to
     ``deliver`` as one burst, on a thread of its own; the subscriber is returned, and the
@@ -106,20 +112,25 @@ def subscribe_in_bursts(
     and the thread wakes once for a burst: a consumer that handles the burst on this thread
     takes each sample after one thread hand-off, and a backlog at once
     (``ubitrack_agent.services.worker``, ``docs/performance.md``, "Data path"). ``deliver`` must not
-    raise. ``capacity``: the samples zenoh's channel holds (and the most one burst hands on)."""
+    raise. ``capacity``: the samples zenoh's channel holds (and the most one burst hands on).
+    ``gaps``: where the samples this subscription never got are counted (the numbers of
+    :mod:`ubitrack_agent.net.sequence`, O(1) a sample)."""
     subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
     # The channel itself, not the subscriber: a call on the subscriber while another thread
     # undeclares it fails ("Already mutably borrowed", pyo3's check of the object's use).
     channel = subscriber.handler
+    numbers = (gaps or Gaps()).reader()
 
     def drain() -> None:
         try:
             for sample in channel:  # blocks without Python's lock; ends when it is closed
+                numbers.seen(attachment(sample))
                 burst = [sample.payload.to_bytes()]
                 while len(burst) < capacity:
                     more = channel.try_recv()
                     if more is None:
                         break
+                    numbers.seen(attachment(more))
                     burst.append(more.payload.to_bytes())
                 deliver(burst)
         except zenoh.ZError:  # closed between two samples: "channel is empty and closed"
@@ -131,14 +142,62 @@ def subscribe_in_bursts(
     return subscriber
 
 
+def attachment(sample: Any) -> bytes | None:
+    """A sample's attachment as bytes (a publisher's number: :mod:`ubitrack_agent.net.sequence`),
+    or None."""
+    found = sample.attachment
+    return None if found is None else found.to_bytes()
+
+
 def _start(thread: threading.Thread) -> None:
     """Start ``thread`` (on :data:`STARTER`); nothing while the interpreter ends."""
     with contextlib.suppress(RuntimeError):
         thread.start()
 
 
+def congestion_control(may_wait: bool) -> zenoh.CongestionControl:
+    """Zenoh's congestion control for a publisher of the data path: BLOCK where a put may wait
+    for room on a full link (``may_wait``), else DROP.
+
+    The rule (``docs/performance.md``, "Which puts may wait (session 24)"): **a put may wait
+    only where every reader the data flow gives it is one of our own components** -- a
+    component's output on its data key, which the agent wires only to other components'
+    inputs. A relation key (read by applications), a provider's measured edge (read by tools
+    such as ``ubitrack view`` and by applications besides the components) and every other key
+    drop instead: a reader outside our control that stops reading (a stopped or stalled
+    application) must not hold a container's thread or a host manager.
+
+    Why it matters where the readers are, in zenoh 1.x: a message carries its congestion
+    control, and a router forwards it unchanged (``route_data`` in zenoh's
+    ``zenoh/src/net/routing/dispatcher/pubsub.rs`` copies ``ext_qos``). On each link, a BLOCK
+    message whose transmission queue is full waits for room -- the putting thread, or, on a
+    router (a host manager routing for its containers), the thread receiving from the link it
+    came on, and with it everything else arriving there -- for up to
+    ``transport/link/tx/queue/congestion_control/block/wait_before_close`` (5 s), after which
+    zenoh closes the transport of the link that stayed full (``push_network_message`` in
+    ``io/zenoh-transport/src/common/pipeline.rs``; ``handle_push_result`` in
+    ``io/zenoh-transport/src/unicast/universal/tx.rs``: "Closing transport!"). A DROP message
+    waits at most ``.../drop/wait_before_drop`` (1 ms), then the queue is marked congested and
+    the next DROP messages on it are dropped at once, with no wait, until a batch is sent: a
+    stalled reader costs its senders about 1 ms, and loses samples, which the numbers each put
+    carries make visible (:mod:`ubitrack_agent.net.sequence`). A subscriber in the putting
+    session itself is called in the put, whatever the congestion control (a full
+    ``FifoChannel`` holds the put: zenoh-python's ``FifoChannel`` docstring); components of
+    one container are handed their values without zenoh (``services.local_wires``).
+
+    So with BLOCK on a component's data key, a component that stops reading (a container
+    stopped, or one that stopped taking its input's channel) holds the container whose output
+    it reads, and a host manager's receiving thread for that container's link, for up to 5 s,
+    then loses its link (its components' tokens go, as for a container that died: the agent
+    restores them); a reader that is slow but reads holds its producer back instead of losing
+    samples (back-pressure up to the provider, whose puts drop)."""
+    return zenoh.CongestionControl.BLOCK if may_wait else zenoh.CongestionControl.DROP
+
+
 class LatestValuePublisher:
-    """A publisher whose latest payload is also served on its key's queryable."""
+    """A publisher whose latest payload is also served on its key's queryable; ``may_wait``:
+    whether a put may wait for room on a full link (:func:`congestion_control`: only a
+    component's output on its data key, read by our own components alone)."""
 
     def __init__(
         self,
@@ -148,6 +207,7 @@ class LatestValuePublisher:
         counters: Counter[str] | None = None,
         encoding: zenoh.Encoding = MSGPACK,
         listening: Callable[[], None] | None = None,
+        may_wait: bool = False,
     ) -> None:
         self.key = key
         self._encoding = encoding
@@ -163,7 +223,14 @@ class LatestValuePublisher:
         """Called (on zenoh's thread; it must not block) when a subscriber appears."""
         self.first_put_ns: int | None = None
         """When the first payload was put (wall clock): the first sample on its key."""
-        self._publisher = session.declare_publisher(key, encoding=encoding)
+        self.may_wait = may_wait
+        """Whether a put may wait for room on a full link (:func:`congestion_control`)."""
+        self._numbering = Numbering()
+        """The number each put carries (:mod:`ubitrack_agent.net.sequence`): a reader counts
+        the samples it never got."""
+        self._publisher = session.declare_publisher(
+            key, encoding=encoding, congestion_control=congestion_control(may_wait)
+        )
         self._state = threading.Lock()
         """Guards :attr:`_putting` and :attr:`_undeclared`, held only between zenoh calls."""
         self._putting = 0
@@ -195,7 +262,7 @@ class LatestValuePublisher:
                 return  # rewired away meanwhile: the routes of its next output know
             self._putting += 1
         try:
-            self._publisher.put(payload)
+            self._publisher.put(payload, attachment=self._numbering.next())
         finally:
             with self._state:
                 self._putting -= 1
