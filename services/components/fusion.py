@@ -37,7 +37,9 @@ class Fusion(Service):
       Estimates arriving out of order within ``window_ms`` are re-filtered from the kept history
       (counted ``late``: their effect is in the next output), outliers are refused by the innovation
       gate ``gate`` (``gated``), the process noise is ``angular_noise`` (rad^2/s^3) and
-      ``linear_noise`` (m^2/s^3), scaled on line to the innovations with ``adaptive``. Each
+      ``linear_noise`` (m^2/s^3), scaled on line to the innovations with ``adaptive`` (off by
+      default: inputs that claim more error than they have would make it lag until the lag
+      fills their claim). Each
       input's static error (an estimate's ``static_covariance``: the share of calibrations and
       other static edges in its covariance) is *considered* on its own (Schmidt-Kalman), so
       fusing many samples of one input does not average a calibration's error away. At most
