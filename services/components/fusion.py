@@ -39,12 +39,11 @@ class Fusion(Service):
       gate ``gate`` (``gated``), the process noise is ``angular_noise`` (rad^2/s^3) and
       ``linear_noise`` (m^2/s^3), scaled on line to the innovations with ``adaptive`` (off by
       default: inputs that claim more error than they have would make it lag until the lag
-      fills their claim). Each
-      input's static error (an estimate's ``static_covariance``: the share of calibrations and
-      other static edges in its covariance) is *considered* on its own (Schmidt-Kalman), so
-      fusing many samples of one input does not average a calibration's error away. At most
-      ``max_sources`` inputs' static errors are considered at once. Its output also answers a
-      query at a given time by the filter's prediction (:meth:`value_at`).
+      fills their claim). Each input's static error (an estimate's ``static_covariance``: the
+      share of calibrations and other fixed static edges in its covariance) is *considered* on
+      its own (Schmidt-Kalman), so fusing many samples of one input does not average a
+      calibration's error away; at most ``max_sources`` inputs' at once. Its output also
+      answers a query at a given time by the filter's prediction (:meth:`value_at`).
     * ``synchronised``: the worker synchronises the estimates at each trigger's time
       (``ubitrack_agent.services.triggers``) and they are fused as simultaneous: 6D on SE(3)
       (:func:`ubitrack_agent.services.algorithms.fuse_poses`), 3D positions by inverse-covariance

@@ -527,9 +527,9 @@ class ErrorPose(Measurement):
 
     ``static_covariance`` (optional) is the part of ``covariance`` that is the error of static
     edges (a calibration's, a survey's): the same in every sample of the flow that computed it,
-    so a filter fusing many of them must not average it away. A worker marks a static input's
-    whole covariance so, ``core.poses`` carries the part through inversions and concatenations
-    as the covariance, and the fusion's filter *considers* it
+    so a filter fusing many of them must not average it away. A worker marks a fixed input's
+    whole covariance so (``net.spec.InputBinding.fixed_error``), ``core.poses`` carries the part
+    through inversions and concatenations as the covariance, and the fusion's filter *considers* it
     (``services.algorithms.pose_filter``, Schmidt-Kalman). Absent, the whole error is white.
     """
 
