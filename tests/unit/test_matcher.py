@@ -185,6 +185,40 @@ def test_3d3d_pose_estimation_space_and_time(by_pattern):
     assert all(i.outputs[0][4] is True for i in found)
 
 
+def test_a_seed_that_cannot_be_a_copy_yet_waits_until_its_frame_has_enough_edges(by_pattern):
+    """Where time expansions add nothing (``space_only``), an occurrence of 3D-3D pose
+    estimation seeded at a frame with fewer edges than the least copies (A has two points, the
+    pattern needs three) is held back, and found in the first seeded search after A has a
+    third: over the rounds the searches find exactly the occurrences of one search over the
+    final edges."""
+    template = by_pattern["pose_estimation_3d3d"]
+    edges = [("A", f"P{i}", "3D", False) for i in range(2)]
+    edges += [("B", f"P{i}", "3D", False) for i in range(3)]
+    srg = parse_setup(
+        {"edges": [{"from": a, "to": b, "type": t, "static": s} for a, b, t, s in edges]}
+    )
+    ws = Workspace()
+    for u, v, key, data in srg.edges(keys=True, data=True):
+        ws.add_measured(u, v, key, data)
+    ws.index.space_only = True
+    first = {m.edges for m in find_matches(template, ws.index, list(ws.index.edges))}
+    assert first and all(edges[0].startswith("B->") for edges in first)  # A in role A waits
+    assert ws.index.waiting[template.name]
+    ws.add_measured("A", "P2", "A->P2:3D", dict(srg.edges["B", "P2", "B->P2:3D"]))
+    second = {m.edges for m in find_matches(template, ws.index, ["A->P2:3D"])}
+    assert ("A->P0:3D", "B->P0:3D") in second  # held back, found now
+    assert not ws.index.waiting[template.name]
+    assert first | second == {m.edges for m in find_matches(template, ws.index)}
+    # a time expansion is not formed where it can add nothing
+    assert (
+        expand_group(
+            [m for m in find_matches(template, ws.index) if m.edges == ("A->P0:3D", "B->P0:3D")],
+            ws.index,
+        )
+        == []
+    )
+
+
 def test_triangulation_over_image_planes(by_pattern):
     two_views = [("C", "I1", "3x4", True), ("C", "I2", "3x4", True)]
     two_views += [("I1", "F", "2D", False), ("I2", "F", "2D", False)]

@@ -9,6 +9,7 @@ on bit sets, are the plain breadth-first hops."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 
@@ -128,14 +129,16 @@ def test_a_chain_from_a_frame_other_than_a_query_frame_is_offered_no_point(templ
 
 
 def test_the_ways_around_a_chain_are_the_breadth_first_hops(templates):
-    """``Workspace._avoiding`` (breadth-first on bit sets) gives the hops
-    ``ways.hop_distances`` gives over the frames' names, for every start and goal of the
-    region and sets of frames to avoid."""
+    """``Workspace._avoiding`` (shortest-way counts, else breadth-first on bit sets) gives the
+    hops ``ways.hop_distances`` gives over the frames' names, for every start and goal of the
+    region and sets of frames to avoid (none, one, two neighbours in the frames' order, every
+    third)."""
     ws, _ = _room_workspace(templates)
     frames = sorted(ws.neighbours)
     assert len(frames) > 10
     compared = 0
-    for k, avoided in enumerate([(), *((f,) for f in frames), tuple(frames[::3])]):
+    pairs = list(itertools.pairwise(frames))
+    for k, avoided in enumerate([(), *((f,) for f in frames), *pairs, tuple(frames[::3])]):
         avoid = 0
         for frame in avoided:
             avoid |= ws._bits[frame]

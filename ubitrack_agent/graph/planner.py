@@ -457,6 +457,8 @@ class Workspace:
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _reach: dict[tuple[str, int], dict[int, int]] = field(default_factory=dict)
     """:meth:`_avoiding`'s hops (by frame bit) by start and frames avoided."""
+    _counts: dict[str, tuple[list[int], list[int]]] = field(default_factory=dict)
+    """:meth:`_shortest`'s hops and numbers of shortest ways, by start frame."""
     _bits: _Bits = field(default_factory=lambda: _Bits())
     """A bit per frame of the region, given on first use (frame sets as ints:
     :meth:`_on_a_way`)."""
@@ -507,12 +509,37 @@ class Workspace:
     def _avoiding(self, start: str, goal: str, avoid: int) -> float:
         """Hops from ``start`` to ``goal`` in the region without entering a frame of ``avoid``
         (bits, :attr:`_bits`; edges in either direction; infinite if there is no such way).
-        A breadth-first search on bit sets (:meth:`_hops_avoiding`) per distinct ``(start,
-        avoid)``, memoised."""
+
+        Mostly a shortest way avoids them, and path counting shows it without a search of its
+        own (Brandes 2001, "A faster algorithm for betweenness centrality": the shortest ways
+        from s to g through v number ``sigma(s, v) * sigma(v, g)`` when ``d(s, v) + d(v, g) =
+        d(s, g)``): if the ways through the avoided frames, summed over them, are fewer than
+        all shortest ways, one avoids every one of them and the answer is ``d(s, g)``. That
+        needs one counting search per frame (:meth:`_shortest`, memoised) and ``O(|avoid|)``
+        per call; otherwise a breadth-first search on bit sets (:meth:`_hops_avoiding`) per
+        distinct ``(start, avoid)``, memoised: in a room with 200 redundant trackers those
+        were 9,754 searches of the 212 frames, where 210 counting searches serve."""
         if start == goal:
             return 0
         goal_bit, start_bit = self._bits[goal], self._bits[start]
         if (start_bit | goal_bit) & avoid:
+            return math.inf
+        hops, paths = self._shortest(start)
+        at = goal_bit.bit_length() - 1
+        if at >= len(hops) or hops[at] < 0:
+            return math.inf
+        back, back_paths = self._shortest(goal)
+        through, rest, length = 0, avoid, hops[at]
+        while rest:
+            low = rest & -rest
+            v = low.bit_length() - 1
+            if v < len(hops) and hops[v] >= 0 and hops[v] + back[v] == length:
+                through += paths[v] * back_paths[v]
+            rest ^= low
+        if through < paths[at]:
+            return length
+        adjacent = self._adjacent  # a frame whose every neighbour is avoided is cut off
+        if not adjacent[start_bit.bit_length() - 1] & ~avoid or not adjacent[at] & ~avoid:
             return math.inf
         key = (start, avoid)
         known = self._reach.get(key)
@@ -520,19 +547,54 @@ class Workspace:
             known = self._reach[key] = self._hops_avoiding(start_bit, avoid)
         return known.get(goal_bit, math.inf)
 
-    def _hops_avoiding(self, start_bit: int, avoid: int) -> dict[int, int]:
-        """Hops to each frame (by bit) reached from the frame of ``start_bit`` without
-        entering ``avoid`` (bits): breadth-first on the neighbours' bits (:attr:`_adjacent`),
-        ``O(frames)`` word operations."""
-        adjacent = self._adjacent
-        table = self._bits
-        if len(adjacent) < len(table):  # a frame was given its bit since: read again
+    def _adjacency(self) -> list[int]:
+        """:attr:`_adjacent`, read again if a frame was given its bit since."""
+        adjacent, table = self._adjacent, self._bits
+        if len(adjacent) < len(table):
             table.cover(sorted(self.neighbours))
             adjacent[:] = [0] * len(table)
             for frame, bit in table.items():
                 at = bit.bit_length() - 1
                 for other in self.neighbours.get(frame, ()):
                     adjacent[at] |= table[other]
+        return adjacent
+
+    def _shortest(self, frame: str) -> tuple[list[int], list[int]]:
+        """Hops from ``frame`` to each frame (by bit position; -1 if not reached) and the
+        number of shortest ways to it: breadth-first with path counts (Brandes 2001),
+        ``O(frames + edges)``, memoised per frame."""
+        known = self._counts.get(frame)
+        if known is not None:
+            return known
+        adjacent = self._adjacency()
+        hops, paths = [-1] * len(adjacent), [0] * len(adjacent)
+        start = self._bits[frame].bit_length() - 1
+        hops[start], paths[start] = 0, 1
+        level, seen, depth = [start], 1 << start, 0
+        while level:
+            depth += 1
+            following: list[int] = []
+            for at in level:
+                rest = adjacent[at]
+                while rest:
+                    low = rest & -rest
+                    v = low.bit_length() - 1
+                    rest ^= low
+                    if not seen & low:
+                        seen |= low
+                        hops[v] = depth
+                        following.append(v)
+                    if hops[v] == depth:
+                        paths[v] += paths[at]
+            level = following
+        known = self._counts[frame] = (hops, paths)
+        return known
+
+    def _hops_avoiding(self, start_bit: int, avoid: int) -> dict[int, int]:
+        """Hops to each frame (by bit) reached from the frame of ``start_bit`` without
+        entering ``avoid`` (bits): breadth-first on the neighbours' bits (:attr:`_adjacent`),
+        ``O(frames)`` word operations."""
+        adjacent = self._adjacency()
         hops = {}
         seen = start_bit | avoid
         frontier, depth = start_bit, 0
@@ -1263,6 +1325,8 @@ def saturate(
         ws.span = _span(srg, frames, goal, wanted, ws._around)
     for a, b in rigid:
         ws.index.add_rigid(a, b)
+    # a time expansion's edges are kept only for a rigid relation not measured (apply)
+    ws.index.space_only = prune and not rigid and not ws.index.new_frames
     # a time-only pattern yields static edges, wanted only for rigid relations not yet measured;
     # a pattern introducing a frame needs a frame to introduce
     templates = [
