@@ -27,7 +27,8 @@ bench: $(STAMP)
 		clock_bench hosts_bench building_bench agent_replan_bench agent_live_bench materialise_bench \
 		containers_bench container_hop_bench container_add_bench throughput_bench decode_run_bench reroute_bench \
 		chaos_runs_bench switch_bench pnp_ambiguity_bench recording_bench ros2_bench view_frames_bench natnet_bench \
-		answer_latency_bench demo_phases_bench fusion_consistency_bench consider_cost_bench; do \
+		answer_latency_bench demo_phases_bench fusion_consistency_bench consider_cost_bench \
+		camera_consistency_bench; do \
 		$(VENV)/bin/python -m bench.$$name || exit 1; done
 
 clean:
