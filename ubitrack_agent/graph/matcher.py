@@ -718,11 +718,12 @@ def _copy_order(match: Match, index: EdgeIndex) -> tuple:
 class _Copy:
     """What :func:`copy_sets` reads of one occurrence, gathered once (so the ``n**2`` pairs
     compare precomputed values): its rank (:func:`_copy_order`), the frames of its expanded
-    roles, its correspondence edges and the union of their sources (:func:`compatible`), and
+    roles (as ``(role index, frame)`` pairs: two copies that share one share a frame in a
+    role), its correspondence edges and the union of their sources (:func:`compatible`), and
     the canonical computations and signatures of its inputs (the order of a set's copies)."""
 
     order: tuple
-    expanded: tuple[str, ...]
+    expanded: frozenset[tuple[int, str]]
     edges: frozenset[str]
     sources: frozenset[str]
     computations: tuple[list[str], list[tuple]]
@@ -740,7 +741,7 @@ def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
         edges = _corr_edges(match)
         known = index.copies[key] = _Copy(
             _copy_order(match, index),
-            tuple(roles[r] for r in corr.expand_roles),
+            frozenset(enumerate(roles[r] for r in corr.expand_roles)),
             frozenset(edges),
             frozenset().union(*(index.edges[e].sources for e in edges)),
             (
@@ -751,16 +752,25 @@ def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
     return known
 
 
-def _fit(a: _Copy, b: _Copy, independent_copies: bool) -> bool:
-    """:func:`_compatible` on precomputed copies. Strict independence of every pair of their
-    edges (:func:`independent`) is disjointness of the unions of their sources."""
-    if any(x == y for x, y in zip(a.expanded, b.expanded, strict=True)):
-        return False
-    if not a.edges.isdisjoint(b.edges):
-        return False
-    if independent_copies:
-        return a.sources.isdisjoint(b.sources)
-    return not (a.sources <= b.sources or b.sources <= a.sources)
+def _fitting(i: int, copies: list[_Copy], independent_copies: bool) -> int:
+    """The copies after the ``i``-th that may be copies together with it (:func:`_compatible`
+    on precomputed values), as bits: no expanded role on one frame, no correspondence edge in
+    common, and sources that add information (strict independence of every pair of their
+    edges, :func:`independent`, is disjointness of the unions of their sources). One call per
+    row of the ``n**2`` pairs, its tests on frozensets."""
+    a = copies[i]
+    placed, edges, sources = a.expanded, a.edges, a.sources
+    row = 0
+    for j in range(i + 1, len(copies)):
+        b = copies[j]
+        if not (placed.isdisjoint(b.expanded) and edges.isdisjoint(b.edges)):
+            continue
+        if independent_copies:
+            if sources.isdisjoint(b.sources):
+                row |= 1 << j
+        elif not (sources <= b.sources or b.sources <= sources):
+            row |= 1 << j
+    return row
 
 
 def _maximal_cliques(fits: list[int]) -> list[int]:
@@ -828,10 +838,12 @@ def copy_sets(members: list[Match], index: EdgeIndex) -> list[list[Match]]:
     independent_copies = corr is not None and corr.independent
     fits = [0] * n  # bit j of fits[i]: order[i] and order[j] may be copies together
     for i in range(n):
-        for j in range(i + 1, n):
-            if _fit(copies[i], copies[j], independent_copies):
-                fits[i] |= 1 << j
-                fits[j] |= 1 << i
+        row = _fitting(i, copies, independent_copies)
+        fits[i] |= row
+        while row:
+            low = row & -row
+            fits[low.bit_length() - 1] |= 1 << i
+            row ^= low
     prefixes = bool(members) and members[0].template.cost.rule == "fusion"
     found: dict[int, None] = {}
     for seed in range(n):
