@@ -754,10 +754,10 @@ def _copy_of(match: Match, index: EdgeIndex) -> _Copy:
 
 def _fitting(i: int, copies: list[_Copy], independent_copies: bool) -> int:
     """The copies after the ``i``-th that may be copies together with it (:func:`_compatible`
-    on precomputed values), as bits: no expanded role on one frame, no correspondence edge in
-    common, and sources that add information (strict independence of every pair of their
-    edges, :func:`independent`, is disjointness of the unions of their sources). One call per
-    row of the ``n**2`` pairs, its tests on frozensets."""
+    on precomputed values), as bits: no expanded role bound to one frame in both, no
+    correspondence edge in common, and sources that add information (strict independence of
+    every pair of their edges, :func:`independent`, is disjointness of the unions of their
+    sources). One call per row of the ``n**2`` pairs, its tests on frozensets."""
     a = copies[i]
     placed, edges, sources = a.expanded, a.edges, a.sources
     row = 0
