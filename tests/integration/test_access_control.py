@@ -3,19 +3,25 @@ on mutual TLS enforcing the access control that ``ubitrack certs`` writes; a tra
 application are clients with their own certificates. The legitimate flow works; what an
 unknown certificate, a provider's or an application's certificate writes where its role may
 not (poses, control commands, tokens) is dropped by the router, and the application's values
-stay correct; without a certificate, or with one from another CA, nothing connects."""
+stay correct; an application's subscriber on a component's output key (puts that may wait,
+net.transport) receives nothing; without a certificate, or with one from another CA, nothing
+connects."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import queue
 import shutil
 import subprocess
 import sys
 import time
+from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -153,9 +159,13 @@ def _tokens(session, selector: str) -> set[str]:
     return {str(reply.ok.key_expr) for reply in session.liveliness().get(selector, timeout=1.0)}
 
 
-def test_only_authorised_certificates_write_and_the_application_stays_correct(secure):
+@contextlib.contextmanager
+def _flowing(secure: Secure) -> Iterator[tuple[Any, Any, Relation]]:
+    """The agent's flow from the tracker ``ART`` to an application's relation ``WT_HT``,
+    flowing: a session with the host's certificate (it may subscribe to everything,
+    components' outputs too), the application's session and its relation."""
     keys = secure.keys
-    with open_session(secure.settings("operator")) as observer:
+    with open_session(secure.settings("operator", "host")) as observer:
         wait_until(lambda: _status(observer, keys) is not None, timeout=30)
         secure.start("-m", "ubitrack_agent.sim_trackers.exact_tracker", "--provider", "ART",
                      "--tracker", "ART", "--yaw", "30", "--x", "2", name="ART")  # fmt: skip
@@ -164,39 +174,83 @@ def test_only_authorised_certificates_write_and_the_application_stays_correct(se
             Relation(app_session, keys, WT_HT, application="app") as relation,
         ):
             wait_until(relation.latest, timeout=40)
-            _assert_true([relation.get(timeout=5) for _ in range(20)])
-            status = _status(observer, keys)
-            instances = [i for i, c in status["components"].items() if c["alive"]]
-            pids = {
-                i: json.loads(fetch_latest(observer, keys.status(i))[0])["pid"] for i in instances
-            }
-            injected = Collector(observer, keys.pattern("**"))
+            yield observer, app_session, relation
 
-            tokens = []
-            for name, certificate in (
-                ("application", "intruder"),  # our CA, no role
-                ("camera", None),  # another provider
-                ("application", None),  # an application
-            ):
-                with open_session(secure.settings(name, certificate)) as attacker:
-                    time.sleep(0.3)  # its link is up
-                    tokens += _attack(attacker, keys, instances, certificate or name)
-                    _assert_true([relation.get(timeout=5) for _ in range(20)])
-            time.sleep(0.5)
 
-            received = []
-            while not injected.items.empty():
-                received.append(injected.items.get_nowait())
-            assert STOP not in received
-            assert not [r for r in received if _injected_pose(r)]
-            assert not _tokens(observer, keys.pattern("*", "fake-$*"))
-            status = _status(observer, keys)
-            assert not [p for p in status["providers"] if p.startswith("fake-")]
-            for instance, pid in pids.items():  # nobody stopped them
-                assert json.loads(fetch_latest(observer, keys.status(instance))[0])["pid"] == pid
-                assert status["components"][instance]["alive"]
-            _assert_true([relation.get(timeout=5) for _ in range(20)])
-            assert relation.rejected == 0
+def test_only_authorised_certificates_write_and_the_application_stays_correct(secure):
+    keys = secure.keys
+    with _flowing(secure) as (observer, _, relation):
+        _assert_true([relation.get(timeout=5) for _ in range(20)])
+        status = _status(observer, keys)
+        instances = [i for i, c in status["components"].items() if c["alive"]]
+        pids = {i: json.loads(fetch_latest(observer, keys.status(i))[0])["pid"] for i in instances}
+        injected = Collector(observer, keys.pattern("**"))
+
+        tokens = []
+        for name, certificate in (
+            ("application", "intruder"),  # our CA, no role
+            ("camera", None),  # another provider
+            ("application", None),  # an application
+        ):
+            with open_session(secure.settings(name, certificate)) as attacker:
+                time.sleep(0.3)  # its link is up
+                tokens += _attack(attacker, keys, instances, certificate or name)
+                _assert_true([relation.get(timeout=5) for _ in range(20)])
+        time.sleep(0.5)
+
+        received = []
+        while not injected.items.empty():
+            received.append(injected.items.get_nowait())
+        assert STOP not in received
+        assert not [r for r in received if _injected_pose(r)]
+        assert not _tokens(observer, keys.pattern("*", "fake-$*"))
+        status = _status(observer, keys)
+        assert not [p for p in status["providers"] if p.startswith("fake-")]
+        for instance, pid in pids.items():  # nobody stopped them
+            assert json.loads(fetch_latest(observer, keys.status(instance))[0])["pid"] == pid
+            assert status["components"][instance]["alive"]
+        _assert_true([relation.get(timeout=5) for _ in range(20)])
+        assert relation.rejected == 0
+
+
+def test_only_agent_and_host_certificates_read_a_component_output(secure):
+    """A component's output puts may wait for a full link (congestion control BLOCK,
+    net.transport): an application's subscriber on it is refused (it receives nothing), while
+    the host's certificate receives it and the relation keeps flowing to the application."""
+    keys = secure.keys
+    with _flowing(secure) as (host_reader, app_session, relation):
+        instances = {i for i, c in _status(host_reader, keys)["components"].items() if c["alive"]}
+        seen: queue.SimpleQueue[str] = queue.SimpleQueue()
+        outputs = host_reader.declare_subscriber(
+            keys.pattern("data", "*", "*"), lambda s: seen.put(str(s.key_expr))
+        )
+        counts: Counter[str] = Counter()
+        while not counts or max(counts.values()) < 3:  # a running component's dynamic output
+            key = seen.get(timeout=10)
+            if key.split("/")[-2] in instances:
+                counts[key] += 1
+        output = max(counts, key=counts.__getitem__)
+        host_sees = Collector(host_reader, output)
+        app_sees = Collector(app_session, output)
+        app_keys: queue.SimpleQueue[str] = queue.SimpleQueue()
+        app_sees_all = app_session.declare_subscriber(
+            keys.pattern("data", "**"), lambda s: app_keys.put(str(s.key_expr))
+        )
+        provider = Collector(app_session, keys.measured("ART", "HT"))
+        time.sleep(0.5)  # the declarations reached the router
+        host_sees.drain()
+        _assert_true([relation.get(timeout=5) for _ in range(20)])
+        assert host_sees.next(timeout=5)  # the output flows, and the host reads it
+        assert provider.next(timeout=5)  # a provider's data stays readable
+        assert app_sees.items.empty()
+        # what reaches the application's session (the provider's data, for the subscriber
+        # above) is handed to its local wildcard subscriber too; no component output is
+        received = set()
+        while not app_keys.empty():
+            received.add(app_keys.get_nowait())
+        assert not [k for k in received if k.split("/")[-2] in instances]
+        outputs.undeclare()
+        app_sees_all.undeclare()
 
 
 @pytest.mark.parametrize("certificate", ["none", "forged-ART"])

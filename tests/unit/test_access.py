@@ -6,7 +6,7 @@ import pytest
 import zenoh
 
 from ubitrack_agent.net.access import access_control, check_provider
-from ubitrack_agent.net.keys import KeySpace, RelationId
+from ubitrack_agent.net.keys import FIRST_CHUNKS, KeySpace, RelationId
 
 KEYS = KeySpace("ubitrack/lab")
 BLOCK = access_control(KEYS, ["ART", "camera", "store"])
@@ -73,6 +73,18 @@ def allowed(subject: str, message: str, key: str, flow: str = "ingress") -> bool
         ("application", "query", KEYS.all_statuses(), "ingress"),
         ("operator", "query", KEYS.store("store"), "ingress"),
         ("application", "put", KEYS.relation(RELATION), "egress"),
+        # providers' data and liveness reports (their puts drop): tools and applications read
+        ("application", "declare_subscriber", KEYS.measured("ART", "HT"), "ingress"),
+        ("operator", "declare_subscriber", KEYS.measured("store.C_HT", "C_HT"), "ingress"),
+        ("application", "query", KEYS.measured("ART", "HT"), "ingress"),
+        ("application", "declare_subscriber", KEYS.all_liveness(), "ingress"),
+        ("application", "declare_liveliness_subscriber", KEYS.pattern("**"), "ingress"),
+        ("application", "declare_subscriber", KEYS.agent_status(), "ingress"),
+        # components' outputs (BLOCK puts): only the agent and host managers and their workers
+        ("agent", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
+        ("host", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
+        ("host", "query", KEYS.data("concat-1/out"), "ingress"),  # a time query
+        ("agent", "declare_subscriber", KEYS.pattern("**"), "ingress"),
     ],
 )
 def test_each_role_may_do_its_job(subject, message, key, flow):
@@ -117,6 +129,16 @@ def test_each_role_may_do_its_job(subject, message, key, flow):
         ("intruder", "put", KEYS.measured("ART", "HT"), "ingress"),
         ("intruder", "declare_subscriber", KEYS.relation(RELATION), "ingress"),
         ("intruder", "put", KEYS.relation(RELATION), "egress"),  # it receives nothing either
+        # a reader that stops reading would hold a component's BLOCK puts (net.transport)
+        ("application", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
+        ("operator", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
+        ("ART", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
+        ("application", "query", KEYS.data("concat-1/out"), "ingress"),
+        ("application", "declare_subscriber", KEYS.data("relay-0123456789/out"), "ingress"),
+        # wildcards that include a component's key are refused as a whole
+        ("application", "declare_subscriber", KEYS.pattern("data", "**"), "ingress"),
+        ("operator", "declare_subscriber", KEYS.pattern("**"), "ingress"),
+        ("camera", "declare_subscriber", KEYS.pattern("data", "*", "*"), "ingress"),
     ],
 )
 def test_nothing_else_is_allowed(subject, message, key, flow):
@@ -133,3 +155,36 @@ def test_subjects_are_certificate_common_names_and_the_default_is_deny():
 def test_provider_names_must_not_be_roles_or_wildcards(name):
     with pytest.raises(ValueError):
         check_provider(name)
+
+
+EVERY_KIND = [
+    KEYS.agent(),
+    KEYS.agent_member("18ea.1"),
+    KEYS.answer(RELATION),
+    KEYS.container("c1", "42.a1b2"),
+    KEYS.control("concat-1"),
+    KEYS.data("concat-1/out"),
+    KEYS.fragment("ART"),
+    KEYS.host("lab1"),
+    KEYS.container_left("c1"),
+    KEYS.pool("p1"),
+    KEYS.progress(RelationId("WT", "HT", "6D", static=True)),
+    KEYS.provider("ART"),
+    KEYS.query(RELATION, "app", "hmd"),
+    KEYS.relation(RELATION),
+    KEYS.status("concat-1"),
+    KEYS.store("store"),
+    KEYS.truth("WT", "HT"),
+    KEYS.worker("concat-1", "42.a1b2"),
+]
+"""One key of each kind the key space builds."""
+
+
+def test_the_first_chunks_are_every_kind_of_key():
+    kinds = {key.removeprefix(KEYS.root + "/").split("/")[0] for key in EVERY_KIND}
+    assert kinds == set(FIRST_CHUNKS)
+
+
+@pytest.mark.parametrize("key", [k for k in EVERY_KIND if k != KEYS.data("concat-1/out")])
+def test_an_application_may_subscribe_to_every_key_but_components_outputs(key):
+    assert allowed("application", "declare_subscriber", key)

@@ -16,9 +16,27 @@ Roles, by certificate common name:
 * any other name is a provider id (sensor, database, calibration store): it may announce that
   provider and ``<id>.<suffix>`` ones (a store's ``store.C_HT``) and write their data only.
 
-Reading (subscriptions, liveliness, queries on data, relations, fragments, statuses, the
-agent's clock, progress, truth) is granted to every known role; writes are granted per role
-(see the tables in ``docs/security.md``). Worker writes on data keys exclude every provider's data.
+Reading (liveliness, subscriptions and queries on relations, fragments, statuses, the agent's
+clock, progress, truth, providers' data) is granted to every known role; writes are granted per
+role (see the tables in ``docs/security.md``). Worker writes on data keys exclude every
+provider's data.
+
+Only ``agent`` and ``host`` may subscribe to and query a **component's output data key**
+(``R/data/<instance>/<port>``, ``agent.materialise``): its puts may wait for a full link
+(congestion control BLOCK, ``net.transport.congestion_control``), so any other reader that
+stops reading would hold the component up to zenoh's ``wait_before_close`` (5 s). The other
+roles may subscribe to every kind of key but ``R/data`` by name, to providers' data keys
+(``R/data/X/**``, ``R/data/X.*/**``, whose puts drop) and to the providers' liveness reports
+(``R/data/*``). This is an allow list, not a deny of the component keys, because zenoh applies
+a rule to a message only when the rule's key expression *includes* the message's (a
+subscriber on ``R/data/**`` or ``R/**`` is included in no deny rule on ``R/data/*/*``; zenoh's
+access-control manual, "Guidelines for configuring ACL": "supersets and partial overlap
+between rule key expressions and message key [...] are not considered valid matches"; deny >
+allow > default). So a wildcard subscriber that would reach a component's key is refused as a
+whole; ``ingress`` is where the router sees a client's ``declare_subscriber`` (the same
+manual: a router "receives" a message on ingress), and a refused declaration is never routed,
+so no put waits for it. Liveliness subscriptions and queries stay granted on ``R/**`` (tokens
+carry no data).
 """
 
 from __future__ import annotations
@@ -26,7 +44,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
+from ubitrack_agent.net.keys import FIRST_CHUNKS, KeySpace, validate_key_chunks
 
 AGENT, HOST, APPLICATION, OPERATOR = "agent", "host", "application", "operator"
 ROLES = (AGENT, HOST, APPLICATION, OPERATOR)
@@ -34,7 +52,8 @@ ROLES = (AGENT, HOST, APPLICATION, OPERATOR)
 
 WRITES = ("put", "delete")
 SERVES = ("declare_queryable", "reply")
-READS = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
+LIVELINESS_READS = ("declare_liveliness_subscriber", "liveliness_query")
+READS = ("declare_subscriber", *LIVELINESS_READS)
 EVERY_MESSAGE = (*WRITES, *SERVES, *READS, "query", "liveliness_token")
 
 
@@ -64,20 +83,34 @@ def _provider_keys(keys: KeySpace, provider: str) -> dict[str, list[str]]:
     }
 
 
-def _common_rules(keys: KeySpace) -> list[dict[str, Any]]:
-    """Granted to every known role: receiving anything, and reading."""
+def _all_provider_data(keys: KeySpace, providers: Sequence[str]) -> list[str]:
+    """The data keys of every provider in ``providers``: O(providers) key expressions."""
+    return [key for p in providers for key in _provider_keys(keys, p)["data"]]
+
+
+def _common_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]]:
+    """Granted to every known role: receiving anything, and reading all but components' data
+    keys (the module's docstring)."""
+    provider_data = _all_provider_data(keys, providers)
     readable = [
         keys.agent_status(),
         keys.agent_clock(),
         keys.all_agent_statuses(),
         keys.all_statuses(),
-        *(keys.pattern(kind, "**") for kind in ("relation", "data", "progress", "truth")),
+        *(keys.pattern(kind, "**") for kind in ("relation", "progress", "truth")),
+        *provider_data,
         keys.all_answers(),
         keys.pattern("fragment", "*"),
     ]
+    subscribable = [
+        *(keys.pattern(kind, "**") for kind in FIRST_CHUNKS if kind != "data"),
+        keys.all_liveness(),
+        *provider_data,
+    ]
     return [
         _rule("receive", EVERY_MESSAGE, [keys.pattern("**")], flow="egress"),
-        _rule("subscribe", READS, [keys.pattern("**")]),
+        _rule("liveliness", LIVELINESS_READS, [keys.pattern("**")]),
+        _rule("subscribe", ["declare_subscriber"], subscribable),
         _rule("read", ["query"], readable),
     ]
 
@@ -85,10 +118,12 @@ def _common_rules(keys: KeySpace) -> list[dict[str, Any]]:
 def _role_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]]:
     """The write rules of the fixed roles."""
     outputs = [keys.pattern(kind, "**") for kind in ("data", "relation", "progress")]
-    provider_data = [key for p in providers for key in _provider_keys(keys, p)["data"]]
+    provider_data = _all_provider_data(keys, providers)
     host_requests = keys.pattern("host", "*", "request")
     controls = keys.pattern("control", "**")
     return [
+        _rule("subscribe-all", ["declare_subscriber"], [keys.pattern("**")]),
+        _rule("query-data", ["query"], [keys.pattern("data", "**")]),
         _rule("worker-tokens", ["liveliness_token"], [keys.all_workers(), keys.all_pools()]),
         _rule("worker-outputs", [*WRITES, *SERVES], outputs),
         _rule("worker-statuses", SERVES, [keys.all_statuses()]),
@@ -111,6 +146,8 @@ def _role_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]
 
 ROLE_RULES: dict[str, tuple[str, ...]] = {
     AGENT: (
+        "subscribe-all",
+        "query-data",
         "worker-tokens",
         "worker-outputs",
         "worker-statuses",
@@ -124,6 +161,8 @@ ROLE_RULES: dict[str, tuple[str, ...]] = {
         "agent-answers",
     ),
     HOST: (
+        "subscribe-all",
+        "query-data",
         "worker-tokens",
         "worker-outputs",
         "worker-statuses",
@@ -165,7 +204,11 @@ def access_control(keys: KeySpace, providers: Sequence[str]) -> dict[str, Any]:
     names = [*ROLES, *providers]
     provider_rules = {p: _provider_rules(keys, p) for p in providers}
     policies = [
-        {"id": "everyone", "rules": ["receive", "subscribe", "read"], "subjects": names},
+        {
+            "id": "everyone",
+            "rules": ["receive", "liveliness", "subscribe", "read"],
+            "subjects": names,
+        },
         *({"id": role, "rules": list(ROLE_RULES[role]), "subjects": [role]} for role in ROLES),
         *(
             {"id": p, "rules": [r["id"] for r in rules], "subjects": [p]}
@@ -176,7 +219,7 @@ def access_control(keys: KeySpace, providers: Sequence[str]) -> dict[str, Any]:
         "enabled": True,
         "default_permission": "deny",
         "rules": [
-            *_common_rules(keys),
+            *_common_rules(keys, providers),
             *_role_rules(keys, providers),
             *(r for rules in provider_rules.values() for r in rules),
         ],

@@ -193,6 +193,14 @@ def _relation(source: str, target: str, edge_type: str, kind: str, key: str) -> 
     return RelationId(source, target, edge_type, *KINDS[kind])
 
 
+FIRST_CHUNKS = (
+    "agent", "agents", "answer", "container", "control", "data", "fragment", "host", "left",
+    "pool", "progress", "provider", "query", "relation", "status", "store", "truth", "worker",
+)  # fmt: skip
+"""Every first chunk below the root, the kinds of key in the layout above (``net.access``
+grants reading by them)."""
+
+
 class KeySpace:
     """Builds the keys of one ``<prefix>/<domain>`` root."""
 
