@@ -132,6 +132,11 @@ class EdgeIndex:
         self.inn[(record.target, record.type)].remove(edge_id)
         self.partitions[(record.type, record.static)].remove(edge_id)
 
+    def count(self, direction: str, frame: str, edge_type: str) -> int:
+        """How many edges of ``edge_type`` leave (``direction`` ``"out"``) or enter
+        (``"inn"``) ``frame``, retired ones not counted."""
+        return len((self.out if direction == "out" else self.inn).get((frame, edge_type), ()))
+
     def add_rigid(self, a: str, b: str) -> None:
         """Declare frames ``a`` and ``b`` rigidly connected (a static relationship)."""
         self.rigid[a].add(b)
@@ -542,9 +547,8 @@ def find_matches(
         end = ends[i]
         if end is not None:
             direction, role = end
-            at = (roles[role], edge.type)
-            if len((index.out if direction == "out" else index.inn).get(at, ())) < least:
-                waiting.setdefault((direction, *at), []).append((i, seed))
+            if index.count(direction, roles[role], edge.type) < least:
+                waiting.setdefault((direction, roles[role], edge.type), []).append((i, seed))
                 continue
         if single:  # one input: the occurrence is complete (no generator for it)
             yield Match(
@@ -604,11 +608,7 @@ def _ready(
     out of ``waiting``; retired edges are dropped (no expansion takes them).
     ``O(frames waited on)`` per call."""
     ready: list[tuple[int, str]] = []
-    for key in [
-        k
-        for k in waiting
-        if len((index.out if k[0] == "out" else index.inn).get(k[1:], ())) >= least
-    ]:
+    for key in [k for k in waiting if index.count(*k) >= least]:
         ready.extend(p for p in waiting.pop(key) if p[1] not in index.retired)
     return ready
 
