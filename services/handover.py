@@ -38,7 +38,9 @@ keeps these rules, so that the application sees one stream (issue [seamless];
 4. **Yield.** A producer that receives a claim while it holds the key stops putting there and
    answers; it puts again only once the claimer has been quiet (a newer flow that died). A
    producer that finds the key quiet while the producer holding it is alive (a fusion waiting
-   for an input that stopped) claims it and puts nothing until the answer: the holder, only
+   for an input that stopped; a key it has seen nothing on is quiet only a quiet time after it
+   began to watch it, as the holder's next sample may be on its way when a new flow computes
+   its first) claims it and puts nothing until the answer: the holder, only
    late, stops before it answers, so the two never put one instant each (the repeated instants
    a put at once caused). A producer that finds the key quiet with no holder alive puts at once
    and claims it all the same. The holder is the producer that claimed the key last: the
@@ -253,6 +255,12 @@ class KeyHandOver:
         """The covariance trace of this producer's latest estimate, and when it came (rule 6)."""
         self._first_at: float | None = None
         """When this producer's first estimate came (rule 2: :data:`WARM_S`)."""
+        self._other_at_is_answer = False
+        """Whether :attr:`_other_at` is when the key's latest sample was answered to this
+        producer starting, not when the other producer put it (:meth:`observe_value`)."""
+        self._watching_since = clock()
+        """When this producer began to watch the key: a key it has seen nothing on is quiet
+        only :data:`DEFAULT_QUIET_S` after this (rule 4)."""
         self._waiting: tuple[int, Callable[[], None]] | None = None
         """The newest sample held back (its timestamp and its put), put if the key becomes free
         before a newer one comes (rule 5)."""
@@ -274,18 +282,23 @@ class KeyHandOver:
             return DEFAULT_QUIET_S
         return min(high, max(low, QUIET_INTERVALS * max(self._other_intervals)))
 
-    def observe(self, payload: bytes) -> None:
+    def observe(self, payload: bytes, latest: bool = False) -> None:
         """A sample seen on the key (:meth:`observe_value`); one that does not decode is the
         application's problem, not the hand-over's, and is ignored here."""
         try:
             value = decode(payload, level=WORKER)
         except MeasurementError:
             return
-        self.observe_value(value)
+        self.observe_value(value, latest)
 
-    def observe_value(self, value: Measurement) -> None:
+    def observe_value(self, value: Measurement, latest: bool = False) -> None:
         """A sample seen on the key, decoded: another producer's, or one of this producer's
-        own puts (known by its timestamp, and then only the newest instant is noted)."""
+        own puts (known by its timestamp, and then only the newest instant is noted).
+        ``latest``: the key's latest sample, answered to this producer starting
+        (:class:`Watch`): put at some time before, so the time to the holder's next sample is
+        no interval of the holder's (taken for one, a 30 Hz holder's next sample 12 ms after
+        the answer made the quiet time 38 ms, and the newcomer claimed the key at the holder's
+        first slow frame)."""
         now = self._clock()
         with self._lock:
             if self._newest_ns is None or value.timestamp_ns > self._newest_ns:
@@ -293,11 +306,11 @@ class KeyHandOver:
             if value.timestamp_ns in self._mine:
                 return
             running = self._other_at is not None and now - self._other_at <= self.quiet_s()
-            if running:
+            if running and not self._other_at_is_answer:
                 self._other_intervals.append(now - self._other_at)
-            else:
+            elif not running:
                 self._other_intervals.clear()
-            self._other_at = now
+            self._other_at, self._other_at_is_answer = now, latest
             self._other_trace = theirs = _trace(value)
             self._count_lost(now, theirs, running)
 
@@ -451,11 +464,13 @@ class KeyHandOver:
 
     def asked(self) -> None:
         """The question who holds the key is closed (its replies given to :meth:`receive`):
-        with none alive and the key quiet, a claim awaiting an answer takes the key now."""
+        with none alive and the key quiet, a claim awaiting an answer, or a sample held back,
+        takes the key now."""
         with self._lock:
             self.asking = False
             quiet = self._other_at is None or self._clock() - self._other_at > self.quiet_s()
-            taken = self._claimed_at is not None and quiet and not self._holder_alive()
+            held = self._claimed_at is not None or self._waiting is not None
+            taken = held and quiet and not self._holder_alive()
             if taken:
                 self._take(None)
             after = self._newest_ns
@@ -510,6 +525,9 @@ class KeyHandOver:
                     self._counters["relation_claims_unanswered"] += 1
                     self._take(None)
             elif not other and not self._holds:
+                if (self._holder_alive() or self.asking) and self._starting(now):
+                    # nothing seen on the key yet: the holder's next sample may be on its way
+                    return self._hold_back(value, put, "relation_held")
                 if self._holder_alive() or self.asking:  # maybe only late (a fusion waiting)
                     self._claimed_at, claim, wait = now, True, True
                     self._counters["relation_taken"] += 1
@@ -530,6 +548,18 @@ class KeyHandOver:
         if wait:
             return self._refuse("relation_claiming")
         return admitted
+
+    def _starting(self, now: float) -> bool:
+        """Whether this producer has seen no sample of another on the key and has watched it
+        for less than :data:`DEFAULT_QUIET_S`: a key is quiet after a quiet time *of watching*
+        (rule 4). A flow started beside a holder putting at 30 Hz computes its first estimate
+        within milliseconds, before the holder's next sample: claiming then took the key from
+        a more certain holder (the holder yields to any claim): the camera-only chain took the
+        key from the fusion running on the camera alone in 3 of 18 A.R.T.-off events of two
+        switch-bench runs, 27-45 ms after its first estimate, and the application's error went
+        from 5-6 to 9-12 mm RMS (``docs/performance.md``, "Who serves the camera-only phase");
+        lock held."""
+        return self._other_at is None and now - self._watching_since < DEFAULT_QUIET_S
 
     def _hold_back(self, value: Measurement, put: Callable[[], None] | None, counter: str) -> bool:
         """Refuse ``value`` for now, keeping its put for the key becoming free; lock held."""
@@ -721,7 +751,7 @@ class Watch:
 
     def _latest(self, reply: Any) -> None:
         if reply.ok is not None:
-            self.rules.observe(reply.ok.payload.to_bytes())
+            self.rules.observe(reply.ok.payload.to_bytes(), latest=True)
 
     def close(self) -> None:
         with _PRODUCERS_LOCK:

@@ -67,7 +67,7 @@ class Bus:
             if (reply := other.holding()) is not None:
                 hand_over.receive(reply)
         if self.wire:
-            hand_over.observe(self.wire[-1][2])
+            hand_over.observe(self.wire[-1][2], latest=True)
         self.producers.append(hand_over)
         self.counters.append(counters)
         return hand_over
@@ -179,6 +179,63 @@ def test_a_less_certain_producer_holds_back_for_as_long_as_the_holder_puts():
     bus.die(old)  # stopped by the agent: the key is free (rule 5)
     bus.clock.now += 0.01
     assert bus.offer(new, pose(15_000, variance=2e-6))
+
+
+def test_a_producer_starting_before_the_holders_next_sample_does_not_claim_the_key():
+    """A flow started beside a holder putting at 30 Hz computes its first estimate before the
+    holder's next sample (the key's latest not seen either): the key is not quiet yet, so the
+    less certain newcomer holds back, and once it sees the holder's sample, rule 2 keeps it
+    held; after a quiet time of watching with nothing seen, it claims (rule 4)."""
+    bus = Bus()
+    old = holding(bus)
+    wire, bus.wire = bus.wire, []  # the key's latest sample not seen by the newcomer
+    new = bus.producer()
+    bus.wire = wire
+    bus.clock.now += 0.005
+    assert not bus.offer(new, pose(15, variance=4e-6))
+    assert not any(m.get("claim") == new.producer for m in bus.messages)
+    assert bus.counters[1]["relation_held"] == 1
+    bus.clock.now += 0.028
+    assert bus.offer(old, pose(43))  # the holder's next sample
+    bus.clock.now += 0.005
+    assert not bus.offer(new, pose(48, variance=4e-6))
+    assert not any(m.get("claim") == new.producer for m in bus.messages)
+    # a holder alive but silent from the start: the newcomer claims a quiet time after it began
+    # to watch, not before
+    quiet = Bus()
+    holding(quiet)
+    wire, quiet.wire = quiet.wire, []
+    late = quiet.producer()
+    quiet.wire = wire
+    quiet.clock.now += 0.05
+    assert not quiet.offer(late, pose(60, variance=4e-6))
+    assert not any(m.get("claim") == late.producer for m in quiet.messages)
+    quiet.clock.now += 0.06
+    assert not quiet.offer(late, pose(110, variance=4e-6))  # claims; put on the answer
+    assert {"claim": late.producer, "after": None} in quiet.messages  # nothing seen on the key
+    assert quiet.wire[-1][:2] == (110 * MS, late.producer)
+
+
+def test_the_time_from_the_keys_latest_sample_answered_to_the_next_is_no_interval():
+    """A newcomer is answered the key's latest sample as it starts, and the 30 Hz holder's
+    next sample comes 12 ms later: that is no interval of the holder's, so one slow frame of
+    the holder (60 ms) does not make the key quiet for the less certain newcomer."""
+    bus = Bus()
+    old = bus.producer()
+    for t in (0, 33, 66):
+        bus.clock.now += 0.033
+        assert bus.offer(old, pose(t))
+    bus.clock.now += 0.021
+    new = bus.producer()  # answered the sample of 66 ms, 21 ms after it was put
+    bus.clock.now += 0.012
+    assert bus.offer(old, pose(99))
+    for t in (119, 144):  # the holder's next frame is 60 ms late: the newcomer computes twice
+        bus.clock.now += 0.020 if t == 119 else 0.025
+        assert not bus.offer(new, pose(t, variance=4e-6))
+    bus.clock.now += 0.015
+    assert bus.offer(old, pose(159))
+    assert not any(m.get("claim") == new.producer for m in bus.messages)
+    assert bus.counters[1]["relation_held"] == 2
 
 
 def test_a_spare_takes_the_key_within_a_sample_when_the_holder_loses_a_sensor():
