@@ -13,6 +13,7 @@ import itertools
 import json
 import math
 
+import networkx as nx
 import pytest
 
 from bench.building import Building, body, build, camera, marker
@@ -47,28 +48,42 @@ def test_skipping_outclassed_groups_and_chains_changes_no_answer(
         return wrapper
 
     last_link = Workspace.last_link
-    far_links = []
+    far_links, narrowed = [], []
 
     def counted_links(ws, template):
         at = last_link(ws, template)
 
         def counting_at(*args):
-            fits = at(*args)
+            test = at(*args)
+            if test is None:
+                return None
 
             def counting(edge):
-                found = fits(edge)
+                found = test.fits(edge)
                 far_links.append(not found)
                 return found
 
-            return counting if fits else None
+            def narrowing(ids):
+                ids = list(ids)
+                kept = test.narrow(ids)
+                left_out = [e for e in ids if e not in kept]
+                # only edges the full test rejects are left out, the others kept in order
+                assert not any(test.fits(ws.index.edges[e]) for e in left_out)
+                assert kept == [e for e in ids if e not in left_out]
+                narrowed.extend(left_out)
+                return kept
+
+            return matcher.LastTest(counting, narrowing if test.narrow else None)
 
         return counting_at if at else None
 
     monkeypatch.setattr(Workspace, "group_outclassed", counted(group_outclassed))
     monkeypatch.setattr(Workspace, "_chain_outclassed", counted(chain_outclassed))
     monkeypatch.setattr(Workspace, "last_link", counted_links)
+    monkeypatch.setattr(matcher, "NARROWED_FROM", 0)  # however few the candidates
     pruned = answers(srg, templates, query, per_relation=per_relation)
     assert any(skipped) and any(far_links), "the setup must exercise the skips"
+    assert narrowed or query.source != camera(0), "a room's last links must be narrowed"
     monkeypatch.setattr(Workspace, "group_outclassed", lambda *args: False)
     monkeypatch.setattr(Workspace, "_chain_outclassed", lambda *args: False)
     monkeypatch.setattr(Workspace, "last_link", lambda *args: None)
@@ -150,3 +165,24 @@ def test_the_ways_around_a_chain_are_the_breadth_first_hops(templates):
                 assert ws._avoiding(start, goal, avoid) == expected.get(goal, math.inf)
                 compared += 1
     assert compared > 500
+
+
+def test_ways_between_frames_and_their_hops_are_those_of_a_breadth_first_search(templates):
+    """``Workspace._ways_to`` (one hop: adjacent; two: common neighbours; further: a counting
+    search) gives the number of shortest ways networkx counts between every two frames of the
+    region, and ``Workspace._distance`` (bit sets, stopping at the goal) their hops."""
+    ws, _ = _room_workspace(templates)
+    graph = nx.Graph([(a, b) for a, near in ws.neighbours.items() for b in near])
+    frames = sorted(graph)
+    hops_seen = set()
+    for goal in frames:
+        hops = hop_distances(ws._around, (goal,))
+        for frame in frames:
+            assert ws._distance(frame, goal) == hops[frame]
+            if frame == goal:
+                continue
+            ways = sum(1 for _ in nx.all_shortest_paths(graph, frame, goal))
+            at = ws._bits[frame].bit_length() - 1
+            assert ws._ways_to(goal, at, hops[frame]) == ways
+            hops_seen.add(hops[frame])
+    assert {1, 2, 3} <= hops_seen, "every way of counting must be exercised"

@@ -30,6 +30,7 @@ from collections.abc import Callable, Container, Iterable, Iterator, Mapping, Se
 from dataclasses import dataclass, field
 from functools import cached_property
 from itertools import permutations
+from typing import NamedTuple
 
 from ubitrack_agent.graph.srg import Quality
 from ubitrack_agent.graph.templates import Correspondence, InputSpec, Template
@@ -290,7 +291,7 @@ def _candidates(
     template: Template,
     index: EdgeIndex,
     kinds: Sequence[str] | None = None,
-) -> Iterable[str]:
+) -> Sequence[str]:
     """Edge ids that could bind ``spec`` given the roles and types bound so far (most selective
     first: the edges of a bound frame of a possible type; of ``kinds`` only, if given)."""
     var = spec.type_var
@@ -342,16 +343,30 @@ def _any_binding(
     return True
 
 
+class LastTest(NamedTuple):
+    """A caller's test of the edges that would bind the last unbound input (:data:`LastLink`)."""
+
+    fits: Callable[[EdgeRecord], bool]
+    """Whether the occurrence the edge completes is wanted; asked before the edge is bound."""
+    narrow: Callable[[Iterable[str]], Iterable[str]] | None = None
+    """The candidate edge ids (in order) without some that :attr:`fits` rejects, known by a
+    cheaper test than asking it of each (``None``: all are asked)."""
+
+
+NARROWED_FROM = 16
+"""A last input's candidates are narrowed (:attr:`LastTest.narrow`) only where there are more
+than this many: for a few, asking ``fits`` of each costs less than narrowing them first."""
+
 LastLink = Callable[
     [InputSpec, Mapping[str, str], Mapping[str, str], Mapping[int, str]],
-    Callable[[EdgeRecord], bool] | None,
+    LastTest | None,
 ]
 """A caller's test of the occurrences an edge would complete by binding the last unbound
 input: given its specification, the role and type bindings and the bound input edge ids so
-far, a test of one edge (``None``: no test, :data:`Viable` is asked after binding), asked
-before the edge is bound. It must pass exactly the edges whose completed occurrence
-:data:`Viable` would pass: the search binds only those and does not ask :data:`Viable` again.
-What the edges share is worked out once, not for each candidate."""
+far, a :class:`LastTest` (``None``: no test, :data:`Viable` is asked after binding). It must
+pass exactly the edges whose completed occurrence :data:`Viable` would pass: the search binds
+only those and does not ask :data:`Viable` again. What the edges share is worked out once, not
+for each candidate."""
 
 
 def _extend(
@@ -382,7 +397,8 @@ def _extend(
         integrated = any(other.time_integrated for other in chosen)
     not_seeds = i < seeded_at
     completes = len(bound) + 1 == len(template.inputs)
-    check = last(spec, roles, types, bound) if completes and last is not None else None
+    test = last(spec, roles, types, bound) if completes and last is not None else None
+    check = None if test is None else test.fits
     introduces = bool(template.introduced)
     positions = range(len(template.inputs))
     free = viable is _any_binding  # no test to ask
@@ -390,7 +406,10 @@ def _extend(
     kinds = None
     if not free and var is not None and var not in types:
         kinds = _viable_kinds(template, var, roles, types, bound, viable)
-    for edge_id in _candidates(spec, roles, types, template, index, kinds):
+    candidates = _candidates(spec, roles, types, template, index, kinds)
+    if test is not None and test.narrow is not None and len(candidates) > NARROWED_FROM:
+        candidates = test.narrow(candidates)
+    for edge_id in candidates:
         if not_seeds and edge_id in seeds:
             continue
         edge = edges[edge_id]

@@ -63,6 +63,7 @@ from ubitrack_agent.graph.matcher import (
     EdgeRecord,
     Instance,
     LastLink,
+    LastTest,
     Match,
     Viable,
     copy_sets,
@@ -454,7 +455,11 @@ class Workspace:
     """Chains either way round between the query frames (:meth:`_wanted`); ``False``: only
     towards the query target, the rule before session 15, which the test oracle keeps."""
     span: float = 0
+    _by_class: dict[tuple[int, int], frozenset[str]] | None = None
+    """:meth:`_classes`, once built."""
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
+    _pair_hops: dict[tuple[str, str], int] = field(default_factory=dict)
+    """:meth:`_distance` by frames."""
     _reach: dict[tuple[str, int], dict[int, int]] = field(default_factory=dict)
     """:meth:`_avoiding`'s hops (by frame bit) by start and frames avoided."""
     _counts: dict[str, tuple[list[int], list[int]]] = field(default_factory=dict)
@@ -493,8 +498,36 @@ class Workspace:
         return known
 
     def _distance(self, a: str, b: str) -> int:
-        """Hops between frames ``a`` and ``b`` in the region (more than any if not joined)."""
-        return self._hops_from(a).get(b, len(self.neighbours) + 1)
+        """Hops between frames ``a`` and ``b`` in the region (more than any if not joined):
+        breadth-first on bit sets (:attr:`_adjacent`) from ``a`` until ``b`` is reached,
+        ``O(frames within that distance)`` word operations. A search of the whole region per
+        step output's source was ``O(F (F + E))`` in all (514 searches of 512 frames in a room
+        with 500 redundant trackers), where the frames of a step's output are mostly a hop or
+        two apart."""
+        if a == b:
+            return 0
+        known = self._pair_hops.get((a, b))
+        if known is None:
+            known = self._pair_hops[a, b] = self._searched_distance(a, b)
+        return known
+
+    def _searched_distance(self, a: str, b: str) -> int:
+        """:meth:`_distance`'s search."""
+        seen, target = self._bits[a], self._bits[b]
+        adjacent = self._adjacency()
+        frontier, depth = seen, 0
+        while frontier:
+            depth += 1
+            reached = 0
+            while frontier:
+                low = frontier & -frontier
+                reached |= adjacent[low.bit_length() - 1]
+                frontier ^= low
+            if reached & target:
+                return depth
+            frontier = reached & ~seen
+            seen |= frontier
+        return len(self.neighbours) + 1
 
     def _frame_bits(self, link: EdgeRecord) -> int:
         """The frames ``link``'s sources join (:attr:`EdgeRecord.frames`) as bits, kept."""
@@ -515,10 +548,12 @@ class Workspace:
         from s to g through v number ``sigma(s, v) * sigma(v, g)`` when ``d(s, v) + d(v, g) =
         d(s, g)``): if the ways through the avoided frames, summed over them, are fewer than
         all shortest ways, one avoids every one of them and the answer is ``d(s, g)``. That
-        needs one counting search per frame (:meth:`_shortest`, memoised) and ``O(|avoid|)``
+        needs a counting search from ``start`` (:meth:`_shortest`, memoised; the caller puts a
+        query frame there) and the ways from each avoided frame to ``goal``
+        (:meth:`_ways_to`: mostly a hop or two, counted on the neighbours' bits), ``O(|avoid|)``
         per call; otherwise a breadth-first search on bit sets (:meth:`_hops_avoiding`) per
         distinct ``(start, avoid)``, memoised: in a room with 200 redundant trackers those
-        were 9,754 searches of the 212 frames, where 210 counting searches serve."""
+        were 9,754 searches of the 212 frames."""
         if start == goal:
             return 0
         goal_bit, start_bit = self._bits[goal], self._bits[start]
@@ -528,13 +563,12 @@ class Workspace:
         at = goal_bit.bit_length() - 1
         if at >= len(hops) or hops[at] < 0:
             return math.inf
-        back, back_paths = self._shortest(goal)
         through, rest, length = 0, avoid, hops[at]
         while rest:
             low = rest & -rest
             v = low.bit_length() - 1
-            if v < len(hops) and hops[v] >= 0 and hops[v] + back[v] == length:
-                through += paths[v] * back_paths[v]
+            if v < len(hops) and 0 <= hops[v] < length:
+                through += paths[v] * self._ways_to(goal, v, length - hops[v])
             rest ^= low
         if through < paths[at]:
             return length
@@ -546,6 +580,23 @@ class Workspace:
         if known is None:
             known = self._reach[key] = self._hops_avoiding(start_bit, avoid)
         return known.get(goal_bit, math.inf)
+
+    def _ways_to(self, goal: str, v: int, hops: int) -> int:
+        """The number of ways of ``hops`` hops between ``goal`` and the frame of bit position
+        ``v``, which is at least that far from it (by the triangle inequality, in
+        :meth:`_avoiding`): 1 or 0 for one hop, their common neighbours for two (a popcount),
+        else from a counting search from ``goal`` (:meth:`_shortest`, memoised). The avoided
+        frames (a chain's inside) mostly lie a hop or two from the chain's end, so most chain
+        ends need no counting search of their own: in a room with 500 redundant trackers
+        one per frame was ``O(F (F + E))`` in all."""
+        adjacent = self._adjacency()
+        at = self._bits[goal].bit_length() - 1
+        if hops == 1:
+            return adjacent[v] >> at & 1
+        if hops == 2:
+            return (adjacent[v] & adjacent[at]).bit_count()
+        back, back_paths = self._shortest(goal)
+        return back_paths[v] if v < len(back) and back[v] == hops else 0
 
     def _adjacency(self) -> list[int]:
         """:attr:`_adjacent`, read again if a frame was given its bit since."""
@@ -672,7 +723,7 @@ class Workspace:
             roles: Mapping[str, str],
             types: Mapping[str, str],
             bound: Mapping[int, str],
-        ) -> Callable[[EdgeRecord], bool] | None:
+        ) -> LastTest | None:
             x, y = roles.get(source), roles.get(target)
             x_end = None if x is not None else _end_of(spec, source)
             y_end = None if y is not None else _end_of(spec, target)
@@ -709,9 +760,57 @@ class Workspace:
                 chained = [edge if i not in bound else edges[bound[i]] for i in range(links)]
                 return not self._chain_outclassed(template, a, b, kind, chained)
 
-            return fits
+            narrow = None
+            if (x is None) != (y is None) and edge_type != "3D":
+                fixed, free_end = (x, y_end) if x is not None else (y, x_end)
+                narrow = self._narrowing(template, edge_type, fixed, free_end)
+            return LastTest(fits, narrow)
 
         return at
+
+    def _narrowing(
+        self,
+        template: Template,
+        edge_type: str | None,
+        fixed: str,
+        free_end: Callable[[EdgeRecord], str],
+    ) -> Callable[[Iterable[str]], list[str]] | None:
+        """For :meth:`last_link`: the candidates of a chain's last link without the edges
+        whose free end (``free_end``: the output role the edge binds) is as far from each query
+        frame as the ``fixed`` end (the output role bound already), neither of them a query
+        frame: :meth:`_wanted` turns such a chain down, so ``fits`` would reject each; a point
+        (3D) is left to ``fits``. In a room with K redundant trackers the trackers' frames are
+        all as far from the camera and the marker, and every tracker's edge at the room frame
+        was a candidate last link of every other's chain there: 376,657 ``fits`` calls at K
+        = 400, 55,857 with this (``docs/performance.md``, "Planner, session 26"). ``O(1)`` a
+        candidate in a list comprehension instead of a call."""
+        if template.signature != "chain" or not self.either_way or fixed in self.goal:
+            return None
+        same = self._classes().get(self._class(fixed), ())
+        if len(same) < 2:
+            return None  # only the fixed end itself
+        edges = self.index.edges
+        if edge_type is None:  # the type comes with the edge: a point is fits' to judge
+            return lambda ids: [
+                e for e in ids if free_end(link := edges[e]) not in same or link.type == "3D"
+            ]
+        return lambda ids: [e for e in ids if free_end(edges[e]) not in same]
+
+    def _class(self, frame: str) -> tuple[int, int]:
+        """A frame's hop distances from the query's source and target (:meth:`_wanted`)."""
+        near_source, near_target = self.distances
+        return near_source[frame], near_target[frame]
+
+    def _classes(self) -> dict[tuple[int, int], frozenset[str]]:
+        """The region's frames other than the query's by :meth:`_class`, built once
+        (``O(frames)``; the distances are fixed when the search starts)."""
+        if self._by_class is None:
+            grouped: dict[tuple[int, int], set[str]] = defaultdict(set)
+            for frame in self.distances[0]:
+                if frame not in self.goal:
+                    grouped[self._class(frame)].add(frame)
+            self._by_class = {key: frozenset(frames) for key, frames in grouped.items()}
+        return self._by_class
 
     def _on_a_way(self, x: str, y: str, chained: list[EdgeRecord]) -> bool:
         """Whether a chain X->Y of the ``chained`` links (``hops``: the sum of theirs; ``frames``:
@@ -760,10 +859,10 @@ class Workspace:
         if known is None:
             avoiding = self._avoiding
             known = self._ways[key] = (
-                forward and avoiding(start, x, inside | by) + avoiding(y, end, inside | bx) <= limit
+                forward and avoiding(start, x, inside | by) + avoiding(end, y, inside | bx) <= limit
             ) or (
                 backward
-                and avoiding(start, y, inside | bx) + avoiding(x, end, inside | by) <= limit
+                and avoiding(start, y, inside | bx) + avoiding(end, x, inside | by) <= limit
             )
         return known
 
