@@ -5,10 +5,12 @@ cost that a shared, noisy machine does not blur (issue [scale]; ``docs/performan
 Run as ``python -m bench.plan_instructions [ROW ...]`` (rows: ``k7``, a room with seven
 redundant trackers, camera -> marker; ``h2h``, head -> head across two rooms with four bodies
 seen by two redundant trackers; ``unalike``, the same with the rooms equipped differently;
-default all three). For each row it runs, at once, two processes under ``valgrind
---tool=callgrind``, one planning once and one three times (``python -m bench.plan_instructions
---plan ROW N``), and prints half the difference of their instruction counts: the cost of one
-plan without the interpreter's start-up and the imports. ``PYTHONHASHSEED`` is fixed (0) so two
+default those three; ``k50``, ``k200``, ``k500``: the room with 50, 200 and 500 trackers, for
+the growth in K, up to a quarter of an hour). For each row it runs, at once, two processes
+under ``valgrind --tool=callgrind``, one planning once and one three times (``python -m
+bench.plan_instructions --plan ROW N``), and prints half the difference of their instruction
+counts: the cost of one plan without the interpreter's start-up and the imports.
+``PYTHONHASHSEED`` is fixed (0) so two
 checkouts are compared on the same hash order; run with ``PYTHONPATH=<checkout>`` to count
 another checkout's planner. Needs ``valgrind`` (Debian package ``valgrind``); writes
 ``bench/results/plan_instructions.json`` (``--output``). A few minutes per row.
@@ -38,7 +40,11 @@ ROWS: dict[str, Callable[[], Any]] = {
     "k7": lambda: building_bench.in_room(7),
     "h2h": lambda: building_bench.head_to_head(4, 2),
     "unalike": lambda: building_bench.head_to_head(4, 2, alike=False),
+    "k50": lambda: building_bench.in_room(50),
+    "k200": lambda: building_bench.in_room(200),
+    "k500": lambda: building_bench.in_room(500),
 }
+DEFAULT_ROWS = ("k7", "h2h", "unalike")
 RESULTS = Path(__file__).resolve().parent / "results" / "plan_instructions.json"
 
 
@@ -85,7 +91,7 @@ def instructions(row: str, scratch: Path) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("rows", nargs="*", default=list(ROWS), help=", ".join(ROWS))
+    parser.add_argument("rows", nargs="*", default=list(DEFAULT_ROWS), help=", ".join(ROWS))
     parser.add_argument("--plan", nargs=2, metavar=("ROW", "N"), help=argparse.SUPPRESS)
     parser.add_argument("--output", type=Path, default=RESULTS)
     args = parser.parse_args(argv)

@@ -61,9 +61,9 @@ def offer(watch: Watch, publisher, value: ErrorPose) -> bool:
 def counted(observe, into: list[int]):
     """``observe`` (a producer's ``observe_value``) recording each sample's timestamp."""
 
-    def recording(value) -> None:
+    def recording(value, latest: bool = False) -> None:
         into.append(value.timestamp_ns)
-        observe(value)
+        observe(value, latest)
 
     return recording
 
