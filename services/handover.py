@@ -298,13 +298,15 @@ class KeyHandOver:
         (:class:`Watch`): put at some time before, so the time to the holder's next sample is
         no interval of the holder's (taken for one, a 30 Hz holder's next sample 12 ms after
         the answer made the quiet time 38 ms, and the newcomer claimed the key at the holder's
-        first slow frame)."""
+        first slow frame); an answer coming after the holder's own samples is ignored."""
         now = self._clock()
         with self._lock:
             if self._newest_ns is None or value.timestamp_ns > self._newest_ns:
                 self._newest_ns = value.timestamp_ns
             if value.timestamp_ns in self._mine:
                 return
+            if latest and self._other_at is not None:
+                return  # the holder's samples came first: the answer tells nothing newer
             running = self._other_at is not None and now - self._other_at <= self.quiet_s()
             if running and not self._other_at_is_answer:
                 self._other_intervals.append(now - self._other_at)

@@ -14,6 +14,7 @@ from ubitrack_agent.core import MeasurementError, decode, encode
 from ubitrack_agent.core.measurements import WORKER, ErrorPose, Pose
 from ubitrack_agent.services.handover import (
     CLAIM_TIMEOUT_S,
+    DEFAULT_QUIET_S,
     HOLDER_LOST_IN_ROW,
     INTERVALS_REMEMBERED,
     TAKE_BACK_RATIO,
@@ -236,6 +237,25 @@ def test_the_time_from_the_keys_latest_sample_answered_to_the_next_is_no_interva
     assert bus.offer(old, pose(159))
     assert not any(m.get("claim") == new.producer for m in bus.messages)
     assert bus.counters[1]["relation_held"] == 2
+
+
+def test_the_keys_latest_answered_after_the_holders_samples_changes_nothing():
+    """The answer to a starting producer's question may come after the holder's next sample:
+    it is no put of the holder's then (its arrival 5 ms later made a 5 ms interval, a quiet
+    time of 20 ms, and the key quiet for the less certain newcomer 25 ms on)."""
+    bus = Bus()
+    old = holding(bus)
+    wire, bus.wire = bus.wire, []
+    new = bus.producer()
+    bus.wire = wire
+    bus.clock.now += 0.033
+    assert bus.offer(old, pose(43))
+    bus.clock.now += 0.005
+    new.observe(bus.wire[-2][2], latest=True)  # the answer: the holder's sample of 10 ms
+    assert new.quiet_s() == DEFAULT_QUIET_S  # one sample of the holder seen, no interval
+    bus.clock.now += 0.020
+    assert not bus.offer(new, pose(68, variance=4e-6))
+    assert not any(m.get("claim") == new.producer for m in bus.messages)
 
 
 def test_a_spare_takes_the_key_within_a_sample_when_the_holder_loses_a_sensor():
