@@ -503,31 +503,19 @@ class Workspace:
         ``O(frames within that distance)`` word operations. A search of the whole region per
         step output's source was ``O(F (F + E))`` in all (514 searches of 512 frames in a room
         with 500 redundant trackers), where the frames of a step's output are mostly a hop or
-        two apart."""
+        two apart. Not ``ways.hop_distances(..., goal=b)``: a level through a frame every one of K
+        trackers joins costs K Python steps there, one integer operation here."""
         if a == b:
             return 0
         known = self._pair_hops.get((a, b))
         if known is None:
-            known = self._pair_hops[a, b] = self._searched_distance(a, b)
+            start, target = self._bits[a], self._bits[b]
+            known = next(
+                (depth for depth, frontier in self._levels(start, 0) if frontier & target),
+                len(self.neighbours) + 1,
+            )
+            self._pair_hops[a, b] = known
         return known
-
-    def _searched_distance(self, a: str, b: str) -> int:
-        """:meth:`_distance`'s search."""
-        seen, target = self._bits[a], self._bits[b]
-        adjacent = self._adjacency()
-        frontier, depth = seen, 0
-        while frontier:
-            depth += 1
-            reached = 0
-            while frontier:
-                low = frontier & -frontier
-                reached |= adjacent[low.bit_length() - 1]
-                frontier ^= low
-            if reached & target:
-                return depth
-            frontier = reached & ~seen
-            seen |= frontier
-        return len(self.neighbours) + 1
 
     def _frame_bits(self, link: EdgeRecord) -> int:
         """The frames ``link``'s sources join (:attr:`EdgeRecord.frames`) as bits, kept."""
@@ -643,23 +631,33 @@ class Workspace:
 
     def _hops_avoiding(self, start_bit: int, avoid: int) -> dict[int, int]:
         """Hops to each frame (by bit) reached from the frame of ``start_bit`` without
-        entering ``avoid`` (bits): breadth-first on the neighbours' bits (:attr:`_adjacent`),
-        ``O(frames)`` word operations."""
-        adjacent = self._adjacency()
+        entering ``avoid`` (bits; :meth:`_levels`)."""
         hops = {}
-        seen = start_bit | avoid
-        frontier, depth = start_bit, 0
-        while frontier:
-            reached = 0
+        for depth, frontier in self._levels(start_bit, avoid):
             while frontier:
                 low = frontier & -frontier
                 hops[low] = depth
-                reached |= adjacent[low.bit_length() - 1]
                 frontier ^= low
+        return hops
+
+    def _levels(self, start_bit: int, avoid: int) -> Iterator[tuple[int, int]]:
+        """The frames (bits) first reached at each number of hops from the frame of
+        ``start_bit``, 0 first, without entering ``avoid`` (bits): breadth-first on the
+        neighbours' bits (:attr:`_adjacent`), ``O(frames)`` word operations in all. The
+        frames' bits are taken before the search (:meth:`_adjacency` covers them)."""
+        adjacent = self._adjacency()
+        seen = start_bit | avoid
+        frontier, depth = start_bit, 0
+        while frontier:
+            yield depth, frontier
+            reached, rest = 0, frontier
+            while rest:
+                low = rest & -rest
+                reached |= adjacent[low.bit_length() - 1]
+                rest ^= low
             depth += 1
             frontier = reached & ~seen
             seen |= frontier
-        return hops
 
     def viable_chain(self, template: Template) -> Viable:
         """The occurrences of a chain template worth applying, as a test of partial ones for
@@ -1053,15 +1051,13 @@ class Workspace:
             return source in self.goal
         if source in self.goal or target in self.goal:
             return True
-        near_source, near_target = self.distances
         if not self.either_way:
+            near_source, near_target = self.distances
             return (
                 near_source[source] < near_source[target]
                 or near_target[source] > near_target[target]
             )
-        return (
-            near_source[source] != near_source[target] or near_target[source] != near_target[target]
-        )
+        return self._class(source) != self._class(target)  # the class :meth:`_narrowing` skips
 
     def apply(self, instance: Instance) -> list[str]:
         """Apply ``instance``: add its admissible outputs, record the step, return new edge ids.
