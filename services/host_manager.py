@@ -206,6 +206,22 @@ class HostManager:
 
         return logs.guarded(queue_sample, self.counters, log, what)
 
+    def _ask_awaited_tokens(self) -> None:
+        """Ask the router for the tokens the supervisor has awaited too long
+        (:meth:`Supervisor.awaited_tokens`); the replies come back as ``<kind>_found``
+        events, without blocking this thread."""
+        for kind, selector in self.supervisor.awaited_tokens(time.monotonic()):
+
+            def found(reply: Any, kind: str = kind) -> None:
+                if reply.ok is not None:
+                    self._events.put((f"{kind}_found", str(reply.ok.key_expr)))
+
+            guarded = logs.guarded(found, self.counters, log, f"{kind} token asked for")
+            try:
+                self._session.liveliness().get(selector, guarded, timeout=ASK_TIMEOUT_S)
+            except zenoh.ZError as exc:
+                self._count_problem("failed_token_queries", "could not ask for tokens: %s", exc)
+
     def _receive_requests(self) -> None:
         for query in self._requests:
             while not self._request_slots.acquire(timeout=LOOP_S):
@@ -231,6 +247,7 @@ class HostManager:
                 for exited in self.supervisor.reap():
                     self._exits.put(exited.to_json())
                     self.counters["exits_reported"] += 1
+                self._ask_awaited_tokens()
                 self.supervisor.fill_pool()
                 self._end_if_unneeded()
         finally:
@@ -296,24 +313,35 @@ class HostManager:
         if kind == "control":
             self._on_control(*event)
             return
-        change, key = event
+        if kind == "container_found":
+            self._on_container_token(PUT, event, found=True)
+            return
+        change, key = (PUT, event) if kind == "pool_found" else event
         try:
             pool_id = self.keys.parse_pool(key)
         except ValueError as exc:
             self._count_problem("rejected_pool_keys", "ignored malformed pool key: %s", exc)
+            return
+        if kind == "pool_found":
+            self.supervisor.on_pool_token_found(pool_id)
             return
         exited = self.supervisor.on_pool_token(pool_id, change == PUT)
         if exited is not None:
             self._exits.put(exited.to_json())
             self.counters["exits_reported"] += 1
 
-    def _on_container_token(self, change: str, key: str) -> None:
+    def _on_container_token(self, change: str, key: str, found: bool = False) -> None:
+        """A container's token changed, or was ``found`` by asking (:meth:`_ask_awaited_tokens`:
+        it only ends a wait, adopting nothing)."""
         token = self.keys.parse_token("container", key)
         if isinstance(token, KeyRejection):
             reason = ValueError(f"{token.key!r}: {token.reason}")
             self._count_problem("rejected_container_keys", "ignored container key: %s", reason)
             return
         name, incarnation = token.name, token.incarnation
+        if found:
+            self.supervisor.on_container_token_found(name, incarnation)
+            return
         self.supervisor.on_container_token(name, incarnation, change == PUT)
         if change == PUT and (worker := self._orphan(name, incarnation)) is not None:
             self._adopt(name, incarnation, worker)

@@ -21,7 +21,10 @@ for a specification on ``<root>/pool/<ID>``:
 * a start of an instance whose earlier process is still releasing terminates that process, so
   one instance never runs twice here and no stop meant for it reaches the new one;
 * a pool member not ready within ``POOL_READY_S`` (spawned, or its pool token vanished) is
-  terminated, so a stuck member never stops the pool from refilling;
+  terminated, so a stuck member never stops the pool from refilling; a token awaited for over
+  ``TOKEN_ASK_S`` (a member's, or a container's) is asked for every ``TOKEN_ASK_S`` before
+  that (:meth:`Supervisor.awaited_tokens`): a declaration the router holds but did not pass
+  on to the liveliness subscriber is found instead of the process being terminated;
 * a pool token appearing for a process that runs an instance means a stop command from
   elsewhere released it: the instance ended (reported, like a process that exited).
 
@@ -91,6 +94,11 @@ REFILL_QUIET_S = 3.0
 POOL_READY_S = 20.0
 """A pool member whose pool token is not up this long after it was spawned (or after its token
 vanished) is terminated; so is a container whose token is not up this long after its start."""
+TOKEN_ASK_S = 2.0
+"""A token awaited this long is asked for (a liveliness query), again every this often until
+it is up or ``POOL_READY_S`` passes. Once in CI (access control on, 2,440 tests passing beside
+it) a container serving its components was terminated twice as never ready: its token never
+reached the host manager's subscriber."""
 QUICK_RESTORE_S = 10.0
 """A container that dies sooner than this after its start died quickly."""
 MAX_QUICK_RESTORES = 3
@@ -176,6 +184,7 @@ class Supervisor:
         self.containers: dict[str, ContainerRun] = {}
         self._stopping: list[tuple[subprocess.Popen | AdoptedProcess, float]] = []
         self._last_start = -REFILL_QUIET_S
+        self._tokens_asked_at = -TOKEN_ASK_S
         self.last_restore: dict[str, Any] | None = None
         """The latest container restored: its name, components, which process took it
         (:attr:`ContainerRun.taken_from`), when its death was noticed and when the process was
@@ -242,6 +251,48 @@ class Supervisor:
         log.info("%s: released by a stop command from elsewhere", owner)
         self._rejoin(pool_id, assignment.process)
         return Exited(owner, assignment.run, assignment.process.pid, None, "released")
+
+    def awaited_tokens(self, now: float) -> list[tuple[str, str]]:
+        """The tokens to ask for now, as ``(kind, selector)``: ``container`` if a container's
+        token has been awaited for over ``TOKEN_ASK_S``, ``pool`` if a member's (or that of a
+        process spawned for a container) has; at most once every ``TOKEN_ASK_S``. O(members +
+        containers); each query's replies are every token of its kind
+        (:meth:`on_container_token_found`, :meth:`on_pool_token_found`)."""
+        if now - self._tokens_asked_at < TOKEN_ASK_S:
+            return []
+        late = now - TOKEN_ASK_S
+        asked = []
+        if any(b.incarnation is None and b.started < late for b in self.containers.values()):
+            asked.append(("container", self._keys.all_containers()))
+        spawned = (b for b in self.containers.values() if b.group is not None)
+        if any(since < late for since in self._unready_since.values()) or any(
+            b.started < late for b in spawned
+        ):
+            asked.append(("pool", self._keys.all_pools()))
+        if asked:
+            self._tokens_asked_at = now
+        return asked
+
+    def on_container_token_found(self, name: str, incarnation: str) -> None:
+        """A container's token found by asking (:meth:`awaited_tokens`): as if it appeared,
+        counted (``tokens_found``) if its container was waiting for it."""
+        box = self.containers.get(name)
+        if box is not None and box.incarnation is None:
+            self.on_container_token(name, incarnation, appeared=True)
+            if box.incarnation is not None:
+                self.counters["tokens_found"] += 1
+
+    def on_pool_token_found(self, pool_id: str) -> None:
+        """A pool token found by asking (:meth:`awaited_tokens`): as if it appeared, counted
+        (``tokens_found``), only for a member still awaited or a process spawned for a
+        container still to be given its group. Any other (a member taken since, which a reply
+        may predate; another host manager's) is left alone: taken as appearing, it would read
+        as a release by a stop from elsewhere."""
+        boxes = self.containers.values()
+        spawned = any(b.pool_id == pool_id and b.group is not None for b in boxes)
+        if pool_id in self._unready_since or spawned:
+            self.counters["tokens_found"] += 1
+            self.on_pool_token(pool_id, appeared=True)
 
     def _pool_has_room(self) -> bool:
         """Whether the pool (members and processes returning to it) is short."""

@@ -13,9 +13,10 @@ from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import HostInfo, Start, Status, encode_request
 from ubitrack_agent.net.json_messages import MessageError
 from ubitrack_agent.net.keys import KeySpace
-from ubitrack_agent.net.spec import ComponentSpec, InputBinding, SpecError, parse_spec
+from ubitrack_agent.net.spec import ComponentSpec, GroupSpec, InputBinding, SpecError, parse_spec
 from ubitrack_agent.services.host import ABANDONED_END_S, ORPHAN_END_S
 from ubitrack_agent.services.host_manager import HostManager, rewired
+from ubitrack_agent.services.supervisor import TOKEN_ASK_S, Supervisor
 
 KEYS = KeySpace("ubitrack/test")
 
@@ -29,13 +30,30 @@ class FakeSession:
     def __init__(self) -> None:
         self.puts: list[tuple[str, str]] = []
         self.encodings: dict[str, object] = {}
+        self.tokens: list[str] = []
+        """The tokens a liveliness query with a callback is answered (the router's)."""
+        self.asked: list[str] = []
 
     def liveliness(self):
         return SimpleNamespace(
             declare_subscriber=lambda *args, **kwargs: SimpleNamespace(undeclare=lambda: None),
             declare_token=lambda key: SimpleNamespace(undeclare=lambda: None),
-            get=lambda key, timeout=None: [],  # no container left running by another
+            get=self._liveliness_get,
         )
+
+    def _liveliness_get(self, key, handler=None, timeout=None):
+        if handler is None:
+            return []  # no container left running by another
+        self.asked.append(key)
+        prefix = key.rstrip("/*")
+        for token in self.tokens:
+            if token.startswith(prefix):
+                handler(SimpleNamespace(ok=SimpleNamespace(key_expr=token)))
+        handler(SimpleNamespace(ok=None))  # an error reply
+        return None
+
+    def put(self, key, payload, **_options):
+        self.puts.append((key, payload))
 
     def declare_subscriber(self, key, callback):
         return SimpleNamespace(undeclare=lambda: None)
@@ -295,3 +313,45 @@ def test_an_orphaned_host_manager_running_components_ends_once_abandoned(manager
     manager._end_if_unneeded()
     assert manager._stop.is_set() and manager.counters["ended_abandoned"] == 1
     assert manager.counters["ended_unneeded"] == 0
+
+
+def test_tokens_awaited_too_long_are_asked_for_and_found(manager, monkeypatch):
+    """A token the liveliness subscriber never passed on (seen in CI) is found by asking: the
+    cold container's process is given its group, the container its commands; hostile keys
+    among the replies are counted and ignored."""
+    session, supervisor = manager._session, manager.supervisor
+    spawned = []
+
+    def spawn(self, pool_id, *arguments):
+        spawned.append(SimpleNamespace(pid=4242, poll=lambda: None, pool_id=pool_id))
+        return spawned[-1]
+
+    monkeypatch.setattr(Supervisor, "_spawn", spawn)
+    relay = ComponentSpec(
+        "relay-a",
+        "relay",
+        (InputBinding("in", "ubitrack/test/data/p/e", trigger=True),),
+        {"out": "ubitrack/test/data/relay-a/out"},
+    )
+    group = GroupSpec("lab-0", (relay,))
+    supervisor.start_group(group)
+    box = supervisor.containers["lab-0"]
+    box.started -= TOKEN_ASK_S + 0.1  # awaited long enough
+    session.tokens = [
+        KEYS.pool(spawned[0].pool_id),
+        KEYS.container("lab-0", "4242.x"),
+        "ubitrack/test/container/a b/1.x",
+        "ubitrack/test/pool/a/b",
+    ]
+    manager._ask_awaited_tokens()
+    assert session.asked == [KEYS.all_containers(), KEYS.all_pools()]
+    while not manager._events.empty():
+        manager._handle(*manager._events.get_nowait())
+    assert (KEYS.pool(spawned[0].pool_id), group.to_json()) in session.puts  # given its group
+    assert box.incarnation == "4242.x" and box.group is None
+    assert manager.counters["tokens_found"] == 2
+    assert manager.counters["rejected_container_keys"] == 1
+    assert manager.counters["rejected_pool_keys"] == 1
+    assert manager.counters.get("internal_errors", 0) == 0
+    manager._ask_awaited_tokens()  # within the interval, and nothing awaited: not asked again
+    assert len(session.asked) == 2

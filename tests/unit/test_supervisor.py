@@ -429,3 +429,61 @@ def test_an_adopted_process_that_has_ended_is_not_adopted(make, clock, monkeypat
     orphan = Orphan("lab-0", "4242.abcd", LocalWorker("old-pool", 77), (spec("a"),))
     assert supervisor.adopt(orphan) == 0
     assert supervisor.status()["instances"] == {}
+
+
+# -- tokens awaited too long: asked for ------------------------------------------------------------
+
+
+def test_a_container_token_awaited_too_long_is_asked_for_once_per_interval(make, clock):
+    supervisor, session, spawned = make(pool_size=1)
+    ready_pool(supervisor, spawned, clock)
+    supervisor.start_group(GroupSpec("lab-0", (spec("a"),)))
+    supervisor.start_group(GroupSpec("lab-0", (spec("a"), spec("b"))))  # an add, waiting
+    assert supervisor.awaited_tokens(clock[0]) == []  # not awaited long yet
+    clock[0] += supervisor_module.TOKEN_ASK_S + 0.1
+    assert supervisor.awaited_tokens(clock[0]) == [("container", KEYS.all_containers())]
+    assert supervisor.awaited_tokens(clock[0] + 1.0) == []  # asked within the interval
+    box = supervisor.containers["lab-0"]
+    supervisor.on_container_token_found("lab-0", f"{box.process.pid + 1}.x")  # another process
+    assert box.incarnation is None and supervisor.counters["tokens_found"] == 0
+    supervisor.on_container_token_found("lab-0", f"{box.process.pid}.x")
+    assert box.incarnation == f"{box.process.pid}.x"
+    assert supervisor.counters["tokens_found"] == 1
+    control = KEYS.control_incarnation("lab-0", box.incarnation)
+    assert commands(session, control) == [{"add": [spec("b").as_dict()]}]  # the add is sent
+    supervisor.on_container_token_found("lab-0", f"{box.process.pid}.x")  # a later reply
+    assert supervisor.counters["tokens_found"] == 1
+    clock[0] += supervisor_module.POOL_READY_S  # ready: never terminated, nothing asked
+    assert supervisor.reap() == [] and spawned[0].signals == []
+    assert supervisor.awaited_tokens(clock[0]) == []
+
+
+def test_a_pool_token_found_readies_only_a_member_still_awaited(make, clock):
+    supervisor, _, spawned = make(pool_size=1)
+    supervisor.fill_pool()
+    pool_id = spawned[0].arguments[0]
+    clock[0] += supervisor_module.TOKEN_ASK_S + 0.1
+    assert supervisor.awaited_tokens(clock[0]) == [("pool", KEYS.all_pools())]
+    supervisor.on_pool_token_found("other-host-member")
+    assert supervisor.status()["pool_ready"] == 0
+    supervisor.on_pool_token_found(pool_id)
+    assert supervisor.status()["pool_ready"] == 1
+    assert supervisor.counters["tokens_found"] == 1
+    started = supervisor.start(spec("a"))  # takes the member
+    assert started.pid == spawned[0].pid
+    supervisor.on_pool_token_found(pool_id)  # a reply older than the start: not a release
+    assert "a" in supervisor.assigned and supervisor.counters["released"] == 0
+
+
+def test_a_cold_container_is_given_its_group_when_its_pool_token_is_found(make, clock):
+    supervisor, session, spawned = make(pool_size=0)
+    supervisor.start_group(GroupSpec("lab-0", (spec("a"),)))
+    pool_id = spawned[0].arguments[0]
+    clock[0] += supervisor_module.TOKEN_ASK_S + 0.1
+    asked = supervisor.awaited_tokens(clock[0])
+    assert ("pool", KEYS.all_pools()) in asked and ("container", KEYS.all_containers()) in asked
+    supervisor.on_pool_token_found(pool_id)
+    assert commands(session, KEYS.pool(pool_id)) == [GroupSpec("lab-0", (spec("a"),)).as_dict()]
+    supervisor.on_pool_token_found(pool_id)  # again: given once, counted once
+    assert len(commands(session, KEYS.pool(pool_id))) == 1
+    assert supervisor.counters["tokens_found"] == 1
