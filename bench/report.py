@@ -7,9 +7,20 @@ import argparse
 import json
 import os
 import platform
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+
+def run_header() -> dict[str, Any]:
+    """What every result file starts with: when (UTC), on what, and the load average then."""
+    return {
+        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+        "machine": f"{platform.machine()}, Python {platform.python_version()}, "
+        f"{os.cpu_count()} cores",
+        "load_average_before": [round(x, 2) for x in os.getloadavg()],
+    }
 
 
 def write_results(path: Path, results: dict[str, Any]) -> None:

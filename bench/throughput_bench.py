@@ -52,7 +52,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -62,7 +61,7 @@ from typing import Any
 import numpy as np
 
 from bench.cpu_use import _TICKS_PER_S, descendants_cpu
-from bench.report import write_results
+from bench.report import run_header, write_results
 from ubitrack_agent.net.session import CONFIG_VARIABLE
 
 RESULTS = Path(__file__).with_name("results") / "throughput.json"
@@ -401,10 +400,7 @@ def bench(args: argparse.Namespace) -> dict[str, Any]:
         else group_containers(components, dict.fromkeys(components, HOST), {HOST: args.cores})
     )
     results: dict[str, Any] = {
-        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
-        "machine": f"{platform.machine()}, Python {platform.python_version()}, "
-        f"{os.cpu_count()} cores",
-        "load_average_before": [round(x, 2) for x in os.getloadavg()],
+        **run_header(),
         "chains": args.chains,
         "hops": args.hops,
         "containers": {name: len(group.components) for name, group in groups.items()},

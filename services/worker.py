@@ -163,8 +163,7 @@ COUNTERS = {
     "their data key: no subscriber outside the process (a relation key is put for an "
     "application listening, as every key: net.transport.LatestValuePublisher)",
     "missed": "samples a dynamic input read over zenoh never got: numbers its producer put "
-    "that did not arrive (zenoh dropped them on a full link: net.sequence, net.transport."
-    "congestion_control)",
+    "that did not arrive (zenoh dropped them on a full link: net.sequence, net.transport)",
     "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
     "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
     "rejected_clock": "samples whose timestamp moved by their input's clock offset leaves the "
@@ -718,7 +717,6 @@ class Worker:
             for port, keys in relations.items()
         }
         answers = {key: port for port, keys in routes.items() for key in keys}
-        data_keys = set(self.spec.outputs.values())
         wanted = {key for keys in (*routes.values(), *progress_routes.values()) for key in keys}
         self._put_outside()  # what is queued goes out on the publishers it was queued for
         for key in set(self._publishers) - wanted:
@@ -727,10 +725,8 @@ class Worker:
             port = answers.get(key)
             at = None if port is None else (lambda t, port=port: self._ask(port, t))
             encoding = JSON if port is None else MSGPACK  # progress, or a measurement
-            # A put may wait only on the data key, read by our own components alone
-            # (net.transport.congestion_control).
             self._publishers[key] = LatestValuePublisher(
-                self._session, key, at, self._counts, encoding, self._wake, key in data_keys
+                self._session, key, at, self._counts, encoding, self._wake
             )
         self._watch_relations({key for keys in relations.values() for key in keys})
         self._routes = routes

@@ -3,8 +3,8 @@ on mutual TLS enforcing the access control that ``ubitrack certs`` writes; a tra
 application are clients with their own certificates. The legitimate flow works; what an
 unknown certificate, a provider's or an application's certificate writes where its role may
 not (poses, control commands, tokens) is dropped by the router, and the application's values
-stay correct; an application's subscriber on a component's output key (puts that may wait,
-net.transport) receives nothing; without a certificate, or with one from another CA, nothing
+stay correct; an application's subscriber on a component's output key (the flow's wiring,
+net.access) receives nothing; without a certificate, or with one from another CA, nothing
 connects."""
 
 from __future__ import annotations
@@ -214,9 +214,9 @@ def test_only_authorised_certificates_write_and_the_application_stays_correct(se
 
 
 def test_only_agent_and_host_certificates_read_a_component_output(secure):
-    """A component's output puts may wait for a full link (congestion control BLOCK,
-    net.transport): an application's subscriber on it is refused (it receives nothing), while
-    the host's certificate receives it and the relation keeps flowing to the application."""
+    """A component's output is the data flow's wiring, read by components alone (net.access):
+    an application's subscriber on it is refused (it receives nothing), while the host's
+    certificate receives it and the relation keeps flowing to the application."""
     keys = secure.keys
     with _flowing(secure) as (host_reader, app_session, relation):
         instances = {i for i, c in _status(host_reader, keys)["components"].items() if c["alive"]}

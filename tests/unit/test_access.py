@@ -80,7 +80,7 @@ def allowed(subject: str, message: str, key: str, flow: str = "ingress") -> bool
         ("application", "declare_subscriber", KEYS.all_liveness(), "ingress"),
         ("application", "declare_liveliness_subscriber", KEYS.pattern("**"), "ingress"),
         ("application", "declare_subscriber", KEYS.agent_status(), "ingress"),
-        # components' outputs (BLOCK puts): only the agent and host managers and their workers
+        # components' outputs (the flow's wiring): only the agent and host managers, workers
         ("agent", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
         ("host", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
         ("host", "query", KEYS.data("concat-1/out"), "ingress"),  # a time query
@@ -129,7 +129,7 @@ def test_each_role_may_do_its_job(subject, message, key, flow):
         ("intruder", "put", KEYS.measured("ART", "HT"), "ingress"),
         ("intruder", "declare_subscriber", KEYS.relation(RELATION), "ingress"),
         ("intruder", "put", KEYS.relation(RELATION), "egress"),  # it receives nothing either
-        # a reader that stops reading would hold a component's BLOCK puts (net.transport)
+        # a component's output is the flow's wiring, for components alone (net.access)
         ("application", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
         ("operator", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),
         ("ART", "declare_subscriber", KEYS.data("concat-1/out"), "ingress"),

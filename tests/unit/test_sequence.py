@@ -1,12 +1,8 @@
-"""The numbers a publisher's puts carry and the gaps a reader counts (``net.sequence``), and
-which publishers may wait for room on a full link (``net.transport.congestion_control``)."""
+"""The numbers a publisher's puts carry and the gaps a reader counts (``net.sequence``)."""
 
 from __future__ import annotations
 
-import zenoh
-
 from ubitrack_agent.net.sequence import MAX_SOURCES, Gaps, Numbering
-from ubitrack_agent.net.transport import congestion_control
 
 
 def test_numbers_in_order_count_no_gap_and_skipped_ones_count_each():
@@ -59,8 +55,3 @@ def test_readers_of_one_holder_add_up_and_a_forgotten_publisher_starts_again():
         one.seen(other.next())
     assert one.seen(numbering.next()) == 0  # forgotten: a first sample again, not a gap
     assert gaps.missed == 4
-
-
-def test_only_a_component_data_key_may_wait():
-    assert congestion_control(True) == zenoh.CongestionControl.BLOCK
-    assert congestion_control(False) == zenoh.CongestionControl.DROP

@@ -12,6 +12,8 @@ def test_without_a_file_the_config_is_zenohs_default_with_the_settings():
     assert json.loads(made.get_json("mode")) == "peer"
     assert json.loads(made.get_json("qos/publication")) == []
     assert json.loads(made.get_json("transport/link/tx/queue/batching/enabled")) is True
+    drop = json.loads(made.get_json("transport/link/tx/queue/congestion_control/drop"))
+    assert drop["wait_before_drop"] == config.DROP_WAIT_US == 10_000  # us, zenoh's is 1,000
 
 
 def test_the_file_is_the_base_and_the_settings_win(tmp_path):

@@ -334,15 +334,15 @@ def test_a_relation_route_that_is_no_relation_key_does_not_stop_the_worker():
     worker.stop()
 
 
-def test_only_the_output_on_its_data_key_may_wait_for_a_full_link():
-    """net.transport.congestion_control: the data key, read by components alone, waits; the
-    relation key an application reads drops."""
+def test_no_output_waits_for_a_full_link():
+    """net.transport, "Nothing waits for a reader": the data key and the relation key an
+    application reads both drop on a full link (a stopped reader holds nobody)."""
     relation = KEYS.relation(RelationId("W", "T", "6D"))
     spec = ComponentSpec(**{**vars(SPEC), "relations": {"AC": (relation,)}})
     session = FakeSession()
     worker = Worker(spec, session, KEYS)
     worker.stop()
-    assert session.congestion[KEYS.data("concat1/AC")] == zenoh.CongestionControl.BLOCK
+    assert session.congestion[KEYS.data("concat1/AC")] == zenoh.CongestionControl.DROP
     assert session.congestion[relation] == zenoh.CongestionControl.DROP
 
 

@@ -22,9 +22,11 @@ role (see the tables in ``docs/security.md``). Worker writes on data keys exclud
 provider's data.
 
 Only ``agent`` and ``host`` may subscribe to and query a **component's output data key**
-(``R/data/<instance>/<port>``, ``agent.materialise``): its puts may wait for a full link
-(congestion control BLOCK, ``net.transport.congestion_control``), so any other reader that
-stops reading would hold the component up to zenoh's ``wait_before_close`` (5 s). The other
+(``R/data/<instance>/<port>``, ``agent.materialise``): the data flow's own wiring, which the
+agent gives only to other components (least privilege: an application reads its relation key,
+and a reader that stops reading costs the component's container a wait of up to
+``net.config.DROP_WAIT_US`` on each put to it until it drops them; until session 27 these
+puts waited up to 5 s, congestion control BLOCK, ``net.transport``). The other
 roles may subscribe to every kind of key but ``R/data`` by name, to providers' data keys
 (``R/data/X/**``, ``R/data/X.*/**``, whose puts drop) and to the providers' liveness reports
 (``R/data/*``). This is an allow list, not a deny of the component keys, because zenoh applies

@@ -2,14 +2,17 @@
 silently.
 
 Zenoh drops a sample put with congestion control DROP when a link's transmission queue stays
-full (its ``wait_before_drop``, 1 ms by default; then every droppable message on that queue
-until a batch frees: ``push_network_message`` in zenoh's ``io/zenoh-transport/src/common/
-pipeline.rs``), and tells neither the sender nor the reader; zenoh-python has no drop counter.
+full (its ``wait_before_drop``: ``net.config.DROP_WAIT_US``, 10 ms; then every droppable
+message on that queue until a batch frees: ``push_network_message`` in zenoh's
+``io/zenoh-transport/src/common/pipeline.rs``), and tells neither the sender nor the reader;
+zenoh-python has no drop counter. Every put of the data path drops (``net.transport``,
+"Nothing waits for a reader").
 So each :class:`~ubitrack_agent.net.transport.LatestValuePublisher` numbers its puts
 (:class:`Numbering`) in the sample's attachment (zenoh's, stable in 1.x: the payload and its
 codec are unchanged), and a reader (a worker's input, an application's relation) counts the
 numbers it never saw (:class:`Gaps`): the samples lost between that publisher and that reader,
-wherever on the way (``docs/performance.md``, "Which puts may wait (session 24)").
+wherever on the way (``docs/performance.md``, "Which puts may wait (session 24)" and "A stalled
+reader holds nobody (session 27)").
 
 A number belongs to one publisher (an id drawn when it is declared): two producers on one key
 (a hand-over, make before break: ``services.handover``) are counted apart, and a publisher

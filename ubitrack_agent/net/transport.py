@@ -10,8 +10,32 @@ without one such a query gets an ``extrapolation`` error reply (a measured edge 
 model).
 
 Each put carries its publisher's next number in its attachment (:mod:`ubitrack_agent.net.sequence`),
-and :func:`subscribe_in_bursts` counts the numbers a subscription never saw; which puts may wait
-for a full link and which drop is :func:`congestion_control`'s rule.
+and :func:`subscribe_in_bursts` counts the numbers a subscription never saw.
+
+**Nothing waits for a reader.** Every put of the data path (a component's output on its data
+key, a relation key, a provider's measured edge) has zenoh's congestion control DROP; only
+commands wait (:func:`put_command`). Why, in zenoh 1.x: a message carries its congestion
+control, and a router forwards it unchanged (``route_data`` in zenoh's
+``zenoh/src/net/routing/dispatcher/pubsub.rs`` copies ``ext_qos``). On each link, a message
+whose transmission queue is full waits for room -- the putting thread, or, on a router (a host
+manager routing for its containers), the thread receiving from the link it came on, and with
+it everything else arriving there. A BLOCK message waits up to ``transport/link/tx/queue/
+congestion_control/block/wait_before_close`` (5 s), then zenoh closes the transport of the
+link that stayed full (``push_network_message`` in ``io/zenoh-transport/src/common/
+pipeline.rs``; ``handle_push_result`` in ``io/zenoh-transport/src/unicast/universal/tx.rs``);
+a DROP message waits at most ``.../drop/wait_before_drop`` (``net.config.DROP_WAIT_US``, 10 ms
+here), then the queue is marked congested and the next DROP messages on it are dropped at
+once, with no wait, until a batch is sent. So one container that stops reading (stopped, hung)
+costs the containers that send to it, and every flow of theirs, at most one such wait, and
+loses the samples its link could not take, which the numbers count. Until session 27 a
+component's data key put with BLOCK, so that a burst between containers arrived whole: a
+stopped container then held every flow of each container sending to it for the whole stop, up
+to 5 s (``docs/performance.md``, "A stalled reader holds nobody (session 27)"). A reader that
+is slow but reads loses what its queue cannot hold beyond the wait, counted, rather than
+holding its producers back. A subscriber in the putting session itself is called in the put,
+whatever the congestion control (a full ``FifoChannel`` holds the put: zenoh-python's
+``FifoChannel`` docstring); components of one container are handed their values without zenoh
+(``services.local_wires``).
 
 Threads: a publisher starts none. Its queryable and its matching listener are zenoh callbacks
 run on zenoh's own thread (:func:`on_zenoh_thread`), which only hand the query on; the
@@ -155,49 +179,9 @@ def _start(thread: threading.Thread) -> None:
         thread.start()
 
 
-def congestion_control(may_wait: bool) -> zenoh.CongestionControl:
-    """Zenoh's congestion control for a publisher of the data path: BLOCK where a put may wait
-    for room on a full link (``may_wait``), else DROP.
-
-    The rule (``docs/performance.md``, "Which puts may wait (session 24)"): **a put may wait
-    only where every reader the data flow gives it is one of our own components** -- a
-    component's output on its data key, which the agent wires only to other components'
-    inputs. A relation key (read by applications), a provider's measured edge (read by tools
-    such as ``ubitrack view`` and by applications besides the components) and every other key
-    drop instead: a reader outside our control that stops reading (a stopped or stalled
-    application) must not hold a container's thread or a host manager.
-
-    Why it matters where the readers are, in zenoh 1.x: a message carries its congestion
-    control, and a router forwards it unchanged (``route_data`` in zenoh's
-    ``zenoh/src/net/routing/dispatcher/pubsub.rs`` copies ``ext_qos``). On each link, a BLOCK
-    message whose transmission queue is full waits for room -- the putting thread, or, on a
-    router (a host manager routing for its containers), the thread receiving from the link it
-    came on, and with it everything else arriving there -- for up to
-    ``transport/link/tx/queue/congestion_control/block/wait_before_close`` (5 s), after which
-    zenoh closes the transport of the link that stayed full (``push_network_message`` in
-    ``io/zenoh-transport/src/common/pipeline.rs``; ``handle_push_result`` in
-    ``io/zenoh-transport/src/unicast/universal/tx.rs``: "Closing transport!"). A DROP message
-    waits at most ``.../drop/wait_before_drop`` (1 ms), then the queue is marked congested and
-    the next DROP messages on it are dropped at once, with no wait, until a batch is sent: a
-    stalled reader costs its senders about 1 ms, and loses samples, which the numbers each put
-    carries make visible (:mod:`ubitrack_agent.net.sequence`). A subscriber in the putting
-    session itself is called in the put, whatever the congestion control (a full
-    ``FifoChannel`` holds the put: zenoh-python's ``FifoChannel`` docstring); components of
-    one container are handed their values without zenoh (``services.local_wires``).
-
-    So with BLOCK on a component's data key, a component that stops reading (a container
-    stopped, or one that stopped taking its input's channel) holds the container whose output
-    it reads, and a host manager's receiving thread for that container's link, for up to 5 s,
-    then loses its link (its components' tokens go, as for a container that died: the agent
-    restores them); a reader that is slow but reads holds its producer back instead of losing
-    samples (back-pressure up to the provider, whose puts drop)."""
-    return zenoh.CongestionControl.BLOCK if may_wait else zenoh.CongestionControl.DROP
-
-
 class LatestValuePublisher:
-    """A publisher whose latest payload is also served on its key's queryable; ``may_wait``:
-    whether a put may wait for room on a full link (:func:`congestion_control`: only a
-    component's output on its data key, read by our own components alone)."""
+    """A publisher whose latest payload is also served on its key's queryable; its puts drop
+    on a full link (module docstring, "Nothing waits for a reader")."""
 
     def __init__(
         self,
@@ -207,7 +191,6 @@ class LatestValuePublisher:
         counters: Counter[str] | None = None,
         encoding: zenoh.Encoding = MSGPACK,
         listening: Callable[[], None] | None = None,
-        may_wait: bool = False,
     ) -> None:
         self.key = key
         self._encoding = encoding
@@ -223,13 +206,11 @@ class LatestValuePublisher:
         """Called (on zenoh's thread; it must not block) when a subscriber appears."""
         self.first_put_ns: int | None = None
         """When the first payload was put (wall clock): the first sample on its key."""
-        self.may_wait = may_wait
-        """Whether a put may wait for room on a full link (:func:`congestion_control`)."""
         self._numbering = Numbering()
         """The number each put carries (:mod:`ubitrack_agent.net.sequence`): a reader counts
         the samples it never got."""
         self._publisher = session.declare_publisher(
-            key, encoding=encoding, congestion_control=congestion_control(may_wait)
+            key, encoding=encoding, congestion_control=zenoh.CongestionControl.DROP
         )
         self._state = threading.Lock()
         """Guards :attr:`_putting` and :attr:`_undeclared`, held only between zenoh calls."""
