@@ -64,8 +64,7 @@ def test_skipping_outclassed_groups_and_chains_changes_no_answer(
                 return found
 
             def narrowing(ids):
-                ids = list(ids)
-                kept = test.narrow(ids)
+                kept = list(test.narrow(ids))
                 left_out = [e for e in ids if e not in kept]
                 # only edges the full test rejects are left out, the others kept in order
                 assert not any(test.fits(ws.index.edges[e]) for e in left_out)
@@ -123,6 +122,30 @@ def _room_workspace(templates) -> tuple[planner.Workspace, Query]:
     frames = planner.relevant_frames(srg, query.source, query.target, planner.DEFAULT_SLACK)
     goal = (query.source, query.target)
     return planner.saturate(srg, templates, frames, query.type, goal=goal), query
+
+
+def test_a_narrowing_is_remembered_per_list_and_reads_only_its_new_edges(templates):
+    """``Workspace._narrowed``: the same list narrowed again is not read again; grown at its
+    end, only the new edges are; after an edge is retired, or for another narrowing or another
+    list, the whole list is."""
+    ws, _ = _room_workspace(templates)
+    asked = []
+
+    def kept(ids):
+        asked.append(list(ids))
+        return [e for e in ids if e.endswith("+")]
+
+    ids = ["a+", "b", "c+"]
+    assert ws._narrowed(ids, ("key",), kept) == ("a+", "c+")
+    assert ws._narrowed(ids, ("key",), kept) == ("a+", "c+") and len(asked) == 1
+    ids.append("d+")
+    assert ws._narrowed(ids, ("key",), kept) == ("a+", "c+", "d+") and asked[-1] == ["d+"]
+    assert ws._narrowed(ids, ("other",), kept) == ("a+", "c+", "d+") and asked[-1] == ids
+    assert ws._narrowed(list(ids), ("key",), kept) == ("a+", "c+", "d+") and asked[-1] == ids
+    ids.remove("a+")
+    ws.index.retired.add("a+")  # as EdgeIndex.retire does
+    ids.append("e")  # as long as before
+    assert ws._narrowed(ids, ("key",), kept) == ("c+", "d+") and asked[-1] == ids
 
 
 def test_a_chain_from_a_frame_other_than_a_query_frame_is_offered_no_point(templates):

@@ -348,7 +348,7 @@ class LastTest(NamedTuple):
 
     fits: Callable[[EdgeRecord], bool]
     """Whether the occurrence the edge completes is wanted; asked before the edge is bound."""
-    narrow: Callable[[Iterable[str]], Iterable[str]] | None = None
+    narrow: Callable[[Sequence[str]], Sequence[str]] | None = None
     """The candidate edge ids (in order) without some that :attr:`fits` rejects, known by a
     cheaper test than asking it of each (``None``: all are asked)."""
 

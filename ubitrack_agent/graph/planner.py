@@ -87,6 +87,9 @@ STEP_WEIGHT = 0.01
 """Cost of each pattern step (a running component) of a derivation."""
 DEFAULT_SLACK = 2
 """Longest detour (hops beyond a shortest path) a derivation may take through the SRG."""
+NARROWED_MEMO_SIZE = 64
+"""Most candidate lists :meth:`Workspace._narrowed` remembers (a list made afresh for each
+call is remembered too, until the memo is full and cleared)."""
 DEFAULT_PER_RELATION = 8
 """Most alternatives kept per (from, to, type, static) relation during planning."""
 VARIANCE_FLOOR = 1e-30
@@ -460,6 +463,15 @@ class Workspace:
     _distances: dict[str, dict[str, int]] = field(default_factory=dict)
     _pair_hops: dict[tuple[str, str], int] = field(default_factory=dict)
     """:meth:`_distance` by frames."""
+    _narrowers: dict[tuple, Callable[[Sequence[str]], Sequence[str]] | None] = field(
+        default_factory=dict
+    )
+    """:meth:`_narrowing`'s functions by fixed end's class, type and free end."""
+    _narrowed_memo: dict[tuple, tuple[Sequence[str], int, int, tuple[str, ...]]] = field(
+        default_factory=dict
+    )
+    """:meth:`_narrowed` by candidate list and narrowing: the list, the retired edges' count
+    and the list's length when narrowed, and what was kept."""
     _reach: dict[tuple[str, int], dict[int, int]] = field(default_factory=dict)
     """:meth:`_avoiding`'s hops (by frame bit) by start and frames avoided."""
     _counts: dict[str, tuple[list[int], list[int]]] = field(default_factory=dict)
@@ -772,7 +784,7 @@ class Workspace:
         edge_type: str | None,
         fixed: str,
         free_end: Callable[[EdgeRecord], str],
-    ) -> Callable[[Iterable[str]], list[str]] | None:
+    ) -> Callable[[Sequence[str]], Sequence[str]] | None:
         """For :meth:`last_link`: the candidates of a chain's last link without the edges
         whose free end (``free_end``: the output role the edge binds) is as far from each query
         frame as the ``fixed`` end (the output role bound already), neither of them a query
@@ -784,15 +796,57 @@ class Workspace:
         candidate in a list comprehension instead of a call."""
         if template.signature != "chain" or not self.either_way or fixed in self.goal:
             return None
-        same = self._classes().get(self._class(fixed), ())
+        key = (self._class(fixed), edge_type, free_end)
+        if key not in self._narrowers:
+            self._narrowers[key] = self._narrower(key)
+        return self._narrowers[key]
+
+    def _narrower(
+        self, key: tuple[tuple[int, int], str | None, Callable[[EdgeRecord], str]]
+    ) -> Callable[[Sequence[str]], Sequence[str]] | None:
+        """:meth:`_narrowing`'s function for a fixed end's distance class, a type and a free
+        end (``key``), made once per plan."""
+        fixed_class, edge_type, free_end = key
+        same = self._classes().get(fixed_class, ())
         if len(same) < 2:
             return None  # only the fixed end itself
         edges = self.index.edges
         if edge_type is None:  # the type comes with the edge: a point is fits' to judge
-            return lambda ids: [
-                e for e in ids if free_end(link := edges[e]) not in same or link.type == "3D"
-            ]
-        return lambda ids: [e for e in ids if free_end(edges[e]) not in same]
+
+            def kept(ids: Sequence[str]) -> list[str]:
+                return [
+                    e for e in ids if free_end(link := edges[e]) not in same or link.type == "3D"
+                ]
+        else:
+
+            def kept(ids: Sequence[str]) -> list[str]:
+                return [e for e in ids if free_end(edges[e]) not in same]
+
+        return lambda ids: self._narrowed(ids, key, kept)
+
+    def _narrowed(
+        self, ids: Sequence[str], key: tuple, kept: Callable[[Sequence[str]], list[str]]
+    ) -> tuple[str, ...]:
+        """``kept(ids)``, memoised by the candidate list and the narrowing's ``key``: the
+        matcher offers the same list of the index (the edges at a frame every tracker joins)
+        to every chain's last link there, and an index list only grows at its end until an edge
+        is retired, so only its new edges are narrowed. Without this each narrowing read all
+        K candidates, K times: O(K**2) per plan in a room with K trackers (six lists in 3,006
+        narrowings at K = 500), now O(K) (``docs/performance.md``, "Planner, session 27").
+        A list the matcher made afresh is narrowed whole, and at most
+        :data:`NARROWED_MEMO_SIZE` lists are remembered."""
+        retired = len(self.index.retired)
+        memo = self._narrowed_memo.get((id(ids), key))
+        if memo is not None and memo[0] is ids and memo[1] == retired and memo[2] <= len(ids):
+            if memo[2] == len(ids):
+                return memo[3]
+            result = memo[3] + tuple(kept(ids[memo[2] :]))
+        else:
+            result = tuple(kept(ids))
+            if len(self._narrowed_memo) >= NARROWED_MEMO_SIZE:
+                self._narrowed_memo.clear()
+        self._narrowed_memo[id(ids), key] = (ids, retired, len(ids), result)
+        return result
 
     def _class(self, frame: str) -> tuple[int, int]:
         """A frame's hop distances from the query's source and target (:meth:`_wanted`)."""
