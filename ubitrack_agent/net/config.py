@@ -60,7 +60,7 @@ messages on it are dropped at once until a batch is sent, so a reader that stopp
 costs whoever routes to it this long once, not the 5 s a waiting put (BLOCK) held them
 (``docs/performance.md``, "A stalled reader holds nobody (session 27)"). 10 ms rather than 1:
 with it, zenoh lost no sample at 2,000-10,000 samples/s where 1 ms lost 0.1-1.0 % at 10,000
-(``docs/performance.md``, "Zenoh's options", ``drop10``)."""
+(``docs/performance.md``, "Zenoh's own options on the data path (session 23)", ``drop10``)."""
 
 
 class ConfigError(ValueError):
