@@ -12,6 +12,8 @@ targets). The series, each a query on a growing setup:
 
 * ``in_room``: camera -> marker in one room (``C0_1 -> M0``, 6D), K = 0, 2, 5, 7, 10, 15, 20,
   30, 50, 100, 200, 500 redundant trackers;
+* ``in_room_large``: the same with K = 1,000, 2,000, 5,000 (ten times the largest
+  ``in_room`` row: where the growth in K shows; about a minute);
 * ``in_building``: the same query in one room of a 50-room star, K = 2, 4, 10, 20 (the region
   restriction should make it cost what a lone room costs);
 * ``head_to_head_k1`` / ``_k2``: head -> head across two rooms (``H0_1 -> H1_1``), 1, 2, 3, 4,
@@ -154,8 +156,8 @@ def shortest_path(srg: nx.MultiDiGraph, query: Query) -> tuple[list[str], float]
     return path, cost
 
 
-def in_room(k: int) -> Row:
-    return Row("in_room", k, Building(redundant=k), Query(camera(0), marker(0), "6D"))
+def in_room(k: int, series: str = "in_room") -> Row:
+    return Row(series, k, Building(redundant=k), Query(camera(0), marker(0), "6D"))
 
 
 def in_building(k: int) -> Row:
@@ -206,6 +208,11 @@ def all_series(quick: bool) -> list[Series]:
     trackers = (0, 2, 5, 7, 10, 15, 20, 30, 50, 100, 200, 500)
     return [
         Series("in_room", "tracker", tuple(in_room(k) for k in trackers)),
+        Series(
+            "in_room_large",
+            "tracker",
+            tuple(in_room(k, "in_room_large") for k in (1000, 2000, 5000)),
+        ),
         Series("in_building", "tracker", tuple(in_building(k) for k in (2, 4, 10, 20))),
         Series("head_to_head_k1", "body", tuple(head_to_head(b, 1) for b in bodies)),
         Series(
