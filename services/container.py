@@ -88,6 +88,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
+from ubitrack_agent.core.heap import settle_collector
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON
@@ -104,7 +105,6 @@ from ubitrack_agent.net.spec import (
     parse_group,
 )
 from ubitrack_agent.net.transport import on_zenoh_thread
-from ubitrack_agent.services.heap import settle_collector
 from ubitrack_agent.services.local_wires import LocalWires
 from ubitrack_agent.services.parent import Parent
 from ubitrack_agent.services.scheduler import Scheduler

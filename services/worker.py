@@ -88,6 +88,7 @@ from ubitrack_agent.core.errors import (
     NoMotionModel,
     TooFewCorrespondences,
 )
+from ubitrack_agent.core.heap import settle_collector
 from ubitrack_agent.core.measurements import FULL, MAX_FUTURE_NS, MAX_TIMESTAMP_NS, WORKER
 from ubitrack_agent.core.poses import with_static_error
 from ubitrack_agent.core.timeline import SampleBuffer
@@ -120,7 +121,6 @@ from ubitrack_agent.net.transport import (
 from ubitrack_agent.services.expansion import BatchProgress, TimeAccumulator
 from ubitrack_agent.services.handover import COUNTERS as HAND_OVER_COUNTERS
 from ubitrack_agent.services.handover import Watch
-from ubitrack_agent.services.heap import settle_collector
 from ubitrack_agent.services.local_wires import (
     Handed,
     LocalSubscription,

@@ -797,31 +797,35 @@ def _maximal_cliques(fits: list[int]) -> list[int]:
     ``fits[i]`` (no self loops): Bron and Kerbosch 1973 with Tomita's pivot (the vertex of
     ``P | X`` with most neighbours in ``P``), on bit sets. ``O(3**(n/3))``."""
     found: list[int] = []
-
-    def expand(clique: int, p: int, x: int) -> None:
-        if not p:
-            if not x:
-                found.append(clique)
-            return
-        rest, pivot_fits, most = p | x, 0, -1
-        while rest:
-            low = rest & -rest
-            neighbours = fits[low.bit_length() - 1]
-            count = (p & neighbours).bit_count()
-            if count > most:
-                pivot_fits, most = neighbours, count
-            rest ^= low
-        candidates = p & ~pivot_fits
-        while candidates:
-            low = candidates & -candidates
-            neighbours = fits[low.bit_length() - 1]
-            expand(clique | low, p & neighbours, x & neighbours)
-            p &= ~low
-            x |= low
-            candidates ^= low
-
-    expand(0, (1 << len(fits)) - 1, 0)
+    _expand_cliques(fits, found, 0, (1 << len(fits)) - 1, 0)
     return found
+
+
+def _expand_cliques(fits: list[int], found: list[int], clique: int, p: int, x: int) -> None:
+    """One call of Bron-Kerbosch with pivot (:func:`_maximal_cliques`): the maximal cliques
+    extending ``clique`` by vertices of ``p`` and none of ``x``, appended to ``found``. A
+    module function, not a closure: a recursive closure refers to itself and would leave its
+    frame's objects to the cyclic collector."""
+    if not p:
+        if not x:
+            found.append(clique)
+        return
+    rest, pivot_fits, most = p | x, 0, -1
+    while rest:
+        low = rest & -rest
+        neighbours = fits[low.bit_length() - 1]
+        count = (p & neighbours).bit_count()
+        if count > most:
+            pivot_fits, most = neighbours, count
+        rest ^= low
+    candidates = p & ~pivot_fits
+    while candidates:
+        low = candidates & -candidates
+        neighbours = fits[low.bit_length() - 1]
+        _expand_cliques(fits, found, clique | low, p & neighbours, x & neighbours)
+        p &= ~low
+        x |= low
+        candidates ^= low
 
 
 EXACT_COPIES = 8

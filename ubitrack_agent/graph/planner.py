@@ -56,6 +56,7 @@ from typing import Any
 
 import networkx as nx
 
+from ubitrack_agent.core.heap import collector_paused
 from ubitrack_agent.graph.matcher import (
     EXACT_COPIES,
     CopySets,
@@ -88,7 +89,7 @@ STEP_WEIGHT = 0.01
 DEFAULT_SLACK = 2
 """Longest detour (hops beyond a shortest path) a derivation may take through the SRG."""
 NARROWED_MEMO_SIZE = 64
-"""Most candidate lists :meth:`Workspace._narrowed` remembers (a list made afresh for each
+"""Most candidate lists a :class:`_MemoisedNarrowing` remembers (a list made afresh for each
 call is remembered too, until the memo is full and cleared)."""
 DEFAULT_PER_RELATION = 8
 """Most alternatives kept per (from, to, type, static) relation during planning."""
@@ -437,6 +438,40 @@ class _Bits(dict[str, int]):
                 self.__missing__(frame)
 
 
+class _MemoisedNarrowing:
+    """A narrowing of the matcher's candidate lists (:meth:`Workspace._narrowing`), each list's
+    result remembered: the matcher offers the same list of the index (the edges at a frame
+    every tracker joins) to every chain's last link there, and an index list only grows at its
+    end until an edge is retired, so a list narrowed before is read again only for its new
+    edges. Without this each narrowing read all K candidates, K times: O(K**2) per plan in a
+    room with K trackers (six lists in 3,006 narrowings at K = 500), now O(K)
+    (``docs/performance.md``, "Planner, session 27"). A list the matcher made afresh, or any
+    list after a retirement, is narrowed whole; at most :data:`NARROWED_MEMO_SIZE` lists are
+    remembered. It holds the index, not the workspace, so a plan's objects form no reference
+    cycle and are freed as soon as the plan ends."""
+
+    def __init__(self, index: EdgeIndex, kept: Callable[[Sequence[str]], list[str]]) -> None:
+        self._index = index
+        self._kept = kept
+        self._memo: dict[int, tuple[Sequence[str], int, int, tuple[str, ...]]] = {}
+        """By the list's id: the list, the retired edges' count and the list's length when
+        narrowed, and what was kept."""
+
+    def __call__(self, ids: Sequence[str]) -> tuple[str, ...]:
+        retired = len(self._index.retired)
+        memo = self._memo.get(id(ids))
+        if memo is not None and memo[0] is ids and memo[1] == retired and memo[2] <= len(ids):
+            if memo[2] == len(ids):
+                return memo[3]
+            result = memo[3] + tuple(self._kept(ids[memo[2] :]))
+        else:
+            result = tuple(self._kept(ids))
+            if len(self._memo) >= NARROWED_MEMO_SIZE:
+                self._memo.clear()
+        self._memo[id(ids)] = (ids, retired, len(ids), result)
+        return result
+
+
 @dataclass
 class Workspace:
     """The working SRG of one planning run: measured and inferred edges, and the steps."""
@@ -467,11 +502,6 @@ class Workspace:
         default_factory=dict
     )
     """:meth:`_narrowing`'s functions by fixed end's class, type and free end."""
-    _narrowed_memo: dict[tuple, tuple[Sequence[str], int, int, tuple[str, ...]]] = field(
-        default_factory=dict
-    )
-    """:meth:`_narrowed` by candidate list and narrowing: the list, the retired edges' count
-    and the list's length when narrowed, and what was kept."""
     _reach: dict[tuple[str, int], dict[int, int]] = field(default_factory=dict)
     """:meth:`_avoiding`'s hops (by frame bit) by start and frames avoided."""
     _counts: dict[str, tuple[list[int], list[int]]] = field(default_factory=dict)
@@ -822,31 +852,7 @@ class Workspace:
             def kept(ids: Sequence[str]) -> list[str]:
                 return [e for e in ids if free_end(edges[e]) not in same]
 
-        return lambda ids: self._narrowed(ids, key, kept)
-
-    def _narrowed(
-        self, ids: Sequence[str], key: tuple, kept: Callable[[Sequence[str]], list[str]]
-    ) -> tuple[str, ...]:
-        """``kept(ids)``, memoised by the candidate list and the narrowing's ``key``: the
-        matcher offers the same list of the index (the edges at a frame every tracker joins)
-        to every chain's last link there, and an index list only grows at its end until an edge
-        is retired, so only its new edges are narrowed. Without this each narrowing read all
-        K candidates, K times: O(K**2) per plan in a room with K trackers (six lists in 3,006
-        narrowings at K = 500), now O(K) (``docs/performance.md``, "Planner, session 27").
-        A list the matcher made afresh is narrowed whole, and at most
-        :data:`NARROWED_MEMO_SIZE` lists are remembered."""
-        retired = len(self.index.retired)
-        memo = self._narrowed_memo.get((id(ids), key))
-        if memo is not None and memo[0] is ids and memo[1] == retired and memo[2] <= len(ids):
-            if memo[2] == len(ids):
-                return memo[3]
-            result = memo[3] + tuple(kept(ids[memo[2] :]))
-        else:
-            result = tuple(kept(ids))
-            if len(self._narrowed_memo) >= NARROWED_MEMO_SIZE:
-                self._narrowed_memo.clear()
-        self._narrowed_memo[id(ids), key] = (ids, retired, len(ids), result)
-        return result
+        return _MemoisedNarrowing(self.index, kept)
 
     def _class(self, frame: str) -> tuple[int, int]:
         """A frame's hop distances from the query's source and target (:meth:`_wanted`)."""
@@ -1530,22 +1536,27 @@ def _solution(ws: Workspace, edge: EdgeRecord) -> Solution:
     """The solution deriving ``edge``: its steps with inputs before the steps that use them."""
     order: list[Step] = []
     records: dict[str, EdgeRecord] = {edge.id: edge}
-
-    def visit(record: EdgeRecord) -> None:
-        records[record.id] = record
-        if record.step is None or any(s.id == record.step for s in order):
-            return
-        step = ws.steps[record.step]
-        for _, ids in step.inputs:
-            for edge_id in ids:
-                visit(ws.index.edges[edge_id])
-        for *_, edge_id in step.outputs:
-            if edge_id is not None:
-                records[edge_id] = ws.index.edges[edge_id]
-        order.append(step)
-
-    visit(edge)
+    _visit(ws, edge, order, records)
     return Solution(edge, tuple(order), records)
+
+
+def _visit(
+    ws: Workspace, record: EdgeRecord, order: list[Step], records: dict[str, EdgeRecord]
+) -> None:
+    """Depth first from ``record`` (:func:`_solution`): the steps deriving it appended to
+    ``order`` after those deriving their inputs, every edge they read or write to
+    ``records``."""
+    records[record.id] = record
+    if record.step is None or any(s.id == record.step for s in order):
+        return
+    step = ws.steps[record.step]
+    for _, ids in step.inputs:
+        for edge_id in ids:
+            _visit(ws, ws.index.edges[edge_id], order, records)
+    for *_, edge_id in step.outputs:
+        if edge_id is not None:
+            records[edge_id] = ws.index.edges[edge_id]
+    order.append(step)
 
 
 def solutions(ws: Workspace, query: Query) -> list[Solution]:
@@ -1884,7 +1895,26 @@ def plan(
     The first solution is the best derivation by the cost model; the whole list is what the
     design tool shows with ``--all``. With a ``cache``, the derivations of parts between cut
     frames are shared with other plans using the same cache (:class:`PartCache`).
+
+    Python's cyclic garbage collector is paused while it runs
+    (:func:`ubitrack_agent.core.heap.collector_paused`, process-wide): a plan keeps what it
+    builds until it returns, where the collector would traverse it again and again (a fifth to
+    a third of a plan's CPU in a room of 200-1,000 trackers), and it leaves no reference
+    cycle, so reference counting frees all of it when it returns.
     """
+    with collector_paused():
+        return _plan(srg, templates, query, slack, per_relation, cache)
+
+
+def _plan(
+    srg: nx.MultiDiGraph,
+    templates: Sequence[Template],
+    query: Query,
+    slack: int,
+    per_relation: int,
+    cache: PartCache | None,
+) -> list[Solution]:
+    """:func:`plan`, the collector paused."""
     absent = [n for n in (query.source, query.target) if n not in srg]
     if absent and not query.static and any(t.introduced for t in templates):
         raise NoSolutionError(

@@ -55,8 +55,9 @@ def cut_frames(
     frames = set(frames)
     region = nx.Graph()
     region.add_nodes_from(frames)
-    for u, v in srg.subgraph(frames).edges():
-        region.add_edge(u, v)
+    # the adjacency read directly: a networkx subgraph view holds a reference cycle, left to
+    # the cyclic collector after every plan
+    region.add_edges_from((u, v) for u in frames for v in srg.succ[u] if v in frames)
     if not nx.has_path(region, source, target):
         return [(source, target, frames)]
     row = _row(region, source, target)

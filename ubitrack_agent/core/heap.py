@@ -1,4 +1,5 @@
-"""How often Python's cyclic garbage collector runs in a worker process, and what it traverses.
+"""How often Python's cyclic garbage collector runs, and what it traverses: in a worker process
+(:func:`settle_collector`) and while the planner runs (:func:`collector_paused`).
 
 CPython's collector is generational (the ``gc`` module's documentation; ``Modules/gcmodule.c``):
 the youngest generation is collected once the container objects allocated and not freed since
@@ -23,11 +24,26 @@ start-up), so a collection of the oldest generation traverses only what was made
 made later stay collectable (a component removed from a container leaves no garbage behind for
 good). Growth: a collection O(objects made since the start-up and alive), at most one per
 :data:`YOUNG_THRESHOLD` allocations not freed.
+
+The planner is the same case in one call: a plan builds its working SRG (records, steps,
+frozensets of sources: about 320 container objects a tracker in a room, 160,000 at 500) and
+keeps all of it until it returns, so the collector ran every 700 of them, moved them up and
+traversed them again in the older generations: a fifth to a third of a plan's CPU in a room of
+200-1,000 trackers, a share that grows with the plan (``docs/performance.md``, "Planner,
+session 28"). A plan's
+objects form no reference cycle (``tests/unit/test_planner_bounds.py`` checks that a plan leaves
+nothing to the collector), so reference counting frees them all when it returns, and the
+collector finds nothing of the plan's to collect: :func:`collector_paused` keeps it off for the
+plan's duration. It is process-wide (CPython has one collector): other threads' cyclic garbage
+waits for the plan's end, at most one plan's time.
 """
 
 from __future__ import annotations
 
 import gc
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 YOUNG_THRESHOLD = 50_000
 """Container objects allocated and not freed after which the youngest generation is collected
@@ -42,3 +58,31 @@ def settle_collector() -> None:
     _, middle, oldest = gc.get_threshold()
     gc.set_threshold(YOUNG_THRESHOLD, middle, oldest)
     gc.freeze()
+
+
+class _Pauses:
+    """How many :func:`collector_paused` blocks run now (any thread), and whether the collector
+    was on when the first began."""
+
+    lock = threading.Lock()
+    running = 0
+    resume = False
+
+
+@contextmanager
+def collector_paused() -> Iterator[None]:
+    """The cyclic collector off while the block runs (module docstring), on again when the
+    last of the blocks running at once in any thread ends, if it was on when the first began.
+    For work that keeps what it allocates alive until it ends and leaves no cycle behind."""
+    with _Pauses.lock:
+        if _Pauses.running == 0:
+            _Pauses.resume = gc.isenabled()
+            gc.disable()
+        _Pauses.running += 1
+    try:
+        yield
+    finally:
+        with _Pauses.lock:
+            _Pauses.running -= 1
+            if _Pauses.running == 0 and _Pauses.resume:
+                gc.enable()
