@@ -45,15 +45,9 @@ class FakeSession:
         self.answers: dict[str, object] = {}
         self.status_requests: list[str] = []
         self.statuses: dict[str, object] = {}
-        self.tokens: dict[str, list[str]] = {}
-        """What a liveliness query of each selector finds."""
 
     def liveliness(self):
-        return SimpleNamespace(declare_subscriber=self._subscribe, get=self._tokens_found)
-
-    def _tokens_found(self, selector, handler, timeout=None):
-        for key in self.tokens.get(selector, []):
-            handler(SimpleNamespace(ok=SimpleNamespace(key_expr=key)))
+        return SimpleNamespace(declare_subscriber=self._subscribe)
 
     def declare_subscriber(self, key, callback, history=False):
         return self._subscribe(key, callback, history)
@@ -365,24 +359,3 @@ def test_the_container_of_a_component_whose_host_manager_is_gone_comes_from_its_
     session.event(KEYS.all_containers(), DELETE, KEYS.container("lab-0", "7.cccc"))
     hosts.reap(alive={"a"})
     assert hosts.container_of("a", ["7.aaaa"]) is None
-
-
-def test_a_host_manager_and_a_container_its_subscriptions_missed_are_found_by_asking(world):
-    """``Hosts.ask_tokens`` (the agent's audit, ``agent/token_audit.py``): found undelivered
-    by two questions in a row, a host manager is taken as alive and a container's token as
-    up; a host delivered by its subscription is not counted."""
-    session, hosts, counters = world
-    host_appears(session, hosts, "seen")
-    container = KEYS.container("missed-0", "41.abcd")
-    session.tokens = {
-        KEYS.all_hosts(): [KEYS.host("seen"), KEYS.host("missed")],
-        KEYS.all_containers(): [container],
-    }
-    hosts.ask_tokens(1.0)
-    hosts.reap(set())
-    assert hosts.live == {"seen"} and counters["tokens_found"] == 0
-    hosts.ask_tokens(6.0)
-    hosts.reap(set())
-    assert hosts.live == {"seen", "missed"}
-    assert hosts.container_of("c-1", ["41.efgh"]) == "missed-0"
-    assert counters["tokens_found"] == 2

@@ -83,7 +83,6 @@ def agent(replies: dict[str, list[str | None]]) -> tuple[Agent, FakeLiveliness]:
     bare._audit = TokenAudit()
     bare._started = -1e9
     bare._watched = (("worker", KEYS.all_workers()), ("provider", KEYS.all_providers()))
-    bare.hosts.ask_tokens = lambda now: None  # the host managers': test_agent_hosts.py
     liveliness = FakeLiveliness(replies)
     bare.session = SimpleNamespace(liveliness=lambda: liveliness)
     return bare, liveliness

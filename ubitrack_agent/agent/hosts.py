@@ -45,8 +45,6 @@ from typing import Any
 import zenoh
 
 from ubitrack_agent.agent.problems import Problems
-from ubitrack_agent.agent.token_audit import AUDIT_TIMEOUT_S, FOUND, TokenAudit
-from ubitrack_agent.net import logs
 from ubitrack_agent.net.clock import ClockEstimate
 from ubitrack_agent.net.host_protocol import (
     MAX_MESSAGE_BYTES,
@@ -129,24 +127,6 @@ class Hosts:
             lambda s: self._events.put(("container", str(s.key_expr), str(s.kind).encode())),
             history=True,
         )
-        self._audit = TokenAudit()
-        """Host and container tokens the subscriptions delivered (:mod:`.token_audit`)."""
-
-    def ask_tokens(self, now: float) -> None:
-        """Ask for every host manager's and container's token (the agent does every
-        ``AUDIT_S``: :mod:`.token_audit`); the replies are applied by :meth:`reap`."""
-        self._audit.asked(now)
-        for kind, selector in (
-            ("host", self._keys.all_hosts()),
-            ("container", self._keys.all_containers()),
-        ):
-
-            def found(reply: Any, kind: str = kind) -> None:
-                if reply.ok is not None:
-                    self._events.put((FOUND, str(reply.ok.key_expr), kind.encode()))
-
-            guarded = logs.guarded(found, self._problems.counters, log, f"{kind} token asked for")
-            self._session.liveliness().get(selector, guarded, timeout=AUDIT_TIMEOUT_S)
 
     def reports_exit_of(self, instance: str) -> bool:
         """Whether a live host manager runs ``instance`` (and reports when it ends)."""
@@ -327,17 +307,9 @@ class Hosts:
             if kind == "info":
                 self._on_info(key, payload)
                 continue
-            if kind == FOUND:  # a reply to the audit's question: a token missed, or nothing
-                kind, payload = self._found(payload.decode(), key)
-                if not kind:
-                    continue
             if kind == "container":
-                appeared = payload.decode() == PUT
-                self._audit.delivered("container", key, appeared)
-                self._on_container(key, appeared)
+                self._on_container(key, payload.decode() == PUT)
                 continue
-            if kind != "exited":
-                self._audit.delivered("host", key, kind == PUT)
             token = self._keys.parse_token("host_exited" if kind == "exited" else "host", key)
             if isinstance(token, KeyRejection):
                 self._problems.report(
@@ -349,15 +321,6 @@ class Hosts:
                 self._on_host(token.name, kind == PUT, alive)
         self._ask_info()
         return ended
-
-    def _found(self, watched: str, key: str) -> tuple[str, bytes]:
-        """A token the audit found: as the event its subscription missed (counted
-        ``tokens_found``), or ``("", b"")`` if it did not miss it."""
-        if not self._audit.missed(watched, key):
-            return "", b""
-        self._problems.counters["tokens_found"] += 1
-        log.warning("%s token %s found by asking: its subscription had missed it", watched, key)
-        return ("container", PUT.encode()) if watched == "container" else (PUT, b"")
 
     def _on_info(self, host: str, payload: bytes | None) -> None:
         """Take a host manager's status reply (None: an error reply)."""

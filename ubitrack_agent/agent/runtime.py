@@ -377,14 +377,12 @@ class Agent:
         return False
 
     def _audit_tokens(self) -> None:
-        """Every ``AUDIT_S`` once start-up has settled, ask for every live token of each kind
-        (and the host managers' and containers', :meth:`.Hosts.ask_tokens`); the replies come
-        back as ``FOUND`` events (:mod:`.token_audit`), without blocking."""
+        """Every ``AUDIT_S`` once start-up has settled, ask for every live token of each kind;
+        the replies come back as ``FOUND`` events (:mod:`.token_audit`), without blocking."""
         now = time.monotonic()
         if not self._settled() or not self._audit.due(now):
             return
         self._audit.asked(now)
-        self.hosts.ask_tokens(now)
         liveliness = self.session.liveliness()
         for kind, selector in self._watched:
 

@@ -1,11 +1,11 @@
 """Tokens the agent's liveliness subscriptions did not deliver, found by asking for them.
 
-The agent learns of providers, queries, workers and other agents (:mod:`.runtime`), host managers
-and containers (:mod:`.hosts`) from liveliness subscriptions with history. Such a subscription has been seen to miss a token: in one CI
+The agent learns of providers, queries, workers and other agents from liveliness subscriptions
+with history (:mod:`.runtime`). Such a subscription has been seen to miss a token: in one CI
 run a host manager never saw the token of a container that served all along (issue 28;
 ``services/supervisor.py``, ``TOKEN_ASK_S``). A missed appearance is lost for good: a provider
 never seen is never planned with, a worker never seen is never adopted (and is started
-again), a host manager never seen is never asked to start anything. So every :data:`AUDIT_S` the agent asks for every live token of each kind (a liveliness
+again). So every :data:`AUDIT_S` the agent asks for every live token of each kind (a liveliness
 query, non-blocking; the replies come back to its loop as ``FOUND`` events), and a token found
 that its subscription has not delivered is taken as appeared, and counted (``tokens_found``).
 
