@@ -16,9 +16,6 @@ history, so a restarted agent rebuilds its whole state from them alone (``docs/p
   stop or rewire a worker: its plan is current, so when it takes over it adopts every worker
   that runs at once. A clean stop of the active agent with a standby alive hands over.
 
-Every ``AUDIT_S`` it also asks for every live token of those kinds, and applies one its
-subscriptions missed as an appearance (:mod:`.token_audit`).
-
 It also takes the providers' liveness reports (:mod:`.liveness`, on ``<root>/data/<provider>``):
 an edge whose data stopped, as its provider observes, is planned without until its data
 returns. The agent itself reads no sample.
@@ -94,10 +91,8 @@ from ubitrack_agent.agent.reconcile import IN_PLACE, reconcile
 from ubitrack_agent.agent.spares import DEFAULT_REDUNDANCY, Redundancy
 from ubitrack_agent.agent.stamps import Stamps
 from ubitrack_agent.agent.standby import standby_components
-from ubitrack_agent.agent.token_audit import AUDIT_TIMEOUT_S, FOUND, TokenAudit
 from ubitrack_agent.graph.srg import edge_ids
 from ubitrack_agent.graph.templates import Template
-from ubitrack_agent.net import logs
 from ubitrack_agent.net.clock import Clock, ClockEstimate, serve_clock
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.encodings import JSON
@@ -249,13 +244,6 @@ class Agent:
         """The reference clock the host managers measure their offsets to (``net.clock``)."""
         self.hosts = Hosts(self.session, self.keys, self.problems)
         liveliness = self.session.liveliness()
-        self._watched = (
-            ("provider", self.keys.all_providers()),
-            ("query", self.keys.all_queries()),
-            ("worker", self.keys.all_workers()),
-            ("agent", self.keys.all_agents()),
-            ("active_agent", self.keys.all_active_agents()),
-        )
         self._watches = [
             liveliness.declare_subscriber(
                 selector,
@@ -264,10 +252,14 @@ class Agent:
                 ),
                 history=True,
             )
-            for kind, selector in self._watched
+            for kind, selector in (
+                ("provider", self.keys.all_providers()),
+                ("query", self.keys.all_queries()),
+                ("worker", self.keys.all_workers()),
+                ("agent", self.keys.all_agents()),
+                ("active_agent", self.keys.all_active_agents()),
+            )
         ]
-        self._audit = TokenAudit()
-        """The tokens the subscriptions delivered, and when to ask for all (:mod:`.token_audit`)."""
         self._watches.append(
             self.session.declare_subscriber(self.keys.all_liveness(), self._queue_report)
         )
@@ -286,23 +278,14 @@ class Agent:
 
     def _handle(self, kind: str, change: str, key: str, received_ns: int = 0) -> bool:
         """Apply one liveliness event (``received_ns``: when zenoh handed it over); True if
-        the SRG or the queries changed. A ``FOUND`` event (:mod:`.token_audit`) is applied as an
-        appearance if the subscription missed it, and ignored otherwise (a malformed key
-        delivered before is not refused twice)."""
-        found = change == FOUND
-        if found and not self._audit.missed(kind, key):
-            return False
-        appeared = found or change == PUT
-        self._audit.delivered(kind, key, appeared)
+        the SRG or the queries changed."""
         token = self.keys.parse_token(kind, key)
         if isinstance(token, KeyRejection):
             self.problems.report(
                 token.counter, "ignored malformed %s key %r: %s", kind, token.key, token.reason
             )
             return False
-        if found:
-            self.counters["tokens_found"] += 1
-            log.warning("%s token %s found by asking: its subscription had missed it", kind, key)
+        appeared = change == PUT
         if token.relation is not None:
             return self._on_query(
                 token.relation, token.name, token.host, token.labels, appeared, received_ns
@@ -375,23 +358,6 @@ class Agent:
         if instance in self.running:
             self._unrouted.setdefault(instance, time.monotonic() + REROUTE_S)
         return False
-
-    def _audit_tokens(self) -> None:
-        """Every ``AUDIT_S`` once start-up has settled, ask for every live token of each kind;
-        the replies come back as ``FOUND`` events (:mod:`.token_audit`), without blocking."""
-        now = time.monotonic()
-        if not self._settled() or not self._audit.due(now):
-            return
-        self._audit.asked(now)
-        liveliness = self.session.liveliness()
-        for kind, selector in self._watched:
-
-            def found(reply: Any, kind: str = kind) -> None:
-                if reply.ok is not None:
-                    self._events.put((kind, FOUND, str(reply.ok.key_expr), time.time_ns()))
-
-            guarded = logs.guarded(found, self.counters, log, f"{kind} token asked for")
-            liveliness.get(selector, guarded, timeout=AUDIT_TIMEOUT_S)
 
     def _restart_unrouted(self) -> None:
         """Start again the components whose token vanished with no host manager to report
@@ -953,7 +919,6 @@ class Agent:
                 if periodic("liveness", self._take_reports, False):
                     self._planner.changed()
                 periodic("hosts", self._reap_hosts, None)
-                periodic("audit", self._audit_tokens, None)
                 periodic("replan", self._replan, None)
                 periodic("election", self._elect, None)
                 if self.active:  # a standby keeps its state current but changes nothing
