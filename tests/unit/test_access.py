@@ -60,6 +60,7 @@ def allowed(subject: str, message: str, key: str, flow: str = "ingress") -> bool
         ("host", "put", KEYS.data("concat-1/out"), "ingress"),
         ("host", "put", KEYS.progress(RELATION), "ingress"),
         ("host", "liveliness_token", KEYS.worker("concat-1", "42.a1b2"), "ingress"),
+        ("host", "liveliness_token", KEYS.container("vm-0", "42.a1b2"), "ingress"),
         ("host", "reply", KEYS.status("concat-1"), "ingress"),
         ("ART", "put", KEYS.measured("ART", "HT"), "ingress"),
         ("ART", "liveliness_token", KEYS.provider("ART"), "ingress"),

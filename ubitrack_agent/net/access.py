@@ -126,7 +126,11 @@ def _role_rules(keys: KeySpace, providers: Sequence[str]) -> list[dict[str, Any]
     return [
         _rule("subscribe-all", ["declare_subscriber"], [keys.pattern("**")]),
         _rule("query-data", ["query"], [keys.pattern("data", "**")]),
-        _rule("worker-tokens", ["liveliness_token"], [keys.all_workers(), keys.all_pools()]),
+        _rule(
+            "worker-tokens",
+            ["liveliness_token"],
+            [keys.all_workers(), keys.all_pools(), keys.all_containers()],
+        ),
         _rule("worker-outputs", [*WRITES, *SERVES], outputs),
         _rule("worker-statuses", SERVES, [keys.all_statuses()]),
         _rule("not-provider-data", [*WRITES, *SERVES], provider_data, permission="deny"),
