@@ -27,7 +27,7 @@ for a value at a given time (answered by the producer's queryable, as before).
 this process alone (how its host manager talks to it: a container of the same name left
 running by an earlier host manager does not hear it), JSON objects, read totally (a malformed
 or refused command is logged rate-limited, counted in ``rejected_commands`` and changes
-nothing):
+nothing; one whose attachment names another key, ``net.address``, in ``misaddressed``):
 
 * ``{"add": [<specification>, ...]}`` starts components in the running process (checked in
   full first: form, registered service and ports, parameters, no instance already in the
@@ -84,12 +84,13 @@ import threading
 import time
 import uuid
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
 from ubitrack_agent.core.heap import settle_collector
 from ubitrack_agent.net import config, logs
+from ubitrack_agent.net.address import is_misaddressed, tag
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.json_messages import MessageError, load_object
@@ -132,6 +133,8 @@ COUNTERS = {
     "restarts": "components restarted after faults, or after their thread ended unasked",
     "rebinds": "components whose inputs were bound again (a producer joined or left)",
     "rejected_commands": "container commands refused (malformed, or not all components valid)",
+    "misaddressed": "container commands refused as put on another key than the one they came "
+    "on (net.address: zenoh delivered them there)",
     "failed_starts": "components whose start failed unexpectedly (logged with traceback)",
     "internal_errors": "unexpected exceptions of the container itself (logged with traceback)",
 }
@@ -177,11 +180,10 @@ class Container:
         self.scheduler = Scheduler(self.name, self.counters)
         """Gives every component its turns (``ubitrack_agent.services.scheduler``): no thread per
         component."""
-        take = self._guarded(
-            lambda sample: self._events.put(("control", sample.payload.to_bytes()))
-        )
         self._controls = [
-            session.declare_subscriber(key, on_zenoh_thread(take))
+            session.declare_subscriber(
+                key, on_zenoh_thread(self._guarded(self._control_handler(key)))
+            )
             for key in (keys.control(self.name), keys.control_incarnation(name, self.incarnation))
         ]
         ask = self._guarded(
@@ -189,6 +191,7 @@ class Container:
         )
         self._status = session.declare_queryable(keys.status(self.name), on_zenoh_thread(ask))
         self._left = session.declare_publisher(keys.container_left(self.name), encoding=JSON)
+        self._left_tag = tag(keys.container_left(self.name))
         self.add(tuple(components))
         declare = functools.partial(
             session.liveliness().declare_token, keys.container(self.name, self.incarnation)
@@ -319,7 +322,7 @@ class Container:
         """Tell the host manager that ``instances`` left without its remove command: released
         by their own stop command, or ``exited`` (their start failed)."""
         report = {"instances": instances, "incarnation": self.incarnation, "reason": reason}
-        self._left.put(json.dumps(report))
+        self._left.put(json.dumps(report), attachment=self._left_tag)
 
     def _rebind(self, moved: set[str]) -> None:
         """Bind again the inputs reading ``moved`` keys (their producer joined or left).
@@ -352,6 +355,26 @@ class Container:
             logs.count_problem(
                 self.counters, "rejected_commands", log, "%s: refused command: %s", self.name, exc
             )
+
+    def _control_handler(self, key: str) -> Callable[[Any], None]:
+        """The handler of control key ``key`` (on zenoh's thread): a command for the container's
+        thread, or one put on another key refused (``net.address``), counted and logged."""
+        key_tag = tag(key)
+
+        def take(sample: Any) -> None:
+            if is_misaddressed(sample, key_tag):
+                logs.count_problem(
+                    self.counters,
+                    "misaddressed",
+                    log,
+                    "%s: refused a command put on another key than %s",
+                    self.name,
+                    key,
+                )
+                return
+            self._events.put(("control", sample.payload.to_bytes()))
+
+        return take
 
     def _guarded(self, handler: Any) -> Any:
         return logs.guarded(handler, self.counters, log, self.name)

@@ -101,7 +101,15 @@ from ubitrack_agent.core.codec import decode
 from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.core.measurements import WORKER, Measurement
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.address import (
+    is_misaddressed,
+    put_addressed,
+    reply_addressed,
+    tag,
+)
+from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.json_messages import MessageError, load_object
+from ubitrack_agent.net.sequence import misaddressed_sample
 from ubitrack_agent.net.thread_pool import ThreadPool
 from ubitrack_agent.net.transport import on_zenoh_thread
 
@@ -671,7 +679,8 @@ class Watch:
 
     def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
         messages = hand_over_key(key)
-        self.rules = KeyHandOver(key, counters, lambda data: session.put(messages, data))
+        self.rules = KeyHandOver(key, counters, lambda data: put_addressed(session, messages, data))
+        self._key_tag, self._messages_tag = tag(key), tag(messages)
         self._counters = counters
         self._observe_here = logs.guarded(self._observe_value, counters, log, key)
         """:meth:`_observe_value` made total (``internal_errors``)."""
@@ -729,9 +738,15 @@ class Watch:
             self.rules.observe_value(value)
 
     def _observe(self, sample: Any) -> None:
+        if misaddressed_sample(sample, self._key_tag):
+            self._counters["misaddressed"] += 1  # zenoh delivered it here: net.address
+            return
         self.rules.observe(sample.payload.to_bytes())
 
     def _receive(self, sample: Any) -> None:
+        if is_misaddressed(sample, self._messages_tag):
+            self._counters["misaddressed"] += 1
+            return
         self.rules.receive(sample.payload.to_bytes())
 
     def _token(self, sample: Any) -> None:
@@ -745,14 +760,14 @@ class Watch:
         with query:  # finished at once (zenoh sends its final message when it is dropped)
             reply = self.rules.holding()
             if reply is not None:
-                query.reply(hand_over_key(self.rules.key), reply)
+                reply_addressed(query, hand_over_key(self.rules.key), reply, JSON)
 
     def _holder(self, reply: Any) -> None:
-        if reply.ok is not None:
+        if reply.ok is not None and not is_misaddressed(reply.ok):
             self.rules.receive(reply.ok.payload.to_bytes())
 
     def _latest(self, reply: Any) -> None:
-        if reply.ok is not None:
+        if reply.ok is not None and not is_misaddressed(reply.ok):
             self.rules.observe(reply.ok.payload.to_bytes(), latest=True)
 
     def close(self) -> None:

@@ -62,6 +62,7 @@ from typing import Any
 import zenoh
 
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.address import is_misaddressed, reply_addressed, tag
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.host_protocol import (
@@ -145,6 +146,7 @@ class HostManager:
             keys.all_active_agents(), self._queue("agent", "agent token"), history=True
         )
         self._exits = session.declare_publisher(keys.host_exited(name), encoding=JSON)
+        self._exits_tag = tag(keys.host_exited(name))
         self._session = session
         self._prefix, _, self._domain = keys.root.rpartition("/")
         self._orphans_asked: set[str] = set()
@@ -200,6 +202,9 @@ class HostManager:
 
         def queue_sample(sample: Any) -> None:
             if kind in ("left", "control"):
+                if is_misaddressed(sample):  # zenoh delivered it on another key: net.address
+                    self.counters["misaddressed"] += 1
+                    return
                 self._events.put((kind, (str(sample.key_expr), sample.payload.to_bytes())))
             else:
                 self._events.put((kind, (str(sample.kind), str(sample.key_expr))))
@@ -245,7 +250,7 @@ class HostManager:
                 except queue.Empty:
                     pass
                 for exited in self.supervisor.reap():
-                    self._exits.put(exited.to_json())
+                    self._exits.put(exited.to_json(), attachment=self._exits_tag)
                     self.counters["exits_reported"] += 1
                 self._ask_awaited_tokens()
                 self.supervisor.fill_pool()
@@ -327,7 +332,7 @@ class HostManager:
             return
         exited = self.supervisor.on_pool_token(pool_id, change == PUT)
         if exited is not None:
-            self._exits.put(exited.to_json())
+            self._exits.put(exited.to_json(), attachment=self._exits_tag)
             self.counters["exits_reported"] += 1
 
     def _on_container_token(self, change: str, key: str, found: bool = False) -> None:
@@ -381,7 +386,7 @@ class HostManager:
             self._count_problem("rejected_container_reports", "ignored container report: %s", exc)
             return
         for exited in exits:
-            self._exits.put(exited.to_json())
+            self._exits.put(exited.to_json(), attachment=self._exits_tag)
             self.counters["exits_reported"] += 1
 
     # -- requests -----------------------------------------------------------------------------
@@ -402,7 +407,7 @@ class HostManager:
                 self._refuse(query, fault, with_traceback=True)
                 return
             try:
-                query.reply(self.keys.host_request(self.name), reply, encoding=JSON)
+                reply_addressed(query, self.keys.host_request(self.name), reply, JSON)
             except zenoh.ZError as exc:
                 log.warning("could not reply: %s", exc)
 

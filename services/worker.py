@@ -93,13 +93,14 @@ from ubitrack_agent.core.measurements import FULL, MAX_FUTURE_NS, MAX_TIMESTAMP_
 from ubitrack_agent.core.poses import with_static_error
 from ubitrack_agent.core.timeline import SampleBuffer
 from ubitrack_agent.net import config, logs
+from ubitrack_agent.net.address import is_misaddressed, tag
 from ubitrack_agent.net.clock import Clock
 from ubitrack_agent.net.encodings import JSON, MSGPACK
 from ubitrack_agent.net.json_messages import load_object
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.progress import Progress
-from ubitrack_agent.net.sequence import Gaps
+from ubitrack_agent.net.sequence import Gaps, misaddressed_sample
 from ubitrack_agent.net.spec import (
     ComponentSpec,
     GroupSpec,
@@ -164,6 +165,9 @@ COUNTERS = {
     "application listening, as every key: net.transport.LatestValuePublisher)",
     "missed": "samples a dynamic input read over zenoh never got: numbers its producer put "
     "that did not arrive (zenoh dropped them on a full link: net.sequence, net.transport)",
+    "misaddressed": "samples and control commands refused as put on another key than the one "
+    "they came on (net.address: zenoh delivered them there); logged as a summary every "
+    "SUMMARY_S",
     "rejected": "samples the codec refused (garbage, wrong type, NaN, wrong shape)",
     "rejected_future": "samples stamped too far ahead of this host's clock (core.timeline)",
     "rejected_clock": "samples whose timestamp moved by their input's clock offset leaves the "
@@ -395,6 +399,7 @@ class Worker:
         """Triggers that came before a static input's first value, oldest first: computed
         when it comes (:meth:`_release_held`), so a flow's first outputs use every input."""
         self._summarised, self._summary_due = 0, time.monotonic() + SUMMARY_S
+        self._refused_summarised = 0
         self._scheduler = scheduler
         """The container's scheduler, which gives this component its turns (:meth:`turn`)
         and runs its static inputs' samples and its fetches (``ubitrack_agent.services.scheduler``);
@@ -442,9 +447,10 @@ class Worker:
         """Per input key, when its first sample was taken (wall clock): O(input keys ever)."""
         self.incarnation = f"{os.getpid()}.{uuid.uuid4().hex[:8]}"
         """Tells this run's token from any other's (``docs/protocol.md``, "Workers")."""
-        take = self._guarded(lambda s: self._inbox.put(("control", s.payload.to_bytes())))
         self._controls = [
-            session.declare_subscriber(key, on_zenoh_thread(take))
+            session.declare_subscriber(
+                key, on_zenoh_thread(self._guarded(self._control_handler(key)))
+            )
             for key in (
                 keys.control(spec.instance),
                 keys.control_incarnation(spec.instance, self.incarnation),
@@ -475,6 +481,7 @@ class Worker:
         counters["handed_over"] += self._handed_over
         counters["not_sent"] += self._not_sent
         counters["missed"] += self._gaps.missed
+        counters["misaddressed"] += self._gaps.misaddressed
         return counters
 
     @property
@@ -588,7 +595,7 @@ class Worker:
             ]
             for index, replies in asked:
                 for reply in replies:
-                    if reply.ok is not None:
+                    if reply.ok is not None and not is_misaddressed(reply.ok):
                         self._deliver(generation, index, [reply.ok.payload.to_bytes()])
 
         if self._scheduler is None:
@@ -651,7 +658,7 @@ class Worker:
         call = self._scheduler.call
 
         def answer(reply: Any) -> None:
-            if reply.ok is not None:
+            if reply.ok is not None and not is_misaddressed(reply.ok):  # net.address
                 call(functools.partial(deliver, reply.ok.payload.to_bytes()))
 
         self._session.get(key, on_zenoh_thread(self._guarded(answer)), timeout=timeout)
@@ -685,10 +692,15 @@ class Worker:
                 self._scheduler.call,
                 functools.partial(self._deliver_one, generation, index),
             )
-            take = self._guarded(
-                lambda sample: call(functools.partial(deliver, sample.payload.to_bytes()))
-            )
-            return self._session.declare_subscriber(key, on_zenoh_thread(take))
+            key_tag = tag(key)
+
+            def take(sample: Any) -> None:
+                if misaddressed_sample(sample, key_tag):  # net.address
+                    self._gaps.refuse()
+                    return
+                call(functools.partial(deliver, sample.payload.to_bytes()))
+
+            return self._session.declare_subscriber(key, on_zenoh_thread(self._guarded(take)))
         handle = (self._on_sample, self._on_run, generation, index)
         deliver = functools.partial(self._handle, *handle)
         return subscribe_in_bursts(self._session, key, deliver, gaps=self._gaps)
@@ -784,6 +796,20 @@ class Worker:
             check_relations(relations, self._service_class, "control.relations")
             parsed = replace(parsed, relations=relations)
         return parsed
+
+    def _control_handler(self, key: str) -> Callable[[Any], None]:
+        """The handler of control key ``key`` (on zenoh's thread): a command for the inbox, or
+        one put on another key refused (``net.address``; counted ``misaddressed`` and
+        summarised: a stop meant for another component would stop this one)."""
+        key_tag = tag(key)
+
+        def take(sample: Any) -> None:
+            if is_misaddressed(sample, key_tag):
+                self._counts["misaddressed"] += 1
+                return
+            self._inbox.put(("control", sample.payload.to_bytes()))
+
+        return take
 
     def _apply_control(self, payload: bytes) -> None:
         """Apply a control command in full, or reject it (counted, logged) and keep running
@@ -1499,8 +1525,9 @@ class Worker:
         self._hand_on(handed)
 
     def _summarise(self, now: float) -> None:
-        """Every ``SUMMARY_S``, one warning for the expected conditions counted meanwhile
-        (instants with too few correspondences), instead of one per instant."""
+        """Every ``SUMMARY_S``, one warning for each condition counted meanwhile that may come
+        many times a second (instants with too few correspondences, which are expected, and
+        messages refused as put on another key), instead of one per instant."""
         if now < self._summary_due:
             return
         counted = self._counts["too_few_correspondences"]
@@ -1513,7 +1540,18 @@ class Worker:
                 SUMMARY_S,
                 counted,
             )
+        refused = self._gaps.misaddressed + self._counts["misaddressed"]
+        if refused > self._refused_summarised:
+            log.warning(
+                "%s: %d message(s) refused as put on another key in the last %.0f s "
+                "(zenoh delivered them on this one: net.address; %d in all)",
+                self.spec.instance,
+                refused - self._refused_summarised,
+                SUMMARY_S,
+                refused,
+            )
         self._summarised, self._summary_due = counted, now + SUMMARY_S
+        self._refused_summarised = refused
 
     def run(self) -> None:
         """Take commands and compute held triggers (:meth:`step`) until :meth:`stop`; then

@@ -10,6 +10,7 @@ import pytest
 from ubitrack_agent.agent import hosts as hosts_module
 from ubitrack_agent.agent.hosts import Hosts, Placement
 from ubitrack_agent.agent.problems import Problems
+from ubitrack_agent.net.address import tag
 from ubitrack_agent.net.clock import ClockEstimate
 from ubitrack_agent.net.host_protocol import (
     MAX_MESSAGE_BYTES,
@@ -56,8 +57,14 @@ class FakeSession:
         self.callbacks[key] = callback
         return SimpleNamespace(undeclare=lambda: None)
 
-    def event(self, selector: str, kind: str, key: str, data: bytes = b"") -> None:
-        self.callbacks[selector](SimpleNamespace(kind=kind, key_expr=key, payload=payload(data)))
+    def event(
+        self, selector: str, kind: str, key: str, data: bytes = b"", put_on: str | None = None
+    ) -> None:
+        """A sample on ``key``, put there (or on ``put_on``: zenoh delivered it on ``key``)."""
+        found = None if put_on is None else payload(tag(put_on))
+        self.callbacks[selector](
+            SimpleNamespace(kind=kind, key_expr=key, payload=payload(data), attachment=found)
+        )
 
     def get(self, key, payload=None, timeout=None, handler=None):
         host = KEYS.parse_host(key.removesuffix("/request"))
@@ -84,7 +91,7 @@ def started(request) -> SimpleNamespace:
     group = request.group
     runs = tuple(Started(s.instance, f"run-{s.instance}", 7, False) for s in group.components)
     reply = StartedGroup(group.container, 7, runs).to_json().encode()
-    return SimpleNamespace(ok=SimpleNamespace(payload=payload(reply)), err=None)
+    return SimpleNamespace(ok=SimpleNamespace(payload=payload(reply), attachment=None), err=None)
 
 
 def start(hosts: Hosts, component: ComponentSpec, host: str) -> bool:
@@ -99,7 +106,7 @@ def refused(request) -> SimpleNamespace:
 
 def stopped(request) -> SimpleNamespace:
     reply = json.dumps({"instance": request.instance, "process": "released"}).encode()
-    return SimpleNamespace(ok=SimpleNamespace(payload=payload(reply)), err=None)
+    return SimpleNamespace(ok=SimpleNamespace(payload=payload(reply), attachment=None), err=None)
 
 
 @pytest.fixture
@@ -220,6 +227,28 @@ def test_a_zenoh_error_reply_is_no_answer_and_the_host_is_left_alone(world, cloc
     assert set(hosts.available()) == {"lab"} and start(hosts, spec("b"), "lab")
 
 
+def test_a_reply_put_on_another_key_is_no_answer(world, clock):
+    """A host manager's reply whose attachment names another key than the request's
+    (``net.address``: zenoh delivered it here) starts nothing."""
+    session, hosts, _counters = world
+
+    def misaddressed(request) -> SimpleNamespace:
+        reply = started(request)
+        reply.ok.attachment = payload(tag(KEYS.host_request("other")))
+        reply.ok.key_expr = KEYS.host_request("lab")
+        return reply
+
+    session.answers["lab"] = misaddressed
+    host_appears(session, hosts, "lab")
+    assert not start(hosts, spec("a"), "lab") and "a" not in hosts.placements
+    assert hosts._problems.last["refused_starts"].endswith(
+        "a reply put on another key (net.address)"
+    )
+    clock[0] += hosts_module.START_RETRY_S + 0.1
+    session.answers["lab"] = started
+    assert start(hosts, spec("a"), "lab")
+
+
 def test_only_a_matching_exit_report_restarts(world):
     session, hosts, counters = world
     session.answers["lab"] = started
@@ -237,6 +266,10 @@ def test_only_a_matching_exit_report_restarts(world):
     assert counters["rejected_host_reports"] == 1  # the garbage payload
     assert counters["rejected_host_exited_keys"] == 1  # the key with a chunk too many
     report = Exited("a", "run-a", 1, -9, "exited")
+    # put on another host's key, delivered on lab's (net.address): refused
+    put_on = KEYS.host_exited("other")
+    session.event(exits, PUT, KEYS.host_exited("lab"), report.to_json().encode(), put_on)
+    assert hosts.reap({"a"}) == [] and counters["misaddressed"] == 1
     session.event(exits, PUT, KEYS.host_exited("lab"), report.to_json().encode())
     assert hosts.reap({"a"}) == ["a"]
     assert "a" not in hosts.placements

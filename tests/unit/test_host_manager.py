@@ -83,7 +83,7 @@ class FakeQuery:
     def __exit__(self, *exc):
         return False
 
-    def reply(self, key, data, encoding=None):
+    def reply(self, key, data, encoding=None, attachment=None):
         assert encoding == JSON  # every reply is a JSON document
         self._send(True, data)
 

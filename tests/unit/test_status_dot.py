@@ -97,7 +97,9 @@ def test_the_flow_picture_is_drawn_as_svg_by_graphviz(tmp_path):
 
 class _Reply:
     def __init__(self, payload: bytes) -> None:
-        self.ok = SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
+        self.ok = SimpleNamespace(
+            payload=SimpleNamespace(to_bytes=lambda: payload), attachment=None
+        )
 
 
 class _Session:

@@ -66,7 +66,9 @@ class FakeQuery:
         self.replies: list[bytes] = []
         self.errors: list[bytes] = []
 
-    def reply(self, key: str, payload: bytes, encoding: object = None) -> None:
+    def reply(
+        self, key: str, payload: bytes, encoding: object = None, attachment: object = None
+    ) -> None:
         assert encoding == MSGPACK  # a measurement
         self.replies.append(payload)
 

@@ -158,7 +158,7 @@ class UpstreamSession(FakeSession):
         self.asked[key] = t
         x = moving(t - AHEAD) if key == KEYS.data("B/AB") else 0.0  # B->C: identity
         payload = SimpleNamespace(to_bytes=lambda: encode(Pose(t, IDENTITY, [x, 0.0, 0.0])))
-        return [SimpleNamespace(ok=SimpleNamespace(payload=payload))]
+        return [SimpleNamespace(ok=SimpleNamespace(payload=payload, attachment=None))]
 
 
 def test_a_value_at_a_time_is_asked_upstream_on_the_producers_clock():

@@ -381,7 +381,7 @@ def test_asynchronous_fusion_counts_every_sample_and_answers_a_time():
     replies: list[bytes] = []
     query = SimpleNamespace(
         parameters={"t": str(now + 3 * 10**7)},
-        reply=lambda key, payload, encoding: replies.append(payload),
+        reply=lambda key, payload, encoding, attachment=None: replies.append(payload),
         reply_err=lambda payload: replies.append(b"error " + payload),
     )
     publisher._reply(query)
@@ -422,7 +422,7 @@ def _query_at(publisher, t: int) -> list[bytes]:
     replies: list[bytes] = []
     query = SimpleNamespace(
         parameters={"t": str(t)},
-        reply=lambda key, payload, encoding: replies.append(payload),
+        reply=lambda key, payload, encoding, attachment=None: replies.append(payload),
         reply_err=lambda payload: replies.append(b"error " + payload),
     )
     publisher._reply(query)

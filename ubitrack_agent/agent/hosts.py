@@ -45,6 +45,7 @@ from typing import Any
 import zenoh
 
 from ubitrack_agent.agent.problems import Problems
+from ubitrack_agent.net.address import is_misaddressed
 from ubitrack_agent.net.clock import ClockEstimate
 from ubitrack_agent.net.host_protocol import (
     MAX_MESSAGE_BYTES,
@@ -116,10 +117,7 @@ class Hosts:
             lambda s: self._events.put((str(s.kind), str(s.key_expr), b"")),
             history=True,
         )
-        self._exits = session.declare_subscriber(
-            keys.all_host_exits(),
-            lambda s: self._events.put(("exited", str(s.key_expr), s.payload.to_bytes())),
-        )
+        self._exits = session.declare_subscriber(keys.all_host_exits(), self._on_exit_report)
         self._containers: dict[str, str] = {}
         """The container each container process runs, by pid (from the containers' tokens)."""
         self._container_watch = session.liveliness().declare_subscriber(
@@ -262,6 +260,8 @@ class Hosts:
             replies, reason = [], f"request failed: {exc}"
         else:
             reason = f"no answer within {REQUEST_TIMEOUT_S} s"
+            if any(r.ok is not None and is_misaddressed(r.ok) for r in replies):
+                replies, reason = [], "a reply put on another key (net.address)"
         if replies and replies[0].ok is None:
             error = replies[0].err.payload.to_bytes()
             try:
@@ -296,6 +296,16 @@ class Hosts:
                 log.warning("could not ask host manager %s for its status: %s", host, exc)
 
     # -- events -----------------------------------------------------------------------------
+
+    def _on_exit_report(self, sample: Any) -> None:
+        """On zenoh's thread: queue a host manager's exit report, unless its attachment names
+        another key (``net.address``: zenoh delivered it here), which is counted."""
+        if is_misaddressed(sample):
+            self._problems.report(
+                "misaddressed", "refused an exit report put on another key than %s", sample.key_expr
+            )
+            return
+        self._events.put(("exited", str(sample.key_expr), sample.payload.to_bytes()))
 
     def reap(self, alive: set[str]) -> list[str]:
         """Apply host tokens, exit reports and status replies, and ask for information that

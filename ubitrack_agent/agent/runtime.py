@@ -93,6 +93,7 @@ from ubitrack_agent.agent.stamps import Stamps
 from ubitrack_agent.agent.standby import standby_components
 from ubitrack_agent.graph.srg import edge_ids
 from ubitrack_agent.graph.templates import Template
+from ubitrack_agent.net.address import is_misaddressed, put_addressed, reply_addressed
 from ubitrack_agent.net.clock import Clock, ClockEstimate, serve_clock
 from ubitrack_agent.net.config import Settings
 from ubitrack_agent.net.encodings import JSON
@@ -539,8 +540,15 @@ class Agent:
         self.stamps.keep_components(set(self.wanted) | set(self.running))
 
     def _queue_report(self, sample: Any) -> None:
-        """Queue a liveness report (on zenoh's thread; bounded: a flood is dropped unread)."""
-        if self._reports.qsize() < MAX_QUEUED_REPORTS:
+        """Queue a liveness report (on zenoh's thread; bounded: a flood is dropped unread; one
+        put on another key, which zenoh delivered here, refused: ``net.address``)."""
+        if is_misaddressed(sample):
+            self.problems.report(
+                "misaddressed",
+                "refused a liveness report put on another key than %s",
+                sample.key_expr,
+            )
+        elif self._reports.qsize() < MAX_QUEUED_REPORTS:
             self._reports.put((str(sample.key_expr), sample.payload))
         else:
             self.dropped_reports += 1
@@ -876,7 +884,7 @@ class Agent:
         answers = query_answers(self.plan, self.queries, self.keys, self.wanted, self.srg, stale)
         for key, answer in answers.items():
             if self._answers.get(key) != answer:
-                self.session.put(key, answer, encoding=JSON)
+                put_addressed(self.session, key, answer, encoding=JSON)
         self._answers, self._answered = answers, self.plan
 
     def _reply_answers(self, query: Any) -> None:
@@ -885,7 +893,7 @@ class Agent:
         answers = self._answers
         for key, answer in answers.items():
             if query.key_expr.intersects(key):
-                query.reply(key, answer, encoding=JSON)
+                reply_addressed(query, key, answer, JSON)
 
     def _undeclare_active(self) -> None:
         for declared in self._declared_active:

@@ -24,8 +24,9 @@ samples stamped more than ``core.timeline.MAX_FUTURE_NS`` ahead of this host's c
 clock reached it. :attr:`Relation.counters` holds these and the other counts of samples not
 used (``dropped_stale``: older than every sample held; ``out_of_order``, below; ``missed``:
 samples the producer put that never came, dropped by zenoh on a full link on the way, counted
-from the numbers the samples carry, ``net.sequence``, and not logged;
-``internal_errors``); the others are logged rate-limited.
+from the numbers the samples carry, ``net.sequence``, and not logged; ``misaddressed``:
+samples and answers whose attachment names another key than the one they came on, which zenoh
+delivered here, ``net.address``; ``internal_errors``); the others are logged rate-limited.
 
 A dynamic relation's stream runs forward in time: the callback, the iterator and
 :meth:`Relation.wait_for` get only samples stamped after every sample received before. One
@@ -81,12 +82,13 @@ from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, MeasurementError
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError
 from ubitrack_agent.core.timeline import SampleBuffer, ahead_of_clock
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.address import is_misaddressed, tag
 from ubitrack_agent.net.answer import Answer, AnswerError, parse_answer
 from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
-from ubitrack_agent.net.sequence import Gaps
+from ubitrack_agent.net.sequence import Gaps, misaddressed_sample
 from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.net.transport import attachment, fetch_until_satisfied
 
@@ -200,6 +202,7 @@ class Relation(Closing):
                     "dropped_stale",
                     "out_of_order",
                     "missed",
+                    "misaddressed",
                     "internal_errors",
                 ),
                 0,
@@ -215,10 +218,13 @@ class Relation(Closing):
         """Samples not yet taken by :meth:`get` (the oldest dropped when full), under
         ``_lock``: one lock per sample, where a ``queue.Queue`` took three more when full."""
         receive = self._guarded(self._receive)
-        numbers = Gaps().reader()
+        numbers = Gaps().reader(self.key)
 
         def take(sample: Any) -> None:  # on the subscriber's one thread
-            missed = numbers.seen(attachment(sample))
+            missed = numbers.take(attachment(sample))
+            if missed is None:  # put on another key, delivered here (net.address)
+                self._count("misaddressed", "refused a sample put on another key")
+                return
             if missed:
                 self.counters["missed"] += missed
             receive(sample.payload.to_bytes())
@@ -237,9 +243,14 @@ class Relation(Closing):
         """Since when no active agent's token is known (while ``_agents`` is empty)."""
         answer_key = keys.answer(relation)
         receive_answer = self._guarded(self._receive_answer)
-        self._answer_subscriber = session.declare_subscriber(
-            answer_key, lambda sample: receive_answer(sample.payload.to_bytes())
-        )
+
+        def take_answer(sample: Any) -> None:
+            if is_misaddressed(sample):
+                self._count("misaddressed", "refused an answer put on another key")
+                return
+            receive_answer(sample.payload.to_bytes())
+
+        self._answer_subscriber = session.declare_subscriber(answer_key, take_answer)
         self._agent_watch = session.liveliness().declare_subscriber(
             keys.all_active_agents(), self._on_agent, history=True
         )
@@ -251,9 +262,15 @@ class Relation(Closing):
         if relation.static:
             progress_key = keys.progress(relation)
             receive_progress = self._guarded(self._receive_progress)
-            self._progress_subscriber = session.declare_subscriber(
-                progress_key, lambda sample: receive_progress(sample.payload.to_bytes())
-            )
+            progress_tag = tag(progress_key)
+
+            def take_progress(sample: Any) -> None:
+                if misaddressed_sample(sample, progress_tag):
+                    self._count("misaddressed", "refused a progress report put on another key")
+                    return
+                receive_progress(sample.payload.to_bytes())
+
+            self._progress_subscriber = session.declare_subscriber(progress_key, take_progress)
             wanted.append((progress_key, receive_progress, lambda: bool(self.progress)))
         self._token = session.liveliness().declare_token(
             keys.query(relation, self.application, self.host, host_labels)

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, encode
+from ubitrack_agent.net.address import put_addressed
 from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
@@ -230,7 +231,7 @@ class Provider(Closing):
     def _put_report(self) -> None:
         with self._report_lock:
             report = json.dumps({"quiet": sorted(self._quiet.quiet)})
-            self._session.put(self._report_key, report, encoding=JSON)
+            put_addressed(self._session, self._report_key, report, encoding=JSON)
 
     def _serve_fragment(self) -> None:
         for query in self._queryable:

@@ -14,6 +14,10 @@ numbers it never saw (:class:`Gaps`): the samples lost between that publisher an
 wherever on the way (``docs/performance.md``, "Which puts may wait (session 24)" and "A stalled
 reader holds nobody (session 27)").
 
+The attachment also names the key (``net.address``): a reader refuses a sample zenoh
+delivered on another key than its publisher's (:meth:`Numbers.take` returns None), counted
+``misaddressed`` in :class:`Gaps`.
+
 A number belongs to one publisher (an id drawn when it is declared): two producers on one key
 (a hand-over, make before break: ``services.handover``) are counted apart, and a publisher
 declared again (a rewire, a restart) starts a new count, not a gap. A reader's first sample of
@@ -25,28 +29,46 @@ from __future__ import annotations
 
 import os
 import threading
+from typing import Any
+
+from ubitrack_agent.net.address import TAG_BYTES, misaddressed, tag
 
 ID_BYTES = 8
 """Bytes of a publisher's id: random, so ids of publishers in different processes differ."""
 NUMBER_BYTES = 8
-ATTACHMENT_BYTES = ID_BYTES + NUMBER_BYTES
+ATTACHMENT_BYTES = ID_BYTES + NUMBER_BYTES + TAG_BYTES
+"""The publisher's id, the put's number, and the key's tag (``net.address``)."""
+_TAG_AT = ID_BYTES + NUMBER_BYTES
+OURS = (ATTACHMENT_BYTES, TAG_BYTES)
+"""Lengths of the attachments a reader checks the key's tag of: a sample's, and a command's or
+report's (``net.address.put_addressed``) delivered on a data key."""
 MAX_SOURCES = 16
 """Publishers a reader remembers at once (a key has one producer, two during a hand-over, a
 few more after rewires); the one heard from least recently is forgotten first."""
 
 
-class Numbering:
-    """The attachments of one publisher's puts: its id, then the put's number (from 0)."""
+def misaddressed_sample(sample: Any, key_tag: bytes) -> bool:
+    """Whether zenoh ``sample``'s attachment, a sample's or a command's, names another key than
+    the one whose tag is ``key_tag`` (``net.address``): for a reader that does not count
+    numbers (a static input, a hand-over's watch of its relation key)."""
+    found = sample.attachment
+    return found is not None and misaddressed(found.to_bytes(), key_tag, OURS)
 
-    def __init__(self) -> None:
+
+class Numbering:
+    """The attachments of one publisher's puts on ``key``: its id, the put's number (from 0),
+    the key's tag."""
+
+    def __init__(self, key: str) -> None:
         self._id = os.urandom(ID_BYTES)
+        self._tag = tag(key)
         self._next = 0
 
     def next(self) -> bytes:
         """The attachment of the next put (call once per put, under the publisher's own order)."""
         number = self._next
         self._next = number + 1
-        return self._id + number.to_bytes(NUMBER_BYTES, "little")
+        return self._id + number.to_bytes(NUMBER_BYTES, "little") + self._tag
 
 
 class Gaps:
@@ -56,32 +78,51 @@ class Gaps:
     def __init__(self) -> None:
         self.missed = 0
         """Samples never received: numbers skipped between two samples of one publisher."""
+        self.misaddressed = 0
+        """Samples refused as put on another key (``net.address``)."""
         self._lock = threading.Lock()
 
-    def reader(self) -> Numbers:
-        """The numbers of one subscription, counting its gaps here."""
-        return Numbers(self)
+    def reader(self, key: str | None) -> Numbers:
+        """The numbers of one subscription to ``key`` (None: a wildcard, each sample's own key
+        then told to :meth:`Numbers.take`), counting its gaps here."""
+        return Numbers(self, key)
 
     def add(self, gap: int) -> None:
         with self._lock:  # readers' threads add at once (only on a gap: rare)
             self.missed += gap
+
+    def refuse(self) -> None:
+        with self._lock:
+            self.misaddressed += 1
 
 
 class Numbers:
     """The last number of each publisher one subscription heard from; called by the one thread
     taking that subscription's samples."""
 
-    def __init__(self, gaps: Gaps) -> None:
+    def __init__(self, gaps: Gaps, key: str | None) -> None:
         self._gaps = gaps
+        self._tag = None if key is None else tag(key)
         self._last: dict[bytes, int] = {}
 
-    def seen(self, attachment: bytes | None) -> int:
-        """Note a sample's attachment; the samples missed right before it, also added to the
-        holder's :class:`Gaps` (0 for a sample without a number, a publisher's first, or one
-        not after its last)."""
-        if attachment is None or len(attachment) != ATTACHMENT_BYTES:
-            return 0  # not numbered (a test's put, a foreign publisher): nothing to count
-        source, number = attachment[:ID_BYTES], int.from_bytes(attachment[ID_BYTES:], "little")
+    def take(self, attachment: bytes | None, key: str | None = None) -> int | None:
+        """Note a sample's attachment: None if it names another key than the subscription's
+        (or, for a wildcard, than ``key``, the sample's), counted ``misaddressed``; else the
+        samples missed right before it, also added to the holder's :class:`Gaps` (0 for a
+        sample without a number, a publisher's first, or one not after its last)."""
+        if attachment is None:
+            return 0  # not ours (a test's put, a foreign publisher): nothing to tell
+        key_tag = self._tag if key is None else tag(key)
+        if len(attachment) != ATTACHMENT_BYTES:  # a command's, or not ours: not numbered
+            if key_tag is not None and misaddressed(attachment, key_tag, OURS):
+                self._gaps.refuse()
+                return None
+            return 0
+        if key_tag is not None and attachment[_TAG_AT:] != key_tag:  # the common case inline
+            self._gaps.refuse()
+            return None
+        source = attachment[:ID_BYTES]
+        number = int.from_bytes(attachment[ID_BYTES : ID_BYTES + NUMBER_BYTES], "little")
         last = self._last.pop(source, None)  # inserted again below: the most recent comes last
         if last is not None and number <= last:
             self._last[source] = last

@@ -18,6 +18,7 @@ from typing import Any, NoReturn
 
 from ubitrack_agent.core.errors import ExtrapolationError, NoDataError, NoMotionModel
 from ubitrack_agent.core.measurements import check_timestamp
+from ubitrack_agent.net.address import is_misaddressed
 
 TIME_PARAMETER = "t"
 """The selector parameter carrying the time asked for (integer nanoseconds)."""
@@ -80,7 +81,9 @@ def fetch_at(session: Any, key: str, timestamp_ns: int, timeout: float) -> bytes
     error: bytes | None = None
     for reply in session.get(selector(key, timestamp_ns), timeout=timeout):
         if reply.ok is not None:
-            return reply.ok.payload.to_bytes()
+            if not is_misaddressed(reply.ok):  # an answer put on another key: net.address
+                return reply.ok.payload.to_bytes()
+            continue
         error = reply.err.payload.to_bytes()
     if error is not None:
         raise_error(error, key)

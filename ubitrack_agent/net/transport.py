@@ -62,6 +62,7 @@ import zenoh
 
 from ubitrack_agent.core.errors import ExtrapolationError, NoMotionModel
 from ubitrack_agent.net import logs
+from ubitrack_agent.net.address import is_misaddressed, put_addressed, reply_addressed
 from ubitrack_agent.net.encodings import JSON, MSGPACK
 from ubitrack_agent.net.sequence import Gaps, Numbering
 from ubitrack_agent.net.thread_pool import ThreadPool
@@ -143,20 +144,26 @@ def subscribe_in_bursts(
     # The channel itself, not the subscriber: a call on the subscriber while another thread
     # undeclares it fails ("Already mutably borrowed", pyo3's check of the object's use).
     channel = subscriber.handler
-    numbers = (gaps or Gaps()).reader()
+    wildcard = "*" in key
+    numbers = (gaps or Gaps()).reader(None if wildcard else key)
+
+    def admitted(sample: Any) -> bool:
+        """Counted, and not refused as put on another key (``net.address``)."""
+        own = str(sample.key_expr) if wildcard else None
+        return numbers.take(attachment(sample), own) is not None
 
     def drain() -> None:
         try:
             for sample in channel:  # blocks without Python's lock; ends when it is closed
-                numbers.seen(attachment(sample))
-                burst = [sample.payload.to_bytes()]
+                burst = [sample.payload.to_bytes()] if admitted(sample) else []
                 while len(burst) < capacity:
                     more = channel.try_recv()
                     if more is None:
                         break
-                    numbers.seen(attachment(more))
-                    burst.append(more.payload.to_bytes())
-                deliver(burst)
+                    if admitted(more):
+                        burst.append(more.payload.to_bytes())
+                if burst:
+                    deliver(burst)
         except zenoh.ZError:  # closed between two samples: "channel is empty and closed"
             pass
 
@@ -206,7 +213,7 @@ class LatestValuePublisher:
         """Called (on zenoh's thread; it must not block) when a subscriber appears."""
         self.first_put_ns: int | None = None
         """When the first payload was put (wall clock): the first sample on its key."""
-        self._numbering = Numbering()
+        self._numbering = Numbering(key)
         """The number each put carries (:mod:`ubitrack_agent.net.sequence`): a reader counts
         the samples it never got."""
         self._publisher = session.declare_publisher(
@@ -291,14 +298,14 @@ class LatestValuePublisher:
         if timestamp_ns is None:
             latest = self._latest
             if latest is not None:
-                query.reply(self.key, latest, encoding=self._encoding)
+                reply_addressed(query, self.key, latest, self._encoding)
             return
         try:
             payload = self._at(timestamp_ns)
         except (ValueError, LookupError, TimeoutError) as exc:
             query.reply_err(error_payload(exc))
             return
-        query.reply(self.key, payload, encoding=self._encoding)
+        reply_addressed(query, self.key, payload, self._encoding)
 
     def undeclare(self) -> None:
         """Undeclare the listener, the queryable and the publisher (a query being answered
@@ -317,8 +324,10 @@ class LatestValuePublisher:
 def put_command(session: Any, key: str, payload: str | bytes) -> None:
     """Put a command (a control command to a worker) so that a busy link delays it instead of
     dropping it: zenoh's default for a put drops a message the transmission queue cannot take
-    at once, and a lost rewire leaves a relation without data."""
-    session.put(
+    at once, and a lost rewire leaves a relation without data. Its attachment names ``key``
+    (``net.address``)."""
+    put_addressed(
+        session,
         key,
         payload,
         encoding=JSON,
@@ -328,10 +337,11 @@ def put_command(session: Any, key: str, payload: str | bytes) -> None:
 
 
 def fetch_latest(session: Any, key: str, timeout: float = 1.0) -> list[bytes]:
-    """Payloads the queryables on ``key`` hold now (empty if none answers)."""
+    """Payloads the queryables on ``key`` hold now (empty if none answers); a reply whose
+    attachment names another key than its own (``net.address``) is left out."""
     payloads = []
     for reply in session.get(key, timeout=timeout):
-        if reply.ok is not None:
+        if reply.ok is not None and not is_misaddressed(reply.ok):
             payloads.append(reply.ok.payload.to_bytes())
     return payloads
 
