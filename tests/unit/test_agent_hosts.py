@@ -249,6 +249,38 @@ def test_a_reply_put_on_another_key_is_no_answer(world, clock):
     assert start(hosts, spec("a"), "lab")
 
 
+def test_a_vanished_token_ends_an_instance_its_host_manager_no_longer_lists(world, clock):
+    """An exit report can be lost (a stop meant for another component, delivered to this one,
+    reported on its container's key during a partition): when a placed instance's token
+    vanishes its host manager is asked at once, and a status without the instance ends it;
+    one that lists it, or its token back, does not."""
+    session, hosts, counters = world
+    session.answers["lab"] = started
+    host_appears(session, hosts, "lab")
+    for name in ("a", "b", "c"):
+        start(hosts, spec(name), "lab")
+    hosts.reap({"a", "b", "c"})
+    asked = len(session.status_requests)
+
+    def lab_runs(*instances: str) -> SimpleNamespace:
+        running = {i: {"run": f"run-{i}", "pid": 7} for i in instances}
+        return status_reply({**HostInfo("lab").as_dict(), "pid": 1, "instances": running})
+
+    session.statuses["lab"] = lab_runs("b")  # a is gone, b still runs
+    for name in ("a", "b", "c"):
+        hosts.await_exit(name)
+    assert hosts.reap({"c"}) == []  # c's token is back: not awaited; the status asked at once
+    assert len(session.status_requests) == asked + 1
+    assert hosts.reap({"c"}) == ["a"]  # the reply, queued by the handler
+    assert "a" not in hosts.placements and hosts.placements["b"] == Placement("lab", "run-b", 7)
+    assert counters["exits_unreported"] == 1
+    clock[0] += hosts_module.INFO_REFRESH_S + 0.1
+    session.statuses["lab"] = lab_runs()
+    hosts.reap({"c"})
+    assert hosts.reap({"c"}) == []  # b was listed, c came back: neither awaited any more
+    assert counters["exits_unreported"] == 1
+
+
 def test_only_a_matching_exit_report_restarts(world):
     session, hosts, counters = world
     session.answers["lab"] = started

@@ -29,6 +29,12 @@ runs, and starting and stopping workers over zenoh only (``docs/protocol.md``).
   was restored keeps its placement: the instance is listed in :attr:`Hosts.restored`, with the
   new process's pid, for the agent to send it its current wiring. When a host manager
   vanishes, its instances lose their placement; those not alive must be started again.
+* A report can be missing: an instance that ended by a stop command its host manager did not
+  send (released: a stop meant for another that zenoh delivered to it, ``net.address``) is
+  reported on its container's ``left`` key, which a partition may lose. So when a placed
+  instance's token vanishes (:meth:`Hosts.await_exit`) its host manager is asked for its status
+  at once, and a reply asked for after that which does not list the instance under its run
+  ends it too (counted ``exits_unreported``). O(awaited instances) a reply.
 
 Zenoh callbacks only queue; everything else runs on the agent's thread (:meth:`Hosts.reap`).
 """
@@ -111,7 +117,9 @@ class Hosts:
         self._retry_at: dict[str, float] = {}
         self._silent_until: dict[str, float] = {}
         self._waiting = False
-        self._events: queue.SimpleQueue[tuple[str, str, bytes]] = queue.SimpleQueue()
+        self._events: queue.SimpleQueue[tuple[str, str, Any]] = queue.SimpleQueue()
+        self._awaited: dict[str, float] = {}
+        """Placed instances whose token vanished, by when (:meth:`await_exit`)."""
         self._watch = session.liveliness().declare_subscriber(
             keys.all_hosts(),
             lambda s: self._events.put((str(s.kind), str(s.key_expr), b"")),
@@ -288,8 +296,8 @@ class Hosts:
                     self._keys.host_request(host),
                     payload=encode_request(Status()),
                     timeout=REQUEST_TIMEOUT_S,
-                    handler=lambda reply, host=host: self._events.put(
-                        ("info", host, _reply_bytes(reply))
+                    handler=lambda reply, host=host, at=now: self._events.put(
+                        ("info", host, (_reply_bytes(reply), at))
                     ),
                 )
             except zenoh.ZError as exc:
@@ -315,7 +323,7 @@ class Hosts:
         while not self._events.empty():
             kind, key, payload = self._events.get_nowait()
             if kind == "info":
-                self._on_info(key, payload)
+                ended += self._on_info(key, *payload)
                 continue
             if kind == "container":
                 self._on_container(key, payload.decode() == PUT)
@@ -329,13 +337,26 @@ class Hosts:
                 ended += self._on_exited(token.name, payload)
             else:
                 self._on_host(token.name, kind == PUT, alive)
+        for instance in [i for i in self._awaited if i in alive or i not in self.placements]:
+            del self._awaited[instance]  # back (its process reconnected), or ended otherwise
         self._ask_info()
         return ended
 
-    def _on_info(self, host: str, payload: bytes | None) -> None:
-        """Take a host manager's status reply (None: an error reply)."""
-        if host not in self.live or payload is None:
+    def await_exit(self, instance: str) -> None:
+        """``instance``'s worker token vanished while a live host manager runs it: ask that host
+        manager for its status now, and end the instance if a reply asked for from now on
+        does not list it (its exit report lost; module docstring)."""
+        placement = self.placements.get(instance)
+        if placement is None or placement.host not in self.live:
             return
+        self._awaited.setdefault(instance, time.monotonic())
+        self._info_due[placement.host] = 0.0
+
+    def _on_info(self, host: str, payload: bytes | None, asked_at: float) -> list[str]:
+        """Take a host manager's status reply (None: an error reply) to a request sent at
+        ``asked_at``; the awaited instances it shows ended (:meth:`await_exit`)."""
+        if host not in self.live or payload is None:
+            return []
         try:
             info = HostInfo.parse(payload)
             if info.name != host:
@@ -344,7 +365,7 @@ class Hosts:
             self._problems.report(
                 "rejected_host_reports", "ignored status of host manager %s: %s", host, exc
             )
-            return
+            return []
         if self.info.get(host, HostInfo(host)).labels != info.labels:
             log.info("host manager %s has labels %s", host, ", ".join(sorted(info.labels)))
         self.info[host] = info
@@ -354,6 +375,31 @@ class Hosts:
                 log.info("%s: runs on host %s (run %s)", instance, host, run)
         if info.clock is not None:
             self._clocks[host] = (info.clock, time.monotonic())
+        return self._unreported_exits(info, asked_at)
+
+    def _unreported_exits(self, info: HostInfo, asked_at: float) -> list[str]:
+        """The awaited instances placed on ``info``'s host that its status, asked for after
+        their token vanished, does not list under their run: ended without a report."""
+        ended = []
+        for instance, since in list(self._awaited.items()):
+            placement = self.placements.get(instance)
+            if placement is None or placement.host != info.name:
+                continue
+            if asked_at < since:
+                continue  # a reply to a request older than the vanishing
+            del self._awaited[instance]
+            running = info.runs.get(instance)
+            if running is not None and running[0] == placement.run:
+                continue  # it runs: its token will be back (or its exit reported)
+            del self.placements[instance]
+            self._problems.report(
+                "exits_unreported",
+                "%s: ended on host %s without an exit report (its status no longer lists it)",
+                instance,
+                info.name,
+            )
+            ended.append(instance)
+        return ended
 
     def _on_container(self, key: str, appeared: bool) -> None:
         """A container's token: which container its process runs."""

@@ -355,7 +355,8 @@ class Agent:
         self.alive.discard(instance)
         self._stopped.pop(instance, None)
         if self.hosts.reports_exit_of(instance):
-            return False  # its host manager reports when the process ends: that restarts it
+            self.hosts.await_exit(instance)  # its host manager's report, or status, ends it
+            return False
         if instance in self.running:
             self._unrouted.setdefault(instance, time.monotonic() + REROUTE_S)
         return False
