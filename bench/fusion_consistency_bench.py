@@ -1,7 +1,11 @@
 """Is the fusion filter's covariance honest? NEES over independent runs (issue 29).
 
-Run: ``python -m bench.fusion_consistency_bench [--runs N] [--seconds S] [--output FILE]``
-(defaults: 12 runs of 20 s, about 2 minutes; writes ``bench/results/fusion_consistency.json``).
+Run: ``python -m bench.fusion_consistency_bench [--runs N] [--seconds S] [--floors F,F]
+[--noise-factor X] [--output FILE]`` (defaults: 12 runs of 20 s, about 2 minutes; writes
+``bench/results/fusion_consistency.json``). ``--floors``: the adaptive filter also with each
+least factor of its noise (``min_noise_scale``); ``--noise-factor``: the sensors' true noise
+that many times what they announce (below 1: inputs that over-claim, as exact simulated
+trackers do, where the adaptive noise without a floor falls until the filter lags).
 
 The figure-1 world offline (``sim_trackers/scenarios/paper_figure1.yaml``, its rates, noise,
 dropout and occlusion): the two estimates of ``C -> A`` the figure-6 flow fuses, made as the
@@ -139,7 +143,9 @@ def measurements(
             if rng.random() < art.dropout:
                 continue
             rotation, translation = world.pose(art.frame, "HT", stamp)
-            rotation, translation = perturb_in_place(rng, rotation, translation, art_sigma)
+            rotation, translation = perturb_in_place(
+                rng, rotation, translation, art_sigma * args.noise_factor**2
+            )
             art_ht = ErrorPose(
                 stamp, rotation, translation, in_place_covariance(translation, art_sigma)
             )
@@ -158,7 +164,7 @@ def measurements(
                 if name in seen and rng.random() >= camera.occlusion
             ]
             pixels = np.array([seen[camera.features[i]] for i in kept])
-            pixels = pixels + rng.normal(0.0, camera.noise_px, pixels.shape)
+            pixels = pixels + rng.normal(0.0, camera.noise_px * args.noise_factor, pixels.shape)
             try:
                 pose = solve_pnp(
                     features[kept],
@@ -222,7 +228,7 @@ def inputs_nees(run: list[Measurement], path: str) -> float:
     return float(np.mean([nees(m.estimate, m.truth) for m in run if m.path == path]))
 
 
-def filters(scales: list[float]) -> dict[str, tuple[Any, bool]]:
+def filters(scales: list[float], floors: list[float] = ()) -> dict[str, tuple[Any, bool]]:
     """Name -> (factory of the filter, whether it is told the static parts) of each filter
     compared, on the template's process noise."""
     template = yaml.safe_load(
@@ -237,6 +243,13 @@ def filters(scales: list[float]) -> dict[str, tuple[Any, bool]]:
     made["innovation-matched (tried)"] = (adaptive, False)
     made["consider"] = (lambda: PoseKalmanFilter(angular, linear), True)
     made["consider, innovation-matched"] = (adaptive, True)
+    for floor in floors:
+        made[f"consider, innovation-matched, at least x {floor:g}"] = (
+            lambda floor=floor: PoseKalmanFilter(
+                angular, linear, adaptive=True, min_noise_scale=floor
+            ),
+            True,
+        )
     return made
 
 
@@ -245,6 +258,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--runs", type=int, default=12, help="independent runs per world")
     parser.add_argument("--seconds", type=float, default=20.0, help="length of a run")
     parser.add_argument("--scales", default="1,0.1,0.01", help="process noise factors to try")
+    parser.add_argument(
+        "--floors", default="", help="least factors of the adaptive noise to try (comma-separated)"
+    )
+    parser.add_argument(
+        "--noise-factor",
+        type=float,
+        default=1.0,
+        help="the sensors' true noise over what they announce (below 1: inputs that over-claim)",
+    )
     parser.add_argument("--static-mm", type=float, default=0.05, help="ART -> WT's error (sigma)")
     parser.add_argument("--static-deg", type=float, default=0.01)
     parser.add_argument("--calibration-mm", type=float, default=0.2, help="C -> HT's (sigma)")
@@ -254,7 +276,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.runs < 2:
         parser.error("--runs: at least 2 (the interval is over runs)")
     scenario = load_scenario(DEFAULT_SCENARIO)
-    makers = filters([float(s) for s in args.scales.split(",")])
+    floors = [float(f) for f in args.floors.split(",") if f]
+    makers = filters([float(s) for s in args.scales.split(",")], floors)
     began = time.time()
     worlds: dict[str, Any] = {}
     for world, calibrated in (("calibrated", True), ("exact", False)):
@@ -286,7 +309,9 @@ def main(argv: list[str] | None = None) -> None:
         }
     result = {
         "command": "python -m bench.fusion_consistency_bench "
-        f"--runs {args.runs} --seconds {args.seconds:g} --scales {args.scales}",
+        f"--runs {args.runs} --seconds {args.seconds:g} --scales {args.scales}"
+        + (f" --floors {args.floors}" if args.floors else "")
+        + (f" --noise-factor {args.noise_factor:g}" if args.noise_factor != 1.0 else ""),
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "seconds": round(time.time() - began, 1),
         "settings": {k: v for k, v in vars(args).items() if k != "output"},

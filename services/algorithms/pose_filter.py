@@ -127,6 +127,10 @@ class FilterSettings:
     adaptive: bool = False
     """Scale the process noise on line to the innovations (see the module docstring)."""
     adaptation_gain: float = 0.02
+    min_noise_scale: float = math.exp(-12.0)
+    """The least factor ``adaptive`` may scale each process noise density by: inputs that claim
+    more error than they have make the innovations small, and the filter would otherwise cut
+    its noise until its lag behind the motion fills their claim."""
     max_sources: int = 8
     """Static errors considered at once: a new source beyond them takes the place of the one
     seen longest ago that no kept measurement came from (a flow rewired away; its rows and
@@ -140,6 +144,7 @@ class FilterSettings:
             "initial_speed_std",
             "gate",
             "adaptation_gain",
+            "min_noise_scale",
         ):
             positive(name, getattr(self, name))
         for name in ("restart_after", "window_ns", "restart_ns", "max_ahead_ns", "max_sources"):
@@ -383,11 +388,13 @@ class PoseKalmanFilter:
 
     def _adapt(self, residual: np.ndarray, innovation: np.ndarray) -> None:
         """Move the angular and the linear noise's factors towards an NIS of 3 for the
-        rotation and the position part of the innovation (bounded to e^-12 .. e^12)."""
+        rotation and the position part of the innovation (bounded to ``min_noise_scale`` ..
+        e^12)."""
+        least = math.log(self.settings.min_noise_scale)
         for index, part in enumerate((slice(0, 3), slice(3, 6))):
             nis = residual[part] @ np.linalg.solve(innovation[part, part], residual[part])
             moved = self._log_scales[index] + self.settings.adaptation_gain * (nis / 3.0 - 1.0)
-            self._log_scales[index] = min(max(moved, -12.0), 12.0)
+            self._log_scales[index] = min(max(moved, least), 12.0)
         self._noise = (
             math.exp(self._log_scales[0]) * self._terms[0]
             + math.exp(self._log_scales[1]) * self._terms[1]

@@ -265,6 +265,23 @@ def test_adaptive_noise_scales_down_to_the_motion_and_stays_consistent():
     assert np.all(np.exp(np.log(scales).mean(axis=0)) < 0.5)
 
 
+def test_adaptive_noise_falls_no_lower_than_its_floor_for_inputs_that_over_claim():
+    """Exact measurements that claim a covariance make the innovations small: the adaptive
+    noise falls, but no lower than ``min_noise_scale`` (without it, far below)."""
+    schedule = two_trackers(4.0)
+    truth = walk(rng_for("pose-filter-floor"), [t for t, _ in schedule], 0.05, 0.05)
+    floored = PoseKalmanFilter(0.5, 0.5, adaptive=True, min_noise_scale=0.25)
+    free = PoseKalmanFilter(0.5, 0.5, adaptive=True)
+    for t_ns, cov in schedule:
+        exact = truth(t_ns)
+        for kalman in (floored, free):
+            kalman.update(t_ns, exact.rotation, exact.translation, cov)
+    assert min(free.noise_scales) < 0.1
+    assert min(floored.noise_scales) == pytest.approx(0.25)
+    with pytest.raises(ValueError, match="min_noise_scale"):
+        PoseKalmanFilter(0.5, 0.5, min_noise_scale=0.0)
+
+
 def test_a_static_part_larger_than_the_covariance_is_refused():
     kalman = PoseKalmanFilter(1.0, 1.0)
     with pytest.raises(ValueError, match="no larger than the covariance"):
