@@ -37,15 +37,13 @@ class Fusion(Service):
       Estimates arriving out of order within ``window_ms`` are re-filtered from the kept history
       (counted ``late``: their effect is in the next output), outliers are refused by the innovation
       gate ``gate`` (``gated``), the process noise is ``angular_noise`` (rad^2/s^3) and
-      ``linear_noise`` (m^2/s^3), scaled on line to the innovations with ``adaptive`` (off by
-      default: live, it made the fused flow 9 % more accurate but its covariance more
-      conservative, ``docs/performance.md``), never below ``min_noise_scale`` times them (inputs
-      that claim more error than they have would otherwise make it lag until the lag fills
-      their claim). Each input's static error (an
-      estimate's ``static_covariance``: the share of calibrations and other fixed static edges
-      in its covariance) is *considered* on its own (Schmidt-Kalman), so fusing many samples
-      of one input does not average a calibration's error away; at most ``max_sources``
-      inputs' at once. Its output also
+      ``linear_noise`` (m^2/s^3), scaled on line to the innovations with ``adaptive`` (on by
+      default), never below ``min_noise_scale`` times them (inputs that claim more error than
+      they have would otherwise make it lag until the lag fills their claim). Each input's
+      static error (an estimate's ``static_covariance``: the share of calibrations and other
+      fixed static edges in its covariance) is *considered* on its own (Schmidt-Kalman), so
+      fusing many samples of one input does not average a calibration's error away; at most
+      ``max_sources`` inputs' at once. Its output also
       answers a query at a given time by the filter's prediction (:meth:`value_at`).
     * ``synchronised``: the worker synchronises the estimates at each trigger's time
       (``ubitrack_agent.services.triggers``) and they are fused as simultaneous: 6D on SE(3)
@@ -70,7 +68,7 @@ class Fusion(Service):
         "linear_noise": 0.02,
         "gate": 27.86,
         "window_ms": 200.0,
-        "adaptive": False,
+        "adaptive": True,
         "min_noise_scale": 0.1,
         "max_sources": 8,
     }
