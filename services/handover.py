@@ -109,7 +109,6 @@ from ubitrack_agent.net.address import (
 )
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.json_messages import MessageError, load_object
-from ubitrack_agent.net.sequence import misaddressed_sample
 from ubitrack_agent.net.thread_pool import ThreadPool
 from ubitrack_agent.net.transport import on_zenoh_thread
 
@@ -738,7 +737,7 @@ class Watch:
             self.rules.observe_value(value)
 
     def _observe(self, sample: Any) -> None:
-        if misaddressed_sample(sample, self._key_tag):
+        if is_misaddressed(sample, self._key_tag):
             self._counters["misaddressed"] += 1  # zenoh delivered it here: net.address
             return
         self.rules.observe(sample.payload.to_bytes())

@@ -100,7 +100,7 @@ from ubitrack_agent.net.json_messages import load_object
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.lifecycle import on_termination
 from ubitrack_agent.net.progress import Progress
-from ubitrack_agent.net.sequence import Gaps, misaddressed_sample
+from ubitrack_agent.net.sequence import Gaps
 from ubitrack_agent.net.spec import (
     ComponentSpec,
     GroupSpec,
@@ -695,7 +695,7 @@ class Worker:
             key_tag = tag(key)
 
             def take(sample: Any) -> None:
-                if misaddressed_sample(sample, key_tag):  # net.address
+                if is_misaddressed(sample, key_tag):
                     self._gaps.refuse()
                     return
                 call(functools.partial(deliver, sample.payload.to_bytes()))

@@ -88,7 +88,7 @@ from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.keys import KeySpace, RelationId, validate_key_chunks
 from ubitrack_agent.net.lifecycle import Closing
 from ubitrack_agent.net.progress import Progress, ProgressError, parse_progress
-from ubitrack_agent.net.sequence import Gaps, misaddressed_sample
+from ubitrack_agent.net.sequence import Gaps
 from ubitrack_agent.net.time_queries import fetch_at
 from ubitrack_agent.net.transport import attachment, fetch_until_satisfied
 
@@ -265,7 +265,7 @@ class Relation(Closing):
             progress_tag = tag(progress_key)
 
             def take_progress(sample: Any) -> None:
-                if misaddressed_sample(sample, progress_tag):
+                if is_misaddressed(sample, progress_tag):
                     self._count("misaddressed", "refused a progress report put on another key")
                     return
                 receive_progress(sample.payload.to_bytes())

@@ -15,8 +15,8 @@ yet.)
 **What.** Each put and reply of this package carries, as the last :data:`TAG_BYTES` of its
 attachment, the CRC-32 of its key (:func:`tag`): the whole attachment of a command or report
 (:func:`put_addressed`), after the publisher's id and number on the data path
-(``net.sequence``). A reader refuses a message whose attachment is one of ours (its length
-:data:`TAG_BYTES` or ``net.sequence.ATTACHMENT_BYTES``) naming another key, counts it
+(``net.sequence``). A reader refuses a message whose attachment is one of ours (a length in
+:data:`OURS`) naming another key, counts it
 (``misaddressed``) and logs it; a message without an attachment of ours (another program's
 publisher, a test's put) is taken as before. CRC-32 (``zlib``, which the standard library
 has) is no authentication, only a check against mix-ups: transport security and access
@@ -33,6 +33,12 @@ import zenoh
 
 TAG_BYTES = 4
 """Bytes of a key's tag: a CRC-32, little-endian."""
+NUMBERED_PREFIX_BYTES = 16
+"""What comes before the tag in a data path attachment: the publisher's id and the put's
+number (``net.sequence``)."""
+OURS = (TAG_BYTES, NUMBERED_PREFIX_BYTES + TAG_BYTES)
+"""Lengths of this package's attachments, each ending with a key's tag: a command's or
+report's (:func:`put_addressed`), a sample's (``net.sequence``)."""
 
 
 def tag(key: str) -> bytes:
@@ -40,22 +46,20 @@ def tag(key: str) -> bytes:
     return zlib.crc32(key.encode("utf-8")).to_bytes(TAG_BYTES, "little")
 
 
-def misaddressed(attachment: bytes | None, key_tag: bytes, lengths: tuple[int, ...]) -> bool:
-    """Whether ``attachment``, of one of our ``lengths``, names another key than the one whose
+def misaddressed(attachment: bytes | None, key_tag: bytes) -> bool:
+    """Whether ``attachment``, one of ours (:data:`OURS`), names another key than the one whose
     tag is ``key_tag``. An attachment of another length is not ours: nothing to tell."""
-    return (
-        attachment is not None and len(attachment) in lengths and attachment[-TAG_BYTES:] != key_tag
-    )
+    return attachment is not None and len(attachment) in OURS and attachment[-TAG_BYTES:] != key_tag
 
 
 def is_misaddressed(sample: Any, key_tag: bytes | None = None) -> bool:
-    """Whether a command, report or reply ``sample`` (put with :func:`put_addressed`) was
-    meant for another key than the one whose tag is ``key_tag`` (by default the key it came
-    on: a wildcard subscription's sample, a reply)."""
+    """Whether zenoh ``sample`` (a command, report, reply or sample of this package) was meant
+    for another key than the one whose tag is ``key_tag`` (by default the key it came on: a
+    wildcard subscription's sample, a reply)."""
     found = sample.attachment
     if found is None:
         return False
-    return misaddressed(found.to_bytes(), key_tag or tag(str(sample.key_expr)), (TAG_BYTES,))
+    return misaddressed(found.to_bytes(), key_tag or tag(str(sample.key_expr)))
 
 
 def put_addressed(session: Any, key: str, payload: str | bytes, **options: Any) -> None:

@@ -29,30 +29,18 @@ from __future__ import annotations
 
 import os
 import threading
-from typing import Any
 
-from ubitrack_agent.net.address import TAG_BYTES, misaddressed, tag
+from ubitrack_agent.net.address import NUMBERED_PREFIX_BYTES, TAG_BYTES, misaddressed, tag
 
 ID_BYTES = 8
 """Bytes of a publisher's id: random, so ids of publishers in different processes differ."""
-NUMBER_BYTES = 8
-ATTACHMENT_BYTES = ID_BYTES + NUMBER_BYTES + TAG_BYTES
+NUMBER_BYTES = NUMBERED_PREFIX_BYTES - ID_BYTES
+"""Bytes of the put's number (unsigned, little-endian): the rest of what precedes the tag."""
+ATTACHMENT_BYTES = NUMBERED_PREFIX_BYTES + TAG_BYTES
 """The publisher's id, the put's number, and the key's tag (``net.address``)."""
-_TAG_AT = ID_BYTES + NUMBER_BYTES
-OURS = (ATTACHMENT_BYTES, TAG_BYTES)
-"""Lengths of the attachments a reader checks the key's tag of: a sample's, and a command's or
-report's (``net.address.put_addressed``) delivered on a data key."""
 MAX_SOURCES = 16
 """Publishers a reader remembers at once (a key has one producer, two during a hand-over, a
 few more after rewires); the one heard from least recently is forgotten first."""
-
-
-def misaddressed_sample(sample: Any, key_tag: bytes) -> bool:
-    """Whether zenoh ``sample``'s attachment, a sample's or a command's, names another key than
-    the one whose tag is ``key_tag`` (``net.address``): for a reader that does not count
-    numbers (a static input, a hand-over's watch of its relation key)."""
-    found = sample.attachment
-    return found is not None and misaddressed(found.to_bytes(), key_tag, OURS)
 
 
 class Numbering:
@@ -114,11 +102,11 @@ class Numbers:
             return 0  # not ours (a test's put, a foreign publisher): nothing to tell
         key_tag = self._tag if key is None else tag(key)
         if len(attachment) != ATTACHMENT_BYTES:  # a command's, or not ours: not numbered
-            if key_tag is not None and misaddressed(attachment, key_tag, OURS):
+            if key_tag is not None and misaddressed(attachment, key_tag):
                 self._gaps.refuse()
                 return None
             return 0
-        if key_tag is not None and attachment[_TAG_AT:] != key_tag:  # the common case inline
+        if key_tag is not None and attachment[NUMBERED_PREFIX_BYTES:] != key_tag:  # inline
             self._gaps.refuse()
             return None
         source = attachment[:ID_BYTES]
