@@ -73,13 +73,15 @@ keeps these rules, so that the application sees one stream (issue [seamless];
    beside a fusion on standby running on the camera alone, keeps the key).
 
 "Another producer is putting" means a sample not put by this one arrived within
-:meth:`KeyHandOver.quiet_s`: three of the other's longest recent intervals (bounded), or until
-the holder's token leaves (rule 5). With the old producer gone (its sensor died) the key is quiet
-and the new one puts at once, its covariance saying how good its first estimates are (issue
-[seamless], item 2). Each rule costs O(1) per sample, plus the decoding of every sample on the key
-by each producer watching it; a hand-over costs two messages, and each producer one token, so
-O(producers) per key. The hand-over key's chunk is verbatim (``@``), so a subscriber to the
-relation keys' wildcard does not receive the hand-over's messages nor its tokens.
+:meth:`KeyHandOver.quiet_s`: three of the other's usual recent intervals, and one usual interval
+longer than its longest recent one (bounded), or until the holder's token leaves (rule 5). With
+the old producer gone (its sensor died) the key is quiet and the new one puts at once, its
+covariance saying how good its first estimates are (issue [seamless], item 2). Each rule costs
+O(1) per sample (the quiet time a sort of the eight intervals remembered), plus the decoding of
+every sample on the key by each producer watching it; a hand-over costs two messages, and each
+producer one token, so O(producers) per key. The hand-over key's chunk is verbatim (``@``), so
+a subscriber to the relation keys' wildcard does not receive the hand-over's messages nor its
+tokens.
 """
 
 from __future__ import annotations
@@ -87,6 +89,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import threading
 import time
 import uuid
@@ -150,8 +153,13 @@ claims again (the holder still putting; rule 3)."""
 QUIET_BOUNDS_S = (0.02, 0.5)
 """Bounds of the quiet time after which another producer counts as gone."""
 QUIET_INTERVALS = 3.0
-"""Another producer is gone after this many of its longest recent sample intervals without a
-sample."""
+"""Another producer is gone after this many of its usual recent sample intervals
+(:data:`USUAL_QUANTILE`) without a sample, and at least one usual interval longer than its
+longest recent one (:meth:`KeyHandOver.quiet_s`)."""
+USUAL_QUANTILE = 0.75
+"""The quantile of the other producer's recent intervals taken as its usual one: a fusion of a
+60 Hz and a 30 Hz sensor puts samples 1 and 16 ms apart (its usual interval 16 ms, not 1),
+and one or two frames its sensor dropped do not make it three times as long."""
 INTERVALS_REMEMBERED = 8
 """How many of the other producer's latest sample intervals the quiet time is taken from."""
 DEFAULT_QUIET_S = 0.1
@@ -273,21 +281,29 @@ class KeyHandOver:
         before a newer one comes (rule 5)."""
 
     def quiet_s(self) -> float:
-        """After how long without a sample another producer counts as gone: three of its
-        longest recent intervals (a fusion of a 60 Hz and a 30 Hz sensor puts samples 1 and
-        16 ms apart). A producer that gave the key to a claimer waits the longest until it
-        knows :data:`INTERVALS_REMEMBERED` of the claimer's intervals (a new flow's first
-        samples come unevenly, and taking the key back from it only late would hand the key to
-        and fro); then as long as any other: a claimer on one sensor that stops is quiet at
-        once (a chain on the better tracker, which left: the switch bench's 0.5 s gaps in
-        session 23), and this producer claims the key back, which the claimer, if only late,
-        answers before it puts again (rule 3)."""
+        """After how long without a sample another producer counts as gone: three of its usual
+        recent intervals (:data:`USUAL_QUANTILE`), and one usual interval longer than the
+        longest recent one, so a silence as long as one seen lately (a hiccup of a loaded
+        machine) is not taken for its end. Three of its *longest* intervals would let one frame
+        its tracker dropped (2 % of a simulated A.R.T. tracker's frames) triple the wait for the
+        next eight samples: in the switch bench the chain on the better tracker, which left,
+        was claimed 144 ms after its last sample so, after a 42 ms interval
+        (``docs/performance.md``, "The usual interval, not the longest"). O(intervals
+        remembered) a call: a sort of eight. A producer that gave the key to a claimer waits
+        the longest until it knows :data:`INTERVALS_REMEMBERED` of the claimer's intervals (a
+        new flow's first samples come unevenly, and taking the key back from it only late
+        would hand the key to and fro); then as long as any other: a claimer on one sensor
+        that stops is quiet at once (a chain on the better tracker, which left: the switch
+        bench's 0.5 s gaps in session 23), and this producer claims the key back, which the
+        claimer, if only late, answers before it puts again (rule 3)."""
         low, high = QUIET_BOUNDS_S
         if self._yielded and len(self._other_intervals) < INTERVALS_REMEMBERED:
             return high
         if not self._other_intervals:
             return DEFAULT_QUIET_S
-        return min(high, max(low, QUIET_INTERVALS * max(self._other_intervals)))
+        intervals = sorted(self._other_intervals)
+        usual = intervals[math.ceil(USUAL_QUANTILE * len(intervals)) - 1]
+        return min(high, max(low, QUIET_INTERVALS * usual, intervals[-1] + usual))
 
     def observe(self, payload: bytes, latest: bool = False) -> None:
         """A sample seen on the key (:meth:`observe_value`); one that does not decode is the

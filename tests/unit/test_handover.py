@@ -632,6 +632,52 @@ def test_a_producer_that_gave_the_key_away_claims_it_when_the_holder_goes_quiet(
     assert stamps == sorted(set(stamps)) and stamps[-1] == t + 10
 
 
+def test_one_dropped_frame_of_the_holder_does_not_triple_the_wait_for_it():
+    """A chain on a 60 Hz tracker that drops a frame now and then (2 % of a simulated A.R.T.
+    tracker's) holds the key; the fusion it took the key from waits beside it. After one 33 ms
+    interval among 17 ms ones the chain counts as gone after three usual intervals (51 ms) and
+    at least one usual interval longer than that 33 ms, not after three of its longest (99 ms):
+    the switch bench's "better tracker leaves" waited 144 ms after a 42 ms interval. A silence
+    as long as the longest recent one plus a usual interval takes nothing."""
+    bus = Bus()
+    fused, chain = given_away_at_50(bus)
+    t = 50
+    for interval in [17] * INTERVALS_REMEMBERED + [33] + [17] * 3:  # one frame dropped
+        t += interval
+        bus.clock.now += interval / 1000
+        assert bus.offer(chain, pose(t, variance=0.2e-6))
+    assert abs(fused.quiet_s() - 3 * 0.017) < 1e-9  # three usual intervals: 51 > 33 + 17 ms
+    last = t
+    bus.clock.now += 0.049  # a silence of 49 ms, longer than any recent one: not yet quiet
+    assert not bus.offer(fused, pose(last + 49, variance=1e-6))
+    assert bus.counters[0]["relation_taken"] == 0
+    bus.clock.now += 0.004  # 53 ms: the chain's tracker left, the chain is quiet
+    assert not bus.offer(fused, pose(last + 53, variance=1e-6))  # claims; put on the answer
+    assert bus.messages[-2:] == [
+        {"claim": fused.producer, "after": last * MS},
+        {"yield": chain.producer, "last": last * MS, "to": fused.producer},
+    ]
+    assert bus.stamps()[-1] == last + 53
+
+
+def test_the_quiet_time_is_three_usual_intervals_and_longer_than_the_longest():
+    """:meth:`KeyHandOver.quiet_s` from the other producer's intervals: the usual one is their
+    upper quartile (a fusion of 60 Hz and 30 Hz sensors puts samples 1 and 16 ms apart: 16 ms),
+    a silence at least one usual interval longer than the longest is needed, and the bounds
+    hold."""
+    bus = Bus()
+    watcher = bus.producer()
+    for intervals, expected in [
+        ([0.016, 0.001] * 4, 3 * 0.016),  # alternating: the usual interval is the long one
+        ([0.017] * 7 + [0.1], 0.1 + 0.017),  # a hiccup of 100 ms: longer than it, not 3 x 17
+        ([0.005], 0.02),  # the lower bound
+        ([0.3] * 8, 0.5),  # the upper bound
+    ]:
+        watcher._other_intervals.clear()
+        watcher._other_intervals.extend(intervals)
+        assert abs(watcher.quiet_s() - expected) < 1e-9, intervals
+
+
 def test_a_producer_starting_waits_for_its_question_who_holds_a_quiet_key():
     """Its question still open (the reply in flight), a quiet key may have a holder only late:
     claimed and held back; the question closed with no holder alive, the key is taken with the
