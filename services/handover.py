@@ -157,9 +157,10 @@ QUIET_INTERVALS = 3.0
 (:data:`USUAL_QUANTILE`) without a sample, and at least one usual interval longer than its
 longest recent one (:meth:`KeyHandOver.quiet_s`)."""
 USUAL_QUANTILE = 0.75
-"""The quantile of the other producer's recent intervals taken as its usual one: a fusion of a
-60 Hz and a 30 Hz sensor puts samples 1 and 16 ms apart (its usual interval 16 ms, not 1),
-and one or two frames its sensor dropped do not make it three times as long."""
+"""The quantile of the intervals between the other producer's recent timestamps taken as its
+usual interval (:class:`_Intervals`): a fusion of a 60 Hz and a 30 Hz sensor puts samples 1 and
+16 ms apart (its usual interval 16 ms, not 1), and one or two frames its sensor dropped do not
+make it three times as long."""
 INTERVALS_REMEMBERED = 8
 """How many of the other producer's latest sample intervals the quiet time is taken from."""
 DEFAULT_QUIET_S = 0.1
@@ -213,6 +214,49 @@ def _trace(value: Measurement | None) -> tuple[tuple[int, ...], float] | None:
     return matrix.shape, float(np.trace(matrix))
 
 
+class _Intervals:
+    """Another producer's latest :data:`INTERVALS_REMEMBERED` intervals, between the arrivals of
+    its samples and between their timestamps: the quiet time (:meth:`KeyHandOver.quiet_s`) takes
+    the usual interval from the timestamps, the rate its sensors measure at, which a backlog
+    delivered at once does not shorten (six samples of a 60 Hz chain put together after a
+    stall would make the arrivals' usual interval a tenth of a millisecond), and the longest
+    from the arrivals, the silences seen on the key."""
+
+    def __init__(self) -> None:
+        self._arrivals: deque[float] = deque(maxlen=INTERVALS_REMEMBERED)
+        self._stamps: deque[float] = deque(maxlen=INTERVALS_REMEMBERED)
+        self._last_stamp_ns: int | None = None
+
+    def __len__(self) -> int:
+        return len(self._arrivals)
+
+    def add(self, arrival_s: float | None, stamp_ns: int) -> None:
+        """A sample stamped ``stamp_ns`` arrived ``arrival_s`` seconds after the one before
+        (``None``: not an interval, the first after a silence or an answer): both intervals
+        kept, the timestamps' if it is after the one before."""
+        last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
+        if arrival_s is None:
+            return
+        self._arrivals.append(arrival_s)
+        if last is not None and stamp_ns > last:
+            self._stamps.append((stamp_ns - last) / 1e9)
+
+    def clear(self) -> None:
+        self._arrivals.clear()
+        self._stamps.clear()
+        self._last_stamp_ns = None
+
+    def usual(self) -> float:
+        """The :data:`USUAL_QUANTILE` of the timestamps' intervals (of the arrivals' while no
+        timestamp interval is known); some interval must be known."""
+        intervals = sorted(self._stamps or self._arrivals)
+        return intervals[math.ceil(USUAL_QUANTILE * len(intervals)) - 1]
+
+    def longest(self) -> float:
+        """The longest interval between arrivals; some interval must be known."""
+        return max(self._arrivals)
+
+
 class KeyHandOver:
     """The rules for one relation key of one producer: :meth:`admit` before each put;
     :meth:`observe` for each sample seen on the key, :meth:`receive` for each hand-over
@@ -241,7 +285,7 @@ class KeyHandOver:
         self._mine: deque[int] = deque(maxlen=MINE_REMEMBERED)
         self._other_at: float | None = None
         """When another producer's latest sample arrived (monotonic)."""
-        self._other_intervals: deque[float] = deque(maxlen=INTERVALS_REMEMBERED)
+        self._other_intervals = _Intervals()
         self._other_trace: tuple[tuple[int, ...], float] | None = None
         self._other_worse_in_row = 0
         """How many of the other producer's latest samples in a row were each at least ``1 /
@@ -282,9 +326,10 @@ class KeyHandOver:
 
     def quiet_s(self) -> float:
         """After how long without a sample another producer counts as gone: three of its usual
-        recent intervals (:data:`USUAL_QUANTILE`), and one usual interval longer than the
-        longest recent one, so a silence as long as one seen lately (a hiccup of a loaded
-        machine) is not taken for its end. Three of its *longest* intervals would let one frame
+        recent intervals (:data:`USUAL_QUANTILE` of its timestamps', :class:`_Intervals`), and
+        one usual interval longer than the longest recent silence between its samples'
+        arrivals, so a silence as long as one seen lately (a hiccup of a loaded machine) is not
+        taken for its end. Three of its *longest* intervals would let one frame
         its tracker dropped (2 % of a simulated A.R.T. tracker's frames) triple the wait for the
         next eight samples: in the switch bench the chain on the better tracker, which left,
         was claimed 144 ms after its last sample so, after a 42 ms interval
@@ -301,9 +346,8 @@ class KeyHandOver:
             return high
         if not self._other_intervals:
             return DEFAULT_QUIET_S
-        intervals = sorted(self._other_intervals)
-        usual = intervals[math.ceil(USUAL_QUANTILE * len(intervals)) - 1]
-        return min(high, max(low, QUIET_INTERVALS * usual, intervals[-1] + usual))
+        usual, longest = self._other_intervals.usual(), self._other_intervals.longest()
+        return min(high, max(low, QUIET_INTERVALS * usual, longest + usual))
 
     def observe(self, payload: bytes, latest: bool = False) -> None:
         """A sample seen on the key (:meth:`observe_value`); one that does not decode is the
@@ -330,11 +374,18 @@ class KeyHandOver:
                 return
             if latest and self._other_at is not None:
                 return  # the holder's samples came first: the answer tells nothing newer
-            running = self._other_at is not None and now - self._other_at <= self.quiet_s()
-            if running and not self._other_at_is_answer:
-                self._other_intervals.append(now - self._other_at)
-            elif not running:
+            silence = None if self._other_at is None else now - self._other_at
+            running = silence is not None and silence <= self.quiet_s()
+            # A silence past the longest quiet time starts a new stream; a shorter one (a
+            # hiccup, which may outlast the quiet time) is an interval like any other: the
+            # quiet time grows by it, and a producer that gave the key away does not fall
+            # back to waiting the longest (the switch bench's one 502 ms gap, session 30).
+            if silence is None or silence > QUIET_BOUNDS_S[1]:
                 self._other_intervals.clear()
+                silence = None
+            elif self._other_at_is_answer:
+                silence = None
+            self._other_intervals.add(silence, value.timestamp_ns)
             self._other_at, self._other_at_is_answer = now, latest
             self._other_trace = theirs = _trace(value)
             self._count_lost(now, theirs, running)
