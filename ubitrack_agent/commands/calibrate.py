@@ -36,6 +36,7 @@ import math
 import sys
 from typing import Any
 
+from ubitrack_agent.commands.lines import write_line
 from ubitrack_agent.net import config
 
 TYPES = ("6D", "3D", "3R")
@@ -146,12 +147,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
 
     def say(document: dict[str, Any], text: str) -> None:
-        print(json.dumps(document) if args.json else text, flush=True)
+        write_line(json.dumps(document) if args.json else text)
 
     def fail(document: dict[str, Any], message: str) -> int:
         """Say why it ends without a result (stderr; with --json also as a line on stdout)."""
         if args.json:
-            print(json.dumps({**document, "message": message}), flush=True)
+            write_line(json.dumps({**document, "message": message}))
         print(f"{prog}: {message}", file=sys.stderr)
         return 1
 

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ubitrack_agent.commands.lines import write_line
 from ubitrack_agent.core.interpreter import module_command
 from ubitrack_agent.net import config
 
@@ -781,7 +782,7 @@ class _Feed:
 
 def _printer(as_json: bool):
     def say(data: dict[str, Any], text: str) -> None:
-        print(json.dumps(data) if as_json else text, flush=True)
+        write_line(json.dumps(data) if as_json else text)
 
     return say
 

@@ -18,6 +18,7 @@ import json
 import sys
 from pathlib import Path
 
+from ubitrack_agent.commands.lines import write_line
 from ubitrack_agent.net import config
 
 EXTRA_HINT = 'pip install "ubitrack-agent[mcap]"'
@@ -67,7 +68,7 @@ def printer(as_json: bool):
     """``say(event, text)``: one JSON line or the text, flushed."""
 
     def say(event: dict, text: str) -> None:
-        print(json.dumps(event) if as_json else text, flush=True)
+        write_line(json.dumps(event) if as_json else text)
 
     return say
 

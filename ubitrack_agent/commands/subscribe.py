@@ -8,6 +8,7 @@ import math
 import sys
 import time
 
+from ubitrack_agent.commands.lines import write_line
 from ubitrack_agent.core.names import parse_labels
 from ubitrack_agent.net import config
 
@@ -138,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
                 watch.close()  # the flow is up
                 latency_ms = (time.time_ns() - sample.timestamp_ns) / 1e6
                 line = {**to_json(sample), "latency_ms": round(latency_ms, 3)}
-                print(json.dumps(line), flush=True)
+                write_line(json.dumps(line))
                 printed += 1
         except NoAgent as exc:
             say(no_agent(network_of(settings), exc.timeout, args.wait))
