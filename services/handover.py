@@ -77,11 +77,11 @@ keeps these rules, so that the application sees one stream (issue [seamless];
 longer than its longest recent one (bounded), or until the holder's token leaves (rule 5). With
 the old producer gone (its sensor died) the key is quiet and the new one puts at once, its
 covariance saying how good its first estimates are (issue [seamless], item 2). Each rule costs
-O(1) per sample (the quiet time a sort of the eight intervals remembered), plus the decoding of
-every sample on the key by each producer watching it; a hand-over costs two messages, and each
-producer one token, so O(producers) per key. The hand-over key's chunk is verbatim (``@``), so
-a subscriber to the relation keys' wildcard does not receive the hand-over's messages nor its
-tokens.
+O(1) per sample (the quiet time a sort of the eight intervals remembered, once a sample), plus
+the decoding of every sample on the key by each producer watching it; a hand-over costs two
+messages, and each producer one token, so O(producers) per key. The hand-over key's chunk is
+verbatim (``@``), so a subscriber to the relation keys' wildcard does not receive the hand-over's
+messages nor its tokens.
 """
 
 from __future__ import annotations
@@ -220,12 +220,15 @@ class _Intervals:
     the usual interval from the timestamps, the rate its sensors measure at, which a backlog
     delivered at once does not shorten (six samples of a 60 Hz chain put together after a
     stall would make the arrivals' usual interval a tenth of a millisecond), and the longest
-    from the arrivals, the silences seen on the key."""
+    from the arrivals, the silences seen on the key. The two are worked out once per sample
+    added, not per call (:meth:`KeyHandOver.quiet_s` runs on every sample seen and put)."""
 
     def __init__(self) -> None:
         self._arrivals: deque[float] = deque(maxlen=INTERVALS_REMEMBERED)
         self._stamps: deque[float] = deque(maxlen=INTERVALS_REMEMBERED)
         self._last_stamp_ns: int | None = None
+        self._known: tuple[float, float] | None = None
+        """:meth:`usual_and_longest` since the last change."""
 
     def __len__(self) -> int:
         return len(self._arrivals)
@@ -240,21 +243,22 @@ class _Intervals:
         self._arrivals.append(arrival_s)
         if last is not None and stamp_ns > last:
             self._stamps.append((stamp_ns - last) / 1e9)
+        self._known = None
 
     def clear(self) -> None:
         self._arrivals.clear()
         self._stamps.clear()
-        self._last_stamp_ns = None
+        self._last_stamp_ns = self._known = None
 
-    def usual(self) -> float:
+    def usual_and_longest(self) -> tuple[float, float]:
         """The :data:`USUAL_QUANTILE` of the timestamps' intervals (of the arrivals' while no
-        timestamp interval is known); some interval must be known."""
-        intervals = sorted(self._stamps or self._arrivals)
-        return intervals[math.ceil(USUAL_QUANTILE * len(intervals)) - 1]
-
-    def longest(self) -> float:
-        """The longest interval between arrivals; some interval must be known."""
-        return max(self._arrivals)
+        timestamp interval is known), and the longest interval between arrivals; some interval
+        must be known. O(intervals remembered) after a change, O(1) again until the next."""
+        if self._known is None:
+            intervals = sorted(self._stamps or self._arrivals)
+            usual = intervals[math.ceil(USUAL_QUANTILE * len(intervals)) - 1]
+            self._known = usual, max(self._arrivals)
+        return self._known
 
 
 class KeyHandOver:
@@ -329,12 +333,12 @@ class KeyHandOver:
         recent intervals (:data:`USUAL_QUANTILE` of its timestamps', :class:`_Intervals`), and
         one usual interval longer than the longest recent silence between its samples'
         arrivals, so a silence as long as one seen lately (a hiccup of a loaded machine) is not
-        taken for its end. Three of its *longest* intervals would let one frame
-        its tracker dropped (2 % of a simulated A.R.T. tracker's frames) triple the wait for the
-        next eight samples: in the switch bench the chain on the better tracker, which left,
-        was claimed 144 ms after its last sample so, after a 42 ms interval
-        (``docs/performance.md``, "The usual interval, not the longest"). O(intervals
-        remembered) a call: a sort of eight. A producer that gave the key to a claimer waits
+        taken for its end. Three of its *longest* intervals would let one frame its tracker
+        dropped (2 % of a simulated A.R.T. tracker's frames) triple the wait for the next eight
+        samples: in the switch bench the chain on the better tracker, which left, was claimed
+        144 ms after its last sample, after a 42 ms interval (``docs/performance.md``, "The
+        usual interval, not the longest"). O(1), the intervals sorted once per sample added
+        (:class:`_Intervals`). A producer that gave the key to a claimer waits
         the longest until it knows :data:`INTERVALS_REMEMBERED` of the claimer's intervals (a
         new flow's first samples come unevenly, and taking the key back from it only late
         would hand the key to and fro); then as long as any other: a claimer on one sensor
@@ -346,7 +350,7 @@ class KeyHandOver:
             return high
         if not self._other_intervals:
             return DEFAULT_QUIET_S
-        usual, longest = self._other_intervals.usual(), self._other_intervals.longest()
+        usual, longest = self._other_intervals.usual_and_longest()
         return min(high, max(low, QUIET_INTERVALS * usual, longest + usual))
 
     def observe(self, payload: bytes, latest: bool = False) -> None:

@@ -26,6 +26,7 @@ import logging
 import sys
 from typing import Any
 
+from ubitrack_agent.commands.lines import write_line
 from ubitrack_agent.io import camera  # the package alone: no OpenCV yet
 from ubitrack_agent.net import config
 
@@ -212,11 +213,7 @@ def _serve(
             stop,
             from_device=from_device,
             duration_s=args.duration,
-            report=None if args.quiet else _print_status,
+            report=None if args.quiet else write_line,
             pace_hz=None if from_device else source_rate,
             clock=Clock.of(settings),
         )
-
-
-def _print_status(line: str) -> None:
-    print(line, flush=True)

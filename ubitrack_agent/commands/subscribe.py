@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     keys = KeySpace(settings.key_prefix)
 
     def say(line: str) -> None:
-        print(f"ubitrack subscribe: {relation_id}: {line}", file=sys.stderr, flush=True)
+        write_line(f"ubitrack subscribe: {relation_id}: {line}", sys.stderr)
 
     with (
         open_session(settings) as session,
