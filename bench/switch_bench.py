@@ -76,6 +76,7 @@ stretches (each from one event to the next a batch).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import json
 import os
@@ -115,6 +116,7 @@ from ubitrack_agent.core import decode
 from ubitrack_agent.core.errors import MeasurementError
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net import config
+from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
@@ -379,6 +381,38 @@ def kill_holder(session: Any, keys: KeySpace, patience_s: float = 5.0) -> int | 
     return None
 
 
+def host_managers(session: Any, keys: KeySpace) -> list[int]:
+    """The pids of the host managers on the bench's network (the one its agent started). An
+    agent stopped cleanly leaves its host manager serving its components for a successor
+    (``ubitrack agent --help``): the bench stops it itself after the run, or the next run
+    shares the machine with this one's idle flow for minutes."""
+    pids = []
+    for token in session.liveliness().get(keys.all_hosts(), timeout=2.0):
+        if token.ok is None:
+            continue
+        name = str(token.ok.key_expr).rsplit("/", 1)[-1]
+        request = encode_request(Status())
+        for reply in session.get(keys.host_request(name), payload=request, timeout=2.0):
+            if reply.ok is not None:
+                pids.append(int(json.loads(reply.ok.payload.to_bytes())["pid"]))
+    return pids
+
+
+def stop_processes(pids: list[int], patience_s: float = 10.0) -> None:
+    """SIGTERM each of ``pids`` (a host manager ends its workers then), SIGKILL after
+    ``patience_s``."""
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGTERM)
+    deadline = time.monotonic() + patience_s
+    while pids and time.monotonic() < deadline:
+        pids = [pid for pid in pids if Path(f"/proc/{pid}").exists()]
+        time.sleep(0.1)
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
 def restart_agent(children: Processes, arguments: list[str], kill: bool) -> None:
     """The agent SIGKILLed (``kill``) or stopped cleanly (SIGTERM: it leaves its workers and
     host manager running), then started again at once."""
@@ -425,6 +459,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             children.stop(*PROCESSES[sensor])
 
         agent = ["agent", "--quiet", "--replicas", str(args.replicas), *config.as_flags(hub)]
+        managers: list[int] = []
         try:
             children.start("agent", agent)
             with (
@@ -445,6 +480,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 calibration = calibrate(session, keys, scenario.world) if live else None
                 wait_for_services(session, keys, present=True)
                 wait_for_warm_pool(session, keys)
+                managers = host_managers(session, keys)
                 done: Counter = Counter()
                 while any(done[k] < args.events for k in args.kinds):
                     kind = next_kind(rng, running, done, args.events, args.kinds)
@@ -480,6 +516,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 counters = dict(relation.counters)
         finally:
             children.stop_all()
+            stop_processes(managers)
         result = summarise(events, wire, scenario, counters) | {"calibration": calibration}
         if args.trace:  # up to the next event: the old flow is retired after the second
             ends = [e["at_ns"] for e in result["events"][1:]] + [time.time_ns()]

@@ -71,6 +71,18 @@ keeps these rules, so that the application sees one stream (issue [seamless];
    A.R.T. tracker and the camera, which it took the key from; one degraded sample, a feature
    hidden, is not enough, and a holder merely less certain all along, the camera-only flow
    beside a fusion on standby running on the camera alone, keeps the key).
+7. **A holder that lost a provider gives the key up at once.** Each producer knows the
+   providers it needs (``ComponentSpec.required_providers``: without one of them it computes
+   nothing new) and watches their liveliness tokens. When one leaves while it holds the key
+   and another producer of the key is alive, it stops putting and says so on the hand-over
+   key, after which instant (``{"free": <producer>, "last": <ns>}``); the others take that as
+   rule 5's holder gone, and the first by id puts its newest sample held back at once. A
+   provider leaving is known within milliseconds (its session closed, or its process gone and
+   its links with it), its data stopping only after a silence of three intervals: in the
+   switch bench the chain on the better tracker, kept on standby by the agent when the tracker
+   left, held the key until it looked quiet, 68 ms (``docs/performance.md``, "A holder that
+   lost a provider"). A provider cut off without leaving (its machine's cable out) is still
+   known by silence alone. The producer that gave the key up takes it back by rule 6.
 
 "Another producer is putting" means a sample not put by this one arrived within
 :meth:`KeyHandOver.quiet_s`: three of the other's usual recent intervals, and one usual interval
@@ -172,9 +184,11 @@ MESSAGE_KINDS = {
     frozenset({"yield", "last", "to"}): "yield",
     frozenset({"yield", "last"}): "yield",
     frozenset({"holds"}): "holds",
+    frozenset({"free", "last"}): "free",
 }
-"""A hand-over message's kind by its fields: a claim, the holder's answer, or the holder's
-reply to a producer starting (:meth:`KeyHandOver.holding`)."""
+"""A hand-over message's kind by its fields: a claim, the holder's answer, the holder's
+reply to a producer starting (:meth:`KeyHandOver.holding`), or a holder giving the key up
+(rule 7)."""
 PUT = "SampleKind.PUT"
 """A token sample's kind when the token appeared (zenoh's ``SampleKind``, as text)."""
 MAX_MESSAGE_BYTES = 256
@@ -190,6 +204,8 @@ COUNTERS = {
     "relation_claims_unanswered": "claims that had no answer in time, the key quiet (put anyway)",
     "relation_claims_repeated": "claims said again: no answer in time, the holder still putting",
     "relation_holder_left": "times the producer holding a relation key left (its token gone)",
+    "relation_given_up": "times this producer gave a relation key up: a provider it needs left",
+    "relation_holder_gave_up": "times the producer holding a relation key gave it up (rule 7)",
     "relation_put_when_free": "relation samples held back, put when the key became free",
     "rejected_hand_over_messages": "hand-over messages refused (not a claim or an answer)",
 }
@@ -204,6 +220,13 @@ def hand_over_key(relation_key: str) -> str:
 def producer_token(relation_key: str, producer: str) -> str:
     """The liveliness token of ``producer`` of ``relation_key`` (rule 5)."""
     return f"{hand_over_key(relation_key)}/{producer}"
+
+
+def _instant(last: Any) -> int | None:
+    """A message's ``last``: a timestamp (ns) or None; :class:`MessageError` otherwise."""
+    if last is not None and (not isinstance(last, int) or isinstance(last, bool)):
+        raise MessageError("malformed", "'last' is no timestamp")
+    return last
 
 
 def _trace(value: Measurement | None) -> tuple[tuple[int, ...], float] | None:
@@ -431,6 +454,8 @@ class KeyHandOver:
             elif kind == "holds":
                 with self._lock:
                     self._holder = self._holder or sender
+            elif kind == "free":
+                self._freed(sender, _instant(message["last"]))
             else:
                 self._take_answer(message)
         except MessageError as exc:
@@ -466,9 +491,7 @@ class KeyHandOver:
         it); an answer without ``to`` (a producer before it was added) answers any claim. An
         answer to another producer's claim makes this one's void: that producer holds the key
         now, and this one claims it again from it if it is still ready (rule 2)."""
-        last, to = message["last"], message.get("to")
-        if last is not None and (not isinstance(last, int) or isinstance(last, bool)):
-            raise MessageError("malformed", "an answer's 'last' is no timestamp")
+        last, to = _instant(message["last"]), message.get("to")
         if to is not None and not isinstance(to, str):
             raise MessageError("malformed", "an answer's 'to' is no producer")
         with self._lock:
@@ -515,19 +538,53 @@ class KeyHandOver:
             if producer != self._holder or producer == self.producer:
                 return
             self._counters["relation_holder_left"] += 1
+        self._holder_gone(producer, None)
+
+    def _freed(self, producer: str, last_ns: int | None) -> None:
+        """The holder gave the key up after ``last_ns`` (rule 7): free as if it had left
+        (rule 5), but it stays alive, so it is nobody's successor. A message from a producer
+        this one does not take for the holder (another holds it, as far as this one knows)
+        changes nothing."""
+        with self._lock:
+            if producer == self.producer or self._holder not in (producer, None):
+                return
+            self._counters["relation_holder_gave_up"] += 1
+        self._holder_gone(producer, last_ns)
+
+    def _holder_gone(self, producer: str, last_ns: int | None) -> None:
+        """The key's holder ``producer`` stopped putting after ``last_ns`` (None: not known):
+        the first by id of the producers alive beside it takes the key, with its newest sample
+        held back if it is after the newest on the key."""
+        with self._lock:
             self._holder, self._other_at, self._yielded = None, None, False
             self._other_intervals.clear()
-            successor = min(self._alive | {self.producer})
+            successor = min((self._alive - {producer}) | {self.producer})
             if successor != self.producer:
                 self._holder, self._other_at = successor, self._clock()
                 self._claimed_at = None
                 return
             taken = self._claimed_at is not None or self._waiting is not None
             if taken:
-                self._take(None)
+                self._take(last_ns)
             after = self._newest_ns
         if taken:  # the others waiting beside it, if any, yield
             self._claim(after)
+
+    def provider_left(self) -> None:
+        """A provider this producer needs left (rule 7): holding the key with another producer
+        alive beside it, it stops putting and gives the key up, saying after which instant.
+        The others count as putting from now on, so what it still computes (samples on their
+        way when the provider left) is not put, and it takes the key back by rule 6, or after
+        the longest quiet time if nobody takes it (a provider it did not really need)."""
+        with self._lock:
+            if not self._holds or not self._alive:
+                return
+            self._holds, self._yielded, self._holder = False, True, None
+            self._other_at = self._clock()
+            self._other_intervals.clear()
+            self._counters["relation_given_up"] += 1
+            message = {"free": self.producer, "last": self._newest_ns}
+        self._send(json.dumps(message).encode())
 
     @property
     def holds(self) -> bool:
@@ -747,7 +804,11 @@ class Watch:
     ``docs/performance.md``, "Throughput, session 22"). The other producers of the key in
     this process are shown its samples by :meth:`put` instead."""
 
-    def __init__(self, session: Any, key: str, counters: Counter[str]) -> None:
+    def __init__(
+        self, session: Any, key: str, counters: Counter[str], providers: tuple[str, ...] = ()
+    ) -> None:
+        """``providers``: the liveliness token keys of the providers this producer needs
+        (rule 7), one subscriber each."""
         messages = hand_over_key(key)
         self.rules = KeyHandOver(key, counters, lambda data: put_addressed(session, messages, data))
         self._key_tag, self._messages_tag = tag(key), tag(messages)
@@ -768,6 +829,10 @@ class Watch:
             ),
             liveliness.declare_token(producer_token(key, self.rules.producer)),
             session.declare_queryable(messages, self._handed_on(self._holding)),
+            *(
+                liveliness.declare_subscriber(token, self._handed_on(self._provider))
+                for token in providers
+            ),
         )
         self.rules.asking = True  # who holds the key, if one does
         session.get(
@@ -825,6 +890,10 @@ class Watch:
             self.rules.joined(producer)
         else:
             self.rules.left(producer)
+
+    def _provider(self, sample: Any) -> None:
+        if str(sample.kind) != PUT:
+            self.rules.provider_left()
 
     def _holding(self, query: Any) -> None:
         with query:  # finished at once (zenoh sends its final message when it is dropped)

@@ -379,6 +379,9 @@ class Worker:
         self.pool_counters = pool_counters
         """The counters of the pool this process belongs to, if any (shown in status)."""
         self.keys = keys
+        self._needed = tuple(keys.provider(provider) for provider in spec.required_providers)
+        """The liveliness tokens of the providers this component needs: a relation key it holds
+        is given up when one leaves (``services.handover``, rule 7)."""
         self._counts: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
         """The counters but those counted on every sample (:attr:`counters` adds them)."""
         self._received = self._published = self._handed_over = self._not_sent = 0
@@ -755,7 +758,7 @@ class Worker:
         for key in set(self._hand_overs) - dynamic:
             self._hand_overs.pop(key).close()
         for key in dynamic - set(self._hand_overs):
-            self._hand_overs[key] = Watch(self._session, key, self._counts)
+            self._hand_overs[key] = Watch(self._session, key, self._counts, self._needed)
 
     def _static_relations(self, relation_keys: tuple[str, ...]) -> list[RelationId]:
         """The static relations among ``relation_keys`` (a key that is no relation key of

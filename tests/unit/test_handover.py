@@ -453,6 +453,67 @@ def test_a_producer_held_back_puts_its_newest_sample_as_soon_as_the_holders_toke
     assert bus.offer(standby, pose(40, variance=4e-6))
 
 
+def test_a_holder_that_lost_a_provider_gives_the_key_up_and_the_one_beside_it_puts_at_once():
+    """Rule 7: the chain on a tracker that left (kept by the agent on standby, its process and
+    token alive) gives the key up when the tracker's token leaves, not a quiet time later; the
+    fusion waiting beside it puts its sample held back at once, and what the chain still
+    computes (a sample on its way) is not put."""
+    bus = Bus()
+    chain = holding(bus)
+    fusion = bus.producer()
+    bus.clock.now += 0.01
+    assert bus.offer(chain, pose(20))
+    assert not bus.offer(fusion, pose(30, variance=4e-6))  # less certain: held back
+    chain.provider_left()
+    assert bus.messages[-2] == {"free": chain.producer, "last": 20 * MS}
+    assert bus.messages[-1] == {"claim": fusion.producer, "after": 30 * MS}
+    assert bus.stamps() == [0, 10, 20, 30] and bus.wire[-1][1] == fusion.producer
+    assert bus.counters[0]["relation_given_up"] == 1
+    assert bus.counters[1]["relation_holder_gave_up"] == 1
+    assert bus.counters[1]["relation_put_when_free"] == 1
+    assert not chain.holds and fusion.holds
+    assert not bus.offer(chain, pose(40))  # on its way when the tracker left
+    bus.clock.now += 0.001  # at once, not after a quiet time
+    assert bus.offer(fusion, pose(40, variance=4e-6))
+    assert bus.stamps() == [0, 10, 20, 30, 40]
+
+
+def test_a_holder_that_lost_a_provider_takes_the_key_back_when_it_computes_again():
+    """Rule 7 then rule 6: the tracker back, the chain computes again after a quiet spell, no
+    less certain than the holder, and claims the key back."""
+    bus = Bus()
+    chain = holding(bus)
+    fusion = bus.producer()
+    bus.clock.now += 0.01
+    assert not bus.offer(fusion, pose(20, variance=4e-6))
+    chain.provider_left()
+    for t in range(30, 700, 20):
+        bus.clock.now += 0.02
+        assert bus.offer(fusion, pose(t, variance=4e-6))
+    assert not bus.offer(chain, pose(700))  # back after 0.67 s: claims
+    assert bus.messages[-1] == {"yield": fusion.producer, "last": 690 * MS, "to": chain.producer}
+    assert chain.holds and bus.stamps()[-1] == 700
+
+
+def test_a_provider_leaving_frees_nothing_unless_its_producer_holds_the_key_beside_another():
+    """Rule 7 hands the key on only to a producer alive beside the holder: a holder alone
+    keeps it (nobody could do better, and a provider it did not really need costs nothing),
+    and a producer not holding it has nothing to give."""
+    bus = Bus()
+    alone = holding(bus)
+    said = len(bus.messages)  # its claim when it began
+    alone.provider_left()
+    bus.clock.now += 0.01
+    assert bus.offer(alone, pose(20)) and len(bus.messages) == said
+    assert not bus.counters[0]["relation_given_up"]
+    beside = bus.producer()
+    bus.clock.now += 0.01
+    assert not bus.offer(beside, pose(30, variance=4e-6))
+    beside.provider_left()
+    assert len(bus.messages) == said and not bus.counters[1]["relation_given_up"]
+    assert bus.offer(alone, pose(30))
+
+
 def test_of_several_producers_beside_a_holder_that_leaves_one_takes_the_key():
     """Rule 5 with three producers (a flow on standby, a new one, the holder): when the holder
     leaves, only the first by id takes the key at once; the other takes it for the holder, so
@@ -799,7 +860,9 @@ STEPS = st.lists(
     st.tuples(
         st.lists(st.sampled_from((0, 1, 2)), max_size=3, unique=True),  # who offers, in order
         st.lists(st.sampled_from((0.1, 0.5, 1.0, 2.0, 40.0)), min_size=3, max_size=3),
-        st.sampled_from((None, None, None, None, "start", "die", "quiet", "hold", "deliver")),
+        st.sampled_from(
+            (None, None, None, None, "start", "die", "quiet", "hold", "deliver", "lost")
+        ),
         st.integers(0, 2),
     ),
     max_size=120,
@@ -811,8 +874,9 @@ STEPS = st.lists(
 def test_any_producers_coming_going_and_changing_certainty_never_put_an_instant_twice(steps, names):
     """Up to three producers of one relation (a flow, its spare, a flow on standby, a new
     one), each at any moment as certain as any other or ten times less (a sensor lost or
-    back), starting, dying and falling quiet in any order, the hand-over's messages delayed:
-    every instant on the key is put once at most, in order (rules 1 to 6 together), and
+    back), starting, dying, falling quiet and losing a provider they need in any order, the
+    hand-over's messages delayed: every instant on the key is put once at most, in order
+    (rules 1 to 7 together), and
     while the messages flow, one producer at most holds the key. The producers' ids are drawn
     too (rule 5 and the claims' tie-break order by them)."""
     names = list(names)
@@ -830,6 +894,8 @@ def test_any_producers_coming_going_and_changing_certainty_never_put_an_instant_
             bus.held = []  # the hand-over's messages in flight from now
         elif event == "deliver":
             bus.deliver()
+        elif event == "lost" and slots[who] is not None:
+            slots[who].provider_left()  # rule 7
         bus.clock.now += 1 / 60
         for k in offering:
             if slots[k] is not None:
@@ -863,7 +929,7 @@ def test_what_does_not_decode_on_the_key_is_ignored(payload):
     st.one_of(
         st.binary(max_size=300),
         st.dictionaries(
-            st.sampled_from(["claim", "yield", "last", "after", "holds", "to", "x"]),
+            st.sampled_from(["claim", "yield", "last", "after", "holds", "to", "free", "x"]),
             st.one_of(st.none(), st.integers(), st.text(max_size=5), st.booleans()),
             max_size=3,
         ).map(lambda d: json.dumps(d).encode()),

@@ -106,7 +106,11 @@ VALID = {
 def test_valid_spec_round_trips_through_json():
     spec = parse_spec(json.dumps(VALID))
     assert spec.tolerance_ns == 5_000_000
+    assert spec.required_providers == ()
     assert parse_spec(spec.to_json()) == spec
+    needing = parse_spec({**VALID, "required_providers": ["art", "camera"]})
+    assert needing.required_providers == ("art", "camera")
+    assert parse_spec(needing.to_json()) == needing
 
 
 @pytest.mark.parametrize(
@@ -128,6 +132,10 @@ def test_valid_spec_round_trips_through_json():
         ({"expansion": "sideways"}, "spec.expansion: must be one of"),
         ({"expansion": "space"}, "concatenation has no correspondence"),
         ({"time_expansion": {"min_motion": 1}}, "only for expansion 'time'"),
+        ({"required_providers": "art"}, "spec.required_providers: expected a list"),
+        ({"required_providers": ["art", 5]}, "spec.required_providers[1]: expected a string"),
+        ({"required_providers": ["a/b"]}, "spec.required_providers[0]"),
+        ({"required_providers": ["x"] * 1001}, "at most 1000"),
     ],
 )
 def test_invalid_specs_name_the_field(change, fragment):

@@ -15,6 +15,9 @@
   each spare producer of it (``agent.spares``; the hand-over decides which one puts,
   ``services.handover``); a relation answered by a measured edge as it is gets a ``relay``
   component.
+* Each component names the providers it needs (``ComponentSpec.required_providers``,
+  :func:`required_providers`): when one of them leaves, a producer of a relation key gives the
+  key up at once (``services.handover``, rule 7) instead of falling quiet.
 * Each component of the flow (each step of a pattern, Pustka et al. 2006, section 5) is one
   specification: the components of a derivation on one host run in one container
   (``agent.placement.group_containers``), where they hand each other their outputs as
@@ -64,6 +67,43 @@ def relay_instance(edge_id: str) -> str:
     return "relay-" + hashlib.sha1(edge_id.encode()).hexdigest()[:10]
 
 
+def _edge_needs(srg: nx.MultiDiGraph, edge_id: str) -> frozenset[str]:
+    """The provider of a dynamic measured edge (a static one needs nobody: it is kept)."""
+    source, target = edge_ids(srg)[edge_id]
+    data = srg.edges[source, target, edge_id]
+    return frozenset() if data["static"] else frozenset({data["provider"]})
+
+
+def required_providers(flow: DataFlow, srg: nx.MultiDiGraph) -> dict[str, frozenset[str]]:
+    """The providers each component of ``flow`` needs to compute anything new, by component
+    id: the provider of a dynamic measured edge it reads, and those its dynamic inputs'
+    producers need. Of the several bindings of one port (a space expansion: the estimates a
+    fusion combines, the correspondences of a pose estimation) only the providers *every*
+    binding needs count, since such a component computes on with the bindings left (a fusion
+    with one tracker gone). A static input (a calibration, a survey, a time expansion's result)
+    needs nobody: it is kept. Producers come before their consumers in ``flow``, so one pass:
+    O(bindings x providers needed).
+
+    A provider leaving is known at once from its liveliness token, while its data stopping is
+    known only after a silence (``services.handover``, rule 7: a producer that needs it gives
+    its relation keys up then, instead of holding them until it looks quiet)."""
+    needed: dict[str, frozenset[str]] = {}
+    for component in flow.components.values():
+        by_port: dict[str, list[frozenset[str]]] = {}
+        for port, binding in component.inputs:
+            if binding.component is None:
+                needs = _edge_needs(srg, binding.edge)
+            elif binding.edge in flow.components[binding.component].static_outputs:
+                needs = frozenset()
+            else:
+                needs = needed[binding.component]
+            by_port.setdefault(_port(port), []).append(needs)
+        needed[component.id] = frozenset().union(
+            *(frozenset.intersection(*sets) for sets in by_port.values())
+        )
+    return needed
+
+
 def component_specs(
     flow: DataFlow,
     srg: nx.MultiDiGraph,
@@ -73,6 +113,7 @@ def component_specs(
     """The worker specification of every component of ``flow``, by instance id (producers
     before their consumers, then the relays). O(components + bindings + relations)."""
     specs: dict[str, ComponentSpec] = {}
+    needed = required_providers(flow, srg)
     fixed_outputs: set[str] = set()
     """The components whose static outputs have a fixed error: estimated over time (a
     calibration), or computed from fixed inputs alone."""
@@ -110,6 +151,7 @@ def component_specs(
             outputs={name: keys.data(f"{component.id}/{name}") for name, *_ in component.outputs},
             parameters=dict(component.parameters),
             expansion=component.expansion,
+            required_providers=tuple(sorted(needed[component.id])),
         )
     producers = [(name, b) for name, bs in flow.spares.items() for b in bs]
     for name, binding in [*flow.relations.items(), *producers]:
@@ -129,5 +171,6 @@ def component_specs(
             inputs=(InputBinding("in", key, True, static, from_worker=from_worker),),
             outputs={"out": keys.data(f"{instance}/out")},
             relations={"out": (relation_key,)},
+            required_providers=tuple(_edge_needs(srg, binding.edge)),
         )
     return specs

@@ -45,6 +45,8 @@ from ubitrack_agent.net.keys import validate_key_chunks
 MAX_SPEC_BYTES = 256 * 1024
 """Largest specification read from text (a specification takes a few kilobytes)."""
 
+MAX_NAMES = 1000
+"""At most this many names in a list of a specification (``required_providers``)."""
 DEFAULT_TOLERANCE_MS = 5.0
 """How far from a trigger's time the nearest sample of an input may be when there is no
 sample on each side to interpolate between (a moving target at 1 m/s moves 5 mm in 5 ms)."""
@@ -126,6 +128,10 @@ class ComponentSpec:
     time_expansion: dict[str, float] = field(default_factory=dict)
     tolerance_ms: float = DEFAULT_TOLERANCE_MS
     wait_ms: float = DEFAULT_WAIT_MS
+    required_providers: tuple[str, ...] = ()
+    """The providers without whose samples this component computes nothing new
+    (``agent.materialise.required_providers``): a producer of a relation key gives the key up
+    as soon as one of them leaves (``services.handover``, rule 7)."""
 
     @property
     def tolerance_ns(self) -> int:
@@ -144,6 +150,7 @@ class ComponentSpec:
             "time_expansion": self.time_expansion,
             "tolerance_ms": self.tolerance_ms,
             "wait_ms": self.wait_ms,
+            "required_providers": list(self.required_providers),
         }
 
     def to_json(self) -> str:
@@ -166,6 +173,21 @@ def _name(data: Mapping[str, Any], name: str, where: str) -> str:
         return validate_key_chunks(value, single_chunk=True)
     except ValueError as exc:
         raise SpecError(f"{where}.{name}: {exc}") from None
+
+
+def _names(raw: Any, where: str) -> tuple[str, ...]:
+    """A list of names, each one key chunk (providers' ids)."""
+    if not isinstance(raw, list) or len(raw) > MAX_NAMES:
+        raise SpecError(f"{where}: expected a list of at most {MAX_NAMES} names")
+    names = []
+    for index, value in enumerate(raw):
+        if not isinstance(value, str):
+            raise SpecError(f"{where}[{index}]: expected a string")
+        try:
+            names.append(validate_key_chunks(value, single_chunk=True))
+        except ValueError as exc:
+            raise SpecError(f"{where}[{index}]: {exc}") from None
+    return tuple(names)
 
 
 def _key(value: Any, where: str) -> str:
@@ -288,6 +310,7 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
         "time_expansion",
         "tolerance_ms",
         "wait_ms",
+        "required_providers",
     }
     unknown = sorted(set(data) - known)
     if unknown:
@@ -321,6 +344,7 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
         time_expansion=time_expansion,
         tolerance_ms=tolerance,
         wait_ms=wait,
+        required_providers=_names(data.get("required_providers", []), "spec.required_providers"),
     )
 
 
