@@ -24,7 +24,9 @@ among those the state allows:
 
 * **A.R.T. off** / **A.R.T. back**: the tracker's simulator and its DTrack adapter stopped
   (SIGTERM; the provider leaves) / started again; the flow goes from fused to camera only and
-  back;
+  back. The simulator first, the adapter once it has ended (the tracker silent, then its
+  provider gone 0.1-0.3 s later), or with ``--sensor-stop together`` both at once (a tracking
+  PC shut down: the provider gone as the data stops), as for the better tracker below;
 * **camera off** / **camera back**: the camera's simulator stopped / started; fused to A.R.T.
   only and back;
 * **worker killed**: the process running the component that puts on the relation key (its
@@ -83,6 +85,7 @@ import os
 import platform
 import random
 import signal
+import subprocess
 import tempfile
 import threading
 import time
@@ -381,6 +384,20 @@ def kill_holder(session: Any, keys: KeySpace, patience_s: float = 5.0) -> int | 
     return None
 
 
+def stop_together(children: Processes, names: tuple[str, ...], patience_s: float = 10.0) -> None:
+    """SIGTERM the processes ``names`` at once (a sensor's simulator and its adapter: a tracking
+    PC shut down), then wait for each; SIGKILL after ``patience_s``."""
+    processes = [children.running.pop(name) for name in names]
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        try:
+            process.wait(timeout=patience_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
 def host_managers(session: Any, keys: KeySpace) -> list[int]:
     """The pids of the host managers on the bench's network (the one its agent started). An
     agent stopped cleanly leaves its host manager serving its components for a successor
@@ -456,7 +473,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 children.start(name, commands[name])
 
         def stop(sensor: str) -> None:
-            children.stop(*PROCESSES[sensor])
+            if args.sensor_stop == "together":
+                stop_together(children, PROCESSES[sensor])
+            else:
+                children.stop(*PROCESSES[sensor])
 
         agent = ["agent", "--quiet", "--replicas", str(args.replicas), *config.as_flags(hub)]
         managers: list[int] = []
@@ -758,6 +778,14 @@ def main(argv: list[str] | None = None) -> None:
         "--replicas", type=int, default=0, help="the agent's --replicas (default: %(default)s)"
     )
     parser.add_argument(
+        "--sensor-stop",
+        choices=("in-turn", "together"),
+        default="in-turn",
+        help="a sensor off: its simulator stopped, then its adapter once the simulator has "
+        "ended (the tracker silent first, its provider gone 0.1-0.3 s later), or both at once "
+        "(the provider gone as the data stops) (default: %(default)s)",
+    )
+    parser.add_argument(
         "--calibration",
         choices=("live", "true"),
         default="live",
@@ -789,6 +817,7 @@ def main(argv: list[str] | None = None) -> None:
                 + (f" --kinds '{';'.join(args.kinds)}'" if args.kinds != KINDS else "")
                 + (f" --replicas {args.replicas}" if args.replicas else "")
                 + (" --calibration true" if args.calibration == "true" else "")
+                + (" --sensor-stop together" if args.sensor_stop == "together" else "")
                 + (" --trace" if args.trace else "")
                 + (f" --output {args.output}" if args.output != RESULTS else ""),
                 "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),

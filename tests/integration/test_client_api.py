@@ -99,6 +99,33 @@ def test_leaving_the_with_block_undeclares_provider_and_relation_even_on_error()
         relation.close()
 
 
+def test_a_provider_that_leaves_is_gone_at_once_and_its_last_samples_still_arrive():
+    """``Provider.leave`` (what an adapter does first on SIGTERM) withdraws the token alone:
+    the samples published after it still reach a subscriber, and closing after it is fine."""
+    port = free_port()
+    keys = KeySpace(f"ubitrack/l{port}")
+    with hub_session(port) as hub, member(port) as sensor:
+        events: list[str] = []
+        watcher = hub.liveliness().declare_subscriber(
+            keys.provider("art1"), lambda s: events.append(str(s.kind))
+        )
+        received: list[int] = []
+        data = hub.declare_subscriber(
+            keys.data("art1/ART_HT"),
+            lambda s: received.append(decode(s.payload.to_bytes()).timestamp_ns),
+        )
+        edges = [EdgeAnnouncement("ART", "HT", "6D", rate=60.0)]
+        with Provider(sensor, keys, "art1", edges) as provider:
+            wait_until(lambda: events == ["SampleKind.PUT"])
+            provider.leave()
+            wait_until(lambda: events == ["SampleKind.PUT", "SampleKind.DELETE"])
+            wait_until(lambda: provider.publish("ART_HT", pose(1, 0.1)) or received)
+            provider.leave()  # a second leave does nothing
+        assert events == ["SampleKind.PUT", "SampleKind.DELETE"]
+        data.undeclare()
+        watcher.undeclare()
+
+
 def test_bad_announcements_are_refused():
     with pytest.raises(ValueError):
         EdgeAnnouncement("A/B", "C", "6D")

@@ -158,6 +158,7 @@ def serve_adapter(
         ) as provider,
         periodic_status(status, not args.quiet),
     ):
+        provider.leave_on_signals(stop)
         serve(provider, stop, Clock.of(settings))
     logging.getLogger(f"ubitrack.{name}").info("%s counters: %s", name, dict(adapter.counters))
     return 0

@@ -206,6 +206,7 @@ def _serve(
             session, KeySpace(settings.key_prefix), args.provider, adapter.edges, settings.host_name
         ) as out,
     ):
+        out.leave_on_signals(stop)
         capture.serve_capture(
             source,
             adapter,

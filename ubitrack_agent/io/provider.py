@@ -20,7 +20,9 @@ name: the agent places the workers reading its edges near it), then declares its
 token ``<root>/provider/<id>``; the agent sees the token, fetches the fragment and adds the
 edges to the live SRG. Each edge's data key also answers queries with the latest value, so a
 worker started later still gets a static edge's value. Closing (leaving the ``with`` block,
-calling :meth:`Provider.close`, or the process dying) removes the token and the agent replans.
+calling :meth:`Provider.close`, or the process dying) removes the token and the agent replans;
+an adapter ending on SIGTERM removes it first (:meth:`Provider.leave_on_signals`), before its
+loop notices and closes.
 
 Data liveness is judged here, where the data is (``docs/protocol.md`` "Data liveness"): a
 token says the process lives, not that its edges deliver. A dynamic push edge announcing a
@@ -52,7 +54,7 @@ from ubitrack_agent.net.address import put_addressed
 from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.encodings import JSON
 from ubitrack_agent.net.keys import KeySpace, validate_key_chunks
-from ubitrack_agent.net.lifecycle import Closing
+from ubitrack_agent.net.lifecycle import Closing, on_termination
 from ubitrack_agent.net.transport import LatestValuePublisher
 
 SRG_TYPES = frozenset(cls.SRG_TYPE for cls in MEASUREMENT_TYPES.values())
@@ -205,7 +207,8 @@ class Provider(Closing):
         if windows:
             self._reporter.start()
         self._token = session.liveliness().declare_token(keys.provider(self.id))
-        self._closed = False
+        self._closed = self._left = False
+        self._leave_lock = threading.Lock()
 
     def publish(self, edge_name: str, measurement: Measurement) -> None:
         """Publish one measurement of edge ``edge_name``; its type must match the edge's."""
@@ -238,16 +241,39 @@ class Provider(Closing):
             with query:
                 query.reply(query.key_expr, self._fragment, encoding=JSON)
 
+    def leave(self) -> None:
+        """Withdraw the token alone, from any thread: the agent, and each producer of a
+        relation key that needs this provider (``services.handover``, rule 7), learn at once
+        that it is gone; samples still published meanwhile are delivered. A second call, or
+        :meth:`close` after it, does not undeclare it again."""
+        with self._leave_lock:
+            if not self._left:
+                self._left = True
+                self._token.undeclare()
+
+    def leave_on_signals(self, stop: threading.Event) -> None:
+        """On SIGTERM or SIGINT, :meth:`leave` at once, then set ``stop`` for the loop serving
+        the sensor (replacing ``net.lifecycle.stop_on_signals``'s handler): the loop notices
+        ``stop`` only after its read returns (an adapter's receive timeout, 0.1 s) and closes
+        after that, which took about 0.3 s from the signal to the token's end in the switch
+        bench (``docs/performance.md``, "A holder that lost a provider")."""
+
+        def leave_then_stop() -> None:
+            self.leave()
+            stop.set()
+
+        on_termination(leave_then_stop)
+
     def close(self) -> None:
         """Withdraw the announcement (token first, so the agent replans at once); a second
         call does nothing."""
         if self._closed:
             return
         self._closed = True
+        self.leave()
         self._stop_reports.set()
         if self._reporter.is_alive():
             self._reporter.join(timeout=1.0)
-        self._token.undeclare()
         self._queryable.undeclare()
         self._thread.join(timeout=1.0)
         for publisher in self._publishers.values():
