@@ -40,6 +40,7 @@ import time
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, NoReturn
 
+from ubitrack_agent.core.lines import write_line
 from ubitrack_agent.core.names import parse_labels
 from ubitrack_agent.net import config, logs
 from ubitrack_agent.net.config import Settings
@@ -214,7 +215,7 @@ def serve(
         steps.append(("imports", time.monotonic()))
         rival = claim.settle()
         if rival is not None:
-            print(f"host {name}: {rival}: exiting", file=sys.stderr, flush=True)
+            write_line(f"host {name}: {rival}: exiting", sys.stderr)
             return NAME_TAKEN
         steps.append(("settled", time.monotonic()))
         info = HostInfo(name, labels, capacity, cores=cores, isolating=isolate)
@@ -225,7 +226,7 @@ def serve(
         if started_by_agent:
             threading.Thread(target=_orphan_when_stdin_closes, args=(manager,), daemon=True).start()
         took = ", ".join(f"{b[0]} {b[1] - a[1]:.1f} s" for a, b in itertools.pairwise(steps))
-        print(f"host {name}: serving {keys.host_request(name)} ({took})", flush=True)
+        write_line(f"host {name}: serving {keys.host_request(name)} ({took})")
         with periodic_status(lambda: status_line(manager.status()), not quiet):
             manager.run()
     return 0

@@ -1,5 +1,5 @@
 """A command's output lines stay whole beside log lines of other threads on one file
-(``ubitrack_agent.commands.lines``): the JSON lines ``ubitrack subscribe``, ``demo --json``,
+(``ubitrack_agent.core.lines``): the JSON lines ``ubitrack subscribe``, ``demo --json``,
 ``calibrate --json`` and ``record --json`` print, read from a log their standard error shares
 (``tests/integration/test_hosts_netns.py`` once read ``{...}<a warning>`` there)."""
 
@@ -11,7 +11,7 @@ import sys
 
 SCRIPT = """
 import json, logging, threading
-from ubitrack_agent.commands.lines import write_line
+from ubitrack_agent.core.lines import write_line
 logging.basicConfig(level=logging.WARNING)
 log = logging.getLogger("beside")
 done = threading.Event()

@@ -36,7 +36,7 @@ import math
 import sys
 from typing import Any
 
-from ubitrack_agent.commands.lines import write_line
+from ubitrack_agent.core.lines import write_line
 from ubitrack_agent.net import config
 
 TYPES = ("6D", "3D", "3R")

@@ -26,7 +26,7 @@ import logging
 import sys
 from typing import Any
 
-from ubitrack_agent.commands.lines import write_line
+from ubitrack_agent.core.lines import write_line
 from ubitrack_agent.io import camera  # the package alone: no OpenCV yet
 from ubitrack_agent.net import config
 

@@ -48,8 +48,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ubitrack_agent.commands.lines import write_line
 from ubitrack_agent.core.interpreter import module_command
+from ubitrack_agent.core.lines import write_line
 from ubitrack_agent.net import config
 
 if TYPE_CHECKING:

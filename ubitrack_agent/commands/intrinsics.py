@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ubitrack_agent.core.lines import write_line
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 PROVIDER = "camera-calibration"
 
@@ -121,7 +123,7 @@ def _collect(board: Any, args: argparse.Namespace) -> tuple[list[Any], tuple[int
         view = find_view(board, image) if spaced() else None
         if view is not None:
             views.append(view)
-            print(f"view {len(views)}: {len(view.image_points)} corners", flush=True)
+            write_line(f"view {len(views)}: {len(view.image_points)} corners")
             if len(views) >= args.views:
                 break
     return views, size

@@ -18,7 +18,7 @@ import json
 import sys
 from pathlib import Path
 
-from ubitrack_agent.commands.lines import write_line
+from ubitrack_agent.core.lines import write_line
 from ubitrack_agent.net import config
 
 EXTRA_HINT = 'pip install "ubitrack-agent[mcap]"'

@@ -6,6 +6,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
+from ubitrack_agent.core.lines import write_line
 from ubitrack_agent.net import config
 from ubitrack_agent.net.status_line import periodic_status
 
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{prog}: {exc}", file=sys.stderr)
             return 2
         with store:
-            print(f"{prog}: {serving(store, args.file, keys.store(args.name))}", flush=True)
+            write_line(f"{prog}: {serving(store, args.file, keys.store(args.name))}")
             with periodic_status(
                 lambda: (
                     f"store {args.name}: serving {len(store.edges)} edge(s); "

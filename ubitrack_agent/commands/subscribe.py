@@ -8,7 +8,7 @@ import math
 import sys
 import time
 
-from ubitrack_agent.commands.lines import write_line
+from ubitrack_agent.core.lines import write_line
 from ubitrack_agent.core.names import parse_labels
 from ubitrack_agent.net import config
 

@@ -12,6 +12,8 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+from ubitrack_agent.core.lines import write_line
+
 STATUS_EVERY_S = 10.0
 """Seconds between two status lines."""
 
@@ -35,7 +37,7 @@ def periodic_status(
     render: Callable[[], str],
     enabled: bool = True,
     every_s: float = STATUS_EVERY_S,
-    show: Callable[[str], None] = lambda line: print(line, flush=True),
+    show: Callable[[str], None] = write_line,
 ) -> Iterator[None]:
     """While the block runs, ``show(render())`` every ``every_s`` seconds on a thread of its
     own, and once more when the block ends; nothing if not ``enabled``. A failing ``render``

@@ -1,4 +1,4 @@
-"""One line of a command's output stream, written whole.
+"""One line of a command's output stream (its JSON lines, its status line), written whole.
 
 ``print(text, flush=True)`` writes the text and its newline in two calls; when standard output
 and standard error share a file (``command > log 2>&1``, a test's log, a service manager's
