@@ -43,11 +43,9 @@ keeps these rules, so that the application sees one stream (issue [seamless];
    its first) claims it and puts nothing until the answer: the holder, only
    late, stops before it answers, so the two never put one instant each (the repeated instants
    a put at once caused). A producer that finds the key quiet with no holder alive puts at once
-   and claims it all the same. A producer holding back a sample finds it quiet at the
-   holder's quiet time, by a timer (:meth:`KeyHandOver.expire`), not at its own next sample;
-   its sample held back goes out at the answer. The holder is the producer that claimed the
-   key last: the others see its claim, and one starting asks (the holder replies
-   ``{"holds": <producer>}`` to a query on the hand-over key).
+   and claims it all the same. The holder is the producer that claimed the key last: the
+   others see its claim, and one starting asks (the holder replies ``{"holds": <producer>}`` to
+   a query on the hand-over key).
 5. **A holder gone is gone at once.** Each producer declares a liveliness token
    (:func:`producer_token`). When the holder's token leaves (its process killed, or stopped by
    the agent), the key is free at once, not after the quiet time: a producer waiting beside it
