@@ -175,9 +175,6 @@ usual interval (:class:`_Intervals`): a fusion of a 60 Hz and a 30 Hz sensor put
 make it three times as long."""
 INTERVALS_REMEMBERED = 8
 """How many of the other producer's latest sample intervals the quiet time is taken from."""
-EXPIRY_SLACK_S = 0.001
-""":meth:`KeyHandOver.expire` is scheduled this long after the other producer's quiet time, so
-a call that comes a hair early does not find the key still busy and schedule itself again."""
 DEFAULT_QUIET_S = 0.1
 """The quiet time while the other producer's interval is not known yet (one sample seen)."""
 MINE_REMEMBERED = 64
@@ -210,8 +207,6 @@ COUNTERS = {
     "relation_given_up": "times this producer gave a relation key up: a provider it needs left",
     "relation_holder_gave_up": "times the producer holding a relation key gave it up (rule 7)",
     "relation_put_when_free": "relation samples held back, put when the key became free",
-    "relation_claimed_when_quiet": "claims at the holder's quiet time, before this producer's "
-    "next sample (a sample held back)",
     "rejected_hand_over_messages": "hand-over messages refused (not a claim or an answer)",
 }
 """The hand-over's counters, in the worker's status beside its own (``services.worker``)."""
@@ -293,8 +288,7 @@ class KeyHandOver:
     """The rules for one relation key of one producer: :meth:`admit` before each put;
     :meth:`observe` for each sample seen on the key, :meth:`receive` for each hand-over
     message, :meth:`joined` and :meth:`left` for the other producers' tokens (all on zenoh's
-    thread); ``send`` puts a message on the hand-over key; ``schedule(delay_s, call)``, if
-    given, calls ``call`` in ``delay_s`` seconds (:meth:`expire`, at the holder's quiet time)."""
+    thread); ``send`` puts a message on the hand-over key."""
 
     def __init__(
         self,
@@ -303,7 +297,6 @@ class KeyHandOver:
         send: Callable[[bytes], None],
         clock: Callable[[], float] = time.monotonic,
         warm_s: float = WARM_S,
-        schedule: Callable[[float, Callable[[], None]], None] | None = None,
     ) -> None:
         self.key = key
         self.warm_s = warm_s
@@ -357,9 +350,6 @@ class KeyHandOver:
         self._waiting: tuple[int, Callable[[], None]] | None = None
         """The newest sample held back (its timestamp and its put), put if the key becomes free
         before a newer one comes (rule 5)."""
-        self._schedule = schedule
-        self._expiry_due = False
-        """Whether a call of :meth:`expire` is scheduled."""
 
     def quiet_s(self) -> float:
         """After how long without a sample another producer counts as gone: three of its usual
@@ -712,51 +702,7 @@ class KeyHandOver:
         """Refuse ``value`` for now, keeping its put for the key becoming free; lock held."""
         if put is not None:
             self._waiting = (value.timestamp_ns, put)
-            self._arm()
         return self._refuse(counter)
-
-    def _arm(self) -> None:
-        """Have :meth:`expire` called when the other producer will have been quiet for its
-        quiet time, unless a call is due already; lock held."""
-        if self._schedule is None or self._expiry_due or self._other_at is None:
-            return
-        self._expiry_due = True
-        delay = self._other_at + self.quiet_s() + EXPIRY_SLACK_S - self._clock()
-        self._schedule(max(delay, 0.0), self.expire)
-
-    def expire(self) -> None:
-        """The other producer's quiet time has passed since its latest sample, as known when
-        the call was scheduled (:meth:`_arm`). Quiet indeed, a producer holding back a sample
-        it computed within that time claims the key now (rule 4), with that sample held back,
-        instead of at its own next sample: up to one of its intervals sooner (a fusion of a
-        60 Hz and a 30 Hz sensor: 16 ms at most). Not quiet (the other put since), the call
-        is scheduled again at the new quiet time. A producer that holds the key, claims it,
-        gave it away (rule 6 decides when it takes it back) or has computed nothing since the
-        other's last sample (its input stopped too, the same sensor perhaps: its next sample,
-        if one comes, claims as before) does nothing."""
-        now = self._clock()
-        claim = False
-        with self._lock:
-            self._expiry_due = False
-            if self._holds or self._yielded or self._claimed_at is not None:
-                return
-            if self._waiting is None or self._other_at is None or self._own_at is None:
-                return
-            if now - self._other_at <= self.quiet_s():
-                self._arm()
-                return
-            if self._own_at < self._other_at:
-                return  # nothing computed since the other's last sample: stopped too?
-            self._counters["relation_claimed_when_quiet"] += 1
-            if self._holder_alive() or self.asking:
-                self._claimed_at, claim = now, True
-                self._counters["relation_taken"] += 1
-            else:  # nobody puts any more: at once, claiming the key all the same
-                self._take(None)
-                claim = True
-            after = self._newest_ns
-        if claim:
-            self._claim(after)
 
     def _in_order(self, value: Measurement) -> bool:
         """Rule 1, and the instant remembered as this producer's; lock held."""
@@ -859,26 +805,12 @@ class Watch:
     this process are shown its samples by :meth:`put` instead."""
 
     def __init__(
-        self,
-        session: Any,
-        key: str,
-        counters: Counter[str],
-        providers: tuple[str, ...] = (),
-        later: Callable[[float, Callable[[], None]], None] | None = None,
+        self, session: Any, key: str, counters: Counter[str], providers: tuple[str, ...] = ()
     ) -> None:
         """``providers``: the liveliness token keys of the providers this producer needs
-        (rule 7), one subscriber each; ``later(delay_s, call)``: a timer (the container's
-        scheduler's), for the claim at a holder's quiet time (:meth:`KeyHandOver.expire`; without
-        one, a producer claims at its next sample after the quiet time)."""
+        (rule 7), one subscriber each."""
         messages = hand_over_key(key)
-        self._later = later
-        self._closed = False
-        self.rules = KeyHandOver(
-            key,
-            counters,
-            lambda data: put_addressed(session, messages, data),
-            schedule=None if later is None else self._schedule,
-        )
+        self.rules = KeyHandOver(key, counters, lambda data: put_addressed(session, messages, data))
         self._key_tag, self._messages_tag = tag(key), tag(messages)
         self._counters = counters
         self._observe_here = logs.guarded(self._observe_value, counters, log, key)
@@ -918,20 +850,6 @@ class Watch:
         key = self.rules.key
         done = None if finished is None else logs.guarded(finished, self._counters, log, key)
         return _handed_on(logs.guarded(handler, self._counters, log, key), done)
-
-    def _schedule(self, delay_s: float, call: Callable[[], None]) -> None:
-        """``call`` in ``delay_s`` seconds, on :data:`HAND_OVER` as everything the watch sees
-        (not after :meth:`close`)."""
-        guarded = logs.guarded(
-            lambda _: None if self._closed else call(), self._counters, log, self.rules.key
-        )
-
-        def hand_on() -> None:
-            with contextlib.suppress(RuntimeError):  # the interpreter ends
-                HAND_OVER.submit(guarded, None)
-
-        if self._later is not None:
-            self._later(delay_s, hand_on)
 
     def put(self, publish: Callable[[bytes], None], payload: bytes, value: Any) -> None:
         """Put ``payload`` by ``publish`` and show ``value`` (its measurement, or the payload
@@ -992,7 +910,6 @@ class Watch:
             self.rules.observe(reply.ok.payload.to_bytes(), latest=True)
 
     def close(self) -> None:
-        self._closed = True
         with _PRODUCERS_LOCK:
             others = tuple(w for w in _PRODUCERS_HERE.pop(self._here, ()) if w is not self)
             if others:

@@ -758,13 +758,7 @@ class Worker:
         for key in set(self._hand_overs) - dynamic:
             self._hand_overs.pop(key).close()
         for key in dynamic - set(self._hand_overs):
-            self._hand_overs[key] = Watch(
-                self._session,
-                key,
-                self._counts,
-                self._needed,
-                None if self._scheduler is None else self._scheduler.later,
-            )
+            self._hand_overs[key] = Watch(self._session, key, self._counts, self._needed)
 
     def _static_relations(self, relation_keys: tuple[str, ...]) -> list[RelationId]:
         """The static relations among ``relation_keys`` (a key that is no relation key of

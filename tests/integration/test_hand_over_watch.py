@@ -7,8 +7,6 @@ producers of one key."""
 
 from __future__ import annotations
 
-import threading
-import time
 from collections import Counter
 from collections.abc import Iterator
 
@@ -20,7 +18,7 @@ from ubitrack_agent.core import ErrorPose, decode, encode
 from ubitrack_agent.net import config
 from ubitrack_agent.net.keys import KeySpace
 from ubitrack_agent.net.session import open_session
-from ubitrack_agent.services.handover import INTERVALS_REMEMBERED, Watch
+from ubitrack_agent.services.handover import Watch
 
 pytestmark = pytest.mark.integration
 
@@ -74,14 +72,6 @@ def holding(holder: Watch, watches, publisher, outside: Collector) -> Iterator[i
         interval=0.05,
     )
     return stamps
-
-
-def reached(outside: Collector, on_key: list[int], t_ns: int) -> bool:
-    """Whether the sample stamped ``t_ns`` reached ``outside``; the timestamps read so far are
-    kept in ``on_key``."""
-    while not outside.items.empty():
-        on_key.append(decode(outside.items.get_nowait()).timestamp_ns)
-    return t_ns in on_key
 
 
 def counted(observe, into: list[int]):
@@ -144,6 +134,12 @@ def test_a_holder_gives_the_key_up_when_a_provider_it_needs_leaves(sessions):
     seen: list[int] = []
     beside.rules.observe_value = counted(beside.rules.observe_value, seen)
     on_key: list[int] = []
+
+    def put_on_key(t_ns: int) -> bool:
+        while not outside.items.empty():
+            on_key.append(decode(outside.items.get_nowait()).timestamp_ns)
+        return t_ns in on_key
+
     try:
         stamps = holding(holder, watches, publisher, outside)
         t = next(stamps)
@@ -157,55 +153,9 @@ def test_a_holder_gives_the_key_up_when_a_provider_it_needs_leaves(sessions):
         assert counters["holder"]["relation_given_up"] == 1
         assert counters["beside"]["relation_holder_gave_up"] == 1
         assert beside.rules.holds and not holder.rules.holds
-        wait_until(lambda: reached(outside, on_key, held), timeout=5)
+        wait_until(lambda: put_on_key(held), timeout=5)
         assert not offer(holder, publisher, error_pose(held + MS, 1e-6))  # its last, late
     finally:
-        outside.subscriber.undeclare()
-        publisher.undeclare()
-        beside_publisher.undeclare()
-        for watch in watches:
-            watch.close()
-
-
-def test_a_producer_beside_a_holder_that_stops_claims_at_its_quiet_time(sessions):
-    """The timer on real sessions (``Watch(later=...)``, a container's scheduler's in a
-    worker): the holder puts every 10 ms and stops; the producer beside it, holding back a
-    sample and computing no other, claims the key at the holder's quiet time and its sample
-    goes out at the answer."""
-    hub, container = sessions
-    counters: dict[str, Counter[str]] = {"holder": Counter(), "beside": Counter()}
-    holder = Watch(container, KEY, counters["holder"])
-    timers: list[threading.Timer] = []
-
-    def later(delay_s: float, call) -> None:
-        timers.append(threading.Timer(delay_s, call))
-        timers[-1].start()
-
-    beside = Watch(hub, KEY, counters["beside"], later=later)
-    publisher = container.declare_publisher(KEY)
-    beside_publisher = hub.declare_publisher(KEY)
-    outside = Collector(hub, KEY)
-    watches = (holder, beside)
-    seen: list[int] = []
-    beside.rules.observe_value = counted(beside.rules.observe_value, seen)
-    try:
-        stamps = holding(holder, watches, publisher, outside)
-        for _ in range(INTERVALS_REMEMBERED + 2):  # the holder's usual interval known
-            t = next(stamps)
-            assert offer(holder, publisher, error_pose(t, 1e-6))
-            time.sleep(0.01)
-        wait_until(lambda: t in seen, timeout=5)
-        held = t + MS // 2
-        assert not offer(beside, beside_publisher, error_pose(held, 1.0))  # less certain
-        wait_until(lambda: counters["beside"]["relation_claimed_when_quiet"] == 1, timeout=5)
-        wait_until(lambda: beside.rules.holds, timeout=5)
-        assert counters["beside"]["relation_put_when_free"] == 1  # put at the answer
-        assert not holder.rules.holds
-        on_key: list[int] = []
-        wait_until(lambda: reached(outside, on_key, held), timeout=5)
-    finally:
-        for timer in timers:
-            timer.cancel()
         outside.subscriber.undeclare()
         publisher.undeclare()
         beside_publisher.undeclare()

@@ -44,11 +44,8 @@ class Bus:
     hand-over's messages kept until :meth:`deliver` (a message in flight); the producers'
     tokens, which :meth:`die` takes away."""
 
-    def __init__(self, warm_s: float = 0.0, timers: bool = False) -> None:
+    def __init__(self, warm_s: float = 0.0) -> None:
         self.warm_s = warm_s
-        self.timers: list[tuple[float, int, object]] | None = [] if timers else None
-        """With ``timers``, the calls the producers scheduled (``KeyHandOver.expire``): run by
-        :meth:`run_due` when the clock has come to them."""
         """How long a producer computes before it may claim (``WARM_S``; none by default)."""
         self.clock = Clock()
         self.producers: list[KeyHandOver] = []
@@ -62,12 +59,7 @@ class Bus:
         holds the key and the key's latest sample first (``Watch``)."""
         counters: Counter[str] = Counter()
         hand_over = KeyHandOver(
-            "ubitrack/d/relation/C/A",
-            counters,
-            self._send,
-            self.clock,
-            self.warm_s,
-            None if self.timers is None else self._schedule,
+            "ubitrack/d/relation/C/A", counters, self._send, self.clock, self.warm_s
         )
         hand_over.producer = name or hand_over.producer
         for other in self.producers:
@@ -86,22 +78,6 @@ class Bus:
         self.producers.remove(producer)
         for other in self.producers:
             other.left(producer.producer)
-
-    def _schedule(self, delay_s: float, call) -> None:
-        assert self.timers is not None and delay_s >= 0
-        self.timers.append((self.clock.now + delay_s, len(self.timers), call))
-
-    def run_due(self) -> int:
-        """Run the scheduled calls whose time has come, in time order; how many ran."""
-        ran = 0
-        while self.timers:
-            self.timers.sort(key=lambda timer: timer[:2])
-            if self.timers[0][0] > self.clock.now:
-                break
-            _, _, call = self.timers.pop(0)
-            call()
-            ran += 1
-        return ran
 
     def _send(self, data: bytes) -> None:
         self.messages.append(json.loads(data))
@@ -538,46 +514,6 @@ def test_a_provider_leaving_frees_nothing_unless_its_producer_holds_the_key_besi
     assert bus.offer(alone, pose(30))
 
 
-def test_a_producer_held_back_claims_at_the_holders_quiet_time_not_at_its_next_sample():
-    """The timer: the holder (every 10 ms) stops; three of its intervals after its last sample
-    the producer beside it claims with the sample it holds back, which goes out at the
-    answer, before its own next sample would have come."""
-    bus = Bus(timers=True)
-    chain = bus.producer()
-    fusion = bus.producer()
-    for t in range(0, 100, 10):
-        bus.clock.now += 0.01
-        bus.offer(chain, pose(t))
-        assert not bus.offer(fusion, pose(t + 5, variance=4e-6))  # less certain: held back
-        bus.run_due()  # the chain puts: a call due finds the key busy
-    assert not fusion.holds and not bus.counters[1]["relation_claimed_when_quiet"]
-    bus.clock.now += 0.03 + 0.0011  # three of the chain's intervals: it stopped
-    assert bus.run_due() == 1
-    assert bus.messages[-2] == {"claim": fusion.producer, "after": 90 * MS}
-    assert bus.messages[-1] == {"yield": chain.producer, "last": 90 * MS, "to": fusion.producer}
-    assert fusion.holds and bus.stamps()[-2:] == [90, 95]
-    assert bus.counters[1]["relation_claimed_when_quiet"] == 1
-
-
-def test_the_timer_claims_nothing_for_a_holder_that_puts_or_a_producer_that_stopped_too():
-    bus = Bus(timers=True)
-    chain = bus.producer()
-    fusion = bus.producer()
-    for t in range(0, 100, 10):
-        bus.clock.now += 0.01
-        bus.offer(chain, pose(t))
-    for t in range(100, 200, 10):  # the chain puts on: each call finds the key busy
-        bus.clock.now += 0.005
-        assert not bus.offer(fusion, pose(t - 5, variance=4e-6))
-        bus.clock.now += 0.005
-        bus.offer(chain, pose(t))
-        bus.run_due()
-    assert chain.holds and not fusion.holds
-    bus.clock.now += 0.2  # both stopped (a sensor they share): nothing sooner to put
-    bus.run_due()
-    assert chain.holds and not fusion.holds and not bus.counters[1]["relation_claimed_when_quiet"]
-
-
 def test_of_several_producers_beside_a_holder_that_leaves_one_takes_the_key():
     """Rule 5 with three producers (a flow on standby, a new one, the holder): when the holder
     leaves, only the first by id takes the key at once; the other takes it for the holder, so
@@ -925,7 +861,7 @@ STEPS = st.lists(
         st.lists(st.sampled_from((0, 1, 2)), max_size=3, unique=True),  # who offers, in order
         st.lists(st.sampled_from((0.1, 0.5, 1.0, 2.0, 40.0)), min_size=3, max_size=3),
         st.sampled_from(
-            (None, None, None, "start", "die", "quiet", "hold", "deliver", "lost", "timer")
+            (None, None, None, None, "start", "die", "quiet", "hold", "deliver", "lost")
         ),
         st.integers(0, 2),
     ),
@@ -944,7 +880,7 @@ def test_any_producers_coming_going_and_changing_certainty_never_put_an_instant_
     while the messages flow, one producer at most holds the key. The producers' ids are drawn
     too (rule 5 and the claims' tie-break order by them)."""
     names = list(names)
-    bus = Bus(timers=True)
+    bus = Bus()
     slots: list[KeyHandOver | None] = [bus.producer(names.pop()), None, None]
     for i, (offering, variances, event, who) in enumerate(steps):
         if event == "start" and slots[who] is None and names:
@@ -960,8 +896,6 @@ def test_any_producers_coming_going_and_changing_certainty_never_put_an_instant_
             bus.deliver()
         elif event == "lost" and slots[who] is not None:
             slots[who].provider_left()  # rule 7
-        elif event == "timer":
-            bus.run_due()
         bus.clock.now += 1 / 60
         for k in offering:
             if slots[k] is not None:
