@@ -255,8 +255,9 @@ class Provider(Closing):
         """On SIGTERM or SIGINT, :meth:`leave` at once, then set ``stop`` for the loop serving
         the sensor (replacing ``net.lifecycle.stop_on_signals``'s handler): the loop notices
         ``stop`` only after its read returns (an adapter's receive timeout, 0.1 s) and closes
-        after that, which took about 0.3 s from the signal to the token's end in the switch
-        bench (``docs/performance.md``, "A holder that lost a provider")."""
+        after that: the token ended 93 ms after the signal so, 0.5 ms now (median,
+        ``python -m bench.provider_leave_bench``; ``docs/performance.md``, "A holder that lost a
+        provider")."""
 
         def leave_then_stop() -> None:
             self.leave()
