@@ -85,7 +85,6 @@ import os
 import platform
 import random
 import signal
-import subprocess
 import tempfile
 import threading
 import time
@@ -384,20 +383,6 @@ def kill_holder(session: Any, keys: KeySpace, patience_s: float = 5.0) -> int | 
     return None
 
 
-def stop_together(children: Processes, names: tuple[str, ...], patience_s: float = 10.0) -> None:
-    """SIGTERM the processes ``names`` at once (a sensor's simulator and its adapter: a tracking
-    PC shut down), then wait for each; SIGKILL after ``patience_s``."""
-    processes = [children.running.pop(name) for name in names]
-    for process in processes:
-        process.terminate()
-    for process in processes:
-        try:
-            process.wait(timeout=patience_s)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-
-
 def host_managers(session: Any, keys: KeySpace) -> list[int]:
     """The pids of the host managers on the bench's network (the one its agent started). An
     agent stopped cleanly leaves its host manager serving its components for a successor
@@ -473,10 +458,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 children.start(name, commands[name])
 
         def stop(sensor: str) -> None:
-            if args.sensor_stop == "together":
-                stop_together(children, PROCESSES[sensor])
-            else:
-                children.stop(*PROCESSES[sensor])
+            children.stop(*PROCESSES[sensor], at_once=args.sensor_stop == "together")
 
         agent = ["agent", "--quiet", "--replicas", str(args.replicas), *config.as_flags(hub)]
         managers: list[int] = []

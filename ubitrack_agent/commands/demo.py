@@ -275,15 +275,20 @@ class Processes:
             if process.poll() is not None
         ]
 
-    def stop(self, *names: str) -> None:
-        for name in names:
-            process = self.running.pop(name)
-            process.terminate()
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+    def stop(self, *names: str, at_once: bool = False) -> None:
+        """SIGTERM each of ``names`` and wait for it to end (SIGKILL after 10 s), one after
+        the other, or, ``at_once``, all signalled first and then waited for (a sensor's
+        simulator and its adapter ending together, as when their machine shuts down)."""
+        processes = [self.running.pop(name) for name in names]
+        for batch in [processes] if at_once else [[process] for process in processes]:
+            for process in batch:
+                process.terminate()
+            for process in batch:
+                try:
+                    process.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
 
     def stop_all(self) -> None:
         self.stop(*reversed(list(self.running)))
