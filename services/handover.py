@@ -71,18 +71,26 @@ keeps these rules, so that the application sees one stream (issue [seamless];
    A.R.T. tracker and the camera, which it took the key from; one degraded sample, a feature
    hidden, is not enough, and a holder merely less certain all along, the camera-only flow
    beside a fusion on standby running on the camera alone, keeps the key).
-7. **A holder that lost a provider gives the key up at once.** Each producer knows the
-   providers it needs (``ComponentSpec.required_providers``: without one of them it computes
-   nothing new) and watches their liveliness tokens. When one leaves while it holds the key
-   and another producer of the key is alive, it stops putting and says so on the hand-over
-   key, after which instant (``{"free": <producer>, "last": <ns>}``); the others take that as
-   rule 5's holder gone, and the first by id puts its newest sample held back at once. A
-   provider leaving is known within milliseconds (its session closed, or its process gone and
-   its links with it), its data stopping only after a silence of three intervals: in the
-   switch bench the chain on the better tracker, kept on standby by the agent when the tracker
-   left, held the key until it looked quiet, 68 ms (``docs/performance.md``, "A holder that
-   lost a provider"). A provider cut off without leaving (its machine's cable out) is still
-   known by silence alone. The producer that gave the key up takes it back by rule 6.
+7. **A holder that lost an input gives the key up at once.** Each producer knows the providers
+   and the measured edges it needs (``ComponentSpec.required_providers``, ``required_edges``:
+   without one of them it computes nothing new) and watches their liveliness tokens: the
+   provider's, and the one each edge's provider holds on the edge's data key while the edge
+   delivers (``io.flowing``). When one is withdrawn while it holds the key and
+   another producer of the key is alive, it stops putting and says so on the hand-over key,
+   after which instant (``{"free": <producer>, "last": <ns>}``); the others take that as rule
+   5's holder gone, and the first by id puts its newest sample held back at once. The token
+   goes within milliseconds of the provider leaving (its session closed, or its process gone
+   and its links with it), and two and a half of the edge's intervals after its last sample
+   when the sensor falls silent with its adapter running (judged at the adapter, which sees
+   the sensor's own jitter only; in the second frame in a row without it when the adapter
+   knows), while the key looks quiet to the others only three of the holder's intervals after
+   its last put: in the switch bench the chain on the better
+   tracker, kept on standby by the agent when the tracker left, held the key until it looked
+   quiet, 68 ms (``docs/performance.md``, "A holder that lost a provider", "An edge that stops
+   delivering"). A provider cut off without leaving (its machine's cable out) is still known by
+   silence alone. The producer that gave the key up takes it back by rule 6, at once when the
+   edge's token is back (its input is back) and its estimate no less certain than the
+   holder's.
 
 "Another producer is putting" means a sample not put by this one arrived within
 :meth:`KeyHandOver.quiet_s`: three of the other's usual recent intervals, and one usual interval
@@ -204,8 +212,9 @@ COUNTERS = {
     "relation_claims_unanswered": "claims that had no answer in time, the key quiet (put anyway)",
     "relation_claims_repeated": "claims said again: no answer in time, the holder still putting",
     "relation_holder_left": "times the producer holding a relation key left (its token gone)",
-    "relation_given_up": "times this producer gave a relation key up: a provider it needs left",
+    "relation_given_up": "times this producer gave a relation key up: an edge it needs stopped",
     "relation_holder_gave_up": "times the producer holding a relation key gave it up (rule 7)",
+    "relation_input_back": "times an input this producer gave a relation key up for came back",
     "relation_put_when_free": "relation samples held back, put when the key became free",
     "rejected_hand_over_messages": "hand-over messages refused (not a claim or an answer)",
 }
@@ -329,6 +338,8 @@ class KeyHandOver:
         """Whether this producer holds the key (puts on it)."""
         self._yielded = False
         """Whether this producer gave the key to a claimer that is still putting."""
+        self._input_back = False
+        """Whether, since it yielded, a measured edge it needs delivers again (rule 6)."""
         self._holder: str | None = None
         """The other producer that claimed the key last (holds it, as far as this one knows)."""
         self._alive: set[str] = set()
@@ -472,7 +483,7 @@ class KeyHandOver:
         with self._lock:
             if self._holds:
                 self._holder = claimer
-                self._holds, self._yielded = False, True
+                self._holds, self._yielded, self._input_back = False, True, False
                 # The claimer counts as putting from now: quiet from here means it died.
                 self._other_at = self._clock()
                 self._other_intervals.clear()
@@ -570,21 +581,31 @@ class KeyHandOver:
         if taken:  # the others waiting beside it, if any, yield
             self._claim(after)
 
-    def provider_left(self) -> None:
-        """A provider this producer needs left (rule 7): holding the key with another producer
-        alive beside it, it stops putting and gives the key up, saying after which instant.
-        The others count as putting from now on, so what it still computes (samples on their
-        way when the provider left) is not put, and it takes the key back by rule 6, or after
-        the longest quiet time if nobody takes it (a provider it did not really need)."""
+    def input_stopped(self) -> None:
+        """A measured edge this producer needs stopped delivering (rule 7): holding the key
+        with another producer alive beside it, it stops putting and gives the key up, saying
+        after which instant. The others count as putting from now on, so what it still
+        computes (samples on their way when the edge stopped) is not put, and it takes the key
+        back by rule 6, or after the longest quiet time if nobody takes it (an edge it did not
+        really need)."""
         with self._lock:
             if not self._holds or not self._alive:
                 return
             self._holds, self._yielded, self._holder = False, True, None
+            self._input_back = False
             self._other_at = self._clock()
             self._other_intervals.clear()
             self._counters["relation_given_up"] += 1
             message = {"free": self.producer, "last": self._newest_ns}
         self._send(json.dumps(message).encode())
+
+    def input_back(self) -> None:
+        """A measured edge this producer needs delivers again: having yielded, it takes the key
+        back by rule 6 with its next estimate no less certain than the holder's."""
+        with self._lock:
+            if self._yielded:
+                self._input_back = True
+                self._counters["relation_input_back"] += 1
 
     @property
     def holds(self) -> bool:
@@ -727,15 +748,16 @@ class KeyHandOver:
         """Rule 6: this producer's latest estimate is no less certain than the holder's latest
         sample, and the holder has lost an input (:data:`HOLDER_LOST_IN_ROW` samples in a row
         each ten times as uncertain as its least uncertain one of the last
-        :data:`LOST_WINDOW_S`) or this producer has got one back: it was quiet (``previous``
-        is None) or its estimate is at most :data:`TAKE_BACK_RATIO` times as uncertain as its
+        :data:`LOST_WINDOW_S`) or this producer has got one back: an edge it needs delivers
+        again (:meth:`input_back`), it was quiet (``previous`` is None) or its estimate is at
+        most :data:`TAKE_BACK_RATIO` times as uncertain as its
         ``previous`` one (covariances of one shape); lock held."""
         mine, theirs = self._own_trace, self._other_trace
         if mine is None or theirs is None or mine[0] != theirs[0]:
             return False
         if mine[1] > READY_RATIO * theirs[1]:
             return False
-        if self._other_worse_in_row >= HOLDER_LOST_IN_ROW:
+        if self._other_worse_in_row >= HOLDER_LOST_IN_ROW or self._input_back:
             return True
         if previous is None:
             return True
@@ -805,10 +827,10 @@ class Watch:
     this process are shown its samples by :meth:`put` instead."""
 
     def __init__(
-        self, session: Any, key: str, counters: Counter[str], providers: tuple[str, ...] = ()
+        self, session: Any, key: str, counters: Counter[str], needed: tuple[str, ...] = ()
     ) -> None:
-        """``providers``: the liveliness token keys of the providers this producer needs
-        (rule 7), one subscriber each."""
+        """``needed``: the liveliness tokens of the providers and the measured edges this
+        producer needs (rule 7), a subscriber each."""
         messages = hand_over_key(key)
         self.rules = KeyHandOver(key, counters, lambda data: put_addressed(session, messages, data))
         self._key_tag, self._messages_tag = tag(key), tag(messages)
@@ -830,8 +852,8 @@ class Watch:
             liveliness.declare_token(producer_token(key, self.rules.producer)),
             session.declare_queryable(messages, self._handed_on(self._holding)),
             *(
-                liveliness.declare_subscriber(token, self._handed_on(self._provider))
-                for token in providers
+                liveliness.declare_subscriber(edge, self._handed_on(self._needed_edge))
+                for edge in needed
             ),
         )
         self.rules.asking = True  # who holds the key, if one does
@@ -891,9 +913,11 @@ class Watch:
         else:
             self.rules.left(producer)
 
-    def _provider(self, sample: Any) -> None:
-        if str(sample.kind) != PUT:
-            self.rules.provider_left()
+    def _needed_edge(self, sample: Any) -> None:
+        if str(sample.kind) == PUT:
+            self.rules.input_back()
+        else:
+            self.rules.input_stopped()
 
     def _holding(self, query: Any) -> None:
         with query:  # finished at once (zenoh sends its final message when it is dropped)

@@ -379,9 +379,9 @@ class Worker:
         self.pool_counters = pool_counters
         """The counters of the pool this process belongs to, if any (shown in status)."""
         self.keys = keys
-        self._needed = tuple(keys.provider(provider) for provider in spec.required_providers)
-        """The liveliness tokens of the providers this component needs: a relation key it holds
-        is given up when one leaves (``services.handover``, rule 7)."""
+        self._needed = (*map(keys.provider, spec.required_providers), *spec.required_edges)
+        """The liveliness tokens of the providers and the measured edges this component needs:
+        a relation key it holds is given up when one leaves (``services.handover``, rule 7)."""
         self._counts: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
         """The counters but those counted on every sample (:attr:`counters` adds them)."""
         self._received = self._published = self._handed_over = self._not_sent = 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -123,6 +124,52 @@ def test_a_provider_that_leaves_is_gone_at_once_and_its_last_samples_still_arriv
             provider.leave()  # a second leave does nothing
         assert events == ["SampleKind.PUT", "SampleKind.DELETE"]
         data.undeclare()
+        watcher.undeclare()
+
+
+def test_an_edge_token_says_while_the_edge_delivers():
+    """The token on a dynamic edge's data key (``io.flowing``): declared with its first
+    sample, withdrawn two and a half intervals after its last, or when the adapter says two
+    frames in a row came without it (not one), declared again by its next sample, withdrawn
+    when the provider leaves; a static edge has none."""
+    port = free_port()
+    keys = KeySpace(f"ubitrack/f{port}")
+    with hub_session(port) as hub, member(port) as sensor:
+        events: list[tuple[str, str]] = []
+        watcher = hub.liveliness().declare_subscriber(
+            f"{keys.root}/data/art1/**",
+            lambda s: events.append((str(s.key_expr).rsplit("/", 1)[-1], str(s.kind)[11:])),
+        )
+        edges = [
+            EdgeAnnouncement("ART", "HT", "6D", rate=60.0),
+            EdgeAnnouncement("ART", "P", "6D", rate=60.0),
+            EdgeAnnouncement("ART", "WT", "6D", static=True),
+        ]
+        with Provider(sensor, keys, "art1", edges) as provider:
+            provider.publish("ART_WT", pose(0, 0.0))
+            for i in range(6):
+                provider.publish("ART_HT", pose(i + 1, 0.1))
+                time.sleep(1 / 60)
+            # silent: withdrawn by the provider's clock
+            wait_until(lambda: events == [("ART_HT", "PUT"), ("ART_HT", "DELETE")])
+            # one sample of P: its rate unknown, its clock never withdraws it; the frames do
+            provider.publish("ART_P", pose(10, 0.1))
+            wait_until(lambda: len(events) == 3)
+            provider.missed("ART_P")  # one frame without it: a drop
+            time.sleep(0.2)
+            assert len(events) == 3
+            provider.missed("ART_P")  # the second in a row
+            wait_until(lambda: len(events) == 4)
+            provider.publish("ART_P", pose(11, 0.1))
+            wait_until(lambda: len(events) == 5)
+            provider.leave()
+            wait_until(lambda: len(events) == 6)
+            with pytest.raises(KeyError):
+                provider.missed("nope")
+        assert events == [
+            *[("ART_HT", "PUT"), ("ART_HT", "DELETE")],
+            *[("ART_P", "PUT"), ("ART_P", "DELETE")] * 2,
+        ]
         watcher.undeclare()
 
 

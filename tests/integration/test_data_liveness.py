@@ -183,10 +183,10 @@ def test_a_lost_tracker_back_takes_its_relation_back_before_the_agent_replans(se
 
 def test_a_spare_takes_the_relation_within_a_sample_of_the_chosen_tracker_stopping(setup):  # noqa: F811
     """The precise tracker's chain serves the relation and the coarse one's runs beside it as
-    its spare (``agent.spares``): when the precise tracker's data stops, the spare's producer
-    finds the key quiet and takes it (hand-over rules 2 and 4) before the agent has even
-    noticed the edge stale (about a second), and the agent then plans the spare's derivation
-    and keeps its components."""
+    its spare (``agent.spares``): when the precise tracker's data stops, the chain gives the
+    key up as the edge's token leaves (``io.flowing``, hand-over rule 7) and the spare's
+    producer takes it, before the agent has even noticed the edge stale (about a second), and
+    the agent then plans the spare's derivation and keeps its components."""
     with precise_and_coarse(setup) as (trackers, relation):
         spare = wait_until(lambda: alive_spare(setup.status(), "WT->HT:6D"), timeout=30)
         precise = producer_reading(setup.status(), "art/HT")
@@ -208,7 +208,10 @@ def test_a_spare_takes_the_relation_within_a_sample_of_the_chosen_tracker_stoppi
         assert "art/HT" not in status["stale_edges"]  # the agent has not replanned yet
         print(f"the spare took the relation {taken:.3f} s after the precise data stopped")
         assert_true_pose(coarse)
-        assert worker_status(setup, spare)["counters"].get("relation_taken") == 1
+        counters = worker_status(setup, spare)["counters"]
+        # given up by the chain as the precise edge's token left (rule 7), or, on a machine so
+        # loaded that the token left late, found quiet and claimed (rule 4): once
+        assert counters["relation_holder_gave_up"] + counters["relation_taken"] == 1
         wait_until(lambda: producer_reading(setup.status(), "art/HT") is None, REWIRE_S)
         assert worker_status(setup, spare)["incarnation"] == incarnation  # kept, not started
         for sample in fresh_samples(relation, 20):

@@ -130,26 +130,30 @@ def test_paper_setup_becomes_figure_6_workers():
     assert final[0].relations == {"AC": (KEYS.relation(wanted),)}
 
 
-def test_each_component_names_the_providers_it_computes_nothing_without():
+def test_each_component_names_the_providers_and_edges_it_computes_nothing_without():
     wanted = RelationId("C", "A", "6D")
     _, specs = specs_for(paper_fragments(), wanted)
     needed = {spec.service: set() for spec in specs.values()}
     for spec in specs.values():
-        needed[spec.service] |= {spec.required_providers}
-    assert needed["pose_estimation_2d3d"] == {("camera",)}  # static C_IP and WT_F need nobody
-    assert needed["inversion"] == {("art",)}
-    assert needed["concatenation"] == {("art",), ()}  # the ART branch, and after the fusion
-    assert needed["fusion"] == {()}  # each estimate it fuses needs another provider
+        needed[spec.service] |= {(spec.required_providers, spec.required_edges)}
+    # the camera, but no one of its five features (each binding needs its own); static C_IP
+    # and WT_F nothing
+    assert needed["pose_estimation_2d3d"] == {(("camera",), ())}
+    art = (("art",), (KEYS.data("art/HT"),))  # the fragment names its edge HT
+    assert needed["inversion"] == {art}
+    assert needed["concatenation"] == {art, ((), ())}  # the ART branch, and after the fusion
+    assert needed["fusion"] == {((), ())}  # each estimate it fuses needs another provider
     (producer,) = [s for s in specs.values() if s.relations]
-    assert producer.required_providers == ()
+    assert (producer.required_providers, producer.required_edges) == ((), ())
     fragments = paper_fragments()
     del fragments["camera"]
     _, art_only = specs_for(fragments, wanted)
     (producer,) = [s for s in art_only.values() if s.relations]
-    assert producer.required_providers == ("art",)
+    assert (producer.required_providers, producer.required_edges) == art
     _, relayed = specs_for(fragments, RelationId("ART", "HT", "6D"))
     (relay,) = relayed.values()
-    assert relay.service == "relay" and relay.required_providers == ("art",)
+    assert relay.service == "relay"
+    assert (relay.required_providers, relay.required_edges) == art
 
 
 def test_missing_frames_and_measured_relations():

@@ -19,9 +19,13 @@ ZERO_MATRIX = "[0 0 0 0 0 0 0 0 0]"
 class Recorder:
     def __init__(self) -> None:
         self.published: list[tuple[str, ErrorPose]] = []
+        self.left_out: list[str] = []
 
     def publish(self, edge_name, measurement) -> None:
         self.published.append((edge_name, measurement))
+
+    def missed(self, edge_name) -> None:
+        self.left_out.append(edge_name)
 
 
 def _adapter(timestamps="receive") -> DTrackAdapter:
@@ -58,6 +62,15 @@ def test_an_untracked_body_does_not_stop_the_others():
     )
     assert [name for name, _ in recorder.published] == ["ART_HT"]
     np.testing.assert_array_equal(recorder.published[0][1].translation, [1, 0, 0])
+    # a whole frame: the dynamic edges it left out missed their sample (static WT is kept)
+    assert sorted(recorder.left_out) == ["ART_FS", "ART_P"]
+
+
+def test_a_body_left_out_of_a_frame_missed_its_sample_and_a_rejected_datagram_says_nothing():
+    recorder = _handle(_adapter(), f"fr 1\n6d 1 [0 1.000][0 0 0 0 0 0]{IDENTITY}")
+    assert [name for name, _ in recorder.published] == ["ART_WT"]
+    assert sorted(recorder.left_out) == ["ART_FS", "ART_HT", "ART_P"]
+    assert _handle(_adapter(), "fr 1\n6d x").left_out == []
 
 
 def test_hybrid_bodies_use_the_body_mapping_and_replace_the_optical_pose():

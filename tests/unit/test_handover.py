@@ -464,7 +464,7 @@ def test_a_holder_that_lost_a_provider_gives_the_key_up_and_the_one_beside_it_pu
     bus.clock.now += 0.01
     assert bus.offer(chain, pose(20))
     assert not bus.offer(fusion, pose(30, variance=4e-6))  # less certain: held back
-    chain.provider_left()
+    chain.input_stopped()
     assert bus.messages[-2] == {"free": chain.producer, "last": 20 * MS}
     assert bus.messages[-1] == {"claim": fusion.producer, "after": 30 * MS}
     assert bus.stamps() == [0, 10, 20, 30] and bus.wire[-1][1] == fusion.producer
@@ -478,21 +478,49 @@ def test_a_holder_that_lost_a_provider_gives_the_key_up_and_the_one_beside_it_pu
     assert bus.stamps() == [0, 10, 20, 30, 40]
 
 
-def test_a_holder_that_lost_a_provider_takes_the_key_back_when_it_computes_again():
-    """Rule 7 then rule 6: the tracker back, the chain computes again after a quiet spell, no
-    less certain than the holder, and claims the key back."""
+def given_up_to_a_fusion(until_ms: int) -> tuple[Bus, KeyHandOver, KeyHandOver]:
+    """The chain held the key and lost its input (rule 7); the fusion beside it, less certain,
+    put every 20 ms from 30 ms until before ``until_ms``."""
     bus = Bus()
     chain = holding(bus)
     fusion = bus.producer()
     bus.clock.now += 0.01
     assert not bus.offer(fusion, pose(20, variance=4e-6))
-    chain.provider_left()
-    for t in range(30, 700, 20):
+    chain.input_stopped()
+    for t in range(30, until_ms, 20):
         bus.clock.now += 0.02
         assert bus.offer(fusion, pose(t, variance=4e-6))
+    return bus, chain, fusion
+
+
+def test_a_holder_that_lost_a_provider_takes_the_key_back_when_it_computes_again():
+    """Rule 7 then rule 6: the tracker back, the chain computes again after a quiet spell, no
+    less certain than the holder, and claims the key back."""
+    bus, chain, fusion = given_up_to_a_fusion(700)
     assert not bus.offer(chain, pose(700))  # back after 0.67 s: claims
     assert bus.messages[-1] == {"yield": fusion.producer, "last": 690 * MS, "to": chain.producer}
     assert chain.holds and bus.stamps()[-1] == 700
+
+
+def test_a_holder_whose_edge_stopped_for_a_moment_takes_the_key_back_when_its_token_returns():
+    """Rule 7 then rule 6 after a short silence (a body hidden for 0.1 s): the chain's edge
+    token is back, and its next estimate, no less certain than the holder's, claims the key
+    back at once; without the token back, the same estimate after so short a silence does not
+    (it yields to whoever holds the key, as before)."""
+    for token_back in (True, False):
+        bus, chain, fusion = given_up_to_a_fusion(130)
+        if token_back:
+            chain.input_back()
+        bus.clock.now += 0.005
+        assert not bus.offer(chain, pose(125))
+        assert chain.holds is token_back
+        if token_back:
+            assert bus.messages[-1] == {
+                "yield": fusion.producer,
+                "last": 110 * MS,
+                "to": chain.producer,
+            }
+        assert bus.counters[0]["relation_taken_back"] == int(token_back)
 
 
 def test_a_provider_leaving_frees_nothing_unless_its_producer_holds_the_key_beside_another():
@@ -502,14 +530,14 @@ def test_a_provider_leaving_frees_nothing_unless_its_producer_holds_the_key_besi
     bus = Bus()
     alone = holding(bus)
     said = len(bus.messages)  # its claim when it began
-    alone.provider_left()
+    alone.input_stopped()
     bus.clock.now += 0.01
     assert bus.offer(alone, pose(20)) and len(bus.messages) == said
     assert not bus.counters[0]["relation_given_up"]
     beside = bus.producer()
     bus.clock.now += 0.01
     assert not bus.offer(beside, pose(30, variance=4e-6))
-    beside.provider_left()
+    beside.input_stopped()
     assert len(bus.messages) == said and not bus.counters[1]["relation_given_up"]
     assert bus.offer(alone, pose(30))
 
@@ -861,7 +889,7 @@ STEPS = st.lists(
         st.lists(st.sampled_from((0, 1, 2)), max_size=3, unique=True),  # who offers, in order
         st.lists(st.sampled_from((0.1, 0.5, 1.0, 2.0, 40.0)), min_size=3, max_size=3),
         st.sampled_from(
-            (None, None, None, None, "start", "die", "quiet", "hold", "deliver", "lost")
+            (None, None, None, None, "start", "die", "quiet", "hold", "deliver", "lost", "back")
         ),
         st.integers(0, 2),
     ),
@@ -895,7 +923,9 @@ def test_any_producers_coming_going_and_changing_certainty_never_put_an_instant_
         elif event == "deliver":
             bus.deliver()
         elif event == "lost" and slots[who] is not None:
-            slots[who].provider_left()  # rule 7
+            slots[who].input_stopped()  # rule 7
+        elif event == "back" and slots[who] is not None:
+            slots[who].input_back()  # rule 6
         bus.clock.now += 1 / 60
         for k in offering:
             if slots[k] is not None:

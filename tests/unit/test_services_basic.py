@@ -106,10 +106,12 @@ VALID = {
 def test_valid_spec_round_trips_through_json():
     spec = parse_spec(json.dumps(VALID))
     assert spec.tolerance_ns == 5_000_000
-    assert spec.required_providers == ()
+    assert spec.required_providers == spec.required_edges == ()
     assert parse_spec(spec.to_json()) == spec
-    needing = parse_spec({**VALID, "required_providers": ["art", "camera"]})
-    assert needing.required_providers == ("art", "camera")
+    edges = ["u/d/data/art/ART_HT", "u/d/data/cam/F"]
+    needing = parse_spec({**VALID, "required_providers": ["art", "cam"], "required_edges": edges})
+    assert needing.required_providers == ("art", "cam")
+    assert needing.required_edges == tuple(edges)
     assert parse_spec(needing.to_json()) == needing
 
 
@@ -132,6 +134,10 @@ def test_valid_spec_round_trips_through_json():
         ({"expansion": "sideways"}, "spec.expansion: must be one of"),
         ({"expansion": "space"}, "concatenation has no correspondence"),
         ({"time_expansion": {"min_motion": 1}}, "only for expansion 'time'"),
+        ({"required_edges": "u/d/data/a/b"}, "spec.required_edges: expected a list"),
+        ({"required_edges": ["u/d/data/a/b", 5]}, "spec.required_edges[1]: expected a string"),
+        ({"required_edges": ["u/d/data/*/b"]}, "spec.required_edges[0]"),
+        ({"required_edges": ["u/d/data/a/b"] * 1001}, "at most 1000"),
         ({"required_providers": "art"}, "spec.required_providers: expected a list"),
         ({"required_providers": ["art", 5]}, "spec.required_providers[1]: expected a string"),
         ({"required_providers": ["a/b"]}, "spec.required_providers[0]"),

@@ -29,9 +29,13 @@ T0 = 1_763_700_000_123_456_000  # a whole number of microseconds
 class Recorder:
     def __init__(self) -> None:
         self.published: list[tuple[str, object]] = []
+        self.left_out: list[str] = []
 
     def publish(self, edge_name, measurement) -> None:
         self.published.append((edge_name, measurement))
+
+    def missed(self, edge_name) -> None:
+        self.left_out.append(edge_name)
 
 
 def _adapter(art, timestamps="device") -> tuple[DTrackAdapter, Recorder]:

@@ -15,9 +15,10 @@
   each spare producer of it (``agent.spares``; the hand-over decides which one puts,
   ``services.handover``); a relation answered by a measured edge as it is gets a ``relay``
   component.
-* Each component names the providers it needs (``ComponentSpec.required_providers``,
-  :func:`required_providers`): when one of them leaves, a producer of a relation key gives the
-  key up at once (``services.handover``, rule 7) instead of falling quiet.
+* Each component names the providers and the measured edges it needs
+  (``ComponentSpec.required_providers``, ``required_edges``; :func:`required_inputs`): when
+  one of them leaves or stops delivering, a producer of a relation key gives the key up at once
+  (``services.handover``, rule 7) instead of falling quiet.
 * Each component of the flow (each step of a pattern, Pustka et al. 2006, section 5) is one
   specification: the components of a derivation on one host run in one container
   (``agent.placement.group_containers``), where they hand each other their outputs as
@@ -29,7 +30,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Mapping
 from dataclasses import replace
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import networkx as nx
 
@@ -67,29 +68,46 @@ def relay_instance(edge_id: str) -> str:
     return "relay-" + hashlib.sha1(edge_id.encode()).hexdigest()[:10]
 
 
-def _edge_needs(srg: nx.MultiDiGraph, edge_id: str) -> frozenset[str]:
-    """The provider of a dynamic measured edge (a static one needs nobody: it is kept)."""
+class Need(NamedTuple):
+    """What a component cannot compute anything new without: a provider (``kind``
+    ``"provider"``, ``name`` its id: its liveliness token) or one of its measured edges
+    (``"edge"``, ``name`` the edge's id: the token on its data key while it delivers)."""
+
+    kind: str
+    name: str
+
+
+def _edge_needs(srg: nx.MultiDiGraph, edge_id: str) -> frozenset[Need]:
+    """A dynamic measured edge needs itself and its provider (a static one nothing: its value
+    is kept)."""
     source, target = edge_ids(srg)[edge_id]
     data = srg.edges[source, target, edge_id]
-    return frozenset() if data["static"] else frozenset({data["provider"]})
+    if data["static"]:
+        return frozenset()
+    return frozenset({Need("provider", data["provider"]), Need("edge", edge_id)})
 
 
-def required_providers(flow: DataFlow, srg: nx.MultiDiGraph) -> dict[str, frozenset[str]]:
-    """The providers each component of ``flow`` needs to compute anything new, by component
-    id: the provider of a dynamic measured edge it reads, and those its dynamic inputs'
-    producers need. Of the several bindings of one port (a space expansion: the estimates a
-    fusion combines, the correspondences of a pose estimation) only the providers *every*
-    binding needs count, since such a component computes on with the bindings left (a fusion
-    with one tracker gone). A static input (a calibration, a survey, a time expansion's result)
-    needs nobody: it is kept. Producers come before their consumers in ``flow``, so one pass:
-    O(bindings x providers needed).
+def required_inputs(flow: DataFlow, srg: nx.MultiDiGraph) -> dict[str, frozenset[Need]]:
+    """The providers and measured edges each component of ``flow`` needs to compute anything
+    new, by component id: the dynamic measured edges it reads and their providers, and those
+    its dynamic inputs' producers need. Of the several bindings of one port (a space
+    expansion: the estimates a fusion combines, the correspondences of a pose estimation) only
+    what *every* binding needs counts, since such a component computes on with the bindings
+    left: a fusion with one tracker gone needs nothing, a pose estimation from five features of
+    one camera needs the camera but no single feature. A static input (a calibration, a
+    survey, a time expansion's result) needs nothing: it is kept. Producers come before their
+    consumers in ``flow``, so one pass: O(bindings x needs).
 
-    A provider leaving is known at once from its liveliness token, while its data stopping is
-    known only after a silence (``services.handover``, rule 7: a producer that needs it gives
-    its relation keys up then, instead of holding them until it looks quiet)."""
-    needed: dict[str, frozenset[str]] = {}
+    A provider leaving, or an edge that stops delivering, is known at once from a liveliness
+    token (the provider's; its token on the edge's data key, withdrawn when the provider leaves
+    or at the adapter after two and a half of the edge's intervals without a sample,
+    ``io.flowing``), while
+    the relation key falls quiet only after three of the holder's intervals
+    (``services.handover``, rule 7: a producer that needs it gives its relation keys up
+    then)."""
+    needed: dict[str, frozenset[Need]] = {}
     for component in flow.components.values():
-        by_port: dict[str, list[frozenset[str]]] = {}
+        by_port: dict[str, list[frozenset[Need]]] = {}
         for port, binding in component.inputs:
             if binding.component is None:
                 needs = _edge_needs(srg, binding.edge)
@@ -104,6 +122,14 @@ def required_providers(flow: DataFlow, srg: nx.MultiDiGraph) -> dict[str, frozen
     return needed
 
 
+def _required(needs: frozenset[Need], keys: Keys) -> dict[str, tuple[str, ...]]:
+    """A specification's fields naming ``needs``: provider ids, and the edges' data keys."""
+    return {
+        "required_providers": tuple(sorted(n.name for n in needs if n.kind == "provider")),
+        "required_edges": tuple(sorted(keys.data(n.name) for n in needs if n.kind == "edge")),
+    }
+
+
 def component_specs(
     flow: DataFlow,
     srg: nx.MultiDiGraph,
@@ -113,7 +139,7 @@ def component_specs(
     """The worker specification of every component of ``flow``, by instance id (producers
     before their consumers, then the relays). O(components + bindings + relations)."""
     specs: dict[str, ComponentSpec] = {}
-    needed = required_providers(flow, srg)
+    needed = required_inputs(flow, srg)
     fixed_outputs: set[str] = set()
     """The components whose static outputs have a fixed error: estimated over time (a
     calibration), or computed from fixed inputs alone."""
@@ -151,7 +177,7 @@ def component_specs(
             outputs={name: keys.data(f"{component.id}/{name}") for name, *_ in component.outputs},
             parameters=dict(component.parameters),
             expansion=component.expansion,
-            required_providers=tuple(sorted(needed[component.id])),
+            **_required(needed[component.id], keys),
         )
     producers = [(name, b) for name, bs in flow.spares.items() for b in bs]
     for name, binding in [*flow.relations.items(), *producers]:
@@ -171,6 +197,6 @@ def component_specs(
             inputs=(InputBinding("in", key, True, static, from_worker=from_worker),),
             outputs={"out": keys.data(f"{instance}/out")},
             relations={"out": (relation_key,)},
-            required_providers=tuple(_edge_needs(srg, binding.edge)),
+            **_required(_edge_needs(srg, binding.edge), keys),
         )
     return specs

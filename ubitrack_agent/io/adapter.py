@@ -27,7 +27,11 @@ jobs, following the conventions of :mod:`ubitrack_agent.core.measurements`:
    :attr:`SensorAdapter.counters`: ``received`` inputs, ``rejected`` inputs (logged as
    warnings, rate-limited: :func:`~ubitrack_agent.net.logs.rate_limited`), ``published``
    measurements, and each ignored item under the subclass's name for it (logged once).
-   Nothing a device sends is fatal.
+   Nothing a device sends is fatal. An adapter whose every unit of input is one whole frame of
+   the device (:attr:`SensorAdapter.whole_frames`: a DTrack datagram lists every body tracked
+   in it) also tells the provider which dynamic edges the frame left out: they missed their
+   sample (hidden, or the tracker lost them), and an edge left out of two frames in a row has
+   its token withdrawn as the second arrives (``io.flowing``), with no margin for jitter.
 
 Running one, for a device that sends UDP datagrams::
 
@@ -81,6 +85,8 @@ class Publisher(Protocol):
 
     def publish(self, edge_name: str, measurement: Measurement) -> None: ...
 
+    def missed(self, edge_name: str) -> None: ...
+
 
 class SensorAdapter(ABC, Generic[RawInput]):
     """Base of the sensor adapters (see the module docstring): subclasses name their unit of
@@ -89,6 +95,9 @@ class SensorAdapter(ABC, Generic[RawInput]):
 
     device: ClassVar[str] = "sensor"
     """The device's name in log messages."""
+    whole_frames: ClassVar[bool] = False
+    """Whether every valid unit of input is one whole frame listing all the device tracks in
+    it: a dynamic edge the unit leaves out missed its sample (:meth:`handle`)."""
 
     def __init__(
         self, edges: Iterable[EdgeAnnouncement], timestamps: TimestampPolicy = "receive"
@@ -101,6 +110,7 @@ class SensorAdapter(ABC, Generic[RawInput]):
             raise ValueError(f"two edges would be named {duplicates[0]!r}")
         self.timestamps = timestamps
         self.counters: Counter[str] = Counter()
+        self._dynamic = frozenset(e.name for e in self.edges if not e.static and e.mode == "push")
 
     @abstractmethod
     def convert(self, raw: RawInput, received_ns: int) -> list[tuple[str, Measurement]]:
@@ -125,7 +135,9 @@ class SensorAdapter(ABC, Generic[RawInput]):
 
     def handle(self, raw: RawInput, received_ns: int, publisher: Publisher) -> int:
         """Convert one unit of device output and publish its measurements; returns how many
-        were published (0 for rejected input, which is logged and counted)."""
+        were published (0 for rejected input, which is logged and counted). With
+        :attr:`whole_frames`, each dynamic edge the unit left out is reported missed after
+        them: O(edges) a unit."""
         self.counters["received"] += 1
         try:
             measurements = self.convert(raw, received_ns)
@@ -143,6 +155,9 @@ class SensorAdapter(ABC, Generic[RawInput]):
         for edge_name, measurement in measurements:
             publisher.publish(edge_name, measurement)
             self.counters["published"] += 1
+        if self.whole_frames:
+            for edge_name in self._dynamic.difference(name for name, _ in measurements):
+                publisher.missed(edge_name)
         return len(measurements)
 
 

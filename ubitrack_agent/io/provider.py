@@ -24,6 +24,12 @@ calling :meth:`Provider.close`, or the process dying) removes the token and the 
 an adapter ending on SIGTERM removes it first (:meth:`Provider.leave_on_signals`), before its
 loop notices and closes.
 
+While a dynamic push edge delivers, the provider also declares a liveliness token on the edge's
+data key, withdrawn as soon as the edge misses its samples and declared again by its next
+(``io.flowing``; :meth:`Provider.missed` for an adapter that knows frames came without the
+edge): a producer of a relation key that needs the edge gives the key up then
+(``services.handover``, rule 7), well before a silence tells it.
+
 Data liveness is judged here, where the data is (``docs/protocol.md`` "Data liveness"): a
 token says the process lives, not that its edges deliver. A dynamic push edge announcing a
 ``rate`` is *quiet* when :meth:`Provider.publish` was not called for it for
@@ -50,6 +56,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubitrack_agent.core import MEASUREMENT_TYPES, Measurement, encode
+from ubitrack_agent.io.flowing import FlowingEdges
 from ubitrack_agent.net.address import put_addressed
 from ubitrack_agent.net.config import default_host_name
 from ubitrack_agent.net.encodings import JSON
@@ -209,6 +216,17 @@ class Provider(Closing):
         self._token = session.liveliness().declare_token(keys.provider(self.id))
         self._closed = self._left = False
         self._leave_lock = threading.Lock()
+        self._flow = FlowingEdges(
+            name for name, edge in self.edges.items() if not edge.static and edge.mode == "push"
+        )
+        self._flow_keys = {name: keys.measured(self.id, name) for name in self.edges}
+        self._flow_tokens: dict[str, Any] = {}
+        """The liveliness tokens of the edges delivering now, on their data keys."""
+        self._flow_changed = threading.Condition()
+        """Held around :attr:`_flow` and :attr:`_flow_tokens`; notified when the deadline
+        :meth:`_watch_flow` waits for may have come sooner, or the provider left."""
+        self._flow_watch = threading.Thread(target=self._watch_flow, daemon=True)
+        self._flow_watch.start()
 
     def publish(self, edge_name: str, measurement: Measurement) -> None:
         """Publish one measurement of edge ``edge_name``; its type must match the edge's."""
@@ -218,8 +236,45 @@ class Provider(Closing):
         if edge.type != measurement.SRG_TYPE:
             raise TypeError(f"edge {edge_name} is {edge.type}, got a {type(measurement).__name__}")
         self._publishers[edge_name].put(encode(measurement))
-        if self._quiet.published(edge_name, time.monotonic()):
+        now = time.monotonic()
+        if self._quiet.published(edge_name, now):
             self._put_report()
+        if self._flow.watches(edge_name):
+            with self._flow_changed:
+                if self._flow.published(edge_name, now):
+                    self._sync_flow_tokens()
+                    self._flow_changed.notify()
+
+    def missed(self, edge_name: str) -> None:
+        """A whole frame of the tracker came without edge ``edge_name`` (an adapter that knows,
+        ``SensorAdapter.whole_frames``): the second in a row withdraws its token at once, with
+        no margin for a late sample (``io.flowing``)."""
+        if edge_name not in self.edges:
+            raise KeyError(f"provider {self.id} announced no edge {edge_name!r}")
+        with self._flow_changed:
+            if self._flow.missed(edge_name):
+                self._sync_flow_tokens()
+
+    def _sync_flow_tokens(self) -> None:
+        """Declare the token of each edge that delivers and withdraw the others'; flow lock
+        held. O(edges), on a change only."""
+        flowing = set() if self._left else self._flow.flowing
+        for name in [n for n in self._flow_tokens if n not in flowing]:
+            self._flow_tokens.pop(name).undeclare()
+        for name in flowing - self._flow_tokens.keys():
+            token = self._session.liveliness().declare_token(self._flow_keys[name])
+            self._flow_tokens[name] = token
+
+    def _watch_flow(self) -> None:
+        """Withdraw the tokens of the edges gone silent, each at its deadline (``io.flowing``),
+        until the provider leaves."""
+        with self._flow_changed:
+            while not self._left:
+                stopped, next_check = self._flow.silent(time.monotonic())
+                if stopped:
+                    self._sync_flow_tokens()
+                wait = None if next_check is None else max(next_check - time.monotonic(), 0.0)
+                self._flow_changed.wait(wait)
 
     def _report_liveness(self) -> None:
         """Check the edges every ``CHECK_S``; put the report when it changed, and every
@@ -242,14 +297,19 @@ class Provider(Closing):
                 query.reply(query.key_expr, self._fragment, encoding=JSON)
 
     def leave(self) -> None:
-        """Withdraw the token alone, from any thread: the agent, and each producer of a
-        relation key that needs this provider (``services.handover``, rule 7), learn at once
-        that it is gone; samples still published meanwhile are delivered. A second call, or
-        :meth:`close` after it, does not undeclare it again."""
+        """Withdraw the tokens alone (its edges', then its own), from any thread: each producer
+        of a relation key that needs one of its edges (``services.handover``, rule 7), and the
+        agent, learn at once that it is gone; samples still published meanwhile are delivered
+        (and declare no token again). A second call, or :meth:`close` after it, does not
+        undeclare them again."""
         with self._leave_lock:
-            if not self._left:
+            if self._left:
+                return
+            with self._flow_changed:
                 self._left = True
-                self._token.undeclare()
+                self._sync_flow_tokens()
+                self._flow_changed.notify()
+            self._token.undeclare()
 
     def leave_on_signals(self, stop: threading.Event) -> None:
         """On SIGTERM or SIGINT, :meth:`leave` at once, then set ``stop`` for the loop serving
@@ -275,6 +335,7 @@ class Provider(Closing):
         self._stop_reports.set()
         if self._reporter.is_alive():
             self._reporter.join(timeout=1.0)
+        self._flow_watch.join(timeout=1.0)
         self._queryable.undeclare()
         self._thread.join(timeout=1.0)
         for publisher in self._publishers.values():

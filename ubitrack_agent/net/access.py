@@ -186,7 +186,8 @@ ROLE_RULES: dict[str, tuple[str, ...]] = {
 def _provider_rules(keys: KeySpace, provider: str) -> list[dict[str, Any]]:
     own = _provider_keys(keys, provider)
     return [
-        _rule(f"provider-{provider}-token", ["liveliness_token"], own["token"]),
+        # its own token, and one on each of its edges' data keys while the edge delivers
+        _rule(f"provider-{provider}-token", ["liveliness_token"], [*own["token"], *own["data"]]),
         _rule(
             f"provider-{provider}-serves",
             SERVES,

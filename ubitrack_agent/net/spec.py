@@ -45,8 +45,9 @@ from ubitrack_agent.net.keys import validate_key_chunks
 MAX_SPEC_BYTES = 256 * 1024
 """Largest specification read from text (a specification takes a few kilobytes)."""
 
-MAX_NAMES = 1000
-"""At most this many names in a list of a specification (``required_providers``)."""
+MAX_REQUIRED = 1000
+"""At most this many names or keys in a list of a specification (``required_providers``,
+``required_edges``)."""
 DEFAULT_TOLERANCE_MS = 5.0
 """How far from a trigger's time the nearest sample of an input may be when there is no
 sample on each side to interpolate between (a moving target at 1 m/s moves 5 mm in 5 ms)."""
@@ -130,8 +131,13 @@ class ComponentSpec:
     wait_ms: float = DEFAULT_WAIT_MS
     required_providers: tuple[str, ...] = ()
     """The providers without whose samples this component computes nothing new
-    (``agent.materialise.required_providers``): a producer of a relation key gives the key up
+    (``agent.materialise.required_inputs``): a producer of a relation key gives the key up
     as soon as one of them leaves (``services.handover``, rule 7)."""
+    required_edges: tuple[str, ...] = ()
+    """The data keys of the measured edges without whose samples this component computes
+    nothing new (``agent.materialise.required_inputs``): a producer of a relation key gives the
+    key up as soon as one of them stops delivering (its provider's token on the key withdrawn,
+    ``io.flowing``; ``services.handover``, rule 7)."""
 
     @property
     def tolerance_ns(self) -> int:
@@ -151,6 +157,7 @@ class ComponentSpec:
             "tolerance_ms": self.tolerance_ms,
             "wait_ms": self.wait_ms,
             "required_providers": list(self.required_providers),
+            "required_edges": list(self.required_edges),
         }
 
     def to_json(self) -> str:
@@ -177,8 +184,8 @@ def _name(data: Mapping[str, Any], name: str, where: str) -> str:
 
 def _names(raw: Any, where: str) -> tuple[str, ...]:
     """A list of names, each one key chunk (providers' ids)."""
-    if not isinstance(raw, list) or len(raw) > MAX_NAMES:
-        raise SpecError(f"{where}: expected a list of at most {MAX_NAMES} names")
+    if not isinstance(raw, list) or len(raw) > MAX_REQUIRED:
+        raise SpecError(f"{where}: expected a list of at most {MAX_REQUIRED} names")
     names = []
     for index, value in enumerate(raw):
         if not isinstance(value, str):
@@ -188,6 +195,16 @@ def _names(raw: Any, where: str) -> tuple[str, ...]:
         except ValueError as exc:
             raise SpecError(f"{where}[{index}]: {exc}") from None
     return tuple(names)
+
+
+def _keys(raw: Any, where: str) -> tuple[str, ...]:
+    """A list of literal keys (measured edges' data keys)."""
+    if not isinstance(raw, list) or len(raw) > MAX_REQUIRED:
+        raise SpecError(f"{where}: expected a list of at most {MAX_REQUIRED} keys")
+    for index, value in enumerate(raw):
+        if not isinstance(value, str):
+            raise SpecError(f"{where}[{index}]: expected a string")
+    return tuple(_key(value, f"{where}[{index}]") for index, value in enumerate(raw))
 
 
 def _key(value: Any, where: str) -> str:
@@ -311,6 +328,7 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
         "tolerance_ms",
         "wait_ms",
         "required_providers",
+        "required_edges",
     }
     unknown = sorted(set(data) - known)
     if unknown:
@@ -345,6 +363,7 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
         tolerance_ms=tolerance,
         wait_ms=wait,
         required_providers=_names(data.get("required_providers", []), "spec.required_providers"),
+        required_edges=_keys(data.get("required_edges", []), "spec.required_edges"),
     )
 
 

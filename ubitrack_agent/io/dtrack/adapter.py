@@ -26,7 +26,10 @@ output, *Settings -> Output*, at this host's port) or its simulator
   ``sigma_mm^2 I``. Each edge announces as ``sigma`` the expected error of the configured
   noise (:func:`~ubitrack_agent.core.uncertainty.expected_error`: a pose's at a 1 m lever arm,
   so the planner weighs A.R.T.'s rotation noise too). An item the datagram does not list, or
-  lists as untracked (the parser leaves those out), is not published; an unmapped id is
+  lists as untracked (the parser leaves those out), is not published, and reported missed
+  (each datagram is a whole frame, :attr:`~ubitrack_agent.io.adapter.SensorAdapter.whole_frames`:
+  its edge's token is withdrawn in the second such frame in a row, ``io.flowing``); an
+  unmapped id is
   ignored and counted (``unmapped_body_<id>``, ``unmapped_tool_<id>``,
   ``unmapped_flystick_<id>``, ``unmapped_marker_<id>``).
 * **Timestamps.** ``"device"``: DTRACK3's ``ts2`` (the measurement's Unix time) when it is
@@ -95,6 +98,7 @@ class DTrackAdapter(SensorAdapter[bytes]):
     mapping."""
 
     device = "DTrack"
+    whole_frames = True
 
     def __init__(
         self,
