@@ -5,10 +5,11 @@ Run: ``python -m bench.switch_bench [--events N] [--seed S] [--dwell LO,HI] [--k
 [--calibration live|true] [--trace] [--output FILE]`` (defaults: 20 events of each kind, seed
 7, 2-4 s between events; about 10 minutes and the calibration's; ``--events 2`` for a smoke
 run of a minute; ``--kinds`` only those kinds, with the ways back they need; ``--trace`` also
-records, from each event to the next, the liveliness tokens of workers, containers and
-providers, control commands, the hand-over's messages, each input's first and last sample and
-the relation's gaps: where a gap's time goes). Prints tables and writes
-``bench/results/switch.json`` (or ``FILE``).
+records, from each event to the next, the liveliness tokens of workers, containers,
+providers and measured edges, control commands, the hand-over's messages, each input's first
+and last sample and the relation's gaps: where a gap's time goes). Prints tables, and how
+often each measured edge's token left (``io.flowing``: its sensor stopped, or a false alarm;
+every run), and writes ``bench/results/switch.json`` (or ``FILE``).
 
 The world is the demo's: the paper's figure-1 scenario
 (``sim_trackers/scenarios/paper_figure1.yaml``), the agent with its host manager, the
@@ -122,7 +123,7 @@ from ubitrack_agent.net.host_protocol import Status, encode_request
 from ubitrack_agent.net.keys import KeySpace, RelationId
 from ubitrack_agent.net.session import open_session
 from ubitrack_agent.net.transport import fetch_latest
-from ubitrack_agent.services.handover import hand_over_key
+from ubitrack_agent.services.handover import PUT, hand_over_key
 from ubitrack_agent.sim_trackers.scenario import load_scenario
 
 RESULTS = Path(__file__).parent / "results" / "switch.json"
@@ -216,9 +217,9 @@ class Wire:
 class Trace:
     """With ``--trace``: what else happens on the network, to find where a gap's time goes
     (arrival ns, what, key): samples on the relation's key either side of a gap longer than
-    :data:`TRACED_GAP_MS`, liveliness tokens of workers, containers and providers coming and
-    going, the agent's and host managers' control commands, the hand-over's claims and answers,
-    and the latest sample on each data key (the inputs of the flows)."""
+    :data:`TRACED_GAP_MS`, liveliness tokens of workers, containers, providers and measured
+    edges coming and going, the agent's and host managers' control commands, the hand-over's
+    claims and answers, and the latest sample on each data key (the inputs of the flows)."""
 
     items: list[tuple[int, str, str]] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -234,7 +235,12 @@ class Trace:
             liveliness.declare_subscriber(
                 selector, lambda s: self.note(f"token {str(s.kind).rsplit('.', 1)[-1]}", s)
             )
-            for selector in (keys.all_workers(), keys.all_containers(), keys.all_providers())
+            for selector in (
+                keys.all_workers(),
+                keys.all_containers(),
+                keys.all_providers(),
+                f"{root}/data/**",  # the measured edges' (io.flowing)
+            )
         ]
         return [
             *tokens,
@@ -303,6 +309,11 @@ class FirstMeasurement:
         if not self._seen.wait(timeout):
             raise RuntimeError(f"no measurement on {self._key} within {timeout} s")
         return self.at_ns
+
+
+def edge_name(key: Any) -> str:
+    """``<provider>/<edge>`` of a measured edge's data key."""
+    return "/".join(str(key).rsplit("/", 2)[-2:])
 
 
 def truth_at(world: Any, at_ns: int) -> Any:
@@ -448,6 +459,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     rng = random.Random(args.seed)
     events: list[dict[str, Any]] = []
     wire, trace, children = Wire(), Trace(), Processes()
+    withdrawn: Counter[str] = Counter()
+    """How often each measured edge's token left (``io.flowing``): its sensor stopped, or a
+    false alarm."""
     with tempfile.TemporaryDirectory() as scratch:
         live = args.calibration == "live"
         scenario, commands = demo_world(Path(scratch), args.seed, member, not live)
@@ -471,6 +485,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 ) as relation,
             ):
                 watch = session.declare_subscriber(keys.relation(C_A), wire.take)
+                edge_tokens = session.liveliness().declare_subscriber(
+                    f"{keys.root}/data/**",
+                    lambda s: str(s.kind) == PUT or withdrawn.update([edge_name(s.key_expr)]),
+                )
                 traced = trace.declare(session, keys) if args.trace else []
                 children.start("sim database", commands["sim database"])
                 if live:
@@ -513,13 +531,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     time.sleep(rng.uniform(*args.dwell))
                     events.append({"kind": kind, "at_ns": at, "from": before, "to": FLOWS[running]})
                     print(f"{len(events):3d} {kind:13s} {before} -> {FLOWS[running]}", flush=True)
-                for subscriber in [watch, *traced]:
+                for subscriber in [watch, edge_tokens, *traced]:
                     subscriber.undeclare()
                 counters = dict(relation.counters)
         finally:
             children.stop_all()
             stop_processes(managers)
-        result = summarise(events, wire, scenario, counters) | {"calibration": calibration}
+        result = summarise(events, wire, scenario, counters) | {
+            "calibration": calibration,
+            "edge_tokens_withdrawn": dict(sorted(withdrawn.items())),
+        }
         if args.trace:  # up to the next event: the old flow is retired after the second
             ends = [e["at_ns"] for e in result["events"][1:]] + [time.time_ns()]
             for event, end in zip(result["events"], ends, strict=True):
@@ -737,6 +758,9 @@ def print_tables(result: dict[str, Any]) -> None:
             f"{s['error_mm_max']:.1f} / {s['error_deg_max']:.2f} | {mean} | "
             f"{s.get('gap_ms_p99', 0):.0f} / {s.get('gap_ms_max', 0):.0f} |"
         )
+    withdrawn = result.get("edge_tokens_withdrawn", {})
+    counts = ", ".join(f"{edge} {count}" for edge, count in withdrawn.items())
+    print(f"\nedge tokens withdrawn (io.flowing): {counts or 'none'}")
 
 
 def main(argv: list[str] | None = None) -> None:

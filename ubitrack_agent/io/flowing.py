@@ -25,13 +25,14 @@ two token changes and four hand-over messages for nothing.
 
 Times are passed in (monotonic seconds), so the rules are pure and tested without a clock. The
 provider holds its lock around every call. Cost: O(1) a publication (a time appended), and
-O(edges x :data:`INTERVALS_REMEMBERED` log :data:`INTERVALS_REMEMBERED`) a check; the provider
-checks at the next edge's deadline, so about once per :data:`SILENT_INTERVALS` usual
-intervals of its fastest edge, not once a sample.
+O(log edges) per edge whose deadline comes (:class:`FlowingEdges`): the provider checks at the
+earliest deadline, and a flowing edge comes due about every two of its intervals, so the
+checks grow as the samples do, O(edges x rate), and cost less than the samples.
 """
 
 from __future__ import annotations
 
+import heapq
 from collections import deque
 from collections.abc import Iterable
 from itertools import pairwise
@@ -52,7 +53,14 @@ LATE_MIN_S = 0.004
 class FlowingEdges:
     """The edges (by name) that deliver now, among those watched (a provider's dynamic push
     edges). :attr:`flowing` changes by :meth:`published` (an edge starts flowing),
-    :meth:`missed` and :meth:`silent` (it stops)."""
+    :meth:`missed` and :meth:`silent` (it stops).
+
+    The deadlines wait in a heap, each edge's updated only when it comes due (its samples
+    since have moved it on: pushed again), not with every sample, so a check costs O(log
+    edges) per edge come due, about every two of its intervals: O(edges x rate log edges) a
+    second in all. A check going through every edge each time would cost O(edges^2 x rate),
+    the provider waking for each edge's deadline in turn. An edge whose rate rose is checked
+    at the deadline of its slower rate, once, a little late: never early."""
 
     def __init__(self, names: Iterable[str]) -> None:
         self._times: dict[str, deque[float]] = {
@@ -60,6 +68,16 @@ class FlowingEdges:
         }
         self._missed = dict.fromkeys(self._times, 0)
         """Whole frames in a row each edge was left out of."""
+        self._due: list[tuple[float, str]] = []
+        """(deadline, edge) of the flowing edges whose rate is known, a heap; an entry is the
+        edge's own while it equals :attr:`_queued`'s, stale otherwise (dropped when it comes
+        up)."""
+        self._queued: dict[str, float] = {}
+        self._usual: dict[str, tuple[float, int]] = {}
+        """Each edge's usual interval, and its count of samples when it was worked out: again
+        after :data:`INTERVALS_REMEMBERED` more (a sort each time; a check in between is a
+        sum)."""
+        self._counts = dict.fromkeys(self._times, 0)
         self.flowing: set[str] = set()
 
     def watches(self, name: str) -> bool:
@@ -73,11 +91,19 @@ class FlowingEdges:
         if times is None:
             return False
         times.append(now)
+        self._counts[name] += 1
         self._missed[name] = 0
-        if name in self.flowing:
-            return len(times) == INTERVALS_NEEDED + 1
+        if name in self.flowing and len(times) != INTERVALS_NEEDED + 1:
+            return False
         self.flowing.add(name)
+        self._queue(name)
         return True
+
+    def _queue(self, name: str) -> None:
+        due = self.deadline(name)
+        if due is not None:
+            self._queued[name] = due
+            heapq.heappush(self._due, (due, name))
 
     def missed(self, name: str) -> bool:
         """A whole frame came without ``name``; True if that makes :data:`MISSED_IN_ROW` in a
@@ -96,22 +122,27 @@ class FlowingEdges:
         times = self._times[name]
         if len(times) <= INTERVALS_NEEDED:
             return None
-        intervals = sorted(later - earlier for earlier, later in pairwise(times))
-        usual = intervals[len(intervals) // 2]
+        count = self._counts[name]
+        usual, counted = self._usual.get(name, (0.0, -INTERVALS_REMEMBERED))
+        if count - counted >= INTERVALS_REMEMBERED or len(times) <= INTERVALS_REMEMBERED:
+            intervals = sorted(later - earlier for earlier, later in pairwise(times))
+            usual = intervals[len(intervals) // 2]
+            self._usual[name] = (usual, count)
         return times[-1] + max(SILENT_INTERVALS * usual, usual + LATE_MIN_S)
 
     def silent(self, now: float) -> tuple[list[str], float | None]:
         """The flowing edges silent at ``now``, taken out of :attr:`flowing` (their tokens are
-        to be withdrawn), and when to check again (the earliest deadline of those still
-        flowing; None: not before one publishes)."""
-        stopped, next_check = [], None
-        for name in sorted(self.flowing):
-            due = self.deadline(name)
-            if due is None:
-                continue
-            if due <= now:
+        to be withdrawn), and when to check again (None: not before one publishes); no
+        flowing edge's deadline is before it."""
+        stopped = []
+        while self._due and self._due[0][0] <= now:
+            due, name = heapq.heappop(self._due)
+            if name not in self.flowing or self._queued.get(name) != due:
+                continue  # stopped since, or pushed again: a stale entry
+            if (self.deadline(name) or due) <= now:
                 stopped.append(name)
-            elif next_check is None or due < next_check:
-                next_check = due
-        self.flowing.difference_update(stopped)
-        return stopped, next_check
+                self.flowing.discard(name)
+                del self._queued[name]
+            else:
+                self._queue(name)  # its samples since moved it on
+        return stopped, self._due[0][0] if self._due else None

@@ -216,9 +216,8 @@ class Provider(Closing):
         self._token = session.liveliness().declare_token(keys.provider(self.id))
         self._closed = self._left = False
         self._leave_lock = threading.Lock()
-        self._flow = FlowingEdges(
-            name for name, edge in self.edges.items() if not edge.static and edge.mode == "push"
-        )
+        dynamic = [name for name, e in self.edges.items() if not e.static and e.mode == "push"]
+        self._flow = FlowingEdges(dynamic)
         self._flow_keys = {name: keys.measured(self.id, name) for name in self.edges}
         self._flow_tokens: dict[str, Any] = {}
         """The liveliness tokens of the edges delivering now, on their data keys."""
@@ -226,7 +225,8 @@ class Provider(Closing):
         """Held around :attr:`_flow` and :attr:`_flow_tokens`; notified when the deadline
         :meth:`_watch_flow` waits for may have come sooner, or the provider left."""
         self._flow_watch = threading.Thread(target=self._watch_flow, daemon=True)
-        self._flow_watch.start()
+        if dynamic:
+            self._flow_watch.start()
 
     def publish(self, edge_name: str, measurement: Measurement) -> None:
         """Publish one measurement of edge ``edge_name``; its type must match the edge's."""
@@ -335,7 +335,8 @@ class Provider(Closing):
         self._stop_reports.set()
         if self._reporter.is_alive():
             self._reporter.join(timeout=1.0)
-        self._flow_watch.join(timeout=1.0)
+        if self._flow_watch.is_alive():
+            self._flow_watch.join(timeout=1.0)
         self._queryable.undeclare()
         self._thread.join(timeout=1.0)
         for publisher in self._publishers.values():
