@@ -75,21 +75,21 @@ keeps these rules, so that the application sees one stream (issue [seamless];
    and the measured edges it needs (``ComponentSpec.required_providers``, ``required_edges``:
    without one of them it computes nothing new) and watches their liveliness tokens: the
    provider's, and the one each edge's provider holds on the edge's data key while the edge
-   delivers (``io.flowing``). When one is withdrawn while it holds the key and
-   another producer of the key is alive, it stops putting and says so on the hand-over key,
-   after which instant (``{"free": <producer>, "last": <ns>}``); the others take that as rule
-   5's holder gone, and the first by id puts its newest sample held back at once. The token
+   delivers (``io.flowing``). When one is withdrawn while it holds the key and another
+   producer of the key is alive, it stops putting and says so on the hand-over key, after
+   which instant (``{"free": <producer>, "last": <ns>}``); the others take that as rule 5's
+   holder gone, and the first by id puts its newest sample held back at once. The token
    goes within milliseconds of the provider leaving (its session closed, or its process gone
    and its links with it), and two and a half of the edge's intervals after its last sample
    when the sensor falls silent with its adapter running (judged at the adapter, which sees
    the sensor's own jitter only; in the second frame in a row without it when the adapter
    knows), while the key looks quiet to the others only three of the holder's intervals after
-   its last put: in the switch bench the chain on the better
-   tracker, kept on standby by the agent when the tracker left, held the key until it looked
-   quiet, 68 ms (``docs/performance.md``, "A holder that lost a provider", "An edge that stops
-   delivering"). A provider cut off without leaving (its machine's cable out) is still known by
-   silence alone. The producer that gave the key up takes it back by rule 6, at once when the
-   edge's token is back (its input is back) and its estimate no less certain than the
+   its last put: in the switch bench the chain on the better tracker, kept on standby by the
+   agent when the tracker left, held the key until it looked quiet, 68 ms
+   (``docs/performance.md``, "A holder that lost a provider", "An edge that stops
+   delivering"). A provider cut off without leaving (its machine's cable out) is still known
+   by silence alone. The producer that gave the key up takes it back by rule 6, at once when
+   the edge's token is back (its input is back) and its estimate no less certain than the
    holder's.
 
 "Another producer is putting" means a sample not put by this one arrived within
@@ -99,9 +99,10 @@ the old producer gone (its sensor died) the key is quiet and the new one puts at
 covariance saying how good its first estimates are (issue [seamless], item 2). Each rule costs
 O(1) per sample (the quiet time a sort of the eight intervals remembered, once a sample), plus
 the decoding of every sample on the key by each producer watching it; a hand-over costs two
-messages, and each producer one token, so O(producers) per key. The hand-over key's chunk is
-verbatim (``@``), so a subscriber to the relation keys' wildcard does not receive the hand-over's
-messages nor its tokens.
+messages, and each producer one token, so O(producers) per key, and one liveliness subscriber
+per provider and edge it needs (rule 7). The hand-over key's chunk is verbatim (``@``), so a
+subscriber to the relation keys' wildcard does not receive the hand-over's messages nor its
+tokens.
 """
 
 from __future__ import annotations

@@ -101,10 +101,9 @@ def required_inputs(flow: DataFlow, srg: nx.MultiDiGraph) -> dict[str, frozenset
     A provider leaving, or an edge that stops delivering, is known at once from a liveliness
     token (the provider's; its token on the edge's data key, withdrawn when the provider leaves
     or at the adapter after two and a half of the edge's intervals without a sample,
-    ``io.flowing``), while
-    the relation key falls quiet only after three of the holder's intervals
-    (``services.handover``, rule 7: a producer that needs it gives its relation keys up
-    then)."""
+    ``io.flowing``), while the relation key falls quiet only after three of the holder's
+    intervals (``services.handover``, rule 7: a producer that needs it gives its relation keys
+    up then)."""
     needed: dict[str, frozenset[Need]] = {}
     for component in flow.components.values():
         by_port: dict[str, list[frozenset[Need]]] = {}

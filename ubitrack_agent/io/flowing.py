@@ -9,8 +9,9 @@ sees its own output's jitter on top of the sensor's (``docs/performance.md``, "A
 stops delivering"). An edge misses its samples when
 
 * nothing was published for :data:`SILENT_INTERVALS` of its usual interval (the median of the
-  intervals between its last :data:`INTERVALS_REMEMBERED` + 1 publications, so a sample
-  dropped now and then does not lengthen it), and at least :data:`LATE_MIN_S` beyond one
+  intervals between its last :data:`INTERVALS_REMEMBERED` + 1 publications, worked out again
+  every :data:`INTERVALS_REMEMBERED` samples, so a sample dropped now and then does not
+  lengthen it), and at least :data:`LATE_MIN_S` beyond one
   usual interval (a sensor at kilohertz rates is not stopped by the scheduler's jitter); an
   edge whose rate is not known yet (fewer than :data:`INTERVALS_NEEDED` intervals seen) is
   never judged silent;
@@ -27,7 +28,8 @@ Times are passed in (monotonic seconds), so the rules are pure and tested withou
 provider holds its lock around every call. Cost: O(1) a publication (a time appended), and
 O(log edges) per edge whose deadline comes (:class:`FlowingEdges`): the provider checks at the
 earliest deadline, and a flowing edge comes due about every two of its intervals, so the
-checks grow as the samples do, O(edges x rate), and cost less than the samples.
+checks grow as the samples do, O(edges x rate) (``python -m bench.flowing_bench``: 3-4 us of
+checks a sample from 1 to 1,000 edges).
 """
 
 from __future__ import annotations

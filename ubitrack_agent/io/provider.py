@@ -218,7 +218,7 @@ class Provider(Closing):
         self._leave_lock = threading.Lock()
         dynamic = [name for name, e in self.edges.items() if not e.static and e.mode == "push"]
         self._flow = FlowingEdges(dynamic)
-        self._flow_keys = {name: keys.measured(self.id, name) for name in self.edges}
+        self._flow_keys = {name: keys.measured(self.id, name) for name in dynamic}
         self._flow_tokens: dict[str, Any] = {}
         """The liveliness tokens of the edges delivering now, on their data keys."""
         self._flow_changed = threading.Condition()
