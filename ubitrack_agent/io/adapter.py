@@ -110,7 +110,7 @@ class SensorAdapter(ABC, Generic[RawInput]):
             raise ValueError(f"two edges would be named {duplicates[0]!r}")
         self.timestamps = timestamps
         self.counters: Counter[str] = Counter()
-        self._dynamic = frozenset(e.name for e in self.edges if not e.static and e.mode == "push")
+        self._dynamic = frozenset(edge.name for edge in self.edges if edge.streams)
 
     @abstractmethod
     def convert(self, raw: RawInput, received_ns: int) -> list[tuple[str, Measurement]]:

@@ -154,6 +154,12 @@ class EdgeAnnouncement:
             if value is not None and not (isinstance(value, int | float) and value >= 0):
                 raise ValueError(f"edge {self.name}: {field_name} must be a number >= 0")
 
+    @property
+    def streams(self) -> bool:
+        """Whether its samples come on their own (a dynamic push edge), so that their silence
+        says it stopped (``io.flowing``)."""
+        return not self.static and self.mode == "push"
+
     def as_json(self) -> dict[str, Any]:
         data: dict[str, Any] = {
             "name": self.name,
@@ -216,7 +222,7 @@ class Provider(Closing):
         self._token = session.liveliness().declare_token(keys.provider(self.id))
         self._closed = self._left = False
         self._leave_lock = threading.Lock()
-        dynamic = [name for name, e in self.edges.items() if not e.static and e.mode == "push"]
+        dynamic = [name for name, edge in self.edges.items() if edge.streams]
         self._flow = FlowingEdges(dynamic)
         self._flow_keys = {name: keys.measured(self.id, name) for name in dynamic}
         self._flow_tokens: dict[str, Any] = {}

@@ -182,29 +182,21 @@ def _name(data: Mapping[str, Any], name: str, where: str) -> str:
         raise SpecError(f"{where}.{name}: {exc}") from None
 
 
-def _names(raw: Any, where: str) -> tuple[str, ...]:
-    """A list of names, each one key chunk (providers' ids)."""
+def _listed(raw: Any, where: str, single_chunk: bool) -> tuple[str, ...]:
+    """A list of at most :data:`MAX_REQUIRED` literal keys, each one chunk if ``single_chunk``
+    (providers' ids: names), else any number (measured edges' data keys)."""
+    what = "names" if single_chunk else "keys"
     if not isinstance(raw, list) or len(raw) > MAX_REQUIRED:
-        raise SpecError(f"{where}: expected a list of at most {MAX_REQUIRED} names")
-    names = []
+        raise SpecError(f"{where}: expected a list of at most {MAX_REQUIRED} {what}")
+    listed = []
     for index, value in enumerate(raw):
         if not isinstance(value, str):
             raise SpecError(f"{where}[{index}]: expected a string")
         try:
-            names.append(validate_key_chunks(value, single_chunk=True))
+            listed.append(validate_key_chunks(value, single_chunk=single_chunk))
         except ValueError as exc:
             raise SpecError(f"{where}[{index}]: {exc}") from None
-    return tuple(names)
-
-
-def _keys(raw: Any, where: str) -> tuple[str, ...]:
-    """A list of literal keys (measured edges' data keys)."""
-    if not isinstance(raw, list) or len(raw) > MAX_REQUIRED:
-        raise SpecError(f"{where}: expected a list of at most {MAX_REQUIRED} keys")
-    for index, value in enumerate(raw):
-        if not isinstance(value, str):
-            raise SpecError(f"{where}[{index}]: expected a string")
-    return tuple(_key(value, f"{where}[{index}]") for index, value in enumerate(raw))
+    return tuple(listed)
 
 
 def _key(value: Any, where: str) -> str:
@@ -362,8 +354,12 @@ def parse_spec(text: str | bytes | Mapping[str, Any]) -> ComponentSpec:
         time_expansion=time_expansion,
         tolerance_ms=tolerance,
         wait_ms=wait,
-        required_providers=_names(data.get("required_providers", []), "spec.required_providers"),
-        required_edges=_keys(data.get("required_edges", []), "spec.required_edges"),
+        required_providers=_listed(
+            data.get("required_providers", []), "spec.required_providers", single_chunk=True
+        ),
+        required_edges=_listed(
+            data.get("required_edges", []), "spec.required_edges", single_chunk=False
+        ),
     )
 
 
