@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import threading
 import time
@@ -171,6 +172,66 @@ def test_an_edge_token_says_while_the_edge_delivers():
             *[("ART_P", "PUT"), ("ART_P", "DELETE")] * 2,
         ]
         watcher.undeclare()
+
+
+def test_leave_racing_publishers_leaves_no_edge_token():
+    """``leave`` from one thread (a SIGTERM handler) while others publish and report missed
+    frames on every edge: once it has returned no edge token is declared, none is declared
+    again by later samples, and each edge's token went up and down in turn, ending down.
+    Rounds with the leave early, midway and late in the burst."""
+    port = free_port()
+    keys = KeySpace(f"ubitrack/r{port}")
+    names = [f"B{i}" for i in range(4)]
+    edges = [EdgeAnnouncement("ART", name, "6D", rate=60.0) for name in names]
+    with hub_session(port) as hub, member(port) as sensor:
+        for round_, leave_after in enumerate((0.0, 0.05, 0.2)):
+            provider_id = f"art{round_}"
+            events: dict[str, list[str]] = {}
+            lock = threading.Lock()
+
+            def seen(sample, events=events, lock=lock) -> None:
+                with lock:
+                    edge = str(sample.key_expr).rsplit("_", 1)[-1]
+                    events.setdefault(edge, []).append(str(sample.kind)[11:])
+
+            watcher = hub.liveliness().declare_subscriber(
+                f"{keys.root}/data/{provider_id}/**", seen
+            )
+            with Provider(sensor, keys, provider_id, edges) as provider:
+                stop = threading.Event()
+
+                def publish(name: str, provider=provider, stop=stop) -> None:
+                    i = 0
+                    while not stop.is_set():
+                        i += 1
+                        provider.publish(f"ART_{name}", pose(i, 0.1))
+                        if i % 5 == 0:  # two frames without it: its token withdrawn
+                            provider.missed(f"ART_{name}")
+                            provider.missed(f"ART_{name}")
+                        time.sleep(0.001)
+
+                threads = [threading.Thread(target=publish, args=(n,)) for n in names]
+                for thread in threads:
+                    thread.start()
+                try:
+                    time.sleep(leave_after)
+                    provider.leave()
+                    time.sleep(0.1)  # the publishers go on after the leave
+                finally:
+                    stop.set()
+                    for thread in threads:
+                        thread.join()
+                wait_until(
+                    lambda events=events: all(events.get(n, ["PUT"])[-1] == "DELETE" for n in names)
+                )
+                time.sleep(0.2)  # nothing more comes
+                declared = list(hub.liveliness().get(f"{keys.root}/data/{provider_id}/**"))
+                assert declared == [], [str(r.ok.key_expr) for r in declared if r.ok]
+            watcher.undeclare()
+            for name, kinds in events.items():
+                assert name in names
+                assert kinds[0] == "PUT" and kinds[-1] == "DELETE", (round_, name, kinds)
+                assert all(a != b for a, b in itertools.pairwise(kinds)), (round_, name, kinds)
 
 
 def test_bad_announcements_are_refused():
