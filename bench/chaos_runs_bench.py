@@ -18,7 +18,9 @@ check, ``whole``); up to ``--timeout`` seconds. Every sample the applications re
 the first fault to the end is judged against the truth (issue 29, ``chaos_faults.judged``):
 how many were *wrong* (beyond 5 cm, 5 degrees or 3 sigma of their own covariance), the
 largest errors and NEES, and the first wrong ones with the seconds since the fault before
-them. Run::
+them, their latency (arrival less stamp), the stamp shift whose truth fits them best (a
+value right for another time) and their publisher (a new one: a producer's first samples).
+Run::
 
     .venv/bin/python -m bench.chaos_runs_bench [--runs 10] [--first-seed 11] [--events 14]
 
@@ -39,8 +41,12 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bench.churn_bench import APPLICATIONS, POOL_SIZE, Applications, machine, system
-from tests.integration.chaos_faults import THREE_SIGMA_NEES, Chaos, whole
+from tests.integration.chaos_faults import THREE_SIGMA_NEES, Chaos, true_pose, whole
+from ubitrack_agent.core import Measurement
+from ubitrack_agent.net.keys import RelationId
 
 RESULTS = Path(__file__).with_name("results") / "chaos_runs.json"
 POLL_S = 0.25
@@ -51,11 +57,32 @@ HEALTHY_WITHIN_S = 10.0
 WRONG_SHOWN = 5
 """Wrong samples listed per relation and run."""
 
+SHIFTS_MS = range(-300, 301)
+"""Stamp shifts tried on a wrong sample: which time's truth it matches best."""
+
+
+def best_shift(relation: RelationId, sample: Measurement) -> tuple[int, float]:
+    """The shift of ``sample``'s stamp (ms, in :data:`SHIFTS_MS`) whose truth is nearest its
+    translation, and that distance (mm): a shift far from 0 with a small distance says the
+    value is right for another time (a stamp or an extrapolation wrong), not wrong in space."""
+    distances = {
+        shift: float(
+            np.linalg.norm(
+                sample.translation - true_pose(relation, sample.timestamp_ns + shift * 1_000_000)[1]
+            )
+        )
+        for shift in SHIFTS_MS
+    }
+    shift = min(distances, key=distances.__getitem__)
+    return shift, round(distances[shift] * 1e3, 2)
+
 
 def verdict(apps: Applications, chaos: Chaos, since: float) -> dict[str, Any]:
     """Per relation, the samples received from ``since`` (wall clock, s) judged against the
     truth: how many, how many wrong, the largest errors and NEES, the first wrong ones (seconds
-    since the fault before, that fault, mm, degrees, NEES). ``O(samples)``."""
+    since the fault before, that fault, mm, degrees, NEES, latency ms, :func:`best_shift`'s
+    shift ms and distance mm, its publisher's id and how many of its samples came before:
+    ``churn_bench.Applications.origins``). ``O(samples)``."""
     faults = list(zip(chaos.times, chaos.log, strict=True))
     summary: dict[str, Any] = {}
     for relation, judgements in apps.judgements.items():
@@ -66,7 +93,14 @@ def verdict(apps: Applications, chaos: Chaos, since: float) -> dict[str, Any]:
             before = [(at, fault) for at, fault in faults if at <= arrived]
             at, fault = before[-1] if before else (since, "none")
             nees = None if j.nees is None else round(j.nees, 1)
-            shown.append([round(arrived - at, 2), fault, round(j.mm, 1), round(j.deg, 2), nees])
+            sample = apps.wrong[relation][arrived]
+            shift, distance = best_shift(relation, sample)
+            latency = round((arrived - sample.timestamp_ns * 1e-9) * 1e3, 1)
+            errors = [round(j.mm, 1), round(j.deg, 2), nees]
+            publisher, nth = apps.origins.get(relation, {}).get(sample.timestamp_ns, ("?", -1))
+            shown.append(
+                [round(arrived - at, 2), fault, *errors, latency, shift, distance, publisher, nth]
+            )
         values = [j.nees for _, j in received if j.nees is not None]
         summary[str(relation)] = {
             "samples": len(received),

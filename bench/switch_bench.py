@@ -357,12 +357,15 @@ def largest_gap_ms(arrivals: list[int]) -> float:
     return max((b - a for a, b in itertools.pairwise(arrivals)), default=0) / 1e6
 
 
-def steady_gaps(samples: list[tuple[int, int, Any, bool]]) -> dict[str, float]:
+def steady_gaps(stretches: list[list[tuple[int, int, Any, bool]]]) -> dict[str, float]:
     """The gaps between arrivals of samples passed on in a flow's steady state (ms): its p99
-    and largest, the flow's own gaps to compare a switch's with (pairs across two stretches of
-    steady state, which lie seconds apart, are left out)."""
-    arrivals = sorted(arrived for arrived, _, _, on in samples if on)
-    gaps = [b - a for a, b in itertools.pairwise(arrivals) if b - a < STEADY_AFTER_S * 1e9]
+    and largest, the flow's own gaps to compare a switch's with, within each of its stretches
+    (from one event to the next)."""
+    gaps = [
+        b - a
+        for stretch in stretches
+        for a, b in itertools.pairwise(sorted(arrived for arrived, _, _, on in stretch if on))
+    ]
     if not gaps:
         return {}
     return {"gap_ms_p99": float(np.percentile(gaps, 99)) / 1e6, "gap_ms_max": max(gaps) / 1e6}
@@ -603,6 +606,7 @@ def summarise(
         seen.add(stamp)
     ends = [e["at_ns"] for e in events[1:]] + [samples[-1][0] + 1 if samples else 0]
     steady: dict[str, list] = {flow: [] for flow in FLOWS.values()}
+    stretches: dict[str, list[list]] = {flow: [] for flow in FLOWS.values()}
     window_mm: list[list[float]] = []  # per event, the errors of the samples passed on
     for event, end in zip(events, ends, strict=True):
         start = event["at_ns"]
@@ -623,13 +627,14 @@ def summarise(
         event["out_of_order"] = sum(not on for _, _, _, on in after)
         settled = [s for s in samples if start + STEADY_AFTER_S * 1e9 <= s[1] < end]
         steady[event["to"]] += settled
+        stretches[event["to"]].append(settled)
         if settled:  # where the steady state's outliers lie, from the event before them
             settled_judged = judge(settled, world, start)
             event["steady_beyond_3_sigma_samples"] = settled_judged["beyond_3_sigma_samples"]
             event["steady_nees_mean"] = settled_judged["nees_mean"]
     steady_judged = {
         flow: judge(s, world)
-        | steady_gaps(s)
+        | steady_gaps(stretches[flow])
         | {
             "nees_over_stretches": nees_over_batches(
                 [e.get("steady_nees_mean") for e in events if e["to"] == flow]

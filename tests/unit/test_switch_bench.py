@@ -94,3 +94,23 @@ def test_the_mean_nees_is_judged_over_events_and_steady_stretches() -> None:
     stretches = result["steady"]["A.R.T. only"]["nees_over_stretches"]
     assert stretches["batch_means"] == [pytest.approx(4.0), pytest.approx(9.0)]
     assert result["steady"]["fused"]["nees_over_stretches"] is None
+
+
+def test_a_flows_own_gaps_are_measured_within_its_stretches() -> None:
+    """Two stretches of the same flow (an event from fused to fused between them): the silence
+    from the first's last arrival to the second's first, under the 1.5 s the second waits
+    after its event when the first's last sample came late, is no gap of the flow."""
+    first, second = 10_000, 11_600
+    stream = [(first + 10 * k + 30, first + 10 * k, 0.001) for k in range(160)]
+    stream += [(second + 1_500 + 5, second + 1_500, 0.001)]  # came fast: 1,475 ms after
+    stream += [(second + 1_510 + 10 * k + 30, second + 1_510 + 10 * k, 0.001) for k in range(20)]
+    events = [
+        {"kind": "worker killed", "at_ns": at * MS, "from": "fused", "to": "fused"}
+        for at in (first, second)
+    ]
+    world = SimpleNamespace(
+        world=AtRest(), art=SimpleNamespace(rate=60.0), camera=SimpleNamespace(rate=30.0)
+    )
+    steady = summarise(events, recorded(stream), world, {})["steady"]["fused"]
+    assert steady["gap_ms_max"] == pytest.approx(35.0)  # the fast one to the next
+    assert steady["gap_ms_p99"] <= 35.0
