@@ -28,7 +28,8 @@ bench: $(STAMP)
 		containers_bench container_hop_bench container_add_bench throughput_bench decode_run_bench reroute_bench \
 		chaos_runs_bench switch_bench pnp_ambiguity_bench recording_bench ros2_bench view_frames_bench natnet_bench \
 		answer_latency_bench demo_phases_bench fusion_consistency_bench consider_cost_bench \
-		camera_consistency_bench stall_bench attachment_bench provider_leave_bench flowing_bench; do \
+		camera_consistency_bench stall_bench attachment_bench provider_leave_bench flowing_bench \
+		fusion_gap_bench; do \
 		$(VENV)/bin/python -m bench.$$name || exit 1; done
 
 clean:

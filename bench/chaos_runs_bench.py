@@ -18,9 +18,8 @@ check, ``whole``); up to ``--timeout`` seconds. Every sample the applications re
 the first fault to the end is judged against the truth (issue 29, ``chaos_faults.judged``):
 how many were *wrong* (beyond 5 cm, 5 degrees or 3 sigma of their own covariance), the
 largest errors and NEES, and the first wrong ones with the seconds since the fault before
-them, their latency (arrival less stamp), the stamp shift whose truth fits them best (a
-value right for another time) and their publisher (a new one: a producer's first samples).
-Run::
+them, their latency (arrival less stamp) and the stamp shift whose truth fits them best (a
+value right for another time). Run::
 
     .venv/bin/python -m bench.chaos_runs_bench [--runs 10] [--first-seed 11] [--events 14]
 
@@ -81,8 +80,7 @@ def verdict(apps: Applications, chaos: Chaos, since: float) -> dict[str, Any]:
     """Per relation, the samples received from ``since`` (wall clock, s) judged against the
     truth: how many, how many wrong, the largest errors and NEES, the first wrong ones (seconds
     since the fault before, that fault, mm, degrees, NEES, latency ms, :func:`best_shift`'s
-    shift ms and distance mm, its publisher's id and how many of its samples came before:
-    ``churn_bench.Applications.origins``). ``O(samples)``."""
+    shift ms and distance mm). ``O(samples)``."""
     faults = list(zip(chaos.times, chaos.log, strict=True))
     summary: dict[str, Any] = {}
     for relation, judgements in apps.judgements.items():
@@ -97,10 +95,7 @@ def verdict(apps: Applications, chaos: Chaos, since: float) -> dict[str, Any]:
             shift, distance = best_shift(relation, sample)
             latency = round((arrived - sample.timestamp_ns * 1e-9) * 1e3, 1)
             errors = [round(j.mm, 1), round(j.deg, 2), nees]
-            publisher, nth = apps.origins.get(relation, {}).get(sample.timestamp_ns, ("?", -1))
-            shown.append(
-                [round(arrived - at, 2), fault, *errors, latency, shift, distance, publisher, nth]
-            )
+            shown.append([round(arrived - at, 2), fault, *errors, latency, shift, distance])
         values = [j.nees for _, j in received if j.nees is not None]
         summary[str(relation)] = {
             "samples": len(received),

@@ -61,11 +61,9 @@ from tests.integration.chaos_faults import (
 )
 from tests.integration.conftest import end_groups
 from tests.integration.test_agent import Setup, opened
-from ubitrack_agent.core import Measurement, decode
+from ubitrack_agent.core import Measurement
 from ubitrack_agent.io.application import Relation
 from ubitrack_agent.net.keys import RelationId
-from ubitrack_agent.net.sequence import ID_BYTES
-from ubitrack_agent.net.transport import attachment
 
 RESULTS = Path(__file__).with_name("results") / "churn.json"
 FRESH_S = 0.25
@@ -89,29 +87,6 @@ class Applications:
         self.wrong: dict[RelationId, dict[float, Measurement]] = {}
         """The wrong samples themselves (``Judged.wrong``), by arrival: to look into."""
         self.relations = [self.open(relation, f"app{i}") for i, relation in enumerate(relations)]
-        self.origins: dict[RelationId, dict[int, tuple[str, int]]] = {r: {} for r in relations}
-        """Of each sample on a relation's key, by stamp (ns): its publisher (the attachment's
-        id, ``net.sequence``) and how many of that publisher's samples came before it."""
-        self._wire = [
-            setup.session.declare_subscriber(r.key, self._origin_noter(r.relation))
-            for r in self.relations
-        ]
-
-    def _origin_noter(self, relation: RelationId) -> Callable[[Any], None]:
-        origins = self.origins[relation]
-        counts: Counter[str] = Counter()
-
-        def note(sample: Any) -> None:
-            found = attachment(sample)
-            publisher = found[:ID_BYTES].hex() if found else "none"
-            try:
-                stamp = decode(sample.payload.to_bytes()).timestamp_ns
-            except Exception:  # not a sample (the bench's own notes must not stop the run)
-                return
-            origins[stamp] = (publisher, counts[publisher])
-            counts[publisher] += 1
-
-        return note
 
     def open(self, relation: RelationId, application: str) -> Relation:
         """One more application of ``relation``, noted like the others."""
@@ -151,8 +126,6 @@ class Applications:
         )
 
     def close(self) -> None:
-        for subscriber in self._wire:
-            subscriber.undeclare()
         for relation in self.relations:
             relation.close()
 

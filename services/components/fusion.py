@@ -69,7 +69,7 @@ class Fusion(Service):
         "gate": 27.86,
         "window_ms": 200.0,
         "adaptive": True,
-        "min_noise_scale": 0.1,
+        "min_noise_scale": 0.2,
         "max_sources": 8,
     }
 
